@@ -1,0 +1,57 @@
+# Developer and CI entry points. Needs only python3 (3.11) with venv and pip,
+# and network access to PyPI for the first `make venv`.
+
+PYTHON ?= python3
+VENV := .venv
+VPY := $(VENV)/bin/python
+STAMP := $(VENV)/.stamp
+PKG_STAMP := $(VENV)/.stamp-packages
+PIP := $(VPY) -m pip
+PIP_FLAGS ?= -q --disable-pip-version-check
+PYTEST_ARGS ?= -q -p no:cacheprovider
+
+# The ament_python packages, installed editable (their console scripts land in
+# $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new
+# entry point), a package is added, or files are added to or removed from a
+# package's python dir (an editable install made before its __init__.py
+# existed maps the package as a namespace package).
+PKG_DIRS := $(sort $(patsubst %/setup.py,%,$(wildcard src/pkm_*/setup.py)))
+PKG_META := $(wildcard src/pkm_*/setup.py src/pkm_*/setup.cfg) \
+	$(foreach d,$(PKG_DIRS),$(wildcard $(d)/$(notdir $(d))))
+BENCHES := $(sort $(wildcard benchmarks/*.py))
+
+.PHONY: all venv test demo bench clean
+
+all: test
+
+venv: $(STAMP) $(PKG_STAMP)
+
+# Third-party requirements: only when requirements.txt is newer than the stamp.
+$(STAMP): requirements.txt
+	@test -x $(VPY) || { echo "creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
+	$(PIP) install $(PIP_FLAGS) --upgrade pip
+	$(PIP) install $(PIP_FLAGS) -r requirements.txt
+	@touch $(STAMP)
+
+# The project's own packages (a few seconds). setuptools warns at length that
+# a flat-layout editable install may be shadowed by same-named folders in the
+# cwd: harmless here, silenced.
+$(PKG_STAMP): $(STAMP) $(PKG_META)
+	PYTHONWARNINGS='ignore:Editable installation' \
+		$(PIP) install $(PIP_FLAGS) --no-deps --no-build-isolation $(addprefix -e ,$(PKG_DIRS))
+	@touch $(PKG_STAMP)
+
+test: venv
+	$(VPY) -m pytest $(PYTEST_ARGS)
+
+demo: venv
+	$(VENV)/bin/pkm-analyze report --machine archi
+
+bench: venv
+	@set -e; for f in $(BENCHES); do echo "== $$f"; $(VPY) $$f; done
+
+# Build artefacts only: keeps $(VENV), the hypothesis database and runs/.
+clean:
+	rm -rf build install log .pytest_cache
+	find . -path ./$(VENV) -prune -o \( -name __pycache__ -o -name '*.egg-info' \) -type d -print0 \
+		| xargs -0 rm -rf

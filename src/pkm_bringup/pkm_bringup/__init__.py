@@ -1,0 +1,1 @@
+"""PKM graph orchestration, MCAP recording, replay and run reports."""

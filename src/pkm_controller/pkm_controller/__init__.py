@@ -1,0 +1,1 @@
+"""PKM control laws and the redundant-actuation controller node."""

@@ -1,0 +1,1 @@
+"""Gough platform metrology model and sensor node."""

@@ -1,0 +1,1 @@
+"""Simulated PKM hardware: plant model and simulation node."""

@@ -1,0 +1,1 @@
+"""PKM trajectory planning: library and ROS 2 node."""

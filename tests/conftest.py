@@ -1,0 +1,236 @@
+"""Session-wide test setup: a private ROS 2 DDS domain and rclpy fixtures.
+
+Importing this file (pytest does it before collecting any test module) sets
+``ROS_DOMAIN_ID`` and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` in ``os.environ`` so
+that every rclpy context of this session, and every process it starts, talks
+only inside its own domain on localhost. Parallel pytest runs on one machine
+(two developers, CI beside a developer) therefore never see each other's nodes.
+
+Fixtures:
+
+- ``ros_context``: a fresh ``rclpy.Context`` per test, initialised and shut
+  down around the test.
+- ``ros_graph``: nodes plus an executor on that context, with
+  ``spin_until(predicate)`` (foreground) or ``start()`` (background thread),
+  torn down in the right order: stop spinning, destroy nodes, shut down the
+  executor, then the context. Parametrize it indirectly with ``'single'``
+  (SingleThreadedExecutor, the default) or ``'events'`` (EventsExecutor,
+  always driven by ``spin_once(timeout_sec=...)``; its ``spin()`` hangs).
+"""
+
+import errno
+import fcntl
+import os
+import random
+import tempfile
+import threading
+import time
+
+import pytest
+
+# --- DDS domain isolation (must run before rclpy is imported anywhere) -------
+
+# Fast DDS on Linux: domain IDs 0-101 and 215-232 map to valid UDP ports.
+# 0 is everybody's default, so tests use 1..101.
+_DOMAIN_MIN, _DOMAIN_MAX = 1, 101
+_LOCK_DIR = os.path.join(tempfile.gettempdir(), 'pkm-ros-domain-locks')
+_domain_lock_fd = None  # kept open for the whole session: holds the lock
+
+
+def _claim_domain_id():
+    """Pick a domain ID no other live pytest session on this machine holds.
+
+    IDs are tried from a random start; the first one whose lock file can be
+    locked (``flock``, released by the kernel when this process exits, even on
+    a crash) is ours. ``PKM_TEST_ROS_DOMAIN_ID`` forces a given ID (e.g. to
+    watch a test with a ROS tool in the same domain).
+    """
+    global _domain_lock_fd
+    forced = os.environ.get('PKM_TEST_ROS_DOMAIN_ID')
+    if forced:
+        return int(forced)
+    ids = list(range(_DOMAIN_MIN, _DOMAIN_MAX + 1))
+    start = random.Random(os.getpid() ^ time.time_ns()).randrange(len(ids))
+    ids = ids[start:] + ids[:start]
+    try:
+        os.makedirs(_LOCK_DIR, exist_ok=True)
+        os.chmod(_LOCK_DIR, 0o1777)  # shared by all users, like /tmp
+    except OSError:
+        pass
+    for domain_id in ids:
+        path = os.path.join(_LOCK_DIR, f'{domain_id}.lock')
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o644)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            os.close(fd)
+            if e.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                continue  # held by another live session
+            return domain_id  # locking unsupported here: take it unlocked
+        _domain_lock_fd = fd
+        return domain_id
+    return ids[0]  # all 101 held: share one rather than fail
+
+
+ROS_DOMAIN_ID = _claim_domain_id()
+os.environ['ROS_DOMAIN_ID'] = str(ROS_DOMAIN_ID)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy, warns
+os.environ.pop('ROS_STATIC_PEERS', None)
+
+
+def pytest_report_header(config):
+    return (f'ROS_DOMAIN_ID={ROS_DOMAIN_ID} '
+            f'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST')
+
+
+# --- rclpy fixtures ----------------------------------------------------------
+
+@pytest.fixture
+def ros_context():
+    """A fresh, initialised ``rclpy.Context``; shut down after the test."""
+    import rclpy
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def _make_executor(kind, context):
+    if kind == 'single':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor(context=context)
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    raise ValueError(f"unknown executor kind {kind!r} (use 'single' or 'events')")
+
+
+class RosGraph:
+    """Nodes and one executor on one context, spun in a bounded way.
+
+    Only ever calls ``executor.spin_once(timeout_sec=...)``: that is the one
+    call that works for both SingleThreadedExecutor and EventsExecutor
+    (EventsExecutor's ``spin()``, ``spin_once()`` without timeout and
+    ``spin_until_future_complete`` hang).
+    """
+
+    def __init__(self, context, executor_kind='single', spin_period=0.01):
+        self.context = context
+        self.executor_kind = executor_kind
+        self.executor = _make_executor(executor_kind, context)
+        self.spin_period = spin_period
+        self.nodes = []
+        self._thread = None
+        self._stop = threading.Event()
+        self._thread_error = None
+
+    def add_node(self, node):
+        """Add a node (created with ``context=graph.context``); returns it."""
+        self.executor.add_node(node)
+        self.nodes.append(node)
+        return node
+
+    def create_node(self, name, **kwargs):
+        """Create an ``rclpy.node.Node`` on this context and add it."""
+        from rclpy.node import Node
+        return self.add_node(Node(name, context=self.context, **kwargs))
+
+    def spin_once(self, timeout_sec=None):
+        self._check_not_background()
+        self.executor.spin_once(
+            timeout_sec=self.spin_period if timeout_sec is None else timeout_sec)
+
+    def spin_until(self, predicate, timeout_sec=10.0):
+        """Spin in the foreground until ``predicate()`` is true.
+
+        Returns True if it became true, False on timeout (bounded wait).
+        """
+        self._check_not_background()
+        deadline = time.monotonic() + timeout_sec
+        while not predicate():
+            if time.monotonic() >= deadline:
+                return bool(predicate())
+            self.executor.spin_once(timeout_sec=self.spin_period)
+        return True
+
+    def spin_for(self, seconds):
+        """Spin in the foreground for a fixed wall-clock time."""
+        self.spin_until(lambda: False, timeout_sec=seconds)
+
+    def start(self):
+        """Spin in a background thread until ``stop()``."""
+        if self._thread is not None:
+            raise RuntimeError('already spinning in the background')
+        self._stop.clear()
+        self._thread_error = None
+        self._thread = threading.Thread(
+            target=self._spin_loop, name='ros-graph-spin', daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_sec=10.0):
+        """Stop the background thread (join it); re-raise its exception."""
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._stop.set()
+            thread.join(timeout_sec)
+            if thread.is_alive():
+                raise RuntimeError('executor thread did not stop in time')
+        error, self._thread_error = self._thread_error, None
+        if error is not None:
+            raise error
+
+    def wait_until(self, predicate, timeout_sec=10.0, poll=0.005):
+        """While spinning in the background, wait for ``predicate()``."""
+        deadline = time.monotonic() + timeout_sec
+        while not predicate():
+            if self._thread_error is not None:
+                self.stop()
+            if time.monotonic() >= deadline:
+                return bool(predicate())
+            time.sleep(poll)
+        return True
+
+    def close(self):
+        """Teardown: stop spinning, destroy nodes, shut down the executor."""
+        try:
+            self.stop()
+        finally:
+            for node in reversed(self.nodes):
+                try:
+                    self.executor.remove_node(node)
+                finally:
+                    node.destroy_node()
+            self.nodes.clear()
+            self.executor.shutdown()
+
+    def _check_not_background(self):
+        if self._thread is not None:
+            raise RuntimeError('spinning in a background thread: use wait_until')
+
+    def _spin_loop(self):
+        try:
+            while not self._stop.is_set() and self.context.ok():
+                self.executor.spin_once(timeout_sec=self.spin_period)
+        except BaseException as e:  # noqa: B902 - handed to the test thread
+            self._thread_error = e
+
+
+@pytest.fixture
+def ros_graph(request, ros_context):
+    """A ``RosGraph`` on the test's own context.
+
+    Default executor: SingleThreadedExecutor. For another one:
+    ``@pytest.mark.parametrize('ros_graph', ['single', 'events'], indirect=True)``.
+    """
+    graph = RosGraph(ros_context, getattr(request, 'param', 'single'))
+    try:
+        yield graph
+    finally:
+        graph.close()
