@@ -1,0 +1,323 @@
+"""Analyses vectorised over batches of poses: conditioning, reachability, singular
+angles of sub-machines, Gough metrology resolution and its optimisation, Orthoglide
+sizing. Each function names the paper section it reproduces.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from .gough import GoughPlatform, mom3_points
+from .planar import PlanarMachine
+from .translational import TranslationalLeg, TranslationalMachine
+
+
+# ------------------------------------------------------------ conditioning maps
+def condition_numbers(jacobians: np.ndarray) -> np.ndarray:
+    """2-norm condition numbers of a stack of Jacobians (N, n, m); NaN rows stay NaN,
+    exactly singular ones are inf."""
+    out = np.full(jacobians.shape[0], np.nan)
+    ok = np.isfinite(jacobians).all(axis=(1, 2))
+    if ok.any():
+        s = np.linalg.svd(jacobians[ok], compute_uv=False)
+        with np.errstate(divide="ignore"):
+            out[ok] = s[:, 0] / s[:, -1]
+    return out
+
+
+def singularity_margin(jacobians: np.ndarray) -> np.ndarray:
+    """Inverse condition number sigma_min / sigma_max in [0, 1]: 0 at a singularity,
+    1 at an isotropic configuration (Orthoglide §4.1)."""
+    with np.errstate(divide="ignore"):
+        return 1.0 / condition_numbers(jacobians)
+
+
+def reachability(machine, poses) -> np.ndarray:
+    """Mask of poses that assemble and keep every drive inside its joint limits."""
+    q, ok = machine.inverse_kinematics_batch(poses)
+    return ok & machine.within_joint_limits(np.where(np.isfinite(q), q, np.inf))
+
+
+def condition_map(machine, poses) -> np.ndarray:
+    """Condition number of J_m at each pose; NaN where unreachable or out of limits."""
+    cond = condition_numbers(machine.jacobian_batch(poses))
+    cond[~reachability(machine, poses)] = np.nan
+    return cond
+
+
+def workspace_grid(machine, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
+    """A regular grid over the machine's configured workspace: (N, 3) poses/positions."""
+    ws = machine.workspace
+    if isinstance(machine, PlanarMachine):
+        axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
+                np.radians(np.linspace(*ws["theta_deg"], theta_points))]
+    else:
+        half = ws["size"] / 2.0
+        axes = [np.linspace(c - half, c + half, points_per_axis) for c in ws["center"]]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+@dataclass
+class WorkspaceSummary:
+    poses: int
+    reachable_fraction: float
+    condition_min: float
+    condition_median: float
+    condition_max: float
+    worst_pose: list
+    joint_range: list            # per drive [min, max] over the reachable poses
+    transmission_min: float | None = None
+    transmission_max: float | None = None
+
+
+def workspace_summary(machine, points_per_axis: int = 11, theta_points: int = 13) -> WorkspaceSummary:
+    """Reachability, conditioning and drive travel over the configured workspace."""
+    poses = workspace_grid(machine, points_per_axis, theta_points)
+    reach = reachability(machine, poses)
+    cond = condition_map(machine, poses)
+    q, _ = machine.inverse_kinematics_batch(poses)
+    qr = q[reach]
+    finite = np.isfinite(cond)
+    worst = poses[np.nanargmax(cond)].tolist() if finite.any() else []
+    out = WorkspaceSummary(
+        poses=len(poses), reachable_fraction=float(reach.mean()),
+        condition_min=float(np.nanmin(cond)) if finite.any() else math.nan,
+        condition_median=float(np.nanmedian(cond)) if finite.any() else math.nan,
+        condition_max=float(np.nanmax(cond)) if finite.any() else math.nan,
+        worst_pose=worst,
+        joint_range=[[float(qr[:, i].min()), float(qr[:, i].max())] for i in range(q.shape[1])] if len(qr) else [],
+    )
+    if isinstance(machine, TranslationalMachine):
+        psi = machine.transmission_factors_batch(poses[reach])
+        out.transmission_min = float(np.nanmin(psi)) if psi.size else math.nan
+        out.transmission_max = float(np.nanmax(psi)) if psi.size else math.nan
+    return out
+
+
+# ------------------------------------------------- ARCHI Figure 10 (§3.3)
+@dataclass
+class ConditionSweep:
+    theta_deg: np.ndarray
+    full_condition: np.ndarray                  # condition number of the n-leg machine
+    sub_condition: dict                         # legs -> condition numbers over theta
+    singular_angles_deg: dict                   # legs -> refined angles where det = 0
+
+
+def sub_machine_determinant(machine: PlanarMachine, legs, x: float, y: float, theta) -> np.ndarray:
+    """det of the 3 x 3 Jacobian of a 3-leg sub-machine, over an array of angles."""
+    theta = np.atleast_1d(np.asarray(theta, dtype=float))
+    poses = np.stack([np.full_like(theta, x), np.full_like(theta, y), theta], axis=1)
+    return np.linalg.det(machine.jacobian_batch(poses)[:, list(legs), :])
+
+
+def condition_sweep(machine: PlanarMachine, x: float, y: float, theta_min_deg: float,
+                    theta_max_deg: float, samples: int = 4001, xtol_deg: float = 1e-9) -> ConditionSweep:
+    """ARCHI Figure 10: condition numbers of the redundant machine and of each 3-leg
+    sub-machine for a fixed position while the nacelle turns, with every singular
+    angle of a sub-machine (sign change of its Jacobian determinant) refined by
+    Brent's method to ``xtol_deg``."""
+    theta_deg = np.linspace(theta_min_deg, theta_max_deg, samples)
+    theta = np.radians(theta_deg)
+    poses = np.stack([np.full_like(theta, x), np.full_like(theta, y), theta], axis=1)
+    jac = machine.jacobian_batch(poses)
+    full = condition_numbers(jac)
+    subs, angles = {}, {}
+    for legs in machine.sub_machines():
+        sub = jac[:, list(legs), :]
+        subs[legs] = condition_numbers(sub)
+        with np.errstate(invalid="ignore"):        # NaN where the pose is unreachable
+            det = np.linalg.det(sub)
+        roots = []
+        for k in np.nonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0)[0]:
+            root = brentq(lambda t: float(sub_machine_determinant(machine, legs, x, y, t)[0]),
+                          theta[k], theta[k + 1], xtol=math.radians(xtol_deg), rtol=1e-15)
+            roots.append(math.degrees(root))
+        angles[legs] = roots
+    return ConditionSweep(theta_deg, full, subs, angles)
+
+
+# --------------------------------------------------- MoM3 §5.5 resolution
+@dataclass
+class ResolutionResult:
+    position_m: float            # worst ||dp_h|| over the workspace (encoders at +-eps)
+    orientation_rad: float       # worst ||dr_h||
+    tool_m: float                # worst ||dp_t|| over the tool box corners (eq. 20-21)
+    worst_plate_position: list   # where the tool-level worst case occurs
+    strut_range: list            # [min, max] strut length over the workspace
+    struts_within_limits: bool
+
+
+def _sign_vectors(n: int = 6) -> np.ndarray:
+    return np.array(list(itertools.product((-1.0, 1.0), repeat=n)))
+
+
+def resolution_at(platform: GoughPlatform, positions: np.ndarray, epsilon_m: float,
+                  tool_box: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Worst-case resolution at each plate position (null orientation), MoM3 §5.5.
+
+    For the 2^6 strut error vectors dl in {-eps, +eps}^6: dx_h = J_h dl (eq. 1),
+    dp_t = dp_h + dr_h x E_hE_t (eq. 5, 13); the maximum over the tool bounding box
+    lies on one of its 8 corners (§5.5.2). Returns per position (position, orientation,
+    tool) maxima, each of shape (N,).
+    """
+    n = positions.shape[0]
+    rot = np.broadcast_to(np.eye(3), (n, 3, 3))
+    jh = np.linalg.inv(platform.inverse_jacobian_batch(positions, rot))      # (N, 6, 6)
+    dl = epsilon_m * _sign_vectors(6)                                          # (64, 6)
+    dx = np.einsum("nij,sj->nsi", jh, dl)                                      # (N, 64, 6)
+    dp, dr = dx[..., :3], dx[..., 3:]
+    pos = np.sqrt((dp**2).sum(-1)).max(-1)
+    ori = np.sqrt((dr**2).sum(-1)).max(-1)
+    corners = np.array(list(itertools.product(*tool_box)))                    # (8, 3)
+    # dr x L for every corner, then the worst over (sign vector, corner)
+    cross = np.stack([
+        dr[..., None, 1] * corners[:, 2] - dr[..., None, 2] * corners[:, 1],
+        dr[..., None, 2] * corners[:, 0] - dr[..., None, 0] * corners[:, 2],
+        dr[..., None, 0] * corners[:, 1] - dr[..., None, 1] * corners[:, 0]], axis=-1)
+    tool = np.sqrt(((dp[..., None, :] + cross) ** 2).sum(-1)).max(axis=(-1, -2))
+    return pos, ori, tool
+
+
+def cube_points(center, size: float, points_per_axis: int) -> np.ndarray:
+    axes = [np.linspace(c - size / 2.0, c + size / 2.0, points_per_axis) for c in center]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def gough_resolution(platform: GoughPlatform, epsilon_m: float, tool_box, center, size: float,
+                     points_per_axis: int = 7) -> ResolutionResult:
+    """MoM3 criterion C_opt (eq. 20-21) and its position/orientation parts over the
+    workspace cube (sampled ``points_per_axis``^3, corners included)."""
+    positions = cube_points(center, size, points_per_axis)
+    pos, ori, tool = resolution_at(platform, positions, epsilon_m, np.asarray(tool_box))
+    lengths = platform.strut_lengths_batch(positions, np.broadcast_to(np.eye(3), (len(positions), 3, 3)))
+    return ResolutionResult(
+        position_m=float(pos.max()), orientation_rad=float(ori.max()), tool_m=float(tool.max()),
+        worst_plate_position=positions[int(np.argmax(tool))].tolist(),
+        strut_range=[float(lengths.min()), float(lengths.max())],
+        struts_within_limits=bool(platform.within_strut_limits(lengths).all()),
+    )
+
+
+@dataclass
+class GoughDesign:
+    r_base: float
+    r_plate: float
+    alpha_base_deg: float
+    alpha_plate_deg: float
+    criterion_m: float           # C_opt, worst tool-level resolution
+    strut_range: list
+    evaluations: int
+
+
+def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, strut_limits,
+                            bounds=((0.2, 0.6), (0.03, 0.075), (2.0, 60.0), (2.0, 60.0)),
+                            plate_height: float | None = None, points_per_axis: int = 3,
+                            seed: int = 1, maxiter: int = 40, popsize: int = 10) -> GoughDesign:
+    """Minimise C_opt (MoM3 eq. 20) over P = [r_b, r_tp, alpha_b, alpha_tp] (§5.5.3)
+    with scipy's differential evolution. Designs whose struts leave ``strut_limits``
+    anywhere on the workspace are penalised. ``plate_height`` defaults to the cube
+    centre height. Default bounds follow §5.6 (r_tp at most 75 mm, no collision)."""
+    from scipy.optimize import differential_evolution
+
+    center = np.asarray(center, dtype=float)
+    home = center if plate_height is None else np.array([center[0], center[1], plate_height])
+    lo, hi = strut_limits
+    positions = cube_points(center, size, points_per_axis)
+    eye = np.broadcast_to(np.eye(3), (len(positions), 3, 3))
+    tool_box = np.asarray(tool_box, dtype=float)
+    count = [0]
+
+    def criterion(params):
+        count[0] += 1
+        rb, rp, ab, ap = params
+        base, plate = mom3_points(rb, rp, math.radians(ab), math.radians(ap))
+        platform = GoughPlatform(base, plate, (lo, hi), home)
+        lengths = platform.strut_lengths_batch(positions, eye)
+        violation = max(0.0, lo - lengths.min()) + max(0.0, lengths.max() - hi)
+        _, _, tool = resolution_at(platform, positions, epsilon_m, tool_box)
+        value = float(tool.max())
+        if not math.isfinite(value):
+            return 1.0
+        return value + 10.0 * violation * epsilon_m / 1e-3
+
+    res = differential_evolution(criterion, bounds, seed=seed, maxiter=maxiter, popsize=popsize,
+                                 tol=1e-8, polish=True)
+    rb, rp, ab, ap = res.x
+    base, plate = mom3_points(rb, rp, math.radians(ab), math.radians(ap))
+    platform = GoughPlatform(base, plate, (lo, hi), home)
+    lengths = platform.strut_lengths_batch(positions, eye)
+    return GoughDesign(float(rb), float(rp), float(ab), float(ap), float(res.fun),
+                       [float(lengths.min()), float(lengths.max())], count[0])
+
+
+# ------------------------------------------------ Orthoglide §4.4 sizing
+def orthoglide_model(link_length: float, joint_limits=(-math.inf, math.inf)) -> TranslationalMachine:
+    """An Orthoglide of parallelogram length L in the frame of the isotropic point."""
+    legs = [TranslationalLeg(f"rho{i + 1}", (0.0, 0.0, 0.0), tuple(np.eye(3)[i]), link_length,
+                             (0.0, 0.0, 0.0), -1, joint_limits) for i in range(3)]
+    return TranslationalMachine("orthoglide", legs, np.zeros(3))
+
+
+@dataclass
+class OrthoglideSizing:
+    link_length_m: float          # L of the three parallelograms
+    actuator_range_m: float       # stroke of each linear joint over the cube
+    joint_limits_m: list          # [rho_min, rho_max] (rho = -L at the isotropic point)
+    q1: list                      # cube corner closest to one singularity (x = y = z)
+    q2: list                      # opposite corner
+    workspace_center: list
+    psi_range_on_cube: list       # [min, max] transmission factor found on the cube
+    range_ratio: float            # actuator range / cube size
+
+
+def orthoglide_size(cube_m: float, psi_min: float, psi_max: float, check_points: int = 11) -> OrthoglideSizing:
+    """Size an Orthoglide for a prescribed cubic workspace and transmission-factor
+    bounds psi_min <= psi_i <= psi_max (Orthoglide §4.4, eq. 11, 15).
+
+    Step 1-2: along the diagonal x = y = z the factors reach their bounds at Q1 (t < 0)
+    and Q2 (t > 0); for L = 1 these are found by root finding on psi(t), and since psi
+    is scale-free, L = cube / (t2 - t1) makes Q1 Q2 the diagonal of the prescribed
+    cube. Step 3: the actuator range is the stroke of rho_i = p_i - sqrt(L^2 - p_j^2 - p_k^2)
+    over the cube, monotone in p_i and in |p_j|, |p_k|. The bounds are then checked on a
+    grid of the cube (the paper verified the postulate of step 1 numerically too).
+    """
+    if not (0.0 < psi_min < 1.0 < psi_max):
+        raise ValueError(f"psi bounds: need 0 < psi_min < 1 < psi_max, got [{psi_min}, {psi_max}]")
+    if not cube_m > 0.0:
+        raise ValueError(f"cube: must be > 0 m, got {cube_m}")
+    unit = orthoglide_model(1.0)
+
+    def excess(t: float) -> float:
+        psi = unit.transmission_factors(np.full(3, t))
+        return max(psi[-1] / psi_max, psi_min / psi[0]) - 1.0
+
+    def first_crossing(direction: float) -> float:
+        limit = 1.0 / math.sqrt(2.0)          # sqrt(L^2 - 2t^2) vanishes (serial singularity)
+        ts = direction * np.linspace(0.0, limit * (1 - 1e-6), 2001)
+        vals = np.array([excess(t) for t in ts[1:]])
+        k = int(np.argmax(vals > 0.0))
+        if vals[k] <= 0.0:
+            raise ValueError("transmission bounds never reached along the diagonal")
+        return brentq(excess, ts[k], ts[k + 1], xtol=1e-15)
+
+    t2, t1 = first_crossing(1.0), first_crossing(-1.0)
+    length = cube_m / (t2 - t1)
+    lo_c, hi_c = t1 * length, t2 * length
+    # rho over the cube: max at p_i = hi, |p_j| = |p_k| = max|.|; min at p_i = lo, p_j = p_k = 0 (if inside)
+    far = max(abs(lo_c), abs(hi_c))
+    near = 0.0 if lo_c <= 0.0 <= hi_c else min(abs(lo_c), abs(hi_c))
+    rho_max = hi_c - math.sqrt(length**2 - 2.0 * far**2)
+    rho_min = lo_c - math.sqrt(length**2 - 2.0 * near**2)
+    model = orthoglide_model(length)
+    center = (lo_c + hi_c) / 2.0
+    psi = model.transmission_factors_batch(cube_points([center] * 3, cube_m, check_points))
+    return OrthoglideSizing(
+        link_length_m=length, actuator_range_m=rho_max - rho_min, joint_limits_m=[rho_min, rho_max],
+        q1=[lo_c] * 3, q2=[hi_c] * 3, workspace_center=[center] * 3,
+        psi_range_on_cube=[float(np.nanmin(psi)), float(np.nanmax(psi))],
+        range_ratio=(rho_max - rho_min) / cube_m)

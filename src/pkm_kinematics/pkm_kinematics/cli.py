@@ -1,0 +1,245 @@
+"""``pkm-analyze``: size and check a machine from the command line.
+
+    pkm-analyze condition --machine archi --x 1.0 --y -0.4 --theta-range -200 200
+    pkm-analyze resolution --machine mom3
+    pkm-analyze orthoglide-size --cube 0.2 --psi-min 0.5 --psi-max 2.0
+    pkm-analyze workspace --machine sliding_star
+    pkm-analyze gough-optimize --machine mom3
+    pkm-analyze report --machine archi
+
+A readable table by default, JSON with ``--json``. Bad input exits with status 2 and
+a message naming the field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import asdict
+
+import numpy as np
+
+from . import analysis
+from .config import load_machine, machine_names
+from .errors import KinematicsError
+from .planar import PlanarMachine
+
+
+def _table(title: str, rows: list[tuple[str, str]]) -> str:
+    width = max(len(k) for k, _ in rows)
+    lines = [title, "-" * len(title)]
+    lines += [f"  {k.ljust(width)}  {v}" for k, v in rows]
+    return "\n".join(lines)
+
+
+def _um(v: float) -> str:
+    return f"{v * 1e6:.3f} um"
+
+
+def _planar_machine(name: str) -> PlanarMachine:
+    model = load_machine(name).model
+    if not isinstance(model, PlanarMachine):
+        raise KinematicsError(f"--machine: {name!r} is not a planar machine (condition sweeps need theta)")
+    return model
+
+
+# ------------------------------------------------------------------- commands
+def cmd_condition(args) -> tuple[dict, str]:
+    machine = _planar_machine(args.machine)
+    lo, hi = args.theta_range
+    if not lo < hi:
+        raise KinematicsError(f"--theta-range: need MIN < MAX, got {lo} {hi}")
+    sweep = analysis.condition_sweep(machine, args.x, args.y, lo, hi, samples=args.samples)
+    full = sweep.full_condition
+    data = {
+        "machine": machine.name, "x_m": args.x, "y_m": args.y, "theta_range_deg": [lo, hi],
+        "full_machine": {"legs": machine.n_legs, "condition_min": float(np.nanmin(full)),
+                         "condition_max": float(np.nanmax(full)),
+                         "reachable": bool(np.isfinite(full).all())},
+        "sub_machines": {
+            machine.sub_machine_name(legs): {
+                "singular_angles_deg": sweep.singular_angles_deg[legs],
+                "condition_max_sampled": float(np.nanmax(sweep.sub_condition[legs])),
+            } for legs in machine.sub_machines()},
+    }
+    rows = [("full machine condition", f"{data['full_machine']['condition_min']:.4f} .. "
+             f"{data['full_machine']['condition_max']:.4f}")]
+    for name, sub in data["sub_machines"].items():
+        angles = ", ".join(f"{a:.4f}" for a in sub["singular_angles_deg"]) or "none"
+        rows.append((f"{name} singular at (deg)", angles))
+    text = _table(f"Conditioning of {machine.name} at x={args.x} m, y={args.y} m, "
+                  f"theta in [{lo}, {hi}] deg (ARCHI Fig. 10)", rows)
+    return data, text
+
+
+def cmd_resolution(args) -> tuple[dict, str]:
+    cfg = load_machine(args.machine)
+    if cfg.metrology is None:
+        raise KinematicsError(f"--machine: {args.machine!r} has no metrology section")
+    met = cfg.metrology
+    res = analysis.gough_resolution(met.platform, met.encoder_resolution_m, met.tool_box,
+                                    met.workspace_center, met.workspace_size_m, args.points)
+    data = {"machine": cfg.name, "encoder_resolution_m": met.encoder_resolution_m,
+            "tool_box_m": met.tool_box.tolist(), **asdict(res)}
+    rows = [("encoder resolution", _um(met.encoder_resolution_m)),
+            ("worst position resolution", _um(res.position_m) + "   (MoM3 §5.6: about 6 um)"),
+            ("worst orientation resolution", f"{res.orientation_rad * 1e6:.2f} urad   (paper: about 30 urad)"),
+            ("worst tool-level resolution", _um(res.tool_m) + "   (paper: 12 um)"),
+            ("at plate position (m)", str([round(v, 4) for v in res.worst_plate_position])),
+            ("strut lengths over workspace", f"{res.strut_range[0]:.4f} .. {res.strut_range[1]:.4f} m"),
+            ("struts within limits", str(res.struts_within_limits))]
+    return data, _table(f"Gough metrology resolution of {cfg.name} (MoM3 §5.5, worst case)", rows)
+
+
+def cmd_orthoglide_size(args) -> tuple[dict, str]:
+    sizing = analysis.orthoglide_size(args.cube, args.psi_min, args.psi_max)
+    data = asdict(sizing)
+    rows = [("link length L", f"{sizing.link_length_m * 1e3:.2f} mm   (paper prototype: 310.9 mm)"),
+            ("actuator range", f"{sizing.actuator_range_m * 1e3:.2f} mm   (paper prototype: 257.1 mm)"),
+            ("joint limits (rho)", f"[{sizing.joint_limits_m[0] * 1e3:.2f}, {sizing.joint_limits_m[1] * 1e3:.2f}] mm"),
+            ("range / cube size", f"{sizing.range_ratio:.3f}"),
+            ("Q1, Q2 on x=y=z", f"{sizing.q1[0] * 1e3:.2f} mm, {sizing.q2[0] * 1e3:.2f} mm"),
+            ("psi over the cube", f"{sizing.psi_range_on_cube[0]:.4f} .. {sizing.psi_range_on_cube[1]:.4f}")]
+    return data, _table(f"Orthoglide sizing: {args.cube} m cube, {args.psi_min} <= psi <= {args.psi_max} "
+                        "(Orthoglide §4.4)", rows)
+
+
+def cmd_workspace(args) -> tuple[dict, str]:
+    model = load_machine(args.machine).model
+    summary = analysis.workspace_summary(model, args.points, args.theta_points)
+    data = {"machine": model.name, "workspace": {k: np.asarray(v).tolist() for k, v in model.workspace.items()},
+            **asdict(summary)}
+    rows = [("workspace", json.dumps(data["workspace"])),
+            ("poses sampled", str(summary.poses)),
+            ("reachable within joint limits", f"{100 * summary.reachable_fraction:.1f} %"),
+            ("condition number", f"{summary.condition_min:.3f} .. {summary.condition_max:.3f} "
+                                 f"(median {summary.condition_median:.3f})"),
+            ("worst-conditioned pose", str([round(v, 4) for v in summary.worst_pose]))]
+    for name, (lo, hi) in zip(model.leg_names, summary.joint_range):
+        rows.append((f"drive {name} travel", f"{lo:.4f} .. {hi:.4f} m"))
+    if summary.transmission_min is not None:
+        rows.append(("transmission factors", f"{summary.transmission_min:.4f} .. {summary.transmission_max:.4f}"))
+    return data, _table(f"Workspace of {model.name}", rows)
+
+
+def cmd_gough_optimize(args) -> tuple[dict, str]:
+    cfg = load_machine(args.machine)
+    if cfg.metrology is None:
+        raise KinematicsError(f"--machine: {args.machine!r} has no metrology section")
+    met = cfg.metrology
+    design = analysis.optimize_gough_geometry(
+        met.encoder_resolution_m, met.tool_box, met.workspace_center, met.workspace_size_m,
+        met.platform.strut_limits, maxiter=args.maxiter, seed=args.seed)
+    data = asdict(design)
+    rows = [("r_base", f"{design.r_base * 1e3:.1f} mm"), ("r_plate", f"{design.r_plate * 1e3:.1f} mm"),
+            ("alpha_base", f"{design.alpha_base_deg:.2f} deg"), ("alpha_plate", f"{design.alpha_plate_deg:.2f} deg"),
+            ("worst tool-level resolution", _um(design.criterion_m)),
+            ("strut lengths", f"{design.strut_range[0]:.4f} .. {design.strut_range[1]:.4f} m"),
+            ("criterion evaluations", str(design.evaluations))]
+    return data, _table(f"Gough geometry optimised for {cfg.name} (MoM3 §5.5.3)", rows)
+
+
+def cmd_report(args) -> tuple[dict, str]:
+    cfg = load_machine(args.machine)
+    model = cfg.model
+    home = model.home_pose if isinstance(model, PlanarMachine) else model.home_position
+    q = model.inverse_kinematics(home)
+    if isinstance(model, PlanarMachine):
+        fk = model.forward_kinematics(q).pose
+    else:
+        fk = model.forward_kinematics(q)
+    sections = [_table(f"Machine {cfg.name} ({cfg.kind}, {model.n_legs} drives): {model.description}", [
+        ("home pose", str(np.round(home, 6).tolist())),
+        ("drive positions at home (m)", str(np.round(q, 6).tolist())),
+        ("forward kinematics round trip", f"{float(np.abs(fk - home).max()):.2e}"),
+        ("condition number at home", f"{model.condition_number(home):.4f}"),
+    ])]
+    data = {"machine": cfg.name, "home": np.asarray(home).tolist(), "q_home": q.tolist()}
+    ws_data, ws_text = cmd_workspace(argparse.Namespace(machine=args.machine, points=args.points,
+                                                        theta_points=args.theta_points))
+    sections.append(ws_text)
+    data["workspace"] = ws_data
+    if isinstance(model, PlanarMachine) and model.n_legs > 3:
+        c_data, c_text = cmd_condition(argparse.Namespace(
+            machine=args.machine, x=float(home[0]), y=float(home[1]),
+            theta_range=list(model.workspace["theta_deg"]), samples=4001))
+        sections.append(c_text)
+        data["condition"] = c_data
+    if cfg.metrology is not None:
+        r_data, r_text = cmd_resolution(argparse.Namespace(machine=args.machine, points=args.resolution_points))
+        sections.append(r_text)
+        data["resolution"] = r_data
+    return data, "\n\n".join(sections)
+
+
+# ----------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pkm-analyze", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="machines: config/machines/*.yaml")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def machine_arg(p, default=None):
+        p.add_argument("--machine", default=default, required=default is None,
+                       help="machine name (config/machines/NAME.yaml) or a YAML path")
+
+    p = sub.add_parser("condition", help="condition numbers and sub-machine singular angles (ARCHI Fig. 10)")
+    machine_arg(p)
+    p.add_argument("--x", type=float, required=True, help="platform x (m)")
+    p.add_argument("--y", type=float, required=True, help="platform y (m)")
+    p.add_argument("--theta-range", type=float, nargs=2, required=True, metavar=("MIN", "MAX"), help="deg")
+    p.add_argument("--samples", type=int, default=4001, help="angles sampled before refinement")
+    p.set_defaults(func=cmd_condition)
+
+    p = sub.add_parser("resolution", help="worst-case Gough metrology resolution (MoM3 §5.5)")
+    machine_arg(p)
+    p.add_argument("--points", type=int, default=7, help="grid points per workspace axis")
+    p.set_defaults(func=cmd_resolution)
+
+    p = sub.add_parser("orthoglide-size", help="size an Orthoglide for a cube and psi bounds (§4.4)")
+    p.add_argument("--cube", type=float, required=True, help="cube side (m)")
+    p.add_argument("--psi-min", type=float, required=True)
+    p.add_argument("--psi-max", type=float, required=True)
+    p.set_defaults(func=cmd_orthoglide_size)
+
+    p = sub.add_parser("workspace", help="reachability, conditioning and drive travel over the workspace")
+    machine_arg(p)
+    p.add_argument("--points", type=int, default=11, help="grid points per position axis")
+    p.add_argument("--theta-points", type=int, default=13, help="grid points in theta (planar)")
+    p.set_defaults(func=cmd_workspace)
+
+    p = sub.add_parser("gough-optimize", help="optimise the Gough geometry for tool-level resolution")
+    machine_arg(p)
+    p.add_argument("--maxiter", type=int, default=40)
+    p.add_argument("--seed", type=int, default=1)
+    p.set_defaults(func=cmd_gough_optimize)
+
+    p = sub.add_parser("report", help="kinematic report of a machine")
+    machine_arg(p, default="archi")
+    p.add_argument("--points", type=int, default=11)
+    p.add_argument("--theta-points", type=int, default=13)
+    p.add_argument("--resolution-points", type=int, default=7)
+    p.set_defaults(func=cmd_report)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        data, text = args.func(args)
+    except (KinematicsError, ValueError) as exc:
+        print(f"pkm-analyze: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(data, indent=2, default=lambda o: None if isinstance(o, float) and math.isnan(o) else str(o)))
+    else:
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,276 @@
+"""Machine configurations: ``config/machines/<name>.yaml`` -> model objects.
+
+Every field is validated when the file is loaded; a missing, mistyped or out-of-range
+field raises ConfigError naming its dotted path and the allowed range, e.g.
+``archi.yaml: legs[2].link_length: must be > 0 m, got -1.0``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import ConfigError
+from .gough import GoughPlatform, mom3_points
+from .planar import PlanarLeg, PlanarMachine
+from .translational import TranslationalLeg, TranslationalMachine
+
+MACHINE_KINDS = ("planar", "translational")
+
+
+def config_dir() -> Path:
+    """The project's ``config/`` directory.
+
+    ``PKM_CONFIG_DIR`` wins; else the first ``config/machines`` found walking up from
+    this file (a source checkout, an editable install, or a colcon workspace built
+    inside the repository).
+    """
+    env = os.environ.get("PKM_CONFIG_DIR")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "config" / "machines").is_dir():
+            return parent / "config"
+    raise FileNotFoundError("config directory not found: set PKM_CONFIG_DIR")
+
+
+def machine_names() -> list[str]:
+    return sorted(p.stem for p in (config_dir() / "machines").glob("*.yaml"))
+
+
+# --------------------------------------------------------------------- readers
+class _Reader:
+    """Typed access to a YAML mapping with dotted-path error messages."""
+
+    def __init__(self, data: Any, path: str):
+        if not isinstance(data, dict):
+            raise ConfigError(path or "<root>", f"expected a mapping, got {type(data).__name__}")
+        self.data = data
+        self.path = path
+
+    def _name(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def sub(self, key: str) -> "_Reader":
+        if key not in self.data:
+            raise ConfigError(self._name(key), "missing section")
+        return _Reader(self.data[key], self._name(key))
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        if key not in self.data:
+            if default is ...:
+                raise ConfigError(self._name(key), "missing field")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = ..., lo: float = -math.inf, hi: float = math.inf,
+               lo_open: bool = False, unit: str = "") -> float:
+        value = self.raw(key, default)
+        name = self._name(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(name, f"expected a number{' in ' + unit if unit else ''}, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(name, f"must be finite, got {value}")
+        if (value <= lo if lo_open else value < lo) or value > hi:
+            left = "(" if lo_open else "["
+            raise ConfigError(name, f"must be in {left}{lo:g}, {hi:g}] {unit}, got {value:g}".replace("  ", " "))
+        return value
+
+    def vector(self, key: str, size: int, default: Any = ..., unit: str = "") -> np.ndarray:
+        value = self.raw(key, default)
+        name = self._name(key)
+        if not isinstance(value, (list, tuple)) or len(value) != size:
+            raise ConfigError(name, f"expected a list of {size} numbers{' (' + unit + ')' if unit else ''}, got {value!r}")
+        out = []
+        for k, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+                raise ConfigError(f"{name}[{k}]", f"expected a finite number, got {v!r}")
+            out.append(float(v))
+        return np.array(out)
+
+    def interval(self, key: str, default: Any = ..., unit: str = "") -> tuple[float, float]:
+        lo, hi = self.vector(key, 2, default, unit)
+        if not lo < hi:
+            raise ConfigError(self._name(key), f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
+        return float(lo), float(hi)
+
+    def choice(self, key: str, options: tuple, default: Any = ...) -> Any:
+        value = self.raw(key, default)
+        if value not in options:
+            raise ConfigError(self._name(key), f"must be one of {list(options)}, got {value!r}")
+        return value
+
+    def string(self, key: str, default: Any = ...) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str) or not value:
+            raise ConfigError(self._name(key), f"expected a non-empty string, got {value!r}")
+        return value
+
+    def items(self, key: str, min_len: int = 1) -> list["_Reader"]:
+        value = self.raw(key)
+        name = self._name(key)
+        if not isinstance(value, list) or len(value) < min_len:
+            raise ConfigError(name, f"expected a list of at least {min_len} entries, got {value!r}")
+        return [_Reader(v, f"{name}[{k}]") for k, v in enumerate(value)]
+
+
+def _assembly(r: _Reader) -> int:
+    value = r.raw("assembly")
+    if value not in (-1, 1) or isinstance(value, bool):
+        raise ConfigError(r._name("assembly"), f"must be -1 or +1 (assembly branch), got {value!r}")
+    return int(value)
+
+
+# -------------------------------------------------------------------- builders
+@dataclass
+class MachineConfig:
+    """A loaded machine file: the actuated model, the metrology (if any), raw data."""
+
+    name: str
+    kind: str
+    model: PlanarMachine | TranslationalMachine
+    metrology: "GoughMetrologyConfig | None"
+    data: dict
+
+
+@dataclass
+class GoughMetrologyConfig:
+    """A Gough metrology platform with its sensing parameters (MoM3 §4.3, §5)."""
+
+    platform: GoughPlatform
+    encoder_resolution_m: float
+    tool_box: np.ndarray            # (3, 2): [L_x, L_y, L_z] bounds, plate frame (MoM3 eq. 4, Fig. 12)
+    workspace_center: np.ndarray    # plate-centre workspace cube, Gough base frame
+    workspace_size_m: float
+
+
+def _planar(r: _Reader, name: str, description: str) -> PlanarMachine:
+    legs = []
+    for lr in r.items("legs", min_len=3):
+        direction = lr.vector("rail_direction", 2)
+        if np.linalg.norm(direction) < 1e-9:
+            raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
+        legs.append(PlanarLeg(
+            name=lr.string("name"),
+            rail_origin=tuple(lr.vector("rail_origin", 2, unit="m")),
+            rail_direction=tuple(direction),
+            link_length=lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
+            platform_point=tuple(lr.vector("platform_point", 2, unit="m")),
+            assembly=_assembly(lr),
+            joint_limits=lr.interval("joint_limits", unit="m"),
+        ))
+    home = r.vector("home_pose", 3, unit="x m, y m, theta rad")
+    workspace = _workspace(r, planar=True)
+    try:
+        return PlanarMachine(name, legs, home, workspace, description)
+    except Exception as exc:  # e.g. home pose unreachable
+        raise ConfigError("home_pose", str(exc)) from exc
+
+
+def _workspace(r: _Reader, planar: bool) -> dict:
+    if not r.has("workspace"):
+        raise ConfigError(r._name("workspace"), "missing section")
+    w = r.sub("workspace")
+    if planar:
+        return {"x": w.interval("x", unit="m"), "y": w.interval("y", unit="m"),
+                "theta_deg": w.interval("theta_deg", unit="deg")}
+    return {"center": w.vector("center", 3, unit="m"),
+            "size": w.number("size", lo=0.0, lo_open=True, unit="m")}
+
+
+def _translational(r: _Reader, name: str, description: str) -> TranslationalMachine:
+    legs = []
+    for lr in r.items("legs", min_len=3):
+        direction = lr.vector("rail_direction", 3)
+        if np.linalg.norm(direction) < 1e-9:
+            raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
+        legs.append(TranslationalLeg(
+            name=lr.string("name"),
+            rail_origin=tuple(lr.vector("rail_origin", 3, unit="m")),
+            rail_direction=tuple(direction),
+            link_length=lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
+            platform_offset=tuple(lr.vector("platform_offset", 3, unit="m")),
+            assembly=_assembly(lr),
+            joint_limits=lr.interval("joint_limits", unit="m"),
+        ))
+    if len(legs) != 3:
+        raise ConfigError(r._name("legs"), f"a translational machine has exactly 3 legs, got {len(legs)}")
+    bounds = None
+    if r.has("transmission_bounds"):
+        lo, hi = r.interval("transmission_bounds")
+        if lo <= 0.0:
+            raise ConfigError(r._name("transmission_bounds"), f"must be > 0, got [{lo:g}, {hi:g}]")
+        bounds = (lo, hi)
+    home = r.vector("home_position", 3, unit="m")
+    workspace = _workspace(r, planar=False)
+    try:
+        return TranslationalMachine(name, legs, home, workspace, bounds, description)
+    except Exception as exc:
+        raise ConfigError("home_position", str(exc)) from exc
+
+
+def _gough(r: _Reader) -> GoughMetrologyConfig:
+    g = r.sub("geometry")
+    base, plate = mom3_points(
+        g.number("r_base", lo=0.0, lo_open=True, unit="m"),
+        g.number("r_plate", lo=0.0, lo_open=True, unit="m"),
+        math.radians(g.number("alpha_base_deg", lo=0.0, hi=120.0, unit="deg")),
+        math.radians(g.number("alpha_plate_deg", lo=0.0, hi=120.0, unit="deg")),
+        math.radians(g.number("plate_line_offset_deg", default=60.0, lo=-180.0, hi=180.0, unit="deg")))
+    limits = r.interval("strut_limits", unit="m")
+    if limits[0] <= 0.0:
+        raise ConfigError(r._name("strut_limits"), f"min must be > 0 m, got {limits[0]:g}")
+    home = r.vector("home_position", 3, unit="m")
+    if home[2] <= 0.0:
+        raise ConfigError(r._name("home_position"), f"z must be > 0 m (plate above the base), got {home[2]:g}")
+    box = r.sub("tool_box")
+    tool_box = np.array([box.interval("x", unit="m"), box.interval("y", unit="m"), box.interval("z", unit="m")])
+    w = r.sub("workspace")
+    return GoughMetrologyConfig(
+        platform=GoughPlatform(base, plate, limits, home, name="gough"),
+        encoder_resolution_m=r.number("encoder_resolution", lo=0.0, lo_open=True, hi=1e-3, unit="m"),
+        tool_box=tool_box,
+        workspace_center=w.vector("center", 3, unit="m"),
+        workspace_size_m=w.number("size", lo=0.0, lo_open=True, unit="m"),
+    )
+
+
+def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
+    """Build a MachineConfig from an already-parsed mapping (``source`` names it in errors)."""
+    try:
+        r = _Reader(data, "")
+        name = r.string("name")
+        kind = r.choice("kind", MACHINE_KINDS)
+        description = str(r.raw("description", ""))
+        model = _planar(r, name, description) if kind == "planar" else _translational(r, name, description)
+        metrology = _gough(r.sub("metrology")) if r.has("metrology") else None
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc.field}", str(exc).split(": ", 1)[1]) from None
+    return MachineConfig(name, kind, model, metrology, data)
+
+
+def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
+    """Load ``config/machines/<name>.yaml`` (or a path to a YAML file)."""
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        path = config_dir() / "machines" / f"{name_or_path}.yaml"
+        if not path.is_file():
+            raise ConfigError("machine", f"unknown machine {str(name_or_path)!r}; "
+                              f"known: {', '.join(machine_names())}")
+    with open(path, encoding="utf-8") as fh:
+        try:
+            data = yaml.safe_load(fh)
+        except yaml.YAMLError as exc:
+            raise ConfigError(path.name, f"invalid YAML: {exc}") from None
+    return load_machine_data(data, path.name)

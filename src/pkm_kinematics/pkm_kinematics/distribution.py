@@ -1,0 +1,357 @@
+"""Force distribution for redundantly actuated machines.
+
+J is the n x m Jacobian J_m (qdot = J xdot, n drives > m DOF). Drive forces f
+produce the platform wrench F = J^T f (Sliding Star eq. 5; ARCHI §4.4:
+J_m^t f_d = f). With redundancy the solutions are f = J^T+ F + N z, N spanning
+ker(J^T): the null-space part moves nothing and only loads the structure - the
+internal force, what "drives fighting" is. Every distribution below returns forces
+with J^T f = F checked (DistributionError otherwise).
+
+* ``min_two_norm``   pseudo-inverse, z = 0 (ARCHI §4.4.1; Sliding Star eq. 9)
+* ``min_inf_norm``   exact minimum of max|f_i| (ARCHI §4.4.2 minimises it by a
+                     gradient step, whose switching Figure 18 shows); closed form for
+                     a one-dimensional null space, linear programming otherwise
+* ``min_p_norm``     the p-norm compromise suggested at the end of ARCHI §4.5
+* ``two_arm``        zero (or gravity-balancing) internal force in the nacelle (ARCHI §4.3)
+* ``project_forces`` n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 6-8)
+* ``add_prestress``  a chosen internal force along the null space
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import DistributionError
+
+METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm")
+
+
+def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
+    """Raise DistributionError unless J^T f reproduces the wrench, to ``rtol`` of the
+    magnitude of the terms summed (sum_i |J_ik f_i|, the rounding-error scale).
+    Plain floats: it runs every control cycle."""
+    rows = jac.tolist() if isinstance(jac, np.ndarray) else jac
+    f = forces.tolist() if isinstance(forces, np.ndarray) else forces
+    w = _floats(wrench)
+    for k, wk in enumerate(w):
+        achieved = magnitude = 0.0
+        for row, fi in zip(rows, f):
+            term = row[k] * fi
+            achieved += term
+            magnitude += abs(term)
+        if not abs(achieved - wk) <= rtol * max(1.0, magnitude, abs(wk)):
+            raise DistributionError(
+                f"J^T f does not reproduce the wrench: component {k} is {achieved:.6g}, "
+                f"requested {wk:.6g} (wrench {w})")
+
+
+def _floats(values) -> list[float]:
+    """Python floats of a short vector (iterating a numpy array yields slow scalars)."""
+    return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+
+
+def _gram_solve_rows(rows, rhs) -> list[float]:
+    """Solve (J^T J) y = rhs for J given as rows of 3 floats (closed-form symmetric 3x3
+    inverse; LAPACK costs ~10 us per call on such tiny systems)."""
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for j0, j1, j2 in rows:
+        a00 += j0 * j0
+        a01 += j0 * j1
+        a02 += j0 * j2
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a22 += j2 * j2
+    c00 = a11 * a22 - a12 * a12
+    c01 = a12 * a02 - a01 * a22
+    c02 = a01 * a12 - a11 * a02
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    # relative singularity test: det of a Gram matrix against the product of its diagonal
+    if not abs(det) > 1e-13 * abs(a00 * a11 * a22):
+        raise DistributionError("singular configuration: J^T J is not invertible (rank < 3)")
+    b0, b1, b2 = _floats(rhs)
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    return [(c00 * b0 + c01 * b1 + c02 * b2) / det,
+            (c01 * b0 + c11 * b1 + c12 * b2) / det,
+            (c02 * b0 + c12 * b1 + c22 * b2) / det]
+
+
+def _min_two_norm_rows(rows, wrench) -> list[float]:
+    y0, y1, y2 = _gram_solve_rows(rows, wrench)
+    return [j0 * y0 + j1 * y1 + j2 * y2 for j0, j1, j2 in rows]
+
+
+def min_two_norm(jac, wrench, check: bool = True) -> np.ndarray:
+    """f = J (J^T J)^-1 F: the minimum 2-norm drive forces (ARCHI §4.4.1, pseudo-inverse;
+    Sliding Star eq. 9). No internal force: f is orthogonal to ker(J^T)."""
+    jac = np.asarray(jac, dtype=float)
+    if jac.shape[1] == 3:
+        rows = jac.tolist()
+        forces = _min_two_norm_rows(rows, wrench)
+        if check:
+            check_wrench(rows, forces, wrench)
+        return np.array(forces)
+    forces = np.linalg.pinv(jac.T) @ np.asarray(wrench, dtype=float)
+    if check:
+        check_wrench(jac, forces, wrench)
+    return forces
+
+
+def project_forces(jac, desired_forces) -> np.ndarray:
+    """n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 8): the drive forces of least norm that
+    produce the same platform wrench F_d = J^T n_d (eq. 6) as the decentralised
+    controllers' forces n_d; their internal (fighting) part is removed."""
+    jac = np.asarray(jac, dtype=float)
+    return min_two_norm(jac, jac.T @ np.asarray(desired_forces, dtype=float))
+
+
+def null_space(jac) -> np.ndarray:
+    """Orthonormal basis of ker(J^T), shape (n, n - rank)."""
+    jac = np.asarray(jac, dtype=float)
+    u, s, _ = np.linalg.svd(jac, full_matrices=True)
+    rank = int(np.sum(s > s[0] * 1e-12)) if s.size else 0
+    return u[:, rank:]
+
+
+def _null_direction_rows(rows) -> list[float]:
+    """Unit null vector of J^T for J given as 4 rows of 3 floats (sign not fixed)."""
+    if len(rows) != 4 or len(rows[0]) != 3:
+        raise ValueError(f"jac: null_direction needs a 4 x 3 Jacobian, got {len(rows)} x {len(rows[0])}")
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2), (d0, d1, d2) = rows
+    # 2 x 2 minors of the last two columns, shared by the four 3 x 3 determinants
+    ab, ac, ad = a1 * b2 - a2 * b1, a1 * c2 - a2 * c1, a1 * d2 - a2 * d1
+    bc, bd, cd = b1 * c2 - b2 * c1, b1 * d2 - b2 * d1, c1 * d2 - c2 * d1
+    out = [b0 * cd - c0 * bd + d0 * bc,          # +det(rows 1, 2, 3)
+           -(a0 * cd - c0 * ad + d0 * ac),       # -det(rows 0, 2, 3)
+           a0 * bd - b0 * ad + d0 * ab,          # +det(rows 0, 1, 3)
+           -(a0 * bc - b0 * ac + c0 * ab)]       # -det(rows 0, 1, 2)
+    norm = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2] + out[3] * out[3])
+    if norm == 0.0:
+        raise DistributionError("singular configuration: ker(J^T) is more than one-dimensional")
+    return [v / norm for v in out]
+
+
+def null_direction(jac, reference=None) -> np.ndarray:
+    """Unit vector spanning ker(J^T) for a 4 x 3 Jacobian, in closed form.
+
+    n_i = (-1)^i det(J without row i) (the generalised cross product of the columns),
+    normalised; its sign follows ``reference`` (n . reference >= 0) so that a control
+    loop can keep it continuous, else the largest component is made positive.
+    """
+    n = np.array(_null_direction_rows(np.asarray(jac, dtype=float).tolist()))
+    if reference is not None:
+        if float(n @ reference) < 0.0:
+            n = -n
+    elif n[np.argmax(np.abs(n))] < 0.0:
+        n = -n
+    return n
+
+
+def _min_inf_norm_1d_list(f0: list[float], n: list[float]) -> list[float]:
+    scale = max(map(abs, n))
+    eps = 1e-12 * scale if scale > 0.0 else 1.0
+    intercepts, slopes, floor = [], [], 0.0    # rising lines a + b t (b > 0)
+    for fi, ni in zip(f0, n):
+        if ni > eps:
+            intercepts.append(fi)
+            slopes.append(ni)
+        elif ni < -eps:
+            intercepts.append(-fi)
+            slopes.append(-ni)
+        elif abs(fi) > floor:
+            floor = abs(fi)
+    if not slopes:
+        return list(f0)
+    # the falling line of leg j is -a_j - b_j t
+    best_h, best_t = -math.inf, 0.0
+    for ai, bi in zip(intercepts, slopes):
+        for aj, bj in zip(intercepts, slopes):
+            den = bi + bj
+            h = (ai * bj - aj * bi) / den
+            if h > best_h:
+                best_h, best_t = h, -(aj + ai) / den
+    t = best_t
+    if floor >= best_h:
+        lo, hi = -math.inf, math.inf
+        for fi, ni in zip(f0, n):
+            if abs(ni) > eps:
+                a, b = (-floor - fi) / ni, (floor - fi) / ni
+                if a > b:
+                    a, b = b, a
+                lo, hi = max(lo, a), min(hi, b)
+        t = min(max(0.0, lo), hi)
+    return [fi + t * ni for fi, ni in zip(f0, n)]
+
+
+def min_inf_norm_1d(f0, n) -> np.ndarray:
+    """Exact argmin over t of max_i |f0_i + t n_i| (a one-dimensional null space).
+
+    The 2n lines +-(f0_i + t n_i) have slopes +-|n_i|. By LP duality the minimum of
+    their upper envelope is the highest crossing of a rising line (a_i = sgn(n_i) f0_i,
+    slope |n_i|) with a falling one (a_j = -sgn(n_j) f0_j, slope -|n_j|), at
+    t = (a_j - a_i) / (|n_i| + |n_j|), height (a_i |n_j| + a_j |n_i|) / (|n_i| + |n_j|);
+    that crossing is the unique minimiser. Legs with n_i = 0 add a floor |f0_i|: if it
+    dominates, the minimisers form an interval and we take the t closest to 0, i.e.
+    the minimum 2-norm solution among the optimal ones (f0 is the pseudo-inverse one).
+    O(n^2) float operations.
+    """
+    return np.array(_min_inf_norm_1d_list(_floats(f0), _floats(n)))
+
+
+def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
+    """Drive forces of least peak magnitude max_i |f_i| with J^T f = F (exact).
+
+    One-dimensional null space (four drives, three DOF): closed form of
+    :func:`min_inf_norm_1d` around the pseudo-inverse solution, on plain floats (it
+    runs every control cycle). Otherwise a linear program (scipy HiGHS): minimise s
+    subject to J^T f = F, -s <= f_i <= s.
+    """
+    jac = np.asarray(jac, dtype=float)
+    n_drives, dof = jac.shape
+    if n_drives == dof:
+        return min_two_norm(jac, wrench, check)
+    if n_drives == 4 and dof == 3:
+        rows = jac.tolist()
+        forces = _min_inf_norm_1d_list(_min_two_norm_rows(rows, wrench), _null_direction_rows(rows))
+        if check:
+            check_wrench(rows, forces, wrench)
+        return np.array(forces)
+    forces = min_inf_norm_lp(jac, wrench)
+    if check:
+        check_wrench(jac, forces, wrench)
+    return forces
+
+
+def min_inf_norm_lp(jac, wrench) -> np.ndarray:
+    """Minimum infinity-norm distribution by linear programming (general null space)."""
+    from scipy.optimize import linprog
+
+    jac = np.asarray(jac, dtype=float)
+    n = jac.shape[0]
+    cost = np.zeros(n + 1)
+    cost[-1] = 1.0
+    eye = np.eye(n)
+    a_ub = np.block([[eye, -np.ones((n, 1))], [-eye, -np.ones((n, 1))]])
+    a_eq = np.hstack([jac.T, np.zeros((jac.shape[1], 1))])
+    res = linprog(cost, A_ub=a_ub, b_ub=np.zeros(2 * n), A_eq=a_eq, b_eq=np.asarray(wrench, float),
+                  bounds=[(None, None)] * (n + 1), method="highs")
+    if not res.success:
+        raise DistributionError(f"infinity-norm LP failed: {res.message}")
+    return res.x[:n]
+
+
+def min_p_norm(jac, wrench, p: float = 4.0, check: bool = True, tol: float = 1e-12,
+               max_iterations: int = 50) -> np.ndarray:
+    """Drive forces minimising ||f||_p with J^T f = F (2 < p < inf: between the 2-norm
+    and the infinity norm, ARCHI §4.5). Newton's method along the null space, started
+    from the pseudo-inverse solution; scipy BFGS when the null space is multi-dimensional."""
+    if not p >= 2.0 or not math.isfinite(p):
+        raise ValueError(f"p: must be in [2, inf), got {p}")
+    jac = np.asarray(jac, dtype=float)
+    f0 = min_two_norm(jac, wrench, check=False)
+    basis = null_space(jac)
+    if basis.shape[1] == 0 or p == 2.0:
+        return f0
+    scale = float(np.abs(f0).max()) or 1.0
+    g0 = f0 / scale
+    if basis.shape[1] == 1:
+        # Newton on the convex phi(t) = sum |g0 + t n|^p, with backtracking: phi'' can
+        # vanish where components of f cross zero (p < 4), so a full step may overshoot
+        n = basis[:, 0]
+        t = 0.0
+        phi = float(np.sum(np.abs(g0) ** p))
+        for _ in range(max_iterations):
+            f = g0 + t * n
+            a = np.abs(f)
+            d1 = float(np.sum(a ** (p - 1.0) * np.sign(f) * n))
+            d2 = (p - 1.0) * float(np.sum(a ** (p - 2.0) * n * n))
+            step = d1 / d2 if d2 > 0.0 else math.copysign(1.0, d1)
+            for _ in range(60):
+                with np.errstate(over="ignore"):      # an overshooting trial step may overflow
+                    trial = float(np.sum(np.abs(g0 + (t - step) * n) ** p))
+                if trial <= phi:
+                    break
+                step *= 0.5
+            else:
+                break
+            t -= step
+            phi = trial
+            if abs(step) < tol:
+                break
+        forces = scale * (g0 + t * n)
+    else:
+        from scipy.optimize import minimize
+
+        def objective(z):
+            f = g0 + basis @ z
+            a = np.abs(f)
+            return float(np.sum(a**p)), p * basis.T @ (a ** (p - 1.0) * np.sign(f))
+
+        res = minimize(objective, np.zeros(basis.shape[1]), jac=True, method="BFGS",
+                       options={"gtol": 1e-12})
+        forces = scale * (g0 + basis @ res.x)
+    if check:
+        check_wrench(jac, forces, wrench)
+    return forces
+
+
+def add_prestress(jac, forces, prestress_n: float, reference=None) -> np.ndarray:
+    """f + prestress * n, n the unit vector of ker(J^T) (4 x 3 J): an internal force of
+    ``prestress_n`` newtons that leaves the wrench unchanged (e.g. to preload joints
+    against backlash). ``reference`` fixes the sign of n (see null_direction)."""
+    return np.asarray(forces, dtype=float) + prestress_n * null_direction(jac, reference)
+
+
+def internal_force(jac, forces) -> np.ndarray:
+    """The null-space (internal, fighting) component of drive forces: f - J (J^T J)^-1 J^T f."""
+    jac = np.asarray(jac, dtype=float)
+    forces = np.asarray(forces, dtype=float)
+    return forces - project_forces(jac, forces)
+
+
+def two_arm(machine, pose, wrench, internal_force_n: float = 0.0, check: bool = True) -> np.ndarray:
+    """ARCHI §4.3 "2-arm robot like" distribution for a machine of two leg pairs.
+
+    Solve J_f [f1; f2] = [f_x, f_y, m_z, (f1 - f2) . n] with the internal force
+    (f1 - f2) . n set to ``internal_force_n`` (0 without gravity, §4.3.1; M_n G sin(theta)
+    with gravity, §4.3.2 - see :func:`two_arm_gravity_internal_force`), then
+    f_d = (J_v^-1 J_q)^T [f1; f2].
+    """
+    force_map, jf = machine.pair_force_map(pose)
+    rhs = np.array([wrench[0], wrench[1], wrench[2], internal_force_n], dtype=float)
+    try:
+        pts = np.linalg.solve(jf, rhs)
+    except np.linalg.LinAlgError as exc:
+        raise DistributionError("two-arm: J_f is singular") from exc
+    forces = force_map @ pts
+    if check:
+        check_wrench(machine.jacobian(pose), forces, wrench)
+    return forces
+
+
+def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gravity: float = 9.81) -> float:
+    """(f1 - f2) . n = M_n G sin(theta), the supplementary condition of ARCHI §4.3.2."""
+    return nacelle_mass_kg * gravity * math.sin(theta_rad)
+
+
+def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 4.0,
+               internal_force_n: float = 0.0, prestress_n: float = 0.0, reference=None) -> np.ndarray:
+    """Dispatch by name (``METHODS``); adds ``prestress_n`` along the null space if non-zero."""
+    if method == "pseudo_inverse":
+        forces = min_two_norm(jac, wrench)
+    elif method == "inf_norm":
+        forces = min_inf_norm(jac, wrench)
+    elif method == "p_norm":
+        forces = min_p_norm(jac, wrench, p)
+    elif method == "two_arm":
+        if machine is None or pose is None:
+            raise ValueError("two_arm: needs machine= and pose=")
+        forces = two_arm(machine, pose, wrench, internal_force_n)
+    else:
+        raise ValueError(f"distribution: must be one of {list(METHODS)}, got {method!r}")
+    if prestress_n:
+        forces = add_prestress(jac, forces, prestress_n, reference)
+    return forces

@@ -1,0 +1,387 @@
+"""Gough-Stewart platform used as a metrology sensor (MoM3 §4.2, §5.2).
+
+Six struts of measured length l_i join base points A_i (base frame, z = 0) to plate
+points b_i (plate frame). The pose of the travelling plate is its centre E_h
+(position p, m) and its rotation R (base <- plate).
+
+* Inverse model (struts): l_i = |p + R b_i - A_i|.
+* Inverse Jacobian (MoM3 eq. 2-3): ldot = J_h^-1 [pdot; omega] with rows
+  [u_i^T, (u_i x B_iE_h)^T], u_i = A_iB_i / l_i. The seed prints -u_i x B_iE_h; with
+  omega the angular velocity in the base frame the finite-difference check of the
+  tests gives the sign used here (u_i x B_iE_h = (R b_i) x u_i).
+* Tool Jacobian (MoM3 eq. 10-11): dp_t = J_t dl, J_t = J_hP - [E_hE_t]x J_hR.
+* Direct kinematic model: Newton-Raphson on the six strut equations, warm-started
+  from the previous pose, the rotation updated on SO(3) (R <- exp([dw]x) R, not by
+  adding angle increments), with tolerance, iteration cap, divergence detection and
+  a check of the assembly branch (the mirror pose below the base plane has the same
+  strut lengths). The result reports iterations, Jacobian evaluations and residual;
+  on failure its pose is NaN and ``reason`` says why - never a wrong pose.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .rotations import exp_so3_batch, exp_so3_floats, mul3
+from .validation import finite_array, finite_floats
+
+
+@dataclass
+class GoughDKMResult:
+    """Outcome of a direct kinematic solve (pose NaN unless converged)."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+    converged: bool
+    iterations: int
+    jacobian_evaluations: int
+    residual_m: float
+    reason: str = ""
+    jacobian: list | None = None   # J_h of the last linearisation, 6 rows (for warm starts)
+
+
+def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plate_rad: float,
+                plate_line_offset_rad: float = math.pi / 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Joint centres of the MoM3 parametrisation (§5.2, Figure 11).
+
+    Three lines through the centres, 120 deg apart; the two base points of line k lie
+    at +-alpha_base/2 about it on radius r_base. The plate lines are turned by
+    ``plate_line_offset`` (60 deg: the classical 6-6 arrangement where every base pair
+    feeds two different plate pairs) with points at +-alpha_plate/2 on radius r_plate.
+    Strut 2k joins base point gamma_k + alpha_b/2 to plate point gamma_k + offset - alpha_tp/2,
+    strut 2k+1 joins gamma_k - alpha_b/2 to gamma_k - offset + alpha_tp/2.
+    Returns (base points (6, 3), plate points (6, 3)).
+    """
+    base, plate = [], []
+    for k in range(3):
+        g = 2.0 * math.pi * k / 3.0
+        for sign in (1.0, -1.0):
+            ab = g + sign * alpha_base_rad / 2.0
+            ap = g + sign * (plate_line_offset_rad - alpha_plate_rad / 2.0)
+            base.append((r_base * math.cos(ab), r_base * math.sin(ab), 0.0))
+            plate.append((r_plate * math.cos(ap), r_plate * math.sin(ap), 0.0))
+    return np.array(base), np.array(plate)
+
+
+@dataclass
+class GoughPlatform:
+    """A 6-strut Gough platform; geometry in its base frame (see module docstring)."""
+
+    base_points: np.ndarray
+    plate_points: np.ndarray
+    strut_limits: tuple[float, float] = (0.0, math.inf)
+    home_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    name: str = "gough"
+
+    def __post_init__(self):
+        self.base_points = finite_array(self.base_points, "base_points", (6, 3))
+        self.plate_points = finite_array(self.plate_points, "plate_points", (6, 3))
+        self.home_position = finite_array(self.home_position, "home_position", (3,))
+        if not self.home_position[2] > 0.0:
+            raise ValueError("home_position: the plate must be above the base plane (z > 0), "
+                             f"got z = {self.home_position[2]}")
+        self._lo, self._hi = float(self.strut_limits[0]), float(self.strut_limits[1])
+        self._divergence_limit = 10.0 * max(1.0, self._hi - self._lo if math.isfinite(self._hi) else 1.0)
+        # per-strut float tuples (A_i, b_i) for the per-cycle DKM
+        self._legs_f = [tuple(a) + tuple(b) for a, b in zip(self.base_points.tolist(), self.plate_points.tolist())]
+
+    # ------------------------------------------------------------ inverse model
+    def strut_lengths(self, position, rotation) -> np.ndarray:
+        """l_i = |p + R b_i - A_i| (m)."""
+        legs = np.asarray(position) + self.plate_points @ np.asarray(rotation).T - self.base_points
+        return np.sqrt(np.einsum("ij,ij->i", legs, legs))
+
+    def strut_lengths_batch(self, positions, rotations) -> np.ndarray:
+        """Strut lengths for (N, 3) positions and (N, 3, 3) rotations: (N, 6)."""
+        rb = np.einsum("nij,kj->nki", rotations, self.plate_points)
+        legs = positions[:, None, :] + rb - self.base_points
+        return np.sqrt(np.einsum("nki,nki->nk", legs, legs))
+
+    def within_strut_limits(self, lengths) -> np.ndarray:
+        lengths = np.asarray(lengths)
+        return np.all((lengths >= self._lo) & (lengths <= self._hi), axis=-1)
+
+    # ---------------------------------------------------------------- jacobians
+    def inverse_jacobian(self, position, rotation) -> np.ndarray:
+        """J_h^-1 (6 x 6), MoM3 eq. 2-3: rows [u_i^T, ((R b_i) x u_i)^T]."""
+        rb = self.plate_points @ np.asarray(rotation).T
+        legs = np.asarray(position) + rb - self.base_points
+        u = legs / np.sqrt(np.einsum("ij,ij->i", legs, legs))[:, None]
+        out = np.empty((6, 6))
+        out[:, :3] = u
+        out[:, 3] = rb[:, 1] * u[:, 2] - rb[:, 2] * u[:, 1]
+        out[:, 4] = rb[:, 2] * u[:, 0] - rb[:, 0] * u[:, 2]
+        out[:, 5] = rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]
+        return out
+
+    def inverse_jacobian_batch(self, positions, rotations) -> np.ndarray:
+        """J_h^-1 for N poses: (N, 6, 6)."""
+        rb = np.einsum("nij,kj->nki", rotations, self.plate_points)
+        legs = positions[:, None, :] + rb - self.base_points
+        u = legs / np.sqrt(np.einsum("nki,nki->nk", legs, legs))[:, :, None]
+        out = np.empty(rb.shape[:2] + (6,))
+        out[:, :, :3] = u
+        out[:, :, 3] = rb[:, :, 1] * u[:, :, 2] - rb[:, :, 2] * u[:, :, 1]
+        out[:, :, 4] = rb[:, :, 2] * u[:, :, 0] - rb[:, :, 0] * u[:, :, 2]
+        out[:, :, 5] = rb[:, :, 0] * u[:, :, 1] - rb[:, :, 1] * u[:, :, 0]
+        return out
+
+    def jacobian(self, position, rotation) -> np.ndarray:
+        """J_h (6 x 6): [dp; dr] = J_h dl (MoM3 eq. 1), the inverse of eq. 2."""
+        return np.linalg.inv(self.inverse_jacobian(position, rotation))
+
+    def tool_jacobian(self, position, rotation, tool_offset) -> np.ndarray:
+        """J_t (3 x 6), MoM3 eq. 10-11: J_t = J_hP - [E_hE_t]x J_hR.
+
+        ``tool_offset`` is E_hE_t in the plate frame (eq. 4), rotated to the base frame.
+        """
+        jac = self.jacobian(position, rotation)
+        lever = np.asarray(rotation) @ np.asarray(tool_offset, dtype=float)
+        lx, ly, lz = lever
+        skew = np.array([[0.0, -lz, ly], [lz, 0.0, -lx], [-ly, lx, 0.0]])
+        return jac[:3] - skew @ jac[3:]
+
+    # ------------------------------------------------------------- direct model
+    @staticmethod
+    def _validate_lengths(lengths) -> list[float]:
+        values = finite_floats(lengths, 6, "strut lengths")
+        if min(values) <= 0.0:
+            raise ValueError(f"strut lengths: must be > 0 m, got {values}")
+        return values
+
+    def direct_kinematics(self, lengths, guess_position=None, guess_rotation=None,
+                          tol_m: float = 1e-10, max_iterations: int = 12,
+                          jacobian_guess: np.ndarray | None = None) -> GoughDKMResult:
+        """Pose from strut lengths by Newton-Raphson (MoM3 §6.3, DKM_GP).
+
+        Warm start from ``guess_*`` (default: home pose, identity). The Jacobian is
+        re-evaluated whenever an iteration gains less than three orders of magnitude
+        (a chord step with a recent J_h is as good as a Newton step for the small
+        motions between two control cycles; far from the guess this is plain Newton). Convergence: every
+        strut residual below ``tol_m``. Divergence: the residual grows twice in a row
+        or passes 10 x the strut range. Branch: the plate must stay above the base
+        plane with its normal pointing away from the base (no mirror assembly).
+        ``jacobian_guess`` may pass J_h near the guess, which a warm-starting caller
+        keeps from the previous solve (``GoughDKMSolver``).
+        """
+        target = self._validate_lengths(lengths)
+        p = self.home_position.tolist() if guess_position is None else finite_floats(
+            guess_position, 3, "guess_position")
+        if guess_rotation is None:
+            rot = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        else:
+            rot = np.asarray(guess_rotation, dtype=float).ravel().tolist()
+            if len(rot) != 9 or np.shape(guess_rotation) != (3, 3) or not math.isfinite(sum(rot)):
+                raise ValueError(f"guess_rotation: expected a finite 3 x 3 matrix, got {guess_rotation!r}")
+        jh = None if jacobian_guess is None else np.asarray(jacobian_guess, dtype=float).tolist()
+        return self._newton(target, p, rot, jh, tol_m, max_iterations)
+
+    def _newton(self, target: list, p: list, rot: list, jh, tol_m: float,
+                max_iterations: int) -> GoughDKMResult:
+        """The DKM iteration on plain floats (numpy costs ~1-2 us per operation on 6 x 3
+        arrays; this loop needs ~10 us per Newton step). ``rot`` is row-major, ``jh`` J_h
+        as 6 lists of 6 floats or None."""
+        px, py, pz = p
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+        legs = self._legs_f
+        evaluations = 0
+        previous = math.inf
+        growth = 0
+        residual = math.inf
+        for iteration in range(max_iterations + 1):
+            # strut lengths at the current pose: l_i = |p + R b_i - A_i|
+            res, geometry = [], []
+            for (ax, ay, az, bx, by, bz), li in zip(legs, target):
+                rbx = r00 * bx + r01 * by + r02 * bz
+                rby = r10 * bx + r11 * by + r12 * bz
+                rbz = r20 * bx + r21 * by + r22 * bz
+                lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
+                length = math.sqrt(lx * lx + ly * ly + lz * lz)
+                res.append(li - length)
+                geometry.append((lx / length, ly / length, lz / length, rbx, rby, rbz))
+            residual = max(map(abs, res))
+            if residual <= tol_m:
+                return self._finish(px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22),
+                                    iteration, evaluations, residual, jh)
+            if iteration == max_iterations:
+                break
+            if not math.isfinite(residual) or residual > self._divergence_limit:
+                return self._fail(iteration, evaluations, residual, "diverged: residual exceeds 10x the strut range")
+            growth = growth + 1 if residual > previous else 0
+            if growth >= 2:
+                return self._fail(iteration, evaluations, residual, "diverged: residual grew twice in a row")
+            if jh is None or residual > 1e-3 * previous:
+                # (re)linearise at the current pose: J_h^-1 rows [u, (R b) x u] (eq. 2-3)
+                jinv = [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
+                        for ux, uy, uz, rbx, rby, rbz in geometry]
+                try:
+                    jh = np.linalg.inv(np.array(jinv)).tolist()
+                except np.linalg.LinAlgError:
+                    return self._fail(iteration, evaluations + 1, residual,
+                                      "singular configuration (J_h^-1 not invertible)")
+                evaluations += 1
+            previous = residual
+            # Newton step [dp; dw] = J_h r, then p += dp, R <- exp([dw]x) R
+            q0, q1, q2, q3, q4, q5 = res
+            dx, dy, dz, wx, wy, wz = [a * q0 + b * q1 + c * q2 + d * q3 + e * q4 + f * q5
+                                      for a, b, c, d, e, f in jh]
+            px, py, pz = px + dx, py + dy, pz + dz
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = mul3(
+                exp_so3_floats(wx, wy, wz), (r00, r01, r02, r10, r11, r12, r20, r21, r22))
+        return self._fail(max_iterations, evaluations, residual,
+                          f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
+
+    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
+        if pz <= 0.0 or rot[8] <= 0.0:
+            return self._fail(iterations, evaluations, residual,
+                              "mirror assembly: the plate is below the base plane or flipped")
+        return GoughDKMResult(np.array([px, py, pz]), np.array(rot).reshape(3, 3), True, iterations,
+                              evaluations, residual, "", jh)
+
+    @staticmethod
+    def _fail(iterations, evaluations, residual, reason) -> GoughDKMResult:
+        return GoughDKMResult(np.full(3, np.nan), np.full((3, 3), np.nan), False,
+                              iterations, evaluations, residual, reason)
+
+    def direct_kinematics_batch(self, lengths, guess_positions, guess_rotations,
+                                tol_m: float = 1e-10, max_iterations: int = 12, chunk: int = 2048):
+        """Vectorized DKM for (N, 6) strut lengths, warm-started per row.
+
+        Newton-Raphson with the Jacobian of the start pose per row (chord steps),
+        re-linearised for rows that gain less than three orders of magnitude; rows
+        leave the batch as soon as they converge or fail. Returns
+        (positions (N, 3), rotations (N, 3, 3), converged (N,), iterations (N,)),
+        NaN rows where the solve failed, diverged or reached the mirror branch.
+        """
+        lengths = finite_array(lengths, "strut lengths", (-1, 6))
+        guess_positions = np.asarray(guess_positions, dtype=float)
+        guess_rotations = np.asarray(guess_rotations, dtype=float)
+        n = lengths.shape[0]
+        p_out = np.full((n, 3), np.nan)
+        r_out = np.full((n, 3, 3), np.nan)
+        iters = np.zeros(n, dtype=int)
+        ok = np.zeros(n, dtype=bool)
+        # chunks keep the working set in cache (page faults on 100k x 6 x 6 temporaries
+        # cost more than the arithmetic here)
+        for start in range(0, n, chunk):
+            sl = slice(start, min(n, start + chunk))
+            self._dkm_chunk(lengths[sl], guess_positions[sl], guess_rotations[sl], tol_m, max_iterations,
+                            p_out[sl], r_out[sl], iters[sl], ok[sl])
+        mirror = ok & ((p_out[:, 2] <= 0.0) | (r_out[:, 2, 2] <= 0.0))
+        ok &= ~mirror
+        p_out[~ok] = np.nan
+        r_out[~ok] = np.nan
+        return p_out, r_out, ok, iters
+
+    def _dkm_chunk(self, lengths, guess_positions, guess_rotations, tol_m, max_iterations,
+                   p_out, r_out, iters, ok) -> None:
+        """One chunk of direct_kinematics_batch; writes into the output views."""
+        plate_t, base_t = self.plate_points.T, self.base_points.T        # (3, 6)
+        act = np.flatnonzero(lengths.min(axis=1) > 0.0)
+        pa = guess_positions[act]
+        ra = guess_rotations[act]
+        la = lengths[act]
+        prev = np.full(act.size, np.inf)
+        jh = np.empty((act.size, 6, 6))
+        fresh = np.ones(act.size, dtype=bool)          # rows needing a (re)linearisation
+        for iteration in range(max_iterations + 1):
+            if act.size == 0:
+                break
+            rb = ra @ plate_t                            # R b_i, (m, 3, 6)
+            legs = rb + (pa[:, :, None] - base_t)
+            cur = np.sqrt((legs * legs).sum(axis=1))     # (m, 6)
+            r = la - cur
+            res = np.abs(r).max(axis=1)
+            conv = res <= tol_m
+            if conv.any():
+                rows = act[conv]
+                p_out[rows], r_out[rows], ok[rows], iters[rows] = pa[conv], ra[conv], True, iteration
+            bad = ~conv & ~(res <= prev)                 # NaN, diverging, or cap reached
+            if iteration == max_iterations:
+                bad[:] = ~conv
+            iters[act[bad]] = iteration
+            keep = ~(conv | bad)
+            if not keep.any():
+                break
+            if not keep.all():
+                act, pa, ra, la, prev, jh, fresh = (x[keep] for x in (act, pa, ra, la, prev, jh, fresh))
+                rb, legs, cur, r, res = (x[keep] for x in (rb, legs, cur, r, res))
+            if act.size == 0:
+                break
+            fresh |= res > 1e-3 * prev
+            if fresh.any():
+                # J_h^-1 rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3), inverted per row
+                u = legs[fresh] / cur[fresh][:, None, :]
+                b = rb[fresh]
+                jinv = np.empty((u.shape[0], 6, 6))
+                jinv[:, :, :3] = u.transpose(0, 2, 1)
+                jinv[:, :, 3] = b[:, 1] * u[:, 2] - b[:, 2] * u[:, 1]
+                jinv[:, :, 4] = b[:, 2] * u[:, 0] - b[:, 0] * u[:, 2]
+                jinv[:, :, 5] = b[:, 0] * u[:, 1] - b[:, 1] * u[:, 0]
+                jh[fresh] = np.linalg.inv(jinv)
+                fresh[:] = False
+            prev = res
+            step = (jh @ r[:, :, None])[:, :, 0]
+            pa = pa + step[:, :3]
+            ra = exp_so3_batch(step[:, 3:]) @ ra
+
+
+class GoughDKMSolver:
+    """Warm-started DKM for a stream of measurements (one per control cycle).
+
+    Keeps the last two poses and J_h (the data part of the model/data split: the
+    GoughPlatform itself stays immutable). Each solve starts from the constant-velocity
+    extrapolation of the last two solutions, p = 2 p_k - p_(k-1), R = exp(w) R_k with w
+    the rotation vector of R_k R_(k-1)^T (an exact rotation: extrapolating with the
+    matrix product itself lets rounding errors leave SO(3) and grow, and strut lengths
+    cannot see a non-rigid plate), so that one Newton step usually suffices. A failed solve is returned as such and
+    the next one starts again from the last good pose.
+    """
+
+    def __init__(self, platform: GoughPlatform, tol_m: float = 1e-10, max_iterations: int = 12):
+        self.platform = platform
+        self.tol_m = tol_m
+        self.max_iterations = max_iterations
+        self.reset()
+
+    def reset(self, position=None, rotation=None) -> None:
+        p = self.platform.home_position if position is None else position
+        r = np.eye(3) if rotation is None else rotation
+        self._p = np.asarray(p, dtype=float).tolist()
+        self._r = tuple(np.asarray(r, dtype=float).ravel().tolist())
+        self._previous = None        # (position, rotation) one solve earlier, as floats
+        self._jh = None
+
+    @property
+    def position(self) -> np.ndarray:
+        """The last good plate position (m)."""
+        return np.array(self._p)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """The last good plate rotation."""
+        return np.array(self._r).reshape(3, 3)
+
+    def solve(self, lengths) -> GoughDKMResult:
+        target = self.platform._validate_lengths(lengths)
+        p1, r1 = self._p, self._r
+        if self._previous is None:
+            guess_p, guess_r = p1, r1
+        else:
+            p0, r0 = self._previous
+            guess_p = [2.0 * a - b for a, b in zip(p1, p0)]
+            # d = R1 R0^T is a small rotation: w = vee(skew part), exact to O(w^3)
+            d = mul3(r1, (r0[0], r0[3], r0[6], r0[1], r0[4], r0[7], r0[2], r0[5], r0[8]))
+            guess_r = mul3(exp_so3_floats(0.5 * (d[7] - d[5]), 0.5 * (d[2] - d[6]), 0.5 * (d[3] - d[1])), r1)
+        result = self.platform._newton(target, guess_p, guess_r, self._jh, self.tol_m, self.max_iterations)
+        if result.converged:
+            self._jh = result.jacobian
+            self._previous = (p1, r1)
+            self._p, self._r = result.position.tolist(), tuple(result.rotation.ravel().tolist())
+        else:
+            self._jh = None
+            self._previous = None
+        return result

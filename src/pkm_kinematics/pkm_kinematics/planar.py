@@ -1,0 +1,502 @@
+"""Planar parallel machines with n >= 3 prismatic-revolute-revolute (PRR) legs.
+
+Model (ARCHI paper, section 3; Sliding Star is the same family):
+
+* leg i has a straight rail through ``rail_origin`` o_i with unit ``rail_direction``
+  u_i; its carriage sits at A_i = o_i + q_i u_i (q_i is the drive position, m);
+* a link of length L_i joins A_i to the platform point B_i = p + R(theta) b_i, where
+  the pose x = (x, y, theta) is the position of the platform centre C and its angle;
+* legs that share a platform point (ARCHI's B12 and B34) form pairs, which gives a
+  closed-form forward model.
+
+Inverse position (ARCHI §3.1 "inverse position relationship", generalised to any rail):
+    w_i = B_i - o_i,  a_i = u_i . w_i,  q_i = a_i + sigma_i sqrt(L_i^2 - |w_i|^2 + a_i^2)
+with the assembly mode sigma_i = +-1 (ARCHI: q1 = x12 - s1, q2 = x12 + s1, ...).
+
+Velocity (ARCHI §3.2, J_v G xdot = J_q qdot): for every leg, with e_i = B_i - A_i,
+    e_i . (pdot + thetadot E R b_i) = (e_i . u_i) qdot_i   =>   qdot = J_m xdot,
+    J_m[i] = [e_i^T, e_i^T E R b_i] / (e_i . u_i),   E = rot(+90 deg).
+
+Unlimited rotation: theta is any real number; forward kinematics returns the angle
+on the revolution of the guess.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import JointLimitError, UnreachablePoseError
+from .validation import finite_array, finite_floats
+
+
+@dataclass(frozen=True)
+class PlanarLeg:
+    """Geometry of one PRR leg (SI units)."""
+
+    name: str
+    rail_origin: tuple[float, float]
+    rail_direction: tuple[float, float]
+    link_length: float
+    platform_point: tuple[float, float]
+    assembly: int
+    joint_limits: tuple[float, float] = (-math.inf, math.inf)
+
+
+@dataclass
+class ForwardKinematicsResult:
+    """Outcome of an iterative forward kinematic solve.
+
+    ``pose`` is NaN when ``converged`` is False, so a failed solve can never be used
+    as a pose by mistake; ``reason`` says why it failed.
+    """
+
+    pose: np.ndarray
+    converged: bool
+    iterations: int
+    residual_m: float
+    reason: str = ""
+
+
+def _solve3(a, b):
+    """Solve a 3x3 system by Cramer's rule on Python floats (10x faster than LAPACK here)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    b0, b1, b2 = b
+    c00 = a11 * a22 - a12 * a21
+    c01 = a12 * a20 - a10 * a22
+    c02 = a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0 or not math.isfinite(det):
+        raise np.linalg.LinAlgError("singular 3x3 system")
+    x0 = (b0 * c00 + b1 * (a02 * a21 - a01 * a22) + b2 * (a01 * a12 - a02 * a11)) / det
+    x1 = (b0 * c01 + b1 * (a00 * a22 - a02 * a20) + b2 * (a02 * a10 - a00 * a12)) / det
+    x2 = (b0 * c02 + b1 * (a01 * a20 - a00 * a21) + b2 * (a00 * a11 - a01 * a10)) / det
+    return x0, x1, x2
+
+
+@dataclass
+class PlanarMachine:
+    """A planar PKM with n >= 3 PRR legs; see the module docstring for the model."""
+
+    name: str
+    legs: list[PlanarLeg]
+    home_pose: np.ndarray
+    workspace: dict = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self):
+        if len(self.legs) < 3:
+            raise ValueError(f"legs: a planar machine needs at least 3 legs, got {len(self.legs)}")
+        self.home_pose = finite_array(self.home_pose, "home_pose", (3,))
+        self.n_legs = len(self.legs)
+        self.leg_names = [leg.name for leg in self.legs]
+        self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
+        u = np.array([leg.rail_direction for leg in self.legs], dtype=float)
+        self._u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        self._length = np.array([leg.link_length for leg in self.legs], dtype=float)
+        self._length2 = self._length**2
+        self._b = np.array([leg.platform_point for leg in self.legs], dtype=float)
+        self._sigma = np.array([float(leg.assembly) for leg in self.legs])
+        self.joint_lower = np.array([leg.joint_limits[0] for leg in self.legs], dtype=float)
+        self.joint_upper = np.array([leg.joint_limits[1] for leg in self.legs], dtype=float)
+        # per-leg float tuples for the per-cycle scalar paths (numpy costs ~1 us per
+        # operation on 4-element arrays; plain floats are 5-10x faster here)
+        self._legs_f = [(float(o[0]), float(o[1]), float(u[0]), float(u[1]), float(l2), float(b[0]),
+                         float(b[1]), float(sg), float(lo), float(hi), name)
+                        for o, u, l2, b, sg, lo, hi, name in zip(
+                            self._o, self._u, self._length2, self._b, self._sigma,
+                            self.joint_lower, self.joint_upper, self.leg_names)]
+        self._pairs = self._find_pairs()
+        # Working mode: which side of its rail each link lies on at home, and for
+        # paired legs which of the two circle intersections the shared point is.
+        q_home = self.inverse_kinematics(self.home_pose, check_limits=False)
+        e = self._leg_vectors(self.home_pose, q_home)
+        self._side = np.sign(self._u[:, 0] * e[:, 1] - self._u[:, 1] * e[:, 0])
+        self._pair_side = []
+        for i, j in self._pairs:
+            a_i = self._o[i] + q_home[i] * self._u[i]
+            a_j = self._o[j] + q_home[j] * self._u[j]
+            d = a_j - a_i
+            pt = self._platform_points(self.home_pose)[i] - a_i
+            self._pair_side.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
+
+    # ----------------------------------------------------------------- helpers
+    def _find_pairs(self) -> list[tuple[int, int]]:
+        """Legs sharing a platform point, when all legs pair up into >= 2 points."""
+        groups: dict[tuple[float, float], list[int]] = {}
+        for i, b in enumerate(self._b):
+            groups.setdefault((round(b[0], 12), round(b[1], 12)), []).append(i)
+        pairs = [tuple(g[:2]) for g in groups.values() if len(g) >= 2]
+        return pairs if len(pairs) >= 2 else []
+
+    @property
+    def has_closed_form_forward(self) -> bool:
+        """True when two leg pairs share platform points (ARCHI), see §3.1."""
+        return bool(self._pairs)
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        return list(self._pairs)
+
+    def _platform_points(self, pose) -> np.ndarray:
+        """World coordinates of the platform points B_i = p + R b_i, shape (n, 2)."""
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        b = self._b
+        out = np.empty_like(b)
+        out[:, 0] = pose[0] + c * b[:, 0] - s * b[:, 1]
+        out[:, 1] = pose[1] + s * b[:, 0] + c * b[:, 1]
+        return out
+
+    def _leg_vectors(self, pose, q) -> np.ndarray:
+        """e_i = B_i - A_i (carriage to platform point), shape (n, 2)."""
+        return self._platform_points(pose) - self._o - np.asarray(q)[:, None] * self._u
+
+    # --------------------------------------------------------------- inverse
+    def inverse_kinematics(self, pose, check_limits: bool = True) -> np.ndarray:
+        """Drive positions q (m) for the platform pose (x m, y m, theta rad). ARCHI §3.1.
+
+        Raises UnreachablePoseError when a link cannot reach its platform point and
+        JointLimitError when ``check_limits`` and a drive leaves its range.
+        """
+        x, y, th = finite_floats(pose, 3, "pose")
+        c, s = math.cos(th), math.sin(th)
+        q = []
+        for ox, oy, ux, uy, l2, bx, by, sigma, lo, hi, name in self._legs_f:
+            wx = x + c * bx - s * by - ox
+            wy = y + s * bx + c * by - oy
+            a = wx * ux + wy * uy
+            disc = l2 - wx * wx - wy * wy + a * a
+            if disc < 0.0:
+                raise UnreachablePoseError(
+                    f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
+                    f"leg {name} platform point is {math.sqrt(l2 - disc):.6g} m from its rail, "
+                    f"link_length is {math.sqrt(l2):.6g} m")
+            qi = a + sigma * math.sqrt(disc)
+            if check_limits and not lo <= qi <= hi:
+                raise JointLimitError(f"leg {name}: position {qi:.6g} m outside joint_limits "
+                                      f"[{lo:.6g}, {hi:.6g}] m")
+            q.append(qi)
+        return np.array(q)
+
+    def check_joint_limits(self, q) -> None:
+        """Raise JointLimitError naming the first drive outside its joint_limits."""
+        bad = (q < self.joint_lower) | (q > self.joint_upper)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise JointLimitError(
+                f"leg {self.leg_names[i]}: position {q[i]:.6g} m outside joint_limits "
+                f"[{self.joint_lower[i]:.6g}, {self.joint_upper[i]:.6g}] m")
+
+    def inverse_kinematics_batch(self, poses) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorized IK for poses of shape (N, 3).
+
+        Returns (q of shape (N, n), reachable mask of shape (N,)); q is NaN where a
+        leg cannot reach. Joint limits are reported by ``within_joint_limits``.
+        """
+        poses = finite_array(poses, "poses", (-1, 3))
+        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+        bx = c * self._b[:, 0] - s * self._b[:, 1]
+        by = s * self._b[:, 0] + c * self._b[:, 1]
+        wx = poses[:, 0:1] + bx - self._o[:, 0]
+        wy = poses[:, 1:2] + by - self._o[:, 1]
+        a = wx * self._u[:, 0] + wy * self._u[:, 1]
+        disc = self._length2 - (wx * wx + wy * wy) + a * a
+        ok = disc >= 0.0
+        q = a + self._sigma * np.sqrt(np.where(ok, disc, np.nan))
+        return q, ok.all(axis=1)
+
+    def within_joint_limits(self, q) -> np.ndarray:
+        """Mask of rows of q (N, n) whose drives are all inside their limits."""
+        q = np.asarray(q, dtype=float)
+        return np.all((q >= self.joint_lower) & (q <= self.joint_upper), axis=-1)
+
+    # -------------------------------------------------------------- jacobian
+    def jacobian(self, pose, q=None) -> np.ndarray:
+        """J_m (n x 3) with qdot = J_m xdot (ARCHI §3.2), xdot = (xdot, ydot, thetadot).
+
+        ``q`` may be given when already known (saves an IK)."""
+        x, y, th = finite_floats(pose, 3, "pose")
+        qs = (self.inverse_kinematics(pose, check_limits=False) if q is None else q).tolist()
+        c, s = math.cos(th), math.sin(th)
+        rows = []
+        for (ox, oy, ux, uy, _, bx, by, *_rest), qi in zip(self._legs_f, qs):
+            rbx = c * bx - s * by
+            rby = s * bx + c * by
+            ex = x + rbx - ox - qi * ux
+            ey = y + rby - oy - qi * uy
+            denom = ex * ux + ey * uy
+            # row = [e^T, e . (E R b)] / (e . u), E R b = (-rby, rbx)
+            rows.append((ex / denom, ey / denom, (ey * rbx - ex * rby) / denom))
+        return np.array(rows)
+
+    def jacobian_derivative(self, pose, twist, q=None) -> np.ndarray:
+        """dJ_m/dt along the twist xdot = (xdot, ydot, thetadot) (ARCHI §3.4 uses it in
+        qddot = J_m xddot + Jdot_m xdot).
+
+        With g_i = [e_i^T, e_i^T E R b_i] and s_i = e_i . u_i (J_m[i] = g_i / s_i):
+        edot = pdot + thetadot E R b - qdot u,  d(E R b)/dt = -thetadot R b,
+        Jdot[i] = gdot_i / s_i - g_i sdot_i / s_i^2.
+        """
+        pose = np.asarray(pose, dtype=float)
+        twist = np.asarray(twist, dtype=float)
+        if q is None:
+            q = self.inverse_kinematics(pose, check_limits=False)
+        jac = self.jacobian(pose, q)
+        qdot = jac @ twist
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        b = self._b
+        rbx = c * b[:, 0] - s * b[:, 1]
+        rby = s * b[:, 0] + c * b[:, 1]
+        ex = pose[0] + rbx - self._o[:, 0] - q * self._u[:, 0]
+        ey = pose[1] + rby - self._o[:, 1] - q * self._u[:, 1]
+        w = twist[2]
+        edx = twist[0] - w * rby - qdot * self._u[:, 0]
+        edy = twist[1] + w * rbx - qdot * self._u[:, 1]
+        sv = ex * self._u[:, 0] + ey * self._u[:, 1]
+        sd = edx * self._u[:, 0] + edy * self._u[:, 1]
+        g = np.stack([ex, ey, ey * rbx - ex * rby], axis=1)
+        # d/dt (e . E R b) = edot . E R b + e . (-w R b)
+        g3dot = (edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)
+        gdot = np.stack([edx, edy, g3dot], axis=1)
+        return gdot / sv[:, None] - g * (sd / sv**2)[:, None]
+
+    def jacobian_batch(self, poses) -> np.ndarray:
+        """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""
+        poses = np.asarray(poses, dtype=float)
+        q, _ = self.inverse_kinematics_batch(poses)
+        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+        rbx = c * self._b[:, 0] - s * self._b[:, 1]
+        rby = s * self._b[:, 0] + c * self._b[:, 1]
+        ex = poses[:, 0:1] + rbx - self._o[:, 0] - q * self._u[:, 0]
+        ey = poses[:, 1:2] + rby - self._o[:, 1] - q * self._u[:, 1]
+        denom = ex * self._u[:, 0] + ey * self._u[:, 1]
+        return np.stack([ex / denom, ey / denom, (ey * rbx - ex * rby) / denom], axis=2)
+
+    def condition_number(self, pose) -> float:
+        """2-norm condition number of J_m (ARCHI §3.3, Figure 10)."""
+        return float(np.linalg.cond(self.jacobian(pose)))
+
+    def sub_machines(self) -> list[tuple[int, ...]]:
+        """Every non-redundant 3-leg sub-machine (J_124, J_134, J_123, J_234 for ARCHI)."""
+        return list(itertools.combinations(range(self.n_legs), 3))
+
+    def sub_machine_name(self, legs: tuple[int, ...]) -> str:
+        return "J_" + "".join(str(i + 1) for i in legs)
+
+    def sub_machine_condition_numbers(self, pose) -> dict[tuple[int, ...], float]:
+        jac = self.jacobian(pose)
+        return {legs: float(np.linalg.cond(jac[list(legs)])) for legs in self.sub_machines()}
+
+    # --------------------------------------------------------------- forward
+    def forward_kinematics_closed_form(self, q) -> np.ndarray:
+        """Closed-form forward position (ARCHI §3.1) from the two leg pairs.
+
+        Each shared platform point is the intersection of the two circles of radius L
+        about its carriages, on the side given by the working mode. (The seed text
+        pairs q1 with q3; the consistent formula pairs q1 with q2 and q3 with q4:
+        x12 = (q1 + q2)/2, y12 = -sqrt(L^2 - (q2 - q1)^2/4) for ARCHI.)
+        """
+        if not self._pairs:
+            raise ValueError(f"machine {self.name!r} has no leg pairs sharing a platform point: "
+                             "no closed-form forward model; use forward_kinematics")
+        qs = finite_floats(q, self.n_legs, "q")
+        points = []
+        for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
+            oxi, oyi, uxi, uyi, li2 = self._legs_f[i][:5]
+            oxj, oyj, uxj, uyj, lj2 = self._legs_f[j][:5]
+            aix, aiy = oxi + qs[i] * uxi, oyi + qs[i] * uyi
+            dx, dy = oxj + qs[j] * uxj - aix, oyj + qs[j] * uyj - aiy
+            d2 = dx * dx + dy * dy
+            d = math.sqrt(d2)
+            along = (li2 - lj2 + d2) / (2.0 * d) if d > 0.0 else math.inf
+            h2 = li2 - along * along
+            if not h2 >= 0.0:
+                raise UnreachablePoseError(
+                    f"legs {self.leg_names[i]}, {self.leg_names[j]}: carriages {d:.6g} m apart "
+                    f"cannot close with link lengths {math.sqrt(li2):.6g} m and {math.sqrt(lj2):.6g} m")
+            h = side * math.sqrt(h2)
+            points.append((aix + (along * dx - h * dy) / d, aiy + (along * dy + h * dx) / d))
+        (i1, _), (i2, _) = self._pairs[:2]
+        b1x, b1y = self._legs_f[i1][5:7]
+        b2x, b2y = self._legs_f[i2][5:7]
+        theta = (math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
+                 - math.atan2(b2y - b1y, b2x - b1x))
+        c, s = math.cos(theta), math.sin(theta)
+        return np.array([points[0][0] - (c * b1x - s * b1y), points[0][1] - (s * b1x + c * b1y), theta])
+
+    def forward_kinematics(self, q, guess=None, tol: float = 1e-12,
+                           max_iterations: int = 20) -> ForwardKinematicsResult:
+        """Pose from drive positions: Gauss-Newton least squares over all n legs.
+
+        Started from the closed form where the legs pair up (ARCHI), else from
+        ``guess`` (default: home pose). Footnote 5 of ARCHI §3.1 suggests the iterative
+        scheme x_{n+1} = x_n + J (q_d - q_n); we minimise sum_i (|B_i - A_i| - L_i)^2,
+        which stays defined away from the solution. The angle is returned on the
+        revolution of ``guess`` (unlimited rotation). The result's pose is NaN and
+        ``converged`` False if the solve fails or lands on another working mode.
+        """
+        qs = finite_floats(q, self.n_legs, "q")
+        ref = self.home_pose.tolist() if guess is None else finite_floats(guess, 3, "guess")
+        if self._pairs:
+            try:
+                x, y, th = self.forward_kinematics_closed_form(q).tolist()
+            except UnreachablePoseError as exc:
+                return ForwardKinematicsResult(np.full(3, np.nan), False, 0, math.inf, str(exc))
+            th += 2.0 * math.pi * round((ref[2] - th) / (2.0 * math.pi))
+        else:
+            x, y, th = ref
+        legs = [(ox + qi * ux, oy + qi * uy, bx, by, math.sqrt(l2), ux, uy, sigma)
+                for (ox, oy, ux, uy, l2, bx, by, sigma, *_), qi in zip(self._legs_f, qs)]
+        residual = math.inf
+        for iteration in range(1, max_iterations + 1):
+            c, s = math.cos(th), math.sin(th)
+            # normal equations of f_i = |e_i| - L_i, grad f_i = [e^T, e^T E R b] / |e|
+            a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
+            residual = 0.0
+            for ax, ay, bx, by, length, *_ in legs:
+                rbx = c * bx - s * by
+                rby = s * bx + c * by
+                ex = x + rbx - ax
+                ey = y + rby - ay
+                dist = math.sqrt(ex * ex + ey * ey)
+                f = dist - length
+                gx, gy, gt = ex / dist, ey / dist, (ey * rbx - ex * rby) / dist
+                a00 += gx * gx
+                a01 += gx * gy
+                a02 += gx * gt
+                a11 += gy * gy
+                a12 += gy * gt
+                a22 += gt * gt
+                r0 += gx * f
+                r1 += gy * f
+                r2 += gt * f
+                residual = max(residual, abs(f))
+            try:
+                dx, dy, dth = _solve3(((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (r0, r1, r2))
+            except np.linalg.LinAlgError:
+                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, math.inf,
+                                               "singular configuration: Jacobian rank < 3")
+            x -= dx
+            y -= dy
+            th -= dth
+            if abs(dx) + abs(dy) + abs(dth) < tol:
+                break
+        else:
+            return ForwardKinematicsResult(np.full(3, np.nan), False, max_iterations, residual,
+                                           f"no convergence in {max_iterations} iterations")
+        # working mode: assembly branch and side of every link (see __post_init__)
+        c, s = math.cos(th), math.sin(th)
+        for (ax, ay, bx, by, _, ux, uy, sigma), side in zip(legs, self._side.tolist()):
+            ex = x + c * bx - s * by - ax
+            ey = y + s * bx + c * by - ay
+            if (ex * ux + ey * uy) * sigma > 0.0 or (ux * ey - uy * ex) * side < 0.0:
+                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, residual,
+                                               "converged to another working mode (assembly branch)")
+        return ForwardKinematicsResult(np.array([x, y, th]), True, iteration, residual)
+
+    def forward_kinematics_batch(self, q, guesses=None, tol: float = 1e-12,
+                                 max_iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorized forward kinematics for q of shape (N, n).
+
+        Closed-form start where available, else ``guesses`` (N, 3) or the home pose;
+        then batched Gauss-Newton. Returns (poses (N, 3), converged mask (N,));
+        failed rows are NaN.
+        """
+        q = finite_array(q, "q", (-1, self.n_legs))
+        n = q.shape[0]
+        if self._pairs:
+            pts = []
+            for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
+                ai = self._o[i] + q[:, i:i + 1] * self._u[i]
+                aj = self._o[j] + q[:, j:j + 1] * self._u[j]
+                dvec = aj - ai
+                d2 = np.einsum("ij,ij->i", dvec, dvec)
+                d = np.sqrt(d2)
+                along = (self._length2[i] - self._length2[j] + d2) / (2.0 * d)
+                h = side * np.sqrt(self._length2[i] - along**2)
+                px = ai[:, 0] + (along * dvec[:, 0] - h * dvec[:, 1]) / d
+                py = ai[:, 1] + (along * dvec[:, 1] + h * dvec[:, 0]) / d
+                pts.append((px, py))
+            (i1, _), (i2, _) = self._pairs[:2]
+            b1, b2 = self._b[i1], self._b[i2]
+            th = (np.arctan2(pts[1][1] - pts[0][1], pts[1][0] - pts[0][0])
+                  - math.atan2(b2[1] - b1[1], b2[0] - b1[0]))
+            ref_th = self.home_pose[2] if guesses is None else np.asarray(guesses)[:, 2]
+            th = th + 2.0 * np.pi * np.round((ref_th - th) / (2.0 * np.pi))
+            c, s = np.cos(th), np.sin(th)
+            x = np.stack([pts[0][0] - (c * b1[0] - s * b1[1]), pts[0][1] - (s * b1[0] + c * b1[1]), th], 1)
+        else:
+            x = np.tile(self.home_pose, (n, 1)) if guesses is None else np.array(guesses, dtype=float)
+        ax = self._o[:, 0] + q * self._u[:, 0]
+        ay = self._o[:, 1] + q * self._u[:, 1]
+        active = np.isfinite(x).all(axis=1)
+        for _ in range(max_iterations):
+            c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
+            rbx = c * self._b[:, 0] - s * self._b[:, 1]
+            rby = s * self._b[:, 0] + c * self._b[:, 1]
+            ex = x[:, 0:1] + rbx - ax
+            ey = x[:, 1:2] + rby - ay
+            dist = np.sqrt(ex * ex + ey * ey)
+            f = dist - self._length
+            g = np.stack([ex / dist, ey / dist, (ey * rbx - ex * rby) / dist], axis=2)
+            jtj = np.einsum("nij,nik->njk", g, g)
+            jtf = np.einsum("nij,ni->nj", g, f)
+            step = np.zeros_like(x)
+            ok = active & np.isfinite(jtj).all(axis=(1, 2)) & (np.abs(np.linalg.det(
+                np.where(np.isfinite(jtj), jtj, 0.0))) > 1e-300)
+            if ok.any():
+                step[ok] = np.linalg.solve(jtj[ok], jtf[ok][:, :, None])[:, :, 0]
+            x -= step
+            active &= ok
+            if np.all(np.abs(step[active]).sum(axis=1) < tol):
+                break
+        # working-mode check
+        c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
+        ex = x[:, 0:1] + c * self._b[:, 0] - s * self._b[:, 1] - ax
+        ey = x[:, 1:2] + s * self._b[:, 0] + c * self._b[:, 1] - ay
+        dist = np.sqrt(ex * ex + ey * ey)
+        conv = active & (np.abs(dist - self._length).max(axis=1) < 1e-6)
+        conv &= np.all(np.sign(-(ex * self._u[:, 0] + ey * self._u[:, 1])) == self._sigma, axis=1)
+        conv &= np.all(np.sign(self._u[:, 0] * ey - self._u[:, 1] * ex) == self._side, axis=1)
+        x[~conv] = np.nan
+        return x, conv
+
+    # ------------------------------------------------------ force mapping
+    def pair_force_map(self, pose) -> tuple[np.ndarray, np.ndarray]:
+        """For a machine of two leg pairs (ARCHI §4.3): (M, J_f).
+
+        M = (J_v^-1 J_q)^T maps the forces (f1x, f1y, f2x, f2y) applied at the two
+        shared platform points to drive forces, f_d = M f_pts (the seed text writes
+        J_x^-1 for the 4x4 J_v). J_f maps (f1, f2) to (f_x, f_y, m_z, internal force
+        (f1 - f2) . n) with n the unit vector from point 1 to point 2.
+        """
+        if len(self._pairs) != 2 or self.n_legs != 4:
+            raise ValueError(f"machine {self.name!r}: the two-arm model needs exactly two pairs "
+                             "of legs sharing two platform points (ARCHI)")
+        pose = np.asarray(pose, dtype=float)
+        q = self.inverse_kinematics(pose, check_limits=False)
+        e = self._leg_vectors(pose, q)
+        jv = np.zeros((4, 4))
+        jq = np.zeros((4, 4))
+        order = []
+        for k, pair in enumerate(self._pairs):
+            for leg in pair:
+                jv[leg, 2 * k:2 * k + 2] = e[leg]
+                jq[leg, leg] = e[leg] @ self._u[leg]
+                order.append(leg)
+        force_map = np.linalg.solve(jv, jq).T
+        pts = self._platform_points(pose)
+        (i1, _), (i2, _) = self._pairs
+        r1 = pts[i1] - pose[:2]
+        r2 = pts[i2] - pose[:2]
+        n = (pts[i2] - pts[i1]) / np.linalg.norm(pts[i2] - pts[i1])
+        jf = np.array([
+            [1.0, 0.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0, 1.0],
+            [-r1[1], r1[0], -r2[1], r2[0]],
+            [n[0], n[1], -n[0], -n[1]],
+        ])
+        return force_map, jf

@@ -1,0 +1,150 @@
+"""Rotation helpers (SO(3)): skew matrices, exponential map, RPY and quaternions.
+
+Conventions: REP-103; roll-pitch-yaw is R = Rz(yaw) Ry(pitch) Rx(roll) (fixed axes
+x, y, z); quaternions are (x, y, z, w) as in geometry_msgs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def skew(v) -> np.ndarray:
+    """Cross-product matrix: skew(a) @ b == a x b."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def exp_so3_floats(wx: float, wy: float, wz: float) -> tuple:
+    """Rodrigues' formula on floats: the row-major 9-tuple of exp([w]x)."""
+    theta2 = wx * wx + wy * wy + wz * wz
+    if theta2 < 1e-16:
+        # second-order expansion, exact to machine precision for tiny angles
+        a, b = 1.0, 0.5
+    else:
+        theta = math.sqrt(theta2)
+        a = math.sin(theta) / theta
+        b = (1.0 - math.cos(theta)) / theta2
+    return (1.0 - b * (wy * wy + wz * wz), -a * wz + b * wx * wy, a * wy + b * wx * wz,
+            a * wz + b * wx * wy, 1.0 - b * (wx * wx + wz * wz), -a * wx + b * wy * wz,
+            -a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy))
+
+
+def exp_so3(omega) -> np.ndarray:
+    """Rodrigues' formula: the rotation by angle |omega| about omega/|omega|."""
+    return np.array(exp_so3_floats(float(omega[0]), float(omega[1]), float(omega[2]))).reshape(3, 3)
+
+
+def mul3(a, b) -> tuple:
+    """Product of two rotations given as row-major 9-tuples of floats."""
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = b
+    return (a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
+            a00 * b02 + a01 * b12 + a02 * b22,
+            a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
+            a10 * b02 + a11 * b12 + a12 * b22,
+            a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
+            a20 * b02 + a21 * b12 + a22 * b22)
+
+
+def exp_so3_batch(omega: np.ndarray) -> np.ndarray:
+    """Vectorized Rodrigues' formula for omega of shape (N, 3); returns (N, 3, 3)."""
+    omega = np.asarray(omega, dtype=float)
+    theta2 = np.einsum("ij,ij->i", omega, omega)
+    theta = np.sqrt(theta2)
+    small = theta2 < 1e-16
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    wx, wy, wz = omega[:, 0], omega[:, 1], omega[:, 2]
+    out = np.empty((omega.shape[0], 3, 3))
+    out[:, 0, 0] = 1.0 - b * (wy * wy + wz * wz)
+    out[:, 0, 1] = -a * wz + b * wx * wy
+    out[:, 0, 2] = a * wy + b * wx * wz
+    out[:, 1, 0] = a * wz + b * wx * wy
+    out[:, 1, 1] = 1.0 - b * (wx * wx + wz * wz)
+    out[:, 1, 2] = -a * wx + b * wy * wz
+    out[:, 2, 0] = -a * wy + b * wx * wz
+    out[:, 2, 1] = a * wx + b * wy * wz
+    out[:, 2, 2] = 1.0 - b * (wx * wx + wy * wy)
+    return out
+
+
+def log_so3(rotation: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`exp_so3`: the rotation vector of ``rotation`` (angle < pi)."""
+    r = np.asarray(rotation, dtype=float)
+    cos_t = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
+    theta = math.acos(cos_t)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if theta < 1e-8:
+        return 0.5 * v
+    if math.pi - theta < 1e-6:
+        # near pi: axis from the symmetric part
+        axis = np.sqrt(np.maximum(np.diag(r) - cos_t, 0.0) / (1.0 - cos_t))
+        axis = np.copysign(axis, v) if np.any(v) else axis
+        return theta * axis / np.linalg.norm(axis)
+    return theta / (2.0 * math.sin(theta)) * v
+
+
+def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def rpy_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw of ``rotation`` (inverse of :func:`rotation_from_rpy`)."""
+    r = rotation
+    pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
+    roll = math.atan2(r[2, 1], r[2, 2])
+    yaw = math.atan2(r[1, 0], r[0, 0])
+    return roll, pitch, yaw
+
+
+def rotation_about_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def quaternion_from_rotation(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix (Shepperd's method)."""
+    r = rotation
+    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
+    elif r[1, 1] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
+    q = np.array(q)
+    if q[3] < 0.0:
+        q = -q
+    return q / np.linalg.norm(q)
+
+
+def rotation_from_quaternion(q) -> np.ndarray:
+    """Rotation matrix of quaternion (x, y, z, w); the quaternion is normalized first."""
+    x, y, z, w = (float(c) for c in q)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not n > 0.0 or not math.isfinite(n):
+        raise ValueError(f"quaternion: must be finite and non-zero, got {q!r}")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])

@@ -1,0 +1,241 @@
+"""Three-axis translational PKMs: three prismatic actuators, parallelogram legs.
+
+Covers the linear Delta of MoM3 (parallel rails) and the Orthoglide (orthogonal
+rails). The parallelograms keep the platform orientation constant, so the pose is
+the tool-centre position p (m).
+
+Model (Orthoglide §3.1-3.2): carriage B_i = o_i + rho_i e_i on rail i (unit e_i),
+platform joint C_i = p + c_i, |C_i - B_i| = L_i. Inverse kinematics in closed form
+with the assembly branch sigma_i:
+    w_i = p + c_i - o_i,  rho_i = e_i . w_i + sigma_i sqrt(L_i^2 - |w_i|^2 + (e_i . w_i)^2).
+Velocity (Orthoglide eq. 3-4): A pdot = B rhodot with
+    A = [(c_i - b_i)^T] (parallel Jacobian),  B = diag((c_i - b_i)^T e_i) (serial Jacobian),
+so the inverse Jacobian is J^-1 = B^-1 A (eq. 8), which we call J_m (rhodot = J_m pdot).
+Velocity transmission factors (§4.3): psi_i = 1/sqrt(lambda_i) with lambda_i the
+eigenvalues of (J J^T)^-1, i.e. the singular values of J = J_m^-1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import JointLimitError, UnreachablePoseError
+from .validation import finite_array, finite_floats
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross costs ~30 us per call here)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+@dataclass(frozen=True)
+class TranslationalLeg:
+    name: str
+    rail_origin: tuple[float, float, float]
+    rail_direction: tuple[float, float, float]
+    link_length: float
+    platform_offset: tuple[float, float, float]
+    assembly: int
+    joint_limits: tuple[float, float] = (-math.inf, math.inf)
+
+
+@dataclass
+class TranslationalMachine:
+    """A 3-DOF translational PKM with three P-Pa legs (see module docstring)."""
+
+    name: str
+    legs: list[TranslationalLeg]
+    home_position: np.ndarray
+    workspace: dict = field(default_factory=dict)
+    transmission_bounds: tuple[float, float] | None = None
+    description: str = ""
+
+    def __post_init__(self):
+        if len(self.legs) != 3:
+            raise ValueError(f"legs: a translational machine has exactly 3 legs, got {len(self.legs)}")
+        self.home_position = finite_array(self.home_position, "home_position", (3,))
+        self.n_legs = 3
+        self.leg_names = [leg.name for leg in self.legs]
+        self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
+        e = np.array([leg.rail_direction for leg in self.legs], dtype=float)
+        self._e = e / np.linalg.norm(e, axis=1, keepdims=True)
+        self._length = np.array([leg.link_length for leg in self.legs], dtype=float)
+        self._length2 = self._length**2
+        self._c = np.array([leg.platform_offset for leg in self.legs], dtype=float)
+        self._sigma = np.array([float(leg.assembly) for leg in self.legs])
+        self.joint_lower = np.array([leg.joint_limits[0] for leg in self.legs], dtype=float)
+        self.joint_upper = np.array([leg.joint_limits[1] for leg in self.legs], dtype=float)
+        # float tuples for the per-cycle scalar paths (see PlanarMachine)
+        self._legs_f = [(*map(float, o), *map(float, e), float(l2), *map(float, c), float(sg), float(lo),
+                         float(hi), name)
+                        for o, e, l2, c, sg, lo, hi, name in zip(
+                            self._o, self._e, self._length2, self._c, self._sigma,
+                            self.joint_lower, self.joint_upper, self.leg_names)]
+        # Forward branch: the platform lies on one side of the plane through the three
+        # sphere centres; that side only changes through a parallel singularity
+        # (Orthoglide §3.3: the points coplanar), so it is the working mode.
+        rho = self.inverse_kinematics(self.home_position, check_limits=False)
+        centres = self._o + rho[:, None] * self._e - self._c
+        normal = np.cross(centres[1] - centres[0], centres[2] - centres[0])
+        self._fk_side = math.copysign(1.0, float(normal @ (self.home_position - centres[0])))
+
+    # ----------------------------------------------------------------- inverse
+    def inverse_kinematics(self, position, check_limits: bool = True) -> np.ndarray:
+        """Actuator positions rho (m) of the tool-centre position p (m). Closed form."""
+        px, py, pz = finite_floats(position, 3, "position")
+        rho = []
+        for ox, oy, oz, ex, ey, ez, l2, cx, cy, cz, sigma, lo, hi, name in self._legs_f:
+            wx, wy, wz = px + cx - ox, py + cy - oy, pz + cz - oz
+            a = wx * ex + wy * ey + wz * ez
+            disc = l2 - (wx * wx + wy * wy + wz * wz) + a * a
+            if disc < 0.0:
+                raise UnreachablePoseError(
+                    f"position ({px:.6g}, {py:.6g}, {pz:.6g}) m is unreachable: leg {name} joint is "
+                    f"{math.sqrt(l2 - disc):.6g} m from its rail, link_length is {math.sqrt(l2):.6g} m")
+            r = a + sigma * math.sqrt(disc)
+            if check_limits and not lo <= r <= hi:
+                raise JointLimitError(f"leg {name}: position {r:.6g} m outside joint_limits "
+                                      f"[{lo:.6g}, {hi:.6g}] m")
+            rho.append(r)
+        return np.array(rho)
+
+    def check_joint_limits(self, rho) -> None:
+        bad = (rho < self.joint_lower) | (rho > self.joint_upper)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise JointLimitError(
+                f"leg {self.leg_names[i]}: position {rho[i]:.6g} m outside joint_limits "
+                f"[{self.joint_lower[i]:.6g}, {self.joint_upper[i]:.6g}] m")
+
+    def inverse_kinematics_batch(self, positions) -> tuple[np.ndarray, np.ndarray]:
+        """IK for positions (N, 3): (rho (N, 3) NaN where unreachable, reachable mask)."""
+        p = finite_array(positions, "positions", (-1, 3))
+        w = p[:, None, :] + self._c - self._o
+        a = np.einsum("nij,ij->ni", w, self._e)
+        disc = self._length2 - np.einsum("nij,nij->ni", w, w) + a * a
+        ok = disc >= 0.0
+        rho = a + self._sigma * np.sqrt(np.where(ok, disc, np.nan))
+        return rho, ok.all(axis=1)
+
+    def within_joint_limits(self, rho) -> np.ndarray:
+        rho = np.asarray(rho, dtype=float)
+        return np.all((rho >= self.joint_lower) & (rho <= self.joint_upper), axis=-1)
+
+    # ----------------------------------------------------------------- forward
+    def forward_kinematics(self, rho) -> np.ndarray:
+        """Tool-centre position from actuator positions: the intersection of three
+        spheres (centres B_i - c_i, radii L_i) on the working-mode side. Closed form.
+
+        Raises UnreachablePoseError when the spheres do not meet.
+        """
+        r = finite_floats(rho, 3, "rho")
+        # sphere centres S_i = o_i + rho_i e_i - c_i, radii L_i (scalar form of _trilaterate)
+        (s1, s2, s3) = [(ox + ri * ex - cx, oy + ri * ey - cy, oz + ri * ez - cz)
+                        for (ox, oy, oz, ex, ey, ez, _, cx, cy, cz, *_), ri in zip(self._legs_f, r)]
+        sq1, sq2, sq3 = (leg[6] for leg in self._legs_f)      # squared radii L_i^2
+        ux, uy, uz = s2[0] - s1[0], s2[1] - s1[1], s2[2] - s1[2]
+        vx, vy, vz = s3[0] - s1[0], s3[1] - s1[1], s3[2] - s1[2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        n2 = nx * nx + ny * ny + nz * nz
+        k2 = 0.5 * (sq1 - sq2 + ux * ux + uy * uy + uz * uz)
+        k3 = 0.5 * (sq1 - sq3 + vx * vx + vy * vy + vz * vz)
+        # foot of the intersection line: (k2 (v x n) + k3 (n x u)) / |n|^2
+        fx = (k2 * (vy * nz - vz * ny) + k3 * (ny * uz - nz * uy)) / n2
+        fy = (k2 * (vz * nx - vx * nz) + k3 * (nz * ux - nx * uz)) / n2
+        fz = (k2 * (vx * ny - vy * nx) + k3 * (nx * uy - ny * ux)) / n2
+        rest = sq1 - (fx * fx + fy * fy + fz * fz)
+        if not rest >= 0.0:
+            raise UnreachablePoseError(
+                f"actuator positions {r} m cannot be assembled: the legs do not meet")
+        h = self._fk_side * math.sqrt(rest / n2)
+        return np.array([s1[0] + fx + h * nx, s1[1] + fy + h * ny, s1[2] + fz + h * nz])
+
+    def forward_kinematics_batch(self, rho) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorized forward kinematics, rho (N, 3): (positions NaN where impossible, ok mask)."""
+        rho = finite_array(rho, "rho", (-1, 3))
+        centres = self._o + rho[:, :, None] * self._e - self._c
+        p = self._trilaterate(centres, self._length2)
+        return p, np.isfinite(p).all(axis=1)
+
+    def _trilaterate(self, centres: np.ndarray, r2: np.ndarray) -> np.ndarray:
+        """Intersection of 3 spheres per row, centres (N, 3, 3): the point on the
+        configured side of the centres' plane, NaN where the spheres do not meet."""
+        s1, s2, s3 = centres[:, 0], centres[:, 1], centres[:, 2]
+        d21, d31 = s2 - s1, s3 - s1
+        n = _cross(d21, d31)
+        n2 = np.einsum("ij,ij->i", n, n)
+        # point in the plane equidistant as required: solve for the foot p0 of the
+        # intersection line: (p0 - s1).d21 = k2, (p0 - s1).d31 = k3, (p0 - s1).n = 0
+        k2 = 0.5 * (r2[0] - r2[1] + np.einsum("ij,ij->i", d21, d21))
+        k3 = 0.5 * (r2[0] - r2[2] + np.einsum("ij,ij->i", d31, d31))
+        # (p0 - s1) = (k2 (d31 x n) + k3 (n x d21)) / |n|^2
+        p0 = s1 + (k2[:, None] * _cross(d31, n) + k3[:, None] * _cross(n, d21)) / n2[:, None]
+        rest = r2[0] - np.einsum("ij,ij->i", p0 - s1, p0 - s1)
+        with np.errstate(invalid="ignore"):
+            h = np.sqrt(np.where(rest >= 0.0, rest, np.nan) / n2)
+        return p0 + (self._fk_side * h)[:, None] * n
+
+    # ---------------------------------------------------------------- jacobians
+    def parallel_jacobian(self, position, rho=None) -> np.ndarray:
+        """A = [(c_i - b_i)^T]: rows are the leg vectors (Orthoglide eq. 4)."""
+        p = np.asarray(position, dtype=float)
+        if rho is None:
+            rho = self.inverse_kinematics(p, check_limits=False)
+        return p + self._c - self._o - rho[:, None] * self._e
+
+    def serial_jacobian(self, position, rho=None) -> np.ndarray:
+        """B = diag((c_i - b_i)^T e_i) (Orthoglide eq. 4)."""
+        a = self.parallel_jacobian(position, rho)
+        return np.diag(np.einsum("ij,ij->i", a, self._e))
+
+    def jacobian(self, position, rho=None) -> np.ndarray:
+        """J_m = B^-1 A (Orthoglide eq. 8), rhodot = J_m pdot."""
+        a = self.parallel_jacobian(position, rho)
+        return a / np.einsum("ij,ij->i", a, self._e)[:, None]
+
+    def jacobian_batch(self, positions) -> np.ndarray:
+        """J_m for positions (N, 3): (N, 3, 3), NaN where unreachable."""
+        p = np.asarray(positions, dtype=float)
+        rho, _ = self.inverse_kinematics_batch(p)
+        a = p[:, None, :] + self._c - self._o - rho[:, :, None] * self._e
+        return a / np.einsum("nij,ij->ni", a, self._e)[:, :, None]
+
+    def jacobian_derivative(self, position, velocity, rho=None) -> np.ndarray:
+        """dJ_m/dt along pdot. With a_i the leg vector and s_i = a_i . e_i:
+        adot_i = pdot - rhodot_i e_i, Jdot[i] = adot_i / s_i - a_i (adot_i . e_i) / s_i^2."""
+        v = np.asarray(velocity, dtype=float)
+        a = self.parallel_jacobian(position, rho)
+        s = np.einsum("ij,ij->i", a, self._e)
+        rhodot = (a @ v) / s
+        adot = v - rhodot[:, None] * self._e
+        sdot = np.einsum("ij,ij->i", adot, self._e)
+        return adot / s[:, None] - a * (sdot / s**2)[:, None]
+
+    def condition_number(self, position) -> float:
+        return float(np.linalg.cond(self.jacobian(position)))
+
+    def transmission_factors(self, position) -> np.ndarray:
+        """Velocity transmission factors psi (Orthoglide §4.3), sorted ascending."""
+        sv = np.linalg.svd(self.jacobian(position), compute_uv=False)
+        return np.sort(1.0 / sv)
+
+    def transmission_factors_batch(self, positions) -> np.ndarray:
+        """psi for positions (N, 3): (N, 3) ascending, NaN where unreachable."""
+        jac = self.jacobian_batch(positions)
+        out = np.full((jac.shape[0], 3), np.nan)
+        ok = np.isfinite(jac).all(axis=(1, 2))
+        if ok.any():
+            out[ok] = np.sort(1.0 / np.linalg.svd(jac[ok], compute_uv=False), axis=1)
+        return out
+
+    def is_isotropic(self, position, tol: float = 1e-9) -> bool:
+        """True when J_m^-1 J_m^-T... i.e. J_m J_m^T = (1/psi^2) I: condition number 1
+        (Orthoglide §4.1-4.2, eq. 9a-d)."""
+        return abs(self.condition_number(position) - 1.0) < tol
