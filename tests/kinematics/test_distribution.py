@@ -54,6 +54,15 @@ def test_min_inf_norm_with_a_leg_outside_the_null_space():
     np.testing.assert_allclose(f, fd.min_two_norm(jac, wrench), atol=1e-12)
 
 
+def test_min_inf_norm_with_a_single_leg_in_the_null_space():
+    """A drive that cannot act on the platform (zero row) carries the whole null space:
+    the optimum leaves it unloaded."""
+    jac = np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.1, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    wrench = np.array([5.0, -7.0, 2.0])
+    f = fd.min_inf_norm(jac, wrench)
+    np.testing.assert_allclose(f, np.r_[np.linalg.solve(jac[:3].T, wrench), 0.0], atol=1e-12)
+
+
 @settings(max_examples=60, deadline=None)
 @given(jacobians, wrenches, st.sampled_from([3.0, 4.0, 8.0]))
 def test_min_p_norm_against_scipy(jac, wrench, p):

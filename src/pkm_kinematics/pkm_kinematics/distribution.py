@@ -165,16 +165,24 @@ def _min_inf_norm_1d_list(f0: list[float], n: list[float]) -> list[float]:
             floor = abs(fi)
     if not slopes:
         return list(f0)
-    # the falling line of leg j is -a_j - b_j t
+    # the falling line of leg j is -a_j - b_j t. The crossing of a leg's own two lines
+    # (height 0) never beats the other pairs once two legs have slopes: if the optimum
+    # is 0, all lines meet at one t and every pair finds it; with a single sloped leg
+    # no pair remains and the floor branch below places t.
     best_h, best_t = -math.inf, 0.0
-    for ai, bi in zip(intercepts, slopes):
-        for aj, bj in zip(intercepts, slopes):
-            den = bi + bj
-            h = (ai * bj - aj * bi) / den
-            if h > best_h:
-                best_h, best_t = h, -(aj + ai) / den
+    count = len(slopes)
+    for i in range(count):
+        ai, bi = intercepts[i], slopes[i]
+        for j in range(count):
+            if j != i:
+                aj, bj = intercepts[j], slopes[j]
+                den = bi + bj
+                h = (ai * bj - aj * bi) / den
+                if h > best_h:
+                    best_h, best_t = h, -(aj + ai) / den
     t = best_t
     if floor >= best_h:
+        floor = max(floor, 0.0)
         lo, hi = -math.inf, math.inf
         for fi, ni in zip(f0, n):
             if abs(ni) > eps:

@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .rotations import exp_so3_batch, exp_so3_floats, mul3
+from .gough_batch import dkm_chunk
+from .rotations import exp_so3_floats, mul3
 from .validation import finite_array, finite_floats
 
 
@@ -247,86 +248,31 @@ class GoughPlatform:
                               iterations, evaluations, residual, reason)
 
     def direct_kinematics_batch(self, lengths, guess_positions, guess_rotations,
-                                tol_m: float = 1e-10, max_iterations: int = 12, chunk: int = 2048):
+                                tol_m: float = 1e-10, max_iterations: int = 12, chunk: int = 16384):
         """Vectorized DKM for (N, 6) strut lengths, warm-started per row.
 
-        Newton-Raphson with the Jacobian of the start pose per row (chord steps),
-        re-linearised for rows that gain less than three orders of magnitude; rows
-        leave the batch as soon as they converge or fail. Returns
-        (positions (N, 3), rotations (N, 3, 3), converged (N,), iterations (N,)),
-        NaN rows where the solve failed, diverged or reached the mirror branch.
+        The same Newton-Raphson iteration as :meth:`direct_kinematics` (chord steps,
+        J_h re-evaluated for rows that gain less than three orders of magnitude,
+        divergence and mirror checks), in structure-of-arrays form over chunks of
+        ``chunk`` poses (see gough_batch). Returns (positions (N, 3), rotations
+        (N, 3, 3), converged (N,), iterations (N,)); rows that failed are NaN.
         """
         lengths = finite_array(lengths, "strut lengths", (-1, 6))
-        guess_positions = np.asarray(guess_positions, dtype=float)
-        guess_rotations = np.asarray(guess_rotations, dtype=float)
         n = lengths.shape[0]
-        p_out = np.full((n, 3), np.nan)
-        r_out = np.full((n, 3, 3), np.nan)
-        iters = np.zeros(n, dtype=int)
-        ok = np.zeros(n, dtype=bool)
-        # chunks keep the working set in cache (page faults on 100k x 6 x 6 temporaries
-        # cost more than the arithmetic here)
+        guess_positions = finite_array(guess_positions, "guess_positions", (n, 3))
+        guess_rotations = finite_array(guess_rotations, "guess_rotations", (n, 3, 3))
+        p_out = np.empty((n, 3))
+        r_out = np.empty((n, 3, 3))
+        iters = np.empty(n, dtype=int)
+        ok = np.empty(n, dtype=bool)
         for start in range(0, n, chunk):
             sl = slice(start, min(n, start + chunk))
-            self._dkm_chunk(lengths[sl], guess_positions[sl], guess_rotations[sl], tol_m, max_iterations,
-                            p_out[sl], r_out[sl], iters[sl], ok[sl])
-        mirror = ok & ((p_out[:, 2] <= 0.0) | (r_out[:, 2, 2] <= 0.0))
-        ok &= ~mirror
+            p_out[sl], r_out[sl], ok[sl], iters[sl] = dkm_chunk(
+                self.base_points, self.plate_points, lengths[sl], guess_positions[sl],
+                guess_rotations[sl], tol_m, max_iterations)
         p_out[~ok] = np.nan
         r_out[~ok] = np.nan
         return p_out, r_out, ok, iters
-
-    def _dkm_chunk(self, lengths, guess_positions, guess_rotations, tol_m, max_iterations,
-                   p_out, r_out, iters, ok) -> None:
-        """One chunk of direct_kinematics_batch; writes into the output views."""
-        plate_t, base_t = self.plate_points.T, self.base_points.T        # (3, 6)
-        act = np.flatnonzero(lengths.min(axis=1) > 0.0)
-        pa = guess_positions[act]
-        ra = guess_rotations[act]
-        la = lengths[act]
-        prev = np.full(act.size, np.inf)
-        jh = np.empty((act.size, 6, 6))
-        fresh = np.ones(act.size, dtype=bool)          # rows needing a (re)linearisation
-        for iteration in range(max_iterations + 1):
-            if act.size == 0:
-                break
-            rb = ra @ plate_t                            # R b_i, (m, 3, 6)
-            legs = rb + (pa[:, :, None] - base_t)
-            cur = np.sqrt((legs * legs).sum(axis=1))     # (m, 6)
-            r = la - cur
-            res = np.abs(r).max(axis=1)
-            conv = res <= tol_m
-            if conv.any():
-                rows = act[conv]
-                p_out[rows], r_out[rows], ok[rows], iters[rows] = pa[conv], ra[conv], True, iteration
-            bad = ~conv & ~(res <= prev)                 # NaN, diverging, or cap reached
-            if iteration == max_iterations:
-                bad[:] = ~conv
-            iters[act[bad]] = iteration
-            keep = ~(conv | bad)
-            if not keep.any():
-                break
-            if not keep.all():
-                act, pa, ra, la, prev, jh, fresh = (x[keep] for x in (act, pa, ra, la, prev, jh, fresh))
-                rb, legs, cur, r, res = (x[keep] for x in (rb, legs, cur, r, res))
-            if act.size == 0:
-                break
-            fresh |= res > 1e-3 * prev
-            if fresh.any():
-                # J_h^-1 rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3), inverted per row
-                u = legs[fresh] / cur[fresh][:, None, :]
-                b = rb[fresh]
-                jinv = np.empty((u.shape[0], 6, 6))
-                jinv[:, :, :3] = u.transpose(0, 2, 1)
-                jinv[:, :, 3] = b[:, 1] * u[:, 2] - b[:, 2] * u[:, 1]
-                jinv[:, :, 4] = b[:, 2] * u[:, 0] - b[:, 0] * u[:, 2]
-                jinv[:, :, 5] = b[:, 0] * u[:, 1] - b[:, 1] * u[:, 0]
-                jh[fresh] = np.linalg.inv(jinv)
-                fresh[:] = False
-            prev = res
-            step = (jh @ r[:, :, None])[:, :, 0]
-            pa = pa + step[:, :3]
-            ra = exp_so3_batch(step[:, 3:]) @ ra
 
 
 class GoughDKMSolver:

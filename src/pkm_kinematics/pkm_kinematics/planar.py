@@ -115,6 +115,7 @@ class PlanarMachine:
         q_home = self.inverse_kinematics(self.home_pose, check_limits=False)
         e = self._leg_vectors(self.home_pose, q_home)
         self._side = np.sign(self._u[:, 0] * e[:, 1] - self._u[:, 1] * e[:, 0])
+        self._side_f = self._side.tolist()
         self._pair_side = []
         for i, j in self._pairs:
             a_i = self._o[i] + q_home[i] * self._u[i]
@@ -302,7 +303,9 @@ class PlanarMachine:
         if not self._pairs:
             raise ValueError(f"machine {self.name!r} has no leg pairs sharing a platform point: "
                              "no closed-form forward model; use forward_kinematics")
-        qs = finite_floats(q, self.n_legs, "q")
+        return np.array(self._closed_form(finite_floats(q, self.n_legs, "q")))
+
+    def _closed_form(self, qs: list) -> tuple:
         points = []
         for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
             oxi, oyi, uxi, uyi, li2 = self._legs_f[i][:5]
@@ -325,7 +328,7 @@ class PlanarMachine:
         theta = (math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
                  - math.atan2(b2y - b1y, b2x - b1x))
         c, s = math.cos(theta), math.sin(theta)
-        return np.array([points[0][0] - (c * b1x - s * b1y), points[0][1] - (s * b1x + c * b1y), theta])
+        return points[0][0] - (c * b1x - s * b1y), points[0][1] - (s * b1x + c * b1y), theta
 
     def forward_kinematics(self, q, guess=None, tol: float = 1e-12,
                            max_iterations: int = 20) -> ForwardKinematicsResult:
@@ -342,7 +345,7 @@ class PlanarMachine:
         ref = self.home_pose.tolist() if guess is None else finite_floats(guess, 3, "guess")
         if self._pairs:
             try:
-                x, y, th = self.forward_kinematics_closed_form(q).tolist()
+                x, y, th = self._closed_form(qs)
             except UnreachablePoseError as exc:
                 return ForwardKinematicsResult(np.full(3, np.nan), False, 0, math.inf, str(exc))
             th += 2.0 * math.pi * round((ref[2] - th) / (2.0 * math.pi))
@@ -389,7 +392,7 @@ class PlanarMachine:
                                            f"no convergence in {max_iterations} iterations")
         # working mode: assembly branch and side of every link (see __post_init__)
         c, s = math.cos(th), math.sin(th)
-        for (ax, ay, bx, by, _, ux, uy, sigma), side in zip(legs, self._side.tolist()):
+        for (ax, ay, bx, by, _, ux, uy, sigma), side in zip(legs, self._side_f):
             ex = x + c * bx - s * by - ax
             ey = y + s * bx + c * by - ay
             if (ex * ux + ey * uy) * sigma > 0.0 or (ux * ey - uy * ex) * side < 0.0:
