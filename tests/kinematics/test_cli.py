@@ -52,3 +52,10 @@ def test_errors_exit_2_with_the_field(capsys):
     assert code == 2 and "--theta-range" in err
     code, _, err = run(capsys, "orthoglide-size", "--cube", "0.2", "--psi-min", "2", "--psi-max", "3")
     assert code == 2 and "psi bounds" in err
+
+
+def test_gough_optimize_runs(capsys):
+    code, out, _ = run(capsys, "--json", "gough-optimize", "--machine", "mom3", "--maxiter", "2")
+    data = json.loads(out)
+    assert code == 0 and 0.0 < data["criterion_m"] < 1e-4
+    assert 0.634 - 1e-6 <= data["strut_range"][0] and data["strut_range"][1] <= 1.080 + 1e-6

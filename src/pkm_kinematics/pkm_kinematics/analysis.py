@@ -25,8 +25,8 @@ def condition_numbers(jacobians: np.ndarray) -> np.ndarray:
     ok = np.isfinite(jacobians).all(axis=(1, 2))
     if ok.any():
         s = np.linalg.svd(jacobians[ok], compute_uv=False)
-        with np.errstate(divide="ignore"):
-            out[ok] = s[:, 0] / s[:, -1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[ok] = np.where(s[:, -1] > 0.0, s[:, 0] / s[:, -1], np.inf)
     return out
 
 
