@@ -269,7 +269,7 @@ class GoughPlatform:
             sl = slice(start, min(n, start + chunk))
             p_out[sl], r_out[sl], ok[sl], iters[sl] = dkm_chunk(
                 self.base_points, self.plate_points, lengths[sl], guess_positions[sl],
-                guess_rotations[sl], tol_m, max_iterations)
+                guess_rotations[sl], tol_m, max_iterations, self._divergence_limit)
         p_out[~ok] = np.nan
         r_out[~ok] = np.nan
         return p_out, r_out, ok, iters

@@ -8,7 +8,8 @@ formula. This does ~1,000 array operations per chunk where numpy's batched
 
 The iteration is the one of ``GoughPlatform._newton``: Newton-Raphson on the strut
 equations, chord steps with J_h re-evaluated when a step gains less than three
-orders of magnitude, divergence when the residual grows, the mirror branch refused.
+orders of magnitude, divergence when the residual grows twice in a row or passes the
+limit, the mirror branch refused.
 A row whose block pivots are ill-conditioned is only slowed down, never accepted
 wrongly: convergence is judged on the strut residuals themselves.
 """
@@ -71,7 +72,8 @@ def _where_factors(mask, new, old):
                  for nm, om in zip(new, old))
 
 
-def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iterations: int):
+def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iterations: int,
+              divergence_limit: float):
     """Solve one chunk. base, plate: (6, 3); lengths (m, 6); positions (m, 3);
     rotations (m, 3, 3). Returns (positions, rotations, converged, iterations)."""
     m = lengths.shape[0]
@@ -82,6 +84,7 @@ def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iter
     failed = lengths.min(axis=1) <= 0.0
     iterations = np.zeros(m, dtype=int)
     previous = np.full(m, np.inf)
+    growth = np.zeros(m, dtype=int)
     factors = None
     struts = [(tuple(a), tuple(b)) for a, b in zip(np.asarray(base).tolist(), np.asarray(plate).tolist())]
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -102,7 +105,9 @@ def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iter
             newly = active & (worst <= tol_m)
             done |= newly
             iterations[newly] = iteration
-            bad = active & ~newly & ~(worst <= previous)     # NaN, or the residual grew
+            # as the scalar solver: NaN, past the divergence limit, or grown twice in a row
+            growth = np.where(worst > previous, growth + 1, 0)
+            bad = active & ~newly & (~(worst <= divergence_limit) | (growth >= 2))
             if iteration == max_iterations:
                 bad = active & ~newly
             failed |= bad
