@@ -34,6 +34,7 @@ def test_all_machines_load():
     (lambda d: d["legs"][0].update(platform_point=[0.1, "a"]), r"legs[0].platform_point[1]", "finite number"),
     (lambda d: d.update(kind="hexapod"), "kind", r"must be one of \['planar', 'translational'\]"),
     (lambda d: d.update(home_pose=[1.0, -3.0, 0.0]), "home_pose", "unreachable"),
+    (lambda d: d.update(home_pose=[3.3, -0.4, 0.0]), "home_pose", "outside joint_limits"),
     (lambda d: d.pop("workspace"), "workspace", "missing section"),
     (lambda d: d["workspace"].update(theta_deg=[10, 0]), "workspace.theta_deg", "min < max"),
 ])
@@ -53,6 +54,18 @@ def test_metrology_defects_name_their_field():
     data = copy.deepcopy(raw("mom3"))
     data["metrology"]["home_position"] = [0.0, 0.0, -0.5]
     with pytest.raises(ConfigError, match="metrology.home_position: z must be > 0"):
+        load_machine_data(data, "mom3.yaml")
+    data = copy.deepcopy(raw("mom3"))
+    data["metrology"]["home_position"] = [0.0, 0.0, 0.3]
+    with pytest.raises(ConfigError, match="metrology.home_position: strut lengths at home .* leave strut_limits"):
+        load_machine_data(data, "mom3.yaml")
+    data = copy.deepcopy(raw("mom3"))
+    data["metrology"]["geometry"]["alpha_base_deg"] = 0
+    with pytest.raises(ConfigError, match=r"metrology.geometry.alpha_base_deg: must be in \(0, 120\]"):
+        load_machine_data(data, "mom3.yaml")
+    data = copy.deepcopy(raw("mom3"))
+    data["home_position"] = [0.0, 0.0, 1.3]
+    with pytest.raises(ConfigError, match="mom3.yaml: home_position: leg q1: position .* outside joint_limits"):
         load_machine_data(data, "mom3.yaml")
 
 

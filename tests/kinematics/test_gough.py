@@ -206,3 +206,55 @@ def test_dkm_batch_cold_start_relinearises_and_matches_single_solves():
             np.testing.assert_allclose(rots[k], rot[k], atol=1e-8)
     assert not ok[5] and np.isnan(pos[5]).all()
     assert iters[ok].max() > 2          # genuinely iterated from far away
+
+
+def test_guess_must_be_a_rotation():
+    """Six struts cannot see a non-rigid plate: a distorted guess would survive the
+    iteration, so it is refused up front."""
+    lengths = GOUGH.strut_lengths(HOME + [0.02, 0.01, 0.03], rotation_from_rpy(0.01, 0.02, 0.03))
+    shear = np.eye(3)
+    shear[0, 1] = 0.2
+    for bad in (1.05 * np.eye(3), shear, np.diag([1.0, 1.0, -1.0])):
+        with pytest.raises(ValueError, match="guess_rotation: not a rotation matrix"):
+            GOUGH.direct_kinematics(lengths, HOME, bad)
+    with pytest.raises(ValueError, match="rotation: not a rotation matrix"):
+        GoughDKMSolver(GOUGH).reset(rotation=2 * np.eye(3))
+    with pytest.raises(ValueError, match="guess_rotations\\[1\\]: not a rotation"):
+        GOUGH.direct_kinematics_batch(np.tile(lengths, (2, 1)), np.tile(HOME, (2, 1)),
+                                      np.stack([np.eye(3), 1.05 * np.eye(3)]))
+    with pytest.raises(ValueError, match="jacobian_guess: expected shape 6x6"):
+        GOUGH.direct_kinematics(lengths, jacobian_guess=np.eye(3))
+
+
+def test_far_guesses_never_return_another_assembly_mode():
+    """From random guesses up to 0.6 m and 2 rad away the solver either finds the true
+    pose or reports a failure; the other assembly modes above the base (same strut
+    lengths, det(J_h^-1) of the other sign) are refused, in both solvers."""
+    rng = np.random.default_rng(0)
+    p_true, r_true = HOME + [0.05, -0.03, 0.02], rotation_from_rpy(0.05, -0.04, 0.1)
+    lengths = GOUGH.strut_lengths(p_true, r_true)
+    guesses_p = HOME + rng.uniform(-0.6, 0.6, (400, 3))
+    guesses_r = np.array([exp_so3(w) for w in rng.uniform(-2.0, 2.0, (400, 3))])
+    reasons = set()
+    converged = 0
+    for gp, gr in zip(guesses_p, guesses_r):
+        res = GOUGH.direct_kinematics(lengths, gp, gr, max_iterations=30)
+        if res.converged:
+            converged += 1
+            np.testing.assert_allclose(res.position, p_true, atol=5e-9)
+            np.testing.assert_allclose(res.rotation, r_true, atol=1e-8)
+        else:
+            reasons.add(res.reason.split(":")[0])
+    assert converged > 50 and "another assembly mode" in reasons
+    pos, rot, ok, _ = GOUGH.direct_kinematics_batch(np.tile(lengths, (400, 1)), guesses_p, guesses_r,
+                                                    max_iterations=30)
+    assert ok.sum() > 50
+    np.testing.assert_allclose(pos[ok], np.tile(p_true, (ok.sum(), 1)), atol=5e-9)
+
+
+def test_orientation_resolution_parts():
+    """The paper's "about 30 urad" is the tilt; the rotation about z is twice that."""
+    res = gough_resolution(GOUGH, 1e-6, MET.tool_box, MET.workspace_center, 0.3, points_per_axis=7)
+    assert 25e-6 < res.tilt_rad < 35e-6
+    assert res.twist_rad > 1.5 * res.tilt_rad
+    assert res.orientation_rad >= max(res.tilt_rad, res.twist_rad)

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pkm_kinematics import JointLimitError, UnreachablePoseError, load_machine
-from pkm_kinematics.analysis import condition_sweep
+from pkm_kinematics import JointLimitError, SingularityError, UnreachablePoseError, load_machine
+from pkm_kinematics.analysis import condition_map, condition_sweep
 
 ARCHI = load_machine("archi").model
 STAR = load_machine("sliding_star").model
@@ -184,3 +184,82 @@ def test_archi_figure_10():
 def test_sub_machine_condition_numbers_keys():
     conds = ARCHI.sub_machine_condition_numbers([1.0, -0.4, 0.3])
     assert [ARCHI.sub_machine_name(k) for k in conds] == ["J_123", "J_124", "J_134", "J_234"]
+
+
+def test_a_platform_point_beyond_its_rail_is_no_other_working_mode():
+    """Sliding Star at y = -0.4: the lower platform points pass below the lower rail,
+    a regular reachable pose; FK must find it (single and batch)."""
+    pose = np.array([0.0, -0.4, 0.0])
+    q = STAR.inverse_kinematics(pose, check_limits=False)
+    res = STAR.forward_kinematics(q, guess=pose + 0.01)
+    assert res.converged, res.reason
+    np.testing.assert_allclose(res.pose, pose, atol=1e-9)
+    batch, ok = STAR.forward_kinematics_batch(q[None], guesses=(pose + 0.01)[None])
+    assert ok[0]
+    np.testing.assert_allclose(batch[0], pose, atol=1e-9)
+
+
+@pytest.mark.parametrize("machine,pose,leg,error", [
+    (ARCHI, [1.0, -0.4, 0.9], 3, 0.01),
+    (STAR, [0.05, 0.02, 0.1], 2, 0.1),
+])
+def test_least_squares_forward_kinematics_with_a_drive_offset(machine, pose, leg, error):
+    """A drive reading off by 1 cm / 10 cm: single and batch agree on the least-squares
+    pose; the reported residual is the leg misfit at the returned pose."""
+    q = machine.inverse_kinematics(pose, check_limits=False)
+    q[leg] += error
+    res = machine.forward_kinematics(q, guess=pose)
+    assert res.converged, res.reason
+    batch, ok = machine.forward_kinematics_batch(q[None], guesses=np.array([pose]))
+    assert ok[0]
+    np.testing.assert_allclose(batch[0], res.pose, atol=1e-9)
+    # residual recomputed independently at the returned pose
+    c, s = math.cos(res.pose[2]), math.sin(res.pose[2])
+    misfit = []
+    for lg, qi in zip(machine.legs, q):
+        b = np.array([c * lg.platform_point[0] - s * lg.platform_point[1],
+                      s * lg.platform_point[0] + c * lg.platform_point[1]])
+        carriage = np.array(lg.rail_origin) + qi * np.array(lg.rail_direction) / np.linalg.norm(lg.rail_direction)
+        misfit.append(abs(np.linalg.norm(res.pose[:2] + b - carriage) - lg.link_length))
+    assert res.residual_m == pytest.approx(max(misfit), rel=1e-9)
+    # a least-squares optimum: the gradient of sum f_i^2 vanishes
+    h = 1e-6
+    def cost(x):
+        out = 0.0
+        cc, ss = math.cos(x[2]), math.sin(x[2])
+        for lg, qi in zip(machine.legs, q):
+            b = np.array([cc * lg.platform_point[0] - ss * lg.platform_point[1],
+                          ss * lg.platform_point[0] + cc * lg.platform_point[1]])
+            carriage = np.array(lg.rail_origin) + qi * np.array(lg.rail_direction) / np.linalg.norm(lg.rail_direction)
+            out += (np.linalg.norm(x[:2] + b - carriage) - lg.link_length) ** 2
+        return out
+    grad = [(cost(res.pose + h * e) - cost(res.pose - h * e)) / (2 * h) for e in np.eye(3)]
+    assert np.abs(grad).max() < 1e-8
+
+
+def test_singular_and_malformed_inputs_raise_clear_errors():
+    # leg q1 perpendicular to its rail: y12 = -L
+    with pytest.raises(SingularityError, match="leg q1 is perpendicular to its rail"):
+        ARCHI.jacobian([1.0, -1.0, 0.0])
+    cond = condition_map(ARCHI, np.array([[1.0, -1.0, 0.0]]))
+    assert np.isinf(cond[0])
+    pose = [1.0, -0.4, 0.3]
+    q = ARCHI.inverse_kinematics(pose)
+    np.testing.assert_allclose(ARCHI.jacobian(pose, q=list(q)), ARCHI.jacobian(pose))
+    with pytest.raises(ValueError, match="twist: expected shape 3"):
+        ARCHI.jacobian_derivative(pose, [1.0, 2.0])
+    with pytest.raises(ValueError, match="twist: contains NaN"):
+        ARCHI.jacobian_derivative(pose, [1.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match="guesses: expected shape"):
+        STAR.forward_kinematics_batch(np.zeros((2, 4)), guesses=np.zeros(3))
+    with pytest.raises(UnreachablePoseError):
+        ARCHI.inverse_kinematics([1e200, -0.4, 0.0])
+    # huge but finite values are not "NaN"
+    with pytest.raises(UnreachablePoseError):
+        ARCHI.inverse_kinematics([1e308, 1e308, 0.0])
+
+
+def test_check_joint_limits():
+    ARCHI.check_joint_limits(ARCHI.inverse_kinematics([1.0, -0.4, 0.3]))
+    with pytest.raises(JointLimitError, match="leg q3"):
+        ARCHI.check_joint_limits(np.array([0.0, 1.0, -2.0, 2.0]))

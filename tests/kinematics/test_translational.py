@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pkm_kinematics import UnreachablePoseError, load_machine
+from pkm_kinematics import SingularityError, UnreachablePoseError, load_machine
 from pkm_kinematics.analysis import orthoglide_model, orthoglide_size, workspace_summary
 
 ORTHO = load_machine("orthoglide").model
@@ -105,3 +105,40 @@ def test_batch_and_errors():
         DELTA.forward_kinematics([1.2, 3.0, 1.2])
     with pytest.raises(ValueError, match="position: contains NaN"):
         ORTHO.inverse_kinematics([0.0, np.nan, 0.0])
+
+
+@pytest.mark.parametrize("machine", [ORTHO, DELTA], ids=["orthoglide", "mom3_delta"])
+def test_forward_kinematics_keeps_every_leg_on_its_branch(machine):
+    """Joint space -> FK -> IK: inside the joint limits, either the round trip closes
+    or FK refuses (a leg would have to flip to its other branch); never a wrong point."""
+    rng = np.random.default_rng(4)
+    rho = rng.uniform(machine.joint_lower, machine.joint_upper, (20000, 3))
+    p, ok = machine.forward_kinematics_batch(rho)
+    back, reach = machine.inverse_kinematics_batch(np.where(ok[:, None], p, machine.home_position))
+    np.testing.assert_allclose(back[ok], rho[ok], atol=1e-9)
+    refused = 0
+    for k in range(0, 20000, 50):
+        try:
+            np.testing.assert_allclose(machine.inverse_kinematics(machine.forward_kinematics(rho[k]), False),
+                                       rho[k], atol=1e-9)
+            assert ok[k]
+        except UnreachablePoseError:
+            assert not ok[k]
+            refused += 1
+    if machine is DELTA:       # 0.1-0.2 % of the joint box needs a flipped leg
+        assert (~ok).sum() > 0
+
+
+def test_singular_and_malformed_inputs_raise_clear_errors():
+    with pytest.raises(SingularityError, match="collinear"):
+        ORTHO.forward_kinematics([0.0, 0.0, -0.3])
+    # a leg perpendicular to its rail: |p_y, p_z| = L, so rho1 = p_x
+    p = np.array([0.0, ORTHO.legs[0].link_length, 0.0])
+    with pytest.raises(SingularityError, match="leg rho1 is perpendicular to its rail"):
+        ORTHO.condition_number(p)
+    np.testing.assert_allclose(ORTHO.jacobian([0.01, 0.02, 0.03], rho=list(ORTHO.inverse_kinematics([0.01, 0.02, 0.03]))),
+                               ORTHO.jacobian([0.01, 0.02, 0.03]))
+    with pytest.raises(ValueError, match="velocity: expected shape 3"):
+        ORTHO.jacobian_derivative([0.0, 0.0, 0.0], [1.0, 2.0])
+    with pytest.raises(ValueError, match="velocity: contains NaN"):
+        ORTHO.jacobian_derivative([0.0, 0.0, 0.0], [1.0, np.nan, 0.0])

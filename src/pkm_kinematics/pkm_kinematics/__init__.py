@@ -11,7 +11,7 @@ Force distribution: ``pkm_kinematics.distribution``; analyses: ``pkm_kinematics.
 
 from .config import MachineConfig, config_dir, load_machine, load_machine_data, machine_names
 from .errors import (ConfigError, DistributionError, JointLimitError, KinematicsError,
-                     UnreachablePoseError)
+                     SingularityError, UnreachablePoseError)
 from .gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, mom3_points
 from .planar import ForwardKinematicsResult, PlanarLeg, PlanarMachine
 from .translational import TranslationalLeg, TranslationalMachine
@@ -19,7 +19,7 @@ from .translational import TranslationalLeg, TranslationalMachine
 __all__ = [
     "ConfigError", "DistributionError", "ForwardKinematicsResult",
     "GoughDKMResult", "GoughDKMSolver", "GoughPlatform", "JointLimitError", "KinematicsError",
-    "MachineConfig", "PlanarLeg", "PlanarMachine", "TranslationalLeg", "TranslationalMachine",
+    "MachineConfig", "PlanarLeg", "SingularityError", "PlanarMachine", "TranslationalLeg", "TranslationalMachine",
     "UnreachablePoseError", "config_dir", "load_machine", "load_machine_data", "machine_names",
     "mom3_points",
 ]

@@ -19,10 +19,12 @@ from .translational import TranslationalLeg, TranslationalMachine
 
 # ------------------------------------------------------------ conditioning maps
 def condition_numbers(jacobians: np.ndarray) -> np.ndarray:
-    """2-norm condition numbers of a stack of Jacobians (N, n, m); NaN rows stay NaN,
-    exactly singular ones are inf."""
+    """2-norm condition numbers of a stack of Jacobians (N, n, m): NaN for rows with NaN
+    (unreachable), inf for singular rows and for rows with infinite entries (a leg
+    perpendicular to its rail makes J_m unbounded)."""
     out = np.full(jacobians.shape[0], np.nan)
     ok = np.isfinite(jacobians).all(axis=(1, 2))
+    out[~ok & ~np.isnan(jacobians).any(axis=(1, 2))] = np.inf
     if ok.any():
         s = np.linalg.svd(jacobians[ok], compute_uv=False)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -146,6 +148,8 @@ def condition_sweep(machine: PlanarMachine, x: float, y: float, theta_min_deg: f
 class ResolutionResult:
     position_m: float            # worst ||dp_h|| over the workspace (encoders at +-eps)
     orientation_rad: float       # worst ||dr_h||
+    tilt_rad: float              # worst ||(dr_x, dr_y)||: rotation about horizontal axes
+    twist_rad: float             # worst |dr_z|: rotation about the vertical axis
     tool_m: float                # worst ||dp_t|| over the tool box corners (eq. 20-21)
     worst_plate_position: list   # where the tool-level worst case occurs
     strut_range: list            # [min, max] strut length over the workspace
@@ -157,13 +161,13 @@ def _sign_vectors(n: int = 6) -> np.ndarray:
 
 
 def resolution_at(platform: GoughPlatform, positions: np.ndarray, epsilon_m: float,
-                  tool_box: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  tool_box: np.ndarray, parts: bool = False):
     """Worst-case resolution at each plate position (null orientation), MoM3 §5.5.
 
     For the 2^6 strut error vectors dl in {-eps, +eps}^6: dx_h = J_h dl (eq. 1),
     dp_t = dp_h + dr_h x E_hE_t (eq. 5, 13); the maximum over the tool bounding box
     lies on one of its 8 corners (§5.5.2). Returns per position (position, orientation,
-    tool) maxima, each of shape (N,).
+    tool) maxima, each of shape (N,), and with ``parts`` also (tilt, twist) maxima.
     """
     n = positions.shape[0]
     rot = np.broadcast_to(np.eye(3), (n, 3, 3))
@@ -180,6 +184,10 @@ def resolution_at(platform: GoughPlatform, positions: np.ndarray, epsilon_m: flo
         dr[..., None, 2] * corners[:, 0] - dr[..., None, 0] * corners[:, 2],
         dr[..., None, 0] * corners[:, 1] - dr[..., None, 1] * corners[:, 0]], axis=-1)
     tool = np.sqrt(((dp[..., None, :] + cross) ** 2).sum(-1)).max(axis=(-1, -2))
+    if parts:
+        tilt = np.sqrt((dr[..., :2] ** 2).sum(-1)).max(-1)
+        twist = np.abs(dr[..., 2]).max(-1)
+        return pos, ori, tool, tilt, twist
     return pos, ori, tool
 
 
@@ -193,10 +201,11 @@ def gough_resolution(platform: GoughPlatform, epsilon_m: float, tool_box, center
     """MoM3 criterion C_opt (eq. 20-21) and its position/orientation parts over the
     workspace cube (sampled ``points_per_axis``^3, corners included)."""
     positions = cube_points(center, size, points_per_axis)
-    pos, ori, tool = resolution_at(platform, positions, epsilon_m, np.asarray(tool_box))
+    pos, ori, tool, tilt, twist = resolution_at(platform, positions, epsilon_m, np.asarray(tool_box), parts=True)
     lengths = platform.strut_lengths_batch(positions, np.broadcast_to(np.eye(3), (len(positions), 3, 3)))
     return ResolutionResult(
-        position_m=float(pos.max()), orientation_rad=float(ori.max()), tool_m=float(tool.max()),
+        position_m=float(pos.max()), orientation_rad=float(ori.max()), tilt_rad=float(tilt.max()),
+        twist_rad=float(twist.max()), tool_m=float(tool.max()),
         worst_plate_position=positions[int(np.argmax(tool))].tolist(),
         strut_range=[float(lengths.min()), float(lengths.max())],
         struts_within_limits=bool(platform.within_strut_limits(lengths).all()),
@@ -209,23 +218,26 @@ class GoughDesign:
     r_plate: float
     alpha_base_deg: float
     alpha_plate_deg: float
-    criterion_m: float           # C_opt, worst tool-level resolution
+    criterion_m: float           # C_opt, worst tool-level resolution (no penalty)
     strut_range: list
+    struts_within_limits: bool
     evaluations: int
 
 
 def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, strut_limits,
                             bounds=((0.2, 0.6), (0.03, 0.075), (2.0, 60.0), (2.0, 60.0)),
-                            plate_height: float | None = None, points_per_axis: int = 3,
-                            seed: int = 1, maxiter: int = 40, popsize: int = 10) -> GoughDesign:
+                            points_per_axis: int = 3, seed: int = 1, maxiter: int = 40,
+                            popsize: int = 10) -> GoughDesign:
     """Minimise C_opt (MoM3 eq. 20) over P = [r_b, r_tp, alpha_b, alpha_tp] (§5.5.3)
-    with scipy's differential evolution. Designs whose struts leave ``strut_limits``
-    anywhere on the workspace are penalised. ``plate_height`` defaults to the cube
-    centre height. Default bounds follow §5.6 (r_tp at most 75 mm, no collision)."""
+    with scipy's differential evolution, over the workspace cube ``center``/``size``
+    (plate-centre positions in the Gough base frame). Designs whose struts leave
+    ``strut_limits`` anywhere on the workspace are penalised; the result reports the
+    criterion without the penalty and whether the struts fit. Default bounds follow
+    §5.6 (r_tp at most 75 mm, no collision with the Delta)."""
     from scipy.optimize import differential_evolution
 
     center = np.asarray(center, dtype=float)
-    home = center if plate_height is None else np.array([center[0], center[1], plate_height])
+    home = center
     lo, hi = strut_limits
     positions = cube_points(center, size, points_per_axis)
     eye = np.broadcast_to(np.eye(3), (len(positions), 3, 3))
@@ -251,8 +263,10 @@ def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, str
     base, plate = mom3_points(rb, rp, math.radians(ab), math.radians(ap))
     platform = GoughPlatform(base, plate, (lo, hi), home)
     lengths = platform.strut_lengths_batch(positions, eye)
-    return GoughDesign(float(rb), float(rp), float(ab), float(ap), float(res.fun),
-                       [float(lengths.min()), float(lengths.max())], count[0])
+    _, _, tool = resolution_at(platform, positions, epsilon_m, tool_box)
+    return GoughDesign(float(rb), float(rp), float(ab), float(ap), float(tool.max()),
+                       [float(lengths.min()), float(lengths.max())],
+                       bool(platform.within_strut_limits(lengths).all()), count[0])
 
 
 # ------------------------------------------------ Orthoglide §4.4 sizing

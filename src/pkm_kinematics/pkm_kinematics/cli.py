@@ -85,7 +85,9 @@ def cmd_resolution(args) -> tuple[dict, str]:
             "tool_box_m": met.tool_box.tolist(), **asdict(res)}
     rows = [("encoder resolution", _um(met.encoder_resolution_m)),
             ("worst position resolution", _um(res.position_m) + "   (MoM3 §5.6: about 6 um)"),
-            ("worst orientation resolution", f"{res.orientation_rad * 1e6:.2f} urad   (paper: about 30 urad)"),
+            ("worst orientation resolution", f"{res.orientation_rad * 1e6:.2f} urad"),
+            ("  of which tilt (x, y axes)", f"{res.tilt_rad * 1e6:.2f} urad   (paper: about 30 urad)"),
+            ("  of which about z", f"{res.twist_rad * 1e6:.2f} urad"),
             ("worst tool-level resolution", _um(res.tool_m) + "   (paper: 12 um)"),
             ("at plate position (m)", str([round(v, 4) for v in res.worst_plate_position])),
             ("strut lengths over workspace", f"{res.strut_range[0]:.4f} .. {res.strut_range[1]:.4f} m"),
@@ -137,6 +139,7 @@ def cmd_gough_optimize(args) -> tuple[dict, str]:
             ("alpha_base", f"{design.alpha_base_deg:.2f} deg"), ("alpha_plate", f"{design.alpha_plate_deg:.2f} deg"),
             ("worst tool-level resolution", _um(design.criterion_m)),
             ("strut lengths", f"{design.strut_range[0]:.4f} .. {design.strut_range[1]:.4f} m"),
+            ("struts within limits", str(design.struts_within_limits)),
             ("criterion evaluations", str(design.evaluations))]
     return data, _table(f"Gough geometry optimised for {cfg.name} (MoM3 §5.5.3)", rows)
 

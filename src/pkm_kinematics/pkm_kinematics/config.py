@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, JointLimitError, UnreachablePoseError
 from .gough import GoughPlatform, mom3_points
 from .planar import PlanarLeg, PlanarMachine
 from .translational import TranslationalLeg, TranslationalMachine
@@ -173,9 +173,11 @@ def _planar(r: _Reader, name: str, description: str) -> PlanarMachine:
     home = r.vector("home_pose", 3, unit="x m, y m, theta rad")
     workspace = _workspace(r, planar=True)
     try:
-        return PlanarMachine(name, legs, home, workspace, description)
-    except Exception as exc:  # e.g. home pose unreachable
-        raise ConfigError("home_pose", str(exc)) from exc
+        model = PlanarMachine(name, legs, home, workspace, description)
+        model.inverse_kinematics(home)          # reachable and inside the joint limits
+    except (UnreachablePoseError, JointLimitError) as exc:
+        raise ConfigError(r._name("home_pose"), str(exc)) from None
+    return model
 
 
 def _workspace(r: _Reader, planar: bool) -> dict:
@@ -215,9 +217,11 @@ def _translational(r: _Reader, name: str, description: str) -> TranslationalMach
     home = r.vector("home_position", 3, unit="m")
     workspace = _workspace(r, planar=False)
     try:
-        return TranslationalMachine(name, legs, home, workspace, bounds, description)
-    except Exception as exc:
-        raise ConfigError("home_position", str(exc)) from exc
+        model = TranslationalMachine(name, legs, home, workspace, bounds, description)
+        model.inverse_kinematics(home)
+    except (UnreachablePoseError, JointLimitError) as exc:
+        raise ConfigError(r._name("home_position"), str(exc)) from None
+    return model
 
 
 def _gough(r: _Reader) -> GoughMetrologyConfig:
@@ -225,8 +229,8 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
     base, plate = mom3_points(
         g.number("r_base", lo=0.0, lo_open=True, unit="m"),
         g.number("r_plate", lo=0.0, lo_open=True, unit="m"),
-        math.radians(g.number("alpha_base_deg", lo=0.0, hi=120.0, unit="deg")),
-        math.radians(g.number("alpha_plate_deg", lo=0.0, hi=120.0, unit="deg")),
+        math.radians(g.number("alpha_base_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg")),
+        math.radians(g.number("alpha_plate_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg")),
         math.radians(g.number("plate_line_offset_deg", default=60.0, lo=-180.0, hi=180.0, unit="deg")))
     limits = r.interval("strut_limits", unit="m")
     if limits[0] <= 0.0:
@@ -236,9 +240,15 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
         raise ConfigError(r._name("home_position"), f"z must be > 0 m (plate above the base), got {home[2]:g}")
     box = r.sub("tool_box")
     tool_box = np.array([box.interval("x", unit="m"), box.interval("y", unit="m"), box.interval("z", unit="m")])
+    platform = GoughPlatform(base, plate, limits, home, name="gough")
+    home_struts = platform.strut_lengths(home, np.eye(3))
+    if not platform.within_strut_limits(home_struts):
+        raise ConfigError(r._name("home_position"),
+                          f"strut lengths at home {np.round(home_struts, 4).tolist()} m leave strut_limits "
+                          f"[{limits[0]:g}, {limits[1]:g}] m")
     w = r.sub("workspace")
     return GoughMetrologyConfig(
-        platform=GoughPlatform(base, plate, limits, home, name="gough"),
+        platform=platform,
         encoder_resolution_m=r.number("encoder_resolution", lo=0.0, lo_open=True, hi=1e-3, unit="m"),
         tool_box=tool_box,
         workspace_center=w.vector("center", 3, unit="m"),

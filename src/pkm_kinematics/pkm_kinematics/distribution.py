@@ -24,8 +24,12 @@ import math
 import numpy as np
 
 from .errors import DistributionError
+from .validation import finite_floats
 
 METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm")
+# Above p ~ 64 the terms |f_i / max|f||^p underflow and the p-norm stops being
+# computable in floating point; the infinity norm is the limit anyway.
+P_NORM_MAX = 64.0
 
 
 def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
@@ -84,17 +88,27 @@ def _min_two_norm_rows(rows, wrench) -> list[float]:
     return [j0 * y0 + j1 * y1 + j2 * y2 for j0, j1, j2 in rows]
 
 
+def _validate(jac, wrench) -> tuple[np.ndarray, list[float]]:
+    """J as an (n, m) float array with n >= m, and the wrench as m floats."""
+    jac = np.asarray(jac, dtype=float)
+    if jac.ndim != 2 or jac.shape[0] < jac.shape[1] or jac.shape[1] == 0:
+        raise ValueError(f"jac: expected an n x m Jacobian with n >= m drives, got shape {jac.shape}")
+    return jac, finite_floats(wrench, jac.shape[1], "wrench")
+
+
 def min_two_norm(jac, wrench, check: bool = True) -> np.ndarray:
     """f = J (J^T J)^-1 F: the minimum 2-norm drive forces (ARCHI §4.4.1, pseudo-inverse;
     Sliding Star eq. 9). No internal force: f is orthogonal to ker(J^T)."""
-    jac = np.asarray(jac, dtype=float)
+    jac, wrench = _validate(jac, wrench)
     if jac.shape[1] == 3:
         rows = jac.tolist()
         forces = _min_two_norm_rows(rows, wrench)
         if check:
             check_wrench(rows, forces, wrench)
         return np.array(forces)
-    forces = np.linalg.pinv(jac.T) @ np.asarray(wrench, dtype=float)
+    if np.linalg.matrix_rank(jac) < jac.shape[1]:
+        raise DistributionError(f"singular configuration: J has rank < {jac.shape[1]}")
+    forces = np.linalg.pinv(jac.T) @ np.asarray(wrench)
     if check:
         check_wrench(jac, forces, wrench)
     return forces
@@ -217,7 +231,7 @@ def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
     runs every control cycle). Otherwise a linear program (scipy HiGHS): minimise s
     subject to J^T f = F, -s <= f_i <= s.
     """
-    jac = np.asarray(jac, dtype=float)
+    jac, wrench = _validate(jac, wrench)
     n_drives, dof = jac.shape
     if n_drives == dof:
         return min_two_norm(jac, wrench, check)
@@ -256,9 +270,9 @@ def min_p_norm(jac, wrench, p: float = 4.0, check: bool = True, tol: float = 1e-
     """Drive forces minimising ||f||_p with J^T f = F (2 < p < inf: between the 2-norm
     and the infinity norm, ARCHI §4.5). Newton's method along the null space, started
     from the pseudo-inverse solution; scipy BFGS when the null space is multi-dimensional."""
-    if not p >= 2.0 or not math.isfinite(p):
-        raise ValueError(f"p: must be in [2, inf), got {p}")
-    jac = np.asarray(jac, dtype=float)
+    if not 2.0 <= p <= P_NORM_MAX:
+        raise ValueError(f"p: must be in [2, {P_NORM_MAX:g}] (use inf_norm beyond), got {p}")
+    jac, wrench = _validate(jac, wrench)
     f0 = min_two_norm(jac, wrench, check=False)
     basis = null_space(jac)
     if basis.shape[1] == 0 or p == 2.0:
@@ -284,11 +298,14 @@ def min_p_norm(jac, wrench, p: float = 4.0, check: bool = True, tol: float = 1e-
                     break
                 step *= 0.5
             else:
-                break
+                break                                 # no descent left: t is the minimiser
             t -= step
+            gain = phi - trial
             phi = trial
-            if abs(step) < tol:
+            if abs(step) < tol or gain <= 1e-15 * phi:   # the step or phi has stopped moving
                 break
+        else:
+            raise DistributionError(f"p-norm distribution: no convergence in {max_iterations} iterations")
         forces = scale * (g0 + t * n)
     else:
         from scipy.optimize import minimize

@@ -25,6 +25,11 @@ class UnreachablePoseError(KinematicsError):
     """A requested pose cannot be assembled (a leg cannot reach its platform point)."""
 
 
+class SingularityError(KinematicsError):
+    """A configuration where a Jacobian is singular or unbounded (serial or parallel
+    singularity, degenerate geometry): the requested quantity does not exist there."""
+
+
 class JointLimitError(KinematicsError):
     """A joint position is outside the configured range."""
 

@@ -30,6 +30,18 @@ from .rotations import exp_so3_floats, mul3
 from .validation import finite_array, finite_floats
 
 
+def validate_rotation(value, name: str) -> list[float]:
+    """A rotation matrix as 9 row-major floats; refuses non-finite values, a wrong
+    shape, and matrices that are not rotations (|R^T R - I| > 1e-6 or det <= 0): six
+    strut lengths cannot see a non-rigid plate, so a distorted guess would survive."""
+    rot = np.asarray(value, dtype=float)
+    if rot.shape != (3, 3) or not np.isfinite(rot).all():
+        raise ValueError(f"{name}: expected a finite 3 x 3 rotation matrix, got {value!r}")
+    if np.abs(rot.T @ rot - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) <= 0.0:
+        raise ValueError(f"{name}: not a rotation matrix (R^T R != I or det(R) <= 0): {rot.tolist()}")
+    return rot.ravel().tolist()
+
+
 @dataclass
 class GoughDKMResult:
     """Outcome of a direct kinematic solve (pose NaN unless converged)."""
@@ -86,6 +98,8 @@ class GoughPlatform:
                              f"got z = {self.home_position[2]}")
         self._lo, self._hi = float(self.strut_limits[0]), float(self.strut_limits[1])
         self._divergence_limit = 10.0 * max(1.0, self._hi - self._lo if math.isfinite(self._hi) else 1.0)
+        self._home_det_sign = math.copysign(
+            1.0, float(np.linalg.det(self.inverse_jacobian(self.home_position, np.eye(3)))))
         # per-strut float tuples (A_i, b_i) for the per-cycle DKM
         self._legs_f = [tuple(a) + tuple(b) for a, b in zip(self.base_points.tolist(), self.plate_points.tolist())]
 
@@ -161,23 +175,23 @@ class GoughPlatform:
         Warm start from ``guess_*`` (default: home pose, identity). The Jacobian is
         re-evaluated whenever an iteration gains less than three orders of magnitude
         (a chord step with a recent J_h is as good as a Newton step for the small
-        motions between two control cycles; far from the guess this is plain Newton). Convergence: every
-        strut residual below ``tol_m``. Divergence: the residual grows twice in a row
-        or passes 10 x the strut range. Branch: the plate must stay above the base
-        plane with its normal pointing away from the base (no mirror assembly).
+        motions between two control cycles; far from the guess this is plain Newton).
+        Convergence: every strut residual below ``tol_m``. Divergence: the residual grows twice in a row
+        or passes 10 x max(1 m, strut range). Branch: the plate must stay above the base
+        plane with its normal pointing away from the base (no mirror assembly), and a
+        solve that travelled (re-linearised or took more than two steps) must keep the
+        sign of det(J_h^-1) at home (no other assembly mode).
         ``jacobian_guess`` may pass J_h near the guess, which a warm-starting caller
         keeps from the previous solve (``GoughDKMSolver``).
         """
         target = self._validate_lengths(lengths)
         p = self.home_position.tolist() if guess_position is None else finite_floats(
             guess_position, 3, "guess_position")
-        if guess_rotation is None:
-            rot = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-        else:
-            rot = np.asarray(guess_rotation, dtype=float).ravel().tolist()
-            if len(rot) != 9 or np.shape(guess_rotation) != (3, 3) or not math.isfinite(sum(rot)):
-                raise ValueError(f"guess_rotation: expected a finite 3 x 3 matrix, got {guess_rotation!r}")
-        jh = None if jacobian_guess is None else np.asarray(jacobian_guess, dtype=float).tolist()
+        rot = ([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] if guess_rotation is None
+               else validate_rotation(guess_rotation, "guess_rotation"))
+        jh = None
+        if jacobian_guess is not None:
+            jh = finite_array(jacobian_guess, "jacobian_guess", (6, 6)).tolist()
         return self._newton(target, p, rot, jh, tol_m, max_iterations)
 
     def _newton(self, target: list, p: list, rot: list, jh, tol_m: float,
@@ -206,11 +220,12 @@ class GoughPlatform:
             residual = max(map(abs, res))
             if residual <= tol_m:
                 return self._finish(px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22),
-                                    iteration, evaluations, residual, jh)
+                                    iteration, evaluations, residual, jh, geometry)
             if iteration == max_iterations:
                 break
             if not math.isfinite(residual) or residual > self._divergence_limit:
-                return self._fail(iteration, evaluations, residual, "diverged: residual exceeds 10x the strut range")
+                return self._fail(iteration, evaluations, residual,
+                                  f"diverged: residual {residual:.3g} m above the limit {self._divergence_limit:.3g} m")
             growth = growth + 1 if residual > previous else 0
             if growth >= 2:
                 return self._fail(iteration, evaluations, residual, "diverged: residual grew twice in a row")
@@ -235,10 +250,19 @@ class GoughPlatform:
         return self._fail(max_iterations, evaluations, residual,
                           f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
 
-    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
+    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh, geometry) -> GoughDKMResult:
         if pz <= 0.0 or rot[8] <= 0.0:
             return self._fail(iterations, evaluations, residual,
                               "mirror assembly: the plate is below the base plane or flipped")
+        if evaluations or iterations > 2:
+            # the solve travelled: it must not have crossed into another assembly mode,
+            # which would flip the sign of det(J_h^-1) (a path between modes crosses a
+            # singularity). Short warm-started solves cannot, and skip this 10 us check.
+            jinv = [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
+                    for ux, uy, uz, rbx, rby, rbz in geometry]
+            if np.linalg.det(np.array(jinv)) * self._home_det_sign <= 0.0:
+                return self._fail(iterations, evaluations, residual,
+                                  "another assembly mode: det(J_h^-1) has the opposite sign to home")
         return GoughDKMResult(np.array([px, py, pz]), np.array(rot).reshape(3, 3), True, iterations,
                               evaluations, residual, "", jh)
 
@@ -253,7 +277,7 @@ class GoughPlatform:
 
         The same Newton-Raphson iteration as :meth:`direct_kinematics` (chord steps,
         J_h re-evaluated for rows that gain less than three orders of magnitude,
-        divergence and mirror checks), in structure-of-arrays form over chunks of
+        divergence, mirror and assembly-mode checks), in structure-of-arrays form over chunks of
         ``chunk`` poses (see gough_batch). Returns (positions (N, 3), rotations
         (N, 3, 3), converged (N,), iterations (N,)); rows that failed are NaN.
         """
@@ -261,6 +285,11 @@ class GoughPlatform:
         n = lengths.shape[0]
         guess_positions = finite_array(guess_positions, "guess_positions", (n, 3))
         guess_rotations = finite_array(guess_rotations, "guess_rotations", (n, 3, 3))
+        distortion = np.abs(np.einsum("nji,njk->nik", guess_rotations, guess_rotations) - np.eye(3)).max(axis=(1, 2))
+        bad = (distortion > 1e-6) | (np.linalg.det(guess_rotations) <= 0.0)
+        if bad.any():
+            raise ValueError(f"guess_rotations[{int(np.argmax(bad))}]: not a rotation matrix "
+                             "(R^T R != I or det(R) <= 0)")
         p_out = np.empty((n, 3))
         r_out = np.empty((n, 3, 3))
         iters = np.empty(n, dtype=int)
@@ -269,7 +298,7 @@ class GoughPlatform:
             sl = slice(start, min(n, start + chunk))
             p_out[sl], r_out[sl], ok[sl], iters[sl] = dkm_chunk(
                 self.base_points, self.plate_points, lengths[sl], guess_positions[sl],
-                guess_rotations[sl], tol_m, max_iterations, self._divergence_limit)
+                guess_rotations[sl], tol_m, max_iterations, self._divergence_limit, self._home_det_sign)
         p_out[~ok] = np.nan
         r_out[~ok] = np.nan
         return p_out, r_out, ok, iters
@@ -294,10 +323,9 @@ class GoughDKMSolver:
         self.reset()
 
     def reset(self, position=None, rotation=None) -> None:
-        p = self.platform.home_position if position is None else position
-        r = np.eye(3) if rotation is None else rotation
-        self._p = np.asarray(p, dtype=float).tolist()
-        self._r = tuple(np.asarray(r, dtype=float).ravel().tolist())
+        self._p = (self.platform.home_position.tolist() if position is None
+                   else finite_floats(position, 3, "position"))
+        self._r = tuple(np.eye(3).ravel().tolist() if rotation is None else validate_rotation(rotation, "rotation"))
         self._previous = None        # (position, rotation) one solve earlier, as floats
         self._jh = None
 

@@ -19,13 +19,17 @@ from __future__ import annotations
 import numpy as np
 
 
-def _inv3(m):
-    """Inverse of 3 x 3 matrices given as nested lists of arrays (adjugate / det)."""
+def _inv3(m, dets=None):
+    """Inverse of 3 x 3 matrices given as nested lists of arrays (adjugate / det);
+    the determinants are appended to ``dets`` when given."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = m
     c00 = a11 * a22 - a12 * a21
     c01 = a12 * a20 - a10 * a22
     c02 = a10 * a21 - a11 * a20
-    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if dets is not None:
+        dets.append(det)
+    inv_det = 1.0 / det
     return [[c00 * inv_det, (a02 * a21 - a01 * a22) * inv_det, (a01 * a12 - a02 * a11) * inv_det],
             [c01 * inv_det, (a00 * a22 - a02 * a20) * inv_det, (a02 * a10 - a00 * a12) * inv_det],
             [c02 * inv_det, (a01 * a20 - a00 * a21) * inv_det, (a00 * a11 - a01 * a10) * inv_det]]
@@ -39,7 +43,7 @@ def _matvec3(x, v):
     return [x[i][0] * v[0] + x[i][1] * v[1] + x[i][2] * v[2] for i in range(3)]
 
 
-def _factor(geometry):
+def _factor(geometry, dets=None):
     """Block factors of J_h^-1 = [[A, B], [C, D]] (rows: struts 0-2 and 3-5, columns:
     translation and rotation), so that a solve costs ~70 array operations:
     x2 = S^-1 (r2 - N r1), x1 = A^-1 r1 - M x2, with M = A^-1 B, N = C A^-1, S = D - C M."""
@@ -49,11 +53,11 @@ def _factor(geometry):
     b = [list(r[3:]) for r in rows[:3]]
     c = [list(r[:3]) for r in rows[3:]]
     d = [list(r[3:]) for r in rows[3:]]
-    a_inv = _inv3(a)
+    a_inv = _inv3(a, dets)
     m = _mul3(a_inv, b)
     n = _mul3(c, a_inv)
     cm = _mul3(c, m)
-    s_inv = _inv3([[d[i][j] - cm[i][j] for j in range(3)] for i in range(3)])
+    s_inv = _inv3([[d[i][j] - cm[i][j] for j in range(3)] for i in range(3)], dets)
     return a_inv, m, n, s_inv
 
 
@@ -73,9 +77,11 @@ def _where_factors(mask, new, old):
 
 
 def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iterations: int,
-              divergence_limit: float):
+              divergence_limit: float, home_det_sign: float):
     """Solve one chunk. base, plate: (6, 3); lengths (m, 6); positions (m, 3);
-    rotations (m, 3, 3). Returns (positions, rotations, converged, iterations)."""
+    rotations (m, 3, 3). Returns (positions, rotations, converged, iterations).
+    A converged row must keep the sign of det(J_h^-1) at home, det(A) det(S) of the
+    block factors (no other assembly mode), and stay above the base (no mirror)."""
     m = lengths.shape[0]
     target = [np.ascontiguousarray(lengths[:, i]) for i in range(6)]
     p = [np.ascontiguousarray(positions[:, k]) for k in range(3)]
@@ -136,7 +142,10 @@ def dkm_chunk(base, plate, lengths, positions, rotations, tol_m: float, max_iter
                  [-a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy)]]
             rr = [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]]
             r = [v for row in _mul3(e, rr) for v in row]
-    ok = done & ~failed & (p[2] > 0.0) & (r[8] > 0.0)
+        dets = []
+        _factor(geometry, dets)          # det(J_h^-1) = det(A) det(S - C A^-1 B)
+        same_mode = dets[0] * dets[1] * home_det_sign > 0.0
+    ok = done & ~failed & (p[2] > 0.0) & (r[8] > 0.0) & same_mode
     out_p = np.stack(p, axis=1)
     out_r = np.stack(r, axis=1).reshape(m, 3, 3)
     return out_p, out_r, ok, iterations

@@ -29,8 +29,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import JointLimitError, UnreachablePoseError
+from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .validation import finite_array, finite_floats
+
+
+# Forward kinematics switches from Gauss-Newton to Newton steps (exact Hessian) once a
+# Gauss-Newton step is shorter than this (m + rad): inside the quadratic basin.
+NEWTON_RADIUS = 1e-2
 
 
 @dataclass(frozen=True)
@@ -110,12 +115,11 @@ class PlanarMachine:
                             self._o, self._u, self._length2, self._b, self._sigma,
                             self.joint_lower, self.joint_upper, self.leg_names)]
         self._pairs = self._find_pairs()
-        # Working mode: which side of its rail each link lies on at home, and for
-        # paired legs which of the two circle intersections the shared point is.
+        # Working mode: the assembly branch sigma_i of every leg (which of the two
+        # carriage positions on the rail), and for paired legs which of the two circle
+        # intersections the shared point is, taken at home. (The side of its rail a
+        # lone leg's platform point lies on is a property of the pose, not a mode.)
         q_home = self.inverse_kinematics(self.home_pose, check_limits=False)
-        e = self._leg_vectors(self.home_pose, q_home)
-        self._side = np.sign(self._u[:, 0] * e[:, 1] - self._u[:, 1] * e[:, 0])
-        self._side_f = self._side.tolist()
         self._pair_side = []
         for i, j in self._pairs:
             a_i = self._o[i] + q_home[i] * self._u[i]
@@ -170,7 +174,7 @@ class PlanarMachine:
             wy = y + s * bx + c * by - oy
             a = wx * ux + wy * uy
             disc = l2 - wx * wx - wy * wy + a * a
-            if disc < 0.0:
+            if not disc >= 0.0:        # also NaN from overflowing inputs
                 raise UnreachablePoseError(
                     f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
                     f"leg {name} platform point is {math.sqrt(l2 - disc):.6g} m from its rail, "
@@ -220,15 +224,19 @@ class PlanarMachine:
 
         ``q`` may be given when already known (saves an IK)."""
         x, y, th = finite_floats(pose, 3, "pose")
-        qs = (self.inverse_kinematics(pose, check_limits=False) if q is None else q).tolist()
+        qs = (self.inverse_kinematics(pose, check_limits=False).tolist() if q is None
+              else finite_floats(q, self.n_legs, "q"))
         c, s = math.cos(th), math.sin(th)
         rows = []
-        for (ox, oy, ux, uy, _, bx, by, *_rest), qi in zip(self._legs_f, qs):
+        for (ox, oy, ux, uy, l2, bx, by, *_rest, name), qi in zip(self._legs_f, qs):
             rbx = c * bx - s * by
             rby = s * bx + c * by
             ex = x + rbx - ox - qi * ux
             ey = y + rby - oy - qi * uy
             denom = ex * ux + ey * uy
+            if denom * denom <= 1e-18 * l2:      # |e . u| <= 1e-9 L
+                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity): "
+                                       f"J_m is unbounded at pose {[x, y, th]}")
             # row = [e^T, e . (E R b)] / (e . u), E R b = (-rby, rbx)
             rows.append((ex / denom, ey / denom, (ey * rbx - ex * rby) / denom))
         return np.array(rows)
@@ -241,10 +249,10 @@ class PlanarMachine:
         edot = pdot + thetadot E R b - qdot u,  d(E R b)/dt = -thetadot R b,
         Jdot[i] = gdot_i / s_i - g_i sdot_i / s_i^2.
         """
-        pose = np.asarray(pose, dtype=float)
-        twist = np.asarray(twist, dtype=float)
-        if q is None:
-            q = self.inverse_kinematics(pose, check_limits=False)
+        pose = np.array(finite_floats(pose, 3, "pose"))
+        twist = np.array(finite_floats(twist, 3, "twist"))
+        q = (self.inverse_kinematics(pose, check_limits=False) if q is None
+             else np.array(finite_floats(q, self.n_legs, "q")))
         jac = self.jacobian(pose, q)
         qdot = jac @ twist
         c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -274,7 +282,10 @@ class PlanarMachine:
         ex = poses[:, 0:1] + rbx - self._o[:, 0] - q * self._u[:, 0]
         ey = poses[:, 1:2] + rby - self._o[:, 1] - q * self._u[:, 1]
         denom = ex * self._u[:, 0] + ey * self._u[:, 1]
-        return np.stack([ex / denom, ey / denom, (ey * rbx - ex * rby) / denom], axis=2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jac = np.stack([ex / denom, ey / denom, (ey * rbx - ex * rby) / denom], axis=2)
+        jac[(denom * denom <= 1e-18 * self._length2) & np.isfinite(denom)] = np.inf   # serial singularity
+        return jac
 
     def condition_number(self, pose) -> float:
         """2-norm condition number of J_m (ARCHI §3.3, Figure 10)."""
@@ -331,13 +342,16 @@ class PlanarMachine:
         return points[0][0] - (c * b1x - s * b1y), points[0][1] - (s * b1x + c * b1y), theta
 
     def forward_kinematics(self, q, guess=None, tol: float = 1e-12,
-                           max_iterations: int = 20) -> ForwardKinematicsResult:
+                           max_iterations: int = 50) -> ForwardKinematicsResult:
         """Pose from drive positions: Gauss-Newton least squares over all n legs.
 
         Started from the closed form where the legs pair up (ARCHI), else from
         ``guess`` (default: home pose). Footnote 5 of ARCHI §3.1 suggests the iterative
         scheme x_{n+1} = x_n + J (q_d - q_n); we minimise sum_i (|B_i - A_i| - L_i)^2,
-        which stays defined away from the solution. The angle is returned on the
+        which stays defined away from the solution. Converged when a step is below
+        ``tol`` (m, rad); with drive positions that no pose matches (model error) this
+        is the least-squares pose, and ``residual_m`` (the largest leg-length misfit at
+        the returned pose) says how far off they are. The angle is returned on the
         revolution of ``guess`` (unlimited rotation). The result's pose is NaN and
         ``converged`` False if the solve fails or lands on another working mode.
         """
@@ -353,12 +367,19 @@ class PlanarMachine:
             x, y, th = ref
         legs = [(ox + qi * ux, oy + qi * uy, bx, by, math.sqrt(l2), ux, uy, sigma)
                 for (ox, oy, ux, uy, l2, bx, by, sigma, *_), qi in zip(self._legs_f, qs)]
-        residual = math.inf
+        use_hessian = False
+        previous_size = math.inf
         for iteration in range(1, max_iterations + 1):
             c, s = math.cos(th), math.sin(th)
-            # normal equations of f_i = |e_i| - L_i, grad f_i = [e^T, e^T E R b] / |e|
+            # Newton on C = 1/2 sum f_i^2, f_i = |e_i| - L_i, e_i = p + R b_i - A_i:
+            # grad f_i = g_i = [e^T, e^T E R b] / |e|; its Hessian is h_i h_i^T / |e| with
+            # h_i = [n^T, n^T E R b], n = E e / |e|, plus -e.(R b)/|e| in (theta, theta).
+            # When the drives disagree (model error) Gauss-Newton alone converges only
+            # linearly (~0.9 per step); the exact Hessian restores quadratic convergence.
+            # It is accumulated only then, inside the basin (see NEWTON_RADIUS).
             a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
-            residual = 0.0
+            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+            misfit = 0.0
             for ax, ay, bx, by, length, *_ in legs:
                 rbx = c * bx - s * by
                 rby = s * bx + c * by
@@ -376,33 +397,67 @@ class PlanarMachine:
                 r0 += gx * f
                 r1 += gy * f
                 r2 += gt * f
-                residual = max(residual, abs(f))
+                if abs(f) > misfit:
+                    misfit = abs(f)
+                if use_hessian:
+                    w = f / dist
+                    nt = gx * rbx + gy * rby          # n . (E R b) with n = (-gy, gx)
+                    h00 += w * gy * gy
+                    h01 -= w * gy * gx
+                    h02 -= w * gy * nt
+                    h11 += w * gx * gx
+                    h12 += w * gx * nt
+                    h22 += w * (nt * nt - (ex * rbx + ey * rby))
             try:
                 dx, dy, dth = _solve3(((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (r0, r1, r2))
             except np.linalg.LinAlgError:
                 return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, math.inf,
                                                "singular configuration: Jacobian rank < 3")
+            if use_hessian:
+                try:
+                    nx_, ny_, nt_ = _solve3(((a00 + h00, a01 + h01, a02 + h02), (a01 + h01, a11 + h11, a12 + h12),
+                                             (a02 + h02, a12 + h12, a22 + h22)), (r0, r1, r2))
+                    if nx_ * r0 + ny_ * r1 + nt_ * r2 > 0.0:     # a descent direction
+                        dx, dy, dth = nx_, ny_, nt_
+                except np.linalg.LinAlgError:
+                    pass
             x -= dx
             y -= dy
             th -= dth
-            if abs(dx) + abs(dy) + abs(dth) < tol:
+            size = abs(dx) + abs(dy) + abs(dth)
+            # converged: a step below tol, or a step below 1e-6 that contracted
+            # quadratically (1000x smaller than the last): the next would be ~1e-12
+            if size < tol or (size < 1e-6 and size < 1e-3 * previous_size):
                 break
+            previous_size = size
+            use_hessian = size < NEWTON_RADIUS and misfit > 1e-9
         else:
-            return ForwardKinematicsResult(np.full(3, np.nan), False, max_iterations, residual,
+            return ForwardKinematicsResult(np.full(3, np.nan), False, max_iterations, math.nan,
                                            f"no convergence in {max_iterations} iterations")
-        # working mode: assembly branch and side of every link (see __post_init__)
+        th += 2.0 * math.pi * round((ref[2] - th) / (2.0 * math.pi))   # on the guess's revolution
+        # residual at the returned pose, and the working mode (see __post_init__)
         c, s = math.cos(th), math.sin(th)
-        for (ax, ay, bx, by, _, ux, uy, sigma), side in zip(legs, self._side_f):
-            ex = x + c * bx - s * by - ax
-            ey = y + s * bx + c * by - ay
-            if (ex * ux + ey * uy) * sigma > 0.0 or (ux * ey - uy * ex) * side < 0.0:
+        residual = 0.0
+        points = []
+        for ax, ay, bx, by, length, ux, uy, sigma in legs:
+            px, py = x + c * bx - s * by, y + s * bx + c * by
+            ex, ey = px - ax, py - ay
+            residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - length))
+            points.append((px, py))
+            if (ex * ux + ey * uy) * sigma > 0.0:
                 return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, residual,
                                                "converged to another working mode (assembly branch)")
+        for (i, j), side in zip(self._pairs, self._pair_side):
+            (aix, aiy), (ajx, ajy), (px, py) = legs[i][:2], legs[j][:2], points[i]
+            if ((ajx - aix) * (py - aiy) - (ajy - aiy) * (px - aix)) * side < 0.0:
+                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, residual,
+                                               "converged to another working mode (leg pair)")
         return ForwardKinematicsResult(np.array([x, y, th]), True, iteration, residual)
 
     def forward_kinematics_batch(self, q, guesses=None, tol: float = 1e-12,
-                                 max_iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorized forward kinematics for q of shape (N, n).
+                                 max_iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorized forward kinematics for q of shape (N, n), with the semantics of
+        :meth:`forward_kinematics` (step criterion, working-mode checks).
 
         Closed-form start where available, else ``guesses`` (N, 3) or the home pose;
         then batched Gauss-Newton. Returns (poses (N, 3), converged mask (N,));
@@ -410,60 +465,78 @@ class PlanarMachine:
         """
         q = finite_array(q, "q", (-1, self.n_legs))
         n = q.shape[0]
-        if self._pairs:
-            pts = []
-            for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
-                ai = self._o[i] + q[:, i:i + 1] * self._u[i]
-                aj = self._o[j] + q[:, j:j + 1] * self._u[j]
-                dvec = aj - ai
-                d2 = np.einsum("ij,ij->i", dvec, dvec)
-                d = np.sqrt(d2)
-                along = (self._length2[i] - self._length2[j] + d2) / (2.0 * d)
-                h = side * np.sqrt(self._length2[i] - along**2)
-                px = ai[:, 0] + (along * dvec[:, 0] - h * dvec[:, 1]) / d
-                py = ai[:, 1] + (along * dvec[:, 1] + h * dvec[:, 0]) / d
-                pts.append((px, py))
-            (i1, _), (i2, _) = self._pairs[:2]
-            b1, b2 = self._b[i1], self._b[i2]
-            th = (np.arctan2(pts[1][1] - pts[0][1], pts[1][0] - pts[0][0])
-                  - math.atan2(b2[1] - b1[1], b2[0] - b1[0]))
-            ref_th = self.home_pose[2] if guesses is None else np.asarray(guesses)[:, 2]
-            th = th + 2.0 * np.pi * np.round((ref_th - th) / (2.0 * np.pi))
-            c, s = np.cos(th), np.sin(th)
-            x = np.stack([pts[0][0] - (c * b1[0] - s * b1[1]), pts[0][1] - (s * b1[0] + c * b1[1]), th], 1)
-        else:
-            x = np.tile(self.home_pose, (n, 1)) if guesses is None else np.array(guesses, dtype=float)
-        ax = self._o[:, 0] + q * self._u[:, 0]
-        ay = self._o[:, 1] + q * self._u[:, 1]
-        active = np.isfinite(x).all(axis=1)
-        for _ in range(max_iterations):
+        guesses = None if guesses is None else finite_array(guesses, "guesses", (n, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if self._pairs:
+                pts = []
+                for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
+                    ai = self._o[i] + q[:, i:i + 1] * self._u[i]
+                    aj = self._o[j] + q[:, j:j + 1] * self._u[j]
+                    dvec = aj - ai
+                    d2 = np.einsum("ij,ij->i", dvec, dvec)
+                    d = np.sqrt(d2)
+                    along = (self._length2[i] - self._length2[j] + d2) / (2.0 * d)
+                    h = side * np.sqrt(self._length2[i] - along**2)
+                    px = ai[:, 0] + (along * dvec[:, 0] - h * dvec[:, 1]) / d
+                    py = ai[:, 1] + (along * dvec[:, 1] + h * dvec[:, 0]) / d
+                    pts.append((px, py))
+                (i1, _), (i2, _) = self._pairs[:2]
+                b1, b2 = self._b[i1], self._b[i2]
+                th = (np.arctan2(pts[1][1] - pts[0][1], pts[1][0] - pts[0][0])
+                      - math.atan2(b2[1] - b1[1], b2[0] - b1[0]))
+                ref_th = self.home_pose[2] if guesses is None else guesses[:, 2]
+                th = th + 2.0 * np.pi * np.round((ref_th - th) / (2.0 * np.pi))
+                c, s = np.cos(th), np.sin(th)
+                x = np.stack([pts[0][0] - (c * b1[0] - s * b1[1]), pts[0][1] - (s * b1[0] + c * b1[1]), th], 1)
+            else:
+                x = np.tile(self.home_pose, (n, 1)) if guesses is None else guesses.copy()
+            ax = self._o[:, 0] + q * self._u[:, 0]
+            ay = self._o[:, 1] + q * self._u[:, 1]
+            active = np.isfinite(x).all(axis=1)
+            done = np.zeros(n, dtype=bool)
+            for _ in range(max_iterations):
+                c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
+                rbx = c * self._b[:, 0] - s * self._b[:, 1]
+                rby = s * self._b[:, 0] + c * self._b[:, 1]
+                ex = x[:, 0:1] + rbx - ax
+                ey = x[:, 1:2] + rby - ay
+                dist = np.sqrt(ex * ex + ey * ey)
+                f = dist - self._length
+                gx, gy = ex / dist, ey / dist
+                g = np.stack([gx, gy, (ey * rbx - ex * rby) / dist], axis=2)
+                jtj = np.einsum("nij,nik->njk", g, g)
+                jtf = np.einsum("nij,ni->nj", g, f)
+                # the exact Hessian of the scalar solver (second-order terms weighted by f)
+                h = np.stack([-gy, gx, -gy * -rby + gx * rbx], axis=2)
+                w = f / dist
+                hess = jtj + np.einsum("ni,nij,nik->njk", w, h, h)
+                hess[:, 2, 2] -= (w * (ex * rbx + ey * rby)).sum(axis=1)
+                step = np.zeros_like(x)
+                solvable = active & ~done & np.isfinite(jtj).all(axis=(1, 2))
+                solvable[solvable] &= np.abs(np.linalg.det(jtj[solvable])) > 1e-300
+                active &= solvable | done
+                if solvable.any():
+                    gn = np.linalg.solve(jtj[solvable], jtf[solvable][:, :, None])[:, :, 0]
+                    newton = np.linalg.solve(hess[solvable], jtf[solvable][:, :, None])[:, :, 0]
+                    use = (((newton * jtf[solvable]).sum(axis=1) > 0.0) & np.isfinite(newton).all(axis=1)
+                           & (np.abs(gn).sum(axis=1) < NEWTON_RADIUS))
+                    step[solvable] = np.where(use[:, None], newton, gn)
+                x -= step
+                done |= solvable & (np.abs(step).sum(axis=1) < tol)
+                if not (active & ~done).any():
+                    break
+            ref_th = self.home_pose[2] if guesses is None else guesses[:, 2]
+            x[:, 2] += 2.0 * np.pi * np.round((ref_th - x[:, 2]) / (2.0 * np.pi))
+            # working mode: assembly branch of every leg, side of every leg pair
             c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
-            rbx = c * self._b[:, 0] - s * self._b[:, 1]
-            rby = s * self._b[:, 0] + c * self._b[:, 1]
-            ex = x[:, 0:1] + rbx - ax
-            ey = x[:, 1:2] + rby - ay
-            dist = np.sqrt(ex * ex + ey * ey)
-            f = dist - self._length
-            g = np.stack([ex / dist, ey / dist, (ey * rbx - ex * rby) / dist], axis=2)
-            jtj = np.einsum("nij,nik->njk", g, g)
-            jtf = np.einsum("nij,ni->nj", g, f)
-            step = np.zeros_like(x)
-            ok = active & np.isfinite(jtj).all(axis=(1, 2)) & (np.abs(np.linalg.det(
-                np.where(np.isfinite(jtj), jtj, 0.0))) > 1e-300)
-            if ok.any():
-                step[ok] = np.linalg.solve(jtj[ok], jtf[ok][:, :, None])[:, :, 0]
-            x -= step
-            active &= ok
-            if np.all(np.abs(step[active]).sum(axis=1) < tol):
-                break
-        # working-mode check
-        c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
-        ex = x[:, 0:1] + c * self._b[:, 0] - s * self._b[:, 1] - ax
-        ey = x[:, 1:2] + s * self._b[:, 0] + c * self._b[:, 1] - ay
-        dist = np.sqrt(ex * ex + ey * ey)
-        conv = active & (np.abs(dist - self._length).max(axis=1) < 1e-6)
-        conv &= np.all(np.sign(-(ex * self._u[:, 0] + ey * self._u[:, 1])) == self._sigma, axis=1)
-        conv &= np.all(np.sign(self._u[:, 0] * ey - self._u[:, 1] * ex) == self._side, axis=1)
+            px = x[:, 0:1] + c * self._b[:, 0] - s * self._b[:, 1]
+            py = x[:, 1:2] + s * self._b[:, 0] + c * self._b[:, 1]
+            ex, ey = px - ax, py - ay
+            conv = active & done
+            conv &= np.all((ex * self._u[:, 0] + ey * self._u[:, 1]) * self._sigma < 0.0, axis=1)
+            for (i, j), side in zip(self._pairs, self._pair_side):
+                cross = (ax[:, j] - ax[:, i]) * (py[:, i] - ay[:, i]) - (ay[:, j] - ay[:, i]) * (px[:, i] - ax[:, i])
+                conv &= cross * side > 0.0
         x[~conv] = np.nan
         return x, conv
 
@@ -484,12 +557,10 @@ class PlanarMachine:
         e = self._leg_vectors(pose, q)
         jv = np.zeros((4, 4))
         jq = np.zeros((4, 4))
-        order = []
         for k, pair in enumerate(self._pairs):
             for leg in pair:
                 jv[leg, 2 * k:2 * k + 2] = e[leg]
                 jq[leg, leg] = e[leg] @ self._u[leg]
-                order.append(leg)
         force_map = np.linalg.solve(jv, jq).T
         pts = self._platform_points(pose)
         (i1, _), (i2, _) = self._pairs

@@ -49,29 +49,6 @@ def mul3(a, b) -> tuple:
             a20 * b02 + a21 * b12 + a22 * b22)
 
 
-def exp_so3_batch(omega: np.ndarray) -> np.ndarray:
-    """Vectorized Rodrigues' formula for omega of shape (N, 3); returns (N, 3, 3)."""
-    omega = np.asarray(omega, dtype=float)
-    theta2 = np.einsum("ij,ij->i", omega, omega)
-    theta = np.sqrt(theta2)
-    small = theta2 < 1e-16
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    wx, wy, wz = omega[:, 0], omega[:, 1], omega[:, 2]
-    out = np.empty((omega.shape[0], 3, 3))
-    out[:, 0, 0] = 1.0 - b * (wy * wy + wz * wz)
-    out[:, 0, 1] = -a * wz + b * wx * wy
-    out[:, 0, 2] = a * wy + b * wx * wz
-    out[:, 1, 0] = a * wz + b * wx * wy
-    out[:, 1, 1] = 1.0 - b * (wx * wx + wz * wz)
-    out[:, 1, 2] = -a * wx + b * wy * wz
-    out[:, 2, 0] = -a * wy + b * wx * wz
-    out[:, 2, 1] = a * wx + b * wy * wz
-    out[:, 2, 2] = 1.0 - b * (wx * wx + wy * wy)
-    return out
-
-
 def log_so3(rotation: np.ndarray) -> np.ndarray:
     """Inverse of :func:`exp_so3`: the rotation vector of ``rotation`` (angle < pi)."""
     r = np.asarray(rotation, dtype=float)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import JointLimitError, UnreachablePoseError
+from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .validation import finite_array, finite_floats
 
 
@@ -133,7 +133,9 @@ class TranslationalMachine:
         """Tool-centre position from actuator positions: the intersection of three
         spheres (centres B_i - c_i, radii L_i) on the working-mode side. Closed form.
 
-        Raises UnreachablePoseError when the spheres do not meet.
+        Raises UnreachablePoseError when the spheres do not meet or when the point
+        found needs a leg on its other assembly branch, SingularityError when the centres
+        are collinear.
         """
         r = finite_floats(rho, 3, "rho")
         # sphere centres S_i = o_i + rho_i e_i - c_i, radii L_i (scalar form of _trilaterate)
@@ -144,6 +146,9 @@ class TranslationalMachine:
         vx, vy, vz = s3[0] - s1[0], s3[1] - s1[1], s3[2] - s1[2]
         nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         n2 = nx * nx + ny * ny + nz * nz
+        if not n2 > 1e-18 * (ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz):
+            raise SingularityError(f"actuator positions {r} m: the three sphere centres are collinear "
+                                   "(the platform position is not determined)")
         k2 = 0.5 * (sq1 - sq2 + ux * ux + uy * uy + uz * uz)
         k3 = 0.5 * (sq1 - sq3 + vx * vx + vy * vy + vz * vz)
         # foot of the intersection line: (k2 (v x n) + k3 (n x u)) / |n|^2
@@ -155,14 +160,29 @@ class TranslationalMachine:
             raise UnreachablePoseError(
                 f"actuator positions {r} m cannot be assembled: the legs do not meet")
         h = self._fk_side * math.sqrt(rest / n2)
-        return np.array([s1[0] + fx + h * nx, s1[1] + fy + h * ny, s1[2] + fz + h * nz])
+        p = (s1[0] + fx + h * nx, s1[1] + fy + h * ny, s1[2] + fz + h * nz)
+        # each leg must be on its assembly branch: (C_i - B_i) . e_i has the sign of -sigma_i
+        for (ox, oy, oz, ex, ey, ez, _, cx, cy, cz, sigma, _lo, _hi, name), ri in zip(self._legs_f, r):
+            along = ((p[0] + cx - ox - ri * ex) * ex + (p[1] + cy - oy - ri * ey) * ey
+                     + (p[2] + cz - oz - ri * ez) * ez)
+            if along * sigma > 0.0:
+                raise UnreachablePoseError(
+                    f"actuator positions {r} m assemble only with leg {name} on its other branch "
+                    f"(assembly {int(sigma):+d})")
+        return np.array(p)
 
     def forward_kinematics_batch(self, rho) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorized forward kinematics, rho (N, 3): (positions NaN where impossible, ok mask)."""
+        """Vectorized forward kinematics, rho (N, 3): (positions, ok mask); NaN rows where
+        the legs do not meet or a leg would be on its other branch."""
         rho = finite_array(rho, "rho", (-1, 3))
         centres = self._o + rho[:, :, None] * self._e - self._c
-        p = self._trilaterate(centres, self._length2)
-        return p, np.isfinite(p).all(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = self._trilaterate(centres, self._length2)
+            legs = p[:, None, :] + self._c - self._o - rho[:, :, None] * self._e
+            on_branch = np.all(np.einsum("nij,ij->ni", legs, self._e) * self._sigma < 0.0, axis=1)
+        ok = np.isfinite(p).all(axis=1) & on_branch
+        p[~ok] = np.nan
+        return p, ok
 
     def _trilaterate(self, centres: np.ndarray, r2: np.ndarray) -> np.ndarray:
         """Intersection of 3 spheres per row, centres (N, 3, 3): the point on the
@@ -185,9 +205,9 @@ class TranslationalMachine:
     # ---------------------------------------------------------------- jacobians
     def parallel_jacobian(self, position, rho=None) -> np.ndarray:
         """A = [(c_i - b_i)^T]: rows are the leg vectors (Orthoglide eq. 4)."""
-        p = np.asarray(position, dtype=float)
-        if rho is None:
-            rho = self.inverse_kinematics(p, check_limits=False)
+        p = np.array(finite_floats(position, 3, "position"))
+        rho = (self.inverse_kinematics(p, check_limits=False) if rho is None
+               else np.array(finite_floats(rho, 3, "rho")))
         return p + self._c - self._o - rho[:, None] * self._e
 
     def serial_jacobian(self, position, rho=None) -> np.ndarray:
@@ -196,9 +216,15 @@ class TranslationalMachine:
         return np.diag(np.einsum("ij,ij->i", a, self._e))
 
     def jacobian(self, position, rho=None) -> np.ndarray:
-        """J_m = B^-1 A (Orthoglide eq. 8), rhodot = J_m pdot."""
+        """J_m = B^-1 A (Orthoglide eq. 8), rhodot = J_m pdot. Raises SingularityError
+        at a serial singularity (a leg perpendicular to its rail: B singular)."""
         a = self.parallel_jacobian(position, rho)
-        return a / np.einsum("ij,ij->i", a, self._e)[:, None]
+        b = np.einsum("ij,ij->i", a, self._e)
+        if np.any(np.abs(b) <= 1e-9 * self._length):
+            i = int(np.argmin(np.abs(b) / self._length))
+            raise SingularityError(f"leg {self.leg_names[i]} is perpendicular to its rail (serial "
+                                   "singularity, Orthoglide §3.3): J_m is unbounded")
+        return a / b[:, None]
 
     def jacobian_batch(self, positions) -> np.ndarray:
         """J_m for positions (N, 3): (N, 3, 3), NaN where unreachable."""
@@ -210,7 +236,7 @@ class TranslationalMachine:
     def jacobian_derivative(self, position, velocity, rho=None) -> np.ndarray:
         """dJ_m/dt along pdot. With a_i the leg vector and s_i = a_i . e_i:
         adot_i = pdot - rhodot_i e_i, Jdot[i] = adot_i / s_i - a_i (adot_i . e_i) / s_i^2."""
-        v = np.asarray(velocity, dtype=float)
+        v = np.array(finite_floats(velocity, 3, "velocity"))
         a = self.parallel_jacobian(position, rho)
         s = np.einsum("ij,ij->i", a, self._e)
         rhodot = (a @ v) / s
@@ -236,6 +262,7 @@ class TranslationalMachine:
         return out
 
     def is_isotropic(self, position, tol: float = 1e-9) -> bool:
-        """True when J_m^-1 J_m^-T... i.e. J_m J_m^T = (1/psi^2) I: condition number 1
-        (Orthoglide §4.1-4.2, eq. 9a-d)."""
+        """True when J_m J_m^T is a multiple of I, i.e. the condition number is 1
+        (Orthoglide §4.1-4.2, eq. 9a-d). The Orthoglide's design also asks the factors
+        to equal 1 there (eq. 10): see :meth:`transmission_factors`."""
         return abs(self.condition_number(position) - 1.0) < tol

@@ -40,6 +40,8 @@ def finite_floats(value, size: int, name: str) -> list[float]:
         raise ValueError(f"{name}: expected shape {size}, got {shape}") from exc
     if len(floats) != size:
         raise ValueError(f"{name}: expected shape {size}, got ({len(floats)},)")
-    if not math.isfinite(sum(floats)):      # NaN and +-inf propagate through the sum
+    # fast path: NaN and +-inf propagate through the sum; a finite sum that overflowed
+    # is told apart by the slow check
+    if not math.isfinite(sum(floats)) and not all(map(math.isfinite, floats)):
         raise ValueError(f"{name}: contains NaN or infinite values: {floats}")
     return floats

@@ -1,0 +1,59 @@
+"""SO(3) helpers: exponential/logarithm, RPY and quaternions against closed forms."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pkm_kinematics.rotations import (exp_so3, log_so3, mul3, quaternion_from_rotation, rotation_about_z,
+                                      rotation_from_quaternion, rotation_from_rpy, rpy_from_rotation, skew)
+
+vectors = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
+
+
+@settings(max_examples=100, deadline=None)
+@given(vectors)
+def test_exp_is_a_rotation_and_log_inverts_it(w):
+    r = exp_so3(w)
+    np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+    np.testing.assert_allclose(r @ w, w, atol=1e-12)              # the axis is fixed
+    if np.linalg.norm(w) < math.pi - 1e-3:
+        np.testing.assert_allclose(log_so3(r), w, atol=1e-9)
+
+
+def test_exp_matches_the_matrix_exponential_series():
+    w = np.array([0.3, -0.2, 0.5])
+    k = skew(w)
+    series, term = np.eye(3), np.eye(3)
+    for n in range(1, 30):
+        term = term @ k / n
+        series = series + term
+    np.testing.assert_allclose(exp_so3(w), series, atol=1e-14)
+    np.testing.assert_allclose(exp_so3([1e-10, 0.0, 0.0]), np.eye(3) + skew([1e-10, 0.0, 0.0]), atol=1e-20)
+    np.testing.assert_allclose(np.array(mul3(exp_so3(w).ravel(), exp_so3(-w).ravel())).reshape(3, 3),
+                               np.eye(3), atol=1e-14)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-3.1, 3.1), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1))
+def test_rpy_and_quaternion_round_trips(roll, pitch, yaw):
+    r = rotation_from_rpy(roll, pitch, yaw)
+    np.testing.assert_allclose(r, rotation_about_z(yaw) @ exp_so3([0, pitch, 0]) @ exp_so3([roll, 0, 0]),
+                               atol=1e-12)
+    np.testing.assert_allclose(rpy_from_rotation(r), [roll, pitch, yaw], atol=1e-9)
+    q = quaternion_from_rotation(r)
+    assert q[3] >= 0.0 and np.linalg.norm(q) == pytest.approx(1.0)
+    np.testing.assert_allclose(rotation_from_quaternion(q), r, atol=1e-12)
+    # the quaternion's axis-angle is the rotation vector
+    angle = 2.0 * math.atan2(np.linalg.norm(q[:3]), q[3])
+    if angle > 1e-6:
+        np.testing.assert_allclose(q[:3] / np.linalg.norm(q[:3]) * angle, log_so3(r), atol=1e-8)
+
+
+def test_quaternion_validation():
+    with pytest.raises(ValueError, match="quaternion: must be finite and non-zero"):
+        rotation_from_quaternion([0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(rotation_from_quaternion([0, 0, 0, 2.0]), np.eye(3))
