@@ -155,21 +155,23 @@ class GoughMetrologyConfig:
     workspace_size_m: float
 
 
-def _planar(r: _Reader, name: str, description: str) -> PlanarMachine:
+def _legs(r: _Reader, dim: int, attachment: str, leg_type) -> list:
+    """The ``legs`` list: prismatic rail + link to a platform attachment point, in
+    ``dim`` dimensions (``attachment`` is platform_point or platform_offset)."""
     legs = []
     for lr in r.items("legs", min_len=3):
-        direction = lr.vector("rail_direction", 2)
+        direction = lr.vector("rail_direction", dim)
         if np.linalg.norm(direction) < 1e-9:
             raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
-        legs.append(PlanarLeg(
-            name=lr.string("name"),
-            rail_origin=tuple(lr.vector("rail_origin", 2, unit="m")),
-            rail_direction=tuple(direction),
-            link_length=lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
-            platform_point=tuple(lr.vector("platform_point", 2, unit="m")),
-            assembly=_assembly(lr),
-            joint_limits=lr.interval("joint_limits", unit="m"),
-        ))
+        legs.append(leg_type(
+            lr.string("name"), tuple(lr.vector("rail_origin", dim, unit="m")), tuple(direction),
+            lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
+            tuple(lr.vector(attachment, dim, unit="m")), _assembly(lr), lr.interval("joint_limits", unit="m")))
+    return legs
+
+
+def _planar(r: _Reader, name: str, description: str) -> PlanarMachine:
+    legs = _legs(r, 2, "platform_point", PlanarLeg)
     home = r.vector("home_pose", 3, unit="x m, y m, theta rad")
     workspace = _workspace(r, planar=True)
     try:
@@ -192,20 +194,7 @@ def _workspace(r: _Reader, planar: bool) -> dict:
 
 
 def _translational(r: _Reader, name: str, description: str) -> TranslationalMachine:
-    legs = []
-    for lr in r.items("legs", min_len=3):
-        direction = lr.vector("rail_direction", 3)
-        if np.linalg.norm(direction) < 1e-9:
-            raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
-        legs.append(TranslationalLeg(
-            name=lr.string("name"),
-            rail_origin=tuple(lr.vector("rail_origin", 3, unit="m")),
-            rail_direction=tuple(direction),
-            link_length=lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
-            platform_offset=tuple(lr.vector("platform_offset", 3, unit="m")),
-            assembly=_assembly(lr),
-            joint_limits=lr.interval("joint_limits", unit="m"),
-        ))
+    legs = _legs(r, 3, "platform_offset", TranslationalLeg)
     if len(legs) != 3:
         raise ConfigError(r._name("legs"), f"a translational machine has exactly 3 legs, got {len(legs)}")
     bounds = None
