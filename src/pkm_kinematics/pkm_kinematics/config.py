@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +19,7 @@ import yaml
 from .errors import ConfigError, JointLimitError, UnreachablePoseError
 from .gough import GoughPlatform, mom3_points
 from .planar import PlanarLeg, PlanarMachine
+from .rotations import rotation_from_rpy
 from .translational import TranslationalLeg, TranslationalMachine
 
 MACHINE_KINDS = ("planar", "translational")
@@ -153,6 +154,13 @@ class GoughMetrologyConfig:
     tool_box: np.ndarray            # (3, 2): [L_x, L_y, L_z] bounds, plate frame (MoM3 eq. 4, Fig. 12)
     workspace_center: np.ndarray    # plate-centre workspace cube, Gough base frame
     workspace_size_m: float
+    # mounting (REP-103 frames): the Gough base in the machine's world frame, and the
+    # Gough plate in the tool frame of the machine (planar machines: tool = (x, y, 0),
+    # yaw theta; translational: tool = p, identity orientation)
+    base_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    base_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    plate_position_in_tool: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    plate_rotation_in_tool: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 def _legs(r: _Reader, dim: int, attachment: str, leg_type) -> list:
@@ -236,7 +244,18 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
                           f"strut lengths at home {np.round(home_struts, 4).tolist()} m leave strut_limits "
                           f"[{limits[0]:g}, {limits[1]:g}] m")
     w = r.sub("workspace")
+    mount = {}
+    if r.has("mount"):
+        m = r.sub("mount")
+        mount = {
+            "base_position": m.vector("base_position", 3, default=[0.0, 0.0, 0.0], unit="m"),
+            "base_rotation": rotation_from_rpy(*np.radians(m.vector("base_rpy_deg", 3, default=[0.0, 0.0, 0.0]))),
+            "plate_position_in_tool": m.vector("plate_position_in_tool", 3, default=[0.0, 0.0, 0.0], unit="m"),
+            "plate_rotation_in_tool": rotation_from_rpy(
+                *np.radians(m.vector("plate_rpy_in_tool_deg", 3, default=[0.0, 0.0, 0.0]))),
+        }
     return GoughMetrologyConfig(
+        **mount,
         platform=platform,
         encoder_resolution_m=r.number("encoder_resolution", lo=0.0, lo_open=True, hi=1e-3, unit="m"),
         tool_box=tool_box,
