@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from .errors import ConfigError, JointLimitError, UnreachablePoseError
+from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
 from .planar import PlanarLeg, PlanarMachine
 from .rotations import rotation_from_rpy
@@ -143,6 +144,7 @@ class MachineConfig:
     model: PlanarMachine | TranslationalMachine
     metrology: "GoughMetrologyConfig | None"
     data: dict
+    dynamics: "DynamicsParameters | None" = None
 
 
 @dataclass
@@ -273,9 +275,29 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
         description = str(r.raw("description", ""))
         model = _planar(r, name, description) if kind == "planar" else _translational(r, name, description)
         metrology = _gough(r.sub("metrology")) if r.has("metrology") else None
+        dynamics = _dynamics(r.sub("dynamics"), model.n_legs, kind == "planar") if r.has("dynamics") else None
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc.field}", str(exc).split(": ", 1)[1]) from None
-    return MachineConfig(name, kind, model, metrology, data)
+    return MachineConfig(name, kind, model, metrology, data, dynamics)
+
+
+def _dynamics(r: _Reader, n_legs: int, planar: bool) -> DynamicsParameters:
+    """ARCHI §3.4 parameters; per-drive values may be one number for all drives."""
+    def per_drive(key, lo_open):
+        value = r.raw(key)
+        if isinstance(value, list):
+            if len(value) != n_legs:
+                raise ConfigError(r._name(key), f"expected one number or a list of {n_legs}, got {value!r}")
+            return [_Reader({key: v}, r.path).number(key, lo=0.0, lo_open=lo_open) for v in value]
+        return [r.number(key, lo=0.0, lo_open=lo_open)] * n_legs
+    return DynamicsParameters(
+        drive_mass_kg=tuple(per_drive("drive_mass_kg", True)),
+        platform_mass_kg=r.number("platform_mass_kg", lo=0.0, lo_open=True, unit="kg"),
+        platform_inertia_kgm2=(r.number("platform_inertia_kgm2", lo=0.0, lo_open=True, unit="kg m^2")
+                               if planar else math.nan),
+        friction_ns_per_m=tuple(per_drive("friction_ns_per_m", False)),
+        gravity_m_s2=tuple(r.vector("gravity_m_s2", 2 if planar else 3, unit="m/s^2")),
+    )
 
 
 def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:

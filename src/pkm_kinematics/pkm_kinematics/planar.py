@@ -272,6 +272,40 @@ class PlanarMachine:
         gdot = np.stack([edx, edy, g3dot], axis=1)
         return gdot / sv[:, None] - g * (sd / sv**2)[:, None]
 
+    def velocity_terms(self, pose: list, twist: list) -> tuple[list, list, list, list]:
+        """Per-cycle kinematics of the dynamic model on plain floats (ARCHI §3.2, §3.4):
+        (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
+        Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
+        Raises UnreachablePoseError / SingularityError like ``jacobian``."""
+        x, y, th = pose
+        vx, vy, w = twist
+        c, s = math.cos(th), math.sin(th)
+        qs, rows, qdots, biases = [], [], [], []
+        for ox, oy, ux, uy, l2, bx, by, sigma, _lo, _hi, name in self._legs_f:
+            rbx = c * bx - s * by
+            rby = s * bx + c * by
+            wx, wy = x + rbx - ox, y + rby - oy
+            a = wx * ux + wy * uy
+            disc = l2 - wx * wx - wy * wy + a * a
+            if not disc >= 0.0:
+                raise UnreachablePoseError(f"pose {pose} is unreachable for leg {name}")
+            qi = a + sigma * math.sqrt(disc)
+            ex, ey = wx - qi * ux, wy - qi * uy
+            sv = ex * ux + ey * uy
+            if sv * sv <= 1e-18 * l2:
+                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
+            g3 = ey * rbx - ex * rby
+            gv = ex * vx + ey * vy + g3 * w
+            qdot = gv / sv
+            edx, edy = vx - w * rby - qdot * ux, vy + w * rbx - qdot * uy
+            gdot_v = edx * vx + edy * vy + ((edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)) * w
+            sdot = edx * ux + edy * uy
+            qs.append(qi)
+            rows.append((ex / sv, ey / sv, g3 / sv))
+            qdots.append(qdot)
+            biases.append(gdot_v / sv - gv * sdot / (sv * sv))
+        return qs, rows, qdots, biases
+
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""
         poses = np.asarray(poses, dtype=float)

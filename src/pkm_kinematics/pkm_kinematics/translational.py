@@ -244,6 +244,33 @@ class TranslationalMachine:
         sdot = np.einsum("ij,ij->i", adot, self._e)
         return adot / s[:, None] - a * (sdot / s**2)[:, None]
 
+    def velocity_terms(self, position: list, velocity: list) -> tuple[list, list, list, list]:
+        """(rho, rows of J_m, rhodot, Jdot_m pdot) on plain floats for the dynamic model:
+        a_i leg vector, s_i = a_i . e_i, rhodot_i = a_i . v / s_i, adot_i = v - rhodot_i e_i,
+        (Jdot v)_i = adot_i . v / s_i - (a_i . v)(adot_i . e_i) / s_i^2."""
+        px, py, pz = position
+        vx, vy, vz = velocity
+        rhos, rows, rhodots, biases = [], [], [], []
+        for ox, oy, oz, ex, ey, ez, l2, cx, cy, cz, sigma, _lo, _hi, name in self._legs_f:
+            wx, wy, wz = px + cx - ox, py + cy - oy, pz + cz - oz
+            a = wx * ex + wy * ey + wz * ez
+            disc = l2 - (wx * wx + wy * wy + wz * wz) + a * a
+            if not disc >= 0.0:
+                raise UnreachablePoseError(f"position {position} is unreachable for leg {name}")
+            r = a + sigma * math.sqrt(disc)
+            ax, ay, az = wx - r * ex, wy - r * ey, wz - r * ez
+            sv = ax * ex + ay * ey + az * ez
+            if sv * sv <= 1e-18 * l2:
+                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
+            av = ax * vx + ay * vy + az * vz
+            rd = av / sv
+            adx, ady, adz = vx - rd * ex, vy - rd * ey, vz - rd * ez
+            rhos.append(r)
+            rows.append((ax / sv, ay / sv, az / sv))
+            rhodots.append(rd)
+            biases.append((adx * vx + ady * vy + adz * vz) / sv - av * (adx * ex + ady * ey + adz * ez) / (sv * sv))
+        return rhos, rows, rhodots, biases
+
     def condition_number(self, position) -> float:
         return float(np.linalg.cond(self.jacobian(position)))
 
