@@ -1,0 +1,310 @@
+"""The simulated machine (no rclpy): true geometry, dynamics, drives, encoders,
+structural compliance, external load and faults.
+
+* The real machine differs from the nominal model the controller knows: per-leg link
+  length errors (ARCHI §4.1: 2 % on one leg) and rail offsets.
+* State = platform pose and twist (task coordinates). Drive positions follow from the
+  pose through the TRUE geometry, so the part of the drive forces in the null space of
+  the true J^T moves nothing: it is internal force loading the structure (what
+  "fighting" is); it is computed and reported every step.
+* Dynamics: ARCHI §3.4, A(x) xddot + H(x, xdot) = J^T f_d + f_n (pkm_kinematics.dynamics),
+  fixed step with substeps, semi-implicit Euler (default, one model evaluation) or RK4.
+* Drives: force saturation; faults ``no_force`` (the drive applies nothing) and
+  ``locked`` (a brake holds it: a constraint J_i xdot = 0 with its reaction force).
+* Encoders: quantised at the resolution, optional Gaussian noise, velocity by backward
+  difference; fault ``encoder_freeze`` holds the last reading.
+* Compliance: the tool deflects by C f_load, invisible to the drive encoders and
+  visible to a metrology on the tool (MoM3 §7.1: ~70-80 um under 110 N).
+* Safe stop: brakes on every drive (the platform stops and holds), commands ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pkm_kinematics.config import MachineConfig
+from pkm_kinematics.distribution import internal_force
+from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.dynamics import DynamicModel
+from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.translational import TranslationalMachine
+from pkm_kinematics.validation import finite_floats
+
+FAULT_KINDS = ("no_force", "locked", "encoder_freeze")
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A drive fault that starts at ``at_s`` (simulated time)."""
+
+    drive: int
+    kind: str
+    at_s: float = 0.0
+
+    @staticmethod
+    def parse(text: str, n_drives: int) -> "Fault":
+        """``"<drive>:<kind>[:<at_s>]"``, drive counted from 0, e.g. ``"2:locked:0.5"``."""
+        parts = text.split(":")
+        try:
+            drive, kind = int(parts[0]), parts[1]
+            at_s = float(parts[2]) if len(parts) > 2 else 0.0
+        except (IndexError, ValueError):
+            raise ValueError(f"faults: expected '<drive>:<kind>[:<at_s>]', got {text!r}") from None
+        if not 0 <= drive < n_drives:
+            raise ValueError(f"faults: drive must be in [0, {n_drives - 1}], got {drive} in {text!r}")
+        if kind not in FAULT_KINDS:
+            raise ValueError(f"faults: kind must be one of {list(FAULT_KINDS)}, got {kind!r}")
+        if not at_s >= 0.0:
+            raise ValueError(f"faults: start time must be >= 0 s, got {at_s}")
+        return Fault(drive, kind, at_s)
+
+
+@dataclass
+class PlantParameters:
+    """How the simulated machine differs from and adds to the nominal model."""
+
+    dt_s: float = 0.001
+    substeps: int = 1
+    integrator: str = "semi_implicit"
+    force_limit_n: float = 2000.0
+    encoder_resolution_m: float = 1e-6
+    encoder_noise_m: float = 0.0
+    seed: int = 0
+    link_length_errors: tuple = ()        # relative, per leg, e.g. (0, 0, 0.02, 0)
+    rail_offset_errors_m: tuple = ()      # shift of each rail origin along its rail
+    compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C in task coordinates (m/N, m/N, m/N or rad/(N m))
+    faults: tuple = ()
+
+    def validate(self, n_drives: int) -> None:
+        checks = [("dt_s", self.dt_s > 0.0 and self.dt_s <= 0.1, "(0, 0.1] s"),
+                  ("substeps", 1 <= self.substeps <= 1000, "[1, 1000]"),
+                  ("integrator", self.integrator in ("semi_implicit", "rk4"), "semi_implicit or rk4"),
+                  ("force_limit_n", self.force_limit_n > 0.0, "(0, inf) N"),
+                  ("encoder_resolution_m", 0.0 <= self.encoder_resolution_m <= 1e-3, "[0, 1e-3] m"),
+                  ("encoder_noise_m", self.encoder_noise_m >= 0.0, "[0, inf) m"),
+                  ("link_length_errors", len(self.link_length_errors) in (0, n_drives)
+                   and all(abs(e) < 0.5 for e in self.link_length_errors), f"{n_drives} values in (-0.5, 0.5)"),
+                  ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
+                  ("compliance", len(self.compliance) == 3 and all(c >= 0.0 for c in self.compliance),
+                   "3 values >= 0")]
+        for name, ok, allowed in checks:
+            if not ok:
+                raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
+
+
+@dataclass
+class PlantOutput:
+    """What one step produces (the node turns it into messages)."""
+
+    time_s: float
+    step: int
+    encoder_positions: list        # quantised drive positions (m), frozen ones held
+    encoder_velocities: list       # backward difference of the encoder positions (m/s)
+    applied_forces: list           # forces the drives actually apply (N); locked: brake reaction
+    saturated: list                # bool per drive
+    tool_pose: list                # task coordinates of the tool, deflection included
+    rigid_pose: list               # the platform pose without the deflection
+    internal_force: list           # null-space part of the applied forces (N)
+    internal_force_norm: float
+    faults_active: list = field(default_factory=list)
+    stopped: bool = False
+
+
+def true_machine(nominal, link_length_errors=(), rail_offset_errors_m=()):
+    """The nominal machine with per-leg link length errors (relative) and rail offsets."""
+    legs = list(nominal.legs)
+    for i, leg in enumerate(legs):
+        err = link_length_errors[i] if link_length_errors else 0.0
+        off = rail_offset_errors_m[i] if rail_offset_errors_m else 0.0
+        direction = np.asarray(leg.rail_direction, dtype=float)
+        origin = np.asarray(leg.rail_origin, dtype=float) + off * direction / np.linalg.norm(direction)
+        legs[i] = dataclasses.replace(leg, link_length=leg.link_length * (1.0 + err),
+                                      rail_origin=tuple(origin.tolist()))
+    if isinstance(nominal, PlanarMachine):
+        return PlanarMachine(nominal.name + "_true", legs, nominal.home_pose, nominal.workspace, nominal.description)
+    return TranslationalMachine(nominal.name + "_true", legs, nominal.home_position, nominal.workspace,
+                                nominal.transmission_bounds, nominal.description)
+
+
+class Plant:
+    """One simulated machine; ``step(forces)`` advances by ``dt_s``."""
+
+    def __init__(self, config: MachineConfig, params: PlantParameters | None = None, initial_pose=None):
+        if config.dynamics is None:
+            raise ValueError(f"machine {config.name!r}: the plant needs a 'dynamics' section")
+        self.params = params or PlantParameters()
+        n = config.model.n_legs
+        self.params.validate(n)
+        self.config = config
+        self.n = n
+        self.names = list(config.model.leg_names)
+        self.machine = true_machine(config.model, self.params.link_length_errors, self.params.rail_offset_errors_m)
+        self.dynamics = DynamicModel(self.machine, config.dynamics)
+        home = config.model.home_pose if config.kind == "planar" else config.model.home_position
+        self.x = finite_floats(home if initial_pose is None else initial_pose, 3, "initial_pose")
+        self.machine.inverse_kinematics(self.x)          # reachable with the true geometry
+        self.v = [0.0, 0.0, 0.0]
+        self.t = 0.0
+        self.k = 0
+        self.load = [0.0, 0.0, 0.0]
+        self.stopped = False
+        self.stop_reason = ""
+        self._rng = np.random.default_rng(self.params.seed)
+        self._faults = [Fault.parse(f, n) if isinstance(f, str) else f for f in self.params.faults]
+        self._locked: list[int] = []
+        self._lock_positions: dict[int, float] = {}
+        self._encoders = self._read_encoders(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())
+        self._last = self._output([0.0] * n, [False] * n, self.active_faults())
+
+    # ------------------------------------------------------------------ inputs
+    def set_load(self, wrench) -> None:
+        """External (cutting) load on the tool, task coordinates (N, N, N m | N)."""
+        self.load = finite_floats(wrench, 3, "load")
+
+    def safe_stop(self, reason: str) -> None:
+        """Brakes on: the platform stops where it is and holds; commands are ignored."""
+        if not self.stopped:
+            self.stopped, self.stop_reason = True, reason
+        self.v = [0.0, 0.0, 0.0]
+
+    def active_faults(self) -> list[Fault]:
+        return [f for f in self._faults if f.at_s <= self.t + 1e-12]
+
+    # ------------------------------------------------------------------- step
+    def step(self, forces) -> PlantOutput:
+        """Apply the commanded drive forces for one period and advance the state."""
+        cmd = finite_floats(forces, self.n, "drive forces")
+        limit = self.params.force_limit_n
+        saturated = [abs(f) > limit for f in cmd]
+        applied = [max(-limit, min(limit, f)) for f in cmd]
+        faults = self.active_faults()
+        for f in faults:
+            if f.kind == "no_force":
+                applied[f.drive] = 0.0
+        locked = sorted({f.drive for f in faults if f.kind == "locked"})
+        if locked != self._locked:
+            q = self.machine.inverse_kinematics(self.x, check_limits=False)
+            self._lock_positions = {i: self._lock_positions.get(i, float(q[i])) for i in locked}
+            self._locked = locked
+            self._project_velocity()
+        h = self.params.dt_s / self.params.substeps
+        reaction = [0.0] * self.n
+        if not self.stopped:
+            saved = (self.x, self.v)
+            try:
+                for _ in range(self.params.substeps):
+                    reaction = self._integrate(applied, h)
+                    if self._locked:
+                        self._hold_locked_drives()
+                q = self.machine.inverse_kinematics(self.x, check_limits=False)
+                out_of_range = [i for i in range(self.n)
+                                if not self.machine.joint_lower[i] <= q[i] <= self.machine.joint_upper[i]]
+                if out_of_range:
+                    raise KinematicsError(f"drive {self.names[out_of_range[0]]} reached its end stop "
+                                          f"({q[out_of_range[0]]:.6g} m)")
+            except (KinematicsError, np.linalg.LinAlgError) as exc:
+                # the machine cannot go there (singularity, unreachable, end stop):
+                # brakes on at the last valid state, reported as the stop reason
+                self.x, self.v = saved
+                self.safe_stop(f"left the workspace: {exc}")
+        self.t += self.params.dt_s
+        self.k += 1
+        for i in self._locked:
+            applied[i] = reaction[i]
+        if self.stopped:
+            applied = [0.0] * self.n
+        self._last = self._output(applied, saturated, faults)
+        return self._last
+
+    def _acceleration(self, x, v, forces):
+        """xddot, and the brake reactions of locked drives (constrained dynamics)."""
+        if not self._locked:
+            return self.dynamics.forward_dynamics(x, v, forces, self.load), None
+        a, hvec, rows, _, _ = self.dynamics.terms(x, v)
+        _, _, _, jdv = self.machine.velocity_terms(x, v)
+        rhs = np.array(self.load) - np.array(hvec) + np.array(rows).T @ np.array(forces)
+        jl = np.array([rows[i] for i in self._locked])
+        m = len(self._locked)
+        kkt = np.block([[np.array(a), -jl.T], [jl, np.zeros((m, m))]])
+        # J_L xddot = -Jdot_L xdot keeps q_L constant; drift is removed after each step
+        cons = [-jdv[i] for i in self._locked]
+        sol = np.linalg.solve(kkt, np.concatenate([rhs, cons]))
+        return sol[:3].tolist(), dict(zip(self._locked, sol[3:].tolist()))
+
+    def _integrate(self, forces, h) -> list:
+        x, v = self.x, self.v
+        if self.params.integrator == "rk4":
+            def f(xs, vs):
+                acc, _ = self._acceleration(xs, vs, forces)
+                return vs, acc
+            k1 = f(x, v)
+            k2 = f([a + 0.5 * h * b for a, b in zip(x, k1[0])], [a + 0.5 * h * b for a, b in zip(v, k1[1])])
+            k3 = f([a + 0.5 * h * b for a, b in zip(x, k2[0])], [a + 0.5 * h * b for a, b in zip(v, k2[1])])
+            k4 = f([a + h * b for a, b in zip(x, k3[0])], [a + h * b for a, b in zip(v, k3[1])])
+            self.x = [a + h / 6.0 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(x, k1[0], k2[0], k3[0], k4[0])]
+            self.v = [a + h / 6.0 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(v, k1[1], k2[1], k3[1], k4[1])]
+            reactions = self._acceleration(self.x, self.v, forces)[1]
+        else:   # semi-implicit (symplectic) Euler: v += h a(x, v); x += h v
+            acc, reactions = self._acceleration(x, v, forces)
+            self.v = [a + h * b for a, b in zip(v, acc)]
+            self.x = [a + h * b for a, b in zip(x, self.v)]
+        out = [0.0] * self.n
+        for i, r in (reactions or {}).items():
+            out[i] = r
+        return out
+
+    def _hold_locked_drives(self) -> None:
+        """Put locked drives back exactly where they locked (the integration drifts at
+        second order): a minimum-norm Gauss-Newton correction of the pose, then the
+        velocity projection."""
+        for _ in range(3):
+            q, rows, _, _ = self.machine.velocity_terms(self.x, self.v)
+            err = np.array([self._lock_positions[i] - q[i] for i in self._locked])
+            if np.abs(err).max() < 1e-13:
+                break
+            jl = np.array([rows[i] for i in self._locked])
+            self.x = (np.array(self.x) + jl.T @ np.linalg.solve(jl @ jl.T, err)).tolist()
+        self._project_velocity()
+
+    def _project_velocity(self) -> None:
+        """A brake engaging stops its drive at once: remove the velocity component that
+        moves a locked drive, in the metric of the mass matrix (an impulse)."""
+        if not self._locked:
+            return
+        a, _, rows, _, _ = self.dynamics.terms(self.x, self.v)
+        jl = np.array([rows[i] for i in self._locked])
+        a = np.array(a)
+        ainv_jt = np.linalg.solve(a, jl.T)
+        v = np.array(self.v)
+        self.v = (v - ainv_jt @ np.linalg.solve(jl @ ainv_jt, jl @ v)).tolist()
+
+    # ----------------------------------------------------------------- outputs
+    def _read_encoders(self, q) -> list:
+        res, noise = self.params.encoder_resolution_m, self.params.encoder_noise_m
+        if noise > 0.0:
+            q = [qi + noise * self._rng.standard_normal() for qi in q]
+        if res > 0.0:
+            q = [round(qi / res) * res for qi in q]
+        return q
+
+    def _output(self, applied, saturated, faults) -> PlantOutput:
+        q_true, rows, _, _ = self.machine.velocity_terms(self.x, self.v)
+        reading = self._read_encoders(q_true)
+        frozen = {f.drive for f in faults if f.kind == "encoder_freeze"}
+        reading = [self._encoders[i] if i in frozen else r for i, r in enumerate(reading)]
+        velocity = [(r - p) / self.params.dt_s for r, p in zip(reading, self._encoders)]
+        self._encoders = reading
+        fint = internal_force(np.array(rows), np.array(applied)).tolist() if self.n > 3 else [0.0] * self.n
+        c = self.params.compliance
+        tool = [xi + ci * li for xi, ci, li in zip(self.x, c, self.load)]
+        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(self.x),
+                           fint, math.sqrt(sum(f * f for f in fint)),
+                           [f"{f.drive}:{f.kind}" for f in faults], self.stopped)
+
+    def output(self) -> PlantOutput:
+        """The outputs of the last step (or of the initial state)."""
+        return self._last

@@ -1,0 +1,172 @@
+"""The simulated machine: integration accuracy, physics identities, drives, encoders,
+compliance, internal force, faults and input validation."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from pkm_kinematics import load_machine
+from pkm_kinematics.distribution import min_two_norm
+from pkm_sim_hw.plant import Fault, Plant, PlantParameters
+
+ARCHI = load_machine("archi")
+MOM3 = load_machine("mom3")
+POSE = [1.0, -0.4, 0.9]
+
+
+def holding_forces(plant, load=(0.0, 0.0, 0.0), jacobian_of=None):
+    """Pseudo-inverse forces that hold the platform still (static wrench minus load)."""
+    machine = jacobian_of or plant.machine
+    wrench = plant.dynamics.static_forces(plant.x, load)
+    return min_two_norm(machine.jacobian(plant.x), wrench)
+
+
+def test_integration_matches_solve_ivp():
+    """0.1 s of free motion under constant forces: RK4 agrees with scipy's solve_ivp to
+    1e-9 m; semi-implicit Euler is first order (halving dt halves its error)."""
+    forces = [50.0, -80.0, 120.0, -40.0]
+
+    def run(integrator, dt, substeps=1):
+        plant = Plant(ARCHI, PlantParameters(dt_s=dt, substeps=substeps, integrator=integrator,
+                                             encoder_resolution_m=0.0), initial_pose=POSE)
+        plant.v = [0.05, -0.02, 0.3]
+        for _ in range(round(0.1 / dt)):
+            plant.step(forces)
+        return np.array(plant.x)
+
+    ref_model = Plant(ARCHI, PlantParameters(), initial_pose=POSE).dynamics
+    sol = solve_ivp(lambda _t, s: [*s[3:], *ref_model.forward_dynamics(list(s[:3]), list(s[3:]), forces)],
+                    (0.0, 0.1), [*POSE, 0.05, -0.02, 0.3], rtol=1e-12, atol=1e-13)
+    reference = sol.y[:3, -1]
+    assert np.abs(run("rk4", 1e-3) - reference).max() < 1e-9
+    e1 = np.abs(run("semi_implicit", 1e-3) - reference).max()
+    e2 = np.abs(run("semi_implicit", 5e-4) - reference).max()
+    assert e1 < 1e-3 and 1.7 < e1 / e2 < 2.3
+    assert np.abs(run("semi_implicit", 1e-3, substeps=10) - reference).max() < e1 / 5
+
+
+def test_energy_conserved_without_friction_and_forces():
+    cfg = load_machine("mom3")
+    cfg.dynamics = type(cfg.dynamics)(cfg.dynamics.drive_mass_kg, cfg.dynamics.platform_mass_kg,
+                                      cfg.dynamics.platform_inertia_kgm2, (0.0, 0.0, 0.0), cfg.dynamics.gravity_m_s2)
+    plant = Plant(cfg, PlantParameters(integrator="rk4", encoder_resolution_m=0.0))
+    plant.v = [0.1, -0.05, 0.2]
+    e0 = plant.dynamics.energy(plant.x, plant.v)
+    for _ in range(100):
+        assert not plant.step([0.0, 0.0, 0.0]).stopped
+    assert abs(plant.dynamics.energy(plant.x, plant.v) - e0) < 1e-8 * abs(e0)
+    assert abs(plant.x[2] - MOM3.model.home_position[2]) > 1e-3      # it fell
+
+
+def test_static_equilibrium_and_saturation():
+    plant = Plant(ARCHI, PlantParameters(encoder_resolution_m=0.0), initial_pose=POSE)
+    forces = holding_forces(plant)
+    for _ in range(200):
+        out = plant.step(forces)
+    np.testing.assert_allclose(plant.x, POSE, atol=1e-12)
+    assert not any(out.saturated)
+    out = plant.step([1e5, -1e5, 10.0, 0.0])
+    assert out.saturated == [True, True, False, False]
+    assert out.applied_forces[:2] == [2000.0, -2000.0]
+
+
+def test_encoders_are_quantised():
+    plant = Plant(ARCHI, PlantParameters(encoder_resolution_m=1e-6), initial_pose=POSE)
+    plant.v = [0.01, 0.02, 0.1]
+    for _ in range(20):
+        out = plant.step([0.0] * 4)
+    true_q = plant.machine.inverse_kinematics(plant.x, check_limits=False)
+    steps = np.array(out.encoder_positions) / 1e-6
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+    assert np.abs(np.array(out.encoder_positions) - true_q).max() <= 0.5e-6 + 1e-15
+    assert np.abs(np.array(out.encoder_velocities) - true_q * 0).max() > 0     # moving drives
+
+
+def test_deflection_is_compliance_times_load_and_invisible_to_encoders():
+    """MoM3 §7.1: ~73 um under 110 N, seen by the metrology, not by the Delta."""
+    c = 0.7e-6
+    params = PlantParameters(compliance=(c, c, c), encoder_resolution_m=0.0)
+    plain, loaded = Plant(MOM3, params), Plant(MOM3, params)
+    load = (0.0, 110.0, 0.0)
+    loaded.set_load(load)
+    for _ in range(50):
+        out0 = plain.step(holding_forces(plain))
+        out1 = loaded.step(holding_forces(loaded, load))
+    np.testing.assert_allclose(np.array(out1.tool_pose) - np.array(out1.rigid_pose), c * np.array(load), atol=1e-15)
+    assert out1.tool_pose[1] - out0.tool_pose[1] == pytest.approx(77e-6, rel=1e-9)
+    np.testing.assert_allclose(out1.encoder_positions, out0.encoder_positions, atol=1e-12)
+
+
+def test_internal_force_from_the_nominal_pseudo_inverse():
+    """Forces distributed with the nominal model's pseudo-inverse load nothing when the
+    geometry is exact, and fight when one leg is 2 % off (ARCHI §4.1)."""
+    exact = Plant(ARCHI, PlantParameters(), initial_pose=POSE)
+    out = exact.step(holding_forces(exact, jacobian_of=ARCHI.model))
+    assert out.internal_force_norm < 1e-9
+    wrong = Plant(ARCHI, PlantParameters(link_length_errors=(0.0, 0.0, 0.02, 0.0)), initial_pose=POSE)
+    out = wrong.step(holding_forces(wrong, jacobian_of=ARCHI.model))
+    assert out.internal_force_norm > 0.1          # ~0.8 N against ~250 N of weight carried
+    # the internal force is what J_true^T cannot see
+    np.testing.assert_allclose(wrong.machine.jacobian(wrong.x).T @ np.array(out.internal_force), 0.0, atol=1e-9)
+
+
+def test_faults():
+    plant = Plant(ARCHI, PlantParameters(encoder_resolution_m=0.0,
+                                         faults=("0:no_force", "3:locked:0.01", "1:encoder_freeze:0.02")),
+                  initial_pose=POSE)
+    forces = [300.0, -200.0, 250.0, 100.0]
+    readings = []
+    for _ in range(40):
+        out = plant.step(forces)
+        readings.append(out.encoder_positions)
+        assert out.applied_forces[0] == 0.0
+    q3 = [plant.machine.inverse_kinematics(plant.x, check_limits=False)[3]]
+    for _ in range(20):
+        plant.step(forces)
+        q3.append(plant.machine.inverse_kinematics(plant.x, check_limits=False)[3])
+    assert np.ptp(q3) < 1e-6                       # the locked drive holds
+    assert readings[-1][1] == readings[-15][1]     # the frozen encoder holds
+    assert out.faults_active == ["0:no_force", "3:locked", "1:encoder_freeze"]
+    assert abs(out.applied_forces[3]) > 0.0        # the brake reacts
+
+
+def test_safe_stop_holds_the_platform():
+    plant = Plant(ARCHI, PlantParameters(), initial_pose=POSE)
+    plant.v = [0.1, 0.0, 0.5]
+    plant.step([0.0] * 4)
+    plant.safe_stop("command timeout")
+    held = list(plant.x)
+    for _ in range(10):
+        out = plant.step([500.0] * 4)
+    assert plant.x == held and out.stopped and out.applied_forces == [0.0] * 4
+    assert plant.stop_reason == "command timeout"
+
+
+def test_leaving_the_workspace_is_a_safe_stop():
+    """Driven into the end stops or out of reach, the plant brakes at its last valid
+    state and says why, instead of raising in the middle of a run."""
+    plant = Plant(ARCHI, PlantParameters(), initial_pose=POSE)
+    for _ in range(2000):
+        out = plant.step([2000.0, 2000.0, 2000.0, 2000.0])
+        if out.stopped:
+            break
+    assert out.stopped and "left the workspace" in plant.stop_reason
+    plant.machine.inverse_kinematics(plant.x)            # the held pose is valid
+
+
+def test_bad_input():
+    plant = Plant(ARCHI, PlantParameters(), initial_pose=POSE)
+    with pytest.raises(ValueError, match="drive forces: expected shape 4"):
+        plant.step([0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="drive forces: contains NaN"):
+        plant.step([0.0, math.nan, 0.0, 0.0])
+    with pytest.raises(ValueError, match="dt_s: must be"):
+        Plant(ARCHI, PlantParameters(dt_s=0.0))
+    with pytest.raises(ValueError, match="link_length_errors: must be 4 values"):
+        Plant(ARCHI, PlantParameters(link_length_errors=(0.02,)))
+    with pytest.raises(ValueError, match="faults: kind must be one of"):
+        Fault.parse("1:melted", 4)
+    with pytest.raises(ValueError, match=r"faults: drive must be in \[0, 3\]"):
+        Fault.parse("7:locked", 4)
