@@ -21,6 +21,9 @@ setup(
     ),
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'sim_hw_node = pkm_sim_hw.sim_hw_node:main',
+            'hold_controller_node = pkm_sim_hw.hold_controller_node:main',
+        ],
     },
 )

@@ -308,3 +308,18 @@ class Plant:
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""
         return self._last
+
+
+def leg_segments(machine, x) -> list[tuple[list, list]]:
+    """(carriage, platform joint) points of every leg in world coordinates (3-D; z = 0
+    for planar machines), for visualisation markers."""
+    q = machine.inverse_kinematics(x, check_limits=False)
+    if isinstance(machine, PlanarMachine):
+        c, s = math.cos(x[2]), math.sin(x[2])
+        out = []
+        for o, u, b, qi in zip(machine._o, machine._u, machine._b, q):
+            a = o + qi * u
+            out.append(([a[0], a[1], 0.0], [x[0] + c * b[0] - s * b[1], x[1] + s * b[0] + c * b[1], 0.0]))
+        return out
+    return [((o + qi * e).tolist(), (np.asarray(x) + c).tolist())
+            for o, e, c, qi in zip(machine._o, machine._e, machine._c, q)]

@@ -1,0 +1,80 @@
+"""``hold_controller_node``: the minimal lockstep partner of sim_hw, for tests,
+benchmarks and smoke runs without the real controller.
+
+It answers every ``drives/state`` with the drive forces that hold the platform
+against gravity (nominal model: pseudo-inverse of the static wrench, ARCHI §3.4 and
+§4.4.1), plus a joint-space PD towards the first state it saw, stamped with the state
+it answers. With ``wait_for_metrology`` it answers only once ``metrology/pose`` of the
+same stamp has arrived too (the sensor in the loop, as the real controller does).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from pkm_common.conversions import joint_state_msg, stamp_to_ns
+from pkm_common.params import declare_bool, declare_float, declare_str
+from pkm_common.qos import STREAM_QOS
+from pkm_common.runner import main_exit, run_node
+from pkm_kinematics import load_machine
+from pkm_kinematics.distribution import min_two_norm
+from pkm_kinematics.dynamics import DynamicModel
+from pkm_kinematics.planar import PlanarMachine
+
+
+class HoldControllerNode(Node):
+    def __init__(self, context=None, **kwargs):
+        super().__init__("hold_controller", context=context, **kwargs)
+        config = load_machine(declare_str(self, "machine", "archi"))
+        self.model = config.model
+        self.dynamics = DynamicModel(config.model, config.dynamics)
+        self.kp = declare_float(self, "kp_n_per_m", 2e4, 0.0, 1e9)
+        self.kd = declare_float(self, "kd_ns_per_m", 500.0, 0.0, 1e7)
+        self.wait_for_metrology = declare_bool(self, "wait_for_metrology", False)
+        self.target = None
+        self.pose = None
+        self.pending = None                # a state waiting for its metrology
+        self.metrology_stamps: set[int] = set()
+        self.answered = 0
+        self.pub = self.create_publisher(JointState, "drives/command", STREAM_QOS)
+        self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS)
+        if self.wait_for_metrology:
+            self.create_subscription(PoseStamped, "metrology/pose", self.on_metrology, STREAM_QOS)
+
+    def on_state(self, msg: JointState) -> None:
+        if self.wait_for_metrology and stamp_to_ns(msg.header.stamp) not in self.metrology_stamps:
+            self.pending = msg
+            return
+        self.answer(msg)
+
+    def on_metrology(self, msg: PoseStamped) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.metrology_stamps = {s for s in self.metrology_stamps if s > stamp - 10**9} | {stamp}
+        if self.pending is not None and stamp_to_ns(self.pending.header.stamp) == stamp:
+            pending, self.pending = self.pending, None
+            self.answer(pending)
+
+    def answer(self, msg: JointState) -> None:
+        q = np.array(msg.position)
+        if self.target is None:
+            self.target = q.copy()
+        if isinstance(self.model, PlanarMachine):
+            result = self.model.forward_kinematics(q, self.pose)
+            self.pose = result.pose if result.converged else self.pose
+        else:
+            self.pose = self.model.forward_kinematics(q)
+        forces = min_two_norm(self.model.jacobian(self.pose), self.dynamics.static_forces(self.pose.tolist()))
+        forces += self.kp * (self.target - q) - self.kd * np.array(msg.velocity)
+        self.pub.publish(joint_state_msg(list(msg.name), msg.header.stamp, effort=forces))
+        self.answered += 1
+
+
+def main(args=None):
+    main_exit(run_node(HoldControllerNode, args=args, name="hold_controller", executor="events"))
+
+
+if __name__ == "__main__":
+    main()

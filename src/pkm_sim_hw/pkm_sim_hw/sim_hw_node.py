@@ -1,0 +1,195 @@
+"""``sim_hw_node``: the simulated machine as a ROS 2 node (thin shell over plant.Plant).
+
+Timing (DESIGN.md): in ``lockstep`` (default) the node publishes the state of step k
+(``/clock``, ``drives/state``, ``platform/true_pose``, all stamped t_k), waits for the
+``drives/command`` stamped t_k, then integrates to k+1 and publishes again. Until the
+first command arrives the state is re-published at 10 Hz (discovery); after it, no
+command within ``command_timeout_s`` (wall clock) is a fault: brakes on, reported,
+and the node keeps stepping on the commands that do come (ignored while stopped).
+In ``realtime`` a wall timer steps every dt with the latest command (zero-order
+hold); a step whose command was not for the previous state counts as a deadline miss.
+
+A command of the wrong length, with unknown names or NaN is refused with an ERROR
+diagnostic and the machine is stopped safely; so is ``estop`` (latched).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Point, PoseStamped, WrenchStamped
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from visualization_msgs.msg import Marker, MarkerArray
+
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
+                                    machine_to_tool_pose, ns_to_stamp, pose_msg, stamp_to_ns)
+from pkm_common.params import declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.qos import CLOCK_QOS, LATCHED_QOS, STREAM_QOS
+from pkm_common.runner import main_exit, run_node
+from pkm_kinematics import load_machine
+from pkm_sim_hw.plant import Plant, PlantParameters, leg_segments
+
+
+class SimHwNode(Node):
+    def __init__(self, context=None, **kwargs):
+        super().__init__("sim_hw", context=context, **kwargs)
+        machine = declare_str(self, "machine", "archi", "config/machines/<name>.yaml")
+        self.config = load_machine(machine)
+        n = self.config.model.n_legs
+        faults = declare_str(self, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>]'", allow_empty=True)
+        params = PlantParameters(
+            dt_s=declare_float(self, "dt_s", 0.001, 1e-5, 0.1, "exchange period", unit="s"),
+            substeps=declare_int(self, "substeps", 1, 1, 1000, "physics substeps per period"),
+            integrator=declare_str(self, "integrator", "semi_implicit", choices=("semi_implicit", "rk4")),
+            force_limit_n=declare_float(self, "force_limit_n", 2000.0, 0.0, 1e6, lo_open=True, unit="N"),
+            encoder_resolution_m=declare_float(self, "encoder_resolution_m", 1e-6, 0.0, 1e-3, unit="m"),
+            encoder_noise_m=declare_float(self, "encoder_noise_m", 0.0, 0.0, 1e-3, unit="m"),
+            seed=declare_int(self, "seed", 0, 0, 2**31 - 1),
+            link_length_errors=tuple(declare_float_list(self, "link_length_errors", [0.0] * n, length=n,
+                                                        lo=-0.49, hi=0.49)),
+            rail_offset_errors_m=tuple(declare_float_list(self, "rail_offset_errors_m", [0.0] * n, length=n,
+                                                          unit="m")),
+            compliance=tuple(declare_float_list(self, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
+            faults=tuple(f.strip() for f in faults.split(",") if f.strip()))
+        initial = declare_float_list(self, "initial_pose", [], "empty: the machine's home pose")
+        self.plant = Plant(self.config, params, initial_pose=initial or None)
+        self.lockstep = declare_str(self, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
+        self.timeout_s = declare_float(self, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
+        self.publish_markers = declare_bool(self, "publish_markers", True)
+        self.dt_ns = round(params.dt_s * 1e9)
+        self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
+        self.started = False
+        self.last_command_wall = time.monotonic()
+        self.latest_effort = [0.0] * n            # realtime: zero-order hold
+        self.latest_stamp_ns = -1
+        self.pub_clock = self.create_publisher(Clock, "/clock", CLOCK_QOS)
+        self.pub_state = self.create_publisher(JointState, "drives/state", STREAM_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, "platform/true_pose", STREAM_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
+        self.create_subscription(JointState, "drives/command", self.on_command, STREAM_QOS)
+        self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
+        self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS)
+        self.create_timer(0.1, self.on_watchdog)
+        self.create_timer(1.0, self.publish_diagnostics)
+        if self.publish_markers:
+            self.create_timer(0.1, self.publish_marker_array)
+        if not self.lockstep:
+            self.create_timer(params.dt_s, self.on_realtime_tick)
+        self.publish_state()
+
+    # ------------------------------------------------------------- publishing
+    def now_ns(self) -> int:
+        return self.plant.k * self.dt_ns
+
+    def publish_state(self) -> None:
+        out = self.plant.output()
+        stamp = ns_to_stamp(self.now_ns())
+        self.pub_clock.publish(Clock(clock=stamp))
+        self.pub_state.publish(joint_state_msg(self.plant.names, stamp, out.encoder_positions,
+                                               out.encoder_velocities, out.applied_forces))
+        position, rotation = machine_to_tool_pose(self.config.kind, out.tool_pose)
+        self.pub_pose.publish(pose_msg(position, rotation, stamp, "world"))
+
+    def publish_diagnostics(self) -> None:
+        out = self.plant.output()
+        level = 2 if out.stopped else 0
+        message = f"stopped: {self.plant.stop_reason}" if out.stopped else "running"
+        values = {"step": out.step, "time_s": out.time_s, "mode": "lockstep" if self.lockstep else "realtime",
+                  "internal_force_norm_n": out.internal_force_norm, "saturated_drives": sum(out.saturated),
+                  "faults": ",".join(out.faults_active) or "none", **self.counts}
+        self.pub_diag.publish(diagnostic_array(ns_to_stamp(self.now_ns()),
+                                               [diagnostic_status("sim_hw", level, message, values)]))
+
+    def publish_marker_array(self) -> None:
+        marker = Marker(type=Marker.LINE_LIST, action=Marker.ADD, ns="legs", id=0)
+        marker.header.frame_id = "world"
+        marker.header.stamp = ns_to_stamp(self.now_ns())
+        marker.scale.x = 0.01
+        marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.2, 0.5, 0.9, 1.0
+        marker.pose.orientation.w = 1.0
+        for a, b in leg_segments(self.plant.machine, self.plant.x):
+            marker.points += [Point(x=a[0], y=a[1], z=a[2]), Point(x=b[0], y=b[1], z=b[2])]
+        self.pub_markers.publish(MarkerArray(markers=[marker]))
+
+    # ------------------------------------------------------------------ inputs
+    def _refuse(self, reason: str) -> None:
+        self.counts["refused_commands"] += 1
+        self.plant.safe_stop(f"refused command: {reason}")
+        self.get_logger().error(f"drives/command refused: {reason}")
+        self.publish_diagnostics()
+
+    def _effort(self, msg: JointState):
+        """The efforts of a command in plant order, or None (refused, reported)."""
+        names = list(msg.name)
+        if len(msg.effort) != self.plant.n or (names and sorted(names) != sorted(self.plant.names)):
+            self._refuse(f"expected {self.plant.n} efforts for {self.plant.names}, got {len(msg.effort)} "
+                         f"for {names}")
+            return None
+        effort = list(msg.effort)
+        if names and names != self.plant.names:
+            effort = [effort[names.index(name)] for name in self.plant.names]
+        if not np.all(np.isfinite(effort)):
+            self._refuse(f"non-finite effort {effort}")
+            return None
+        return effort
+
+    def on_command(self, msg: JointState) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        effort = self._effort(msg)
+        if effort is None:
+            effort = [0.0] * self.plant.n          # stopped anyway; lockstep goes on
+        self.started = True
+        self.last_command_wall = time.monotonic()
+        if not self.lockstep:
+            self.latest_effort, self.latest_stamp_ns = effort, stamp
+            return
+        if stamp != self.now_ns():
+            self.counts["stale_commands"] += 1    # an answer to an older state
+            return
+        self.plant.step(effort)
+        self.publish_state()
+
+    def on_realtime_tick(self) -> None:
+        if self.started and self.latest_stamp_ns != self.now_ns():
+            self.counts["deadline_misses"] += 1
+        self.plant.step(self.latest_effort)
+        self.publish_state()
+
+    def on_watchdog(self) -> None:
+        if not self.lockstep:
+            return
+        if not self.started:
+            self.publish_state()                   # until the controller has discovered us
+        elif time.monotonic() - self.last_command_wall > self.timeout_s and not self.plant.stopped:
+            self.counts["timeouts"] += 1
+            self.plant.safe_stop(f"no drives/command within {self.timeout_s} s")
+            self.get_logger().error(self.plant.stop_reason)
+            self.publish_diagnostics()
+            self.publish_state()
+
+    def on_load(self, msg: WrenchStamped) -> None:
+        f, m = msg.wrench.force, msg.wrench.torque
+        wrench = [f.x, f.y, m.z] if self.config.kind == "planar" else [f.x, f.y, f.z]
+        try:
+            self.plant.set_load(wrench)
+        except ValueError as exc:
+            self.get_logger().error(f"load refused: {exc}")
+
+    def on_estop(self, msg: Bool) -> None:
+        if msg.data:
+            self.plant.safe_stop("estop")
+            self.publish_diagnostics()
+
+
+def main(args=None):
+    main_exit(run_node(SimHwNode, args=args, name="sim_hw", executor="events"))
+
+
+if __name__ == "__main__":
+    main()

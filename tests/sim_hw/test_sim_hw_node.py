@@ -1,0 +1,118 @@
+"""sim_hw_node in-process: lockstep exchange with a minimal controller, refusal of bad
+commands, estop, command timeout, realtime mode and parameter validation."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from pkm_common.conversions import joint_state_msg, pose_from_msg, stamp_to_ns
+from pkm_common.params import ParameterError
+from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_sim_hw.hold_controller_node import HoldControllerNode
+from pkm_sim_hw.sim_hw_node import SimHwNode
+
+pytestmark = pytest.mark.ros
+
+
+def overrides(**values):
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+class Recorder:
+    def __init__(self, graph, msg_type, topic, qos=STREAM_QOS):
+        self.messages = []
+        self.node = graph.create_node(f"rec_{topic.replace('/', '_')}_{id(self)}")
+        self.node.create_subscription(msg_type, topic, self.messages.append, qos)
+
+
+def test_lockstep_with_a_hold_controller(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi", publish_markers=False)))
+    ctrl = ros_graph.add_node(HoldControllerNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi")))
+    states = Recorder(ros_graph, JointState, "drives/state")
+    poses = Recorder(ros_graph, PoseStamped, "platform/true_pose")
+    assert ros_graph.spin_until(lambda: sim.plant.k >= 300, timeout_sec=30.0)
+    # every step answered once, stamps consecutive multiples of dt
+    stamps = sorted({stamp_to_ns(m.header.stamp) for m in states.messages})
+    assert stamps[:300] == [k * 1_000_000 for k in range(300)]
+    assert ctrl.answered >= 300
+    # the pose published for step k matches the plant's tool pose (held near home)
+    pose_stamps = {stamp_to_ns(m.header.stamp) for m in poses.messages}
+    assert set(range(0, 300 * 1_000_000, 1_000_000)) <= pose_stamps
+    position, _ = pose_from_msg(poses.messages[-1])
+    np.testing.assert_allclose(position[:2], sim.config.model.home_pose[:2], atol=1e-4)
+    assert not sim.plant.stopped
+
+
+def test_bad_commands_are_refused_and_the_machine_stops(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi", publish_markers=False)))
+    diags = Recorder(ros_graph, DiagnosticArray, "diagnostics")
+    pub_node = ros_graph.create_node("bad_commander")
+    pub = pub_node.create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(joint_state_msg(sim.plant.names[:3], 0, effort=[1.0, 2.0, 3.0]))
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert "refused command" in sim.plant.stop_reason and sim.counts["refused_commands"] == 1
+    assert ros_graph.spin_until(lambda: any(s.level == DiagnosticStatus.ERROR for m in diags.messages for s in m.status))
+    held = list(sim.plant.x)
+    msg = joint_state_msg(sim.plant.names, sim.now_ns(), effort=[math.nan, 0.0, 0.0, 0.0])
+    pub.publish(msg)
+    assert ros_graph.spin_until(lambda: sim.counts["refused_commands"] == 2, timeout_sec=5.0)
+    pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[2000.0] * 4))
+    ros_graph.spin_for(0.2)
+    assert sim.plant.x == held                    # brakes hold whatever comes
+
+
+def test_timeout_and_estop(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, command_timeout_s=0.3)))
+    ctrl = ros_graph.add_node(HoldControllerNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3")))
+    assert ros_graph.spin_until(lambda: sim.plant.k >= 20, timeout_sec=20.0)
+    ros_graph.executor.remove_node(ctrl)          # the controller dies
+    started = time.monotonic()
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert 0.25 < time.monotonic() - started < 1.5
+    assert "no drives/command within 0.3 s" in sim.plant.stop_reason and sim.counts["timeouts"] == 1
+
+    sim2 = ros_graph.add_node(SimHwNode(context=ros_graph.context, namespace="second", parameter_overrides=overrides(
+        machine="mom3", publish_markers=False)))
+    estop_node = ros_graph.create_node("estopper", namespace="second")
+    estop = estop_node.create_publisher(Bool, "estop", LATCHED_QOS)
+    estop.publish(Bool(data=True))
+    assert ros_graph.spin_until(lambda: sim2.plant.stopped, timeout_sec=5.0)
+    assert sim2.plant.stop_reason == "estop"
+
+
+def test_realtime_mode_counts_deadline_misses(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01)))
+    ros_graph.spin_for(0.3)
+    assert sim.plant.k >= 10                      # it steps on its own
+    assert sim.counts["deadline_misses"] == 0     # nobody commanded yet: not started
+    pub = ros_graph.create_node("late").create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(joint_state_msg(sim.plant.names, 0, effort=[60.0] * 3))   # an old stamp
+    ros_graph.spin_for(0.2)
+    assert sim.counts["deadline_misses"] >= 5
+
+
+@pytest.mark.parametrize("name,value,message", [
+    ("machine", "hexapod", "unknown machine 'hexapod'"),
+    ("dt_s", 0.5, r"'dt_s': must be a number in \[1e-05, 0.1\] s, got 0.5"),
+    ("mode", "fast", "'mode': must be one of"),
+    ("link_length_errors", [0.02, 0.0], "'link_length_errors': must be a list of 4 numbers"),
+    ("faults", "9:locked", "faults: drive must be in"),
+])
+def test_invalid_parameters_fail_at_start_naming_the_field(ros_context, name, value, message):
+    with pytest.raises((ParameterError, ValueError), match=message):
+        SimHwNode(context=ros_context, parameter_overrides=overrides(**{name: value}))
