@@ -1,0 +1,232 @@
+"""Gough-platform metrology model: the sensor of Separation of Actuation and Measurement.
+
+Pure core (no rclpy, no messages). MoM3 §4.2-4.3: a passive 6-strut Gough platform
+measures the pose of the tool plate through six linear scales of 1 um resolution;
+§6.3: the pose follows from the direct kinematic model (DKM_GP, Newton-Raphson).
+
+Two geometries:
+
+* the TRUE geometry measures: the nominal joint centres A_i, b_i of the machine file,
+  each perturbed once by N(0, calibration_error_m) per axis (a mis-calibrated sensor;
+  0 gives the nominal geometry);
+* the NOMINAL geometry (the machine file) solves the DKM, as a real controller only
+  knows its calibration.
+
+Frames (docs/architecture.md, mounting): the Gough base sits in the machine's world
+frame at (p_wb, R_wb); the Gough plate sits in the tool frame at (p_tp, R_tp). So
+T_base_plate = T_world_base^-1 T_world_tool T_tool_plate:
+  R_bp = R_wb^T R_t R_tp,   p_bp = R_wb^T (p_t + R_t p_tp - p_wb)
+and back: R_t = R_wb R_bp R_tp^T,  p_t = p_wb + R_wb p_bp - R_t p_tp.
+
+This runs once per control cycle (1-2 kHz), so the per-call arithmetic is done on
+Python floats: numpy costs ~1-2 us per operation on 3-vectors.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pkm_kinematics.config import GoughMetrologyConfig
+from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
+from pkm_kinematics.rotations import mul3
+from pkm_kinematics.validation import finite_floats
+
+STRUT_NAMES = tuple(f'strut{i}' for i in range(1, 7))
+MAX_RESOLUTION_M = 1e-3          # as the machine file's encoder_resolution
+ROTATION_TOL = 1e-6              # |R^T R - I| allowed in a tool rotation
+
+
+def _nonneg(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected a number >= 0 m, got {value!r}') from None
+    if not math.isfinite(v) or v < 0.0:
+        raise ValueError(f'{name}: must be in [0, inf) m, got {value!r}')
+    return v
+
+
+def _t(r: tuple) -> tuple:
+    """Transpose of a row-major 9-tuple."""
+    return (r[0], r[3], r[6], r[1], r[4], r[7], r[2], r[5], r[8])
+
+
+def _mv(r: tuple, v) -> tuple:
+    x, y, z = v
+    return (r[0] * x + r[1] * y + r[2] * z, r[3] * x + r[4] * y + r[5] * z,
+            r[6] * x + r[7] * y + r[8] * z)
+
+
+def rotation_floats(value, name: str) -> tuple:
+    """A rotation matrix as a row-major 9-tuple; ValueError naming ``name`` for a
+    wrong shape, NaN/inf, or a matrix that is not a rotation (|R^T R - I| > 1e-6 or
+    det <= 0: six strut lengths cannot see a non-rigid plate). ~3 us on floats."""
+    try:
+        rows = value.tolist() if isinstance(value, np.ndarray) else [list(row) for row in value]
+        if len(rows) != 3 or len(rows[0]) != 3 or len(rows[1]) != 3 or len(rows[2]) != 3:
+            raise TypeError
+        a, b, c, d, e, f, g, h, i = flat = tuple(map(float, rows[0] + rows[1] + rows[2]))
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected a 3 x 3 rotation matrix, got {value!r}') from None
+    if not math.isfinite(a + b + c + d + e + f + g + h + i):
+        raise ValueError(f'{name}: contains NaN or infinite values: {list(flat)}')
+    # columns orthonormal (R^T R = I) and det = +1
+    err = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
+              abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
+              abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if err > ROTATION_TOL or det <= 0.0:
+        raise ValueError(f'{name}: not a rotation matrix (|R^T R - I| = {err:.3g}, det = {det:.6g})')
+    return flat
+
+
+class GoughSensorModel:
+    """Measure strut lengths of a tool pose (true geometry) and estimate the pose
+    back from them (nominal geometry, warm-started DKM). See the module docstring.
+
+    ``noise_std_m``: Gaussian noise on each strut reading (m, >= 0).
+    ``seed``: seeds the calibration error and the noise stream (independently).
+    ``calibration_error_m``: std of the per-axis error of every joint centre (m, >= 0).
+    ``resolution_m``: scale resolution (m, in (0, 1e-3]); None: the machine file's
+    ``encoder_resolution`` (MoM3 §4.3: 1 um). Readings are rounded to the nearest
+    multiple of it.
+    """
+
+    def __init__(self, metrology: GoughMetrologyConfig, noise_std_m: float = 0.0, seed: int = 0,
+                 calibration_error_m: float = 0.0, resolution_m: float | None = None):
+        if not isinstance(metrology, GoughMetrologyConfig):
+            raise ValueError(f'metrology: expected a GoughMetrologyConfig (the machine file\'s '
+                             f'metrology section), got {type(metrology).__name__}')
+        self.noise_std_m = _nonneg(noise_std_m, 'noise_std_m')
+        self.calibration_error_m = _nonneg(calibration_error_m, 'calibration_error_m')
+        if resolution_m is None:
+            resolution_m = metrology.encoder_resolution_m
+        res = _nonneg(resolution_m, 'resolution_m')
+        if not 0.0 < res <= MAX_RESOLUTION_M:
+            raise ValueError(f'resolution_m: must be in (0, {MAX_RESOLUTION_M:g}] m, got {resolution_m!r}')
+        self.resolution_m = res
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f'seed: expected an integer >= 0, got {seed!r}')
+        self.seed = int(seed)
+        self.metrology = metrology
+        self.nominal: GoughPlatform = metrology.platform
+
+        # independent streams: the true geometry depends on the seed only, not on how
+        # many readings were taken
+        calibration_seq, noise_seq = np.random.SeedSequence(self.seed).spawn(2)
+        cal = np.random.default_rng(calibration_seq)
+        base_err = cal.normal(0.0, 1.0, (6, 3)) * self.calibration_error_m
+        plate_err = cal.normal(0.0, 1.0, (6, 3)) * self.calibration_error_m
+        self.true_platform = GoughPlatform(
+            self.nominal.base_points + base_err, self.nominal.plate_points + plate_err,
+            self.nominal.strut_limits, self.nominal.home_position, name='gough_true')
+        self._noise = np.random.default_rng(noise_seq)
+
+        # mounting as floats
+        self._p_wb = tuple(float(v) for v in metrology.base_position)
+        self._r_wb = rotation_floats(metrology.base_rotation, 'metrology.base_rotation')
+        self._r_bw = _t(self._r_wb)
+        self._p_tp = tuple(float(v) for v in metrology.plate_position_in_tool)
+        self._r_tp = rotation_floats(metrology.plate_rotation_in_tool, 'metrology.plate_rotation_in_tool')
+        self._r_pt = _t(self._r_tp)
+        # the true joint centres in the frames where measure() needs them: A_i in
+        # world (p_wb + R_wb A_i), b_i in the tool frame (p_tp + R_tp b_i); then
+        # l_i = |p_t + R_t b_i - A_i| needs no mounting transform per reading
+        base_w = np.asarray(metrology.base_position) + self.true_platform.base_points @ np.asarray(
+            metrology.base_rotation).T
+        plate_t = np.asarray(metrology.plate_position_in_tool) + self.true_platform.plate_points @ np.asarray(
+            metrology.plate_rotation_in_tool).T
+        self._true_legs = [tuple(a) + tuple(b) for a, b in zip(base_w.tolist(), plate_t.tolist())]
+
+        self.solver = GoughDKMSolver(self.nominal)
+        self._travel = (float(self.nominal.strut_limits[0]), float(self.nominal.strut_limits[1]))
+
+    # ------------------------------------------------------------- frames
+    def _plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
+        # T_base_plate = T_world_base^-1 T_world_tool T_tool_plate
+        rp = _mv(r_t, self._p_tp)
+        d = (p_t[0] + rp[0] - self._p_wb[0], p_t[1] + rp[1] - self._p_wb[1], p_t[2] + rp[2] - self._p_wb[2])
+        return _mv(self._r_bw, d), mul3(self._r_bw, mul3(r_t, self._r_tp))
+
+    def _tool_in_world(self, p_bp, r_bp) -> tuple[tuple, tuple]:
+        r_t = mul3(self._r_wb, mul3(r_bp, self._r_pt))
+        wp = _mv(self._r_wb, p_bp)
+        rp = _mv(r_t, self._p_tp)
+        return (self._p_wb[0] + wp[0] - rp[0], self._p_wb[1] + wp[1] - rp[1],
+                self._p_wb[2] + wp[2] - rp[2]), r_t
+
+    def plate_pose(self, tool_position, tool_rotation) -> tuple[np.ndarray, np.ndarray]:
+        """The Gough plate pose in the Gough base frame for a tool pose in world."""
+        p, r = self._plate_in_base(finite_floats(tool_position, 3, 'tool_position'),
+                                   rotation_floats(tool_rotation, 'tool_rotation'))
+        return np.array(p), np.array(r).reshape(3, 3)
+
+    def tool_pose(self, plate_position, plate_rotation) -> tuple[np.ndarray, np.ndarray]:
+        """The tool pose in world for a Gough plate pose in the Gough base frame."""
+        p, r = self._tool_in_world(finite_floats(plate_position, 3, 'plate_position'),
+                                   rotation_floats(plate_rotation, 'plate_rotation'))
+        return np.array(p), np.array(r).reshape(3, 3)
+
+    # ----------------------------------------------------------- measuring
+    def true_lengths(self, tool_position, tool_rotation) -> np.ndarray:
+        """Exact strut lengths of the true geometry (no noise, no quantisation)."""
+        return np.array(self._true_lengths(finite_floats(tool_position, 3, 'tool_position'),
+                                           rotation_floats(tool_rotation, 'tool_rotation')))
+
+    def _true_lengths(self, p_t, r_t) -> list:
+        px, py, pz = p_t
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r_t
+        out = []
+        for ax, ay, az, bx, by, bz in self._true_legs:
+            # MoM3 §5.2, l_i = |p + R b_i - A_i|, here with A_i in world, b_i in the tool frame
+            lx = px + r00 * bx + r01 * by + r02 * bz - ax
+            ly = py + r10 * bx + r11 * by + r12 * bz - ay
+            lz = pz + r20 * bx + r21 * by + r22 * bz - az
+            out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
+        return out
+
+    def measure(self, tool_position, tool_rotation) -> np.ndarray:
+        """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),
+        rounded to the nearest multiple of the resolution (MoM3 §4.3 linear scales)."""
+        lengths = self._true_lengths(finite_floats(tool_position, 3, 'tool_position'),
+                                     rotation_floats(tool_rotation, 'tool_rotation'))
+        if self.noise_std_m > 0.0:
+            noise = self._noise.normal(0.0, self.noise_std_m, 6).tolist()
+            lengths = [a + b for a, b in zip(lengths, noise)]
+        res = self.resolution_m
+        return np.array([round(v / res) * res for v in lengths])
+
+    # ---------------------------------------------------------- estimating
+    def estimate(self, lengths) -> tuple[np.ndarray, np.ndarray, GoughDKMResult]:
+        """Tool pose in world from strut readings: DKM_GP on the nominal geometry
+        (MoM3 §6.3), warm-started from the previous solutions.
+
+        Returns (position (3,), rotation (3, 3), result). The pose is NaN and
+        ``result.reason`` says why when a reading lies outside the strut travel
+        (``strut_limits``: the real scales cannot read there, the DKM is not tried) or
+        the DKM fails; never the previous pose passed off as new. ValueError for
+        lengths that are not 6 finite positive numbers.
+        """
+        values = finite_floats(lengths, 6, 'strut lengths')
+        lo, hi = self._travel
+        if not lo <= min(values) or not max(values) <= hi:
+            k = next(k for k, v in enumerate(values) if not lo <= v <= hi)
+            reason = (f'{STRUT_NAMES[k]}: {values[k]:.6f} m outside the strut travel '
+                      f'[{lo:g}, {hi:g}] m')
+            result = GoughDKMResult(np.full(3, np.nan), np.full((3, 3), np.nan), False, 0, 0, math.nan, reason)
+            return result.position, result.rotation, result
+        result = self.solver.solve(values)
+        if not result.converged:
+            return np.full(3, np.nan), np.full((3, 3), np.nan), result
+        p, r = self._tool_in_world(result.position.tolist(), tuple(result.rotation.ravel().tolist()))
+        return np.array(p), np.array(r).reshape(3, 3), result
+
+    def reset(self, tool_position=None, tool_rotation=None) -> None:
+        """Restart the DKM warm start from a tool pose (default: the platform's home)."""
+        if tool_position is None:
+            self.solver.reset()
+            return
+        p, r = self.plate_pose(tool_position, tool_rotation)
+        self.solver.reset(p, r)
