@@ -330,6 +330,16 @@ def add_prestress(jac, forces, prestress_n: float, reference=None) -> np.ndarray
     return np.asarray(forces, dtype=float) + prestress_n * null_direction(jac, reference)
 
 
+def internal_force_rows(rows, forces) -> list[float]:
+    """:func:`internal_force` on floats (J as rows of 3): f - J (J^T J)^-1 J^T f."""
+    w0 = w1 = w2 = 0.0
+    for (j0, j1, j2), f in zip(rows, forces):
+        w0 += j0 * f
+        w1 += j1 * f
+        w2 += j2 * f
+    return [f - p for f, p in zip(forces, _min_two_norm_rows(rows, (w0, w1, w2)))]
+
+
 def internal_force(jac, forces) -> np.ndarray:
     """The null-space (internal, fighting) component of drive forces: f - J (J^T J)^-1 J^T f."""
     jac = np.asarray(jac, dtype=float)

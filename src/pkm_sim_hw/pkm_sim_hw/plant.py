@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import internal_force
+from pkm_kinematics.distribution import internal_force_rows
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.planar import PlanarMachine
@@ -155,6 +155,8 @@ class Plant:
         self.stop_reason = ""
         self._rng = np.random.default_rng(self.params.seed)
         self._faults = [Fault.parse(f, n) if isinstance(f, str) else f for f in self.params.faults]
+        self._lower = self.machine.joint_lower.tolist()
+        self._upper = self.machine.joint_upper.tolist()
         self._locked: list[int] = []
         self._lock_positions: dict[int, float] = {}
         self._encoders = self._read_encoders(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())
@@ -193,6 +195,7 @@ class Plant:
             self._project_velocity()
         h = self.params.dt_s / self.params.substeps
         reaction = [0.0] * self.n
+        terms = None
         if not self.stopped:
             saved = (self.x, self.v)
             try:
@@ -200,24 +203,23 @@ class Plant:
                     reaction = self._integrate(applied, h)
                     if self._locked:
                         self._hold_locked_drives()
-                q = self.machine.inverse_kinematics(self.x, check_limits=False)
-                out_of_range = [i for i in range(self.n)
-                                if not self.machine.joint_lower[i] <= q[i] <= self.machine.joint_upper[i]]
-                if out_of_range:
-                    raise KinematicsError(f"drive {self.names[out_of_range[0]]} reached its end stop "
-                                          f"({q[out_of_range[0]]:.6g} m)")
+                terms = self.machine.velocity_terms(self.x, self.v)
+                for i, (qi, lo, hi) in enumerate(zip(terms[0], self._lower, self._upper)):
+                    if not lo <= qi <= hi:
+                        raise KinematicsError(f"drive {self.names[i]} reached its end stop ({qi:.6g} m)")
             except (KinematicsError, np.linalg.LinAlgError) as exc:
                 # the machine cannot go there (singularity, unreachable, end stop):
                 # brakes on at the last valid state, reported as the stop reason
                 self.x, self.v = saved
                 self.safe_stop(f"left the workspace: {exc}")
+                terms = None
         self.t += self.params.dt_s
         self.k += 1
         for i in self._locked:
             applied[i] = reaction[i]
         if self.stopped:
             applied = [0.0] * self.n
-        self._last = self._output(applied, saturated, faults)
+        self._last = self._output(applied, saturated, faults, terms)
         return self._last
 
     def _acceleration(self, x, v, forces):
@@ -291,14 +293,14 @@ class Plant:
             q = [round(qi / res) * res for qi in q]
         return q
 
-    def _output(self, applied, saturated, faults) -> PlantOutput:
-        q_true, rows, _, _ = self.machine.velocity_terms(self.x, self.v)
+    def _output(self, applied, saturated, faults, terms=None) -> PlantOutput:
+        q_true, rows, _, _ = terms or self.machine.velocity_terms(self.x, self.v)
         reading = self._read_encoders(q_true)
         frozen = {f.drive for f in faults if f.kind == "encoder_freeze"}
         reading = [self._encoders[i] if i in frozen else r for i, r in enumerate(reading)]
         velocity = [(r - p) / self.params.dt_s for r, p in zip(reading, self._encoders)]
         self._encoders = reading
-        fint = internal_force(np.array(rows), np.array(applied)).tolist() if self.n > 3 else [0.0] * self.n
+        fint = internal_force_rows(rows, applied) if self.n > 3 else [0.0] * self.n
         c = self.params.compliance
         tool = [xi + ci * li for xi, ci, li in zip(self.x, c, self.load)]
         return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(self.x),
