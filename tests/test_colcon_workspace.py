@@ -22,7 +22,7 @@ pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / 'src'
 EXPECTED_PACKAGES = {
-    'pkm_kinematics', 'pkm_trajectory', 'pkm_controller', 'pkm_sim_hw',
+    'pkm_kinematics', 'pkm_common', 'pkm_trajectory', 'pkm_controller', 'pkm_sim_hw',
     'pkm_gough_sensor', 'pkm_bringup',
 }
 COLCON = [sys.executable, '-m', 'colcon']

@@ -1,0 +1,198 @@
+"""Messages <-> arrays: stamps, poses, joint states, machine poses, diagnostics.
+
+Conventions (docs/architecture.md): SI units, REP-103 frames, quaternions (x, y, z, w)
+as in geometry_msgs. Stamps are handled as integer nanoseconds in the cores (exact,
+no float rounding of 1-2 kHz steps) and as builtin_interfaces/Time in messages.
+Bad input raises ValueError naming the message field.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import JointState
+
+from pkm_kinematics.rotations import (quaternion_from_rotation, rotation_about_z,
+                                      rotation_from_quaternion)
+
+NS_PER_S = 1_000_000_000
+QUATERNION_NORM_TOL = 1e-6
+MACHINE_KINDS = ('planar', 'translational')
+_LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR,
+           3: DiagnosticStatus.STALE}
+
+
+# ------------------------------------------------------------------- stamps
+def ns_to_stamp(ns: int) -> Time:
+    """Integer nanoseconds (>= 0) -> builtin_interfaces/Time."""
+    if isinstance(ns, bool) or not isinstance(ns, (int, np.integer)):
+        raise ValueError(f'stamp: expected integer nanoseconds, got {ns!r}')
+    ns = int(ns)
+    if ns < 0 or ns >= (2**31) * NS_PER_S:
+        raise ValueError(f'stamp: must be in [0, 2^31 s) as nanoseconds, got {ns}')
+    return Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def _stamp(stamp) -> Time:
+    """A builtin_interfaces/Time, an rclpy.time.Time or integer nanoseconds -> Time."""
+    if isinstance(stamp, Time):
+        return stamp
+    if hasattr(stamp, 'nanoseconds'):
+        return ns_to_stamp(stamp.nanoseconds)
+    return ns_to_stamp(stamp)
+
+
+# -------------------------------------------------------------------- poses
+def pose_msg(position, rotation, stamp, frame_id: str) -> PoseStamped:
+    """PoseStamped from a position (3,) and a rotation matrix (3, 3).
+
+    ``stamp`` is a builtin_interfaces/Time or integer nanoseconds. The quaternion has
+    w >= 0. A non-finite input raises ValueError (a NaN pose is never published).
+    """
+    p = np.asarray(position, dtype=float)
+    if p.shape != (3,):
+        raise ValueError(f'position: expected 3 numbers, got shape {p.shape}')
+    p = p.tolist()
+    rot = np.asarray(rotation, dtype=float)
+    if rot.shape != (3, 3):
+        raise ValueError(f'rotation: expected a 3 x 3 matrix, got shape {rot.shape}')
+    if not (all(map(math.isfinite, p)) and np.isfinite(rot).all()):
+        raise ValueError(f'pose: contains NaN or infinite values: position {p}, rotation {rot.tolist()}')
+    q = quaternion_from_rotation(rot)
+    msg = PoseStamped()
+    msg.header.stamp = _stamp(stamp)
+    msg.header.frame_id = frame_id
+    pos, ori = msg.pose.position, msg.pose.orientation
+    pos.x, pos.y, pos.z = p
+    ori.x, ori.y, ori.z, ori.w = (float(v) for v in q)
+    return msg
+
+
+def pose_from_msg(msg: PoseStamped) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a PoseStamped.
+
+    Raises ValueError naming the field for NaN/inf components and for a quaternion
+    whose norm differs from 1 by more than 1e-6 (a malformed message, not rounding);
+    within that tolerance the quaternion is normalised.
+    """
+    pos, ori = msg.pose.position, msg.pose.orientation
+    p = (pos.x, pos.y, pos.z)
+    q = (ori.x, ori.y, ori.z, ori.w)
+    if not math.isfinite(p[0] + p[1] + p[2]):
+        bad = [f'pose.position.{c}' for c, v in zip('xyz', p) if not math.isfinite(v)]
+        raise ValueError(f'{", ".join(bad) or "pose.position"}: must be finite, got {list(p)}')
+    if not math.isfinite(q[0] + q[1] + q[2] + q[3]):
+        bad = [f'pose.orientation.{c}' for c, v in zip('xyzw', q) if not math.isfinite(v)]
+        raise ValueError(f'{", ".join(bad) or "pose.orientation"}: must be finite, got {list(q)}')
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+        raise ValueError(f'pose.orientation: must be a unit quaternion (|q| within 1 +- '
+                         f'{QUATERNION_NORM_TOL:g}), got |q| = {norm!r}')
+    return np.array(p), rotation_from_quaternion(q)
+
+
+# ------------------------------------------------------------- joint states
+def joint_state_msg(names, stamp, position=None, velocity=None, effort=None,
+                    frame_id: str = '') -> JointState:
+    """JointState with ``names``; each given array must have one value per name."""
+    names = [str(n) for n in names]
+    msg = JointState()
+    msg.header.stamp = _stamp(stamp)
+    msg.header.frame_id = frame_id
+    msg.name = names
+    for field, values in (('position', position), ('velocity', velocity), ('effort', effort)):
+        if values is None:
+            continue
+        values = [float(v) for v in (values.tolist() if isinstance(values, np.ndarray) else values)]
+        if len(values) != len(names):
+            raise ValueError(f'{field}: expected {len(names)} values (one per name), got {len(values)}')
+        setattr(msg, field, values)
+    return msg
+
+
+# ------------------------------------------------------ machine <-> tool pose
+def _check_kind(kind: str) -> None:
+    if kind not in MACHINE_KINDS:
+        raise ValueError(f'kind: must be one of {list(MACHINE_KINDS)}, got {kind!r}')
+
+
+def machine_to_tool_pose(kind: str, x) -> tuple[np.ndarray, np.ndarray]:
+    """Machine pose -> tool pose in world (docs/architecture.md, mounting).
+
+    planar (x, y, theta) -> ((x, y, 0), Rz(theta)); translational p -> (p, I).
+    """
+    _check_kind(kind)
+    size = 3
+    x = np.asarray(x, dtype=float)
+    if x.shape != (size,) or not np.isfinite(x).all():
+        what = '(x, y, theta)' if kind == 'planar' else '(x, y, z)'
+        raise ValueError(f'x: expected 3 finite numbers {what}, got {x.tolist()}')
+    if kind == 'planar':
+        return np.array([x[0], x[1], 0.0]), rotation_about_z(float(x[2]))
+    return x.copy(), np.eye(3)
+
+
+def tool_pose_to_machine(kind: str, position, rotation, reference_theta: float | None = None) -> np.ndarray:
+    """Tool pose in world -> machine pose; inverse of :func:`machine_to_tool_pose`.
+
+    planar: (x, y, yaw), the yaw put on the revolution of ``reference_theta`` (the
+    rotation of a planar machine is unlimited, ARCHI: the nacelle turns any number of
+    times); height, roll and pitch are dropped. translational: the position.
+    """
+    _check_kind(kind)
+    p = np.asarray(position, dtype=float)
+    rot = np.asarray(rotation, dtype=float)
+    if p.shape != (3,) or rot.shape != (3, 3) or not (np.isfinite(p).all() and np.isfinite(rot).all()):
+        raise ValueError(f'tool pose: expected a finite position (3,) and rotation (3, 3), '
+                         f'got {p.tolist()}, {rot.tolist()}')
+    if kind == 'translational':
+        return p.copy()
+    theta = math.atan2(rot[1, 0], rot[0, 0])
+    if reference_theta is not None:
+        ref = float(reference_theta)
+        if not math.isfinite(ref):
+            raise ValueError(f'reference_theta: must be finite, got {reference_theta!r}')
+        theta += 2.0 * math.pi * round((ref - theta) / (2.0 * math.pi))
+    return np.array([p[0], p[1], theta])
+
+
+# -------------------------------------------------------------- diagnostics
+def _format(value) -> str:
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    if isinstance(value, np.integer):
+        return str(int(value))
+    return str(value)
+
+
+def diagnostic_status(name: str, level, message: str, values: dict | None = None,
+                      hardware_id: str = '') -> DiagnosticStatus:
+    """DiagnosticStatus; ``level`` 0-3 (OK, WARN, ERROR, STALE) or the message's bytes
+    constant; ``values`` become KeyValues, floats with repr (round-trips exactly)."""
+    if isinstance(level, (bytes, bytearray)):
+        level = int.from_bytes(level, 'little')
+    if level not in _LEVELS:
+        raise ValueError(f'level: must be 0 (OK), 1 (WARN), 2 (ERROR) or 3 (STALE), got {level!r}')
+    status = DiagnosticStatus()
+    status.level = _LEVELS[level]
+    status.name = name
+    status.message = message
+    status.hardware_id = hardware_id
+    status.values = [KeyValue(key=str(k), value=_format(v)) for k, v in (values or {}).items()]
+    return status
+
+
+def diagnostic_array(stamp, statuses) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    msg.header.stamp = _stamp(stamp)
+    msg.status = list(statuses)
+    return msg

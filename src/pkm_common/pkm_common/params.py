@@ -1,0 +1,177 @@
+"""Typed ROS parameters with ranges, declared and read in one call.
+
+Each ``declare_*`` declares the parameter with a ParameterDescriptor (type, range as
+FloatingPointRange / IntegerRange, description, ``additional_constraints`` text, so
+``ros2 param describe`` shows the allowed values), reads the effective value (default
+or override from the command line / YAML) and checks what a descriptor cannot say
+(open bounds, string choices, list length, per-element ranges).
+
+Any bad value raises ParameterError naming the parameter and the allowed range:
+``parameter 'noise_std_m': must be in [0, inf) m, got -1.0``. Nodes read their
+parameters once at start, so by default they are declared read-only: a later
+``ros2 param set`` is refused instead of silently having no effect.
+
+An integer override of a float parameter (``noise_std_m: 0`` in YAML) is accepted
+as the float it means; rclpy alone would refuse it as a type mismatch.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.exceptions import ParameterException
+
+INT64_MIN, INT64_MAX = -2**63, 2**63 - 1
+
+
+class ParameterError(ValueError):
+    """A parameter value is missing, of the wrong type or out of its range."""
+
+    def __init__(self, name: str, message: str):
+        self.name = name
+        super().__init__(f"parameter '{name}': {message}")
+
+
+def _fmt(v) -> str:
+    return f'{v:g}' if isinstance(v, float) else str(v)
+
+
+def _interval(lo, hi, lo_open=False, hi_open=False, unit='') -> str:
+    left = '(' if lo_open or lo == -math.inf else '['
+    right = ')' if hi_open or hi == math.inf else ']'
+    return f'{left}{_fmt(lo)}, {_fmt(hi)}{right}' + (f' {unit}' if unit else '')
+
+
+def _override(node, name):
+    """The value given on the command line / in YAML, if any (for messages and the
+    int -> float coercion; rclpy keeps it in a private dict, read defensively)."""
+    overrides = getattr(node, '_parameter_overrides', None) or {}
+    param = overrides.get(name)
+    return None if param is None else param.value
+
+
+def _declare(node, name, default, descriptor: ParameterDescriptor, allowed: str):
+    try:
+        return node.declare_parameter(name, default, descriptor).value
+    except ParameterException as exc:
+        given = _override(node, name)
+        shown = f'got {given!r}' if given is not None else f'rclpy: {exc}'
+        raise ParameterError(name, f'must be {allowed}, {shown}') from None
+
+
+def declare_float(node, name: str, default: float, lo: float = -math.inf, hi: float = math.inf,
+                  description: str = '', *, lo_open: bool = False, hi_open: bool = False,
+                  unit: str = '', read_only: bool = True) -> float:
+    """A finite double in [lo, hi] (``lo_open``/``hi_open`` exclude a bound)."""
+    allowed = f'a number in {_interval(lo, hi, lo_open, hi_open, unit)}'
+    given = _override(node, name)
+    if isinstance(given, int) and not isinstance(given, bool):
+        # integer written for a float parameter: take it as the float
+        default = float(given)
+        ignore_override = True
+    else:
+        default = float(default)
+        ignore_override = False
+    descriptor = ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE, description=description, read_only=read_only,
+        additional_constraints=allowed,
+        floating_point_range=[FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)])
+    if ignore_override:
+        value = _declare_ignoring_override(node, name, default, descriptor, allowed)
+    else:
+        value = _declare(node, name, default, descriptor, allowed)
+    if not isinstance(value, float) or not math.isfinite(value) or value < lo or value > hi \
+            or (lo_open and value == lo) or (hi_open and value == hi):
+        raise ParameterError(name, f'must be {allowed}, got {value!r}')
+    return value
+
+
+def _declare_ignoring_override(node, name, value, descriptor, allowed):
+    try:
+        return node.declare_parameter(name, value, descriptor, ignore_override=True).value
+    except ParameterException:
+        raise ParameterError(name, f'must be {allowed}, got {value!r}') from None
+
+
+def declare_int(node, name: str, default: int, lo: int = INT64_MIN, hi: int = INT64_MAX,
+                description: str = '', *, read_only: bool = True) -> int:
+    """An integer in [lo, hi]."""
+    allowed = f'an integer in [{lo}, {hi}]'
+    descriptor = ParameterDescriptor(
+        type=ParameterType.PARAMETER_INTEGER, description=description, read_only=read_only,
+        additional_constraints=allowed,
+        integer_range=[IntegerRange(from_value=int(lo), to_value=int(hi), step=0)])
+    value = _declare(node, name, int(default), descriptor, allowed)
+    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+        raise ParameterError(name, f'must be {allowed}, got {value!r}')
+    return value
+
+
+def declare_str(node, name: str, default: str, description: str = '', *, choices=None,
+                allow_empty: bool = False, read_only: bool = True) -> str:
+    """A string, one of ``choices`` if given."""
+    choices = None if choices is None else [str(c) for c in choices]
+    allowed = f'one of {choices}' if choices is not None else (
+        'a string' if allow_empty else 'a non-empty string')
+    descriptor = ParameterDescriptor(
+        type=ParameterType.PARAMETER_STRING, description=description, read_only=read_only,
+        additional_constraints=allowed)
+    value = _declare(node, name, str(default), descriptor, allowed)
+    if not isinstance(value, str) or (choices is not None and value not in choices) \
+            or (not allow_empty and not value):
+        raise ParameterError(name, f'must be {allowed}, got {value!r}')
+    return value
+
+
+def declare_bool(node, name: str, default: bool, description: str = '', *,
+                 read_only: bool = True) -> bool:
+    """true or false."""
+    allowed = 'true or false'
+    descriptor = ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL, description=description, read_only=read_only,
+        additional_constraints=allowed)
+    value = _declare(node, name, bool(default), descriptor, allowed)
+    if not isinstance(value, bool):
+        raise ParameterError(name, f'must be {allowed}, got {value!r}')
+    return value
+
+
+def declare_float_list(node, name: str, default, description: str = '', *,
+                       length: int | None = None, lo: float = -math.inf, hi: float = math.inf,
+                       unit: str = '', read_only: bool = True) -> list[float]:
+    """A list of finite doubles, each in [lo, hi], of ``length`` items if given.
+
+    Integers in an override list (``[1, 2]`` is an integer array to ROS) are taken as
+    floats. An empty default cannot carry a type in ROS 2 (``[]`` is a byte array to
+    rclpy), so such a parameter is declared with dynamic typing and checked here.
+    """
+    count = f'{length} numbers' if length is not None else 'numbers'
+    allowed = f'a list of {count}, each in {_interval(lo, hi, unit=unit)}'
+    default = [float(v) for v in default]
+    given = _override(node, name)
+    descriptor = ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE_ARRAY, description=description, read_only=read_only,
+        additional_constraints=allowed, dynamic_typing=not default)
+    if default and given is not None and not isinstance(given, str) and len(given) and all(
+            isinstance(v, int) and not isinstance(v, bool) for v in given):
+        value = _declare_ignoring_override(node, name, [float(v) for v in given], descriptor, allowed)
+    else:
+        value = _declare(node, name, default, descriptor, allowed)
+    if value is None:              # an empty override of a dynamically typed list
+        value = []
+    if isinstance(value, (str, bytes, bool, int, float)):
+        raise ParameterError(name, f'must be {allowed}, got {value!r}')
+    value = list(value)
+    if length is not None and len(value) != length:
+        raise ParameterError(name, f'must be {allowed}, got {len(value)} values: {value!r}')
+    out = []
+    for k, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise ParameterError(name, f'must be {allowed}, got {v!r} at index {k}')
+        out.append(float(v))
+    return out
+
+
+__all__ = ['ParameterError', 'declare_bool', 'declare_float', 'declare_float_list',
+           'declare_int', 'declare_str']

@@ -1,0 +1,66 @@
+"""QoS profiles of the PKM graph, one per kind of topic (DESIGN.md "The graph").
+
+Every publisher and subscriber of a topic uses the profile of this table, so that
+endpoints always match (a RELIABLE subscriber never meets a BEST_EFFORT publisher,
+a TRANSIENT_LOCAL subscriber gets the latched message).
+
+| topic (relative to the namespace)              | type                          | profile       |
+|------------------------------------------------|-------------------------------|---------------|
+| `/clock`                                       | rosgraph_msgs/Clock           | CLOCK_QOS     |
+| `drives/state`                                 | sensor_msgs/JointState        | STREAM_QOS    |
+| `drives/command`                               | sensor_msgs/JointState        | STREAM_QOS    |
+| `platform/true_pose`                           | geometry_msgs/PoseStamped     | STREAM_QOS    |
+| `metrology/struts`                             | sensor_msgs/JointState        | STREAM_QOS    |
+| `metrology/pose`                               | geometry_msgs/PoseStamped     | STREAM_QOS    |
+| `controller/reference`, `controller/status`    | PoseStamped, DiagnosticArray  | STREAM_QOS    |
+| `trajectory`                                   | trajectory_msgs/MultiDOFJointTrajectory | LATCHED_QOS |
+| `markers`                                      | visualization_msgs/MarkerArray | LATCHED_QOS  |
+| `goal`, `program`                              | PoseStamped, std_msgs/String  | STREAM_QOS    |
+| `load`                                         | geometry_msgs/WrenchStamped   | STREAM_QOS    |
+| `estop`                                        | std_msgs/Bool                 | LATCHED_QOS   |
+| `diagnostics`                                  | diagnostic_msgs/DiagnosticArray | STREAM_QOS  |
+
+- STREAM_QOS: RELIABLE, KEEP_LAST 10, VOLATILE. Lockstep exchanges one message per
+  step and must not lose it (RELIABLE); depth 10 absorbs a burst while a callback
+  runs without letting a slow reader fall behind by more than a few cycles.
+- LATCHED_QOS: RELIABLE, KEEP_LAST 1, TRANSIENT_LOCAL: the last message is kept for
+  late joiners (a controller started after the planner still gets the trajectory).
+  `estop` is latched too: a node that starts during an emergency stop must see it.
+- CLOCK_QOS: as rclpy's own `/clock` subscription (time_source.py): BEST_EFFORT,
+  KEEP_LAST 1, VOLATILE. A publisher of `/clock` must offer at least this.
+"""
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+STREAM_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+
+# topic (relative name) -> profile, for code that wires topics generically
+TOPIC_QOS = {
+    'drives/state': STREAM_QOS,
+    'drives/command': STREAM_QOS,
+    'platform/true_pose': STREAM_QOS,
+    'metrology/struts': STREAM_QOS,
+    'metrology/pose': STREAM_QOS,
+    'controller/reference': STREAM_QOS,
+    'controller/status': STREAM_QOS,
+    'goal': STREAM_QOS,
+    'program': STREAM_QOS,
+    'load': STREAM_QOS,
+    'diagnostics': STREAM_QOS,
+    'trajectory': LATCHED_QOS,
+    'markers': LATCHED_QOS,
+    'estop': LATCHED_QOS,
+    '/clock': CLOCK_QOS,
+}
+
+__all__ = ['CLOCK_QOS', 'LATCHED_QOS', 'STREAM_QOS', 'TOPIC_QOS']

@@ -1,0 +1,83 @@
+"""``run_node``: the ``main()`` of every PKM node.
+
+rclpy.init with the process arguments (``--ros-args ...``), the node built by a
+factory, a bounded spin loop (``spin_once(timeout_sec=...)`` while the context is ok:
+the one call that works for SingleThreadedExecutor and EventsExecutor alike, see
+ROS2_NOTES.md), then teardown in order: destroy the node, shut down the executor, then
+the context.
+
+Exit codes: 0 after SIGINT / SIGTERM (rclpy's signal handlers shut the context
+down, the loop ends; a KeyboardInterrupt raised by Python's own SIGINT handler is
+caught too), 2 when the node refuses its parameters or configuration (ParameterError,
+or any ValueError raised while it is built; logged as one line naming the parameter),
+1 for any other exception.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+
+EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
+EXECUTORS = ('single', 'events')
+
+
+def make_executor(kind: str, context):
+    if kind == 'single':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor(context=context)
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    raise ValueError(f'executor: must be one of {list(EXECUTORS)}, got {kind!r}')
+
+
+def run_node(factory: Callable, args=None, executor: str = 'single', name: str = 'node',
+             spin_period_s: float = 0.1) -> int:
+    """Build ``factory(context=ctx)`` and spin it until shutdown; returns the exit code.
+
+    ``args`` are the command-line arguments (``sys.argv`` if None); ``name`` labels
+    errors raised before the node (and its logger) exists.
+    """
+    context = rclpy.Context()
+    rclpy.init(args=args, context=context)
+    node = None
+    exec_ = None
+    code = EXIT_OK
+    try:
+        try:
+            node = factory(context=context)
+        except ValueError as exc:      # ParameterError, ConfigError: a refused configuration
+            rclpy.logging.get_logger(name).error(str(exc))
+            return EXIT_BAD_PARAMETER
+        exec_ = make_executor(executor, context)
+        exec_.add_node(node)
+        while context.ok():
+            exec_.spin_once(timeout_sec=spin_period_s)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        code = EXIT_OK
+    except Exception as exc:          # noqa: BLE001 - reported, then a non-zero exit
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(name)
+        logger.fatal(f'{type(exc).__name__}: {exc}')
+        code = EXIT_ERROR
+    finally:
+        if node is not None:
+            try:
+                if exec_ is not None:
+                    exec_.remove_node(node)
+            finally:
+                node.destroy_node()
+        if exec_ is not None:
+            exec_.shutdown()
+        rclpy.try_shutdown(context=context)
+    return code
+
+
+def main_exit(code: int) -> None:
+    """``sys.exit`` with a flush first (logs of a dying process are not lost)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    sys.exit(code)
