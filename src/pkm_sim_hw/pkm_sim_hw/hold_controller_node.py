@@ -10,17 +10,20 @@ same stamp has arrived too (the sensor in the loop, as the real controller does)
 
 from __future__ import annotations
 
+import json
+import time
+
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from pkm_common.conversions import joint_state_msg, stamp_to_ns
+from pkm_common.conversions import stamp_to_ns
 from pkm_common.params import declare_bool, declare_float, declare_str
 from pkm_common.qos import STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_kinematics.distribution import min_two_norm
+from pkm_kinematics.distribution import _min_two_norm_rows
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.planar import PlanarMachine
 
@@ -34,18 +37,25 @@ class HoldControllerNode(Node):
         self.kp = declare_float(self, "kp_n_per_m", 2e4, 0.0, 1e9)
         self.kd = declare_float(self, "kd_ns_per_m", 500.0, 0.0, 1e7)
         self.wait_for_metrology = declare_bool(self, "wait_for_metrology", False)
+        self.summary_path = declare_str(self, "summary_path", "", "JSON of answer latencies at exit",
+                                        allow_empty=True)
+        self.state_wall: dict[int, float] = {}       # stamp -> wall time the state arrived
+        self.latencies_s: list[float] = []           # state arrival -> answer (metrology wait)
         self.target = None
         self.pose = None
         self.pending = None                # a state waiting for its metrology
         self.metrology_stamps: set[int] = set()
         self.answered = 0
+        self.msg_command = JointState()
         self.pub = self.create_publisher(JointState, "drives/command", STREAM_QOS)
         self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS)
         if self.wait_for_metrology:
             self.create_subscription(PoseStamped, "metrology/pose", self.on_metrology, STREAM_QOS)
 
     def on_state(self, msg: JointState) -> None:
-        if self.wait_for_metrology and stamp_to_ns(msg.header.stamp) not in self.metrology_stamps:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.state_wall = {stamp: time.perf_counter()}
+        if self.wait_for_metrology and stamp not in self.metrology_stamps:
             self.pending = msg
             return
         self.answer(msg)
@@ -58,18 +68,34 @@ class HoldControllerNode(Node):
             self.answer(pending)
 
     def answer(self, msg: JointState) -> None:
-        q = np.array(msg.position)
+        q = list(msg.position)
         if self.target is None:
-            self.target = q.copy()
+            self.target = q
         if isinstance(self.model, PlanarMachine):
             result = self.model.forward_kinematics(q, self.pose)
             self.pose = result.pose if result.converged else self.pose
         else:
             self.pose = self.model.forward_kinematics(q)
-        forces = min_two_norm(self.model.jacobian(self.pose), self.dynamics.static_forces(self.pose.tolist()))
-        forces += self.kp * (self.target - q) - self.kd * np.array(msg.velocity)
-        self.pub.publish(joint_state_msg(list(msg.name), msg.header.stamp, effort=forces))
+        a, h, rows, _, _ = self.dynamics.terms(self.pose.tolist(), (0.0, 0.0, 0.0))
+        # static wrench H(x, 0) distributed by the pseudo-inverse (floats, ARCHI §4.4.1)
+        forces = _min_two_norm_rows(rows, h)
+        forces = [f + self.kp * (t - qi) - self.kd * v for f, t, qi, v in zip(forces, self.target, q, msg.velocity)]
+        self.msg_command.header.stamp = msg.header.stamp
+        self.msg_command.name = msg.name
+        self.msg_command.effort = forces
+        self.pub.publish(self.msg_command)
         self.answered += 1
+        arrived = self.state_wall.get(stamp_to_ns(msg.header.stamp))
+        if arrived is not None:
+            self.latencies_s.append(time.perf_counter() - arrived)
+
+    def destroy_node(self):
+        if self.summary_path and self.latencies_s:
+            lat = np.array(self.latencies_s) * 1e6
+            with open(self.summary_path, "w", encoding="utf-8") as fh:
+                json.dump({"answered": self.answered, "latency_us_p50": float(np.percentile(lat, 50)),
+                           "latency_us_p99": float(np.percentile(lat, 99))}, fh, indent=2)
+        return super().destroy_node()
 
 
 def main(args=None):

@@ -15,9 +15,11 @@ diagnostic and the machine is stopped safely; so is ``estop`` (latched).
 
 from __future__ import annotations
 
+import json
+import math
 import time
 
-import numpy as np
+import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point, PoseStamped, WrenchStamped
 from rclpy.node import Node
@@ -61,12 +63,21 @@ class SimHwNode(Node):
         self.lockstep = declare_str(self, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
         self.timeout_s = declare_float(self, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
         self.publish_markers = declare_bool(self, "publish_markers", True)
+        self.duration_s = declare_float(self, "duration_s", 0.0, 0.0, 1e7, "stop after this simulated time "
+                                        "(0: run until shut down)", unit="s")
+        self.summary_path = declare_str(self, "summary_path", "", "write a JSON run summary here at exit",
+                                        allow_empty=True)
+        self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
         self.started = False
         self.last_command_wall = time.monotonic()
         self.latest_effort = [0.0] * n            # realtime: zero-order hold
         self.latest_stamp_ns = -1
+        self.msg_clock = Clock()
+        self.msg_state = joint_state_msg(self.plant.names, 0)
+        position, rotation = machine_to_tool_pose(self.config.kind, self.plant.output().tool_pose)
+        self.msg_pose = pose_msg(position, rotation, 0, "world")
         self.pub_clock = self.create_publisher(Clock, "/clock", CLOCK_QOS)
         self.pub_state = self.create_publisher(JointState, "drives/state", STREAM_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, "platform/true_pose", STREAM_QOS)
@@ -88,13 +99,26 @@ class SimHwNode(Node):
         return self.plant.k * self.dt_ns
 
     def publish_state(self) -> None:
+        """Clock, drives/state and platform/true_pose of the current step. The three
+        messages are built once and updated in place: constructing rclpy messages costs
+        ~7 us each, and this runs at the lockstep rate."""
         out = self.plant.output()
-        stamp = ns_to_stamp(self.now_ns())
-        self.pub_clock.publish(Clock(clock=stamp))
-        self.pub_state.publish(joint_state_msg(self.plant.names, stamp, out.encoder_positions,
-                                               out.encoder_velocities, out.applied_forces))
-        position, rotation = machine_to_tool_pose(self.config.kind, out.tool_pose)
-        self.pub_pose.publish(pose_msg(position, rotation, stamp, "world"))
+        ns = self.now_ns()
+        for stamp in (self.msg_clock.clock, self.msg_state.header.stamp, self.msg_pose.header.stamp):
+            stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
+        self.pub_clock.publish(self.msg_clock)
+        self.msg_state.position = out.encoder_positions
+        self.msg_state.velocity = out.encoder_velocities
+        self.msg_state.effort = out.applied_forces
+        self.pub_state.publish(self.msg_state)
+        pose = self.msg_pose.pose
+        if self.config.kind == "planar":           # tool = (x, y, 0), yaw theta
+            x, y, theta = out.tool_pose
+            pose.position.x, pose.position.y = x, y
+            pose.orientation.z, pose.orientation.w = math.sin(0.5 * theta), math.cos(0.5 * theta)
+        else:                                      # tool = p, orientation fixed
+            pose.position.x, pose.position.y, pose.position.z = out.tool_pose
+        self.pub_pose.publish(self.msg_pose)
 
     def publish_diagnostics(self) -> None:
         out = self.plant.output()
@@ -127,14 +151,15 @@ class SimHwNode(Node):
     def _effort(self, msg: JointState):
         """The efforts of a command in plant order, or None (refused, reported)."""
         names = list(msg.name)
-        if len(msg.effort) != self.plant.n or (names and sorted(names) != sorted(self.plant.names)):
+        if len(msg.effort) != self.plant.n or (names and names != self.plant.names
+                                               and sorted(names) != sorted(self.plant.names)):
             self._refuse(f"expected {self.plant.n} efforts for {self.plant.names}, got {len(msg.effort)} "
                          f"for {names}")
             return None
         effort = list(msg.effort)
         if names and names != self.plant.names:
             effort = [effort[names.index(name)] for name in self.plant.names]
-        if not np.all(np.isfinite(effort)):
+        if not math.isfinite(sum(effort)):        # NaN or inf in any of them
             self._refuse(f"non-finite effort {effort}")
             return None
         return effort
@@ -146,20 +171,39 @@ class SimHwNode(Node):
             effort = [0.0] * self.plant.n          # stopped anyway; lockstep goes on
         self.started = True
         self.last_command_wall = time.monotonic()
+        if self.first_command_wall is None:
+            self.first_command_wall = self.last_command_wall
         if not self.lockstep:
             self.latest_effort, self.latest_stamp_ns = effort, stamp
             return
         if stamp != self.now_ns():
             self.counts["stale_commands"] += 1    # an answer to an older state
             return
-        self.plant.step(effort)
-        self.publish_state()
+        self.advance(effort)
 
     def on_realtime_tick(self) -> None:
         if self.started and self.latest_stamp_ns != self.now_ns():
             self.counts["deadline_misses"] += 1
-        self.plant.step(self.latest_effort)
+        self.advance(self.latest_effort)
+
+    def advance(self, effort) -> None:
+        self.plant.step(effort)
         self.publish_state()
+        if self.duration_s and self.plant.t >= self.duration_s - 1e-12:
+            self.finish()
+
+    def finish(self) -> None:
+        """The run is complete: summary, then shut the context down (clean exit 0)."""
+        wall = time.monotonic() - (self.first_command_wall or time.monotonic())
+        summary = {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
+                   "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
+                   "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts}
+        self.publish_diagnostics()
+        self.get_logger().info(f"run complete: {json.dumps(summary)}")
+        if self.summary_path:
+            with open(self.summary_path, "w", encoding="utf-8") as fh:
+                json.dump(summary, fh, indent=2)
+        rclpy.try_shutdown(context=self.context)
 
     def on_watchdog(self) -> None:
         if not self.lockstep:

@@ -1,0 +1,103 @@
+"""Lockstep exchange rate of the simulated machine with a minimal controller, each in
+its own process over DDS, without and with the Gough sensor in the loop.
+
+    .venv/bin/python benchmarks/plant.py [--machine mom3] [--duration 5]
+
+sim_hw_node runs ``--duration`` seconds of simulated time at dt = 1 ms as fast as the
+exchange allows and reports steps per wall second; hold_controller_node answers every
+state (and, with the sensor, waits for ``metrology/pose`` of the same stamp) and
+reports the wall time from a state's arrival to its answer: the sensor's added
+latency is the difference of the two runs. Targets (issue 3): >= 3,000 steps/s
+without the sensor, >= 2,000 with it. Each run gets its own ROS_DOMAIN_ID.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def start(module: str, params: dict, env: dict, log: Path) -> subprocess.Popen:
+    args = [sys.executable, "-m", module, "--ros-args", "-r", "__ns:=/pkm"]
+    for key, value in params.items():
+        args += ["-p", f"{key}:={value}"]
+    return subprocess.Popen(args, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
+
+
+def run(machine: str, with_sensor: bool, duration_s: float, executor_note: str = "") -> dict:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        procs = []
+        if with_sensor:
+            procs.append(start("pkm_gough_sensor.gough_sensor_node", {"machine": machine}, env, tmp / "sensor.log"))
+        procs.append(start("pkm_sim_hw.hold_controller_node",
+                           {"machine": machine, "wait_for_metrology": str(with_sensor).lower(),
+                            "summary_path": tmp / "ctrl.json"}, env, tmp / "ctrl.log"))
+        sim = start("pkm_sim_hw.sim_hw_node",
+                    {"machine": machine, "duration_s": duration_s, "summary_path": tmp / "sim.json",
+                     "publish_markers": "false", "command_timeout_s": 10.0}, env, tmp / "sim.log")
+        try:
+            sim.wait(timeout=120 + 10 * duration_s)
+        finally:
+            for p in procs + [sim]:
+                if p.poll() is None:
+                    p.send_signal(signal.SIGINT)
+            for p in procs + [sim]:
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        if not (tmp / "sim.json").exists():
+            raise RuntimeError("sim_hw did not finish:\n" + (tmp / "sim.log").read_text()[-2000:])
+        sim_summary = json.loads((tmp / "sim.json").read_text())
+        ctrl_summary = json.loads((tmp / "ctrl.json").read_text()) if (tmp / "ctrl.json").exists() else {}
+    return {"sim": sim_summary, "ctrl": ctrl_summary}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--machine", default="mom3")
+    parser.add_argument("--duration", type=float, default=5.0, help="simulated seconds per run")
+    args = parser.parse_args(argv)
+    plain = run(args.machine, False, args.duration)
+    sensed = run(args.machine, True, args.duration)
+    rows = [
+        ("lockstep sim_hw <-> controller (2 processes)", plain["sim"]["steps_per_s"], "steps/s", ">= 3,000"),
+        ("lockstep with the Gough sensor (3 processes)", sensed["sim"]["steps_per_s"], "steps/s", ">= 2,000"),
+        ("state -> answer, no sensor, p50", plain["ctrl"].get("latency_us_p50"), "us", "-"),
+        ("state -> answer, no sensor, p99", plain["ctrl"].get("latency_us_p99"), "us", "-"),
+        ("state -> answer with sensor, p50", sensed["ctrl"].get("latency_us_p50"), "us", "-"),
+        ("state -> answer with sensor, p99", sensed["ctrl"].get("latency_us_p99"), "us", "-"),
+    ]
+    if plain["ctrl"] and sensed["ctrl"]:
+        rows.append(("sensor's added latency, p50", sensed["ctrl"]["latency_us_p50"]
+                     - plain["ctrl"]["latency_us_p50"], "us", "-"))
+        rows.append(("sensor's added latency, p99", sensed["ctrl"]["latency_us_p99"]
+                     - plain["ctrl"]["latency_us_p99"], "us", "-"))
+    width = max(len(r[0]) for r in rows)
+    print(f"machine {args.machine}, {args.duration} s simulated at dt = 1 ms per run")
+    print(f"{'benchmark'.ljust(width)}  {'value':>10}  {'unit':<8}  target")
+    print("-" * (width + 36))
+    for name, value, unit, target in rows:
+        shown = "n/a" if value is None else f"{value:,.0f}"
+        print(f"{name.ljust(width)}  {shown:>10}  {unit:<8}  {target}")
+    for label, result in (("without", plain), ("with", sensed)):
+        s = result["sim"]
+        if s["stopped"] or s["refused_commands"] or s["timeouts"]:
+            print(f"WARNING run {label} sensor: stopped={s['stopped']} ({s['stop_reason']})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
