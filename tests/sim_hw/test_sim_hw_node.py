@@ -110,7 +110,7 @@ def test_realtime_mode_counts_deadline_misses(ros_graph):
     ("machine", "hexapod", "unknown machine 'hexapod'"),
     ("dt_s", 0.5, r"'dt_s': must be a number in \[1e-05, 0.1\] s, got 0.5"),
     ("mode", "fast", "'mode': must be one of"),
-    ("link_length_errors", [0.02, 0.0], "'link_length_errors': must be a list of 4 numbers"),
+    ("link_length_errors", [0.02, 0.0], "link_length_errors: must be 4 values"),
     ("faults", "9:locked", "faults: drive must be in"),
 ])
 def test_invalid_parameters_fail_at_start_naming_the_field(ros_context, name, value, message):

@@ -52,10 +52,10 @@ class SimHwNode(Node):
             encoder_resolution_m=declare_float(self, "encoder_resolution_m", 1e-6, 0.0, 1e-3, unit="m"),
             encoder_noise_m=declare_float(self, "encoder_noise_m", 0.0, 0.0, 1e-3, unit="m"),
             seed=declare_int(self, "seed", 0, 0, 2**31 - 1),
-            link_length_errors=tuple(declare_float_list(self, "link_length_errors", [0.0] * n, length=n,
-                                                        lo=-0.49, hi=0.49)),
-            rail_offset_errors_m=tuple(declare_float_list(self, "rail_offset_errors_m", [0.0] * n, length=n,
-                                                          unit="m")),
+            link_length_errors=tuple(declare_float_list(self, "link_length_errors", [], "relative, one per "
+                                                        "drive (empty: none)", lo=-0.49, hi=0.49)),
+            rail_offset_errors_m=tuple(declare_float_list(self, "rail_offset_errors_m", [], "one per drive "
+                                                          "(empty: none)", unit="m")),
             compliance=tuple(declare_float_list(self, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
             faults=tuple(f.strip() for f in faults.split(",") if f.strip()))
         initial = declare_float_list(self, "initial_pose", [], "empty: the machine's home pose")
