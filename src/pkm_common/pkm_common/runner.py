@@ -6,11 +6,11 @@ the one call that works for SingleThreadedExecutor and EventsExecutor alike, see
 ROS2_NOTES.md), then teardown in order: destroy the node, shut down the executor, then
 the context.
 
-Exit codes: 0 after SIGINT / SIGTERM (rclpy's signal handlers shut the context
-down, the loop ends; a KeyboardInterrupt raised by Python's own SIGINT handler is
-caught too), 2 when the node refuses its parameters or configuration (ParameterError,
-or any ValueError raised while it is built; logged as one line naming the parameter),
-1 for any other exception.
+Exit codes: 0 after SIGINT / SIGTERM (rclpy's signal handlers, installed for this
+context, shut it down and the loop ends; a KeyboardInterrupt is caught too); 2 when
+the node refuses its parameters or configuration (ParameterError, or any ValueError
+raised while it is built; logged as one line naming the parameter); 1 for any other
+exception.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import sys
 from typing import Callable
 
 import rclpy
+import rclpy.signals
 from rclpy.executors import ExternalShutdownException
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
@@ -43,7 +44,13 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     errors raised before the node (and its logger) exists.
     """
     context = rclpy.Context()
-    rclpy.init(args=args, context=context)
+    # rclpy installs its SIGINT/SIGTERM handlers only for the default context; ask for
+    # them: they shut this context down too (spin_once returns, the loop ends, exit 0).
+    # Without them SIGTERM kills the process (status -15) and SIGINT raises
+    # KeyboardInterrupt inside whatever callback runs (logged as FATAL by the executor).
+    options = rclpy.signals.SignalHandlerOptions
+    installed_here = rclpy.signals.get_current_signal_handlers_options() == options.NO
+    rclpy.init(args=args, context=context, signal_handler_options=options.ALL)
     node = None
     exec_ = None
     code = EXIT_OK
@@ -73,6 +80,8 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
         if exec_ is not None:
             exec_.shutdown()
         rclpy.try_shutdown(context=context)
+        if installed_here:          # leave an embedding process (pytest) as it was
+            rclpy.signals.uninstall_signal_handlers()
     return code
 
 
