@@ -21,6 +21,8 @@ setup(
     ),
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'gough_sensor_node = pkm_gough_sensor.gough_sensor_node:main',
+        ],
     },
 )
