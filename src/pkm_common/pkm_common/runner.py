@@ -6,8 +6,8 @@ the one call that works for SingleThreadedExecutor and EventsExecutor alike, see
 ROS2_NOTES.md), then teardown in order: destroy the node, shut down the executor, then
 the context.
 
-Exit codes: 0 after SIGINT / SIGTERM (rclpy's signal handlers, installed for this
-context, shut it down and the loop ends; a KeyboardInterrupt is caught too); 2 when
+Exit codes: 0 after SIGINT / SIGTERM (a flag ends the loop between callbacks, then
+the ordered teardown; a KeyboardInterrupt is caught too); 2 when
 the node refuses its parameters or configuration (ParameterError, or any ValueError
 raised while it is built; logged as one line naming the parameter); 1 for any other
 exception.
@@ -15,7 +15,9 @@ exception.
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from typing import Callable
 
 import rclpy
@@ -44,13 +46,17 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     errors raised before the node (and its logger) exists.
     """
     context = rclpy.Context()
-    # rclpy installs its SIGINT/SIGTERM handlers only for the default context; ask for
-    # them: they shut this context down too (spin_once returns, the loop ends, exit 0).
-    # Without them SIGTERM kills the process (status -15) and SIGINT raises
-    # KeyboardInterrupt inside whatever callback runs (logged as FATAL by the executor).
-    options = rclpy.signals.SignalHandlerOptions
-    installed_here = rclpy.signals.get_current_signal_handlers_options() == options.NO
-    rclpy.init(args=args, context=context, signal_handler_options=options.ALL)
+    # SIGINT/SIGTERM only set a flag, checked between two spin_once calls: the loop
+    # ends at a callback boundary and the teardown runs in order. rclpy's own handlers
+    # (options.ALL) shut the context down inside the signal handler instead, so a
+    # callback running at that moment publishes on a dead context and the executor logs
+    # it as FATAL; without any handler SIGTERM kills the process (status -15).
+    stop = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.append(True))
+    rclpy.init(args=args, context=context, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
     exec_ = None
     code = EXIT_OK
@@ -62,7 +68,7 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
             return EXIT_BAD_PARAMETER
         exec_ = make_executor(executor, context)
         exec_.add_node(node)
-        while context.ok():
+        while context.ok() and not stop:
             exec_.spin_once(timeout_sec=spin_period_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = EXIT_OK
@@ -80,8 +86,8 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
         if exec_ is not None:
             exec_.shutdown()
         rclpy.try_shutdown(context=context)
-        if installed_here:          # leave an embedding process (pytest) as it was
-            rclpy.signals.uninstall_signal_handlers()
+        for sig, handler in previous.items():     # leave an embedding process as it was
+            signal.signal(sig, handler)
     return code
 
 
