@@ -107,12 +107,13 @@ class GoughSensorNode(Node):
             self._error(f'true pose refused: {exc}', {'stamp_ns': stamp_to_ns(stamp)})
             return
         self.counts['measured'] += 1
-        self.pub_struts.publish(joint_state_msg(STRUT_NAMES, stamp, position=lengths, frame_id='gough_base',
-                                                out=self._struts_msg))
         if result.converged:
+            # the pose first: a lockstep controller waits for it, not for the struts
             self.counts['solved'] += 1
             self.pub_pose.publish(pose_msg(est_p, est_r, stamp, 'world', out=self._pose_msg))
-        else:
+        self.pub_struts.publish(joint_state_msg(STRUT_NAMES, stamp, position=lengths, frame_id='gough_base',
+                                                out=self._struts_msg))
+        if not result.converged:
             self.counts['failed'] += 1
             self._error(f'DKM failed: {result.reason}', {
                 'stamp_ns': stamp_to_ns(stamp), 'iterations': result.iterations,

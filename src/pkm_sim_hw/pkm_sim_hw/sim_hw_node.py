@@ -106,11 +106,8 @@ class SimHwNode(Node):
         ns = self.now_ns()
         for stamp in (self.msg_clock.clock, self.msg_state.header.stamp, self.msg_pose.header.stamp):
             stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
-        self.pub_clock.publish(self.msg_clock)
-        self.msg_state.position = out.encoder_positions
-        self.msg_state.velocity = out.encoder_velocities
-        self.msg_state.effort = out.applied_forces
-        self.pub_state.publish(self.msg_state)
+        # the true pose first: the sensor's work is on the critical path of the step
+        # (state -> sensor -> controller), the drive state and the clock are not
         pose = self.msg_pose.pose
         if self.config.kind == "planar":           # tool = (x, y, 0), yaw theta
             x, y, theta = out.tool_pose
@@ -119,6 +116,11 @@ class SimHwNode(Node):
         else:                                      # tool = p, orientation fixed
             pose.position.x, pose.position.y, pose.position.z = out.tool_pose
         self.pub_pose.publish(self.msg_pose)
+        self.msg_state.position = out.encoder_positions
+        self.msg_state.velocity = out.encoder_velocities
+        self.msg_state.effort = out.applied_forces
+        self.pub_state.publish(self.msg_state)
+        self.pub_clock.publish(self.msg_clock)
 
     def publish_diagnostics(self) -> None:
         out = self.plant.output()
