@@ -21,7 +21,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 
@@ -32,7 +31,7 @@ def start(module: str, params: dict, env: dict, log: Path) -> subprocess.Popen:
     return subprocess.Popen(args, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
 
 
-def run(machine: str, with_sensor: bool, duration_s: float, executor_note: str = "") -> dict:
+def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("ROS_LOCALHOST_ONLY", None)

@@ -22,7 +22,7 @@ from dataclasses import asdict
 import numpy as np
 
 from . import analysis
-from .config import load_machine, machine_names
+from .config import load_machine
 from .errors import KinematicsError
 from .planar import PlanarMachine
 
