@@ -71,11 +71,18 @@ class HoldControllerNode(Node):
         q = list(msg.position)
         if self.target is None:
             self.target = q
-        if isinstance(self.model, PlanarMachine):
-            result = self.model.forward_kinematics(q, self.pose)
-            self.pose = result.pose if result.converged else self.pose
-        else:
-            self.pose = self.model.forward_kinematics(q)
+        try:
+            if isinstance(self.model, PlanarMachine):
+                result = self.model.forward_kinematics(q, self.pose)
+                self.pose = result.pose if result.converged else self.pose
+            else:
+                self.pose = self.model.forward_kinematics(q)
+        except ValueError as exc:          # unassemblable readings: no answer, sim times out safely
+            self.get_logger().error(f"drives/state not usable: {exc}")
+            return
+        if self.pose is None:
+            self.get_logger().error("forward kinematics failed on the first state: no answer")
+            return
         a, h, rows, _, _ = self.dynamics.terms(self.pose.tolist(), (0.0, 0.0, 0.0))
         # static wrench H(x, 0) distributed by the pseudo-inverse (floats, ARCHI §4.4.1)
         forces = _min_two_norm_rows(rows, h)
