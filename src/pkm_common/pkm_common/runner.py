@@ -15,6 +15,7 @@ exception.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -45,6 +46,7 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     ``args`` are the command-line arguments (``sys.argv`` if None); ``name`` labels
     errors raised before the node (and its logger) exists.
     """
+    executor = os.environ.get('PKM_EXECUTOR', executor)     # for experiments: single | events
     context = rclpy.Context()
     # SIGINT/SIGTERM only set a flag, checked between two spin_once calls: the loop
     # ends at a callback boundary and the teardown runs in order. rclpy's own handlers
