@@ -8,7 +8,9 @@ exchange allows and reports steps per wall second; hold_controller_node answers 
 state (and, with the sensor, waits for ``metrology/pose`` of the same stamp) and
 reports the wall time from a state's arrival to its answer: the sensor's added
 latency is the difference of the two runs. Targets (issue 3): >= 3,000 steps/s
-without the sensor, >= 2,000 with it. Each run gets its own ROS_DOMAIN_ID.
+without the sensor, >= 2,000 with it. The first row is the floor: a zero-work
+two-process ping-pong of the same message type, QoS and executor
+(benchmarks/lockstep_echo.py). Each run gets its own ROS_DOMAIN_ID.
 """
 
 from __future__ import annotations
@@ -64,14 +66,33 @@ def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
     return {"sim": sim_summary, "ctrl": ctrl_summary}
 
 
+def echo_floor(steps: int = 6000) -> float | None:
+    """steps/s of the zero-work two-process ping-pong (benchmarks/lockstep_echo.py)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    script = str(Path(__file__).with_name("lockstep_echo.py"))
+    answer = subprocess.Popen([sys.executable, script, "answer"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        out = subprocess.run([sys.executable, script, "lead", str(steps)], env=env, capture_output=True,
+                             text=True, timeout=120).stdout
+    finally:
+        answer.send_signal(signal.SIGINT)
+        answer.wait(timeout=10)
+    rates = [float(line.split()[1]) for line in out.splitlines() if line.startswith("steps/s")]
+    return rates[0] if rates else None
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--machine", default="mom3")
     parser.add_argument("--duration", type=float, default=5.0, help="simulated seconds per run")
     args = parser.parse_args(argv)
+    floor = echo_floor()
     plain = run(args.machine, False, args.duration)
     sensed = run(args.machine, True, args.duration)
     rows = [
+        ("zero-work echo, 2 processes (floor of this machine)", floor, "steps/s", "-"),
         ("lockstep sim_hw <-> controller (2 processes)", plain["sim"]["steps_per_s"], "steps/s", ">= 3,000"),
         ("lockstep with the Gough sensor (3 processes)", sensed["sim"]["steps_per_s"], "steps/s", ">= 2,000"),
         ("state -> answer, no sensor, p50", plain["ctrl"].get("latency_us_p50"), "us", "-"),
