@@ -1,0 +1,259 @@
+"""Trajectory core (no rclpy): geometric segments, a jerk-limited time law per segment,
+sampling, and validation against the machine model before anything moves.
+
+Task coordinates are the machine's: planar (x, y, theta) or translational (x, y, z).
+Every segment is a path x(u), u in [0, 1], with dx/du and d2x/du2. Its time law u(t)
+is Ruckig's time-optimal jerk-limited 1-D profile from rest to rest (exact stop at
+every corner) with the path limits derived from the per-axis limits:
+
+    xdot = x' udot,  xddot = x' uddot + x'' udot^2,  xdddot = x' udddot + 3 x'' udot uddot + x''' udot^3
+
+For lines and pure rotations x'' = 0, so |x'_i| udot <= v_i, |x'_i| uddot <= a_i,
+|x'_i| udddot <= j_i are exact. For arcs of radius R and angle phi (|x'| = R phi), a
+part of the acceleration and jerk budget is kept for the normal terms: the speed is
+capped at sqrt(a_n R) (a_n: half the acceleration limit) and the tangential
+acceleration and jerk get the other half; the sampled profile is then checked.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from ruckig import InputParameter, Result, Ruckig, Trajectory
+
+from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.validation import finite_floats
+
+
+class TrajectoryRejected(ValueError):
+    """A planned trajectory violates a limit: names the sample, the limit and by how much."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Per-axis limits in task coordinates (m or rad, per s, s^2, s^3)."""
+
+    velocity: tuple
+    acceleration: tuple
+    jerk: tuple
+
+    def __post_init__(self):
+        for name in ("velocity", "acceleration", "jerk"):
+            values = getattr(self, name)
+            if len(values) != 3 or not all(v > 0.0 and math.isfinite(v) for v in values):
+                raise ValueError(f"limits.{name}: expected 3 positive finite numbers, got {values!r}")
+
+
+# ------------------------------------------------------------------ segments
+@dataclass(frozen=True)
+class Line:
+    """Straight line in task space, translation and rotation together (ARCHI's test
+    motion: a translation while the nacelle turns from pi/4 to pi/2)."""
+
+    start: tuple
+    end: tuple
+
+    def point(self, u):
+        if u >= 1.0:
+            return list(self.end)              # exactly the target, not a + (b - a)
+        return [a + u * (b - a) for a, b in zip(self.start, self.end)]
+
+    def first(self, _u):
+        return [b - a for a, b in zip(self.start, self.end)]
+
+    def second(self, _u):
+        return [0.0, 0.0, 0.0]
+
+    def radius(self):
+        return math.inf
+
+
+@dataclass(frozen=True)
+class Arc:
+    """Circular arc in the x-y plane about ``center`` (x, y); the third coordinate
+    (theta or z) is interpolated linearly. ``sweep`` is the signed angle (rad,
+    positive counter-clockwise)."""
+
+    start: tuple
+    center: tuple
+    sweep: float
+    end_third: float
+
+    @property
+    def r(self):
+        return math.hypot(self.start[0] - self.center[0], self.start[1] - self.center[1])
+
+    @property
+    def phi0(self):
+        return math.atan2(self.start[1] - self.center[1], self.start[0] - self.center[0])
+
+    def point(self, u):
+        a = self.phi0 + u * self.sweep
+        return [self.center[0] + self.r * math.cos(a), self.center[1] + self.r * math.sin(a),
+                self.start[2] + u * (self.end_third - self.start[2])]
+
+    def first(self, u):
+        a = self.phi0 + u * self.sweep
+        return [-self.r * self.sweep * math.sin(a), self.r * self.sweep * math.cos(a),
+                self.end_third - self.start[2]]
+
+    def second(self, u):
+        a = self.phi0 + u * self.sweep
+        return [-self.r * self.sweep**2 * math.cos(a), -self.r * self.sweep**2 * math.sin(a), 0.0]
+
+    def radius(self):
+        return self.r
+
+    @property
+    def end(self):
+        return tuple(self.point(1.0))
+
+
+@dataclass(frozen=True)
+class Dwell:
+    at: tuple
+    duration_s: float
+
+    @property
+    def end(self):
+        return self.at
+
+
+# ------------------------------------------------------------------ time law
+@dataclass
+class TimedSegment:
+    segment: object
+    duration_s: float
+    profile: Trajectory | None        # Ruckig 1-D profile of u(t); None for a dwell
+
+
+def time_law(segment, limits: Limits) -> TimedSegment:
+    """Time-optimal jerk-limited u(t) from rest to rest for one segment (Ruckig)."""
+    if isinstance(segment, Dwell):
+        return TimedSegment(segment, segment.duration_s, None)
+    d = [abs(v) for v in segment.first(0.0)]
+    if max(d) == 0.0:
+        return TimedSegment(segment, 0.0, None)
+    inf = math.inf
+    vmax = min(v / di if di > 0 else inf for v, di in zip(limits.velocity, d))
+    amax = min(a / di if di > 0 else inf for a, di in zip(limits.acceleration, d))
+    jmax = min(j / di if di > 0 else inf for j, di in zip(limits.jerk, d))
+    r = segment.radius()
+    if math.isfinite(r):
+        # keep half of the budget for the normal terms x'' udot^2 (centripetal)
+        scale = math.hypot(d[0], d[1])
+        a_lin = min(limits.acceleration[:2])
+        vmax = min(vmax, math.sqrt(0.5 * a_lin * r) / scale)
+        amax *= 0.5
+        jmax *= 0.5
+    inp = InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [1.0], [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [vmax], [amax], [jmax]
+    profile = Trajectory(1)
+    result = Ruckig(1).calculate(inp, profile)
+    if result not in (Result.Working, Result.Finished):
+        raise TrajectoryRejected(f"ruckig could not plan the segment ({result})")
+    return TimedSegment(segment, profile.duration, profile)
+
+
+def sample_segment(timed: TimedSegment, t: float):
+    """(x, xdot, xddot) at time t in the segment (clamped to its duration)."""
+    seg = timed.segment
+    if timed.profile is None:
+        x = list(seg.end) if isinstance(seg, Dwell) else seg.point(1.0)
+        return x, [0.0] * 3, [0.0] * 3
+    if t >= timed.duration_s:                  # at rest exactly on the target
+        return seg.point(1.0), [0.0] * 3, [0.0] * 3
+    u, ud, udd = (v[0] for v in timed.profile.at_time(max(t, 0.0)))
+    x1, x2 = seg.first(u), seg.second(u)
+    return (seg.point(u), [a * ud for a in x1], [a * udd + b * ud * ud for a, b in zip(x1, x2)])
+
+
+@dataclass
+class Samples:
+    """A sampled trajectory: times (N,), positions, velocities, accelerations (N, 3)."""
+
+    time_s: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.time_s[-1]) if len(self.time_s) else 0.0
+
+
+def plan(segments, limits: Limits, rate_hz: float = 1000.0) -> Samples:
+    """Time every segment (exact stop between them) and sample at ``rate_hz``; the
+    last sample is exactly the end of the last segment."""
+    if not rate_hz > 0.0:
+        raise ValueError(f"rate_hz: must be > 0, got {rate_hz}")
+    timed = [time_law(s, limits) for s in segments]
+    dt = 1.0 / rate_hz
+    times, xs, vs, accs = [], [], [], []
+    t0 = 0.0
+    for k, ts in enumerate(timed):
+        n = max(1, math.ceil(ts.duration_s / dt - 1e-9))
+        first = 0 if k == 0 else 1
+        for i in range(first, n + 1):
+            t = min(i * dt, ts.duration_s)
+            x, v, a = sample_segment(ts, t)
+            times.append(t0 + t)
+            xs.append(x)
+            vs.append(v)
+            accs.append(a)
+        t0 += ts.duration_s
+    return Samples(np.array(times), np.array(xs), np.array(vs), np.array(accs))
+
+
+# ----------------------------------------------------------------- validation
+def validate(samples: Samples, machine, joint_velocity_limit: float | None = None,
+             joint_acceleration_limit: float | None = None, max_condition: float | None = None,
+             legs=None) -> None:
+    """Every sample reachable, inside the joint limits and the joint velocity and
+    acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), and better
+    conditioned than ``max_condition``; ``legs`` restricts the check to a sub-machine
+    (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3). Raises TrajectoryRejected naming the
+    sample, the limit and by how much; returns None when the trajectory is accepted."""
+    idx = list(range(machine.n_legs)) if legs is None else list(legs)
+    for k, (x, v, a) in enumerate(zip(samples.position, samples.velocity, samples.acceleration)):
+        where = f"sample {k} (t = {samples.time_s[k]:.4f} s, x = {np.round(x, 6).tolist()})"
+        try:
+            q = machine.inverse_kinematics(x)
+        except ValueError as exc:
+            raise TrajectoryRejected(f"{where}: {exc}") from None
+        _, rows, qdot, bias = machine.velocity_terms(x.tolist(), v.tolist())
+        jac = np.array(rows)[idx]
+        if max_condition is not None:
+            s = np.linalg.svd(jac, compute_uv=False)
+            cond = s[0] / s[-1] if s[-1] > 0 else math.inf
+            if cond > max_condition:
+                name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in idx)
+                raise TrajectoryRejected(f"{where}: {name} condition number {cond:.4g} exceeds the bound "
+                                         f"{max_condition:g} by {cond - max_condition:.4g}")
+        if joint_velocity_limit is not None:
+            worst = max(range(machine.n_legs), key=lambda i: abs(qdot[i]))
+            if abs(qdot[worst]) > joint_velocity_limit:
+                raise TrajectoryRejected(
+                    f"{where}: leg {machine.leg_names[worst]} velocity {qdot[worst]:.4g} m/s exceeds "
+                    f"{joint_velocity_limit:g} m/s by {abs(qdot[worst]) - joint_velocity_limit:.4g}")
+        if joint_acceleration_limit is not None:
+            qdd = np.array(rows) @ a + np.array(bias)
+            worst = int(np.argmax(np.abs(qdd)))
+            if abs(qdd[worst]) > joint_acceleration_limit:
+                raise TrajectoryRejected(
+                    f"{where}: leg {machine.leg_names[worst]} acceleration {qdd[worst]:.4g} m/s^2 exceeds "
+                    f"{joint_acceleration_limit:g} m/s^2 by {abs(qdd[worst]) - joint_acceleration_limit:.4g}")
+        del q
+
+
+def point_to_point(start, end) -> Line:
+    """A move to a pose (or an incremental jog when ``end`` is start + delta)."""
+    return Line(tuple(finite_floats(start, 3, "start")), tuple(finite_floats(end, 3, "end")))
+
+
+def is_planar(machine) -> bool:
+    return isinstance(machine, PlanarMachine)
