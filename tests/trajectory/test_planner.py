@@ -86,3 +86,19 @@ def test_validation_names_sample_and_limit():
         validate(fast, ARCHI, joint_velocity_limit=0.1)
     with pytest.raises(ValueError, match="limits.velocity"):
         Limits((0.5, 0.0, 1.0), (1.0, 1.0, 1.0), (1.0, 1.0, 1.0))
+
+
+def test_feed_caps_the_path_speed_and_orthoglide_bounds():
+    seg = Line((0.0, 0.0, 0.0), (0.03, 0.04, 0.0), speed=0.1)
+    s = plan([seg], LIMITS, translation_axes=3)
+    speed = np.hypot(s.velocity[:, 0], s.velocity[:, 1])
+    assert speed.max() == pytest.approx(0.1, rel=1e-9)
+    ortho = load_machine("orthoglide").model
+    inside = plan([Line((0.0, 0.0, 0.0), (0.05, 0.05, 0.05))], LIMITS)
+    validate(inside, ortho, transmission_bounds=ortho.transmission_bounds)
+    # beyond Q2 on the diagonal the factors leave [1/2, 2] (Orthoglide §4.4)
+    outside = plan([Line((0.0, 0.0, 0.0), (0.16, 0.16, 0.16))], LIMITS)
+    ortho_wide = type(ortho)("o", [type(l)(**{**l.__dict__, "joint_limits": (-1.0, 1.0)}) for l in ortho.legs],
+                             ortho.home_position, ortho.workspace, ortho.transmission_bounds)
+    with pytest.raises(TrajectoryRejected, match=r"velocity transmission factor .* outside \[0.5, 2\]"):
+        validate(outside, ortho_wide, transmission_bounds=ortho.transmission_bounds)

@@ -54,6 +54,7 @@ class Line:
 
     start: tuple
     end: tuple
+    speed: float | None = None     # path speed cap of the translation (m/s), e.g. a G-code feed
 
     def point(self, u):
         if u >= 1.0:
@@ -80,6 +81,7 @@ class Arc:
     center: tuple
     sweep: float
     end_third: float
+    speed: float | None = None
 
     @property
     def r(self):
@@ -129,8 +131,12 @@ class TimedSegment:
     profile: Trajectory | None        # Ruckig 1-D profile of u(t); None for a dwell
 
 
-def time_law(segment, limits: Limits) -> TimedSegment:
-    """Time-optimal jerk-limited u(t) from rest to rest for one segment (Ruckig)."""
+def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment:
+    """Time-optimal jerk-limited u(t) from rest to rest for one segment (Ruckig).
+
+    ``translation_axes``: how many leading coordinates are a translation (2 for a
+    planar machine, whose third coordinate is the angle): a segment's ``speed`` caps
+    the norm of their rate."""
     if isinstance(segment, Dwell):
         return TimedSegment(segment, segment.duration_s, None)
     d = [abs(v) for v in segment.first(0.0)]
@@ -140,6 +146,13 @@ def time_law(segment, limits: Limits) -> TimedSegment:
     vmax = min(v / di if di > 0 else inf for v, di in zip(limits.velocity, d))
     amax = min(a / di if di > 0 else inf for a, di in zip(limits.acceleration, d))
     jmax = min(j / di if di > 0 else inf for j, di in zip(limits.jerk, d))
+    speed = getattr(segment, "speed", None)
+    if speed is not None:
+        if not speed > 0.0:
+            raise ValueError(f"speed: must be > 0 m/s, got {speed}")
+        norm = math.sqrt(sum(v * v for v in d[:translation_axes]))
+        if norm > 0.0:
+            vmax = min(vmax, speed / norm)
     r = segment.radius()
     if math.isfinite(r):
         # keep half of the budget for the normal terms x'' udot^2 (centripetal)
@@ -186,12 +199,12 @@ class Samples:
         return float(self.time_s[-1]) if len(self.time_s) else 0.0
 
 
-def plan(segments, limits: Limits, rate_hz: float = 1000.0) -> Samples:
+def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: int = 3) -> Samples:
     """Time every segment (exact stop between them) and sample at ``rate_hz``; the
     last sample is exactly the end of the last segment."""
     if not rate_hz > 0.0:
         raise ValueError(f"rate_hz: must be > 0, got {rate_hz}")
-    timed = [time_law(s, limits) for s in segments]
+    timed = [time_law(s, limits, translation_axes) for s in segments]
     dt = 1.0 / rate_hz
     times, xs, vs, accs = [], [], [], []
     t0 = 0.0
@@ -212,11 +225,12 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0) -> Samples:
 # ----------------------------------------------------------------- validation
 def validate(samples: Samples, machine, joint_velocity_limit: float | None = None,
              joint_acceleration_limit: float | None = None, max_condition: float | None = None,
-             legs=None) -> None:
+             legs=None, transmission_bounds=None) -> None:
     """Every sample reachable, inside the joint limits and the joint velocity and
     acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), and better
     conditioned than ``max_condition``; ``legs`` restricts the check to a sub-machine
-    (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3). Raises TrajectoryRejected naming the
+    (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds`` (psi_min,
+    psi_max) checks the Orthoglide's velocity transmission factors (§4.3, eq. 11). Raises TrajectoryRejected naming the
     sample, the limit and by how much; returns None when the trajectory is accepted."""
     idx = list(range(machine.n_legs)) if legs is None else list(legs)
     for k, (x, v, a) in enumerate(zip(samples.position, samples.velocity, samples.acceleration)):
@@ -234,6 +248,14 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
                 name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in idx)
                 raise TrajectoryRejected(f"{where}: {name} condition number {cond:.4g} exceeds the bound "
                                          f"{max_condition:g} by {cond - max_condition:.4g}")
+        if transmission_bounds is not None:
+            psi = 1.0 / np.linalg.svd(jac, compute_uv=False)       # Orthoglide §4.3
+            lo, hi = transmission_bounds
+            if psi.min() < lo or psi.max() > hi:
+                bad = psi.min() if psi.min() < lo else psi.max()
+                bound = lo if psi.min() < lo else hi
+                raise TrajectoryRejected(f"{where}: velocity transmission factor {bad:.4g} outside "
+                                         f"[{lo:g}, {hi:g}] by {abs(bad - bound):.4g}")
         if joint_velocity_limit is not None:
             worst = max(range(machine.n_legs), key=lambda i: abs(qdot[i]))
             if abs(qdot[worst]) > joint_velocity_limit:
