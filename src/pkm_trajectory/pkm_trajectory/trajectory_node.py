@@ -1,0 +1,127 @@
+"""``trajectory_node``: goals and G-code programs in, validated trajectories out.
+
+Thin shell over planner.py and program.py. A ``goal`` (PoseStamped, tool pose in
+world) plans a point-to-point move from the end of the last trajectory (or the
+machine's home); a ``program`` (std_msgs/String, G-code) plans the program from
+there; ``program_file`` (parameter) is planned at start. Before anything is
+published the whole trajectory is checked against the machine model (reachability,
+joint limits, joint velocity and acceleration, conditioning, transmission factors);
+a rejected one publishes nothing and reports which sample, which limit and by how
+much on ``diagnostics`` (ERROR). An accepted one goes out on ``trajectory``
+(MultiDOFJointTrajectory, one joint "tool", latched) and is reported OK.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from builtin_interfaces.msg import Duration
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, Transform, Twist
+from rclpy.node import Node
+from std_msgs.msg import String
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine
+from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_common.runner import main_exit, run_node
+from pkm_kinematics import load_machine
+from pkm_kinematics.planar import PlanarMachine
+from pkm_trajectory.planner import Limits, TrajectoryRejected, plan, point_to_point, validate
+from pkm_trajectory.program import gcode_segments
+
+
+class TrajectoryNode(Node):
+    def __init__(self, context=None, **kwargs):
+        super().__init__("trajectory", context=context, **kwargs)
+        self.config = load_machine(declare_str(self, "machine", "archi"))
+        self.model = self.config.model
+        self.planar = isinstance(self.model, PlanarMachine)
+        self.limits = Limits(
+            tuple(declare_float_list(self, "max_velocity", [0.5, 0.5, 2.0], length=3, lo=0.0)),
+            tuple(declare_float_list(self, "max_acceleration", [5.0, 5.0, 20.0], length=3, lo=0.0)),
+            tuple(declare_float_list(self, "max_jerk", [200.0, 200.0, 800.0], length=3, lo=0.0)))
+        self.rate_hz = declare_float(self, "rate_hz", 1000.0, 1.0, 20000.0, unit="Hz")
+        self.joint_velocity = declare_float(self, "max_joint_velocity", 2.0, 0.0, 100.0, lo_open=True, unit="m/s")
+        self.joint_acceleration = declare_float(self, "max_joint_acceleration", 50.0, 0.0, 1e4, lo_open=True,
+                                                unit="m/s^2")
+        self.max_condition = declare_float(self, "max_condition", 50.0, 1.0, 1e12)
+        self.feed_override = declare_float(self, "feed_override", 1.0, 0.0, 2.0, lo_open=True)
+        self.scale = declare_float(self, "scale", 1.0, 0.0, 100.0, lo_open=True)
+        self.repeat = declare_int(self, "repeat", 1, 1, 10000)
+        program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
+        home = self.model.home_pose if self.planar else self.model.home_position
+        self.pose = [float(v) for v in home]
+        self.accepted = self.rejected = 0
+        self.pub = self.create_publisher(MultiDOFJointTrajectory, "trajectory", LATCHED_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS)
+        self.create_subscription(String, "program", self.on_program, STREAM_QOS)
+        if program_file:
+            self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
+
+    def _options(self):
+        return {"planar": self.planar, "start_pose": self.pose, "feed_override": self.feed_override,
+                "scale": self.scale, "repeat": self.repeat}
+
+    def on_goal(self, msg: PoseStamped) -> None:
+        def segments():
+            position, rotation = pose_from_msg(msg)
+            kind = "planar" if self.planar else "translational"
+            return [point_to_point(self.pose, tool_pose_to_machine(kind, position, rotation, self.pose[2]))]
+        self.submit("goal", segments)
+
+    def on_program(self, msg: String) -> None:
+        self.submit("program", lambda: gcode_segments(msg.data, **self._options()))
+
+    def submit(self, source: str, build) -> None:
+        """Plan, validate, publish or refuse; every outcome is reported."""
+        try:
+            samples = plan(build(), self.limits, self.rate_hz, translation_axes=2 if self.planar else 3)
+            validate(samples, self.model, self.joint_velocity, self.joint_acceleration, self.max_condition,
+                     transmission_bounds=getattr(self.model, "transmission_bounds", None))
+        except (TrajectoryRejected, ValueError, OSError) as exc:
+            self.rejected += 1
+            self.get_logger().error(f"{source} rejected: {exc}")
+            self.report(2, f"{source} rejected: {exc}", {})
+            return
+        self.pub.publish(self.to_msg(samples))
+        self.pose = samples.position[-1].tolist()
+        self.accepted += 1
+        self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
+
+    def to_msg(self, samples) -> MultiDOFJointTrajectory:
+        msg = MultiDOFJointTrajectory(joint_names=["tool"])
+        msg.header.frame_id = "world"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        for t, x, v, a in zip(samples.time_s, samples.position, samples.velocity, samples.acceleration):
+            tf, vel, acc = Transform(), Twist(), Twist()
+            tf.translation.x, tf.translation.y = float(x[0]), float(x[1])
+            vel.linear.x, vel.linear.y = float(v[0]), float(v[1])
+            acc.linear.x, acc.linear.y = float(a[0]), float(a[1])
+            if self.planar:                         # (x, y, theta): yaw about z
+                tf.rotation.z, tf.rotation.w = math.sin(0.5 * x[2]), math.cos(0.5 * x[2])
+                vel.angular.z, acc.angular.z = float(v[2]), float(a[2])
+            else:
+                tf.translation.z, vel.linear.z, acc.linear.z = float(x[2]), float(v[2]), float(a[2])
+                tf.rotation.w = 1.0
+            sec, nsec = divmod(round(float(t) * 1e9), 1_000_000_000)
+            msg.points.append(MultiDOFJointTrajectoryPoint(
+                transforms=[tf], velocities=[vel], accelerations=[acc],
+                time_from_start=Duration(sec=int(sec), nanosec=int(nsec))))
+        return msg
+
+    def report(self, level: int, message: str, values: dict) -> None:
+        values = {**values, "accepted": self.accepted, "rejected": self.rejected}
+        self.pub_diag.publish(diagnostic_array(self.get_clock().now().to_msg(),
+                                               [diagnostic_status("trajectory", level, message, values)]))
+
+
+def main(args=None):
+    main_exit(run_node(TrajectoryNode, args=args, name="trajectory"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""G-code programs -> segments -> a validated trajectory (feed, scaling, repetition)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pkm_kinematics import load_machine
+from pkm_trajectory.planner import Arc, Dwell, Limits, Line, plan, validate
+from pkm_trajectory.program import gcode_segments
+
+ARCHI = load_machine("archi").model
+LIMITS = Limits(velocity=(0.5, 0.5, 2.0), acceleration=(5.0, 5.0, 20.0), jerk=(200.0, 200.0, 800.0))
+START = (1.0, -0.4, math.pi / 4)
+
+SQUARE = """
+G21 G90 G17          (mm, absolute)
+G1 F600 X1050 Y-400  ; 10 mm/s
+G3 X1050 Y-350 I0 J25
+G1 X1000 C90
+G4 P0.2
+G0 X1000 Y-400 C45
+M2
+"""
+
+
+def test_program_to_segments_and_a_valid_trajectory():
+    segs = gcode_segments(SQUARE, planar=True, start_pose=START)
+    assert [type(s) for s in segs] == [Line, Arc, Line, Dwell, Line]
+    assert segs[0].end == (1.05, -0.4, math.pi / 4) and segs[0].speed == pytest.approx(0.01)
+    arc = segs[1]
+    assert arc.center == pytest.approx((1.05, -0.375)) and arc.sweep == pytest.approx(math.pi)
+    assert segs[2].end[2] == pytest.approx(math.pi / 2)
+    s = plan(segs, LIMITS, translation_axes=2)
+    np.testing.assert_allclose(s.position[-1], START, atol=1e-12)
+    validate(s, ARCHI, joint_velocity_limit=1.0, max_condition=50.0)
+
+
+def test_feed_override_scaling_and_repetition():
+    base = gcode_segments(SQUARE, planar=True, start_pose=START)
+    fast = gcode_segments(SQUARE, planar=True, start_pose=START, feed_override=2.0)
+    assert fast[0].speed == pytest.approx(2 * base[0].speed)
+    big = gcode_segments(SQUARE, planar=True, start_pose=START, scale=2.0)
+    assert big[0].end[0] == pytest.approx(1.1) and big[1].r == pytest.approx(0.05)
+    three = gcode_segments(SQUARE, planar=True, start_pose=START, repeat=3)
+    assert len(three) == 3 * len(base)
+    with pytest.raises(ValueError, match="feed_override: must be in"):
+        gcode_segments(SQUARE, planar=True, start_pose=START, feed_override=2.5)
+    with pytest.raises(ValueError, match="repeat: the program ends at"):
+        gcode_segments("G1 F60 X1010\nM2", planar=True, start_pose=START, repeat=2)
+
+
+def test_axes_per_machine_kind():
+    with pytest.raises(ValueError, match="line 1: a planar machine has no Z axis"):
+        gcode_segments("G1 F60 Z5", planar=True, start_pose=START)
+    with pytest.raises(ValueError, match="line 1: a translational machine has no C axis"):
+        gcode_segments("G1 F60 C5", planar=False, start_pose=(0.0, 0.0, 0.8))
+    segs = gcode_segments("G91 G1 F60 Z-10", planar=False, start_pose=(0.0, 0.0, 0.8))
+    assert segs[0].end == pytest.approx((0.0, 0.0, 0.79))

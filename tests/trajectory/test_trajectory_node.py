@@ -1,0 +1,55 @@
+"""trajectory_node in-process: an accepted program is published (latched), a bad one
+refused with a line-numbered or limit-naming diagnostic and nothing published."""
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from pkm_common.conversions import pose_msg
+from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_kinematics.rotations import rotation_about_z
+from pkm_trajectory.trajectory_node import TrajectoryNode
+
+pytestmark = pytest.mark.ros
+
+PROGRAM = "G21 G90\nG1 F600 X1050 Y-400\nG3 X1050 Y-350 I0 J25\nG1 X1000 C90\nG0 X1000 Y-400 C45\nM2\n"
+
+
+def test_accepts_a_program_and_refuses_bad_ones(ros_graph):
+    node = ros_graph.add_node(TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+        Parameter("machine", value="archi"), Parameter("rate_hz", value=200.0)]))
+    client = ros_graph.create_node("client")
+    trajectories, diags = [], []
+    client.create_subscription(MultiDOFJointTrajectory, "trajectory", trajectories.append, LATCHED_QOS)
+    client.create_subscription(DiagnosticArray, "diagnostics", diags.append, STREAM_QOS)
+    program = client.create_publisher(String, "program", STREAM_QOS)
+    goal = client.create_publisher(PoseStamped, "goal", STREAM_QOS)
+    assert ros_graph.spin_until(lambda: program.get_subscription_count() > 0)
+    program.publish(String(data=PROGRAM))
+    assert ros_graph.spin_until(lambda: len(trajectories) == 1)
+    traj = trajectories[0]
+    last = traj.points[-1].transforms[0]
+    assert (last.translation.x, last.translation.y) == pytest.approx((1.0, -0.4))
+    assert 2.0 * math.atan2(last.rotation.z, last.rotation.w) == pytest.approx(math.pi / 4)
+    assert traj.points[1].time_from_start.nanosec == 5_000_000       # 200 Hz
+
+    program.publish(String(data="G1 F600 X1050\nG5 X1\n"))           # unsupported word
+    program.publish(String(data="G1 F600 Y-1300\nM2\n"))            # into bad conditioning, then out of reach
+    assert ros_graph.spin_until(lambda: node.rejected == 2)
+
+    def errors():
+        return [s.message for d in diags for s in d.status if s.level == DiagnosticStatus.ERROR]
+    assert ros_graph.spin_until(lambda: len(errors()) == 2)
+    messages = errors()
+    assert any("line 2" in m and "G5" in m for m in messages)
+    assert any(m.startswith("program rejected: sample") and "machine condition number" in m
+               and "exceeds the bound 50 by" in m for m in messages)
+
+    goal.publish(pose_msg([1.1, -0.35, 0.0], rotation_about_z(2.0), 0, "world"))
+    assert ros_graph.spin_until(lambda: len(trajectories) == 2)
+    assert node.accepted == 2 and node.pose == pytest.approx([1.1, -0.35, 2.0])
