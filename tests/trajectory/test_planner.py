@@ -102,3 +102,23 @@ def test_feed_caps_the_path_speed_and_orthoglide_bounds():
                              ortho.home_position, ortho.workspace, ortho.transmission_bounds)
     with pytest.raises(TrajectoryRejected, match=r"velocity transmission factor .* outside \[0.5, 2\]"):
         validate(outside, ortho_wide, transmission_bounds=ortho.transmission_bounds)
+
+
+def test_blended_corners_stay_within_tolerance_and_limits():
+    """A zig-zag of lines blended with a 0.5 mm tolerance: faster than exact stop, never
+    beyond the acceleration or jerk limits (unlike LinuxCNC issue #3773), and every
+    sample within the tolerance of the programmed path."""
+    from pkm_trajectory.planner import _deviation, plan_blended
+    pts = [(0.0, 0.0, 0.0), (0.05, 0.0, 0.0), (0.05, 0.05, 0.0), (0.1, 0.05, 0.0), (0.12, 0.0, 0.0)]
+    lines = [Line(a, b) for a, b in zip(pts, pts[1:])]
+    exact = plan(lines, LIMITS, rate_hz=4000.0)
+    blended = plan_blended(lines, LIMITS, tolerance=5e-4, rate_hz=4000.0)
+    assert blended.duration_s < 0.9 * exact.duration_s
+    check_limits(blended, LIMITS)
+    dev = [min(_deviation(p, pts[i], pts[i + 1], pts[i + 2]) for i in range(len(pts) - 2))
+           for p in blended.position]
+    assert max(dev) <= 5e-4 * (1 + 1e-6)
+    np.testing.assert_array_equal(blended.position[-1], pts[-1])
+    # zero tolerance is an exact stop at every corner
+    none = plan_blended(lines, LIMITS, tolerance=0.0, rate_hz=4000.0)
+    assert none.duration_s > blended.duration_s

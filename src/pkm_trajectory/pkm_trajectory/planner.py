@@ -279,3 +279,90 @@ def point_to_point(start, end) -> Line:
 
 def is_planar(machine) -> bool:
     return isinstance(machine, PlanarMachine)
+
+
+# ------------------------------------------------------------------- blending
+def _superposed(timed: list, starts: list, t: float):
+    """x, xdot, xddot of overlapping rest-to-rest line profiles at time t."""
+    x = list(timed[0].segment.start)
+    v = [0.0, 0.0, 0.0]
+    a = [0.0, 0.0, 0.0]
+    for ts, t0 in zip(timed, starts):
+        if ts.profile is None:
+            continue
+        d = ts.segment.first(0.0)
+        if t >= t0 + ts.duration_s:
+            u, ud, udd = 1.0, 0.0, 0.0
+        elif t <= t0:
+            continue
+        else:
+            u, ud, udd = (w[0] for w in ts.profile.at_time(t - t0))
+        for i in range(3):
+            x[i] += d[i] * u
+            v[i] += d[i] * ud
+            a[i] += d[i] * udd
+    return x, v, a
+
+
+def _deviation(p, a, b, c) -> float:
+    """Distance from p to the polyline a-b-c (the programmed corner)."""
+    def seg(p, s, e):
+        d = np.subtract(e, s)
+        n2 = float(d @ d)
+        w = 0.0 if n2 == 0.0 else min(1.0, max(0.0, float(np.subtract(p, s) @ d) / n2))
+        return float(np.linalg.norm(np.subtract(p, np.add(s, w * d))))
+    return min(seg(p, a, b), seg(p, b, c))
+
+
+def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float = 1000.0,
+                 translation_axes: int = 3) -> Samples:
+    """Corners blended within a path ``tolerance`` (like G64 P) without exceeding the
+    limits. Each line keeps its rest-to-rest Ruckig profile and the next line starts
+    before the previous one ends: the commanded motion is the sum of the two profiles
+    (superposition blending). The overlap is the largest (found by bisection) for which
+    the corner stays within ``tolerance`` of the programmed path and every axis within
+    its velocity, acceleration and jerk limits, checked densely over the overlap (the
+    profiles are piecewise polynomial) - where LinuxCNC's blending exceeds its
+    acceleration limit by 1.9-8.1x (LinuxCNC issue #3773)."""
+    if not all(isinstance(s, Line) for s in lines):
+        raise ValueError("plan_blended: blends straight lines only (arcs and dwells stop exactly)")
+    if not tolerance >= 0.0:
+        raise ValueError(f"tolerance: must be >= 0 m, got {tolerance}")
+    timed = [time_law(s, limits, translation_axes) for s in lines]
+    caps = [np.array(limits.velocity), np.array(limits.acceleration), np.array(limits.jerk)]
+    starts = [0.0]
+    for k in range(len(timed) - 1):
+        t_end = starts[k] + timed[k].duration_s
+        corner = (lines[k].start, lines[k].end, lines[k + 1].end)
+        longest = 0.5 * min(timed[k].duration_s, timed[k + 1].duration_s)
+
+        def acceptable(overlap):
+            t1 = t_end - overlap
+            h = 1e-6
+            for t in np.linspace(t1, t_end, 201):
+                x, v, a = _superposed(timed[:k + 2], starts + [t1], t)
+                if _deviation(x[:translation_axes], *[c[:translation_axes] for c in corner]) > tolerance:
+                    return False
+                a_minus = _superposed(timed[:k + 2], starts + [t1], t - h)[2]
+                a_plus = _superposed(timed[:k + 2], starts + [t1], t + h)[2]
+                jerk = (np.array(a_plus) - np.array(a_minus)) / (2 * h)
+                for value, cap in zip((np.abs(v), np.abs(a), np.abs(jerk)), caps):
+                    if np.any(value > cap * (1 + 1e-9)):
+                        return False
+            return True
+
+        lo, hi = 0.0, longest
+        if tolerance > 0.0 and acceptable(hi):
+            lo = hi
+        elif tolerance > 0.0:
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if acceptable(mid) else (lo, mid)
+        starts.append(t_end - lo)
+    total = starts[-1] + timed[-1].duration_s
+    n = max(1, math.ceil(total * rate_hz - 1e-9))
+    times = np.minimum(np.arange(n + 1) / rate_hz, total)
+    xs, vs, accs = zip(*(_superposed(timed, starts, t) for t in times))
+    xs = np.array(xs)
+    xs[-1] = lines[-1].end
+    return Samples(times, xs, np.array(vs), np.array(accs))
