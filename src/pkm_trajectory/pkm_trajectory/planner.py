@@ -227,49 +227,74 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
              joint_acceleration_limit: float | None = None, max_condition: float | None = None,
              legs=None, transmission_bounds=None) -> None:
     """Every sample reachable, inside the joint limits and the joint velocity and
-    acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), and better
-    conditioned than ``max_condition``; ``legs`` restricts the check to a sub-machine
-    (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds`` (psi_min,
-    psi_max) checks the Orthoglide's velocity transmission factors (§4.3, eq. 11). Raises TrajectoryRejected naming the
-    sample, the limit and by how much; returns None when the trajectory is accepted."""
+    acceleration limits (qdot = J xdot; qddot from qdot over the samples), and better
+    conditioned than ``max_condition``; ``legs`` restricts the conditioning check to a
+    sub-machine (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds``
+    (psi_min, psi_max) checks the Orthoglide's velocity transmission factors (§4.3,
+    eq. 11). Vectorised over the samples. Raises TrajectoryRejected naming the first
+    offending sample (the earliest in time over all checks), the limit and by how much;
+    returns None when accepted."""
+    x, v = samples.position, samples.velocity
+    failures = []              # (sample, order, message builder) of every check's first failure
+
+    def first(mask, order, message):
+        if mask.any():
+            k = int(np.argmax(mask))
+            failures.append((k, order, lambda: message(k)))
+
+    def scalar_error(call):
+        def message(k):
+            try:
+                call(k)
+            except ValueError as exc:
+                return str(exc)
+            return "rejected"
+        return message
+
+    q, reachable = machine.inverse_kinematics_batch(x)
+    first(~reachable, 0, scalar_error(lambda k: machine.inverse_kinematics(x[k], check_limits=False)))
+    first(reachable & ~machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0)), 1,
+          scalar_error(lambda k: machine.check_joint_limits(q[k])))
+    jac = machine.jacobian_batch(x)
+    ok = np.isfinite(jac).all(axis=(1, 2))
     idx = list(range(machine.n_legs)) if legs is None else list(legs)
-    for k, (x, v, a) in enumerate(zip(samples.position, samples.velocity, samples.acceleration)):
-        where = f"sample {k} (t = {samples.time_s[k]:.4f} s, x = {np.round(x, 6).tolist()})"
-        try:
-            q = machine.inverse_kinematics(x)
-        except ValueError as exc:
-            raise TrajectoryRejected(f"{where}: {exc}") from None
-        _, rows, qdot, bias = machine.velocity_terms(x.tolist(), v.tolist())
-        jac = np.array(rows)[idx]
-        if max_condition is not None:
-            s = np.linalg.svd(jac, compute_uv=False)
-            cond = s[0] / s[-1] if s[-1] > 0 else math.inf
-            if cond > max_condition:
-                name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in idx)
-                raise TrajectoryRejected(f"{where}: {name} condition number {cond:.4g} exceeds the bound "
-                                         f"{max_condition:g} by {cond - max_condition:.4g}")
-        if transmission_bounds is not None:
-            psi = 1.0 / np.linalg.svd(jac, compute_uv=False)       # Orthoglide §4.3
-            lo, hi = transmission_bounds
-            if psi.min() < lo or psi.max() > hi:
-                bad = psi.min() if psi.min() < lo else psi.max()
-                bound = lo if psi.min() < lo else hi
-                raise TrajectoryRejected(f"{where}: velocity transmission factor {bad:.4g} outside "
-                                         f"[{lo:g}, {hi:g}] by {abs(bad - bound):.4g}")
-        if joint_velocity_limit is not None:
-            worst = max(range(machine.n_legs), key=lambda i: abs(qdot[i]))
-            if abs(qdot[worst]) > joint_velocity_limit:
-                raise TrajectoryRejected(
-                    f"{where}: leg {machine.leg_names[worst]} velocity {qdot[worst]:.4g} m/s exceeds "
-                    f"{joint_velocity_limit:g} m/s by {abs(qdot[worst]) - joint_velocity_limit:.4g}")
-        if joint_acceleration_limit is not None:
-            qdd = np.array(rows) @ a + np.array(bias)
-            worst = int(np.argmax(np.abs(qdd)))
-            if abs(qdd[worst]) > joint_acceleration_limit:
-                raise TrajectoryRejected(
-                    f"{where}: leg {machine.leg_names[worst]} acceleration {qdd[worst]:.4g} m/s^2 exceeds "
-                    f"{joint_acceleration_limit:g} m/s^2 by {abs(qdd[worst]) - joint_acceleration_limit:.4g}")
-        del q
+    if max_condition is not None:
+        cond = np.full(len(x), np.inf)
+        sv = np.linalg.svd(jac[ok][:, idx, :], compute_uv=False)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cond[ok] = np.where(sv[:, -1] > 0, sv[:, 0] / sv[:, -1], np.inf)
+        name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in idx)
+        first(reachable & ~(cond <= max_condition), 2,
+              lambda k: f"{name} condition number {cond[k]:.4g} exceeds the bound {max_condition:g} "
+                        f"by {cond[k] - max_condition:.4g}")
+    if transmission_bounds is not None:
+        lo, hi = transmission_bounds
+        psi = np.full((len(x), 3), 1.0)
+        psi[ok] = 1.0 / np.linalg.svd(jac[ok], compute_uv=False)      # Orthoglide §4.3
+
+        def psi_message(k):
+            value = psi[k].min() if psi[k].min() < lo else psi[k].max()
+            bound = lo if psi[k].min() < lo else hi
+            return f"velocity transmission factor {value:.4g} outside [{lo:g}, {hi:g}] by {abs(value - bound):.4g}"
+        first(reachable & ((psi.min(axis=1) < lo) | (psi.max(axis=1) > hi)), 3, psi_message)
+    qdot = np.einsum("nij,nj->ni", np.where(np.isfinite(jac), jac, 0.0), v)
+    qddot = np.gradient(qdot, samples.time_s, axis=0) if len(qdot) > 1 else np.zeros_like(qdot)
+    for order, (limit, values, what, unit) in enumerate(((joint_velocity_limit, qdot, "velocity", "m/s"),
+                                                         (joint_acceleration_limit, qddot, "acceleration",
+                                                          "m/s^2")), start=4):
+        if limit is None:
+            continue
+        over = np.abs(values) > limit
+
+        def message(k, values=values, limit=limit, what=what, unit=unit, over=over):
+            i = int(np.argmax(over[k]))
+            return (f"leg {machine.leg_names[i]} {what} {values[k, i]:.4g} {unit} exceeds {limit:g} {unit} "
+                    f"by {abs(values[k, i]) - limit:.4g}")
+        first(reachable & over.any(axis=1), order, message)
+    if failures:
+        k, _, message = min(failures, key=lambda f: (f[0], f[1]))
+        raise TrajectoryRejected(f"sample {k} (t = {samples.time_s[k]:.4f} s, "
+                                 f"x = {np.round(x[k], 6).tolist()}): {message()}")
 
 
 def point_to_point(start, end) -> Line:
@@ -282,9 +307,11 @@ def is_planar(machine) -> bool:
 
 
 # ------------------------------------------------------------------- blending
-def _superposed(timed: list, starts: list, t: float):
-    """x, xdot, xddot of overlapping rest-to-rest line profiles at time t."""
-    x = list(timed[0].segment.start)
+def _superposed(timed: list, starts: list, t: float, origin=None):
+    """x, xdot, xddot of overlapping rest-to-rest line profiles at time t: the start of
+    the first profile plus every profile's displacement so far (``origin`` given: the
+    profiles listed are the only ones not yet finished, and it is their start)."""
+    x = list(timed[0].segment.start if origin is None else origin)
     v = [0.0, 0.0, 0.0]
     a = [0.0, 0.0, 0.0]
     for ts, t0 in zip(timed, starts):
@@ -335,16 +362,21 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
         t_end = starts[k] + timed[k].duration_s
         corner = (lines[k].start, lines[k].end, lines[k + 1].end)
         longest = 0.5 * min(timed[k].duration_s, timed[k + 1].duration_s)
+        if k > 0:      # never three profiles at once: line k-1 has ended when k+1 starts
+            longest = min(longest, max(0.0, t_end - (starts[k - 1] + timed[k - 1].duration_s)))
+
+        pair = timed[k:k + 2]
 
         def acceptable(overlap):
             t1 = t_end - overlap
             h = 1e-6
-            for t in np.linspace(t1, t_end, 201):
-                x, v, a = _superposed(timed[:k + 2], starts + [t1], t)
+            window = [starts[k], t1]
+            for t in np.linspace(t1, t_end, 61):
+                x, v, a = _superposed(pair, window, t, lines[k].start)
                 if _deviation(x[:translation_axes], *[c[:translation_axes] for c in corner]) > tolerance:
                     return False
-                a_minus = _superposed(timed[:k + 2], starts + [t1], t - h)[2]
-                a_plus = _superposed(timed[:k + 2], starts + [t1], t + h)[2]
+                a_minus = _superposed(pair, window, t - h, lines[k].start)[2]
+                a_plus = _superposed(pair, window, t + h, lines[k].start)[2]
                 jerk = (np.array(a_plus) - np.array(a_minus)) / (2 * h)
                 for value, cap in zip((np.abs(v), np.abs(a), np.abs(jerk)), caps):
                     if np.any(value > cap * (1 + 1e-9)):
@@ -355,14 +387,24 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
         if tolerance > 0.0 and acceptable(hi):
             lo = hi
         elif tolerance > 0.0:
-            for _ in range(30):
+            for _ in range(10):                 # 1/1000 of the longest overlap
                 mid = 0.5 * (lo + hi)
                 lo, hi = (mid, hi) if acceptable(mid) else (lo, mid)
         starts.append(t_end - lo)
     total = starts[-1] + timed[-1].duration_s
     n = max(1, math.ceil(total * rate_hz - 1e-9))
     times = np.minimum(np.arange(n + 1) / rate_hz, total)
-    xs, vs, accs = zip(*(_superposed(timed, starts, t) for t in times))
+    ends = [t0 + ts.duration_s for t0, ts in zip(starts, timed)]
+    xs, vs, accs = [], [], []
+    first = 0
+    for t in times:     # only the profiles still running contribute beyond their start point
+        while first < len(timed) - 1 and ends[first] <= t:
+            first += 1
+        active = [i for i in range(first, min(first + 2, len(timed)))]
+        x, v, a = _superposed([timed[i] for i in active], [starts[i] for i in active], t, lines[first].start)
+        xs.append(x)
+        vs.append(v)
+        accs.append(a)
     xs = np.array(xs)
     xs[-1] = lines[-1].end
     return Samples(times, xs, np.array(vs), np.array(accs))
