@@ -57,3 +57,15 @@ def test_axes_per_machine_kind():
         gcode_segments("G1 F60 C5", planar=False, start_pose=(0.0, 0.0, 0.8))
     segs = gcode_segments("G91 G1 F60 Z-10", planar=False, start_pose=(0.0, 0.0, 0.8))
     assert segs[0].end == pytest.approx((0.0, 0.0, 0.79))
+
+
+def test_program_with_blending_joins_at_rest_and_stays_valid():
+    from pkm_trajectory.planner import plan_with_blending
+    segs = gcode_segments(SQUARE, planar=True, start_pose=START)
+    exact = plan(segs, LIMITS, translation_axes=2)
+    blended = plan_with_blending(segs, LIMITS, 1e-4, translation_axes=2)
+    assert np.all(np.diff(blended.time_s) > 0)
+    np.testing.assert_allclose(blended.position[-1], START, atol=1e-12)
+    assert blended.duration_s <= exact.duration_s + 1e-9
+    assert np.all(np.abs(blended.acceleration) <= np.array(LIMITS.acceleration) * (1 + 1e-6))
+    validate(blended, ARCHI, joint_velocity_limit=1.0, max_condition=50.0)

@@ -408,3 +408,31 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
     xs = np.array(xs)
     xs[-1] = lines[-1].end
     return Samples(times, xs, np.array(vs), np.array(accs))
+
+
+def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz: float = 1000.0,
+                       translation_axes: int = 3) -> Samples:
+    """Runs of consecutive lines are blended within ``blend_tolerance``; arcs and dwells
+    (and every corner when the tolerance is 0) stop exactly. The pieces are joined in
+    time at rest, so the limits hold across the joins."""
+    if blend_tolerance <= 0.0:
+        return plan(segments, limits, rate_hz, translation_axes)
+    groups, run = [], []
+    for seg in segments:
+        if isinstance(seg, Line):
+            run.append(seg)
+            continue
+        if run:
+            groups.append(("lines", run))
+            run = []
+        groups.append(("other", [seg]))
+    if run:
+        groups.append(("lines", run))
+    parts = [plan_blended(g, limits, blend_tolerance, rate_hz, translation_axes) if kind == "lines"
+             else plan(g, limits, rate_hz, translation_axes) for kind, g in groups]
+    t0, out = 0.0, []
+    for k, part in enumerate(parts):
+        skip = 0 if k == 0 else 1            # the first sample repeats the previous end
+        out.append((part.time_s[skip:] + t0, part.position[skip:], part.velocity[skip:], part.acceleration[skip:]))
+        t0 += part.duration_s
+    return Samples(*(np.concatenate([o[i] for o in out]) for i in range(4)))

@@ -29,7 +29,7 @@ from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_kinematics.planar import PlanarMachine
-from pkm_trajectory.planner import Limits, TrajectoryRejected, plan, point_to_point, validate
+from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_with_blending, point_to_point, validate
 from pkm_trajectory.program import gcode_segments
 
 
@@ -51,6 +51,8 @@ class TrajectoryNode(Node):
         self.feed_override = declare_float(self, "feed_override", 1.0, 0.0, 2.0, lo_open=True)
         self.scale = declare_float(self, "scale", 1.0, 0.0, 100.0, lo_open=True)
         self.repeat = declare_int(self, "repeat", 1, 1, 10000)
+        self.blend_tolerance = declare_float(self, "blend_tolerance_m", 0.0, 0.0, 0.01,
+                                             "corner blending of line moves (0: exact stop)", unit="m")
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
         home = self.model.home_pose if self.planar else self.model.home_position
         self.pose = [float(v) for v in home]
@@ -79,7 +81,8 @@ class TrajectoryNode(Node):
     def submit(self, source: str, build) -> None:
         """Plan, validate, publish or refuse; every outcome is reported."""
         try:
-            samples = plan(build(), self.limits, self.rate_hz, translation_axes=2 if self.planar else 3)
+            samples = plan_with_blending(build(), self.limits, self.blend_tolerance, self.rate_hz,
+                                         translation_axes=2 if self.planar else 3)
             validate(samples, self.model, self.joint_velocity, self.joint_acceleration, self.max_condition,
                      transmission_bounds=getattr(self.model, "transmission_bounds", None))
         except (TrajectoryRejected, ValueError, OSError) as exc:
