@@ -93,6 +93,7 @@ class TrajectoryNode(Node):
         self.pub.publish(self.to_msg(samples))
         self.pose = samples.position[-1].tolist()
         self.accepted += 1
+        self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
 
     def to_msg(self, samples) -> MultiDOFJointTrajectory:
