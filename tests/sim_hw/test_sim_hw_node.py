@@ -116,3 +116,28 @@ def test_realtime_mode_counts_deadline_misses(ros_graph):
 def test_invalid_parameters_fail_at_start_naming_the_field(ros_context, name, value, message):
     with pytest.raises((ParameterError, ValueError), match=message):
         SimHwNode(context=ros_context, parameter_overrides=overrides(**{name: value}))
+
+
+def test_stale_commands_do_not_keep_the_machine_alive(ros_graph):
+    """A controller stuck re-sending an old answer is not alive: timeout, brakes."""
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, command_timeout_s=0.3)))
+    pub = ros_graph.create_node("stuck").create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(joint_state_msg(sim.plant.names, 0, effort=[58.9] * 3))         # step 0 answered
+    assert ros_graph.spin_until(lambda: sim.plant.k == 1, timeout_sec=5.0)
+    deadline = time.monotonic() + 1.5
+    while time.monotonic() < deadline and not sim.plant.stopped:
+        pub.publish(joint_state_msg(sim.plant.names, 0, effort=[58.9] * 3))     # stale, forever
+        ros_graph.spin_for(0.02)
+    assert sim.plant.stopped and sim.counts["timeouts"] == 1 and sim.counts["stale_commands"] > 5
+
+
+def test_realtime_stops_when_the_controller_dies(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01, command_timeout_s=0.3)))
+    pub = ros_graph.create_node("dying").create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[58.9] * 3))
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=3.0)
+    assert "no drives/command within 0.3 s" in sim.plant.stop_reason

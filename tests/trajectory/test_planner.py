@@ -122,3 +122,33 @@ def test_blended_corners_stay_within_tolerance_and_limits():
     # zero tolerance is an exact stop at every corner
     none = plan_blended(lines, LIMITS, tolerance=0.0, rate_hz=4000.0)
     assert none.duration_s > blended.duration_s
+
+
+@pytest.mark.parametrize("radius", [0.05, 0.002, 0.0005])
+def test_small_and_anisotropic_arcs_respect_per_axis_limits(radius):
+    """An arc's x and y rates peak somewhere on the sweep and its centripetal jerk grows
+    like v^3/R^2: both are budgeted, per axis, also with very different x/y limits."""
+    limits = Limits(velocity=(0.05, 0.5, 2.0), acceleration=(5.0, 5.0, 20.0), jerk=(200.0, 200.0, 800.0))
+    arc = Arc(start=(radius, 0.0, 0.0), center=(0.0, 0.0), sweep=2 * math.pi, end_third=0.0)
+    s = plan([arc], limits, rate_hz=20000.0)
+    check_limits(s, limits)
+
+
+def test_a_move_to_the_current_pose_is_refused_cleanly():
+    from pkm_trajectory.planner import TrajectoryRejected
+    with pytest.raises(TrajectoryRejected, match="nothing to do"):
+        plan([point_to_point((1.0, -0.4, 0.7), (1.0, -0.4, 0.7 + 1e-16))], LIMITS)
+
+
+def test_random_blends_never_exceed_limits_or_tolerance():
+    """Random 3-D zig-zags (jerk phases of neighbouring lines can coincide on an axis),
+    sampled at 20 kHz: within the tolerance and every limit."""
+    from pkm_trajectory.planner import _deviation, plan_blended
+    rng = np.random.default_rng(11)
+    for _ in range(6):
+        pts = np.cumsum(rng.uniform(-0.03, 0.03, (5, 3)), axis=0)
+        lines = [Line(tuple(a), tuple(b)) for a, b in zip(pts, pts[1:])]
+        s = plan_blended(lines, LIMITS, tolerance=3e-4, rate_hz=20000.0)
+        check_limits(s, LIMITS)
+        dev = [min(_deviation(p, pts[i], pts[i + 1], pts[i + 2]) for i in range(len(pts) - 2)) for p in s.position]
+        assert max(dev) <= 3e-4

@@ -69,3 +69,21 @@ def test_program_with_blending_joins_at_rest_and_stays_valid():
     assert blended.duration_s <= exact.duration_s + 1e-9
     assert np.all(np.abs(blended.acceleration) <= np.array(LIMITS.acceleration) * (1 + 1e-6))
     validate(blended, ARCHI, joint_velocity_limit=1.0, max_condition=50.0)
+
+
+def test_full_circle_after_an_arc_is_a_full_circle():
+    """Round-off in an arc's end must not turn the next full circle into nothing."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        r1, r2 = rng.uniform(5, 30, 2)
+        text = (f"G21 G90 G1 F600 X1000 Y-400\nG2 X{1000 + 2 * r1:.4f} Y-400 I{r1:.4f} J0\n"
+                f"G3 X{1000 + 2 * r1:.4f} Y-400 I{-r2:.4f} J0\nM2")
+        segs = gcode_segments(text, planar=True, start_pose=START)
+        assert segs[-1].sweep == pytest.approx(2 * math.pi)
+        assert abs(segs[-2].sweep) == pytest.approx(math.pi)
+
+
+def test_zero_moves_and_zero_dwells_are_dropped():
+    segs = gcode_segments("G21 G90 G1 F600 X1000 Y-400\nG4 P0\nG1 X1010\nM2", planar=True, start_pose=START)
+    s = plan(segs, LIMITS, translation_axes=2)
+    assert np.all(np.diff(s.time_s) > 0)

@@ -188,11 +188,18 @@ class Plant:
             if f.kind == "no_force":
                 applied[f.drive] = 0.0
         locked = sorted({f.drive for f in faults if f.kind == "locked"})
-        if locked != self._locked:
+        if len(locked) >= 3 and not self.stopped:
+            # three or more brakes fix the platform (3 DOF): hold it, the reactions are
+            # statically indeterminate on a redundant machine
+            self.safe_stop(f"drives {', '.join(self.names[i] for i in locked)} locked")
+        elif locked != self._locked:
             q = self.machine.inverse_kinematics(self.x, check_limits=False)
             self._lock_positions = {i: self._lock_positions.get(i, float(q[i])) for i in locked}
             self._locked = locked
-            self._project_velocity()
+            try:
+                self._project_velocity()
+            except np.linalg.LinAlgError:
+                self.safe_stop("locked drives: singular constraint")
         h = self.params.dt_s / self.params.substeps
         reaction = [0.0] * self.n
         terms = None
@@ -216,7 +223,7 @@ class Plant:
         self.t += self.params.dt_s
         self.k += 1
         for i in self._locked:
-            applied[i] = reaction[i]
+            applied[i] += reaction[i]                # command + brake reaction act together
         if self.stopped:
             applied = [0.0] * self.n
         self._last = self._output(applied, saturated, faults, terms)

@@ -171,15 +171,15 @@ class SimHwNode(Node):
         effort = self._effort(msg)
         if effort is None:
             effort = [0.0] * self.plant.n          # stopped anyway; lockstep goes on
+        if self.lockstep and stamp != self.now_ns():
+            self.counts["stale_commands"] += 1    # an answer to an older state: not alive
+            return
         self.started = True
-        self.last_command_wall = time.monotonic()
+        self.last_command_wall = time.monotonic()  # only a fresh command feeds the watchdog
         if self.first_command_wall is None:
             self.first_command_wall = self.last_command_wall
         if not self.lockstep:
             self.latest_effort, self.latest_stamp_ns = effort, stamp
-            return
-        if stamp != self.now_ns():
-            self.counts["stale_commands"] += 1    # an answer to an older state
             return
         self.advance(effort)
 
@@ -208,11 +208,10 @@ class SimHwNode(Node):
         rclpy.try_shutdown(context=self.context)
 
     def on_watchdog(self) -> None:
-        if not self.lockstep:
-            return
-        if not self.started:
+        if self.lockstep and not self.started:
             self.publish_state()                   # until the controller has discovered us
-        elif time.monotonic() - self.last_command_wall > self.timeout_s and not self.plant.stopped:
+        elif self.started and time.monotonic() - self.last_command_wall > self.timeout_s \
+                and not self.plant.stopped:        # lockstep and realtime alike
             self.counts["timeouts"] += 1
             self.plant.safe_stop(f"no drives/command within {self.timeout_s} s")
             self.get_logger().error(self.plant.stop_reason)

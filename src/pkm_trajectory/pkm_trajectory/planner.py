@@ -140,8 +140,12 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
     if isinstance(segment, Dwell):
         return TimedSegment(segment, segment.duration_s, None)
     d = [abs(v) for v in segment.first(0.0)]
-    if max(d) == 0.0:
+    if max(d) < 1e-12:                          # a move to where we are (round-off from a goal)
         return TimedSegment(segment, 0.0, None)
+    r = segment.radius()
+    if math.isfinite(r):
+        # an arc's x and y rates reach R |phi| somewhere on the sweep, not only at u = 0
+        d[0] = d[1] = r * abs(segment.sweep)
     inf = math.inf
     vmax = min(v / di if di > 0 else inf for v, di in zip(limits.velocity, d))
     amax = min(a / di if di > 0 else inf for a, di in zip(limits.acceleration, d))
@@ -153,20 +157,26 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
         norm = math.sqrt(sum(v * v for v in d[:translation_axes]))
         if norm > 0.0:
             vmax = min(vmax, speed / norm)
-    r = segment.radius()
     if math.isfinite(r):
-        # keep half of the budget for the normal terms x'' udot^2 (centripetal)
-        scale = math.hypot(d[0], d[1])
-        a_lin = min(limits.acceleration[:2])
-        vmax = min(vmax, math.sqrt(0.5 * a_lin * r) / scale)
-        amax *= 0.5
-        jmax *= 0.5
+        # keep half of the budget for the normal terms: centripetal acceleration v^2/R
+        # and its jerk v^3/R^2 (+ 3 v a_t / R): v <= sqrt(a R / 2), v <= (j R^2 / 4)^(1/3),
+        # a_t <= a / 2 and j_t <= j / 4 - 3 v a_t / R kept positive
+        scale = r * abs(segment.sweep)
+        a_lin, j_lin = min(limits.acceleration[:2]), min(limits.jerk[:2])
+        v_cap = min(math.sqrt(0.5 * a_lin * r), (0.25 * j_lin * r * r) ** (1.0 / 3.0))
+        a_t = min(0.5 * a_lin, j_lin * r / (12.0 * v_cap))
+        vmax = min(vmax, v_cap / scale)
+        amax = min(amax, a_t / scale)
+        jmax = min(jmax, 0.25 * j_lin / scale)
     inp = InputParameter(1)
     inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
     inp.target_position, inp.target_velocity, inp.target_acceleration = [1.0], [0.0], [0.0]
     inp.max_velocity, inp.max_acceleration, inp.max_jerk = [vmax], [amax], [jmax]
     profile = Trajectory(1)
-    result = Ruckig(1).calculate(inp, profile)
+    try:
+        result = Ruckig(1).calculate(inp, profile)
+    except Exception as exc:                    # RuckigError is not a ValueError
+        raise TrajectoryRejected(f"ruckig could not plan the segment: {exc}") from None
     if result not in (Result.Working, Result.Finished):
         raise TrajectoryRejected(f"ruckig could not plan the segment ({result})")
     return TimedSegment(segment, profile.duration, profile)
@@ -204,7 +214,9 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
     last sample is exactly the end of the last segment."""
     if not rate_hz > 0.0:
         raise ValueError(f"rate_hz: must be > 0, got {rate_hz}")
-    timed = [time_law(s, limits, translation_axes) for s in segments]
+    timed = [t for t in (time_law(s, limits, translation_axes) for s in segments) if t.duration_s > 0.0]
+    if not timed:
+        raise TrajectoryRejected("nothing to do: every segment has zero length and duration")
     dt = 1.0 / rate_hz
     times, xs, vs, accs = [], [], [], []
     t0 = 0.0
@@ -225,9 +237,11 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
 # ----------------------------------------------------------------- validation
 def validate(samples: Samples, machine, joint_velocity_limit: float | None = None,
              joint_acceleration_limit: float | None = None, max_condition: float | None = None,
-             legs=None, transmission_bounds=None) -> None:
+             legs=None, transmission_bounds=None, task_limits: Limits | None = None) -> None:
     """Every sample reachable, inside the joint limits and the joint velocity and
-    acceleration limits (qdot = J xdot; qddot from qdot over the samples), and better
+    acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), inside the task
+    ``task_limits`` (velocity and acceleration per axis: a backstop for the planner's
+    own bounds), and better
     conditioned than ``max_condition``; ``legs`` restricts the conditioning check to a
     sub-machine (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds``
     (psi_min, psi_max) checks the Orthoglide's velocity transmission factors (§4.3,
@@ -235,6 +249,9 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
     offending sample (the earliest in time over all checks), the limit and by how much;
     returns None when accepted."""
     x, v = samples.position, samples.velocity
+    if len(x) > 1 and not np.all(np.diff(samples.time_s) > 0.0):
+        k = int(np.argmin(np.diff(samples.time_s) > 0.0)) + 1
+        raise TrajectoryRejected(f"sample {k}: time does not increase ({samples.time_s[k]:.6f} s)")
     failures = []              # (sample, order, message builder) of every check's first failure
 
     def first(mask, order, message):
@@ -277,8 +294,25 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
             bound = lo if psi[k].min() < lo else hi
             return f"velocity transmission factor {value:.4g} outside [{lo:g}, {hi:g}] by {abs(value - bound):.4g}"
         first(reachable & ((psi.min(axis=1) < lo) | (psi.max(axis=1) > hi)), 3, psi_message)
-    qdot = np.einsum("nij,nj->ni", np.where(np.isfinite(jac), jac, 0.0), v)
-    qddot = np.gradient(qdot, samples.time_s, axis=0) if len(qdot) > 1 else np.zeros_like(qdot)
+    jac0 = np.where(np.isfinite(jac), jac, 0.0)
+    qdot = np.einsum("nij,nj->ni", jac0, v)
+    # qddot = J xddot + Jdot xdot, Jdot xdot by a central difference of J along xdot
+    h = 1e-6
+    with np.errstate(invalid="ignore"):
+        jdot = (machine.jacobian_batch(x + h * v) - machine.jacobian_batch(x - h * v)) / (2.0 * h)
+    qddot = np.einsum("nij,nj->ni", jac0, samples.acceleration) + np.einsum(
+        "nij,nj->ni", np.where(np.isfinite(jdot), jdot, 0.0), v)
+    if task_limits is not None:
+        caps = (np.array(task_limits.velocity), np.array(task_limits.acceleration))
+        for order, (values, cap, what) in enumerate(((v, caps[0], "velocity"),
+                                                     (samples.acceleration, caps[1], "acceleration")), start=6):
+            over = np.abs(values) > cap * (1.0 + 1e-9)
+
+            def task_message(k, values=values, cap=cap, what=what, over=over):
+                i = int(np.argmax(over[k]))
+                return (f"task axis {i} {what} {values[k, i]:.4g} exceeds its limit {cap[i]:g} "
+                        f"by {abs(values[k, i]) - cap[i]:.4g}")
+            first(over.any(axis=1), order, task_message)
     for order, (limit, values, what, unit) in enumerate(((joint_velocity_limit, qdot, "velocity", "m/s"),
                                                          (joint_acceleration_limit, qddot, "acceleration",
                                                           "m/s^2")), start=4):
@@ -353,6 +387,9 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
     acceleration limit by 1.9-8.1x (LinuxCNC issue #3773)."""
     if not all(isinstance(s, Line) for s in lines):
         raise ValueError("plan_blended: blends straight lines only (arcs and dwells stop exactly)")
+    lines = [s for s in lines if max(abs(v) for v in s.first(0.0)) >= 1e-12]
+    if not lines:
+        raise TrajectoryRejected("nothing to do: every line has zero length")
     if not tolerance >= 0.0:
         raise ValueError(f"tolerance: must be >= 0 m, got {tolerance}")
     timed = [time_law(s, limits, translation_axes) for s in lines]
@@ -367,13 +404,13 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
 
         pair = timed[k:k + 2]
 
-        def acceptable(overlap):
+        def acceptable(overlap, points=61):
             t1 = t_end - overlap
             h = 1e-6
             window = [starts[k], t1]
-            for t in np.linspace(t1, t_end, 61):
+            for t in np.linspace(t1, t_end, points):
                 x, v, a = _superposed(pair, window, t, lines[k].start)
-                if _deviation(x[:translation_axes], *[c[:translation_axes] for c in corner]) > tolerance:
+                if _deviation(x[:translation_axes], *[c[:translation_axes] for c in corner]) > 0.99 * tolerance:
                     return False
                 a_minus = _superposed(pair, window, t - h, lines[k].start)[2]
                 a_plus = _superposed(pair, window, t + h, lines[k].start)[2]
@@ -390,6 +427,14 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
             for _ in range(10):                 # 1/1000 of the longest overlap
                 mid = 0.5 * (lo + hi)
                 lo, hi = (mid, hi) if acceptable(mid) else (lo, mid)
+        # the bisection checked 61 points; the chosen overlap is verified at one point
+        # per 0.1 ms (jerk phases are ~1 ms), and shrunk until it passes
+        for _ in range(8):
+            if lo <= 0.0 or acceptable(lo, points=max(61, int(lo / 1e-4) + 1)):
+                break
+            lo *= 0.5
+        else:
+            lo = 0.0
         starts.append(t_end - lo)
     total = starts[-1] + timed[-1].duration_s
     n = max(1, math.ceil(total * rate_hz - 1e-9))

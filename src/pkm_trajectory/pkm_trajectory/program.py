@@ -58,15 +58,19 @@ def program_segments(moves: list[Move], planar: bool, start_pose, feed_override:
         else:  # arc in the XY plane about the (scaled) centre
             cx = origin[0] + scale * (move.center[0] - origin[0])
             cy = origin[1] + scale * (move.center[1] - origin[1])
-            a0 = math.atan2(pose[1] - cy, pose[0] - cx)
-            a1 = math.atan2(target[1] - cy, target[0] - cx)
-            if move.clockwise:
-                sweep = -((a0 - a1) % (2.0 * math.pi)) or -2.0 * math.pi
+            if target[0] == pose[0] and target[1] == pose[1]:
+                # a full circle: decided on the programmed points, never on angles that
+                # round-off can make 2 pi apart or equal
+                sweep = -2.0 * math.pi if move.clockwise else 2.0 * math.pi
             else:
-                sweep = ((a1 - a0) % (2.0 * math.pi)) or 2.0 * math.pi
+                a0 = math.atan2(pose[1] - cy, pose[0] - cx)
+                a1 = math.atan2(target[1] - cy, target[0] - cx)
+                if move.clockwise:
+                    sweep = -((a0 - a1) % (2.0 * math.pi))
+                else:
+                    sweep = (a1 - a0) % (2.0 * math.pi)
             segments.append(Arc(tuple(pose), (cx, cy), sweep, target[2], speed))
-            target = list(segments[-1].end)
-        pose = target
+        pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
     if repeat > 1:
         if max(abs(a - b) for a, b in zip(pose, origin)) > 1e-9:
             raise ValueError(f"repeat: the program ends at {pose}, not at its start {origin}: "

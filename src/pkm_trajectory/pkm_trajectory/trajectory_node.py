@@ -53,6 +53,8 @@ class TrajectoryNode(Node):
         self.repeat = declare_int(self, "repeat", 1, 1, 10000)
         self.blend_tolerance = declare_float(self, "blend_tolerance_m", 0.0, 0.0, 0.01,
                                              "corner blending of line moves (0: exact stop)", unit="m")
+        self.max_points = declare_int(self, "max_points", 200_000, 2, 10_000_000,
+                                      "longer trajectories are refused (message size and memory)")
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
         home = self.model.home_pose if self.planar else self.model.home_position
         self.pose = [float(v) for v in home]
@@ -81,11 +83,16 @@ class TrajectoryNode(Node):
     def submit(self, source: str, build) -> None:
         """Plan, validate, publish or refuse; every outcome is reported."""
         try:
-            samples = plan_with_blending(build(), self.limits, self.blend_tolerance, self.rate_hz,
+            segments = build()
+            samples = plan_with_blending(segments, self.limits, self.blend_tolerance, self.rate_hz,
                                          translation_axes=2 if self.planar else 3)
+            if len(samples.time_s) > self.max_points:
+                raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {self.max_points} "
+                                         f"({samples.duration_s:.1f} s at {self.rate_hz:g} Hz)")
             validate(samples, self.model, self.joint_velocity, self.joint_acceleration, self.max_condition,
-                     transmission_bounds=getattr(self.model, "transmission_bounds", None))
-        except (TrajectoryRejected, ValueError, OSError) as exc:
+                     transmission_bounds=getattr(self.model, "transmission_bounds", None),
+                     task_limits=self.limits)
+        except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
             self.report(2, f"{source} rejected: {exc}", {})
