@@ -2,6 +2,9 @@
 Sliding Star "Trajectory Speed, size Adjustment" and "Trajectory Repeater" (§4):
 feed override 0-200 %, size scaling about the program start, repetition.
 
+The feed override scales programmed feeds (G1/G2/G3) only, as on LinuxCNC: rapids
+(G0) and rotation-only moves run at the axis limits whatever the override.
+
 Axes: a planar machine (ARCHI, Sliding Star) takes X, Y and the C angle as
 (x, y, theta) and refuses Z; a translational machine takes X, Y, Z and refuses C.
 The program's coordinates are machine coordinates (the work offset is the caller's).
