@@ -162,6 +162,11 @@ class GoughSensorModel:
         return (self._p_wb[0] + wp[0] - rp[0], self._p_wb[1] + wp[1] - rp[1],
                 self._p_wb[2] + wp[2] - rp[2]), r_t
 
+    def plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
+        """:meth:`plate_pose` on floats, unchecked (per-cycle use): tool position (3
+        floats) and row-major rotation (9 floats) -> plate position and rotation."""
+        return self._plate_in_base(p_t, r_t)
+
     def plate_pose(self, tool_position, tool_rotation) -> tuple[np.ndarray, np.ndarray]:
         """The Gough plate pose in the Gough base frame for a tool pose in world."""
         p, r = self._plate_in_base(finite_floats(tool_position, 3, 'tool_position'),

@@ -1,0 +1,517 @@
+"""The redundant-actuation controller (pure core, no rclpy): strategies, force
+distribution and the safety supervisor, one ``update`` per control cycle.
+
+``ControllerCore.update(t_s, q, qdot, applied, struts=None, metrology_pose=None)``
+takes one drive state (encoder positions and velocities, the forces the drives
+report applying) and, for the metrology strategies, the Gough strut readings or the
+Gough pose of the same instant, and returns the drive forces to apply until the next
+state. Strategies (``STRATEGIES``):
+
+1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1)
+2. ``decentralized_projected`` the same PIDs, forces projected n = J (J^T J)^-1 J^T n_d
+                               and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 9)
+3. ``cartesian_pid``           PID on the pose from forward kinematics of the encoders,
+                               F distributed (Sliding Star eq. 9, ARCHI §4.2)
+4. ``computed_torque``         F = A(x)(a_d + Kd edot + Kp e + Ki int e) + H(x, v) (ARCHI §4.2-4.4)
+5. ``sensor_space``            PI + velocity feed-forward on the Gough strut lengths through
+                               J_t at the estimated real pose (MoM3 §6.4)
+6. ``measured_space``          the same on the Gough DKM pose (MoM3 §6.3)
+
+Cartesian wrenches go to the drives through a distribution of pkm_kinematics
+(pseudo_inverse, inf_norm, p_norm, two_arm; optional prestress). Every cycle the
+supervisor checks the inputs (NaN, length), the joint and workspace limits, the
+singularity margin of the active drives, the following error, force saturation and
+the drives' reported forces against the commands (a failed drive). A trip puts the
+controller in its safe state: zero forces, ``stopped`` with the cause; the node adds
+the brakes (estop). On a redundant machine a drive that stops producing force is
+dropped and the machine continues on the remaining ones when that sub-machine is
+far enough from singular.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from pkm_kinematics.config import MachineConfig
+from pkm_kinematics.distribution import METHODS, distribute, internal_force_rows
+from pkm_kinematics.dynamics import DynamicModel
+from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.planar import PlanarMachine
+
+from .laws import (Gains, SensorSpaceFeedback, cartesian_pid, computed_torque, gram_condition, joint_pid,
+                   least_squares_velocity, pose_error, project_to_range, tool_pose_floats, velocity_cascade)
+from .reference import Reference
+
+STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
+              "measured_space")
+JOINT_STRATEGIES = ("joint_pid", "decentralized_projected")
+METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
+
+
+@dataclass
+class ControllerConfig:
+    """Controller parameters (config/controller/*.yaml). SI units."""
+
+    strategy: str = "computed_torque"
+    distribution: str = "pseudo_inverse"
+    p_norm: float = 4.0                   # p of the p_norm distribution
+    prestress_n: float = 0.0              # internal force added along ker(J^T) (redundant machines)
+    bandwidth_hz: float = 20.0            # closed-loop bandwidth omega / 2 pi
+    damping_ratio: float = 1.0
+    integral_time_s: float = 0.05         # T_i; 0 disables the integral action
+    dt_s: float = 0.001                   # nominal period (the first cycle; then the stamps)
+    force_limit_n: float = 2000.0         # commands are clamped here (saturation counted)
+    saturation_trip_s: float = 0.5        # continuous saturation for this long trips (0: never)
+    following_error_m: float = 0.01       # |x_d - x| translation that trips
+    following_error_rad: float = 0.05     # rotation error that trips (planar)
+    max_condition: float = 100.0          # singularity margin: cond(J of the active drives)
+    workspace_margin_m: float = 0.02      # the measured pose may leave the workspace box by this much
+    start_tolerance_m: float = 0.02       # a trajectory must start this close to the current reference
+    start_tolerance_rad: float = 0.05
+    drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
+    drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
+    continue_on_drive_failure: bool = True
+
+    def validate(self, n_drives: int, planar: bool) -> None:
+        checks = [
+            ("strategy", self.strategy in STRATEGIES, f"one of {list(STRATEGIES)}"),
+            ("distribution", self.distribution in METHODS, f"one of {list(METHODS)}"),
+            ("distribution", self.distribution != "two_arm" or (planar and n_drives == 4),
+             "two_arm only on a planar machine of two leg pairs (4 drives)"),
+            ("p_norm", 2.0 <= self.p_norm <= 64.0, "in [2, 64]"),
+            ("prestress_n", math.isfinite(self.prestress_n) and (self.prestress_n == 0.0 or n_drives == 4),
+             "0, or finite on a machine with one redundant drive (4 drives)"),
+            ("bandwidth_hz", 0.0 < self.bandwidth_hz <= 0.1 / self.dt_s if self.dt_s > 0 else False,
+             f"in (0, {0.1 / self.dt_s if self.dt_s > 0 else 0:g}] Hz (a tenth of the control rate)"),
+            ("damping_ratio", 0.1 <= self.damping_ratio <= 10.0, "in [0.1, 10]"),
+            ("dt_s", 0.0 < self.dt_s <= 0.1, "in (0, 0.1] s"),
+            ("force_limit_n", 0.0 < self.force_limit_n < math.inf, "in (0, inf) N"),
+            ("saturation_trip_s", 0.0 <= self.saturation_trip_s < math.inf, "in [0, inf) s"),
+            ("following_error_m", 0.0 < self.following_error_m < math.inf, "in (0, inf) m"),
+            ("following_error_rad", 0.0 < self.following_error_rad < math.inf, "in (0, inf) rad"),
+            ("max_condition", 1.0 <= self.max_condition < math.inf, "in [1, inf)"),
+            ("workspace_margin_m", 0.0 <= self.workspace_margin_m < math.inf, "in [0, inf) m"),
+            ("start_tolerance_m", 0.0 <= self.start_tolerance_m < math.inf, "in [0, inf) m"),
+            ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < math.inf, "in [0, inf) rad"),
+            ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
+            ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
+        ]
+        if self.integral_time_s != 0.0:
+            omega = 2.0 * math.pi * self.bandwidth_hz
+            low = 1.0 / (2.0 * self.damping_ratio * omega) if omega > 0 else 0.0
+            checks.append(("integral_time_s", low < self.integral_time_s < math.inf,
+                           f"0, or in ({low:.4g}, inf) s (stability: T_i > 1 / (2 zeta omega))"))
+        for name, ok, allowed in checks:
+            if not ok:
+                raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "ControllerConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"{unknown[0]}: unknown controller parameter (known: {sorted(known)})")
+        return cls(**values)
+
+
+@dataclass
+class CycleRecord:
+    """What the last cycle saw and did (status, recording, tests)."""
+
+    time_s: float = 0.0
+    reference: tuple = (0.0, 0.0, 0.0)
+    measured: tuple = (0.0, 0.0, 0.0)        # the pose the strategy feeds back (task coordinates)
+    error: tuple = (0.0, 0.0, 0.0)
+    forces: tuple = ()
+    internal_force_norm_n: float = 0.0       # null-space part of the commands (nominal model)
+    saturated: int = 0
+
+
+class ControllerCore:
+    """One controller for one machine. ``update`` per cycle; ``set_trajectory`` to move."""
+
+    def __init__(self, machine: MachineConfig, config: ControllerConfig | None = None):
+        self.machine = machine
+        self.config = config or ControllerConfig()
+        self.model = machine.model
+        self.planar = isinstance(self.model, PlanarMachine)
+        self.n = self.model.n_legs
+        self.names = list(self.model.leg_names)
+        self.config.validate(self.n, self.planar)
+        if machine.dynamics is None:
+            raise ValueError(f"machine {machine.name!r}: the controller needs a 'dynamics' section "
+                             f"(model terms and gain scaling)")
+        self.dynamics = DynamicModel(self.model, machine.dynamics)
+        strategy = self.config.strategy
+        self.metrology = None
+        if strategy in METROLOGY_STRATEGIES:
+            if machine.metrology is None:
+                raise ValueError(f"strategy: {strategy} needs a machine with a 'metrology' section, "
+                                 f"{machine.name!r} has none")
+            from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
+            self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar)
+        c = self.config
+        self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
+        self._scale_gains()
+        self._lower = self.model.joint_lower.tolist()
+        self._upper = self.model.joint_upper.tolist()
+        self._workspace = self._workspace_box()
+        self.reset()
+
+    # ---------------------------------------------------------------- set-up
+    def _home(self) -> list:
+        return (self.model.home_pose if self.planar else self.model.home_position).tolist()
+
+    def _scale_gains(self) -> None:
+        """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint
+        diag(J^+T A J^+) (the mass each drive sees)."""
+        a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
+        g = self.gains
+        m_task = [a[i][i] for i in range(3)]
+        self.task_kp = [g.kp * m for m in m_task]
+        self.task_kd = [g.kd * m for m in m_task]
+        self.task_ki = [g.ki * m for m in m_task]
+        jac = np.array(rows)
+        pinv = np.linalg.pinv(jac)                           # 3 x n
+        m_joint = np.diag(pinv.T @ np.array(a) @ pinv).tolist()
+        self.joint_kp = [g.kp * m for m in m_joint]
+        self.joint_kd = [g.kd * m for m in m_joint]
+        self.joint_ki = [g.ki * m for m in m_joint]
+
+    def _workspace_box(self) -> list:
+        w, m = self.model.workspace, self.config.workspace_margin_m
+        if self.planar:
+            return [(w["x"][0] - m, w["x"][1] + m), (w["y"][0] - m, w["y"][1] + m)]
+        c, h = np.asarray(w["center"]).tolist(), 0.5 * float(w["size"]) + m
+        return [(ci - h, ci + h) for ci in c]
+
+    def reset(self) -> None:
+        """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
+        self.reference: Reference | None = None
+        self.reference_start_s = 0.0
+        self.pending: Reference | None = None
+        self.pose = None                         # encoder FK estimate (warm start)
+        self.last_time_s = None
+        self.integral = [0.0] * (self.n if self.config.strategy in JOINT_STRATEGIES else 3)
+        self.active = list(range(self.n))
+        self.failed: dict[int, str] = {}
+        self.stopped = False
+        self.stop_reason = ""
+        self.faults: list[str] = []
+        self.last_command = [0.0] * self.n
+        self._mismatch = [0] * self.n
+        self._saturated_since = None
+        self.cycles = 0
+        self.saturation_count = 0
+        self.peak_force_n = 0.0
+        self.max_error_m = 0.0
+        self.record = CycleRecord(forces=tuple([0.0] * self.n))
+        if self.metrology is not None:
+            self.metrology.reset()
+
+    # ------------------------------------------------------------ trajectory
+    @property
+    def mode(self) -> str:
+        if self.stopped:
+            return "stopped"
+        if self.reference is None or self.reference.duration_s == 0.0:
+            return "holding"
+        return "tracking" if self.last_time_s is not None and \
+            self.last_time_s - self.reference_start_s < self.reference.duration_s else "holding"
+
+    def set_trajectory(self, reference: Reference, now_s: float | None = None) -> None:
+        """Start ``reference`` at ``now_s`` (the time of the next state; None: at the next
+        cycle). Refused (ValueError, nothing moves) when stopped, while another
+        trajectory runs, or when it does not start at the current reference."""
+        if self.stopped:
+            raise ValueError(f"trajectory refused: the controller is stopped ({self.stop_reason})")
+        if self.mode == "tracking":
+            raise ValueError("trajectory refused: another trajectory is running")
+        if self.reference is None:               # no state yet: checked at the first cycle
+            self.pending = reference
+            return
+        now = self.last_time_s if now_s is None else now_s
+        current, _, _ = self.reference.sample(now - self.reference_start_s)
+        self._check_start(reference, current)
+        self.reference, self.reference_start_s = reference, now
+
+    def _check_start(self, reference: Reference, current) -> None:
+        e = pose_error(reference.start, current, self.planar)
+        dist = math.hypot(e[0], e[1]) if self.planar else math.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
+        if dist > self.config.start_tolerance_m or (self.planar and abs(e[2]) > self.config.start_tolerance_rad):
+            raise ValueError(f"trajectory refused: it starts at {[round(v, 6) for v in reference.start]}, "
+                             f"{dist * 1e3:.3f} mm / {abs(e[2]) if self.planar else 0.0:.4f} rad from the "
+                             f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
+                             f"{self.config.start_tolerance_m:g}, start_tolerance_rad "
+                             f"{self.config.start_tolerance_rad:g})")
+
+    # ----------------------------------------------------------------- safety
+    def trip(self, reason: str) -> list:
+        """Safe state: zero forces from now on, the cause kept and reported."""
+        if not self.stopped:
+            self.stopped, self.stop_reason = True, reason
+            self.faults.append(reason)
+        self.last_command = [0.0] * self.n
+        self.record.forces = tuple(self.last_command)
+        return list(self.last_command)
+
+    def _check_inputs(self, q, qdot, applied, struts, metrology_pose) -> str:
+        for name, values, size in (("position", q, self.n), ("velocity", qdot, self.n)):
+            if len(values) != size:
+                return f"drives/state: {name} has {len(values)} values, expected {size} ({self.names})"
+            if not math.isfinite(sum(values)):
+                k = next(i for i, v in enumerate(values) if not math.isfinite(v))
+                return f"drives/state: {name}[{k}] ({self.names[k]}) is {values[k]}"
+        if applied is not None and len(applied) and (len(applied) != self.n or not math.isfinite(sum(applied))):
+            return f"drives/state: effort must be {self.n} finite values, got {list(applied)}"
+        if self.config.strategy == "sensor_space":
+            if struts is None or len(struts) != 6 or not math.isfinite(sum(struts)):
+                return f"metrology/struts: expected 6 finite strut lengths, got {struts}"
+        if self.config.strategy == "measured_space":
+            if metrology_pose is None:
+                return "metrology/pose: missing (the DKM did not converge or the sensor is silent)"
+            p, r = metrology_pose
+            if len(p) != 3 or not math.isfinite(sum(p)) or not np.isfinite(r).all():
+                return f"metrology/pose: not a finite pose ({p})"
+        return ""
+
+    def _check_drives(self, applied) -> str:
+        """Compare the forces the drives report with what was commanded for this
+        period; a drive off by more than drive_mismatch_n for drive_mismatch_cycles
+        cycles has failed. No force -> drop it (if allowed and well conditioned); any
+        other mismatch (a brake, a jam) -> trip."""
+        c = self.config
+        for i in self.active:
+            if abs(applied[i] - self.last_command[i]) > c.drive_mismatch_n:
+                self._mismatch[i] += 1
+            else:
+                self._mismatch[i] = 0
+            if self._mismatch[i] < c.drive_mismatch_cycles:
+                continue
+            kind = "no force" if abs(applied[i]) < c.drive_mismatch_n else \
+                f"reports {applied[i]:.1f} N for {self.last_command[i]:.1f} N commanded"
+            what = f"drive {self.names[i]} failed ({kind})"
+            remaining = [k for k in self.active if k != i]
+            if kind != "no force" or not c.continue_on_drive_failure or len(remaining) < 3:
+                return what
+            rows = self.model.velocity_terms(self.pose, (0.0, 0.0, 0.0))[1]
+            cond = gram_condition([rows[k] for k in remaining])
+            name = "J_" + "".join(str(k + 1) for k in remaining)
+            if cond > c.max_condition:
+                return f"{what}; sub-machine {name} too close to singular (condition {cond:.3g} > {c.max_condition:g})"
+            self.active = remaining
+            self.failed[i] = kind
+            self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
+        return ""
+
+    def _check_limits(self, q, rows, measured, error) -> str:
+        c = self.config
+        for i, (qi, lo, hi) in enumerate(zip(q, self._lower, self._upper)):
+            if not lo <= qi <= hi:
+                return f"joint limit: drive {self.names[i]} at {qi:.6g} m outside [{lo:g}, {hi:g}] m"
+        for k, (v, (lo, hi)) in enumerate(zip(measured, self._workspace)):
+            if not lo <= v <= hi:
+                return (f"workspace: {'xyz'[k]} = {v:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
+                        f"(workspace_margin_m {c.workspace_margin_m:g})")
+        cond = gram_condition([rows[k] for k in self.active])
+        if cond > c.max_condition:
+            return f"singularity margin: condition number {cond:.4g} > max_condition {c.max_condition:g}"
+        trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
+        if trans > c.following_error_m:
+            return f"following error {trans * 1e3:.3f} mm > following_error_m {c.following_error_m:g}"
+        if self.planar and abs(error[2]) > c.following_error_rad:
+            return f"following error {abs(error[2]):.4f} rad > following_error_rad {c.following_error_rad:g}"
+        return ""
+
+    # ------------------------------------------------------------------ cycle
+    def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
+        """One control cycle; returns the drive forces (N) for the next period."""
+        if self.stopped:
+            return self.trip(self.stop_reason)
+        problem = self._check_inputs(q, qdot, applied, struts, metrology_pose)
+        if problem:
+            return self.trip(problem)
+        q, qdot = list(q), list(qdot)
+        dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
+        first = self.last_time_s is None
+        self.last_time_s = t_s
+        try:
+            pose = self._forward_kinematics(q)
+        except (KinematicsError, ValueError) as exc:
+            return self.trip(f"forward kinematics of the encoders: {exc}")
+        if applied is not None and len(applied) and not first:
+            problem = self._check_drives(list(applied))
+            if problem:
+                return self.trip(problem)
+        try:
+            _, rows, _, _ = self.model.velocity_terms(pose, (0.0, 0.0, 0.0))
+            v = least_squares_velocity(rows, qdot)
+        except (KinematicsError, ValueError) as exc:
+            return self.trip(f"kinematics at the measured pose: {exc}")
+        if first:
+            self._start(pose, struts, metrology_pose)
+        x_d, v_d, a_d = self.reference.sample(t_s - self.reference_start_s)
+        try:
+            measured, error = self._feedback(pose, x_d, struts, metrology_pose)
+            problem = self._check_limits(q, rows, measured, error)
+            if problem:
+                return self.trip(problem)
+            forces = self._strategy(q, qdot, pose, v, rows, x_d, v_d, a_d, error, dt)
+        except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
+            return self.trip(f"{self.config.strategy}: {exc}")
+        return self._finish(t_s, forces, rows, x_d, measured, error, dt)
+
+    def _forward_kinematics(self, q) -> list:
+        if self.planar:
+            result = self.model.forward_kinematics(q, self.pose)
+            if not result.converged:
+                raise KinematicsError(result.reason)
+            pose = result.pose.tolist()
+        else:
+            pose = self.model.forward_kinematics(q).tolist()
+        self.pose = pose
+        return pose
+
+    def _start(self, pose, struts, metrology_pose) -> None:
+        """First cycle: hold where the machine is (as the strategy measures it), then
+        start a trajectory that arrived before the first state."""
+        hold = pose
+        if self.config.strategy == "measured_space":
+            hold = self._metrology_task_pose(metrology_pose, pose)
+        self.reference, self.reference_start_s = Reference.hold(hold), self.last_time_s
+        if self.config.strategy == "sensor_space":
+            # the tool as the struts see it: one linearised step from the encoder pose
+            p, r = tool_pose_floats(pose, self.planar)
+            e = self.metrology.task_error(p, r, list(struts))
+            self.metrology.reset()
+            self.reference = Reference.hold([a - b for a, b in zip(pose, e)])
+        if self.pending is not None:
+            pending, self.pending = self.pending, None
+            self.set_trajectory(pending, self.last_time_s)
+
+    def _metrology_task_pose(self, metrology_pose, reference_pose) -> list:
+        p, r = metrology_pose
+        p = [float(v) for v in p]
+        if not self.planar:
+            return p
+        r = np.asarray(r, dtype=float)
+        theta = math.atan2(r[1, 0], r[0, 0])
+        theta += 2.0 * math.pi * round((reference_pose[2] - theta) / (2.0 * math.pi))
+        return [p[0], p[1], theta]
+
+    def _feedback(self, pose, x_d, struts, metrology_pose) -> tuple[list, list]:
+        """(measured task pose, error x_d - measured) as the strategy sees them."""
+        strategy = self.config.strategy
+        if strategy == "sensor_space":
+            p, r = tool_pose_floats(x_d, self.planar)
+            error = self.metrology.task_error(p, r, list(struts))
+            return [a - b for a, b in zip(x_d, error)], error
+        if strategy == "measured_space":
+            measured = self._metrology_task_pose(metrology_pose, x_d)
+            return measured, pose_error(x_d, measured, self.planar)
+        return pose, pose_error(x_d, pose, self.planar)
+
+    def _strategy(self, q, qdot, pose, v, rows, x_d, v_d, a_d, error, dt) -> list:
+        strategy, g = self.config.strategy, self.gains
+        if strategy in JOINT_STRATEGIES:
+            q_d, rows_d, qdot_d, _ = self.model.velocity_terms(x_d, v_d)
+            e = [a - b for a, b in zip(q_d, q)]
+            edot = [a - b for a, b in zip(qdot_d, qdot)]
+            limit = self.config.force_limit_n
+            integral = [min(limit, max(-limit, i + ki * ei * dt))
+                        for i, ki, ei in zip(self.integral, self.joint_ki, e)]
+            active_rows = [rows[k] for k in self.active]
+            if strategy == "decentralized_projected":
+                # Sliding Star Fig. 9: the projection also acts on the integral state
+                sub = project_to_range(active_rows, [integral[k] for k in self.active])
+                integral = [0.0] * self.n
+                for k, f in zip(self.active, sub):
+                    integral[k] = f
+            self.integral = integral
+            n_d = joint_pid(e, edot, integral, self.joint_kp, self.joint_kd)
+            if strategy == "joint_pid":
+                return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
+            sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
+            return self._expand(sub)
+        edot = [a - b for a, b in zip(v_d, v)]
+        integral = self.integral
+        if self.record.saturated == 0:            # conditional integration (anti-windup)
+            ki = self.task_ki if strategy == "cartesian_pid" else \
+                [g.ki] * 3 if strategy == "computed_torque" else [g.outer_ki] * 3
+            integral = [i + k * e * dt for i, k, e in zip(integral, ki, error)]
+        self.integral = integral
+        if strategy == "cartesian_pid":
+            wrench = cartesian_pid(error, edot, integral, self.task_kp, self.task_kd)
+        else:
+            a_model, h_model, _, _, _ = self.dynamics.terms(pose, v)
+            if strategy == "computed_torque":
+                wrench = computed_torque(a_model, h_model, a_d, error, edot, integral, g)
+            else:                                 # MoM3 §6.1: PI + velocity feed-forward
+                v_c = [vd + g.outer_kp * e + i for vd, e, i in zip(v_d, error, integral)]
+                wrench = velocity_cascade(a_model, h_model, a_d, v_c, v, g)
+        return self._distribute(wrench, rows, pose)
+
+    def _distribute(self, wrench, rows, pose) -> list:
+        c = self.config
+        active_rows = [rows[k] for k in self.active]
+        method = c.distribution if len(self.active) == self.n else "pseudo_inverse"
+        prestress = c.prestress_n if len(self.active) == self.n else 0.0
+        forces = distribute(method, np.array(active_rows), wrench, machine=self.model, pose=pose, p=c.p_norm,
+                            prestress_n=prestress, reference=[1.0] * len(active_rows))
+        return self._expand(forces.tolist())
+
+    def _expand(self, sub) -> list:
+        if len(self.active) == self.n:
+            return list(sub)
+        out = [0.0] * self.n
+        for k, f in zip(self.active, sub):
+            out[k] = f
+        return out
+
+    def _finish(self, t_s, forces, rows, x_d, measured, error, dt) -> list:
+        c = self.config
+        limit = c.force_limit_n
+        if not math.isfinite(sum(forces)):
+            return self.trip(f"{c.strategy}: non-finite drive forces {forces}")
+        saturated = sum(1 for f in forces if abs(f) > limit)
+        forces = [max(-limit, min(limit, f)) for f in forces]
+        if saturated:
+            self.saturation_count += 1
+            self._saturated_since = t_s if self._saturated_since is None else self._saturated_since
+            if c.saturation_trip_s and t_s - self._saturated_since >= c.saturation_trip_s - 1e-9:
+                return self.trip(f"drive forces saturated at {limit:g} N for {c.saturation_trip_s:g} s")
+        else:
+            self._saturated_since = None
+        self.cycles += 1
+        self.last_command = forces
+        self.peak_force_n = max(self.peak_force_n, max(abs(f) for f in forces))
+        trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
+        self.max_error_m = max(self.max_error_m, trans)
+        fint = internal_force_rows(rows, forces) if self.n > 3 else [0.0] * self.n
+        r = self.record
+        r.time_s, r.reference, r.measured, r.error = t_s, tuple(x_d), tuple(measured), tuple(error)
+        r.forces, r.saturated = tuple(forces), saturated
+        r.internal_force_norm_n = math.sqrt(sum(f * f for f in fint))
+        return forces
+
+    # ----------------------------------------------------------------- status
+    def status(self) -> tuple[int, str, dict]:
+        """(level 0 OK / 1 WARN / 2 ERROR, message, values) for controller/status."""
+        r = self.record
+        trans = math.hypot(r.error[0], r.error[1]) if self.planar else math.sqrt(sum(e * e for e in r.error))
+        values = {"mode": self.mode, "strategy": self.config.strategy, "distribution": self.config.distribution,
+                  "active_drives": ",".join(self.names[k] for k in self.active),
+                  "tracking_error_m": trans, "max_tracking_error_m": self.max_error_m,
+                  "internal_force_norm_n": r.internal_force_norm_n, "peak_drive_force_n": self.peak_force_n,
+                  "saturation_count": self.saturation_count, "cycles": self.cycles,
+                  "faults": "; ".join(self.faults) or "none"}
+        if self.planar:
+            values["tracking_error_rad"] = abs(r.error[2])
+        if self.stopped:
+            return 2, f"stopped: {self.stop_reason}", values
+        if self.failed:
+            return 1, f"degraded: {'; '.join(self.faults)}", values
+        return 0, self.mode, values

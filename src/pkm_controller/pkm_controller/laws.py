@@ -1,0 +1,228 @@
+"""Control laws of the papers, one function per formula (pure core, plain floats).
+
+They run every control cycle (1-2 kHz) on 3 DOF and 3-6 drives, where numpy costs
+~1 us per operation; so the arithmetic is written on Python floats.
+
+Notation: x task pose (planar (x, y, theta), translational (x, y, z)), v its velocity,
+q drive positions, J the nominal Jacobian J_m (qdot = J v) given as rows of 3 floats,
+F the platform wrench J^T f, f the drive forces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pkm_kinematics.distribution import _gram_solve_rows, _min_two_norm_rows
+from pkm_kinematics.rotations import exp_so3_floats, mul3
+
+
+@dataclass(frozen=True)
+class Gains:
+    """PID gains placed from a bandwidth omega (rad/s), a damping ratio zeta and an
+    integral time T_i (0: no integral action): closed-loop characteristic
+    (s^2 + 2 zeta omega s + omega^2)(1 + 1/(T_i s)) per axis. Stability of the
+    integral needs T_i > 1 / (2 zeta omega) (Routh)."""
+
+    omega: float
+    zeta: float
+    integral_time_s: float
+
+    @property
+    def kp(self) -> float:
+        """Position gain per unit mass (1/s^2)."""
+        return self.omega * self.omega
+
+    @property
+    def kd(self) -> float:
+        """Velocity gain per unit mass (1/s)."""
+        return 2.0 * self.zeta * self.omega
+
+    @property
+    def ki(self) -> float:
+        """Integral gain per unit mass (1/s^3)."""
+        return self.kp / self.integral_time_s if self.integral_time_s > 0.0 else 0.0
+
+    @property
+    def outer_kp(self) -> float:
+        """Outer position loop of a cascade (1/s): with the inner velocity loop kd it
+        gives the same characteristic s^2 + kd s + kd outer_kp = s^2 + 2 zeta omega s + omega^2."""
+        return self.omega / (2.0 * self.zeta)
+
+    @property
+    def outer_ki(self) -> float:
+        return self.outer_kp / self.integral_time_s if self.integral_time_s > 0.0 else 0.0
+
+
+def wrap_angle(a: float) -> float:
+    """a in (-pi, pi]."""
+    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+
+
+def pose_error(x_d, x, planar: bool) -> list:
+    """x_d - x, the angle of a planar machine wrapped to (-pi, pi]."""
+    e = [x_d[0] - x[0], x_d[1] - x[1], x_d[2] - x[2]]
+    if planar:
+        e[2] = wrap_angle(e[2])
+    return e
+
+
+def least_squares_velocity(rows, qdot) -> list:
+    """v = (J^T J)^-1 J^T qdot: the task velocity that best explains the drive
+    velocities (the exact one when they are consistent)."""
+    w0 = w1 = w2 = 0.0
+    for (j0, j1, j2), qd in zip(rows, qdot):
+        w0 += j0 * qd
+        w1 += j1 * qd
+        w2 += j2 * qd
+    return _gram_solve_rows(rows, (w0, w1, w2))
+
+
+def project_to_range(rows, forces) -> list:
+    """n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 8): the least-norm forces producing the
+    same wrench F_d = J^T n_d (eq. 6-7); the fighting (null-space) part is removed."""
+    w0 = w1 = w2 = 0.0
+    for (j0, j1, j2), f in zip(rows, forces):
+        w0 += j0 * f
+        w1 += j1 * f
+        w2 += j2 * f
+    return _min_two_norm_rows(rows, (w0, w1, w2))
+
+
+def gram_condition(rows) -> float:
+    """2-norm condition number of J (n x 3) from the eigenvalues of J^T J (closed form
+    for a symmetric 3 x 3 matrix); inf when singular. ~3 us against ~20 us for
+    ``np.linalg.cond``."""
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for j0, j1, j2 in rows:
+        a00 += j0 * j0
+        a01 += j0 * j1
+        a02 += j0 * j2
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a22 += j2 * j2
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    tr = (a00 + a11 + a22) / 3.0
+    p2 = (a00 - tr) ** 2 + (a11 - tr) ** 2 + (a22 - tr) ** 2 + 2.0 * p1
+    p = math.sqrt(p2 / 6.0)
+    if p <= 1e-300:
+        return 1.0                                   # a multiple of the identity
+    b00, b11, b22 = (a00 - tr) / p, (a11 - tr) / p, (a22 - tr) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    phi = math.acos(max(-1.0, min(1.0, r))) / 3.0
+    lmax = tr + 2.0 * p * math.cos(phi)
+    lmin = tr + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    if not lmin > 1e-14 * lmax:
+        return math.inf
+    return math.sqrt(lmax / lmin)
+
+
+# --------------------------------------------------------------- joint space
+def joint_pid(e, edot, integral, kp, kd) -> list:
+    """f_i = kp_i e_i + kd_i edot_i + I_i: independent PID per drive on the
+    inverse-kinematics setpoints (ARCHI §4.1, the industrial baseline; I_i is the
+    integral term, integrated by the caller)."""
+    return [p * a + d * b + c for a, b, c, p, d in zip(e, edot, integral, kp, kd)]
+
+
+# ----------------------------------------------------------------- Cartesian
+def cartesian_pid(e, edot, integral, kp, kd) -> list:
+    """F = Kp e + Kd edot + I: the centralized PID on task coordinates (Sliding Star
+    §3.2 eq. 9, ARCHI §4.2 without the model); gains per axis (N/m, N s/m | N m/rad)."""
+    return [p * a + d * b + c for a, b, c, p, d in zip(e, edot, integral, kp, kd)]
+
+
+def computed_torque(a_model, h_model, a_d, e, edot, integral, gains: Gains) -> list:
+    """F = A(x) (a_d + Kd edot + Kp e + I) + H(x, v): the dynamic Cartesian scheme of
+    ARCHI §4.2 (Figure 13) with the model A, H of §3.4; I = Ki * integral of e."""
+    kp, kd = gains.kp, gains.kd
+    u = [ad + kd * b + kp * a + c for ad, a, b, c in zip(a_d, e, edot, integral)]
+    return [sum(a_model[i][j] * u[j] for j in range(3)) + h_model[i] for i in range(3)]
+
+
+def velocity_cascade(a_model, h_model, a_d, v_command, v, gains: Gains) -> list:
+    """Inner loop of the metrology schemes: the MoM3 position PI with velocity
+    feed-forward (§6.1) commands a velocity v_c = v_d + Kp e + Ki int(e); the drives'
+    velocity loop, here with the dynamic model, makes it: F = A (a_d + Kv (v_c - v)) + H."""
+    kv = gains.kd
+    u = [ad + kv * (vc - vi) for ad, vc, vi in zip(a_d, v_command, v)]
+    return [sum(a_model[i][j] * u[j] for j in range(3)) + h_model[i] for i in range(3)]
+
+
+# ----------------------------------------------------------- sensor space
+class SensorSpaceFeedback:
+    """Feedback on the Gough strut lengths (MoM3 §6.4, Figure 15), without the DKM.
+
+    e_l = l_des - l: the desired lengths are the nominal IKM_GP of the desired tool
+    pose. J_t maps e_l to a TCP pose error, evaluated at the estimated REAL pose of
+    the plate (the paper: at the desired pose a static error of some microns remains,
+    because a 3-DOF machine cannot follow the parasitic orientation that l_des
+    assumes). The real pose is estimated as x_h,des - J_h e_l, with J_h from the
+    previous estimate (one cycle old: um apart at 1 kHz). J_t here is J_h (6 x 6,
+    MoM3 eq. 1-3) followed by the mounting transform of the tool (the lever arm of the
+    plate to the tool, MoM3 eq. 10-11) and the selection of the machine's task axes.
+    """
+
+    def __init__(self, sensor, planar: bool):
+        self.sensor = sensor                       # GoughSensorModel (nominal geometry used)
+        self.platform = sensor.nominal
+        self.planar = planar
+        self._legs = self.platform._legs_f
+        self._r_wb = sensor._r_wb
+        self._p_tp = sensor._p_tp
+        self.estimate = None                       # (p_bp, R_bp) of the real plate, or None
+
+    def reset(self) -> None:
+        self.estimate = None
+
+    def desired_lengths(self, p_bp, r_bp) -> list:
+        """IKM_GP: l_i = |p + R b_i - A_i| (MoM3 §5.2) on the nominal geometry."""
+        px, py, pz = p_bp
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r_bp
+        out = []
+        for ax, ay, az, bx, by, bz in self._legs:
+            lx = px + r00 * bx + r01 * by + r02 * bz - ax
+            ly = py + r10 * bx + r11 * by + r12 * bz - ay
+            lz = pz + r20 * bx + r21 * by + r22 * bz - az
+            out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
+        return out
+
+    def task_error(self, tool_position, tool_rotation, lengths) -> list:
+        """The task-space error x_des - x_real (3) from the strut readings."""
+        p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
+        l_des = self.desired_lengths(p_bp, r_bp)
+        e_l = [a - b for a, b in zip(l_des, lengths)]
+        at = self.estimate or (p_bp, r_bp)
+        jinv = self.platform.inverse_jacobian(at[0], np.array(at[1]).reshape(3, 3))
+        d = np.linalg.solve(jinv, e_l).tolist()       # [dp; dw] = J_h e_l (MoM3 eq. 1)
+        dp, dw = d[:3], d[3:]
+        # estimate of the real plate pose for the next cycle: x_h,des - J_h e_l
+        real_r = mul3(exp_so3_floats(-dw[0], -dw[1], -dw[2]), r_bp)
+        self.estimate = ((p_bp[0] - dp[0], p_bp[1] - dp[1], p_bp[2] - dp[2]), real_r)
+        # to the tool in world: dw_w = R_wb dw; dp_t = R_wb dp + (R_t p_tp) x dw_w
+        r = self._r_wb
+        ww = (r[0] * dw[0] + r[1] * dw[1] + r[2] * dw[2], r[3] * dw[0] + r[4] * dw[1] + r[5] * dw[2],
+              r[6] * dw[0] + r[7] * dw[1] + r[8] * dw[2])
+        pw = (r[0] * dp[0] + r[1] * dp[1] + r[2] * dp[2], r[3] * dp[0] + r[4] * dp[1] + r[5] * dp[2],
+              r[6] * dp[0] + r[7] * dp[1] + r[8] * dp[2])
+        t = tool_rotation
+        lx, ly, lz = self._p_tp
+        ax = t[0] * lx + t[1] * ly + t[2] * lz
+        ay = t[3] * lx + t[4] * ly + t[5] * lz
+        az = t[6] * lx + t[7] * ly + t[8] * lz
+        ex = pw[0] + ay * ww[2] - az * ww[1]
+        ey = pw[1] + az * ww[0] - ax * ww[2]
+        ez = pw[2] + ax * ww[1] - ay * ww[0]
+        return [ex, ey, ww[2]] if self.planar else [ex, ey, ez]
+
+
+def tool_pose_floats(x, planar: bool) -> tuple[tuple, tuple]:
+    """Task pose -> tool position (3 floats) and row-major rotation (9 floats): planar
+    (x, y, 0) with yaw theta, translational p with the identity."""
+    if planar:
+        c, s = math.cos(x[2]), math.sin(x[2])
+        return (x[0], x[1], 0.0), (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+    return (x[0], x[1], x[2]), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
