@@ -7,11 +7,13 @@ report applying) and, for the metrology strategies, the Gough strut readings or 
 Gough pose of the same instant, and returns the drive forces to apply until the next
 state. Strategies (``STRATEGIES``):
 
-1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1)
+1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1), with
+                               acceleration feed-forward of the mass each drive sees
 2. ``decentralized_projected`` the same PIDs, forces projected n = J (J^T J)^-1 J^T n_d
                                and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 9)
-3. ``cartesian_pid``           PID on the pose from forward kinematics of the encoders,
-                               F distributed (Sliding Star eq. 9, ARCHI §4.2)
+3. ``cartesian_pid``           PID on the pose from forward kinematics of the encoders (+ the
+                               same diagonal-mass feed-forward), F distributed (Sliding Star
+                               eq. 9, ARCHI §4.2)
 4. ``computed_torque``         F = A(x)(a_d + Kd edot + Kp e + Ki int e) + H(x, v) (ARCHI §4.2-4.4)
 5. ``sensor_space``            PI + velocity feed-forward on the Gough strut lengths through
                                J_t at the estimated real pose (MoM3 §6.4)
@@ -171,12 +173,14 @@ class ControllerCore:
         a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
         g = self.gains
         m_task = [a[i][i] for i in range(3)]
+        self.task_mass = m_task
         self.task_kp = [g.kp * m for m in m_task]
         self.task_kd = [g.kd * m for m in m_task]
         self.task_ki = [g.ki * m for m in m_task]
         jac = np.array(rows)
         pinv = np.linalg.pinv(jac)                           # 3 x n
         m_joint = np.diag(pinv.T @ np.array(a) @ pinv).tolist()
+        self.joint_mass = m_joint
         self.joint_kp = [g.kp * m for m in m_joint]
         self.joint_kd = [g.kd * m for m in m_joint]
         self.joint_ki = [g.ki * m for m in m_joint]
@@ -417,7 +421,11 @@ class ControllerCore:
     def _strategy(self, q, qdot, pose, v, rows, x_d, v_d, a_d, error, dt) -> list:
         strategy, g = self.config.strategy, self.gains
         if strategy in JOINT_STRATEGIES:
-            q_d, rows_d, qdot_d, _ = self.model.velocity_terms(x_d, v_d)
+            q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
+            # acceleration feed-forward with the mass each drive sees, as industrial
+            # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
+            feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
+                           for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
             e = [a - b for a, b in zip(q_d, q)]
             edot = [a - b for a, b in zip(qdot_d, qdot)]
             limit = self.config.force_limit_n
@@ -431,7 +439,7 @@ class ControllerCore:
                 for k, f in zip(self.active, sub):
                     integral[k] = f
             self.integral = integral
-            n_d = joint_pid(e, edot, integral, self.joint_kp, self.joint_kd)
+            n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
             if strategy == "joint_pid":
                 return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
             sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
@@ -444,7 +452,8 @@ class ControllerCore:
             integral = [i + k * e * dt for i, k, e in zip(integral, ki, error)]
         self.integral = integral
         if strategy == "cartesian_pid":
-            wrench = cartesian_pid(error, edot, integral, self.task_kp, self.task_kd)
+            wrench = [f + m * a for f, m, a in zip(cartesian_pid(error, edot, integral, self.task_kp, self.task_kd),
+                                                   self.task_mass, a_d)]
         else:
             a_model, h_model, _, _, _ = self.dynamics.terms(pose, v)
             if strategy == "computed_torque":

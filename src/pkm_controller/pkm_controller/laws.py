@@ -58,7 +58,7 @@ class Gains:
 
 def wrap_angle(a: float) -> float:
     """a in (-pi, pi]."""
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+    return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
 
 
 def pose_error(x_d, x, planar: bool) -> list:
