@@ -21,6 +21,8 @@ setup(
     ),
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'controller_node = pkm_controller.controller_node:main',
+        ],
     },
 )

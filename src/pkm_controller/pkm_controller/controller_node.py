@@ -1,0 +1,300 @@
+"""``controller_node``: the redundant-actuation controller as a lifecycle node (thin
+shell over controller.ControllerCore).
+
+configure: read and validate the parameters (config/controller/*.yaml); a bad one
+fails the transition with its name and allowed range. activate: answer every
+``drives/state`` (and, for the metrology strategies, the ``metrology/struts`` or
+``metrology/pose`` of the same stamp) with ``drives/command`` stamped like the state
+(lockstep). ``trajectory`` (latched) starts at the next state; ``estop`` and every
+trip of the supervisor put the controller in its safe state (zero forces) and latch
+``estop`` so the drives brake. A wall-clock watchdog trips when ``drives/state`` or
+the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``. (DDS deadline
+QoS would need the publisher to offer a deadline too; sim_hw in lockstep publishes
+only when answered, so a timer on the controller's side is the same test.)
+With ``autostart`` (default) the node configures and activates itself.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import fields
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.lifecycle import TransitionCallbackReturn
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, pose_from_msg, stamp_to_ns
+from pkm_common.params import declare_bool, declare_float, declare_int, declare_str
+from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_common.runner import main_exit, run_node
+from pkm_kinematics import load_machine
+from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.reference import Reference, unwrap_angles
+
+NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
+                   "status_decimation": 100, "summary_path": ""}
+
+
+def reference_from_msg(msg: MultiDOFJointTrajectory, planar: bool) -> Reference:
+    """MultiDOFJointTrajectory (joint "tool", as trajectory_node publishes) -> Reference;
+    the yaw of a planar machine unwrapped (unlimited rotation)."""
+    if len(msg.joint_names) != 1 or not msg.points:
+        raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
+                         f"{list(msg.joint_names)} with {len(msg.points)} points")
+    t, x, v, a = [], [], [], []
+    for p in msg.points:
+        t.append(p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
+        tf = p.transforms[0]
+        vel = p.velocities[0] if p.velocities else None
+        acc = p.accelerations[0] if p.accelerations else None
+        if planar:
+            r = tf.rotation
+            x.append([tf.translation.x, tf.translation.y,
+                      math.atan2(2.0 * (r.w * r.z + r.x * r.y), 1.0 - 2.0 * (r.y * r.y + r.z * r.z))])
+            v.append([vel.linear.x, vel.linear.y, vel.angular.z] if vel else [0.0] * 3)
+            a.append([acc.linear.x, acc.linear.y, acc.angular.z] if acc else [0.0] * 3)
+        else:
+            x.append([tf.translation.x, tf.translation.y, tf.translation.z])
+            v.append([vel.linear.x, vel.linear.y, vel.linear.z] if vel else [0.0] * 3)
+            a.append([acc.linear.x, acc.linear.y, acc.linear.z] if acc else [0.0] * 3)
+    if planar:
+        for row, theta in zip(x, unwrap_angles([row[2] for row in x])):
+            row[2] = theta
+    return Reference(t, x, v, a)
+
+
+class ControllerNode(LifecycleNode):
+    def __init__(self, context=None, **kwargs):
+        super().__init__("controller", context=context, **kwargs)
+        self.core = None
+        self.active = False
+        self.entities = []
+        self.compute_s: list[float] = []
+        self.configure_error = ""
+        if declare_bool(self, "autostart", True, "configure and activate at start"):
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise ValueError(self.configure_error)
+            self.trigger_activate()
+
+    # ------------------------------------------------------------- lifecycle
+    def _read_parameters(self) -> tuple[dict, ControllerConfig]:
+        values = {}
+        for name, default in NODE_PARAMETERS.items():
+            values[name] = self._declare(name, default)
+        config = {f.name: self._declare(f.name, f.default) for f in fields(ControllerConfig)}
+        return values, ControllerConfig(**config)
+
+    def _declare(self, name, default):
+        if self.has_parameter(name):
+            return self.get_parameter(name).value
+        if isinstance(default, bool):
+            return declare_bool(self, name, default)
+        if isinstance(default, int):
+            return declare_int(self, name, default, 0)
+        if isinstance(default, float):
+            return declare_float(self, name, default)
+        return declare_str(self, name, default, allow_empty=True)
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        try:
+            values, config = self._read_parameters()
+            try:
+                machine = load_machine(values["machine"])
+            except ValueError as exc:
+                raise ValueError(f"machine: {exc}") from None
+            self.core = ControllerCore(machine, config)
+        except ValueError as exc:
+            message = str(exc)
+            if not message.startswith("parameter '"):       # "<field>: must be ..." from the core
+                name, _, rest = message.partition(": ")
+                message = f"parameter '{name}': {rest}"
+            self.configure_error = message
+            self.get_logger().error(f"configure refused: {message}")
+            return TransitionCallbackReturn.FAILURE
+        self.values = values
+        self.names = self.core.names
+        metrology = config.strategy in ("sensor_space", "measured_space")
+        self.wait_for = {"sensor_space": "struts", "measured_space": "pose"}.get(config.strategy)
+        self.pending_state = None
+        self.metrology: dict[int, object] = {}
+        self.last_state_wall = None
+        self.msg_command = JointState(name=self.names)
+        self.msg_reference = PoseStamped()
+        self.msg_reference.header.frame_id = "world"
+        self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_QOS)
+        self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_QOS)
+        self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_QOS)
+        self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
+        self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop,
+                         self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS),
+                         self.create_subscription(MultiDOFJointTrajectory, "trajectory", self.on_trajectory,
+                                                  LATCHED_QOS),
+                         self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS),
+                         self.create_timer(0.01, self.on_watchdog)]
+        if metrology:
+            kind, topic = (JointState, "metrology/struts") if self.wait_for == "struts" else \
+                (PoseStamped, "metrology/pose")
+            self.entities.append(self.create_subscription(kind, topic, self.on_metrology, STREAM_QOS))
+        self.get_logger().info(f"configured: {values['machine']}, {config.strategy}, {config.distribution}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        self.active = True
+        self.last_state_wall = None
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self.active = False
+        self.safe_stop("deactivated")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._destroy_entities()
+        self.core = None
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._destroy_entities()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _destroy_entities(self) -> None:
+        for entity in self.entities:
+            for destroy in (self.destroy_publisher, self.destroy_subscription, self.destroy_timer):
+                if destroy(entity):
+                    break
+        self.entities = []
+
+    # ----------------------------------------------------------------- inputs
+    def on_state(self, msg: JointState) -> None:
+        if not self.active:
+            return
+        self.last_state_wall = time.monotonic()
+        if self.wait_for and stamp_to_ns(msg.header.stamp) not in self.metrology:
+            self.pending_state = msg
+            return
+        self.answer(msg)
+
+    def on_metrology(self, msg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.metrology = {s: m for s, m in self.metrology.items() if s > stamp - 10**8}
+        self.metrology[stamp] = msg
+        pending = self.pending_state
+        if self.active and pending is not None and stamp_to_ns(pending.header.stamp) == stamp:
+            self.pending_state = None
+            self.answer(pending)
+
+    def on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
+        core = self.core
+        try:
+            ref = reference_from_msg(msg, core.planar)
+            now = None if core.last_time_s is None else core.last_time_s + core.config.dt_s
+            core.set_trajectory(ref, now)
+        except ValueError as exc:
+            self.get_logger().error(str(exc))
+            self.publish_status(extra=f"trajectory refused: {exc}")
+            return
+        self.get_logger().info(f"trajectory accepted: {ref.duration_s:.3f} s, {len(ref.time_s)} points")
+
+    def on_estop(self, msg: Bool) -> None:
+        if msg.data and self.core is not None and not self.core.stopped:
+            self.safe_stop("estop")
+
+    def on_watchdog(self) -> None:
+        core = self.core
+        if not self.active or core is None or core.stopped or self.last_state_wall is None:
+            return
+        silent = time.monotonic() - self.last_state_wall
+        if self.pending_state is not None and silent > self.values["metrology_timeout_s"]:
+            self.safe_stop(f"metrology/{self.wait_for}: nothing for the state of "
+                           f"{stamp_to_ns(self.pending_state.header.stamp) * 1e-9:.3f} s within "
+                           f"{self.values['metrology_timeout_s']:g} s")
+        elif self.pending_state is None and silent > self.values["state_timeout_s"]:
+            self.safe_stop(f"drives/state: none for {self.values['state_timeout_s']:g} s")
+
+    # ----------------------------------------------------------------- output
+    def answer(self, msg: JointState) -> None:
+        core = self.core
+        was_stopped = core.stopped
+        stamp = stamp_to_ns(msg.header.stamp)
+        position, velocity, effort = list(msg.position), list(msg.velocity), list(msg.effort)
+        if msg.name and list(msg.name) != self.names:
+            if sorted(msg.name) != sorted(self.names):
+                core.trip(f"drives/state: names {list(msg.name)} are not {self.names}")
+            else:
+                order = [list(msg.name).index(n) for n in self.names]
+                position, velocity = [position[i] for i in order], [velocity[i] for i in order]
+                effort = [effort[i] for i in order] if len(effort) == len(order) else effort
+        struts = pose = None
+        extra = self.metrology.pop(stamp, None)
+        if self.wait_for == "struts":
+            struts = list(extra.position)
+        elif self.wait_for == "pose":
+            try:
+                position_m, rotation = pose_from_msg(extra)
+                pose = (position_m.tolist(), rotation)
+            except ValueError as exc:             # NaN or a non-unit quaternion
+                core.trip(f"metrology/pose: {exc}")
+        start = time.perf_counter()
+        forces = core.update(stamp * 1e-9, position, velocity, effort, struts=struts, metrology_pose=pose)
+        self.compute_s.append(time.perf_counter() - start)
+        self.msg_command.header.stamp = msg.header.stamp
+        self.msg_command.effort = forces
+        self.pub_command.publish(self.msg_command)
+        if core.stopped and not was_stopped:
+            self.safe_stop(core.stop_reason)
+        self.publish_reference(msg.header.stamp)
+        if core.cycles % self.values["status_decimation"] == 0:
+            self.publish_status()
+
+    def publish_reference(self, stamp) -> None:
+        x = self.core.record.reference
+        m = self.msg_reference
+        m.header.stamp = stamp
+        m.pose.position.x, m.pose.position.y = x[0], x[1]
+        if self.core.planar:
+            m.pose.orientation.z, m.pose.orientation.w = math.sin(0.5 * x[2]), math.cos(0.5 * x[2])
+        else:
+            m.pose.position.z, m.pose.orientation.w = x[2], 1.0
+        self.pub_reference.publish(m)
+
+    def publish_status(self, extra: str = "") -> None:
+        level, message, values = self.core.status()
+        if extra:
+            level, message = max(level, 1), f"{message}; {extra}"
+        stamp = ns_to_stamp(round((self.core.last_time_s or 0.0) * 1e9))
+        self.pub_status.publish(diagnostic_array(stamp, [diagnostic_status("controller", level, message, values)]))
+
+    def safe_stop(self, reason: str) -> None:
+        """Zero forces, brakes requested (estop latched), reported."""
+        if self.core is None:
+            return
+        self.core.trip(reason)
+        self.get_logger().error(f"safe stop: {self.core.stop_reason}")
+        self.pub_estop.publish(Bool(data=True))
+        self.publish_status()
+
+    def destroy_node(self):
+        path = getattr(self, "values", {}).get("summary_path")
+        if path and self.core is not None:
+            lat = np.array(self.compute_s or [math.nan]) * 1e6
+            _, message, values = self.core.status()
+            with open(path, "w", encoding="utf-8") as fh:
+                json.dump({"message": message, **values, "stopped": self.core.stopped,
+                           "compute_us_p50": float(np.percentile(lat, 50)),
+                           "compute_us_p99": float(np.percentile(lat, 99))}, fh, indent=2)
+        return super().destroy_node()
+
+
+def main(args=None):
+    main_exit(run_node(ControllerNode, args=args, name="controller", executor="events"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""controller_node in-process: lifecycle and parameter refusal, the ARCHI test motion
+through trajectory_node -> controller -> sim_hw in lockstep, MoM3 sensor space with
+the Gough node in the loop under load, bad state messages, the watchdog."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_controller.controller_node import ControllerNode
+from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
+from pkm_kinematics import load_machine
+from pkm_sim_hw.sim_hw_node import SimHwNode
+from pkm_trajectory.trajectory_node import TrajectoryNode
+
+ROOT = Path(__file__).resolve().parents[2]
+ARCHI = load_machine("archi")
+
+
+def overrides(**values):
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+@pytest.mark.ros
+def test_a_bad_parameter_refuses_configure_naming_it(ros_context):
+    with pytest.raises(ValueError, match=r"parameter 'strategy': must be one of \['joint_pid'"):
+        ControllerNode(context=ros_context, parameter_overrides=overrides(strategy="magic"))
+    node = ControllerNode(context=ros_context, parameter_overrides=overrides(
+        autostart=False, bandwidth_hz=900.0))
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert node.configure_error.startswith("parameter 'bandwidth_hz': must be in (0, 100] Hz")
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.ros
+def test_lifecycle_configure_activate_deactivate(ros_graph):
+    ctrl = ros_graph.add_node(ControllerNode(context=ros_graph.context, parameter_overrides=overrides(
+        autostart=False)))
+    estops = []
+    probe = ros_graph.create_node("probe")
+    probe.create_subscription(Bool, "estop", lambda m: estops.append(m.data), LATCHED_QOS)
+    assert ctrl.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert ctrl.trigger_activate() == TransitionCallbackReturn.SUCCESS and ctrl.active
+    assert ctrl.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+    assert ros_graph.spin_until(lambda: estops == [True], timeout_sec=5.0)   # brakes requested
+    assert ctrl.core.stop_reason == "deactivated"
+    assert ctrl.trigger_cleanup() == TransitionCallbackReturn.SUCCESS and ctrl.core is None
+
+
+@pytest.mark.ros
+def test_archi_test_motion_through_the_graph(ros_graph):
+    """trajectory_node plans the ARCHI test motion (G-code), the controller
+    (computed torque, inf-norm) executes it in lockstep with sim_hw: every state
+    answered, the tool back at home within 2 um, peak tracking error under 50 um."""
+    ctx = ros_graph.context
+    sim = ros_graph.add_node(SimHwNode(context=ctx, parameter_overrides=overrides(publish_markers=False)))
+    ros_graph.add_node(TrajectoryNode(context=ctx, parameter_overrides=overrides(
+        program_file=str(ROOT / "config" / "programs" / "archi_test_motion.nc"))))
+    ctrl = ros_graph.add_node(ControllerNode(context=ctx, parameter_overrides=overrides(
+        distribution="inf_norm")))
+    status = []
+    probe = ros_graph.create_node("probe")
+    probe.create_subscription(DiagnosticArray, "controller/status", lambda m: status.append(m.status[0]), STREAM_QOS)
+    assert ros_graph.spin_until(lambda: sim.plant.k >= 5000, timeout_sec=120.0)
+    core = ctrl.core
+    assert not core.stopped, core.stop_reason
+    assert core.reference is not None and core.reference.duration_s == pytest.approx(4.656, abs=1e-3)
+    assert core.mode == "holding" and core.cycles >= 4999
+    np.testing.assert_allclose(sim.plant.output().tool_pose, ARCHI.model.home_pose, atol=2e-6)
+    assert 1e-6 < core.max_error_m < 5e-5
+    assert status and status[-1].level == b"\x00"
+    values = {kv.key: kv.value for kv in status[-1].values}
+    assert values["distribution"] == "inf_norm" and float(values["peak_drive_force_n"]) > 50.0
+
+
+@pytest.mark.ros
+def test_sensor_space_with_the_gough_node_in_the_loop(ros_graph):
+    """MoM3: 110 N on the tool, compliance 0.7 um/N: the structure deflects 77 um, the
+    controller closes the loop on the Gough struts and the tool stays within 1.5 um."""
+    ctx = ros_graph.context
+    sim = ros_graph.add_node(SimHwNode(context=ctx, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, compliance=[0.7e-6, 0.7e-6, 0.7e-6])))
+    ros_graph.add_node(GoughSensorNode(context=ctx, parameter_overrides=overrides(machine="mom3")))
+    ctrl = ros_graph.add_node(ControllerNode(context=ctx, parameter_overrides=overrides(
+        machine="mom3", strategy="sensor_space")))
+    sim.plant.set_load([0.0, 0.0, -110.0])
+    assert ros_graph.spin_until(lambda: sim.plant.k >= 800, timeout_sec=60.0)
+    out = sim.plant.output()
+    assert not ctrl.core.stopped, ctrl.core.stop_reason
+    assert out.rigid_pose[2] - out.tool_pose[2] == pytest.approx(77e-6, rel=0.02)
+    home = np.array(load_machine("mom3").model.home_position)
+    assert np.abs(np.array(out.tool_pose) - home).max() < 1.5e-6
+
+
+def _state(names, position, stamp_ns):
+    msg = JointState(name=names, position=position, velocity=[0.0] * len(position), effort=[])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    return msg
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("position, reason", [
+    ([1.0, 2.0, float("nan"), 0.5], r"position[2] (q3) is nan"),
+    ([1.0, 2.0, 0.5], "position has 3 values, expected 4"),
+])
+def test_a_bad_state_message_stops_the_controller_and_brakes(ros_graph, position, reason):
+    ctrl = ros_graph.add_node(ControllerNode(context=ros_graph.context))
+    probe = ros_graph.create_node("probe")
+    pub = probe.create_publisher(JointState, "drives/state", STREAM_QOS)
+    estops, commands = [], []
+    probe.create_subscription(Bool, "estop", lambda m: estops.append(m.data), LATCHED_QOS)
+    probe.create_subscription(JointState, "drives/command", lambda m: commands.append(list(m.effort)), STREAM_QOS)
+    assert ros_graph.spin_until(lambda: pub.get_subscription_count() > 0, timeout_sec=5.0)
+    names = list(ARCHI.model.leg_names) if len(position) == 4 else []     # no names: checked by length
+    pub.publish(_state(names, position, 0))
+    assert ros_graph.spin_until(lambda: estops == [True] and commands, timeout_sec=5.0)
+    assert reason in ctrl.core.stop_reason and commands[-1] == [0.0] * 4
+
+
+@pytest.mark.ros
+def test_the_watchdog_stops_when_the_plant_goes_silent(ros_graph):
+    """sim_hw disappears mid-run: within state_timeout_s the controller is in its safe
+    state with the cause reported."""
+    ctx = ros_graph.context
+    sim = ros_graph.add_node(SimHwNode(context=ctx, parameter_overrides=overrides(publish_markers=False)))
+    ctrl = ros_graph.add_node(ControllerNode(context=ctx, parameter_overrides=overrides(state_timeout_s=0.2)))
+    assert ros_graph.spin_until(lambda: sim.plant.k >= 100, timeout_sec=30.0)
+    ros_graph.executor.remove_node(sim)
+    sim.destroy_node()
+    assert ros_graph.spin_until(lambda: ctrl.core.stopped, timeout_sec=5.0)
+    assert ctrl.core.stop_reason == "drives/state: none for 0.2 s"
