@@ -33,6 +33,18 @@ def start(module: str, params: dict, env: dict, log: Path) -> subprocess.Popen:
     return subprocess.Popen(args, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
 
 
+def stop_all(procs) -> None:
+    """SIGINT every live process, wait, kill what does not exit: no orphans."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
 def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -51,14 +63,7 @@ def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
         try:
             sim.wait(timeout=120 + 10 * duration_s)
         finally:
-            for p in procs + [sim]:
-                if p.poll() is None:
-                    p.send_signal(signal.SIGINT)
-            for p in procs + [sim]:
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop_all(procs + [sim])
         if not (tmp / "sim.json").exists():
             raise RuntimeError("sim_hw did not finish:\n" + (tmp / "sim.log").read_text()[-2000:])
         sim_summary = json.loads((tmp / "sim.json").read_text())

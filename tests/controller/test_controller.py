@@ -267,3 +267,17 @@ def test_metrology_strategies_need_a_metrology_section():
         ControllerCore(ARCHI, ControllerConfig(strategy="sensor_space"))
     with pytest.raises(ValueError, match="unknown controller parameter"):
         ControllerConfig.from_dict({"kp": 1.0})
+
+
+@pytest.mark.parametrize("name", ["archi", "mom3"])
+def test_shipped_controller_configs_are_valid(name):
+    """config/controller/<name>.yaml builds a controller for its machine; every key is
+    a controller or node parameter."""
+    import yaml
+
+    from pkm_controller.controller_node import NODE_PARAMETERS
+    params = yaml.safe_load((ROOT / "config" / "controller" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
+    node_keys = set(NODE_PARAMETERS) | {"autostart"}
+    core = ControllerCore(load_machine(params["machine"]),
+                          ControllerConfig.from_dict({k: v for k, v in params.items() if k not in node_keys}))
+    assert core.config.strategy == params["strategy"]

@@ -1,0 +1,122 @@
+"""Controller benchmarks (issue 5).
+
+    .venv/bin/python benchmarks/controller.py [--cycles 3000] [--graph-duration 3]
+
+1. Per-cycle compute time of ``ControllerCore.update`` for every strategy and
+   distribution (median, p99), timed inside a core closed loop against the plant
+   (only the controller's call is timed): ARCHI for the encoder-based strategies,
+   MoM3 (with the Gough model) for the metrology ones. Target: <= 200 us p99 with
+   the inf-norm distribution.
+2. The closed-loop lockstep rate of the full graph, each node its own process:
+   controller (sensor_space) + sim_hw + gough_sensor (+ trajectory_node, idle after
+   publishing) on MoM3. Target: >= 1,000 cycles/s, and how far from 2,000 (MoM3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pkm_controller.closed_loop import run
+from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.reference import Reference
+from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_kinematics import load_machine
+from pkm_sim_hw.plant import Plant, PlantParameters
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from plant import start, stop_all  # noqa: E402  (benchmarks/plant.py: process helpers)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class TimedCore(ControllerCore):
+    """ControllerCore whose update is timed (perf_counter around the call)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.times_s: list[float] = []
+
+    def update(self, *args, **kwargs):
+        start = time.perf_counter()
+        out = super().update(*args, **kwargs)
+        self.times_s.append(time.perf_counter() - start)
+        return out
+
+
+def compute_times(machine_name: str, strategy: str, distribution: str, cycles: int) -> tuple[float, float]:
+    machine = load_machine(machine_name)
+    home = (machine.model.home_pose if machine.kind == "planar" else machine.model.home_position).tolist()
+    target = list(home)
+    target[0] += 0.01
+    ref = Reference([0.0, 0.5], [home, target], [[0.02, 0.0, 0.0]] * 2)     # a slow ramp: work every cycle
+    core = TimedCore(machine, ControllerConfig(strategy=strategy, distribution=distribution,
+                                               following_error_m=0.05))
+    sensor = GoughSensorModel(machine.metrology) if machine.metrology is not None else None
+    run(machine, core, Plant(machine, PlantParameters()), cycles, reference=ref, sensor=sensor)
+    if core.stopped:
+        raise RuntimeError(f"{strategy}/{distribution} stopped: {core.stop_reason}")
+    us = np.array(core.times_s[10:]) * 1e6
+    return float(np.percentile(us, 50)), float(np.percentile(us, 99))
+
+
+def graph_rate(duration_s: float) -> dict:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        procs = [start("pkm_gough_sensor.gough_sensor_node", {"machine": "mom3"}, env, tmp / "sensor.log"),
+                 start("pkm_controller.controller_node", {"machine": "mom3", "strategy": "sensor_space",
+                                                           "summary_path": tmp / "ctrl.json",
+                                                           "state_timeout_s": 10.0}, env, tmp / "ctrl.log"),
+                 start("pkm_trajectory.trajectory_node", {"machine": "mom3", "program_file":
+                                                          ROOT / "config" / "programs" / "mom3_square.nc"},
+                       env, tmp / "traj.log")]
+        time.sleep(2.0)
+        sim = start("pkm_sim_hw.sim_hw_node", {"machine": "mom3", "duration_s": duration_s,
+                                               "summary_path": tmp / "sim.json", "publish_markers": "false",
+                                               "command_timeout_s": 10.0}, env, tmp / "sim.log")
+        try:
+            sim.wait(timeout=120 + 10 * duration_s)
+        finally:
+            stop_all(procs + [sim])
+        sim_summary = json.loads((tmp / "sim.json").read_text())
+        ctrl = json.loads((tmp / "ctrl.json").read_text())
+        return {"steps_per_s": sim_summary["steps_per_s"], "stopped": ctrl["stopped"],
+                "compute_us_p50": ctrl["compute_us_p50"], "compute_us_p99": ctrl["compute_us_p99"],
+                "max_tracking_error_m": ctrl["max_tracking_error_m"]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--cycles", type=int, default=3000)
+    parser.add_argument("--graph-duration", type=float, default=3.0)
+    parser.add_argument("--skip-graph", action="store_true")
+    args = parser.parse_args(argv)
+    rows = [("archi", s, d) for s in ("joint_pid", "decentralized_projected") for d in ("-",)]
+    rows += [("archi", s, d) for s in ("cartesian_pid", "computed_torque")
+             for d in ("pseudo_inverse", "inf_norm", "p_norm", "two_arm")]
+    rows += [("mom3", s, "pseudo_inverse") for s in ("computed_torque", "sensor_space", "measured_space")]
+    print("| machine | strategy | distribution | compute p50 (us) | p99 (us) |\n|---|---|---|---|---|")
+    for machine, strategy, dist in rows:
+        p50, p99 = compute_times(machine, strategy, "pseudo_inverse" if dist == "-" else dist, args.cycles)
+        print(f"| {machine} | {strategy} | {dist} | {p50:.1f} | {p99:.1f} |", flush=True)
+    if not args.skip_graph:
+        g = graph_rate(args.graph_duration)
+        print(f"\nfull graph, 4 processes (MoM3 sensor_space + sim_hw + gough_sensor + trajectory): "
+              f"{g['steps_per_s']:.0f} cycles/s ({g['steps_per_s'] / 2000:.0%} of 2,000); controller compute "
+              f"in the graph p50 {g['compute_us_p50']:.0f} us, p99 {g['compute_us_p99']:.0f} us; "
+              f"stopped: {g['stopped']}; max tracking error {g['max_tracking_error_m'] * 1e6:.1f} um")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
