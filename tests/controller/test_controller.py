@@ -245,6 +245,19 @@ def test_trajectories_must_start_at_the_current_reference():
         core.set_trajectory(near)
 
 
+def test_a_trajectory_received_before_the_first_state_is_checked_then():
+    """Set before any state: checked against the measured pose at the first cycle;
+    a far one is refused there (reported in the faults), the machine holds."""
+    core = ControllerCore(ARCHI, ControllerConfig())
+    core.set_trajectory(Reference([0.0, 1.0], [[1.1, -0.4, 0.785], [1.2, -0.4, 0.785]]))
+    core.update(0.0, *_state_at(ARCHI_HOME))
+    assert not core.stopped and core.mode == "holding" and "trajectory refused" in core.faults[0]
+    core = ControllerCore(ARCHI, ControllerConfig())
+    core.set_trajectory(Reference([0.0, 1.0], [ARCHI_HOME, [1.01, -0.4, 0.785]]))
+    core.update(0.0, *_state_at(ARCHI_HOME))
+    assert core.mode == "tracking" and core.reference.duration_s == 1.0
+
+
 def _state_at(pose):
     return ARCHI.model.inverse_kinematics(pose).tolist(), [0.0] * 4
 

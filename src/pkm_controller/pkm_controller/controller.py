@@ -394,7 +394,10 @@ class ControllerCore:
             self.reference = Reference.hold([a - b for a, b in zip(pose, e)])
         if self.pending is not None:
             pending, self.pending = self.pending, None
-            self.set_trajectory(pending, self.last_time_s)
+            try:
+                self.set_trajectory(pending, self.last_time_s)
+            except ValueError as exc:              # refused, reported; the machine holds
+                self.faults.append(str(exc))
 
     def _metrology_task_pose(self, metrology_pose, reference_pose) -> list:
         p, r = metrology_pose
