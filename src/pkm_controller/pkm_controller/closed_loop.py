@@ -1,9 +1,9 @@
 """The controller core against the plant core in lockstep, without ROS (pure core).
 
 The same exchange the node graph makes (state k -> [sensor k] -> command k -> step),
-as a plain loop: for tests, parameter studies and benchmarks it runs 5-20x faster
-than the graph and gives the same numbers, since the graph is deterministic in
-lockstep too.
+as a plain loop, for tests, parameter studies and benchmarks (several times faster
+than the node graph). That the graph reproduces these numbers exactly is not yet
+tested (issue 6 asks for the in-process / multi-process comparison).
 """
 
 from __future__ import annotations
