@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _gram_solve_rows, _min_two_norm_rows
+from pkm_kinematics.distribution import _gram_solve_rows, _min_two_norm_rows, gram_rows
+from pkm_gough_sensor.metrology import strut_lengths_floats
 from pkm_kinematics.rotations import exp_so3_floats, mul3
 
 
@@ -95,14 +96,7 @@ def gram_condition(rows) -> float:
     """2-norm condition number of J (n x 3) from the eigenvalues of J^T J (closed form
     for a symmetric 3 x 3 matrix); inf when singular. ~3 us against ~20 us for
     ``np.linalg.cond``."""
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for j0, j1, j2 in rows:
-        a00 += j0 * j0
-        a01 += j0 * j1
-        a02 += j0 * j2
-        a11 += j1 * j1
-        a12 += j1 * j2
-        a22 += j2 * j2
+    a00, a01, a02, a11, a12, a22 = gram_rows(rows)
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     tr = (a00 + a11 + a22) / 3.0
     p2 = (a00 - tr) ** 2 + (a11 - tr) ** 2 + (a22 - tr) ** 2 + 2.0 * p1
@@ -178,22 +172,10 @@ class SensorSpaceFeedback:
     def reset(self) -> None:
         self.estimate = None
 
-    def desired_lengths(self, p_bp, r_bp) -> list:
-        """IKM_GP: l_i = |p + R b_i - A_i| (MoM3 §5.2) on the nominal geometry."""
-        px, py, pz = p_bp
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r_bp
-        out = []
-        for ax, ay, az, bx, by, bz in self._legs:
-            lx = px + r00 * bx + r01 * by + r02 * bz - ax
-            ly = py + r10 * bx + r11 * by + r12 * bz - ay
-            lz = pz + r20 * bx + r21 * by + r22 * bz - az
-            out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
-        return out
-
     def task_error(self, tool_position, tool_rotation, lengths) -> list:
         """The task-space error x_des - x_real (3) from the strut readings."""
         p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
-        l_des = self.desired_lengths(p_bp, r_bp)
+        l_des = strut_lengths_floats(self._legs, p_bp, r_bp)     # IKM_GP, nominal geometry
         e_l = [a - b for a, b in zip(l_des, lengths)]
         at = self.estimate or (p_bp, r_bp)
         jinv = self.platform.inverse_jacobian(at[0], np.array(at[1]).reshape(3, 3))

@@ -83,6 +83,20 @@ def rotation_floats(value, name: str) -> tuple:
     return flat
 
 
+def strut_lengths_floats(legs, p, r) -> list:
+    """MoM3 §5.2 IKM_GP on floats: l_i = |p + R b_i - A_i| for ``legs`` given as
+    (A_x, A_y, A_z, b_x, b_y, b_z) tuples, p 3 floats, R a row-major 9-tuple."""
+    px, py, pz = p
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    out = []
+    for ax, ay, az, bx, by, bz in legs:
+        lx = px + r00 * bx + r01 * by + r02 * bz - ax
+        ly = py + r10 * bx + r11 * by + r12 * bz - ay
+        lz = pz + r20 * bx + r21 * by + r22 * bz - az
+        out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
+    return out
+
+
 class GoughSensorModel:
     """Measure strut lengths of a tool pose (true geometry) and estimate the pose
     back from them (nominal geometry, warm-started DKM). See the module docstring.
@@ -186,16 +200,8 @@ class GoughSensorModel:
                                            rotation_floats(tool_rotation, 'tool_rotation')))
 
     def _true_lengths(self, p_t, r_t) -> list:
-        px, py, pz = p_t
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r_t
-        out = []
-        for ax, ay, az, bx, by, bz in self._true_legs:
-            # MoM3 §5.2, l_i = |p + R b_i - A_i|, here with A_i in world, b_i in the tool frame
-            lx = px + r00 * bx + r01 * by + r02 * bz - ax
-            ly = py + r10 * bx + r11 * by + r12 * bz - ay
-            lz = pz + r20 * bx + r21 * by + r22 * bz - az
-            out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
-        return out
+        # A_i in world, b_i in the tool frame: no mounting transform per reading
+        return strut_lengths_floats(self._true_legs, p_t, r_t)
 
     def measure(self, tool_position, tool_rotation) -> np.ndarray:
         """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),

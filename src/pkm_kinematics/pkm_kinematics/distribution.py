@@ -56,9 +56,9 @@ def _floats(values) -> list[float]:
     return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
 
-def _gram_solve_rows(rows, rhs) -> list[float]:
-    """Solve (J^T J) y = rhs for J given as rows of 3 floats (closed-form symmetric 3x3
-    inverse; LAPACK costs ~10 us per call on such tiny systems)."""
+def gram_rows(rows) -> tuple:
+    """The 6 distinct entries (a00, a01, a02, a11, a12, a22) of J^T J for J given as
+    rows of 3 floats."""
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
     for j0, j1, j2 in rows:
         a00 += j0 * j0
@@ -67,6 +67,13 @@ def _gram_solve_rows(rows, rhs) -> list[float]:
         a11 += j1 * j1
         a12 += j1 * j2
         a22 += j2 * j2
+    return a00, a01, a02, a11, a12, a22
+
+
+def _gram_solve_rows(rows, rhs) -> list[float]:
+    """Solve (J^T J) y = rhs for J given as rows of 3 floats (closed-form symmetric 3x3
+    inverse; LAPACK costs ~10 us per call on such tiny systems)."""
+    a00, a01, a02, a11, a12, a22 = gram_rows(rows)
     c00 = a11 * a22 - a12 * a12
     c01 = a12 * a02 - a01 * a22
     c02 = a01 * a12 - a11 * a02
