@@ -277,7 +277,7 @@ def test_invalid_configuration_names_the_field(field, value, message):
 
 def test_metrology_strategies_need_a_metrology_section():
     with pytest.raises(ValueError, match="strategy: sensor_space needs a machine with a 'metrology' section"):
-        ControllerCore(ARCHI, ControllerConfig(strategy="sensor_space"))
+        ControllerCore(load_machine("sliding_star"), ControllerConfig(strategy="sensor_space"))
     with pytest.raises(ValueError, match="unknown controller parameter"):
         ControllerConfig.from_dict({"kp": 1.0})
 

@@ -187,7 +187,7 @@ def test_bad_parameter_stops_the_node_with_a_clear_error(ros_context):
     with pytest.raises(ParameterError, match=r"parameter 'calibration_error_m': must be a number in \[0, 0.01\] m"):
         GoughSensorNode(context=ros_context, parameter_overrides=[Parameter('calibration_error_m', value=-1.0)])
     with pytest.raises(ParameterError, match="parameter 'machine': must name a machine with a metrology section"):
-        GoughSensorNode(context=ros_context, parameter_overrides=[Parameter('machine', value='archi')])
+        GoughSensorNode(context=ros_context, parameter_overrides=[Parameter('machine', value='sliding_star')])
 
 
 # ------------------------------------------------------------ multi-process
@@ -247,7 +247,8 @@ def test_node_process_exchanges_poses_and_exits_cleanly_on_a_signal(ros_graph, t
 @pytest.mark.slow
 @pytest.mark.parametrize('override,message', [
     ('noise_std_m:=-1.0', "parameter 'noise_std_m': must be a number in [0, 0.001] m, got -1.0"),
-    ('machine:=archi', "parameter 'machine': must name a machine with a metrology section, one of ['mom3']"),
+    ('machine:=sliding_star', "parameter 'machine': must name a machine with a metrology section, one of "
+     "['archi', 'mom3']"),
 ])
 def test_node_process_refuses_a_bad_parameter_with_status_2(tmp_path, override, message):
     proc, log = _start(tmp_path, '-p', override)

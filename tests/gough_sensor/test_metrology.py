@@ -289,4 +289,4 @@ def test_bad_parameters_name_the_field(kwargs, field):
 
 def test_a_machine_without_metrology_is_refused():
     with pytest.raises(ValueError, match='metrology'):
-        GoughSensorModel(load_machine('archi').metrology)
+        GoughSensorModel(load_machine('sliding_star').metrology)

@@ -327,6 +327,7 @@ class GoughDKMSolver:
                    else finite_floats(position, 3, "position"))
         self._r = tuple(np.eye(3).ravel().tolist() if rotation is None else validate_rotation(rotation, "rotation"))
         self._previous = None        # (position, rotation) one solve earlier, as floats
+        self._solved = False         # _p/_r is a solution (not a reset guess): its velocity is usable
         self._jh = None
 
     @property
@@ -353,9 +354,12 @@ class GoughDKMSolver:
         result = self.platform._newton(target, guess_p, guess_r, self._jh, self.tol_m, self.max_iterations)
         if result.converged:
             self._jh = result.jacobian
-            self._previous = (p1, r1)
-            self._p, self._r = result.position.tolist(), tuple(result.rotation.ravel().tolist())
+            p2, r2 = result.position.tolist(), tuple(result.rotation.ravel().tolist())
+            # after a reset the guess is not a pose of the motion: no velocity to extrapolate
+            self._previous = (p1, r1) if self._solved else (p2, r2)
+            self._p, self._r, self._solved = p2, r2, True
         else:
             self._jh = None
             self._previous = None
+            self._solved = False
         return result
