@@ -36,38 +36,10 @@ from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_controller.controller import ControllerConfig, ControllerCore
-from pkm_controller.reference import Reference, unwrap_angles
+from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
-                   "status_decimation": 100, "summary_path": ""}
-
-
-def reference_from_msg(msg: MultiDOFJointTrajectory, planar: bool) -> Reference:
-    """MultiDOFJointTrajectory (joint "tool", as trajectory_node publishes) -> Reference;
-    the yaw of a planar machine unwrapped (unlimited rotation)."""
-    if len(msg.joint_names) != 1 or not msg.points:
-        raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
-                         f"{list(msg.joint_names)} with {len(msg.points)} points")
-    t, x, v, a = [], [], [], []
-    for p in msg.points:
-        t.append(p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
-        tf = p.transforms[0]
-        vel = p.velocities[0] if p.velocities else None
-        acc = p.accelerations[0] if p.accelerations else None
-        if planar:
-            r = tf.rotation
-            x.append([tf.translation.x, tf.translation.y,
-                      math.atan2(2.0 * (r.w * r.z + r.x * r.y), 1.0 - 2.0 * (r.y * r.y + r.z * r.z))])
-            v.append([vel.linear.x, vel.linear.y, vel.angular.z] if vel else [0.0] * 3)
-            a.append([acc.linear.x, acc.linear.y, acc.angular.z] if acc else [0.0] * 3)
-        else:
-            x.append([tf.translation.x, tf.translation.y, tf.translation.z])
-            v.append([vel.linear.x, vel.linear.y, vel.linear.z] if vel else [0.0] * 3)
-            a.append([acc.linear.x, acc.linear.y, acc.linear.z] if acc else [0.0] * 3)
-    if planar:
-        for row, theta in zip(x, unwrap_angles([row[2] for row in x])):
-            row[2] = theta
-    return Reference(t, x, v, a)
+                   "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False}
 
 
 class ControllerNode(LifecycleNode):
@@ -78,6 +50,8 @@ class ControllerNode(LifecycleNode):
         self.entities = []
         self.compute_s: list[float] = []
         self.configure_error = ""
+        self.trajectory_accepted = False
+        self.published = {"drives/command": 0, "controller/reference": 0}
         if declare_bool(self, "autostart", True, "configure and activate at start"):
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ValueError(self.configure_error)
@@ -176,6 +150,8 @@ class ControllerNode(LifecycleNode):
         if not self.active:
             return
         self.last_state_wall = time.monotonic()
+        if not self.trajectory_accepted and self.values["wait_for_trajectory"]:
+            return                     # a scripted run starts at its first state, deterministically
         if self.wait_for and stamp_to_ns(msg.header.stamp) not in self.metrology:
             self.pending_state = msg
             return
@@ -200,6 +176,7 @@ class ControllerNode(LifecycleNode):
             self.get_logger().error(str(exc))
             self.publish_status(extra=f"trajectory refused: {exc}")
             return
+        self.trajectory_accepted = True
         self.get_logger().info(f"trajectory accepted: {ref.duration_s:.3f} s, {len(ref.time_s)} points")
 
     def on_estop(self, msg: Bool) -> None:
@@ -247,6 +224,7 @@ class ControllerNode(LifecycleNode):
         self.msg_command.header.stamp = msg.header.stamp
         self.msg_command.effort = forces
         self.pub_command.publish(self.msg_command)
+        self.published["drives/command"] += 1
         if core.stopped and not was_stopped:
             self.safe_stop(core.stop_reason)
         self.publish_reference(msg.header.stamp)
@@ -263,6 +241,7 @@ class ControllerNode(LifecycleNode):
         else:
             m.pose.position.z, m.pose.orientation.w = x[2], 1.0
         self.pub_reference.publish(m)
+        self.published["controller/reference"] += 1
 
     def publish_status(self, extra: str = "") -> None:
         level, message, values = self.core.status()
@@ -288,7 +267,8 @@ class ControllerNode(LifecycleNode):
             with open(path, "w", encoding="utf-8") as fh:
                 json.dump({"message": message, **values, "stopped": self.core.stopped,
                            "compute_us_p50": float(np.percentile(lat, 50)),
-                           "compute_us_p99": float(np.percentile(lat, 99))}, fh, indent=2)
+                           "compute_us_p99": float(np.percentile(lat, 99)),
+                           "published": dict(self.published)}, fh, indent=2)
         return super().destroy_node()
 
 

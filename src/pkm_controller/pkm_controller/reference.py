@@ -88,3 +88,32 @@ def unwrap_angles(angles) -> list:
             a += 2.0 * math.pi * round((out[-1] - a) / (2.0 * math.pi))
         out.append(float(a))
     return out
+
+
+def reference_from_msg(msg, planar: bool) -> "Reference":
+    """MultiDOFJointTrajectory (joint "tool", as trajectory_node publishes) -> Reference;
+    the yaw of a planar machine unwrapped (unlimited rotation). Duck-typed: an rclpy
+    message or one deserialized from a recording (rosbags) alike."""
+    if len(msg.joint_names) != 1 or not msg.points:
+        raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
+                         f"{list(msg.joint_names)} with {len(msg.points)} points")
+    t, x, v, a = [], [], [], []
+    for p in msg.points:
+        t.append(p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
+        tf = p.transforms[0]
+        vel = p.velocities[0] if p.velocities else None
+        acc = p.accelerations[0] if p.accelerations else None
+        if planar:
+            r = tf.rotation
+            x.append([tf.translation.x, tf.translation.y,
+                      math.atan2(2.0 * (r.w * r.z + r.x * r.y), 1.0 - 2.0 * (r.y * r.y + r.z * r.z))])
+            v.append([vel.linear.x, vel.linear.y, vel.angular.z] if vel else [0.0] * 3)
+            a.append([acc.linear.x, acc.linear.y, acc.angular.z] if acc else [0.0] * 3)
+        else:
+            x.append([tf.translation.x, tf.translation.y, tf.translation.z])
+            v.append([vel.linear.x, vel.linear.y, vel.linear.z] if vel else [0.0] * 3)
+            a.append([acc.linear.x, acc.linear.y, acc.linear.z] if acc else [0.0] * 3)
+    if planar:
+        for row, theta in zip(x, unwrap_angles([row[2] for row in x])):
+            row[2] = theta
+    return Reference(t, x, v, a)

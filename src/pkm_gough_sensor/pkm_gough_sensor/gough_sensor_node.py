@@ -20,6 +20,7 @@ Run: ``python -m pkm_gough_sensor.gough_sensor_node --ros-args -r __ns:=/pkm
 
 from __future__ import annotations
 
+import json
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -62,6 +63,8 @@ class GoughSensorNode(Node):
                                    "scale resolution; 0: the machine file's encoder_resolution", unit='m')
         period = declare_float(self, 'diagnostics_period_s', 1.0, 0.01, 60.0,
                                'period of the summary diagnostic', unit='s')
+        self.summary_path = declare_str(self, 'summary_path', '', 'write a JSON summary here at exit',
+                                        allow_empty=True)
         config = load_machine(machine)
         if config.metrology is None:
             with_metrology = [n for n in machine_names() if _has_metrology(n)]
@@ -82,6 +85,7 @@ class GoughSensorNode(Node):
         self.create_timer(period, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self.counts = dict(received=0, measured=0, solved=0, failed=0, refused=0)
+        self.published = {'metrology/pose': 0, 'metrology/struts': 0}
         self._period_errors = 0
         self._last_error = ''
         self._last_error_values = {}
@@ -90,6 +94,12 @@ class GoughSensorNode(Node):
         self.get_logger().info(
             f'{machine}: resolution {self.model.resolution_m:g} m, noise {noise:g} m, '
             f'calibration error {calibration:g} m (seed {seed})')
+
+    def destroy_node(self):
+        if getattr(self, 'summary_path', '') and hasattr(self, 'published'):
+            with open(self.summary_path, 'w', encoding='utf-8') as fh:
+                json.dump({**self.counts, 'published': self.published}, fh, indent=2)
+        return super().destroy_node()
 
     # --------------------------------------------------------------- stream
     def _on_true_pose(self, msg: PoseStamped) -> None:
@@ -107,12 +117,15 @@ class GoughSensorNode(Node):
             self._error(f'true pose refused: {exc}', {'stamp_ns': stamp_to_ns(stamp)})
             return
         self.counts['measured'] += 1
+        published = self.published
         if result.converged:
+            published['metrology/pose'] += 1
             # the pose first: a lockstep controller waits for it, not for the struts
             self.counts['solved'] += 1
             self.pub_pose.publish(pose_msg(est_p, est_r, stamp, 'world', out=self._pose_msg))
         self.pub_struts.publish(joint_state_msg(STRUT_NAMES, stamp, position=lengths, frame_id='gough_base',
                                                 out=self._struts_msg))
+        published['metrology/struts'] += 1
         if not result.converged:
             self.counts['failed'] += 1
             self._error(f'DKM failed: {result.reason}', {

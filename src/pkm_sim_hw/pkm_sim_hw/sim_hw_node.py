@@ -30,7 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
                                     machine_to_tool_pose, ns_to_stamp, pose_msg, stamp_to_ns)
-from pkm_common.params import declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
@@ -67,6 +67,13 @@ class SimHwNode(Node):
                                         "(0: run until shut down)", unit="s")
         self.summary_path = declare_str(self, "summary_path", "", "write a JSON run summary here at exit",
                                         allow_empty=True)
+        self.shutdown_on_finish = declare_bool(self, "shutdown_on_finish", True, "end the process when "
+                                               "duration_s is reached (in-process runs: False)")
+        self.load_schedule = load_schedule(declare_float_list(
+            self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task coordinates) from t_s on, "
+            "in simulated time (deterministic, unlike the load topic)"))
+        self.finished = False
+        self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}
         self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
@@ -116,6 +123,10 @@ class SimHwNode(Node):
         else:                                      # tool = p, orientation fixed
             pose.position.x, pose.position.y, pose.position.z = out.tool_pose
         self.pub_pose.publish(self.msg_pose)
+        published = self.published
+        published["platform/true_pose"] += 1
+        published["drives/state"] += 1
+        published["/clock"] += 1
         self.msg_state.position = out.encoder_positions
         self.msg_state.velocity = out.encoder_velocities
         self.msg_state.effort = out.applied_forces
@@ -167,6 +178,8 @@ class SimHwNode(Node):
         return effort
 
     def on_command(self, msg: JointState) -> None:
+        if self.finished:
+            return
         stamp = stamp_to_ns(msg.header.stamp)
         effort = self._effort(msg)
         if effort is None:
@@ -189,6 +202,11 @@ class SimHwNode(Node):
         self.advance(self.latest_effort)
 
     def advance(self, effort) -> None:
+        if self.finished:
+            return
+        schedule = self.load_schedule
+        while schedule and self.plant.t >= schedule[0][0] - 1e-12:
+            self.plant.set_load(schedule.pop(0)[1])
         self.plant.step(effort)
         self.publish_state()
         if self.duration_s and self.plant.t >= self.duration_s - 1e-12:
@@ -199,15 +217,20 @@ class SimHwNode(Node):
         wall = time.monotonic() - (self.first_command_wall or time.monotonic())
         summary = {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
                    "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
-                   "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts}
+                   "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts,
+                   "published": dict(self.published)}
+        self.finished = True
         self.publish_diagnostics()
         self.get_logger().info(f"run complete: {json.dumps(summary)}")
         if self.summary_path:
             with open(self.summary_path, "w", encoding="utf-8") as fh:
                 json.dump(summary, fh, indent=2)
-        rclpy.try_shutdown(context=self.context)
+        if self.shutdown_on_finish:
+            rclpy.try_shutdown(context=self.context)
 
     def on_watchdog(self) -> None:
+        if self.finished:
+            return
         if self.lockstep and not self.started:
             self.publish_state()                   # until the controller has discovered us
         elif self.started and time.monotonic() - self.last_command_wall > self.timeout_s \
@@ -230,6 +253,18 @@ class SimHwNode(Node):
         if msg.data:
             self.plant.safe_stop("estop")
             self.publish_diagnostics()
+
+
+def load_schedule(flat) -> list:
+    """``[t_s, f1, f2, f3, ...]`` -> [(t_s, (f1, f2, f3)), ...], times non-decreasing."""
+    if len(flat) % 4:
+        raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
+                             f"{len(flat)} numbers")
+    rows = [(flat[i], tuple(flat[i + 1:i + 4])) for i in range(0, len(flat), 4)]
+    times = [t for t, _ in rows]
+    if any(t < 0 for t in times) or times != sorted(times):
+        raise ParameterError("load_schedule", f"times must be >= 0 and non-decreasing, got {times}")
+    return rows
 
 
 def main(args=None):
