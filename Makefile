@@ -44,8 +44,12 @@ $(PKG_STAMP): $(STAMP) $(PKG_META)
 test: venv
 	$(VPY) -m pytest $(PYTEST_ARGS)
 
+# The default scenario (config/scenarios/archi_demo.yaml): ARCHI test motion under a
+# cutting load, Gough metrology, sensor-space control, inf-norm distribution, recorded
+# to runs/<date>-<time>_archi_demo/ (bag, report, plots). SCENARIO=<name|file> runs another.
+SCENARIO ?= archi_demo
 demo: venv
-	$(VENV)/bin/pkm-analyze report --machine archi
+	$(VENV)/bin/pkm-run $(SCENARIO)
 
 bench: venv
 	@set -e; for f in $(BENCHES); do echo "== $$f"; $(VPY) $$f; done

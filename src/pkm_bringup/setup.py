@@ -21,6 +21,12 @@ setup(
     ),
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'pkm-run = pkm_bringup.orchestrator:main',
+            'pkm-report = pkm_bringup.report:main',
+            'pkm-replay = pkm_bringup.replay:main',
+            'recorder_node = pkm_bringup.recorder_node:main',
+            'player_node = pkm_bringup.player_node:main',
+        ],
     },
 )

@@ -51,6 +51,7 @@ class ControllerNode(LifecycleNode):
         self.compute_s: list[float] = []
         self.configure_error = ""
         self.trajectory_accepted = False
+        self.last_answered_ns = None
         self.published = {"drives/command": 0, "controller/reference": 0}
         if declare_bool(self, "autostart", True, "configure and activate at start"):
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
@@ -152,6 +153,10 @@ class ControllerNode(LifecycleNode):
         self.last_state_wall = time.monotonic()
         if not self.trajectory_accepted and self.values["wait_for_trajectory"]:
             return                     # a scripted run starts at its first state, deterministically
+        stamp = stamp_to_ns(msg.header.stamp)
+        if stamp == self.last_answered_ns:
+            return                     # a repeat (sim_hw republishes step 0 until answered)
+        self.last_answered_ns = stamp
         if self.wait_for and stamp_to_ns(msg.header.stamp) not in self.metrology:
             self.pending_state = msg
             return

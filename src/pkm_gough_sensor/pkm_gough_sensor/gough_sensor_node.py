@@ -85,7 +85,8 @@ class GoughSensorNode(Node):
         self.create_timer(period, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self.counts = dict(received=0, measured=0, solved=0, failed=0, refused=0)
-        self.published = {'metrology/pose': 0, 'metrology/struts': 0}
+        self.published = {'metrology/pose': 0, 'metrology/struts': 0}   # distinct stamps
+        self._last_stamp_ns = -1
         self._period_errors = 0
         self._last_error = ''
         self._last_error_values = {}
@@ -118,14 +119,17 @@ class GoughSensorNode(Node):
             return
         self.counts['measured'] += 1
         published = self.published
+        ns = stamp_to_ns(stamp)
+        new_step = ns != self._last_stamp_ns      # counted once per step (not the discovery repeats)
+        self._last_stamp_ns = ns
         if result.converged:
-            published['metrology/pose'] += 1
+            published['metrology/pose'] += new_step
             # the pose first: a lockstep controller waits for it, not for the struts
             self.counts['solved'] += 1
             self.pub_pose.publish(pose_msg(est_p, est_r, stamp, 'world', out=self._pose_msg))
         self.pub_struts.publish(joint_state_msg(STRUT_NAMES, stamp, position=lengths, frame_id='gough_base',
                                                 out=self._struts_msg))
-        published['metrology/struts'] += 1
+        published['metrology/struts'] += new_step
         if not result.converged:
             self.counts['failed'] += 1
             self._error(f'DKM failed: {result.reason}', {

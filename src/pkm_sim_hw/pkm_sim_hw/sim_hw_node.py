@@ -73,7 +73,8 @@ class SimHwNode(Node):
             self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task coordinates) from t_s on, "
             "in simulated time (deterministic, unlike the load topic)"))
         self.finished = False
-        self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}
+        self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}   # distinct steps
+        self.last_published_ns = -1
         self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
@@ -123,10 +124,12 @@ class SimHwNode(Node):
         else:                                      # tool = p, orientation fixed
             pose.position.x, pose.position.y, pose.position.z = out.tool_pose
         self.pub_pose.publish(self.msg_pose)
-        published = self.published
-        published["platform/true_pose"] += 1
-        published["drives/state"] += 1
-        published["/clock"] += 1
+        if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
+            self.last_published_ns = ns
+            published = self.published
+            published["platform/true_pose"] += 1
+            published["drives/state"] += 1
+            published["/clock"] += 1
         self.msg_state.position = out.encoder_positions
         self.msg_state.velocity = out.encoder_velocities
         self.msg_state.effort = out.applied_forces

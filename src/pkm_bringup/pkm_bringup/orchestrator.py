@@ -1,0 +1,345 @@
+"""``pkm-run``: run a scenario end to end — every node, recording, summary, report.
+
+Multi-process (default): recorder, sim_hw, gough_sensor, controller as processes
+(processes.py), parameters from the scenario (scenario.py) written to
+``<run_dir>/params/<node>.yaml``. The run starts only when the graph is connected
+(every stream of the scenario has its publisher and subscriber, the recorder is
+subscribed to all of them); then trajectory_node is started, the controller (told to
+wait for its trajectory) answers the first state and the lockstep begins. The run ends
+when sim_hw reaches ``duration_s``; the nodes are then stopped in order, the recorder
+last. A node that exits early is a crash: reported with its last output, everything
+else stopped. Ctrl-C / SIGTERM stop everything the same way (the bag is finalized).
+
+In-process (``--in-process``): the same nodes and parameters in one executor, for fast
+tests; in lockstep both modes compute the same run (tests/bringup).
+
+Run directory::
+
+    runs/<date>-<time>_<scenario>/
+      scenario.yaml  params/<node>.yaml  logs/<node>.log  summaries/<node>.json
+      bag/ (rosbag2: metadata.yaml + .mcap)  run.json  report/ (metrics.json, *.png)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+from pkm_bringup.scenario import (Scenario, ScenarioError, expected_topics, load_scenario, node_parameters,
+                                  params_file_text)
+
+# start order; the stop order is the reverse of the run order with the recorder last
+START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
+STOP_ORDER = ("trajectory", "controller", "gough_sensor", "sim_hw", "recorder")
+CONNECT_TIMEOUT_S = 60.0
+DRAIN_S = 0.5
+DRAIN_IN_PROCESS_S = 0.2
+
+
+class RunFailed(RuntimeError):
+    """The run could not complete (crash, timeout, no connection); the message says why."""
+
+
+def make_run_dir(s: Scenario, root: Path) -> Path:
+    run_dir = root / f"{time.strftime('%Y%m%d-%H%M%S')}_{s.name}"
+    suffix = 1
+    while run_dir.exists():
+        suffix += 1
+        run_dir = root / f"{time.strftime('%Y%m%d-%H%M%S')}_{s.name}_{suffix}"
+    return run_dir
+
+
+class Progress:
+    def __init__(self, total_s: float, stream=sys.stderr, enabled: bool = True):
+        self.total, self.stream, self.enabled = total_s, stream, enabled
+        self.tty = enabled and hasattr(stream, "isatty") and stream.isatty()
+        self.shown = -1
+
+    def update(self, t_s: float) -> None:
+        if not self.enabled:
+            return
+        frac = min(max(t_s / self.total, 0.0), 1.0) if self.total > 0 else 0.0
+        pct = int(frac * 100)
+        if self.tty:
+            bar = "#" * (pct // 4) + "-" * (25 - pct // 4)
+            self.stream.write(f"\r[{bar}] {pct:3d}%  t = {t_s:7.3f} / {self.total:.3f} s")
+            self.stream.flush()
+        elif pct // 10 > self.shown:
+            self.shown = pct // 10
+            self.stream.write(f"  {pct:3d}%  t = {t_s:.3f} / {self.total:.3f} s\n")
+            self.stream.flush()
+
+    def done(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+
+
+def _monitor(context, namespace: str):
+    """A small node of the orchestrator: simulated time (progress) and graph checks."""
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+
+    from pkm_common.qos import CLOCK_QOS
+    node = Node("bringup_monitor", namespace=namespace, context=context)
+    node.sim_time_s = 0.0
+
+    def on_clock(msg):
+        node.sim_time_s = msg.clock.sec + 1e-9 * msg.clock.nanosec
+    node.create_subscription(Clock, "/clock", on_clock, CLOCK_QOS)
+    return node
+
+
+def _connected(monitor, s: Scenario) -> bool:
+    """Every stream has its publisher; every edge of the loop its subscriber too."""
+    edges = ["drives/state", "drives/command"]
+    if s.metrology:
+        edges.append("platform/true_pose")
+    if s.strategy in ("sensor_space", "measured_space"):
+        edges.append("metrology/struts" if s.strategy == "sensor_space" else "metrology/pose")
+    for topic in expected_topics(s):
+        name = topic if topic.startswith("/") else f"{s.namespace.rstrip('/')}/{topic}"
+        if monitor.count_publishers(name) < 1 or (topic in edges and monitor.count_subscribers(name) < 1):
+            return False
+    return True
+
+
+def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress) -> dict:
+    """The scenario as separate processes; returns the exit codes. Raises RunFailed."""
+    import rclpy
+
+    from pkm_bringup.processes import start_node, stop_nodes
+    context = rclpy.Context()
+    rclpy.init(context=context, args=[])
+    from rclpy.experimental import EventsExecutor
+    executor = EventsExecutor(context=context)
+    monitor = _monitor(context, s.namespace)
+    executor.add_node(monitor)
+    nodes = {}
+
+    def check_alive(allowed_done=()):
+        for node in nodes.values():
+            if not node.running() and node.name not in allowed_done:
+                raise RunFailed(f"node {node.name} exited with code {node.popen.returncode}; its last output:\n"
+                                f"{node.tail()}")
+    try:
+        for name in START_ORDER:
+            if name in params:
+                nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
+                                         run_dir / "logs", os.environ.copy())
+        ready = run_dir / "recorder.ready"
+        deadline = time.monotonic() + CONNECT_TIMEOUT_S
+        while not (_connected(monitor, s) and (not s.record or ready.exists())):
+            check_alive()
+            if time.monotonic() > deadline:
+                raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
+            executor.spin_once(timeout_sec=0.05)
+        if "trajectory" in params:
+            nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
+                                             run_dir / "logs", os.environ.copy())
+        deadline = time.monotonic() + s.timeout_s
+        sim = nodes["sim_hw"]
+        while sim.running():
+            check_alive(allowed_done=("sim_hw",))
+            if time.monotonic() > deadline:
+                raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
+            executor.spin_once(timeout_sec=0.05)
+            progress.update(monitor.sim_time_s)
+        progress.update(s.duration_s)
+        if sim.popen.returncode != 0:
+            raise RunFailed(f"node sim_hw exited with code {sim.popen.returncode}; its last output:\n{sim.tail()}")
+        # the loop is over: stop its nodes at once (their watchdogs would report the
+        # silent plant), then give the recorder time for the last messages
+        stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n != "recorder"], together=True)
+        end = time.monotonic() + DRAIN_S
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        progress.done()
+        codes = stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes])
+        executor.shutdown()
+        monitor.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return codes
+
+
+def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress) -> dict:
+    """The scenario with every node in one EventsExecutor (same parameters)."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.parameter import Parameter
+
+    from pkm_bringup.recorder_node import RecorderNode
+    from pkm_controller.controller_node import ControllerNode
+    from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
+    from pkm_sim_hw.sim_hw_node import SimHwNode
+    from pkm_trajectory.trajectory_node import TrajectoryNode
+    classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
+               "controller": ControllerNode, "trajectory": TrajectoryNode}
+    context = rclpy.Context()
+    rclpy.init(context=context, args=[])
+    executor = EventsExecutor(context=context)
+    nodes = {}
+
+    def create(name):
+        values = dict(params[name])
+        if name == "sim_hw":
+            values["shutdown_on_finish"] = False
+        overrides = [Parameter(k, value=v) for k, v in values.items()]
+        nodes[name] = classes[name](context=context, namespace=s.namespace, parameter_overrides=overrides)
+        executor.add_node(nodes[name])
+
+    def close(names):
+        for name in names:
+            node = nodes.pop(name, None)
+            if node is not None:
+                executor.remove_node(node)
+                node.destroy_node()
+    try:
+        for name in START_ORDER:
+            if name in params:
+                create(name)
+        deadline = time.monotonic() + CONNECT_TIMEOUT_S
+        while s.record and not nodes["recorder"].ready:
+            if time.monotonic() > deadline:
+                raise RunFailed(f"recorder not ready within {CONNECT_TIMEOUT_S:g} s")
+            executor.spin_once(timeout_sec=0.05)
+        if "trajectory" in params:
+            create("trajectory")
+        deadline = time.monotonic() + s.timeout_s
+        sim = nodes["sim_hw"]
+        last = 0.0
+        while not sim.finished:
+            if time.monotonic() > deadline:
+                raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
+            executor.spin_once(timeout_sec=0.05)
+            if time.monotonic() - last > 0.1:
+                last = time.monotonic()
+                progress.update(sim.plant.t)
+        progress.update(s.duration_s)
+        # no node may be destroyed while the executor still runs (a queued callback would
+        # publish on it); the drain is shorter than the controller's state watchdog
+        end = time.monotonic() + DRAIN_IN_PROCESS_S
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        progress.done()
+        close(STOP_ORDER)
+        executor.shutdown()
+        rclpy.try_shutdown(context=context)
+    return {name: 0 for name in params}
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, error: str = "") -> dict:
+    """run.json: node summaries, published vs recorded per topic, exit codes."""
+    summaries = {p.stem: _read_json(p) for p in sorted((run_dir / "summaries").glob("*.json"))}
+    published = {}
+    for node in ("sim_hw", "controller", "gough_sensor"):
+        for topic, count in summaries.get(node, {}).get("published", {}).items():
+            name = topic if topic.startswith("/") else f"{s.namespace.rstrip('/')}/{topic}"
+            published[name] = count
+    recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
+    lost = {t: n - recorded.get(t, 0) for t, n in published.items()} if s.record else {}
+    run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
+           "strategy": s.strategy, "distribution": s.controller.get("distribution"),
+           "metrology": s.metrology, "duration_s": s.duration_s, "wall_s": wall_s,
+           "status": "failed" if error else "completed", "error": error, "exit_codes": codes,
+           "published": published, "recorded": recorded, "lost": lost, "summaries": summaries}
+    (run_dir / "run.json").write_text(json.dumps(run, indent=2), encoding="utf-8")
+    return run
+
+
+def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
+                 report: bool = True) -> dict:
+    """Run ``s`` into ``run_dir`` (created); returns run.json's content (status
+    ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded."""
+    for sub in ("params", "logs", "summaries"):
+        (run_dir / sub).mkdir(parents=True, exist_ok=True)
+    params = node_parameters(s, run_dir)
+    for name, values in params.items():
+        (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
+    (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
+    from pkm_bringup.processes import ros_environment
+    os.environ.update({k: v for k, v in ros_environment().items() if k.startswith("ROS_")})
+    mode = "in_process" if in_process else "processes"
+    start = time.monotonic()
+    error, codes = "", {}
+    try:
+        run = run_in_process if in_process else run_processes
+        codes = run(s, run_dir, params, Progress(s.duration_s, enabled=progress))
+    except RunFailed as exc:
+        error = str(exc)
+    except KeyboardInterrupt:
+        error = "interrupted (Ctrl-C / SIGTERM)"
+    result = collect(s, run_dir, mode, time.monotonic() - start, codes, error)
+    if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
+        from pkm_bringup.report import write_report
+        result["metrics"] = write_report(run_dir)
+    return result
+
+
+def format_summary(run: dict, run_dir: Path) -> str:
+    sims = run["summaries"].get("sim_hw", {})
+    ctrl = run["summaries"].get("controller", {})
+    lines = [f"scenario {run['scenario']} ({run['machine']}, {run['strategy']}"
+             f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}): {run['status']}"]
+    if run["error"]:
+        lines.append(f"  error: {run['error']}")
+    if sims:
+        rate = sims.get("steps_per_s")
+        lines.append(f"  steps {sims.get('steps')}  sim {sims.get('sim_time_s', 0):.3f} s  wall {run['wall_s']:.1f} s"
+                     f"  loop {rate:.0f} steps/s" if rate else f"  steps {sims.get('steps')}")
+        if sims.get("stopped"):
+            lines.append(f"  plant stopped: {sims.get('stop_reason')}")
+    if ctrl:
+        lines.append(f"  controller: {ctrl.get('message')}  compute p50 {ctrl.get('compute_us_p50', 0):.0f} us"
+                     f"  p99 {ctrl.get('compute_us_p99', 0):.0f} us")
+    if run.get("metrics"):
+        from pkm_bringup.report import summary
+        lines.append("  " + summary(run["metrics"]).replace("\n", "\n  "))
+    lines.append(f"  run directory: {run_dir}")
+    return "\n".join(lines)
+
+
+def _interrupt(*_):
+    raise KeyboardInterrupt
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="pkm-run", description=__doc__.split("\n\n")[0])
+    parser.add_argument("scenario", help="scenario file, or the name of one in config/scenarios")
+    parser.add_argument("--in-process", action="store_true", help="all nodes in one executor")
+    parser.add_argument("--runs", default="runs", help="parent of the run directory (default: runs)")
+    parser.add_argument("--run-dir", help="exact run directory (must not exist)")
+    parser.add_argument("--no-record", action="store_true")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        s = load_scenario(args.scenario, {"record": False} if args.no_record else None)
+    except ScenarioError as exc:
+        print(f"pkm-run: {exc}", file=sys.stderr)
+        return 2
+    run_dir = Path(args.run_dir) if args.run_dir else make_run_dir(s, Path(args.runs))
+    if run_dir.exists() and any(run_dir.iterdir()):
+        print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, _interrupt)
+    print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated)", flush=True)
+    run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress)
+    print(format_summary(run, run_dir), flush=True)
+    return 0 if run["status"] == "completed" else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

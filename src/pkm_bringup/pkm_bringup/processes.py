@@ -1,0 +1,95 @@
+"""Child processes of a run: started so that none can outlive the orchestrator.
+
+Each node runs as ``python -m <module> --ros-args -r __ns:=<ns> --params-file <file>``
+in its own session (a Ctrl-C in the terminal reaches the orchestrator only, which then
+stops the nodes in order: the recorder last, so that it finalizes a complete bag), with
+``PR_SET_PDEATHSIG`` = SIGTERM: if the orchestrator itself dies (even by kill -9), the
+kernel terminates its children. stdout and stderr go to ``logs/<node>.log``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+MODULES = {
+    "recorder": "pkm_bringup.recorder_node",
+    "sim_hw": "pkm_sim_hw.sim_hw_node",
+    "gough_sensor": "pkm_gough_sensor.gough_sensor_node",
+    "controller": "pkm_controller.controller_node",
+    "trajectory": "pkm_trajectory.trajectory_node",
+}
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:          # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class NodeProcess:
+    name: str
+    popen: subprocess.Popen
+    log: Path
+
+    def running(self) -> bool:
+        return self.popen.poll() is None
+
+    def tail(self, lines: int = 25) -> str:
+        try:
+            text = self.log.read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(text[-lines:])
+
+
+def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict) -> NodeProcess:
+    log = log_dir / f"{name}.log"
+    args = [sys.executable, "-u", "-m", MODULES[name], "--ros-args", "-r", f"__ns:={namespace}",
+            "--params-file", str(params_file)]
+    with log.open("w") as out:
+        popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                 start_new_session=True, preexec_fn=_die_with_parent)
+    return NodeProcess(name, popen, log)
+
+
+def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool = False) -> dict[str, int]:
+    """SIGTERM each running node in the given order, waiting for each to exit (the
+    runner finalizes on SIGTERM), or all at once with ``together``; SIGKILL what does
+    not exit in ``timeout_s``. Returns the exit codes."""
+    if together:
+        for node in nodes:
+            if node.running():
+                node.popen.send_signal(signal.SIGTERM)
+    for node in nodes:
+        if node.running() or together:
+            if not together:
+                node.popen.send_signal(signal.SIGTERM)
+            try:
+                node.popen.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                node.popen.kill()
+                node.popen.wait()
+    return {node.name: node.popen.returncode for node in nodes}
+
+
+def ros_environment(domain_id: int | None = None) -> dict:
+    """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else
+    ``domain_id`` or one derived from the pid) and discovery on localhost."""
+    env = dict(os.environ)
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("ROS_DOMAIN_ID", str(1 + (os.getpid() + time.time_ns() // 10**9) % 101))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env

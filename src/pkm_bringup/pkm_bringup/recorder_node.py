@@ -1,0 +1,156 @@
+"""``recorder_node``: records the graph to a rosbag2-compatible MCAP directory.
+
+Thin shell over :class:`pkm_bringup.bag.BagWriter`. Every topic of the graph (all of
+them but ``/parameter_events``, or the ``topics`` listed) is subscribed **raw**: the
+callback receives the CDR bytes exactly as published and writes them as they are
+(ROS2_NOTES.md: re-serialising adds trailing bytes that rosbags refuses). Topics are
+discovered every ``discovery_period_s``; each is subscribed with the QoS its
+publishers offer (RELIABLE only if all of them are, TRANSIENT_LOCAL likewise, so a
+latched trajectory recorded late is still received) and a deep queue, and the offered
+profiles go into the channel metadata as ``ros2 bag record`` writes them.
+
+Counts: messages per topic, and messages with a new stamp per topic (the header stamp
+is at a fixed place in CDR, bytes 4-12, for every stamped message and for Clock): the
+nodes count their publications the same way, so published minus recorded is the loss
+even when a node repeats a message during discovery.
+
+Readiness: once every topic of ``expect_topics`` is subscribed and matched with at
+least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
+orchestrator starts the run only then, so that nothing of it is missed.
+
+The bag is flushed every ``flush_period_s`` (completed chunks reach the OS: a kill -9
+loses at most the open chunk, see bag.recover) and finalized (summary, metadata.yaml)
+when the node is destroyed: normal end, SIGINT and SIGTERM alike (runner.run_node).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import time
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from pkm_bringup.bag import INFINITE_DURATION, BagWriter
+from pkm_common.params import declare_float, declare_int, declare_str
+from pkm_common.runner import main_exit, run_node
+
+EXCLUDED = ("/parameter_events",)
+_NS_MAX = 9223372036854775807
+
+
+def message_class(msgtype: str):
+    """'sensor_msgs/msg/JointState' -> the rclpy message class."""
+    package, _, name = msgtype.rpartition("/")
+    return getattr(importlib.import_module(package.replace("/", ".")), name)
+
+
+def _duration(d) -> dict:
+    ns = d.nanoseconds
+    if ns <= 0 or ns >= _NS_MAX:       # unset / infinite: what rosbag2 (Jazzy) writes
+        return dict(INFINITE_DURATION)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def qos_dict(qos: QoSProfile) -> dict:
+    """An offered QoS profile as rosbag2 (Jazzy) writes it in ``offered_qos_profiles``."""
+    return {"history": qos.history.name.lower(), "depth": qos.depth,
+            "reliability": qos.reliability.name.lower(), "durability": qos.durability.name.lower(),
+            "deadline": _duration(qos.deadline), "lifespan": _duration(qos.lifespan),
+            "liveliness": qos.liveliness.name.lower(),
+            "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+            "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions)}
+
+
+def subscription_qos(offered: list[QoSProfile], depth: int) -> QoSProfile:
+    """Compatible with every offered profile, deep enough not to drop at full rate."""
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+class RecorderNode(Node):
+    def __init__(self, context=None, **kwargs):
+        super().__init__("recorder", context=context, **kwargs)
+        self.writer = None
+        output = declare_str(self, "output", "", "rosbag2 directory to create (must not exist)")
+        topics = declare_str(self, "topics", "", "comma-separated topic names; empty: every topic",
+                             allow_empty=True)
+        expect = declare_str(self, "expect_topics", "", "comma-separated topics that must be subscribed "
+                             "and matched before the node is ready", allow_empty=True)
+        self.ready_file = declare_str(self, "ready_file", "", "touched when ready", allow_empty=True)
+        self.summary_path = declare_str(self, "summary_path", "", "JSON counts at exit", allow_empty=True)
+        self.depth = declare_int(self, "depth", 1000, 1, 100000, "subscription queue depth")
+        flush = declare_float(self, "flush_period_s", 0.5, 0.01, 60.0, "bag flush period", unit="s")
+        discovery = declare_float(self, "discovery_period_s", 0.1, 0.01, 10.0, unit="s")
+        self.topics = {self.resolve(t) for t in topics.split(",") if t.strip()}
+        self.expect = {self.resolve(t) for t in expect.split(",") if t.strip()}
+        self.writer = BagWriter(output)
+        self.subscriptions_by_topic = {}
+        self.steps = {}            # topic -> messages with a new stamp (repeats of a stamp not counted)
+        self.ready = False
+        self.first_log_ns = None
+        self.create_timer(discovery, self.discover)
+        self.create_timer(flush, self.writer.flush)
+        self.discover()
+
+    def resolve(self, topic: str) -> str:
+        topic = topic.strip()
+        return topic if topic.startswith("/") else f"{self.get_namespace().rstrip('/')}/{topic}"
+
+    def discover(self) -> None:
+        for name, types in self.get_topic_names_and_types():
+            if name in self.subscriptions_by_topic or name in EXCLUDED or (self.topics and name not in self.topics):
+                continue
+            infos = self.get_publishers_info_by_topic(name)
+            if not infos or len(types) != 1:
+                continue
+            msgtype = types[0]
+            try:
+                cls = message_class(msgtype)
+                channel = self.writer.add_topic(name, msgtype, [qos_dict(i.qos_profile) for i in infos])
+            except (ImportError, AttributeError, ValueError) as exc:
+                self.get_logger().warning(f"{name}: not recorded ({exc})")
+                self.subscriptions_by_topic[name] = None
+                continue
+            write = self.writer.write
+            steps = self.steps
+            steps[name] = 0
+            last = [b""]
+
+            def callback(data: bytes, channel=channel, write=write, name=name, last=last):
+                write(channel, time.time_ns(), data)
+                if data[4:12] != last[0]:        # the header stamp (or Clock's time): CDR bytes 4-12
+                    last[0] = data[4:12]
+                    steps[name] += 1
+
+            self.subscriptions_by_topic[name] = self.create_subscription(
+                cls, name, callback, subscription_qos([i.qos_profile for i in infos], self.depth), raw=True)
+        if not self.ready and all(self.subscriptions_by_topic.get(t) is not None
+                                  and self.subscriptions_by_topic[t].get_publisher_count() > 0
+                                  for t in self.expect):
+            self.ready = True
+            self.get_logger().info(f"recorder ready: {len(self.subscriptions_by_topic)} topics")
+            if self.ready_file:
+                Path(self.ready_file).touch()
+
+    def destroy_node(self):
+        if self.writer is not None:
+            self.writer.close()
+            if self.summary_path:
+                with open(self.summary_path, "w", encoding="utf-8") as fh:
+                    json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps}, fh, indent=2)
+            self.writer = None
+        return super().destroy_node()
+
+
+def main(args=None):
+    main_exit(run_node(RecorderNode, args=args, name="recorder", executor="events"))
+
+
+if __name__ == "__main__":
+    main()

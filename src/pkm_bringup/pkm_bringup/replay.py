@@ -1,0 +1,132 @@
+"""``pkm-replay``: offline determinism check of a recorded run (no ROS graph).
+
+The recorded sensor data — ``drives/state`` and, for the metrology strategies,
+``metrology/struts`` / ``metrology/pose`` of the same stamp — and the recorded
+``trajectory`` are fed into a fresh :class:`ControllerCore` built from the run's own
+``params/controller.yaml``, in the order the controller answered them (one recorded
+``drives/command`` per answered state). Every recomputed force must equal the
+recorded one bit for bit: the control law is a pure function of its inputs, and a
+difference means hidden state, wall-clock dependence or a changed law.
+
+Trips the node raised on its own (wall-clock watchdogs, ``estop`` from outside) are
+not in the sensor data; the check stops at the first command after such a trip.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import yaml
+
+from pkm_common.conversions import pose_from_msg
+from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.reference import reference_from_msg
+from pkm_kinematics import load_machine
+
+
+@dataclass
+class ReplayResult:
+    commands: int             # recorded commands
+    compared: int             # commands recomputed
+    identical: int            # bit-identical
+    max_abs_diff_n: float
+    first_mismatch: int | None   # index of the first differing command
+    note: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.compared > 0 and self.identical == self.compared
+
+
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def read_streams(bag_dir: Path, namespace: str) -> dict:
+    """First message per stamp of the loop's topics, the commands in order, the trajectory."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    ns = namespace.rstrip("/")
+    wanted = {f"{ns}/{t}": t for t in ("drives/state", "drives/command", "metrology/struts", "metrology/pose",
+                                      "trajectory")}
+    streams = {t: {} for t in wanted.values()}
+    commands, trajectory = [], None
+    with AnyReader([Path(bag_dir)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        for connection, _, raw in reader.messages(connections=connections):
+            topic = wanted[connection.topic]
+            msg = reader.deserialize(raw, connection.msgtype)
+            if topic == "trajectory":
+                trajectory = trajectory or msg
+            elif topic == "drives/command":
+                commands.append(msg)
+            else:
+                streams[topic].setdefault(_stamp_ns(msg), msg)
+    return {"commands": commands, "trajectory": trajectory, **streams}
+
+
+def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
+    params = yaml.safe_load((run_dir / "params" / "controller.yaml").read_text(encoding="utf-8"))
+    params = params["/**"]["ros__parameters"]
+    names = {f.name for f in fields(ControllerConfig)}
+    return params["machine"], ControllerConfig(**{k: v for k, v in params.items() if k in names})
+
+
+def replay_controller(run_dir: str | Path) -> ReplayResult:
+    """Recompute every recorded command of ``run_dir`` and compare (see module doc)."""
+    run_dir = Path(run_dir)
+    run = json.loads((run_dir / "run.json").read_text(encoding="utf-8")) if (run_dir / "run.json").exists() else {}
+    machine, config = controller_config(run_dir)
+    data = read_streams(run_dir / "bag", run.get("namespace", "/pkm"))
+    core = ControllerCore(load_machine(machine), config)
+    if data["trajectory"] is not None:
+        core.set_trajectory(reference_from_msg(data["trajectory"], core.planar), None)
+    compared = identical = 0
+    max_diff, first, note = 0.0, None, ""
+    for i, command in enumerate(data["commands"]):
+        stamp = _stamp_ns(command)
+        state = data["drives/state"].get(stamp)
+        if state is None:
+            note = f"command {i}: no recorded drives/state of stamp {stamp} ns"
+            break
+        struts = pose = None
+        if config.strategy == "sensor_space":
+            struts = list(data["metrology/struts"][stamp].position)
+        elif config.strategy == "measured_space":
+            position, rotation = pose_from_msg(data["metrology/pose"][stamp])
+            pose = (position.tolist(), rotation)
+        forces = core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
+                             struts=struts, metrology_pose=pose)
+        recorded = [float(f) for f in command.effort]
+        compared += 1
+        diff = max((abs(a - b) for a, b in zip(forces, recorded)), default=0.0)
+        if forces == recorded:
+            identical += 1
+        elif first is None:
+            first = i
+        max_diff = max(max_diff, diff)
+    return ReplayResult(len(data["commands"]), compared, identical, max_diff, first, note)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="pkm-replay", description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", help="a run directory of pkm-run (with bag/ and params/controller.yaml)")
+    args = parser.parse_args(argv)
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "bag" / "metadata.yaml").exists() or not (run_dir / "params" / "controller.yaml").exists():
+        print(f"pkm-replay: {run_dir} has no bag/metadata.yaml or params/controller.yaml", file=sys.stderr)
+        return 2
+    result = replay_controller(run_dir)
+    print(f"{result.compared} of {result.commands} recorded commands recomputed, {result.identical} identical, "
+          f"max |difference| {result.max_abs_diff_n:.3g} N"
+          + (f", first mismatch at command {result.first_mismatch}" if result.first_mismatch is not None else "")
+          + (f" ({result.note})" if result.note else ""))
+    return 0 if result.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,270 @@
+"""Scenario files (``config/scenarios/*.yaml``) -> the parameters of every node.
+
+A scenario says what to run; the node parameter files (config/*.yaml) say how each
+node runs by default. Keys (all optional but ``machine``)::
+
+    name, description
+    machine: archi                    # config/machines/<name>.yaml
+    namespace: /pkm
+    mode: lockstep | realtime
+    dt_s: 0.001                       # exchange period of the plant and the controller
+    program: ../programs/x.nc         # G-code, relative to the scenario file
+    duration_s: 0                     # simulated time; 0: the program's duration + settle_s
+    settle_s: 0.2
+    trajectory: {...}                 # trajectory_node parameters (limits, feed_override, ...)
+    controller: {...}                 # controller_node parameters (strategy, distribution, ...)
+    metrology: true                   # run gough_sensor_node (the machine needs a metrology section)
+    sensor: {...}                     # gough_sensor_node parameters (noise_std_m, calibration_error_m, ...)
+    plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
+    load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
+    record: true
+    timeout_s: 600                    # wall-clock bound of the whole run
+
+Every error names the key and what is allowed; nothing is started on a bad scenario.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import yaml
+
+from pkm_controller.controller import STRATEGIES, ControllerConfig
+from pkm_kinematics import load_machine
+from pkm_kinematics.config import config_dir
+
+KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
+        "trajectory", "controller", "metrology", "sensor", "plant", "load", "record", "timeout_s")
+METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
+# parameters that ROS declares as doubles: an integer in a YAML scenario becomes a float
+FLOAT_PARAMETERS = {
+    "sim_hw": {"dt_s", "force_limit_n", "encoder_resolution_m", "encoder_noise_m", "command_timeout_s",
+               "duration_s"},
+    "gough_sensor": {"noise_std_m", "calibration_error_m", "resolution_m", "diagnostics_period_s"},
+    "trajectory": {"rate_hz", "max_joint_velocity", "max_joint_acceleration", "max_condition", "feed_override",
+                   "scale", "blend_tolerance_m"},
+    "controller": {f.name for f in fields(ControllerConfig) if isinstance(f.default, float)}
+    | {"state_timeout_s", "metrology_timeout_s"},
+    "recorder": {"flush_period_s", "discovery_period_s"},
+}
+
+
+# sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
+PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose")
+
+
+class ScenarioError(ValueError):
+    """A scenario key is missing, unknown or out of range; the message names it."""
+
+
+@dataclass
+class Scenario:
+    name: str
+    machine: str
+    source: Path
+    namespace: str = "/pkm"
+    mode: str = "lockstep"
+    dt_s: float = 0.001
+    program: Path | None = None
+    duration_s: float = 0.0
+    settle_s: float = 0.2
+    trajectory: dict = field(default_factory=dict)
+    controller: dict = field(default_factory=dict)
+    metrology: bool = False
+    sensor: dict = field(default_factory=dict)
+    plant: dict = field(default_factory=dict)
+    load: list = field(default_factory=list)      # [(t_s, (a, b, c))]
+    record: bool = True
+    timeout_s: float = 600.0
+    description: str = ""
+
+    @property
+    def strategy(self) -> str:
+        return self.controller.get("strategy", "computed_torque")
+
+
+def _number(data: dict, key: str, default: float, lo: float, hi: float) -> float:
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not lo <= value <= hi:
+        raise ScenarioError(f"{key}: must be a number in [{lo:g}, {hi:g}], got {value!r}")
+    return float(value)
+
+
+def _mapping(data: dict, key: str) -> dict:
+    value = data.get(key) or {}
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{key}: must be a mapping of node parameters, got {value!r}")
+    return dict(value)
+
+
+def _load_profile(value, dt_s: float) -> list:
+    """[(t_s, wrench)] steps; an entry with ``ramp_s`` reaches its wrench linearly from
+    the previous one over that time (a tool entering the material), one step per dt."""
+    if not isinstance(value, list):
+        raise ScenarioError(f"load: must be a list of {{t_s, wrench: [3 numbers], ramp_s}}, got {value!r}")
+    rows, previous, last_t = [], (0.0, 0.0, 0.0), 0.0
+    for i, row in enumerate(value):
+        wrench = row.get("wrench") if isinstance(row, dict) else None
+        t = row.get("t_s") if isinstance(row, dict) else None
+        ramp = row.get("ramp_s", 0.0) if isinstance(row, dict) else None
+        if not isinstance(t, (int, float)) or t < 0 or not isinstance(wrench, list) or len(wrench) != 3 \
+                or not all(isinstance(w, (int, float)) and math.isfinite(w) for w in wrench) \
+                or not isinstance(ramp, (int, float)) or not 0.0 <= ramp <= 10.0:
+            raise ScenarioError(f"load[{i}]: must be {{t_s: >= 0, wrench: [3 finite numbers], ramp_s: [0, 10] "
+                                f"(optional)}}, got {row!r}")
+        if t < last_t:
+            raise ScenarioError("load: times t_s must be non-decreasing")
+        target = tuple(float(w) for w in wrench)
+        steps = max(1, round(ramp / dt_s))
+        for k in range(1, steps + 1):
+            a = k / steps
+            rows.append((float(t) + (k - 1) * dt_s,
+                         tuple(p + a * (w - p) for p, w in zip(previous, target))))
+        previous, last_t = target, float(t) + ramp
+    return rows
+
+
+def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
+    """Read and validate a scenario; ``overrides`` replace top-level keys (tests, CLI)."""
+    path = Path(path)
+    if not path.exists() and not path.suffix:
+        path = config_dir() / "scenarios" / f"{path}.yaml"
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ScenarioError(f"scenario {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ScenarioError(f"scenario {path}: must be a mapping")
+    data.update(overrides or {})
+    unknown = sorted(set(data) - set(KEYS))
+    if unknown:
+        raise ScenarioError(f"{unknown[0]}: unknown scenario key; allowed: {', '.join(KEYS)}")
+    machine = data.get("machine")
+    try:
+        config = load_machine(machine) if isinstance(machine, str) else None
+    except (ValueError, FileNotFoundError) as exc:
+        raise ScenarioError(f"machine: {exc}") from None
+    if config is None:
+        raise ScenarioError(f"machine: required, the name of a file in config/machines, got {machine!r}")
+    s = Scenario(name=str(data.get("name", path.stem)), machine=machine, source=path.resolve(),
+                 description=str(data.get("description", "")))
+    s.namespace = str(data.get("namespace", s.namespace))
+    if not s.namespace.startswith("/"):
+        raise ScenarioError(f"namespace: must start with '/', got {s.namespace!r}")
+    s.mode = data.get("mode", s.mode)
+    if s.mode not in ("lockstep", "realtime"):
+        raise ScenarioError(f"mode: must be lockstep or realtime, got {s.mode!r}")
+    s.dt_s = _number(data, "dt_s", s.dt_s, 1e-5, 0.1)
+    s.duration_s = _number(data, "duration_s", 0.0, 0.0, 1e6)
+    s.settle_s = _number(data, "settle_s", s.settle_s, 0.0, 1e3)
+    s.timeout_s = _number(data, "timeout_s", s.timeout_s, 1.0, 1e6)
+    if data.get("program"):
+        program = (path.parent / str(data["program"])).resolve()
+        if not program.is_file():
+            raise ScenarioError(f"program: no such file {program}")
+        s.program = program
+    if s.program is None and not s.duration_s:
+        raise ScenarioError("duration_s: required (> 0) when there is no program")
+    for key in ("trajectory", "controller", "sensor", "plant"):
+        setattr(s, key, _mapping(data, key))
+    s.metrology = bool(data.get("metrology", False))
+    s.record = bool(data.get("record", True))
+    s.load = _load_profile(data.get("load") or [], s.dt_s)
+    if s.strategy not in STRATEGIES:
+        raise ScenarioError(f"controller.strategy: must be one of {list(STRATEGIES)}, got {s.strategy!r}")
+    if s.strategy in METROLOGY_STRATEGIES and not s.metrology:
+        raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
+                            "set metrology: true")
+    if s.metrology and config.metrology is None:
+        raise ScenarioError(f"metrology: machine {machine} has no metrology section")
+    if s.program is not None and not s.duration_s:
+        s.duration_s = round(program_duration(s) + s.settle_s, 6)
+    return s
+
+
+def _node_defaults(name: str) -> dict:
+    """The ros__parameters of config/<name>.yaml (empty if there is none)."""
+    path = config_dir() / f"{name}.yaml"
+    if not path.is_file():
+        return {}
+    data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    return dict(data.get("/**", {}).get("ros__parameters", {}))
+
+
+def program_duration(s: Scenario) -> float:
+    """The planned duration of the scenario's program (the trajectory node plans it the same way)."""
+    from pkm_trajectory.planner import Limits, plan_with_blending
+    from pkm_trajectory.program import gcode_segments
+    p = {**_node_defaults("trajectory"), **s.trajectory}
+    model = load_machine(s.machine).model
+    planar = hasattr(model, "home_pose")
+    home = model.home_pose if planar else model.home_position
+    try:
+        segments = gcode_segments(s.program.read_text(encoding="utf-8"), planar=planar,
+                                  start_pose=[float(v) for v in home],
+                                  feed_override=float(p.get("feed_override", 1.0)),
+                                  scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))
+        limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
+        samples = plan_with_blending(segments, limits, float(p.get("blend_tolerance_m", 0.0)),
+                                     float(p.get("rate_hz", 1000.0)), translation_axes=2 if planar else 3)
+    except (ValueError, KeyError) as exc:
+        raise ScenarioError(f"program: {exc}") from None
+    return float(samples.duration_s)
+
+
+def _typed(node: str, params: dict) -> dict:
+    """Floats where ROS declares doubles; empty lists and strings dropped (node defaults)."""
+    out = {}
+    for key, value in params.items():
+        if value == [] or value == "":
+            continue
+        if key in FLOAT_PARAMETERS.get(node, ()) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if isinstance(value, list):
+            value = [float(v) for v in value]
+        if isinstance(value, Path):
+            value = str(value)
+        out[key] = value
+    return out
+
+
+def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
+    """node name -> its parameters for this run (node defaults < scenario < run wiring)."""
+    summaries = run_dir / "summaries"
+    flat_load = [v for t, w in s.load for v in (t, *w)]
+    nodes = {
+        "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
+                   "duration_s": s.duration_s, "load_schedule": flat_load,
+                   "summary_path": str(summaries / "sim_hw.json")},
+        "controller": {**_node_defaults(f"controller/{s.machine}"), **s.controller, "machine": s.machine,
+                       "dt_s": s.dt_s, "autostart": True, "wait_for_trajectory": s.program is not None,
+                       "summary_path": str(summaries / "controller.json")},
+    }
+    if s.metrology:
+        nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
+                                 "summary_path": str(summaries / "gough_sensor.json")}
+    if s.program is not None:
+        nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
+                               "program_file": str(s.program)}
+    if s.record:
+        nodes["recorder"] = {"output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
+                             "expect_topics": ",".join(expected_topics(s)),
+                             "summary_path": str(summaries / "recorder.json")}
+    return {name: _typed(name, params) for name, params in nodes.items()}
+
+
+def expected_topics(s: Scenario) -> list[str]:
+    """The streams that must be connected before a run starts (relative names)."""
+    topics = ["drives/state", "platform/true_pose", "drives/command", "controller/reference",
+              "controller/status", "/clock"]
+    if s.metrology:
+        topics += ["metrology/struts", "metrology/pose"]
+    return topics
+
+
+def params_file_text(params: dict) -> str:
+    """A ROS 2 ``--params-file`` for one node."""
+    return yaml.safe_dump({"/**": {"ros__parameters": params}}, sort_keys=False)
