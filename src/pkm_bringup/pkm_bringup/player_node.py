@@ -1,10 +1,11 @@
 """``player_node``: republishes a recording (raw CDR, exactly as recorded).
 
 Timing (``rate``): 1.0 replays with the original timing (recorded receive times),
-2.0 twice as fast, 0 as fast as possible. With ``step: true`` nothing is published
+2.0 twice as fast, 0 as fast as possible (a subscriber then needs a deep queue: the
+graph's KEEP_LAST 10 would drop what its callbacks cannot keep up with). With ``step: true`` nothing is published
 until the ``<ns>/player/step`` service (std_srvs/Trigger) is called: each call
-publishes one simulated-time step — the next ``/clock`` message and everything
-recorded up to the following one — so a viewer or a controller under test can be
+publishes one simulated-time step — everything recorded up to and including the next
+``/clock`` message — so a viewer or a controller under test can be
 advanced cycle by cycle. Topics keep their recorded names (play into another
 ``ROS_DOMAIN_ID`` to keep a live graph apart); latched topics are republished
 TRANSIENT_LOCAL. The node ends itself (exit 0) after the last message.
@@ -25,7 +26,7 @@ from pkm_common.params import ParameterError, declare_bool, declare_float, decla
 from pkm_common.qos import STREAM_QOS, TOPIC_QOS
 from pkm_common.runner import main_exit, run_node
 
-BATCH = 200          # messages per timer tick at most (as fast as possible)
+BATCH = 50           # messages per timer tick at most (as fast as possible)
 
 
 class PlayerNode(Node):
@@ -93,15 +94,16 @@ class PlayerNode(Node):
             self.finish()
 
     def on_step(self, request, response):
-        """One /clock step: the next clock message, then everything up to the one after."""
+        """One simulated-time step: everything recorded up to and including the next
+        /clock message (sim_hw publishes a step's pose and state, then its clock)."""
         count = 0
         while self.pending is not None:
             is_clock = self.pending[0].id in self.clock_ids
-            if is_clock and count:
-                break
             self._publish(self.pending)
             self._advance()
             count += 1
+            if is_clock:
+                break
         response.success = count > 0
         response.message = f"published {count} messages" if count else "end of recording"
         return response

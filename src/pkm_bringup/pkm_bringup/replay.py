@@ -53,7 +53,7 @@ def read_streams(bag_dir: Path, namespace: str) -> dict:
     ns = namespace.rstrip("/")
     wanted = {f"{ns}/{t}": t for t in ("drives/state", "drives/command", "metrology/struts", "metrology/pose",
                                       "trajectory")}
-    streams = {t: {} for t in wanted.values()}
+    streams = {t: {} for t in wanted.values() if t not in ("trajectory", "drives/command")}
     commands, trajectory = [], None
     with AnyReader([Path(bag_dir)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]

@@ -1,0 +1,267 @@
+"""Whole runs through pkm-run: recording, replay, determinism, shutdown, crashes.
+
+The in-process run (one executor, a few seconds) is shared by the fast tests; the
+multi-process ones are marked slow (each starts five Python processes).
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.replay import replay_controller
+from pkm_bringup.scenario import load_scenario
+
+SHORT = {"duration_s": 0.8}          # MoM3 square (sensor space, 110 N from 0.3 s), first 0.8 s
+
+
+def _pkm_run(*args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", *args, "--no-progress"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kwargs)
+
+
+def _leftovers(run_dir: Path) -> list[str]:
+    """Live processes whose command line mentions the run directory (its nodes)."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if str(run_dir) in cmd and "pkm_bringup.orchestrator" not in cmd:
+            found.append(f"{pid}: {cmd}")
+    return found
+
+
+def _wait_running(run_dir: Path, proc, timeout_s: float = 90.0) -> None:
+    """Until the controller has its trajectory (the lockstep runs from then on)."""
+    log = run_dir / "logs" / "controller.log"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        if log.exists() and "trajectory accepted" in log.read_text(errors="replace"):
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"the run did not start (pkm-run exit code {proc.poll()})")
+
+
+def _commands(run_dir: Path) -> dict:
+    from pkm_bringup.replay import read_streams
+    data = read_streams(run_dir / "bag", "/pkm")
+    return {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec: list(c.effort) for c in data["commands"]}
+
+
+@pytest.fixture(scope="module")
+def in_process_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("runs") / "mom3_in_process"
+    run = run_scenario(load_scenario("mom3_square", SHORT), run_dir, in_process=True, progress=False)
+    return run_dir, run
+
+
+def test_in_process_run_completes_and_loses_nothing(in_process_run):
+    run_dir, run = in_process_run
+    assert run["status"] == "completed", run["error"]
+    sim = run["summaries"]["sim_hw"]
+    assert sim["steps"] == 800 and not sim["stopped"]
+    # every stream: one message per step published, all of them recorded
+    for topic in ("/pkm/drives/state", "/pkm/drives/command", "/pkm/platform/true_pose", "/pkm/metrology/struts",
+                  "/pkm/controller/reference", "/clock"):
+        assert run["published"][topic] == 801, topic
+        assert run["lost"][topic] == 0, topic
+    m = run["metrics"]
+    assert m["messages"]["lost_total"] == 0
+    assert not m["controller"]["tripped"]
+    # sensor-space control, 110 N ramped in over 0.3-0.4 s on a 0.7 um/N structure: a
+    # transient of ~410 um (the 20 Hz loop rejecting the load; computed torque: 486 um
+    # and the 77 um deflection stays), then the Gough struts remove the deflection
+    from pkm_bringup.report import load_run, tracking_errors
+    assert m["tracking_error"]["max_m"] < 600e-6
+    errors = tracking_errors(load_run(run_dir), "translational")
+    late = errors["translation"][errors["stamp_ns"] >= 650 * 10**6]
+    assert len(late) == 151 and late.max() < 5e-6
+    assert (run_dir / "report" / "metrics.json").exists() and (run_dir / "report" / "path.png").exists()
+
+
+def test_recording_reads_the_same_with_rosbags_and_mcap(in_process_run):
+    """rosbags AnyReader and mcap + mcap_ros2 see the same messages with the same content."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    run_dir, run = in_process_run
+    bag = run_dir / "bag"
+    a_counts, a_pos = {}, []
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _, raw in reader.messages():
+            a_counts[conn.topic] = a_counts.get(conn.topic, 0) + 1
+            if conn.topic == "/pkm/drives/state":
+                a_pos.append(list(reader.deserialize(raw, conn.msgtype).position))
+    b_counts, b_pos = {}, []
+    (mcap_file,) = bag.glob("*.mcap")
+    with mcap_file.open("rb") as fh:
+        for schema, channel, _, msg in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            b_counts[channel.topic] = b_counts.get(channel.topic, 0) + 1
+            if channel.topic == "/pkm/drives/state":
+                b_pos.append(list(msg.position))
+    assert a_counts == b_counts and a_counts["/pkm/drives/state"] >= 801
+    assert a_pos == b_pos
+    assert {k: v for k, v in run["summaries"]["recorder"]["recorded"].items() if v} == a_counts
+
+
+def test_offline_replay_reproduces_every_command_exactly(in_process_run):
+    run_dir, _ = in_process_run
+    result = replay_controller(run_dir)
+    assert result.commands == 801
+    assert result.ok and result.identical == result.compared == 801 and result.max_abs_diff_n == 0.0
+
+
+def test_offline_replay_detects_a_changed_law(in_process_run, tmp_path):
+    """The check can fail: the same data with another bandwidth gives other commands."""
+    import shutil
+    run_dir, _ = in_process_run
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy)
+    params = copy / "params" / "controller.yaml"
+    params.write_text(params.read_text().replace("bandwidth_hz: 20.0", "bandwidth_hz: 21.0"))
+    result = replay_controller(copy)
+    assert not result.ok and result.first_mismatch is not None and result.max_abs_diff_n > 0.1
+
+
+def test_player_republishes_the_recording(in_process_run, ros_context):
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+
+    from pkm_bringup.player_node import PlayerNode
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    run_dir, run = in_process_run
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)   # as fast as possible: no drop
+    executor = EventsExecutor(context=ros_context)
+    listener = rclpy.create_node("listener", context=ros_context)
+    stamps = []
+    listener.create_subscription(JointState, "/pkm/drives/state",
+                                 lambda m: stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
+                                 deep)
+    player = PlayerNode(context=ros_context, parameter_overrides=[
+        Parameter("bag", value=str(run_dir / "bag")), Parameter("rate", value=0.0),
+        Parameter("topics", value="/pkm/drives/state"), Parameter("shutdown_on_end", value=False)])
+    for node in (listener, player):
+        executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 30
+        expected = run["summaries"]["recorder"]["recorded"]["/pkm/drives/state"]
+        while len(stamps) < expected and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        player.destroy_node()
+        listener.destroy_node()
+    assert len(stamps) == expected
+    assert stamps == sorted(stamps) and stamps[-1] == 800 * 10**6
+
+
+@pytest.mark.slow
+def test_processes_compute_the_same_run_as_in_process(in_process_run, tmp_path):
+    """Lockstep is deterministic: five processes over DDS give bit-identical commands."""
+    run_dir, _ = in_process_run
+    proc_dir = tmp_path / "mom3_processes"
+    run = run_scenario(load_scenario("mom3_square", SHORT), proc_dir, in_process=False, progress=False)
+    assert run["status"] == "completed", run["error"]
+    assert run["lost"] and all(v == 0 for v in run["lost"].values()), run["lost"]
+    a, b = _commands(run_dir), _commands(proc_dir)
+    assert len(a) == 801 and a == b
+    assert not _leftovers(proc_dir)
+
+
+@pytest.mark.slow
+def test_archi_demo_runs_to_completion_as_processes(tmp_path):
+    """The default scenario (make demo): ARCHI test motion, Gough in the loop, cutting
+    load, sensor space + inf-norm, five processes, recorded; replayed exactly."""
+    run_dir = tmp_path / "archi_demo"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    out, _ = proc.communicate(timeout=400)
+    assert proc.returncode == 0, out
+    assert "scenario archi_demo" in out and "completed" in out and f"run directory: {run_dir}" in out
+    run = json.loads((run_dir / "run.json").read_text())
+    m = json.loads((run_dir / "report" / "metrics.json").read_text())
+    assert run["summaries"]["sim_hw"]["steps"] == 4956 and not run["summaries"]["sim_hw"]["stopped"]
+    assert m["messages"]["lost_total"] == 0 and not m["controller"]["tripped"]
+    # in-process run of the same scenario (measured): RMS 23 um, max 133 um (the load ramps)
+    assert m["tracking_error"]["rms_m"] < 40e-6 and m["tracking_error"]["max_m"] < 250e-6
+    assert m["drive_force"]["peak_commanded_n"] < 400.0
+    assert replay_controller(run_dir).ok
+    assert not _leftovers(run_dir)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_interrupted_run_leaves_a_valid_bag_and_no_process(tmp_path, sig):
+    run_dir = tmp_path / "interrupted"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    _wait_running(run_dir, proc)
+    time.sleep(1.0)                                   # in the middle of the motion
+    proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 1 and "interrupted" in out, out
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    with AnyReader([run_dir / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["status"] == "failed" and "interrupted" in run["error"]
+    steps = run["recorded"]["/pkm/drives/state"]          # distinct stamps (discovery repeats once)
+    assert 100 < steps < 4956 and run["recorded"]["/pkm/drives/command"] >= steps - 1
+    assert counts["/pkm/drives/state"] >= steps             # the bag itself holds them all
+    assert not _leftovers(run_dir)
+
+
+@pytest.mark.slow
+def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
+    run_dir = tmp_path / "crash"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    _wait_running(run_dir, proc)
+    time.sleep(0.5)
+    victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_controller.controller_node" in line]
+    assert len(victims) == 1
+    os.kill(int(victims[0]), signal.SIGKILL)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 1
+    assert "node controller exited with code -9" in out and "its last output" in out, out
+    assert (run_dir / "bag" / "metadata.yaml").exists()        # the recorder still finalized
+    assert not _leftovers(run_dir)
+    assert np.isfinite(json.loads((run_dir / "run.json").read_text())["wall_s"])
+
+
+def test_player_steps_one_clock_tick_per_call(in_process_run, ros_context):
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+
+    from pkm_bringup.player_node import PlayerNode
+    run_dir, run = in_process_run
+    player = PlayerNode(context=ros_context, parameter_overrides=[
+        Parameter("bag", value=str(run_dir / "bag")), Parameter("step", value=True),
+        Parameter("topics", value="/clock,/pkm/drives/state")])
+    topics = []
+    publish = player._publish
+    player._publish = lambda item: (topics.append(item[0].topic), publish(item))
+    try:
+        for _ in range(5):
+            before = len(topics)
+            response = player.on_step(Trigger.Request(), Trigger.Response())
+            assert response.success
+            assert topics[before:].count("/clock") == 1       # one simulated-time step per call
+        while player.on_step(Trigger.Request(), Trigger.Response()).success:
+            pass
+        assert topics.count("/clock") == run["summaries"]["recorder"]["recorded"]["/clock"]   # repeats too
+    finally:
+        player.destroy_node()
