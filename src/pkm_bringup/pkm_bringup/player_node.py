@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 
 from pkm_bringup.recorder_node import message_class
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_str
-from pkm_common.qos import STREAM_QOS, TOPIC_QOS
+from pkm_common.qos import CLOCK_PUBLISHER_QOS, CLOCK_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS, TOPIC_QOS
 from pkm_common.runner import main_exit, run_node
 
 BATCH = 50           # messages per timer tick at most (as fast as possible)
@@ -48,6 +48,7 @@ class PlayerNode(Node):
         for c in connections:
             relative = c.topic.split("/", 2)[-1] if c.topic.count("/") > 1 else c.topic
             qos = TOPIC_QOS.get(relative, TOPIC_QOS.get(c.topic, STREAM_QOS))
+            qos = {id(STREAM_QOS): STREAM_PUBLISHER_QOS, id(CLOCK_QOS): CLOCK_PUBLISHER_QOS}.get(id(qos), qos)
             self.publishers_by_id[c.id] = self.create_publisher(message_class(c.msgtype), c.topic, qos)
         self.clock_ids = {c.id for c in connections if c.topic == "/clock"}
         self.messages = self.reader.messages(connections=connections)

@@ -44,6 +44,20 @@ CLOCK_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1,
     reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
 
+# Publishers of the per-step streams keep a deeper history than their subscribers ask
+# for (depth matters on each side separately, it is not part of QoS matching): a
+# RELIABLE KEEP_LAST writer drops a sample a slow reader has not acknowledged once its
+# history is full, and a recorder starved of CPU for a few hundred steps on a loaded
+# 2-core machine lost ~180 messages per topic with depth 10 (measured). 500 samples
+# are 0.5 s at 1 kHz; a reader that keeps up never sees the difference.
+STREAM_PUBLISHER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=500,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+# /clock offered RELIABLE (matches rclpy's BEST_EFFORT time source as well) so that a
+# recorder can subscribe RELIABLE and lose no tick
+CLOCK_PUBLISHER_QOS = STREAM_PUBLISHER_QOS
+
 # topic (relative name) -> profile, for code that wires topics generically
 TOPIC_QOS = {
     'drives/state': STREAM_QOS,
@@ -63,4 +77,4 @@ TOPIC_QOS = {
     '/clock': CLOCK_QOS,
 }
 
-__all__ = ['CLOCK_QOS', 'LATCHED_QOS', 'STREAM_QOS', 'TOPIC_QOS']
+__all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TOPIC_QOS']

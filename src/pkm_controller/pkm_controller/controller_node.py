@@ -32,7 +32,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, pose_from_msg, stamp_to_ns
 from pkm_common.params import declare_bool, declare_float, declare_int, declare_str
-from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_controller.controller import ControllerConfig, ControllerCore
@@ -103,9 +103,9 @@ class ControllerNode(LifecycleNode):
         self.msg_command = JointState(name=self.names)
         self.msg_reference = PoseStamped()
         self.msg_reference.header.frame_id = "world"
-        self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_QOS)
-        self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_QOS)
-        self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_QOS)
+        self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
+        self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_PUBLISHER_QOS)
+        self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_PUBLISHER_QOS)
         self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
         self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop,
                          self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS),

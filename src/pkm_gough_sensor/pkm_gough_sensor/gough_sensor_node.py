@@ -32,7 +32,7 @@ from sensor_msgs.msg import JointState
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
                                     pose_from_msg, pose_msg, stamp_to_ns)
 from pkm_common.params import ParameterError, declare_float, declare_int, declare_str
-from pkm_common.qos import STREAM_QOS
+from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_gough_sensor.metrology import MAX_RESOLUTION_M, STRUT_NAMES, GoughSensorModel
 from pkm_kinematics import load_machine, machine_names
@@ -74,8 +74,8 @@ class GoughSensorNode(Node):
         self.status_name = f'{self.get_name()}: metrology'
         self.hardware_id = f'{machine} gough platform'
 
-        self.pub_struts = self.create_publisher(JointState, 'metrology/struts', STREAM_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, 'metrology/pose', STREAM_QOS)
+        self.pub_struts = self.create_publisher(JointState, 'metrology/struts', STREAM_PUBLISHER_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, 'metrology/pose', STREAM_PUBLISHER_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
         self.create_subscription(PoseStamped, 'platform/true_pose', self._on_true_pose, STREAM_QOS)
         # reused output messages (publish() serialises at once): building a JointState

@@ -20,7 +20,7 @@ from sensor_msgs.msg import JointState
 
 from pkm_common.conversions import stamp_to_ns
 from pkm_common.params import declare_bool, declare_float, declare_str
-from pkm_common.qos import STREAM_QOS
+from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import _min_two_norm_rows
@@ -47,7 +47,7 @@ class HoldControllerNode(Node):
         self.metrology_stamps: set[int] = set()
         self.answered = 0
         self.msg_command = JointState()
-        self.pub = self.create_publisher(JointState, "drives/command", STREAM_QOS)
+        self.pub = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
         self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS)
         if self.wait_for_metrology:
             self.create_subscription(PoseStamped, "metrology/pose", self.on_metrology, STREAM_QOS)

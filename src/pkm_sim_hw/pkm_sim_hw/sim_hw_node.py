@@ -31,7 +31,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
                                     machine_to_tool_pose, ns_to_stamp, pose_msg, stamp_to_ns)
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
-from pkm_common.qos import CLOCK_QOS, LATCHED_QOS, STREAM_QOS
+from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters, leg_segments
@@ -86,9 +86,9 @@ class SimHwNode(Node):
         self.msg_state = joint_state_msg(self.plant.names, 0)
         position, rotation = machine_to_tool_pose(self.config.kind, self.plant.output().tool_pose)
         self.msg_pose = pose_msg(position, rotation, 0, "world")
-        self.pub_clock = self.create_publisher(Clock, "/clock", CLOCK_QOS)
-        self.pub_state = self.create_publisher(JointState, "drives/state", STREAM_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, "platform/true_pose", STREAM_QOS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", CLOCK_PUBLISHER_QOS)
+        self.pub_state = self.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, "platform/true_pose", STREAM_PUBLISHER_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
         self.create_subscription(JointState, "drives/command", self.on_command, STREAM_QOS)
