@@ -29,8 +29,6 @@ _PR_SET_PDEATHSIG = 1
 
 
 def _die_with_parent() -> None:          # runs in the child between fork and exec
-    if os.environ.get("PKM_NICE_RECORDER_TEST"):
-        pass
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
@@ -59,14 +57,8 @@ def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env:
     args = [sys.executable, "-u", "-m", MODULES[name], "--ros-args", "-r", f"__ns:={namespace}",
             "--params-file", str(params_file)]
     with log.open("w") as out:
-        nice = int(os.environ.get("PKM_RECORDER_NICE", "0")) if name == "recorder" else 0
-
-        def setup():
-            _die_with_parent()
-            if nice:
-                os.nice(nice)
         popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True, preexec_fn=setup)
+                                 start_new_session=True, preexec_fn=_die_with_parent)
     return NodeProcess(name, popen, log)
 
 
