@@ -38,7 +38,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import METHODS, distribute, internal_force_rows
+from pkm_kinematics.distribution import METHODS, distribute, distribute_rows, internal_force_rows
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.planar import PlanarMachine
@@ -128,8 +128,16 @@ class CycleRecord:
     measured: tuple = (0.0, 0.0, 0.0)        # the pose the strategy feeds back (task coordinates)
     error: tuple = (0.0, 0.0, 0.0)
     forces: tuple = ()
-    internal_force_norm_n: float = 0.0       # null-space part of the commands (nominal model)
     saturated: int = 0
+    rows: tuple = ()                         # J_m rows of the cycle (nominal model)
+
+    @property
+    def internal_force_norm_n(self) -> float:
+        """|null-space part of the commands| (nominal model); computed when asked (status,
+        every status_decimation cycles), not in the 1-2 kHz loop."""
+        if len(self.rows) <= 3 or len(self.forces) != len(self.rows):
+            return 0.0
+        return math.sqrt(sum(f * f for f in internal_force_rows(self.rows, self.forces)))
 
 
 class ControllerCore:
@@ -471,9 +479,11 @@ class ControllerCore:
         active_rows = [rows[k] for k in self.active]
         method = c.distribution if len(self.active) == self.n else "pseudo_inverse"
         prestress = c.prestress_n if len(self.active) == self.n else 0.0
-        forces = distribute(method, np.array(active_rows), wrench, machine=self.model, pose=pose, p=c.p_norm,
-                            prestress_n=prestress, reference=[1.0] * len(active_rows))
-        return self._expand(forces.tolist())
+        forces = None if prestress else distribute_rows(method, active_rows, wrench)
+        if forces is None:
+            forces = distribute(method, np.array(active_rows), wrench, machine=self.model, pose=pose, p=c.p_norm,
+                                prestress_n=prestress, reference=[1.0] * len(active_rows)).tolist()
+        return self._expand(forces)
 
     def _expand(self, sub) -> list:
         if len(self.active) == self.n:
@@ -502,11 +512,9 @@ class ControllerCore:
         self.peak_force_n = max(self.peak_force_n, max(abs(f) for f in forces))
         trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
         self.max_error_m = max(self.max_error_m, trans)
-        fint = internal_force_rows(rows, forces) if self.n > 3 else [0.0] * self.n
         r = self.record
         r.time_s, r.reference, r.measured, r.error = t_s, tuple(x_d), tuple(measured), tuple(error)
-        r.forces, r.saturated = tuple(forces), saturated
-        r.internal_force_norm_n = math.sqrt(sum(f * f for f in fint))
+        r.forces, r.saturated, r.rows = tuple(forces), saturated, tuple(rows)
         return forces
 
     # ----------------------------------------------------------------- status

@@ -379,6 +379,25 @@ def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gra
     return nacelle_mass_kg * gravity * math.sin(theta_rad)
 
 
+def distribute_rows(method: str, rows, wrench) -> list[float] | None:
+    """The per-cycle float path of :func:`distribute` (J as n rows of 3 floats, no
+    prestress), checked like it: ``pseudo_inverse`` for any n >= 3, ``inf_norm`` for
+    four drives (:func:`min_inf_norm`'s closed form); None where only the numpy path
+    exists. Saves the array round trips of a 1-2 kHz loop."""
+    if method not in ("pseudo_inverse", "inf_norm") or len(rows) < 3 or len(rows[0]) != 3:
+        return None
+    if method == "inf_norm" and len(rows) != 4:
+        return None
+    wrench = list(wrench)
+    if len(wrench) != 3 or not math.isfinite(wrench[0] + wrench[1] + wrench[2]):
+        raise ValueError(f"wrench: must be 3 finite numbers, got {wrench}")
+    forces = _min_two_norm_rows(rows, wrench)
+    if method == "inf_norm":
+        forces = _min_inf_norm_1d_list(forces, _null_direction_rows(rows))
+    check_wrench(rows, forces, wrench)
+    return forces
+
+
 def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 4.0,
                internal_force_n: float = 0.0, prestress_n: float = 0.0, reference=None) -> np.ndarray:
     """Dispatch by name (``METHODS``); adds ``prestress_n`` along the null space if non-zero."""
