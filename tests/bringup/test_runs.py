@@ -265,3 +265,15 @@ def test_player_steps_one_clock_tick_per_call(in_process_run, ros_context):
         assert topics.count("/clock") == run["summaries"]["recorder"]["recorded"]["/clock"]   # repeats too
     finally:
         player.destroy_node()
+
+
+def test_realtime_scenario_runs_on_the_wall_clock_and_reports_deadline_misses(tmp_path):
+    """mode: realtime — sim_hw steps on its timer from the first command on (zero-order
+    hold); misses are counted, not fatal."""
+    s = load_scenario("mom3_square", {"mode": "realtime", "dt_s": 0.002, "duration_s": 0.6, "record": True})
+    run = run_scenario(s, tmp_path / "rt", in_process=True, progress=False)
+    assert run["status"] == "completed", run["error"]
+    sim = run["summaries"]["sim_hw"]
+    assert sim["steps"] == 300 and not sim["stopped"]
+    assert 0.6 <= sim["wall_s"] < 3.0                      # paced by the wall clock, not by the answers
+    assert run["metrics"]["deadline_misses"] == sim["deadline_misses"]

@@ -97,12 +97,13 @@ def test_realtime_mode_counts_deadline_misses(ros_graph):
     sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
         machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01)))
     ros_graph.spin_for(0.3)
-    assert sim.plant.k >= 10                      # it steps on its own
-    assert sim.counts["deadline_misses"] == 0     # nobody commanded yet: not started
+    assert sim.plant.k == 0                       # held until the first command (no free fall)
+    assert sim.counts["deadline_misses"] == 0
     pub = ros_graph.create_node("late").create_publisher(JointState, "drives/command", STREAM_QOS)
     ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
-    pub.publish(joint_state_msg(sim.plant.names, 0, effort=[60.0] * 3))   # an old stamp
+    pub.publish(joint_state_msg(sim.plant.names, 0, effort=[60.0] * 3))   # answers step 0, then silence
     ros_graph.spin_for(0.2)
+    assert sim.plant.k >= 10                      # from then on it steps on its own
     assert sim.counts["deadline_misses"] >= 5
 
 

@@ -7,7 +7,9 @@ first command arrives the state is re-published at 10 Hz (discovery); after it, 
 command within ``command_timeout_s`` (wall clock) is a fault: brakes on, reported,
 and the node keeps stepping on the commands that do come (ignored while stopped).
 In ``realtime`` a wall timer steps every dt with the latest command (zero-order
-hold); a step whose command was not for the previous state counts as a deadline miss.
+hold), from the first command on (before it, the initial state is held and
+re-published as in lockstep); a step whose command was not for the previous state
+counts as a deadline miss.
 
 A command of the wrong length, with unknown names or NaN is refused with an ERROR
 diagnostic and the machine is stopped safely; so is ``estop`` (latched).
@@ -200,7 +202,9 @@ class SimHwNode(Node):
         self.advance(effort)
 
     def on_realtime_tick(self) -> None:
-        if self.started and self.latest_stamp_ns != self.now_ns():
+        if not self.started:
+            return                                 # held until the controller's first command
+        if self.latest_stamp_ns != self.now_ns():
             self.counts["deadline_misses"] += 1
         self.advance(self.latest_effort)
 
@@ -234,7 +238,7 @@ class SimHwNode(Node):
     def on_watchdog(self) -> None:
         if self.finished:
             return
-        if self.lockstep and not self.started:
+        if not self.started:
             self.publish_state()                   # until the controller has discovered us
         elif self.started and time.monotonic() - self.last_command_wall > self.timeout_s \
                 and not self.plant.stopped:        # lockstep and realtime alike
