@@ -330,7 +330,7 @@ def main(argv=None) -> int:
     except ScenarioError as exc:
         print(f"pkm-run: {exc}", file=sys.stderr)
         return 2
-    run_dir = Path(args.run_dir) if args.run_dir else make_run_dir(s, Path(args.runs))
+    run_dir = (Path(args.run_dir) if args.run_dir else make_run_dir(s, Path(args.runs))).resolve()
     if run_dir.exists() and any(run_dir.iterdir()):
         print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)
         return 2
