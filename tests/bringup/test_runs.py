@@ -56,7 +56,7 @@ def _wait_running(run_dir: Path, proc, timeout_s: float = 90.0) -> None:
 def _commands(run_dir: Path) -> dict:
     from pkm_bringup.replay import read_streams
     data = read_streams(run_dir / "bag", "/pkm")
-    return {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec: list(c.effort) for c in data["commands"]}
+    return {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec: list(c.effort) for _, c in data["commands"]}
 
 
 @pytest.fixture(scope="module")
@@ -277,3 +277,36 @@ def test_realtime_scenario_runs_on_the_wall_clock_and_reports_deadline_misses(tm
     assert sim["steps"] == 300 and not sim["stopped"]
     assert 0.6 <= sim["wall_s"] < 3.0                      # paced by the wall clock, not by the answers
     assert run["metrics"]["deadline_misses"] == sim["deadline_misses"]
+
+
+def test_a_tripping_scenario_completes_and_reports_the_trip(tmp_path):
+    """archi_fig12 (joint PIDs, 2 % leg error, no program: a dwell starts the loop after
+    the recorder is ready): the drives fight, the supervisor stops the machine."""
+    run = run_scenario(load_scenario("archi_fig12", {"duration_s": 0.8}), tmp_path / "fig12", in_process=True,
+                       progress=False)
+    assert run["status"] == "completed", run["error"]
+    assert all(v == 0 for v in run["lost"].values()), run["lost"]
+    assert run["metrics"]["controller"]["tripped"]
+    assert "saturated" in run["summaries"]["controller"]["message"]
+    result = replay_controller(tmp_path / "fig12")
+    assert result.ok and "estop" in result.note
+
+
+def test_a_second_run_in_the_same_domain_is_refused(tmp_path, ros_context):
+    """Two graphs in one domain and namespace would answer each other's states."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from pkm_common.qos import STREAM_QOS
+    other = rclpy.create_node("other_run", namespace="/pkm", context=ros_context)
+    other.create_publisher(JointState, "drives/state", STREAM_QOS)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(other)
+    try:
+        run = run_scenario(load_scenario("mom3_square", SHORT), tmp_path / "second", in_process=True,
+                           progress=False)
+    finally:
+        executor.shutdown()
+        other.destroy_node()
+    assert run["status"] == "failed" and "another run is active" in run["error"]

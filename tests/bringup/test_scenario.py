@@ -45,7 +45,7 @@ def test_parameters_are_typed_for_ros(tmp_path):
     assert isinstance(p["controller"]["drive_mismatch_cycles"], int)
     assert p["sim_hw"]["load_schedule"] == [0.0, 1.0, 2.0, 3.0]
     assert "link_length_errors" not in p["sim_hw"]          # ARCHI-sized default dropped for MoM3
-    assert p["controller"]["wait_for_trajectory"] is True
+    assert p["controller"]["wait_for_trajectory"] is True and p["controller"]["wait_for_start"] is False
     assert set(p) == {"sim_hw", "controller", "gough_sensor", "trajectory", "recorder"}
     assert p["recorder"]["output"] == str(tmp_path / "bag")
 
@@ -61,6 +61,14 @@ def test_parameters_are_typed_for_ros(tmp_path):
     ({"load": [{"t_s": 1.0, "wrench": [1, 2, 3]}, {"t_s": 0.5, "wrench": [1, 2, 3]}]}, "load"),
     ({"program": "missing.nc"}, "program"),
     ({"namespace": "pkm"}, "namespace"),
+    ({"namespace": "/pkm bad"}, "namespace"),
+    ({"name": "../evil"}, "name"),
+    ({"record": "false"}, "record"),                     # a string is not a boolean
+    ({"controller": {"strategy": "sensor_space", "kp_typo": 3.0}}, "controller.kp_typo"),
+    ({"plant": {"link_length_errors": [0.0, "x", 0.0]}}, "plant.link_length_errors"),
+    ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp": 0.1}]}, "load[0].ramp"),
+    ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp_s": 0.2}, {"t_s": 0.2, "wrench": [0, 0, 0]}]}, "load[1]"),
+    ({"trajectory": {"scale": 50.0}}, "program"),       # the program leaves the workspace: refused up front
 ])
 def test_bad_scenarios_name_the_key(overrides, field):
     with pytest.raises(ScenarioError, match="^" + re.escape(field)):
@@ -72,3 +80,17 @@ def test_metrology_needs_a_machine_with_one(tmp_path):
     path.write_text("machine: sliding_star\nmetrology: true\nduration_s: 1\n")
     with pytest.raises(ScenarioError, match="^metrology: machine sliding_star has no metrology"):
         load_scenario(path)
+
+
+def test_a_ramp_may_end_exactly_where_the_next_entry_starts():
+    s = load_scenario("mom3_square", {"dt_s": 0.001, "load": [
+        {"t_s": 0.1, "wrench": [10.0, 0.0, 0.0], "ramp_s": 0.2}, {"t_s": 0.3, "wrench": [0.0, 0.0, 0.0]}]})
+    assert len(s.load) == 201 and s.load[199][1][0] == pytest.approx(10.0) and s.load[-1] == (0.3, (0.0, 0.0, 0.0))
+
+
+def test_a_scenario_without_program_waits_for_the_start_signal(tmp_path):
+    s = load_scenario("archi_fig12")
+    p = node_parameters(s, tmp_path)
+    assert s.program is None and "trajectory" not in p
+    assert p["controller"]["wait_for_start"] is True         # the loop starts after the recorder is ready
+    assert p["controller"]["wait_for_trajectory"] is False

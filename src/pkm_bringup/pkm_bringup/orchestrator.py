@@ -30,12 +30,12 @@ import sys
 import time
 from pathlib import Path
 
-from pkm_bringup.scenario import (Scenario, ScenarioError, expected_topics, load_scenario, node_parameters,
-                                  params_file_text)
+from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, expected_topics, load_scenario,
+                                  node_parameters, params_file_text)
 
 # start order; the stop order is the reverse of the run order with the recorder last
 START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
-STOP_ORDER = ("trajectory", "controller", "gough_sensor", "sim_hw", "recorder")
+STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "recorder")
 CONNECT_TIMEOUT_S = 60.0
 DRAIN_S = 0.5
 DRAIN_IN_PROCESS_S = 0.2
@@ -94,6 +94,37 @@ def _monitor(context, namespace: str):
     return node
 
 
+def _init_context():
+    """An rclpy context without rclpy's signal handlers: Ctrl-C / SIGTERM stay Python's
+    KeyboardInterrupt, so the ordered stop always runs (rclpy's handlers shut the
+    context down under a running spin_once)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    context = rclpy.Context()
+    rclpy.init(context=context, args=[], signal_handler_options=SignalHandlerOptions.NO)
+    return context
+
+
+def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 1.0) -> None:
+    """Two runs in one DDS domain and namespace would answer each other's states."""
+    end = time.monotonic() + discovery_s
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.05)
+    for topic in ("/clock", f"{s.namespace.rstrip('/')}/drives/state"):
+        if monitor.count_publishers(topic):
+            raise RunFailed(f"another run is active: {topic} already has a publisher in ROS_DOMAIN_ID="
+                            f"{os.environ.get('ROS_DOMAIN_ID', '0')}; use another domain (export ROS_DOMAIN_ID=...)")
+
+
+def _publish_start(node) -> None:
+    """The latched start signal of a scenario without a program (controller wait_for_start)."""
+    from std_msgs.msg import Bool
+
+    from pkm_common.qos import LATCHED_QOS
+    node.start_publisher = node.create_publisher(Bool, START_TOPIC, LATCHED_QOS)
+    node.start_publisher.publish(Bool(data=True))
+
+
 def _connected(monitor, s: Scenario) -> bool:
     """Every stream has its publisher; every edge of the loop its subscriber too."""
     edges = ["drives/state", "drives/command"]
@@ -108,13 +139,13 @@ def _connected(monitor, s: Scenario) -> bool:
     return True
 
 
-def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress) -> dict:
-    """The scenario as separate processes; returns the exit codes. Raises RunFailed."""
+def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
+    """The scenario as separate processes; fills and returns ``codes`` (exit codes).
+    Raises RunFailed."""
     import rclpy
 
     from pkm_bringup.processes import start_node, stop_nodes
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    context = _init_context()
     from rclpy.experimental import EventsExecutor
     executor = EventsExecutor(context=context)
     monitor = _monitor(context, s.namespace)
@@ -127,6 +158,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress) 
                 raise RunFailed(f"node {node.name} exited with code {node.popen.returncode}; its last output:\n"
                                 f"{node.tail()}")
     try:
+        _refuse_if_another_run(executor, monitor, s)
         for name in START_ORDER:
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
@@ -138,9 +170,11 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress) 
             if time.monotonic() > deadline:
                 raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
             executor.spin_once(timeout_sec=0.05)
-        if "trajectory" in params:
+        if "trajectory" in params:          # the run starts when the controller has its trajectory
             nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
                                              run_dir / "logs", os.environ.copy())
+        else:                               # ... or the start signal
+            _publish_start(monitor)
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
         while sim.running():
@@ -160,14 +194,15 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress) 
             executor.spin_once(timeout_sec=0.05)
     finally:
         progress.done()
-        codes = stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes])
+        with _signals_ignored():              # a second Ctrl-C must not abandon the ordered stop
+            codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes]))
         executor.shutdown()
         monitor.destroy_node()
         rclpy.try_shutdown(context=context)
     return codes
 
 
-def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress) -> dict:
+def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
     """The scenario with every node in one EventsExecutor (same parameters)."""
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -180,8 +215,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress)
     from pkm_trajectory.trajectory_node import TrajectoryNode
     classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
                "controller": ControllerNode, "trajectory": TrajectoryNode}
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    context = _init_context()
     executor = EventsExecutor(context=context)
     nodes = {}
 
@@ -190,7 +224,10 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress)
         if name == "sim_hw":
             values["shutdown_on_finish"] = False
         overrides = [Parameter(k, value=v) for k, v in values.items()]
-        nodes[name] = classes[name](context=context, namespace=s.namespace, parameter_overrides=overrides)
+        try:
+            nodes[name] = classes[name](context=context, namespace=s.namespace, parameter_overrides=overrides)
+        except Exception as exc:                  # noqa: BLE001 - a refused configuration is the run's failure
+            raise RunFailed(f"node {name} refused its configuration: {exc}") from None
         executor.add_node(nodes[name])
 
     def close(names):
@@ -200,6 +237,11 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress)
                 executor.remove_node(node)
                 node.destroy_node()
     try:
+        monitor = _monitor(context, s.namespace)
+        executor.add_node(monitor)
+        _refuse_if_another_run(executor, monitor, s, discovery_s=0.5)
+        executor.remove_node(monitor)
+        monitor.destroy_node()
         for name in START_ORDER:
             if name in params:
                 create(name)
@@ -210,6 +252,11 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress)
             executor.spin_once(timeout_sec=0.05)
         if "trajectory" in params:
             create("trajectory")
+        else:
+            starter = _monitor(context, s.namespace)
+            executor.add_node(starter)
+            nodes["starter"] = starter
+            _publish_start(starter)
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
         last = 0.0
@@ -228,10 +275,28 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress)
             executor.spin_once(timeout_sec=0.05)
     finally:
         progress.done()
-        close(STOP_ORDER)
+        with _signals_ignored():
+            close(STOP_ORDER)
         executor.shutdown()
         rclpy.try_shutdown(context=context)
-    return {name: 0 for name in params}
+    codes.update({name: 0 for name in params})
+    return codes
+
+
+class _signals_ignored:
+    """SIGINT/SIGTERM ignored inside the block (main thread only)."""
+
+    def __enter__(self):
+        import threading
+        self.saved = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.saved[sig] = signal.signal(sig, signal.SIG_IGN)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self.saved.items():
+            signal.signal(sig, handler)
 
 
 def _read_json(path: Path) -> dict:
@@ -251,6 +316,9 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
             published[name] = count
     recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
     lost = {t: n - recorded.get(t, 0) for t, n in published.items()} if s.record else {}
+    if any(v < 0 for v in lost.values()) and not error:
+        error = (f"more messages recorded than published on {[t for t, v in lost.items() if v < 0]}: "
+                 "another graph publishes in this domain and namespace")
     run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
            "metrology": s.metrology, "duration_s": s.duration_s, "wall_s": wall_s,
@@ -277,11 +345,13 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     error, codes = "", {}
     try:
         run = run_in_process if in_process else run_processes
-        codes = run(s, run_dir, params, Progress(s.duration_s, enabled=progress))
+        run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
     except RunFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
         error = "interrupted (Ctrl-C / SIGTERM)"
+    except Exception as exc:                      # noqa: BLE001 - reported in run.json, never a traceback
+        error = f"{type(exc).__name__}: {exc}"
     result = collect(s, run_dir, mode, time.monotonic() - start, codes, error)
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         from pkm_bringup.report import write_report

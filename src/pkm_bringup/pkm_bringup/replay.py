@@ -8,8 +8,10 @@ The recorded sensor data — ``drives/state`` and, for the metrology strategies,
 recorded one bit for bit: the control law is a pure function of its inputs, and a
 difference means hidden state, wall-clock dependence or a changed law.
 
-Trips the node raised on its own (wall-clock watchdogs, ``estop`` from outside) are
-not in the sensor data; the check stops at the first command after such a trip.
+Stops from outside the sensor data (``estop`` from another node, wall-clock
+watchdogs) cannot be replayed: with an ``estop`` in the recording only the commands
+before it are compared; a missing state or metrology message ends the comparison
+there. Either is said in the result's note.
 """
 
 from __future__ import annotations
@@ -52,21 +54,24 @@ def read_streams(bag_dir: Path, namespace: str) -> dict:
     from rosbags.typesys import Stores, get_typestore
     ns = namespace.rstrip("/")
     wanted = {f"{ns}/{t}": t for t in ("drives/state", "drives/command", "metrology/struts", "metrology/pose",
-                                      "trajectory")}
-    streams = {t: {} for t in wanted.values() if t not in ("trajectory", "drives/command")}
-    commands, trajectory = [], None
+                                      "trajectory", "estop")}
+    streams = {t: {} for t in wanted.values() if t not in ("trajectory", "drives/command", "estop")}
+    commands, trajectory, estop_log_ns = [], None, None
     with AnyReader([Path(bag_dir)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
-        for connection, _, raw in reader.messages(connections=connections):
+        for connection, log_ns, raw in reader.messages(connections=connections):
             topic = wanted[connection.topic]
             msg = reader.deserialize(raw, connection.msgtype)
             if topic == "trajectory":
                 trajectory = trajectory or msg
             elif topic == "drives/command":
-                commands.append(msg)
+                commands.append((log_ns, msg))
+            elif topic == "estop":
+                if msg.data and estop_log_ns is None:
+                    estop_log_ns = log_ns
             else:
                 streams[topic].setdefault(_stamp_ns(msg), msg)
-    return {"commands": commands, "trajectory": trajectory, **streams}
+    return {"commands": commands, "trajectory": trajectory, "estop_log_ns": estop_log_ns, **streams}
 
 
 def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
@@ -87,11 +92,19 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
         core.set_trajectory(reference_from_msg(data["trajectory"], core.planar), None)
     compared = identical = 0
     max_diff, first, note = 0.0, None, ""
-    for i, command in enumerate(data["commands"]):
+    if data["trajectory"] is None:
+        note = "no trajectory in the recording (the run ended before it started?)"
+    commands = data["commands"]
+    if data["estop_log_ns"] is not None:      # a stop from outside the sensor data: not replayable
+        commands = [(t, c) for t, c in commands if t < data["estop_log_ns"]]
+        note = f"estop recorded: the {len(commands)} commands before it are compared"
+    for i, (_, command) in enumerate(commands):
         stamp = _stamp_ns(command)
         state = data["drives/state"].get(stamp)
-        if state is None:
-            note = f"command {i}: no recorded drives/state of stamp {stamp} ns"
+        metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
+        if state is None or (metrology and stamp not in data[metrology]):
+            missing = "drives/state" if state is None else metrology
+            note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
             break
         struts = pose = None
         if config.strategy == "sensor_space":

@@ -26,6 +26,7 @@ Every error names the key and what is allowed; nothing is started on a bad scena
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -50,6 +51,9 @@ FLOAT_PARAMETERS = {
     "recorder": {"flush_period_s", "discovery_period_s"},
 }
 
+
+# scenario section -> node whose parameters it sets
+SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw"}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
 PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose")
@@ -93,10 +97,32 @@ def _number(data: dict, key: str, default: float, lo: float, hi: float) -> float
     return float(value)
 
 
-def _mapping(data: dict, key: str) -> dict:
+def _boolean(data: dict, key: str, default: bool) -> bool:
+    value = data.get(key, default)
+    if not isinstance(value, bool):
+        raise ScenarioError(f"{key}: must be true or false, got {value!r}")
+    return value
+
+
+def node_parameter_names(node: str) -> set[str]:
+    """The parameters a scenario section may set for ``node``."""
+    if node == "controller":
+        from pkm_controller.controller_node import NODE_PARAMETERS
+        return ({f.name for f in fields(ControllerConfig)} | set(NODE_PARAMETERS)) - {"machine", "summary_path"}
+    return set(_node_defaults(node)) - {"machine", "summary_path"}
+
+
+def _mapping(data: dict, key: str, node: str) -> dict:
     value = data.get(key) or {}
     if not isinstance(value, dict):
-        raise ScenarioError(f"{key}: must be a mapping of node parameters, got {value!r}")
+        raise ScenarioError(f"{key}: must be a mapping of {node} parameters, got {value!r}")
+    allowed = node_parameter_names(node)
+    for name, item in value.items():
+        if name not in allowed:
+            raise ScenarioError(f"{key}.{name}: not a {node} parameter; allowed: {', '.join(sorted(allowed))}")
+        if isinstance(item, list) and not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              and math.isfinite(v) for v in item):
+            raise ScenarioError(f"{key}.{name}: must be a list of finite numbers, got {item!r}")
     return dict(value)
 
 
@@ -107,16 +133,20 @@ def _load_profile(value, dt_s: float) -> list:
         raise ScenarioError(f"load: must be a list of {{t_s, wrench: [3 numbers], ramp_s}}, got {value!r}")
     rows, previous, last_t = [], (0.0, 0.0, 0.0), 0.0
     for i, row in enumerate(value):
+        unknown = sorted(set(row) - {"t_s", "wrench", "ramp_s"}) if isinstance(row, dict) else []
+        if unknown:
+            raise ScenarioError(f"load[{i}].{unknown[0]}: unknown key; allowed: t_s, wrench, ramp_s")
         wrench = row.get("wrench") if isinstance(row, dict) else None
         t = row.get("t_s") if isinstance(row, dict) else None
         ramp = row.get("ramp_s", 0.0) if isinstance(row, dict) else None
-        if not isinstance(t, (int, float)) or t < 0 or not isinstance(wrench, list) or len(wrench) != 3 \
+        if not isinstance(t, (int, float)) or not 0 <= t < 1e6 or not isinstance(wrench, list) or len(wrench) != 3 \
                 or not all(isinstance(w, (int, float)) and math.isfinite(w) for w in wrench) \
                 or not isinstance(ramp, (int, float)) or not 0.0 <= ramp <= 10.0:
             raise ScenarioError(f"load[{i}]: must be {{t_s: >= 0, wrench: [3 finite numbers], ramp_s: [0, 10] "
                                 f"(optional)}}, got {row!r}")
-        if t < last_t:
-            raise ScenarioError("load: times t_s must be non-decreasing")
+        if t < last_t - 1e-9:
+            raise ScenarioError(f"load[{i}]: starts at t_s = {t:g} s, before the previous entry ends "
+                                f"({last_t:g} s, ramp included)")
         target = tuple(float(w) for w in wrench)
         steps = max(1, round(ramp / dt_s))
         for k in range(1, steps + 1):
@@ -152,8 +182,12 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s = Scenario(name=str(data.get("name", path.stem)), machine=machine, source=path.resolve(),
                  description=str(data.get("description", "")))
     s.namespace = str(data.get("namespace", s.namespace))
-    if not s.namespace.startswith("/"):
-        raise ScenarioError(f"namespace: must start with '/', got {s.namespace!r}")
+    if not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", s.namespace):
+        raise ScenarioError(f"namespace: must be an absolute ROS namespace such as '/pkm' (letters, digits, "
+                            f"'_'), got {s.namespace!r}")
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", s.name):
+        raise ScenarioError(f"name: letters, digits, '_', '-' and '.' only (it names the run directory), "
+                            f"got {s.name!r}")
     s.mode = data.get("mode", s.mode)
     if s.mode not in ("lockstep", "realtime"):
         raise ScenarioError(f"mode: must be lockstep or realtime, got {s.mode!r}")
@@ -168,10 +202,10 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         s.program = program
     if s.program is None and not s.duration_s:
         raise ScenarioError("duration_s: required (> 0) when there is no program")
-    for key in ("trajectory", "controller", "sensor", "plant"):
-        setattr(s, key, _mapping(data, key))
-    s.metrology = bool(data.get("metrology", False))
-    s.record = bool(data.get("record", True))
+    for key, node in SECTIONS.items():
+        setattr(s, key, _mapping(data, key, node))
+    s.metrology = _boolean(data, "metrology", False)
+    s.record = _boolean(data, "record", True)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
     if s.strategy not in STRATEGIES:
         raise ScenarioError(f"controller.strategy: must be one of {list(STRATEGIES)}, got {s.strategy!r}")
@@ -196,7 +230,7 @@ def _node_defaults(name: str) -> dict:
 
 def program_duration(s: Scenario) -> float:
     """The planned duration of the scenario's program (the trajectory node plans it the same way)."""
-    from pkm_trajectory.planner import Limits, plan_with_blending
+    from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_with_blending, validate
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
     model = load_machine(s.machine).model
@@ -210,7 +244,11 @@ def program_duration(s: Scenario) -> float:
         limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
         samples = plan_with_blending(segments, limits, float(p.get("blend_tolerance_m", 0.0)),
                                      float(p.get("rate_hz", 1000.0)), translation_axes=2 if planar else 3)
-    except (ValueError, KeyError) as exc:
+        # what trajectory_node will check: a program it would refuse fails here, before anything starts
+        validate(samples, model, float(p.get("max_joint_velocity", 2.0)), float(p.get("max_joint_acceleration", 50.0)),
+                 float(p.get("max_condition", 50.0)), transmission_bounds=getattr(model, "transmission_bounds", None),
+                 task_limits=limits)
+    except (ValueError, KeyError, TrajectoryRejected) as exc:
         raise ScenarioError(f"program: {exc}") from None
     return float(samples.duration_s)
 
@@ -241,6 +279,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**_node_defaults(f"controller/{s.machine}"), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "autostart": True, "wait_for_trajectory": s.program is not None,
+                       "wait_for_start": s.program is None,
                        "summary_path": str(summaries / "controller.json")},
     }
     if s.metrology:
@@ -254,6 +293,9 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                              "expect_topics": ",".join(expected_topics(s)),
                              "summary_path": str(summaries / "recorder.json")}
     return {name: _typed(name, params) for name, params in nodes.items()}
+
+
+START_TOPIC = "run/start"      # latched Bool: the orchestrator's start signal (scenarios without a program)
 
 
 def expected_topics(s: Scenario) -> list[str]:

@@ -5,7 +5,9 @@ configure: read and validate the parameters (config/controller/*.yaml); a bad on
 fails the transition with its name and allowed range. activate: answer every
 ``drives/state`` (and, for the metrology strategies, the ``metrology/struts`` or
 ``metrology/pose`` of the same stamp) with ``drives/command`` stamped like the state
-(lockstep). ``trajectory`` (latched) starts at the next state; ``estop`` and every
+(lockstep). ``trajectory`` (latched) starts at the next state; with
+``wait_for_trajectory`` / ``wait_for_start`` no state is answered before the
+trajectory / a latched ``run/start`` (an orchestrator's start signal); ``estop`` and every
 trip of the supervisor put the controller in its safe state (zero forces) and latch
 ``estop`` so the drives brake. A wall-clock watchdog trips when ``drives/state`` or
 the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``. (DDS deadline
@@ -39,7 +41,8 @@ from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
-                   "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False}
+                   "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
+                   "wait_for_start": False}
 
 
 class ControllerNode(LifecycleNode):
@@ -51,6 +54,7 @@ class ControllerNode(LifecycleNode):
         self.compute_s: list[float] = []
         self.configure_error = ""
         self.trajectory_accepted = False
+        self.start_received = False    # run/start (latched Bool) from an orchestrator
         self.last_answered_ns = None
         self.published = {"drives/command": 0, "controller/reference": 0}
         if declare_bool(self, "autostart", True, "configure and activate at start"):
@@ -112,6 +116,7 @@ class ControllerNode(LifecycleNode):
                          self.create_subscription(MultiDOFJointTrajectory, "trajectory", self.on_trajectory,
                                                   LATCHED_QOS),
                          self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS),
+                         self.create_subscription(Bool, "run/start", self.on_start, LATCHED_QOS),
                          self.create_timer(0.01, self.on_watchdog)]
         if metrology:
             kind, topic = (JointState, "metrology/struts") if self.wait_for == "struts" else \
@@ -151,7 +156,8 @@ class ControllerNode(LifecycleNode):
         if not self.active:
             return
         self.last_state_wall = time.monotonic()
-        if not self.trajectory_accepted and self.values["wait_for_trajectory"]:
+        if (not self.trajectory_accepted and self.values["wait_for_trajectory"]) or \
+                (not self.start_received and self.values["wait_for_start"]):
             return                     # a scripted run starts at its first state, deterministically
         stamp = stamp_to_ns(msg.header.stamp)
         if stamp == self.last_answered_ns:
@@ -183,6 +189,9 @@ class ControllerNode(LifecycleNode):
             return
         self.trajectory_accepted = True
         self.get_logger().info(f"trajectory accepted: {ref.duration_s:.3f} s, {len(ref.time_s)} points")
+
+    def on_start(self, msg: Bool) -> None:
+        self.start_received = self.start_received or bool(msg.data)
 
     def on_estop(self, msg: Bool) -> None:
         if msg.data and self.core is not None and not self.core.stopped:

@@ -74,6 +74,9 @@ class SimHwNode(Node):
         self.load_schedule = load_schedule(declare_float_list(
             self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task coordinates) from t_s on, "
             "in simulated time (deterministic, unlike the load topic)"))
+        # simulated times as step numbers (plant.t accumulates dt: 60 s at 1 kHz would be 60001 steps)
+        self.load_schedule = [(math.ceil(t / params.dt_s - 1e-6), w) for t, w in self.load_schedule]
+        self.duration_steps = math.ceil(self.duration_s / params.dt_s - 1e-6) if self.duration_s else 0
         self.finished = False
         self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}   # distinct steps
         self.last_published_ns = -1
@@ -212,28 +215,38 @@ class SimHwNode(Node):
         if self.finished:
             return
         schedule = self.load_schedule
-        while schedule and self.plant.t >= schedule[0][0] - 1e-12:
+        while schedule and self.plant.k >= schedule[0][0]:     # step numbers: no float drift
             self.plant.set_load(schedule.pop(0)[1])
         self.plant.step(effort)
         self.publish_state()
-        if self.duration_s and self.plant.t >= self.duration_s - 1e-12:
+        if self.duration_steps and self.plant.k >= self.duration_steps:
             self.finish()
+
+    def summary(self) -> dict:
+        wall = time.monotonic() - (self.first_command_wall or time.monotonic())
+        return {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
+                "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
+                "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts,
+                "published": dict(self.published), "complete": self.finished}
+
+    def write_summary(self) -> None:
+        if self.summary_path:
+            with open(self.summary_path, "w", encoding="utf-8") as fh:
+                json.dump(self.summary(), fh, indent=2)
 
     def finish(self) -> None:
         """The run is complete: summary, then shut the context down (clean exit 0)."""
-        wall = time.monotonic() - (self.first_command_wall or time.monotonic())
-        summary = {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
-                   "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
-                   "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts,
-                   "published": dict(self.published)}
         self.finished = True
         self.publish_diagnostics()
-        self.get_logger().info(f"run complete: {json.dumps(summary)}")
-        if self.summary_path:
-            with open(self.summary_path, "w", encoding="utf-8") as fh:
-                json.dump(summary, fh, indent=2)
+        self.get_logger().info(f"run complete: {json.dumps(self.summary())}")
+        self.write_summary()
         if self.shutdown_on_finish:
             rclpy.try_shutdown(context=self.context)
+
+    def destroy_node(self):
+        if not self.finished and hasattr(self, "published"):
+            self.write_summary()                   # interrupted: what was done so far
+        return super().destroy_node()
 
     def on_watchdog(self) -> None:
         if self.finished:
