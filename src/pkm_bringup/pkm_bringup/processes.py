@@ -26,13 +26,15 @@ MODULES = {
     "trajectory": "pkm_trajectory.trajectory_node",
 }
 _PR_SET_PDEATHSIG = 1
+try:                                      # loaded here, not after fork (dlopen in a forked
+    _PRCTL = ctypes.CDLL("libc.so.6", use_errno=True).prctl      # multi-threaded process can deadlock)
+except (OSError, AttributeError):
+    _PRCTL = None
 
 
 def _die_with_parent() -> None:          # runs in the child between fork and exec
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 @dataclass
