@@ -60,6 +60,62 @@ def writer_throughput(messages: int = 200_000) -> float:
     return messages / elapsed, len(data)
 
 
+def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
+    """recorder_node in its own process; this process publishes ``messages`` JointStates
+    (RELIABLE, the graph's publisher history) as fast as it can. Returns (publish rate,
+    recorded rate from the bag's first to last log time, messages lost)."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import JointState
+
+    from pkm_bringup.bag import read_counts
+    from pkm_bringup.processes import ros_environment, start_node, stop_nodes
+    from pkm_bringup.scenario import params_file_text
+    from pkm_common.conversions import joint_state_msg
+    from pkm_common.qos import STREAM_PUBLISHER_QOS
+    env = ros_environment()
+    import os
+    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_")})
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        (tmp / "logs").mkdir()
+        params = tmp / "recorder.yaml"
+        params.write_text(params_file_text({"output": str(tmp / "bag"), "ready_file": str(tmp / "ready"),
+                                            "expect_topics": "/bench/drives/state",
+                                            "summary_path": str(tmp / "rec.json")}))
+        context = rclpy.Context()
+        rclpy.init(context=context, args=[], signal_handler_options=SignalHandlerOptions.NO)
+        node = rclpy.create_node("bench_publisher", namespace="/bench", context=context)
+        pub = node.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+        recorder = start_node("recorder", "/bench", params, tmp / "logs", env)
+        try:
+            deadline = time.monotonic() + 60
+            while not (tmp / "ready").exists() and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
+            msg = joint_state_msg(["q1", "q2", "q3", "q4"], 0, position=[1.0] * 4, velocity=[0.0] * 4,
+                                  effort=[0.0] * 4)
+            start = time.perf_counter()
+            for i in range(messages):
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(i * 1_000_000, 1_000_000_000)
+                pub.publish(msg)
+            publish_rate = messages / (time.perf_counter() - start)
+            time.sleep(2.0)
+        finally:
+            stop_nodes([recorder])
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown(context=context)
+        from rosbags.highlevel import AnyReader
+        with AnyReader([tmp / "bag"]) as reader:
+            times = [t for _, t, _ in reader.messages()]
+        recorded = read_counts(tmp / "bag").get("/bench/drives/state", 0)
+        span = (max(times) - min(times)) * 1e-9 if len(times) > 1 else float("nan")
+        return publish_rate, recorded / span, messages - recorded
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenario", default="archi_demo")
@@ -69,6 +125,9 @@ def main(argv=None) -> int:
 
     rate, size = writer_throughput()
     print(f"BagWriter.write: {rate:,.0f} messages/s ({size}-byte JointState, zstd chunks, flush every 500)")
+    pub_rate, rec_rate, lost = recorder_throughput()
+    print(f"recorder_node (own process), 20,000 JointState published at {pub_rate:,.0f}/s: recorded at "
+          f"{rec_rate:,.0f} messages/s, lost {lost}")
     print()
     print(f"{args.scenario}: lockstep rate (steps/s), {args.repeats} alternated runs per row")
     print("| mode | recording | steps/s (runs) | median | loop period | recorded msgs/s | lost |")
