@@ -275,7 +275,7 @@ def test_realtime_scenario_runs_on_the_wall_clock_and_reports_deadline_misses(tm
     assert run["status"] == "completed", run["error"]
     sim = run["summaries"]["sim_hw"]
     assert sim["steps"] == 300 and not sim["stopped"]
-    assert 0.6 <= sim["wall_s"] < 3.0                      # paced by the wall clock, not by the answers
+    assert 0.55 <= sim["wall_s"] < 3.0                     # paced by the wall clock (300 x 2 ms), not by the answers
     assert run["metrics"]["deadline_misses"] == sim["deadline_misses"]
 
 

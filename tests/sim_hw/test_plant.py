@@ -189,3 +189,25 @@ def test_bad_input():
         Fault.parse("1:melted", 4)
     with pytest.raises(ValueError, match=r"faults: drive must be in \[0, 3\]"):
         Fault.parse("7:locked", 4)
+
+
+def test_scheduled_loads_apply_at_their_step_without_drift():
+    """schedule_load counts steps: a load at t = 12.3455 s applies at step 12,346, where
+    summing dt in floats would be one step off after ~12 s at 1 kHz."""
+    plant = Plant(MOM3, PlantParameters(dt_s=0.001, encoder_resolution_m=0.0))
+    plant.schedule_load([(0.0105, (1.0, 2.0, 3.0)), (12.3455, (0.0, 0.0, 5.0))])
+    forces = holding_forces(plant)
+    for _ in range(11):
+        assert plant.load == [0.0, 0.0, 0.0]
+        plant.step(forces)
+    plant.step(forces)                                   # step 11 (t = 0.011 s): the first load
+    assert plant.load == [1.0, 2.0, 3.0]
+    plant.k = 12_345                                     # jump ahead (state untouched)
+    plant.step(forces)
+    assert plant.load == [1.0, 2.0, 3.0]
+    plant.step(forces)
+    assert plant.load == [0.0, 0.0, 5.0]
+    with pytest.raises(ValueError, match="load_schedule: times must be"):
+        plant.schedule_load([(1.0, (0, 0, 0)), (0.5, (0, 0, 0))])
+    with pytest.raises(ValueError, match="load"):
+        plant.schedule_load([(1.0, (0, float("nan"), 0))])

@@ -151,6 +151,7 @@ class Plant:
         self.t = 0.0
         self.k = 0
         self.load = [0.0, 0.0, 0.0]
+        self._schedule: list = []          # [(step, wrench)] (schedule_load)
         self.stopped = False
         self.stop_reason = ""
         self._rng = np.random.default_rng(self.params.seed)
@@ -167,6 +168,16 @@ class Plant:
         """External (cutting) load on the tool, task coordinates (N, N, N m | N)."""
         self.load = finite_floats(wrench, 3, "load")
 
+    def schedule_load(self, rows) -> None:
+        """Loads in simulated time: [(t_s, wrench)], times non-decreasing; each applies
+        from the first step at or after t_s (counted in steps: no float drift)."""
+        schedule = []
+        for t, wrench in rows:
+            if not (math.isfinite(t) and t >= 0.0) or (schedule and t < schedule[-1][2] - 1e-12):
+                raise ValueError(f"load_schedule: times must be finite, >= 0 and non-decreasing, got {t}")
+            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), finite_floats(wrench, 3, "load"), t))
+        self._schedule = [(k, w) for k, w, _ in schedule]
+
     def safe_stop(self, reason: str) -> None:
         """Brakes on: the platform stops where it is and holds; commands are ignored."""
         if not self.stopped:
@@ -180,6 +191,8 @@ class Plant:
     def step(self, forces) -> PlantOutput:
         """Apply the commanded drive forces for one period and advance the state."""
         cmd = finite_floats(forces, self.n, "drive forces")
+        while self._schedule and self.k >= self._schedule[0][0]:
+            self.load = self._schedule.pop(0)[1]
         limit = self.params.force_limit_n
         saturated = [abs(f) > limit for f in cmd]
         applied = [max(-limit, min(limit, f)) for f in cmd]

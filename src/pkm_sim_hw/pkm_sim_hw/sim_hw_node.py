@@ -71,11 +71,17 @@ class SimHwNode(Node):
                                         allow_empty=True)
         self.shutdown_on_finish = declare_bool(self, "shutdown_on_finish", True, "end the process when "
                                                "duration_s is reached (in-process runs: False)")
-        self.load_schedule = load_schedule(declare_float_list(
-            self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task coordinates) from t_s on, "
-            "in simulated time (deterministic, unlike the load topic)"))
-        # simulated times as step numbers (plant.t accumulates dt: 60 s at 1 kHz would be 60001 steps)
-        self.load_schedule = [(math.ceil(t / params.dt_s - 1e-6), w) for t, w in self.load_schedule]
+        schedule = declare_float_list(self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task "
+                                      "coordinates) from t_s on, in simulated time (deterministic, unlike the "
+                                      "load topic)")
+        if len(schedule) % 4:
+            raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
+                                 f"{len(schedule)} numbers")
+        try:
+            self.plant.schedule_load([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
+        except ValueError as exc:
+            raise ParameterError("load_schedule", str(exc).partition(": ")[2]) from None
+        # simulated time as a step count (plant.t accumulates dt: 60 s at 1 kHz would be 60001 steps)
         self.duration_steps = math.ceil(self.duration_s / params.dt_s - 1e-6) if self.duration_s else 0
         self.finished = False
         self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}   # distinct steps
@@ -205,7 +211,7 @@ class SimHwNode(Node):
         self.advance(effort)
 
     def on_realtime_tick(self) -> None:
-        if not self.started:
+        if not self.started or self.finished:
             return                                 # held until the controller's first command
         if self.latest_stamp_ns != self.now_ns():
             self.counts["deadline_misses"] += 1
@@ -214,9 +220,6 @@ class SimHwNode(Node):
     def advance(self, effort) -> None:
         if self.finished:
             return
-        schedule = self.load_schedule
-        while schedule and self.plant.k >= schedule[0][0]:     # step numbers: no float drift
-            self.plant.set_load(schedule.pop(0)[1])
         self.plant.step(effort)
         self.publish_state()
         if self.duration_steps and self.plant.k >= self.duration_steps:
@@ -273,18 +276,6 @@ class SimHwNode(Node):
         if msg.data:
             self.plant.safe_stop("estop")
             self.publish_diagnostics()
-
-
-def load_schedule(flat) -> list:
-    """``[t_s, f1, f2, f3, ...]`` -> [(t_s, (f1, f2, f3)), ...], times non-decreasing."""
-    if len(flat) % 4:
-        raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
-                             f"{len(flat)} numbers")
-    rows = [(flat[i], tuple(flat[i + 1:i + 4])) for i in range(0, len(flat), 4)]
-    times = [t for t, _ in rows]
-    if any(t < 0 for t in times) or times != sorted(times):
-        raise ParameterError("load_schedule", f"times must be >= 0 and non-decreasing, got {times}")
-    return rows
 
 
 def main(args=None):
