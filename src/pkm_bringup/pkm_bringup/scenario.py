@@ -39,19 +39,6 @@ from pkm_kinematics.config import config_dir
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "load", "record", "timeout_s")
 METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
-# parameters that ROS declares as doubles: an integer in a YAML scenario becomes a float
-FLOAT_PARAMETERS = {
-    "sim_hw": {"dt_s", "force_limit_n", "encoder_resolution_m", "encoder_noise_m", "command_timeout_s",
-               "duration_s"},
-    "gough_sensor": {"noise_std_m", "calibration_error_m", "resolution_m", "diagnostics_period_s"},
-    "trajectory": {"rate_hz", "max_joint_velocity", "max_joint_acceleration", "max_condition", "feed_override",
-                   "scale", "blend_tolerance_m"},
-    "controller": {f.name for f in fields(ControllerConfig) if isinstance(f.default, float)}
-    | {"state_timeout_s", "metrology_timeout_s"},
-    "recorder": {"flush_period_s", "discovery_period_s"},
-}
-
-
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw"}
 
@@ -104,12 +91,18 @@ def _boolean(data: dict, key: str, default: bool) -> bool:
     return value
 
 
-def node_parameter_names(node: str) -> set[str]:
-    """The parameters a scenario section may set for ``node``."""
+def _parameter_defaults(node: str) -> dict:
+    """Every parameter of ``node`` with its default: config/<node>.yaml, or for the
+    controller its dataclass and node parameters (its YAML is per machine)."""
     if node == "controller":
         from pkm_controller.controller_node import NODE_PARAMETERS
-        return ({f.name for f in fields(ControllerConfig)} | set(NODE_PARAMETERS)) - {"machine", "summary_path"}
-    return set(_node_defaults(node)) - {"machine", "summary_path"}
+        return {**{f.name: f.default for f in fields(ControllerConfig)}, **NODE_PARAMETERS}
+    return _node_defaults(node)
+
+
+def node_parameter_names(node: str) -> set[str]:
+    """The parameters a scenario section may set for ``node``."""
+    return set(_parameter_defaults(node)) - {"machine", "summary_path"}
 
 
 def _mapping(data: dict, key: str, node: str) -> dict:
@@ -229,8 +222,9 @@ def _node_defaults(name: str) -> dict:
 
 
 def program_duration(s: Scenario) -> float:
-    """The planned duration of the scenario's program (the trajectory node plans it the same way)."""
-    from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_with_blending, validate
+    """The planned duration of the scenario's program, planned and validated exactly as
+    trajectory_node will (a program it would refuse fails here, before anything starts)."""
+    from pkm_trajectory.planner import Limits, plan_validated
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
     model = load_machine(s.machine).model
@@ -242,24 +236,29 @@ def program_duration(s: Scenario) -> float:
                                   feed_override=float(p.get("feed_override", 1.0)),
                                   scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))
         limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
-        samples = plan_with_blending(segments, limits, float(p.get("blend_tolerance_m", 0.0)),
-                                     float(p.get("rate_hz", 1000.0)), translation_axes=2 if planar else 3)
-        # what trajectory_node will check: a program it would refuse fails here, before anything starts
-        validate(samples, model, float(p.get("max_joint_velocity", 2.0)), float(p.get("max_joint_acceleration", 50.0)),
-                 float(p.get("max_condition", 50.0)), transmission_bounds=getattr(model, "transmission_bounds", None),
-                 task_limits=limits)
-    except (ValueError, KeyError, TrajectoryRejected) as exc:
+        samples = plan_validated(segments, model, limits, float(p.get("rate_hz", 1000.0)),
+                                 float(p.get("blend_tolerance_m", 0.0)), float(p.get("max_joint_velocity", 2.0)),
+                                 float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
+                                 int(p.get("max_points", 200_000)))
+    except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
         raise ScenarioError(f"program: {exc}") from None
     return float(samples.duration_s)
+
+
+def _float_parameters(node: str) -> set[str]:
+    """The parameters ROS declares as doubles: float defaults (config/<node>.yaml, the
+    controller's dataclass and node parameters)."""
+    return {k for k, v in _parameter_defaults(node).items() if isinstance(v, float)}
 
 
 def _typed(node: str, params: dict) -> dict:
     """Floats where ROS declares doubles; empty lists and strings dropped (node defaults)."""
     out = {}
+    floats = _float_parameters(node)
     for key, value in params.items():
         if value == [] or value == "":
             continue
-        if key in FLOAT_PARAMETERS.get(node, ()) and isinstance(value, int) and not isinstance(value, bool):
+        if key in floats and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if isinstance(value, list):
             value = [float(v) for v in value]

@@ -481,3 +481,19 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
         out.append((part.time_s[skip:] + t0, part.position[skip:], part.velocity[skip:], part.acceleration[skip:]))
         t0 += part.duration_s
     return Samples(*(np.concatenate([o[i] for o in out]) for i in range(4)))
+
+
+def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, blend_tolerance: float = 0.0,
+                   joint_velocity_limit: float | None = None, joint_acceleration_limit: float | None = None,
+                   max_condition: float | None = None, max_points: int | None = None) -> Samples:
+    """What trajectory_node publishes: the segments planned (with corner blending) and
+    sampled, then every sample checked against ``machine`` (:func:`validate`).
+    Raises TrajectoryRejected (or ValueError) naming the sample and the limit."""
+    planar = hasattr(machine, "home_pose")
+    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz, translation_axes=2 if planar else 3)
+    if max_points is not None and len(samples.time_s) > max_points:
+        raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {max_points} "
+                                 f"({samples.duration_s:.1f} s at {rate_hz:g} Hz)")
+    validate(samples, machine, joint_velocity_limit, joint_acceleration_limit, max_condition,
+             transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits)
+    return samples

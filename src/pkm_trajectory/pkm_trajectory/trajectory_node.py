@@ -29,7 +29,7 @@ from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_kinematics.planar import PlanarMachine
-from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_with_blending, point_to_point, validate
+from pkm_trajectory.planner import Limits, plan_validated, point_to_point
 from pkm_trajectory.program import gcode_segments
 
 
@@ -83,15 +83,9 @@ class TrajectoryNode(Node):
     def submit(self, source: str, build) -> None:
         """Plan, validate, publish or refuse; every outcome is reported."""
         try:
-            segments = build()
-            samples = plan_with_blending(segments, self.limits, self.blend_tolerance, self.rate_hz,
-                                         translation_axes=2 if self.planar else 3)
-            if len(samples.time_s) > self.max_points:
-                raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {self.max_points} "
-                                         f"({samples.duration_s:.1f} s at {self.rate_hz:g} Hz)")
-            validate(samples, self.model, self.joint_velocity, self.joint_acceleration, self.max_condition,
-                     transmission_bounds=getattr(self.model, "transmission_bounds", None),
-                     task_limits=self.limits)
+            samples = plan_validated(build(), self.model, self.limits, self.rate_hz, self.blend_tolerance,
+                                     self.joint_velocity, self.joint_acceleration, self.max_condition,
+                                     self.max_points)
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
