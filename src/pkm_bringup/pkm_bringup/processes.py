@@ -64,23 +64,25 @@ def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env:
     return NodeProcess(name, popen, log)
 
 
+def _wait_or_kill(node: NodeProcess, timeout_s: float) -> None:
+    try:
+        node.popen.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        node.popen.kill()
+        node.popen.wait()
+
+
 def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool = False) -> dict[str, int]:
     """SIGTERM each running node in the given order, waiting for each to exit (the
     runner finalizes on SIGTERM), or all at once with ``together``; SIGKILL what does
     not exit in ``timeout_s``. Returns the exit codes."""
-    if together:
-        for node in nodes:
-            if node.running():
-                node.popen.send_signal(signal.SIGTERM)
     for node in nodes:
-        if node.running() or together:
+        if node.running():
+            node.popen.send_signal(signal.SIGTERM)
             if not together:
-                node.popen.send_signal(signal.SIGTERM)
-            try:
-                node.popen.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                node.popen.kill()
-                node.popen.wait()
+                _wait_or_kill(node, timeout_s)
+    for node in nodes:
+        _wait_or_kill(node, timeout_s)
     return {node.name: node.popen.returncode for node in nodes}
 
 

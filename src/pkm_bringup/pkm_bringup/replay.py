@@ -24,7 +24,7 @@ from pathlib import Path
 
 import yaml
 
-from pkm_common.conversions import pose_from_msg
+from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg
 from pkm_kinematics import load_machine
@@ -42,10 +42,6 @@ class ReplayResult:
     @property
     def ok(self) -> bool:
         return self.compared > 0 and self.identical == self.compared
-
-
-def _stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def read_streams(bag_dir: Path, namespace: str) -> dict:
@@ -70,7 +66,7 @@ def read_streams(bag_dir: Path, namespace: str) -> dict:
                 if msg.data and estop_log_ns is None:
                     estop_log_ns = log_ns
             else:
-                streams[topic].setdefault(_stamp_ns(msg), msg)
+                streams[topic].setdefault(stamp_to_ns(msg.header.stamp), msg)
     return {"commands": commands, "trajectory": trajectory, "estop_log_ns": estop_log_ns, **streams}
 
 
@@ -99,7 +95,7 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
         commands = [(t, c) for t, c in commands if t < data["estop_log_ns"]]
         note = f"estop recorded: the {len(commands)} commands before it are compared"
     for i, (_, command) in enumerate(commands):
-        stamp = _stamp_ns(command)
+        stamp = stamp_to_ns(command.header.stamp)
         state = data["drives/state"].get(stamp)
         metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
         if state is None or (metrology and stamp not in data[metrology]):

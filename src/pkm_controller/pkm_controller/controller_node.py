@@ -56,7 +56,7 @@ class ControllerNode(LifecycleNode):
         self.trajectory_accepted = False
         self.start_received = False    # run/start (latched Bool) from an orchestrator
         self.last_answered_ns = None
-        self.published = {"drives/command": 0, "controller/reference": 0}
+        self.answers_published = 0     # drives/command and controller/reference, one each per answer
         if declare_bool(self, "autostart", True, "configure and activate at start"):
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ValueError(self.configure_error)
@@ -163,7 +163,7 @@ class ControllerNode(LifecycleNode):
         if stamp == self.last_answered_ns:
             return                     # a repeat (sim_hw republishes step 0 until answered)
         self.last_answered_ns = stamp
-        if self.wait_for and stamp_to_ns(msg.header.stamp) not in self.metrology:
+        if self.wait_for and stamp not in self.metrology:
             self.pending_state = msg
             return
         self.answer(msg)
@@ -238,7 +238,7 @@ class ControllerNode(LifecycleNode):
         self.msg_command.header.stamp = msg.header.stamp
         self.msg_command.effort = forces
         self.pub_command.publish(self.msg_command)
-        self.published["drives/command"] += 1
+        self.answers_published += 1
         if core.stopped and not was_stopped:
             self.safe_stop(core.stop_reason)
         self.publish_reference(msg.header.stamp)
@@ -255,7 +255,6 @@ class ControllerNode(LifecycleNode):
         else:
             m.pose.position.z, m.pose.orientation.w = x[2], 1.0
         self.pub_reference.publish(m)
-        self.published["controller/reference"] += 1
 
     def publish_status(self, extra: str = "") -> None:
         level, message, values = self.core.status()
@@ -282,7 +281,8 @@ class ControllerNode(LifecycleNode):
                 json.dump({"message": message, **values, "stopped": self.core.stopped,
                            "compute_us_p50": float(np.percentile(lat, 50)),
                            "compute_us_p99": float(np.percentile(lat, 99)),
-                           "published": dict(self.published)}, fh, indent=2)
+                           "published": dict.fromkeys(("drives/command", "controller/reference"),
+                                                      self.answers_published)}, fh, indent=2)
         return super().destroy_node()
 
 

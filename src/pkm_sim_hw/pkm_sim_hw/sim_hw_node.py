@@ -84,7 +84,7 @@ class SimHwNode(Node):
         # simulated time as a step count (plant.t accumulates dt: 60 s at 1 kHz would be 60001 steps)
         self.duration_steps = math.ceil(self.duration_s / params.dt_s - 1e-6) if self.duration_s else 0
         self.finished = False
-        self.published = {"drives/state": 0, "platform/true_pose": 0, "/clock": 0}   # distinct steps
+        self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
         self.last_published_ns = -1
         self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
@@ -137,10 +137,7 @@ class SimHwNode(Node):
         self.pub_pose.publish(self.msg_pose)
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
-            published = self.published
-            published["platform/true_pose"] += 1
-            published["drives/state"] += 1
-            published["/clock"] += 1
+            self.steps_published += 1
         self.msg_state.position = out.encoder_positions
         self.msg_state.velocity = out.encoder_velocities
         self.msg_state.effort = out.applied_forces
@@ -230,7 +227,8 @@ class SimHwNode(Node):
         return {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
                 "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
                 "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts,
-                "published": dict(self.published), "complete": self.finished}
+                "published": dict.fromkeys(("drives/state", "platform/true_pose", "/clock"), self.steps_published),
+                "complete": self.finished}
 
     def write_summary(self) -> None:
         if self.summary_path:
@@ -247,7 +245,7 @@ class SimHwNode(Node):
             rclpy.try_shutdown(context=self.context)
 
     def destroy_node(self):
-        if not self.finished and hasattr(self, "published"):
+        if not self.finished and hasattr(self, "steps_published"):
             self.write_summary()                   # interrupted: what was done so far
         return super().destroy_node()
 
