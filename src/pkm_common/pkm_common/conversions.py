@@ -75,14 +75,10 @@ def _quaternion(r) -> tuple:
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
-def pose_msg(position, rotation, stamp, frame_id: str, out: PoseStamped | None = None) -> PoseStamped:
-    """PoseStamped from a position (3,) and a rotation matrix (3, 3).
-
-    ``stamp`` is a builtin_interfaces/Time, an rclpy Time or integer nanoseconds. The
-    quaternion has w >= 0. A non-finite input raises ValueError (a NaN pose is never
-    published). ``out``: a message to fill and return instead of a new one (a node
-    publishing at 1-2 kHz reuses one; publish() serialises it at once).
-    """
+def pose_components(position, rotation) -> tuple[tuple, tuple]:
+    """((x, y, z), (qx, qy, qz, qw)) of a position (3,) and a rotation matrix (3, 3),
+    as Python floats, w >= 0 (the fields of a geometry_msgs/Pose). A non-finite input
+    raises ValueError (a NaN pose is never published)."""
     try:
         px, py, pz = (position.tolist() if isinstance(position, np.ndarray) else position)
         px, py, pz = float(px), float(py), float(pz)
@@ -98,25 +94,42 @@ def pose_msg(position, rotation, stamp, frame_id: str, out: PoseStamped | None =
     if not math.isfinite(px + py + pz + r[0] + r[1] + r[2] + r[3] + r[4] + r[5] + r[6] + r[7] + r[8]):
         raise ValueError(f'pose: contains NaN or infinite values: position {[px, py, pz]}, '
                          f'rotation {list(r)}')
+    return (px, py, pz), _quaternion(r)
+
+
+def pose_msg(position, rotation, stamp, frame_id: str, out: PoseStamped | None = None) -> PoseStamped:
+    """PoseStamped from a position (3,) and a rotation matrix (3, 3).
+
+    ``stamp`` is a builtin_interfaces/Time, an rclpy Time or integer nanoseconds. The
+    quaternion has w >= 0. A non-finite input raises ValueError (a NaN pose is never
+    published). ``out``: a message to fill and return instead of a new one.
+    """
+    (px, py, pz), (qx, qy, qz, qw) = pose_components(position, rotation)
     msg = PoseStamped() if out is None else out
     msg.header.stamp = _stamp(stamp)
     msg.header.frame_id = frame_id
     pos, ori = msg.pose.position, msg.pose.orientation
     pos.x, pos.y, pos.z = px, py, pz
-    ori.x, ori.y, ori.z, ori.w = _quaternion(r)
+    ori.x, ori.y, ori.z, ori.w = qx, qy, qz, qw
     return msg
 
 
 def pose_from_msg(msg: PoseStamped) -> tuple[np.ndarray, np.ndarray]:
-    """(position (3,), rotation (3, 3)) of a PoseStamped.
+    """(position (3,), rotation (3, 3)) of a PoseStamped; see :func:`pose_from_components`."""
+    pos, ori = msg.pose.position, msg.pose.orientation
+    return pose_from_components((pos.x, pos.y, pos.z), (ori.x, ori.y, ori.z, ori.w))
+
+
+def pose_from_components(position, orientation) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a pose's fields (x, y, z), (qx, qy, qz, qw)
+    (a message, or pkm_common.cdr.PoseStampedData read from its bytes).
 
     Raises ValueError naming the field for NaN/inf components and for a quaternion
     whose norm differs from 1 by more than 1e-6 (a malformed message, not rounding);
     within that tolerance the quaternion is normalised.
     """
-    pos, ori = msg.pose.position, msg.pose.orientation
-    p = (pos.x, pos.y, pos.z)
-    x, y, z, w = q = (ori.x, ori.y, ori.z, ori.w)
+    p = tuple(position)
+    x, y, z, w = q = tuple(orientation)
     if not math.isfinite(p[0] + p[1] + p[2]):
         bad = [f'pose.position.{c}' for c, v in zip('xyz', p) if not math.isfinite(v)]
         raise ValueError(f'{", ".join(bad) or "pose.position"}: must be finite, got {list(p)}')

@@ -1,0 +1,278 @@
+"""Serialized (CDR) form of the per-step messages, without rclpy message objects.
+
+The lockstep loop exchanges a handful of small messages per step. Through rclpy's
+message objects each costs a deserialization on take (JointState ~30 us, PoseStamped
+~50 us: nested Python objects with checking setters) and a serialization on publish
+(~13 us), more than the control law itself. A raw subscription (``raw=True``) hands
+the callback the CDR bytes and ``Publisher.publish`` accepts bytes; this module reads
+and writes those bytes directly with precompiled ``struct`` layouts (~1-3 us), so the
+topics keep their standard types (sensor_msgs/JointState, geometry_msgs/PoseStamped,
+rosgraph_msgs/Clock) and every other tool still reads them.
+
+Format (OMG XCDR1, as rmw_fastrtps writes it): a 4-byte encapsulation header
+(``00 01 00 00``: CDR little endian), then the fields in order, each primitive
+aligned to its own size relative to the byte after the header; a string is a uint32
+length counting its NUL, the bytes and the NUL; a sequence is a uint32 count then the
+elements (no alignment padding when the count is 0). Bytes after the last field are
+ignored (rmw's buffers are often longer than the message).
+
+A malformed buffer raises ValueError naming the field; nothing else is checked here
+(finite values, lengths per name and quaternion norms are the caller's rules, as for
+a message object).
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+CDR_LE_HEADER = b"\x00\x01\x00\x00"
+_HEADER_AND_STAMP = struct.Struct("<4siI")          # encapsulation, stamp.sec, stamp.nanosec
+_UINT32 = struct.Struct("<I")
+_STAMP = struct.Struct("<iI")
+NS_PER_S = 1_000_000_000
+
+
+class JointStateData(NamedTuple):
+    """The fields of a sensor_msgs/JointState; stamp as integer nanoseconds."""
+    stamp_ns: int
+    frame_id: str
+    name: tuple
+    position: tuple
+    velocity: tuple
+    effort: tuple
+
+
+class PoseStampedData(NamedTuple):
+    """The fields of a geometry_msgs/PoseStamped: position (x, y, z), orientation (x, y, z, w)."""
+    stamp_ns: int
+    frame_id: str
+    position: tuple
+    orientation: tuple
+
+
+def _pad(offset: int, alignment: int) -> int:
+    """Padding bytes before a field of ``alignment`` at ``offset`` (relative to the body)."""
+    return -offset % alignment
+
+
+def _split_stamp(stamp_ns: int) -> tuple[int, int]:
+    sec, nanosec = divmod(stamp_ns, NS_PER_S)
+    if not 0 <= sec < 2**31:
+        raise ValueError(f"stamp: must be in [0, 2^31 s) as nanoseconds, got {stamp_ns}")
+    return sec, nanosec
+
+
+def _string_bytes(text: str, offset: int) -> tuple[bytes, int]:
+    """CDR of a string field starting at body ``offset``: (bytes incl. padding, new offset)."""
+    raw = text.encode("utf-8") + b"\x00"
+    pad = _pad(offset, 4)
+    out = b"\x00" * pad + _UINT32.pack(len(raw)) + raw
+    return out, offset + len(out)
+
+
+# ------------------------------------------------------------------- reading
+class _Reader:
+    """Sequential CDR reader over one buffer; offsets relative to the body (after the header)."""
+
+    __slots__ = ("buf", "pos", "what")
+
+    def __init__(self, buf, what: str):
+        if len(buf) < 12 or bytes(buf[:4]) != CDR_LE_HEADER:
+            raise ValueError(f"{what}: not a little-endian CDR message "
+                             f"(header {bytes(buf[:4]).hex()}, {len(buf)} bytes)")
+        self.buf, self.pos, self.what = buf, 4, what
+
+    def _need(self, size: int, field: str) -> None:
+        if self.pos + size > len(self.buf):
+            raise ValueError(f"{self.what}: {field} runs past the end of the message "
+                             f"({len(self.buf)} bytes)")
+
+    def align(self, alignment: int) -> None:
+        self.pos += _pad(self.pos - 4, alignment)
+
+    def uint32(self, field: str) -> int:
+        self.align(4)
+        self._need(4, field)
+        value = _UINT32.unpack_from(self.buf, self.pos)[0]
+        self.pos += 4
+        return value
+
+    def string(self, field: str) -> str:
+        size = self.uint32(field)
+        self._need(size, field)
+        raw = bytes(self.buf[self.pos:self.pos + size])
+        if size == 0 or raw[-1] != 0:
+            raise ValueError(f"{self.what}: {field} is not a NUL-terminated string")
+        self.pos += size
+        try:
+            return raw[:-1].decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError(f"{self.what}: {field} is not UTF-8") from None
+
+    def doubles(self, count: int, field: str) -> tuple:
+        if count == 0:
+            return ()
+        self.align(8)
+        self._need(8 * count, field)
+        values = struct.unpack_from(f"<{count}d", self.buf, self.pos)
+        self.pos += 8 * count
+        return values
+
+    def double_sequence(self, field: str) -> tuple:
+        return self.doubles(self.uint32(f"{field} count"), field)
+
+    def stamp_ns(self) -> int:
+        self._need(8, "header.stamp")
+        sec, nanosec = _STAMP.unpack_from(self.buf, self.pos)
+        self.pos += 8
+        return sec * NS_PER_S + nanosec
+
+
+def stamp_ns_of(buf) -> int:
+    """header.stamp (or Clock.clock) of a serialized stamped message, as nanoseconds:
+    the first field of the body."""
+    return _Reader(buf, "message").stamp_ns()
+
+
+def decode_joint_state(buf, what: str = "JointState") -> JointStateData:
+    """Fields of a serialized sensor_msgs/JointState. ``what`` names the topic in errors."""
+    r = _Reader(buf, what)
+    stamp = r.stamp_ns()
+    frame_id = r.string("header.frame_id")
+    count = r.uint32("name count")
+    if count > len(buf):
+        raise ValueError(f"{what}: name count {count} exceeds the message size")
+    name = tuple(r.string(f"name[{i}]") for i in range(count))
+    return JointStateData(stamp, frame_id, name, r.double_sequence("position"),
+                          r.double_sequence("velocity"), r.double_sequence("effort"))
+
+
+def decode_pose_stamped(buf, what: str = "PoseStamped") -> PoseStampedData:
+    """Fields of a serialized geometry_msgs/PoseStamped."""
+    r = _Reader(buf, what)
+    stamp = r.stamp_ns()
+    frame_id = r.string("header.frame_id")
+    values = r.doubles(7, "pose")
+    return PoseStampedData(stamp, frame_id, values[:3], values[3:])
+
+
+class JointStateDecoder:
+    """``decode_joint_state`` with the layout of the last message remembered: a stream
+    from one publisher (same names, frame and array lengths every step) is read with
+    one compare and one ``struct`` call; any other message takes the general path."""
+
+    def __init__(self, what: str = "JointState"):
+        self.what = what
+        self._layout: JointStateEncoder | None = None
+
+    def decode(self, buf) -> JointStateData:
+        lay = self._layout
+        if lay is not None and len(buf) >= lay.size:
+            values = lay._struct.unpack_from(buf)
+            if values[0] == CDR_LE_HEADER and values[3] == lay._middle \
+                    and all(values[i] == count for i, count in lay._count_index):
+                stamp = values[1] * NS_PER_S + values[2]
+                arrays = [values[start:start + count] for start, count in lay._array_slices]
+                return JointStateData(stamp, lay.frame_id, lay.names, *arrays)
+        data = decode_joint_state(buf, self.what)
+        n = len(data.name)
+        fields = [f for f, values in zip(JointStateEncoder.FIELDS, data[3:]) if values]
+        if all(len(values) in (0, n) for values in data[3:]):
+            self._layout = JointStateEncoder(data.name, data.frame_id, fields)
+        else:
+            self._layout = None
+        return data
+
+
+# ------------------------------------------------------------------- writing
+class JointStateEncoder:
+    """Serialized sensor_msgs/JointState of fixed names and frame: the layout is
+    compiled once, ``encode`` packs a stamp and the arrays in one ``struct`` call.
+
+    ``fields``: which of position, velocity, effort carry one value per name (the
+    others are empty sequences, as in a command that only sets efforts).
+    """
+
+    FIELDS = ("position", "velocity", "effort")
+
+    def __init__(self, names, frame_id: str = "", fields=FIELDS):
+        names = [str(n) for n in names]
+        unknown = set(fields) - set(self.FIELDS)
+        if unknown:
+            raise ValueError(f"fields: must be among {list(self.FIELDS)}, got {sorted(unknown)}")
+        self.names, self.frame_id, self.n = tuple(names), frame_id, len(names)
+        self.fields = tuple(f for f in self.FIELDS if f in fields)
+        offset = 8                                        # body offset after the stamp
+        middle, offset = _string_bytes(frame_id, offset)
+        pad = _pad(offset, 4)
+        middle += b"\x00" * pad + _UINT32.pack(len(names))
+        offset += pad + 4
+        for name in names:
+            chunk, offset = _string_bytes(name, offset)
+            middle += chunk
+        fmt = ["<4siI", f"{len(middle)}s"]
+        for field in self.FIELDS:
+            pad = _pad(offset, 4)
+            fmt.append(f"{pad}xI")
+            offset += pad + 4
+            if field in self.fields and self.n:
+                pad = _pad(offset, 8)
+                fmt.append(f"{pad}x{self.n}d")
+                offset += pad + 8 * self.n
+        self._middle = middle
+        self._struct = struct.Struct("".join(fmt))
+        self._counts = {f: (self.n if f in self.fields else 0) for f in self.FIELDS}
+        # where the counts and the arrays sit in the unpacked tuple (JointStateDecoder)
+        index, self._count_index, self._array_slices = 4, [], []
+        for field in self.FIELDS:
+            count = self._counts[field] if self.n else 0
+            self._count_index.append((index, self._counts[field]))
+            self._array_slices.append((index + 1, count))
+            index += 1 + count
+        self.size = self._struct.size
+
+    def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:
+        """Bytes of the message; each array of ``fields`` must hold one value per name."""
+        sec, nanosec = _split_stamp(stamp_ns)
+        args = [CDR_LE_HEADER, sec, nanosec, self._middle]
+        for field, values in zip(self.FIELDS, (position, velocity, effort)):
+            count = self._counts[field]
+            args.append(count)
+            if count:
+                if len(values) != count:
+                    raise ValueError(f"{field}: expected {count} values (one per name), got {len(values)}")
+                args.extend(values)
+        try:
+            return self._struct.pack(*args)
+        except struct.error as exc:
+            raise ValueError(f"JointState: {exc} (the arrays must hold numbers)") from None
+
+
+class PoseStampedEncoder:
+    """Serialized geometry_msgs/PoseStamped of a fixed frame."""
+
+    def __init__(self, frame_id: str = "world"):
+        self.frame_id = frame_id
+        middle, offset = _string_bytes(frame_id, 8)
+        pad = _pad(offset, 8)
+        self._struct = struct.Struct(f"<4siI{len(middle)}s{pad}x7d")
+        self._middle = middle
+        self.size = self._struct.size
+
+    def encode(self, stamp_ns: int, position, orientation) -> bytes:
+        """``position`` (x, y, z) and ``orientation`` (x, y, z, w) as numbers."""
+        sec, nanosec = _split_stamp(stamp_ns)
+        px, py, pz = position
+        qx, qy, qz, qw = orientation
+        return self._struct.pack(CDR_LE_HEADER, sec, nanosec, self._middle, px, py, pz, qx, qy, qz, qw)
+
+
+def encode_clock(stamp_ns: int) -> bytes:
+    """Serialized rosgraph_msgs/Clock."""
+    sec, nanosec = _split_stamp(stamp_ns)
+    return _HEADER_AND_STAMP.pack(CDR_LE_HEADER, sec, nanosec)
+
+
+__all__ = ["CDR_LE_HEADER", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
+           "JointStateDecoder", "decode_joint_state", "decode_pose_stamped", "encode_clock", "stamp_ns_of"]

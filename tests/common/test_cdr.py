@@ -1,0 +1,137 @@
+"""pkm_common.cdr against rclpy's own (de)serialization (rmw_fastrtps typesupport): the
+independent reference for the bytes."""
+
+import math
+
+import pytest
+from geometry_msgs.msg import PoseStamped
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rclpy.serialization import deserialize_message, serialize_message
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_joint_state,
+                            decode_pose_stamped, encode_clock, stamp_ns_of)
+
+texts = st.text(st.characters(blacklist_characters='\x00', blacklist_categories=('Cs',)), max_size=12)  # C strings
+doubles = st.floats(allow_nan=False, width=64)
+stamps = st.integers(0, 2**31 * 10**9 - 1)
+
+
+@st.composite
+def joint_states(draw):
+    names = draw(st.lists(texts, max_size=7))
+    n = len(names)
+    arrays = [draw(st.one_of(st.just([]), st.lists(doubles, min_size=n, max_size=n),
+                             st.lists(doubles, max_size=9)))         # any length: a malformed command
+              for _ in range(3)]
+    msg = JointState(name=names, position=arrays[0], velocity=arrays[1], effort=arrays[2])
+    msg.header.frame_id = draw(texts)
+    stamp = draw(stamps)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+    return msg, stamp
+
+
+def fields(msg: JointState):
+    return (list(msg.name), list(msg.position), list(msg.velocity), list(msg.effort))
+
+
+@settings(max_examples=300, deadline=None)
+@given(joint_states())
+def test_decode_joint_state_reads_what_rclpy_serialized(case):
+    msg, stamp = case
+    data = decode_joint_state(serialize_message(msg))
+    assert data.stamp_ns == stamp and data.frame_id == msg.header.frame_id
+    assert (list(data.name), list(data.position), list(data.velocity), list(data.effort)) == fields(msg)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(texts, max_size=7), texts, st.sets(st.sampled_from(JointStateEncoder.FIELDS)), stamps,
+       st.randoms(use_true_random=False))
+def test_joint_state_encoder_writes_what_rclpy_reads(names, frame, chosen, stamp, rnd):
+    encoder = JointStateEncoder(names, frame, chosen)
+    arrays = {f: [rnd.uniform(-1e3, 1e3) for _ in names] if f in chosen else [] for f in JointStateEncoder.FIELDS}
+    buf = encoder.encode(stamp, **arrays)
+    msg = deserialize_message(buf, JointState)
+    assert (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg.header.frame_id) == (stamp, frame)
+    assert fields(msg) == (names, arrays["position"], arrays["velocity"], arrays["effort"])
+    # byte-identical to rclpy's serialization up to its (uninitialised) padding and trailing bytes
+    assert len(buf) == encoder.size and deserialize_message(serialize_message(msg), JointState) == msg
+    assert decode_joint_state(buf) == decode_joint_state(serialize_message(msg))
+
+
+def test_joint_state_decoder_switches_layouts_and_matches_the_general_reader():
+    a = JointStateEncoder(["d1", "d2", "d3", "d4"]).encode(10, [1.0] * 4, [2.0] * 4, [3.0] * 4)
+    b = JointStateEncoder(["d1", "d2", "d3", "d4"], fields=("effort",)).encode(11, effort=[4.0, 5.0, 6.0, 7.0])
+    c = serialize_message(JointState(name=["d1", "d2", "d3"], effort=[1.0, 2.0, 3.0]))
+    odd = serialize_message(JointState(name=["d1", "d2"], effort=[1.0]))          # uncacheable layout
+    decoder = JointStateDecoder()
+    for buf in (a, a, b, b, a, c, odd, odd, c, b, a):
+        assert decoder.decode(buf) == decode_joint_state(buf)
+    # same layout, other values: read from the bytes, not remembered
+    other = JointStateEncoder(["d1", "d2", "d3", "d4"]).encode(12, [9.0] * 4, [8.0] * 4, [7.0] * 4)
+    assert decoder.decode(a).position == (1.0,) * 4 and decoder.decode(other).position == (9.0,) * 4
+
+
+@settings(max_examples=200, deadline=None)
+@given(texts, stamps, st.lists(doubles, min_size=7, max_size=7))
+def test_pose_stamped_both_ways(frame, stamp, values):
+    buf = PoseStampedEncoder(frame).encode(stamp, values[:3], values[3:])
+    msg = deserialize_message(buf, PoseStamped)
+    p, q = msg.pose.position, msg.pose.orientation
+    assert [p.x, p.y, p.z, q.x, q.y, q.z, q.w] == values and msg.header.frame_id == frame
+    data = decode_pose_stamped(serialize_message(msg))
+    assert data.stamp_ns == stamp and data.frame_id == frame
+    assert list(data.position) + list(data.orientation) == values
+
+
+def test_clock_and_stamp_of_any_stamped_message():
+    msg = deserialize_message(encode_clock(3_000_000_001), Clock)
+    assert (msg.clock.sec, msg.clock.nanosec) == (3, 1)
+    assert stamp_ns_of(encode_clock(42)) == 42
+    assert stamp_ns_of(PoseStampedEncoder().encode(7, (0, 0, 0), (0, 0, 0, 1))) == 7
+
+
+def test_nan_and_infinity_pass_through_unchanged():
+    """Checking values is the node's rule (it refuses NaN by name), not the codec's."""
+    buf = JointStateEncoder(["a", "b"], fields=("effort",)).encode(0, effort=[math.nan, math.inf])
+    effort = decode_joint_state(buf).effort
+    assert math.isnan(effort[0]) and effort[1] == math.inf
+
+
+@pytest.mark.parametrize("cut", [0, 3, 11, 14, 20, 30, 45, 60])
+def test_truncated_joint_state_is_refused_naming_the_field(cut):
+    buf = JointStateEncoder(["d1", "d2"], "base").encode(5, [1.0, 2.0], [3.0, 4.0], [5.0, 6.0])
+    with pytest.raises(ValueError, match=r"drives/state: "):
+        decode_joint_state(buf[:cut], "drives/state")
+    with pytest.raises(ValueError, match=r"drives/state: "):
+        JointStateDecoder("drives/state").decode(buf[:cut])
+
+
+def test_malformed_bytes_are_refused():
+    good = serialize_message(JointState(name=["a"]))
+    with pytest.raises(ValueError, match="not a little-endian CDR"):
+        decode_joint_state(b"\x00\x00\x00\x00" + good[4:])
+    broken = bytearray(good)
+    broken[20:24] = (10**6).to_bytes(4, "little")           # the name count
+    with pytest.raises(ValueError, match="name count"):
+        decode_joint_state(bytes(broken))
+    unterminated = bytearray(good)
+    unterminated[29] = ord("x")                             # the NUL of name[0]
+    with pytest.raises(ValueError, match=r"name\[0\] is not a NUL-terminated string"):
+        decode_joint_state(bytes(unterminated))
+    with pytest.raises(ValueError, match="pose runs past the end"):
+        decode_pose_stamped(PoseStampedEncoder().encode(0, (0, 0, 0), (0, 0, 0, 1))[:40])
+
+
+def test_encoder_refuses_bad_input_naming_it():
+    encoder = JointStateEncoder(["a", "b"], fields=("effort",))
+    with pytest.raises(ValueError, match="effort: expected 2 values"):
+        encoder.encode(0, effort=[1.0])
+    with pytest.raises(ValueError, match="must hold numbers"):
+        encoder.encode(0, effort=[1.0, "x"])
+    with pytest.raises(ValueError, match="stamp: must be in"):
+        encoder.encode(-1, effort=[1.0, 2.0])
+    with pytest.raises(ValueError, match="fields: must be among"):
+        JointStateEncoder(["a"], fields=("torque",))
