@@ -258,3 +258,14 @@ def test_orientation_resolution_parts():
     assert 25e-6 < res.tilt_rad < 35e-6
     assert res.twist_rad > 1.5 * res.tilt_rad
     assert res.orientation_rad >= max(res.tilt_rad, res.twist_rad)
+
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-0.2, 0.2), st.floats(-0.2, 0.2), st.floats(-0.1, 0.1), st.floats(-0.3, 0.3),
+       st.floats(-0.3, 0.3), st.floats(-1.0, 1.0))
+def test_inverse_jacobian_rows_on_floats_equal_the_numpy_matrix(dx, dy, dz, roll, pitch, yaw):
+    rot = rotation_from_rpy(roll, pitch, yaw)
+    p = HOME + [dx, dy, dz]
+    rows = GOUGH.inverse_jacobian_rows(p.tolist(), tuple(rot.ravel().tolist()))
+    np.testing.assert_allclose(np.array(rows), GOUGH.inverse_jacobian(p, rot), rtol=0, atol=1e-14)

@@ -223,6 +223,8 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
         values = dict(params[name])
         if name == "sim_hw":
             values["shutdown_on_finish"] = False
+        if name == "recorder":
+            values["cpu_priority"] = "normal"     # idle would demote the whole loop with it
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         try:
             nodes[name] = classes[name](context=context, namespace=s.namespace, parameter_overrides=overrides)

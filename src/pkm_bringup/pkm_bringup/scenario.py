@@ -290,7 +290,9 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     if s.record:
         nodes["recorder"] = {"output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
                              "expect_topics": ",".join(expected_topics(s)),
-                             "summary_path": str(summaries / "recorder.json")}
+                             "summary_path": str(summaries / "recorder.json"),
+                             # its own process: it records on CPU time the loop leaves
+                             "cpu_priority": "idle"}
     return {name: _typed(name, params) for name, params in nodes.items()}
 
 

@@ -178,7 +178,7 @@ class SensorSpaceFeedback:
         l_des = strut_lengths_floats(self._legs, p_bp, r_bp)     # IKM_GP, nominal geometry
         e_l = [a - b for a, b in zip(l_des, lengths)]
         at = self.estimate or (p_bp, r_bp)
-        jinv = self.platform.inverse_jacobian(at[0], np.array(at[1]).reshape(3, 3))
+        jinv = self.platform.inverse_jacobian_rows(at[0], at[1])
         d = np.linalg.solve(jinv, e_l).tolist()       # [dp; dw] = J_h e_l (MoM3 eq. 1)
         dp, dw = d[:3], d[3:]
         # estimate of the real plate pose for the next cycle: x_h,des - J_h e_l

@@ -115,8 +115,6 @@ class GoughSensorNode(Node):
                 raise ValueError(f"header.frame_id: must be 'world', got {msg.frame_id!r}")
             position, rotation = pose_from_components(msg.position, msg.orientation)
             lengths = self.model.measure(position, rotation)
-            est_p, est_r, result = self.model.estimate(lengths)
-            estimate = pose_components(est_p, est_r) if result.converged else None
         except ValueError as exc:
             self.counts['refused'] += 1
             self._error(f'true pose refused: {exc}', {'stamp_ns': ns})
@@ -125,14 +123,16 @@ class GoughSensorNode(Node):
         published = self.published
         new_step = ns != self._last_stamp_ns      # counted once per step (not the discovery repeats)
         self._last_stamp_ns = ns
-        if estimate is not None:
-            published['metrology/pose'] += new_step
-            # the pose first: a lockstep controller waits for it, not for the struts
-            self.counts['solved'] += 1
-            self.pub_pose.publish(self._pose_encoder.encode(ns, *estimate))
+        # the readings first: a sensor-space controller waits for them, and the DKM
+        # (~20 us) is then off its critical path; a measured-space one waits for the pose
         self.pub_struts.publish(self._struts_encoder.encode(ns, position=lengths.tolist()))
         published['metrology/struts'] += new_step
-        if not result.converged:
+        est_p, est_r, result = self.model.estimate(lengths)
+        if result.converged:
+            published['metrology/pose'] += new_step
+            self.counts['solved'] += 1
+            self.pub_pose.publish(self._pose_encoder.encode(ns, *pose_components(est_p, est_r)))
+        else:
             self.counts['failed'] += 1
             self._error(f'DKM failed: {result.reason}', {
                 'stamp_ns': ns, 'iterations': result.iterations,

@@ -132,6 +132,23 @@ class GoughPlatform:
         out[:, 5] = rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]
         return out
 
+    def inverse_jacobian_rows(self, p, r) -> list[tuple]:
+        """:meth:`inverse_jacobian` on plain floats for the per-cycle path (~4x faster
+        than numpy on a 6 x 6): ``p`` 3 floats, ``r`` a row-major 9-tuple; unchecked.
+        Rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3)."""
+        px, py, pz = p
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+        rows = []
+        for ax, ay, az, bx, by, bz in self._legs_f:
+            rbx = r00 * bx + r01 * by + r02 * bz
+            rby = r10 * bx + r11 * by + r12 * bz
+            rbz = r20 * bx + r21 * by + r22 * bz
+            lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
+            n = math.sqrt(lx * lx + ly * ly + lz * lz)
+            ux, uy, uz = lx / n, ly / n, lz / n
+            rows.append((ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux))
+        return rows
+
     def inverse_jacobian_batch(self, positions, rotations) -> np.ndarray:
         """J_h^-1 for N poses: (N, 6, 6)."""
         rb = np.einsum("nij,kj->nki", rotations, self.plate_points)
