@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _gram_solve_rows, _min_two_norm_rows, gram_rows
+from pkm_kinematics.distribution import _gram_solve_rows, gram_rows, project_rows, transpose_rows
 from pkm_gough_sensor.metrology import strut_lengths_floats
 from pkm_kinematics.rotations import exp_so3_floats, mul3
 
@@ -73,23 +73,13 @@ def pose_error(x_d, x, planar: bool) -> list:
 def least_squares_velocity(rows, qdot) -> list:
     """v = (J^T J)^-1 J^T qdot: the task velocity that best explains the drive
     velocities (the exact one when they are consistent)."""
-    w0 = w1 = w2 = 0.0
-    for (j0, j1, j2), qd in zip(rows, qdot):
-        w0 += j0 * qd
-        w1 += j1 * qd
-        w2 += j2 * qd
-    return _gram_solve_rows(rows, (w0, w1, w2))
+    return _gram_solve_rows(rows, transpose_rows(rows, qdot))
 
 
 def project_to_range(rows, forces) -> list:
     """n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 8): the least-norm forces producing the
     same wrench F_d = J^T n_d (eq. 6-7); the fighting (null-space) part is removed."""
-    w0 = w1 = w2 = 0.0
-    for (j0, j1, j2), f in zip(rows, forces):
-        w0 += j0 * f
-        w1 += j1 * f
-        w2 += j2 * f
-    return _min_two_norm_rows(rows, (w0, w1, w2))
+    return project_rows(rows, forces)
 
 
 def gram_condition(rows) -> float:

@@ -95,6 +95,22 @@ def _min_two_norm_rows(rows, wrench) -> list[float]:
     return [j0 * y0 + j1 * y1 + j2 * y2 for j0, j1, j2 in rows]
 
 
+def transpose_rows(rows, values) -> tuple[float, float, float]:
+    """J^T v on floats, J given as rows of 3 (the wrench of drive forces v)."""
+    w0 = w1 = w2 = 0.0
+    for (j0, j1, j2), v in zip(rows, values):
+        w0 += j0 * v
+        w1 += j1 * v
+        w2 += j2 * v
+    return w0, w1, w2
+
+
+def project_rows(rows, forces) -> list[float]:
+    """:func:`project_forces` on floats: J (J^T J)^-1 J^T f, the least-norm forces
+    producing the wrench of ``forces`` (their null-space part removed)."""
+    return _min_two_norm_rows(rows, transpose_rows(rows, forces))
+
+
 def _validate(jac, wrench) -> tuple[np.ndarray, list[float]]:
     """J as an (n, m) float array with n >= m, and the wrench as m floats."""
     jac = np.asarray(jac, dtype=float)
@@ -339,12 +355,7 @@ def add_prestress(jac, forces, prestress_n: float, reference=None) -> np.ndarray
 
 def internal_force_rows(rows, forces) -> list[float]:
     """:func:`internal_force` on floats (J as rows of 3): f - J (J^T J)^-1 J^T f."""
-    w0 = w1 = w2 = 0.0
-    for (j0, j1, j2), f in zip(rows, forces):
-        w0 += j0 * f
-        w1 += j1 * f
-        w2 += j2 * f
-    return [f - p for f, p in zip(forces, _min_two_norm_rows(rows, (w0, w1, w2)))]
+    return [f - p for f, p in zip(forces, project_rows(rows, forces))]
 
 
 def internal_force(jac, forces) -> np.ndarray:
