@@ -11,8 +11,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_joint_state,
-                            decode_pose_stamped, encode_clock, stamp_ns_of)
+from pkm_common.cdr import (JointStateData, JointStateDecoder, JointStateEncoder, PoseStampedEncoder,
+                            decode_joint_state, decode_pose_stamped, encode_clock, in_order, stamp_ns_of)
 
 texts = st.text(st.characters(blacklist_characters='\x00', blacklist_categories=('Cs',)), max_size=12)  # C strings
 doubles = st.floats(allow_nan=False, width=64)
@@ -135,3 +135,14 @@ def test_encoder_refuses_bad_input_naming_it():
         encoder.encode(-1, effort=[1.0, 2.0])
     with pytest.raises(ValueError, match="fields: must be among"):
         JointStateEncoder(["a"], fields=("torque",))
+
+
+def test_in_order_reorders_every_array_of_a_permuted_message():
+    msg = JointStateData(5, "", ("q2", "q1", "q3"), (2.0, 1.0, 3.0), (20.0, 10.0, 30.0), (0.2,))
+    out = in_order(msg, ["q1", "q2", "q3"], "drives/state")
+    assert out.name == ("q1", "q2", "q3") and out.position == (1.0, 2.0, 3.0)
+    assert out.velocity == (10.0, 20.0, 30.0) and out.effort == (0.2,)      # wrong length: left for the caller
+    unnamed = msg._replace(name=())
+    assert in_order(unnamed, ["q1", "q2", "q3"]) is unnamed
+    with pytest.raises(ValueError, match=r"drives/state: names \['q2', 'q1', 'q3'\] are not \['q1', 'q2', 'q4'\]"):
+        in_order(msg, ["q1", "q2", "q4"], "drives/state")

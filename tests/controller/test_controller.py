@@ -233,6 +233,29 @@ def test_missing_metrology_stops_the_measured_space_controller():
     assert core.stopped and "metrology/pose: missing" in core.stop_reason
 
 
+def _mom3_struts(pose):
+    sensor = GoughSensorModel(MOM3.metrology)
+    return sensor.true_lengths(np.array(pose), np.eye(3)).tolist()
+
+
+def test_a_cycle_prepared_on_the_state_completes_on_the_struts():
+    """The node's split: prepare on drives/state, complete when metrology/struts come.
+    Bad readings at complete trip naming the stream; complete without a prepared
+    cycle is a programming error; a stopped controller answers zeros at prepare."""
+    q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()
+    core = ControllerCore(MOM3, ControllerConfig(strategy="sensor_space"))
+    assert core.prepare(0.0, q, [0.0] * 3) is True
+    forces = core.complete(struts=_mom3_struts(MOM3_HOME))
+    assert not core.stopped and len(forces) == 3 and core.cycles == 1
+    with pytest.raises(RuntimeError, match="no cycle prepared"):
+        core.complete(struts=_mom3_struts(MOM3_HOME))
+    assert core.prepare(0.001, q, [0.0] * 3) is True
+    assert core.complete(struts=[0.8] * 5) == [0.0] * 3
+    assert core.stopped and core.stop_reason.startswith("metrology/struts: expected 6 finite strut lengths")
+    assert core.prepare(0.002, q, [0.0] * 3) is False and core.last_command == [0.0] * 3
+    assert core.complete(struts=_mom3_struts(MOM3_HOME)) == [0.0] * 3
+
+
 def test_trajectories_must_start_at_the_current_reference():
     core, _ = closed_loop(ARCHI, "computed_torque", 5)
     far = Reference([0.0, 1.0], [[1.1, -0.4, 0.785], [1.2, -0.4, 0.785]])

@@ -51,6 +51,25 @@ class PoseStampedData(NamedTuple):
     orientation: tuple
 
 
+def in_order(msg: JointStateData, names, what: str = "JointState") -> JointStateData:
+    """``msg`` with its arrays in the order of ``names``. A message without names is
+    taken to be in that order already; an array of another length than the names is
+    left as it is (the caller checks lengths). ValueError naming ``what`` when the
+    names are not a permutation of ``names``."""
+    got = list(msg.name)
+    names = list(names)
+    if not got or got == names:
+        return msg
+    if sorted(got) != sorted(names):
+        raise ValueError(f"{what}: names {got} are not {names}")
+    order = [got.index(n) for n in names]
+
+    def pick(values):
+        return tuple(values[i] for i in order) if len(values) == len(order) else values
+    return msg._replace(name=tuple(names), position=pick(msg.position), velocity=pick(msg.velocity),
+                        effort=pick(msg.effort))
+
+
 def _pad(offset: int, alignment: int) -> int:
     """Padding bytes before a field of ``alignment`` at ``offset`` (relative to the body)."""
     return -offset % alignment

@@ -175,3 +175,17 @@ def declare_float_list(node, name: str, default, description: str = '', *,
 
 __all__ = ['ParameterError', 'declare_bool', 'declare_float', 'declare_float_list',
            'declare_int', 'declare_str']
+
+
+def declare_like(node, name: str, default):
+    """Declare ``name`` typed like ``default`` (bool, int >= 0, float, or str, empty
+    allowed) and return its value; the value only if it is already declared."""
+    if node.has_parameter(name):
+        return node.get_parameter(name).value
+    if isinstance(default, bool):
+        return declare_bool(node, name, default)
+    if isinstance(default, int):
+        return declare_int(node, name, default, 0)
+    if isinstance(default, float):
+        return declare_float(node, name, default)
+    return declare_str(node, name, default, allow_empty=True)

@@ -5,7 +5,11 @@ distribution and the safety supervisor, one ``update`` per control cycle.
 takes one drive state (encoder positions and velocities, the forces the drives
 report applying) and, for the metrology strategies, the Gough strut readings or the
 Gough pose of the same instant, and returns the drive forces to apply until the next
-state. Strategies (``STRATEGIES``):
+state. A node splits it in two: ``prepare(t_s, q, qdot, applied)`` as soon as the
+drive state arrives (FK, supervision, reference, l_des, J_h, A(x), H(x, v)) and
+``complete(struts, metrology_pose)`` when the metrology of that instant does, so the
+readings wait only for the feedback, the law and the distribution. Strategies
+(``STRATEGIES``):
 
 1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1), with
                                acceleration feed-forward of the mass each drive sees
@@ -51,6 +55,7 @@ STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed
               "measured_space")
 JOINT_STRATEGIES = ("joint_pid", "decentralized_projected")
 METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
+MODEL_STRATEGIES = ("computed_torque", "sensor_space", "measured_space")     # use A(x), H(x, v)
 
 
 @dataclass
@@ -140,6 +145,18 @@ class CycleRecord:
         return math.sqrt(sum(f * f for f in internal_force_rows(self.rows, self.forces)))
 
 
+class _Cycle:
+    """What ``prepare`` computed for the cycle ``complete`` finishes."""
+
+    __slots__ = ("t_s", "dt", "first", "q", "qdot", "pose", "rows", "v", "x_d", "v_d", "a_d",
+                 "a_model", "h_model")
+
+    def __init__(self, t_s, dt, first, q, qdot, pose, rows, v):
+        self.t_s, self.dt, self.first, self.q, self.qdot = t_s, dt, first, q, qdot
+        self.pose, self.rows, self.v = pose, rows, v
+        self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
+
+
 class ControllerCore:
     """One controller for one machine. ``update`` per cycle; ``set_trajectory`` to move."""
 
@@ -207,6 +224,7 @@ class ControllerCore:
         self.pending: Reference | None = None
         self.pose = None                         # encoder FK estimate (warm start)
         self.last_time_s = None
+        self._cycle: _Cycle | None = None        # prepared, waiting for complete()
         self.integral = [0.0] * (self.n if self.config.strategy in JOINT_STRATEGIES else 3)
         self.active = list(range(self.n))
         self.failed: dict[int, str] = {}
@@ -270,7 +288,7 @@ class ControllerCore:
         self.record.forces = tuple(self.last_command)
         return list(self.last_command)
 
-    def _check_inputs(self, q, qdot, applied, struts, metrology_pose) -> str:
+    def _check_state(self, q, qdot, applied) -> str:
         for name, values, size in (("position", q, self.n), ("velocity", qdot, self.n)):
             if len(values) != size:
                 return f"drives/state: {name} has {len(values)} values, expected {size} ({self.names})"
@@ -279,6 +297,9 @@ class ControllerCore:
                 return f"drives/state: {name}[{k}] ({self.names[k]}) is {values[k]}"
         if applied is not None and len(applied) and (len(applied) != self.n or not math.isfinite(sum(applied))):
             return f"drives/state: effort must be {self.n} finite values, got {list(applied)}"
+        return ""
+
+    def _check_metrology(self, struts, metrology_pose) -> str:
         if self.config.strategy == "sensor_space":
             if struts is None or len(struts) != 6 or not math.isfinite(sum(struts)):
                 return f"metrology/struts: expected 6 finite strut lengths, got {struts}"
@@ -340,12 +361,27 @@ class ControllerCore:
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
-        """One control cycle; returns the drive forces (N) for the next period."""
+        """One control cycle; returns the drive forces (N) for the next period.
+        The same as ``prepare`` on the drive state, then ``complete`` on the metrology."""
+        if not self.prepare(t_s, q, qdot, applied):
+            return list(self.last_command)
+        return self.complete(struts, metrology_pose)
+
+    def prepare(self, t_s: float, q, qdot, applied=None) -> bool:
+        """The first half of a cycle, on the drive state alone: the input checks, the
+        encoder FK, the drive supervision, J_m and the task velocity, the reference
+        and what the strategy computes from them (the Gough's l_des and J_h, the
+        model A(x), H(x, v)). A node runs it while the metrology of the same instant
+        is on its way, so only ``complete`` lies between the readings and the command.
+        False when the controller is (now) stopped: ``last_command`` (zeros) answers."""
+        self._cycle = None
         if self.stopped:
-            return self.trip(self.stop_reason)
-        problem = self._check_inputs(q, qdot, applied, struts, metrology_pose)
+            self.trip(self.stop_reason)
+            return False
+        problem = self._check_state(q, qdot, applied)
         if problem:
-            return self.trip(problem)
+            self.trip(problem)
+            return False
         q, qdot = list(q), list(qdot)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None
@@ -353,28 +389,64 @@ class ControllerCore:
         try:
             pose = self._forward_kinematics(q)
         except (KinematicsError, ValueError) as exc:
-            return self.trip(f"forward kinematics of the encoders: {exc}")
+            self.trip(f"forward kinematics of the encoders: {exc}")
+            return False
         if applied is not None and len(applied) and not first:
             problem = self._check_drives(list(applied))
             if problem:
-                return self.trip(problem)
+                self.trip(problem)
+                return False
         try:
             _, rows, _, _ = self.model.velocity_terms(pose, (0.0, 0.0, 0.0))
             v = least_squares_velocity(rows, qdot)
         except (KinematicsError, ValueError) as exc:
-            return self.trip(f"kinematics at the measured pose: {exc}")
-        if first:
-            self._start(pose, struts, metrology_pose)
-        x_d, v_d, a_d = self.reference.sample(t_s - self.reference_start_s)
+            self.trip(f"kinematics at the measured pose: {exc}")
+            return False
+        self._cycle = _Cycle(t_s, dt, first, q, qdot, pose, rows, v)
+        return first or self._prepare_reference(self._cycle)
+
+    def _prepare_reference(self, c: "_Cycle") -> bool:
+        """The reference of the cycle and what the strategy derives from it and the
+        encoder state before the metrology arrives."""
+        c.x_d, c.v_d, c.a_d = self.reference.sample(c.t_s - self.reference_start_s)
+        strategy = self.config.strategy
         try:
-            measured, error = self._feedback(pose, x_d, struts, metrology_pose)
-            problem = self._check_limits(q, rows, measured, error)
+            if strategy == "sensor_space":
+                self.metrology.prepare(*tool_pose_floats(c.x_d, self.planar))
+            if strategy in MODEL_STRATEGIES:
+                c.a_model, c.h_model, _, _, _ = self.dynamics.terms(c.pose, c.v)
+        except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
+            self._cycle = None
+            self.trip(f"{strategy}: {exc}")
+            return False
+        return True
+
+    def complete(self, struts=None, metrology_pose=None) -> list:
+        """The second half of the cycle ``prepare`` began: the feedback from the
+        metrology (sensor_space: the strut lengths; measured_space: the Gough pose;
+        ignored by the encoder strategies), the limits, the control law and the force
+        distribution. Returns the drive forces (N) for the next period."""
+        c, self._cycle = self._cycle, None
+        if self.stopped:
+            return self.trip(self.stop_reason)
+        if c is None:
+            raise RuntimeError("ControllerCore.complete: no cycle prepared (call prepare() first)")
+        problem = self._check_metrology(struts, metrology_pose)
+        if problem:
+            return self.trip(problem)
+        if c.first:
+            self._start(c.pose, struts, metrology_pose)
+            if not self._prepare_reference(c):
+                return list(self.last_command)
+        try:
+            measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
+            problem = self._check_limits(c.q, c.rows, measured, error)
             if problem:
                 return self.trip(problem)
-            forces = self._strategy(q, qdot, pose, v, rows, x_d, v_d, a_d, error, dt)
+            forces = self._strategy(c, error)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             return self.trip(f"{self.config.strategy}: {exc}")
-        return self._finish(t_s, forces, rows, x_d, measured, error, dt)
+        return self._finish(c.t_s, forces, c.rows, c.x_d, measured, error, c.dt)
 
     def _forward_kinematics(self, q) -> list:
         if self.planar:
@@ -421,16 +493,16 @@ class ControllerCore:
         """(measured task pose, error x_d - measured) as the strategy sees them."""
         strategy = self.config.strategy
         if strategy == "sensor_space":
-            p, r = tool_pose_floats(x_d, self.planar)
-            error = self.metrology.task_error(p, r, list(struts))
+            error = self.metrology.error_from(list(struts))          # prepared at x_d
             return [a - b for a, b in zip(x_d, error)], error
         if strategy == "measured_space":
             measured = self._metrology_task_pose(metrology_pose, x_d)
             return measured, pose_error(x_d, measured, self.planar)
         return pose, pose_error(x_d, pose, self.planar)
 
-    def _strategy(self, q, qdot, pose, v, rows, x_d, v_d, a_d, error, dt) -> list:
+    def _strategy(self, c: "_Cycle", error) -> list:
         strategy, g = self.config.strategy, self.gains
+        q, qdot, v, rows, x_d, v_d, a_d, dt = c.q, c.qdot, c.v, c.rows, c.x_d, c.v_d, c.a_d, c.dt
         if strategy in JOINT_STRATEGIES:
             q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
             # acceleration feed-forward with the mass each drive sees, as industrial
@@ -465,14 +537,12 @@ class ControllerCore:
         if strategy == "cartesian_pid":
             wrench = [f + m * a for f, m, a in zip(cartesian_pid(error, edot, integral, self.task_kp, self.task_kd),
                                                    self.task_mass, a_d)]
-        else:
-            a_model, h_model, _, _, _ = self.dynamics.terms(pose, v)
-            if strategy == "computed_torque":
-                wrench = computed_torque(a_model, h_model, a_d, error, edot, integral, g)
-            else:                                 # MoM3 §6.1: PI + velocity feed-forward
-                v_c = [vd + g.outer_kp * e + i for vd, e, i in zip(v_d, error, integral)]
-                wrench = velocity_cascade(a_model, h_model, a_d, v_c, v, g)
-        return self._distribute(wrench, rows, pose)
+        elif strategy == "computed_torque":       # A(x), H(x, v) from prepare()
+            wrench = computed_torque(c.a_model, c.h_model, a_d, error, edot, integral, g)
+        else:                                     # MoM3 §6.1: PI + velocity feed-forward
+            v_c = [vd + g.outer_kp * e + i for vd, e, i in zip(v_d, error, integral)]
+            wrench = velocity_cascade(c.a_model, c.h_model, a_d, v_c, v, g)
+        return self._distribute(wrench, rows, c.pose)
 
     def _distribute(self, wrench, rows, pose) -> list:
         c = self.config

@@ -23,7 +23,6 @@ import math
 import time
 from dataclasses import fields
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import Node as LifecycleNode
@@ -32,11 +31,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
+from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, pose_from_components
-from pkm_common.params import declare_bool, declare_float, declare_int, declare_str
+from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.timing import percentiles_us
 from pkm_kinematics import load_machine
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
@@ -52,7 +52,10 @@ class ControllerNode(LifecycleNode):
         self.core = None
         self.active = False
         self.entities = []
-        self.compute_s: list[float] = []
+        self.compute_s: list[float] = []     # prepare + complete per cycle
+        self.response_s: list[float] = []    # last input (state or metrology) -> command ready
+        self.prepare_s = 0.0
+        self.was_stopped = False
         self.configure_error = ""
         self.trajectory_accepted = False
         self.start_received = False    # run/start (latched Bool) from an orchestrator
@@ -65,22 +68,9 @@ class ControllerNode(LifecycleNode):
 
     # ------------------------------------------------------------- lifecycle
     def _read_parameters(self) -> tuple[dict, ControllerConfig]:
-        values = {}
-        for name, default in NODE_PARAMETERS.items():
-            values[name] = self._declare(name, default)
-        config = {f.name: self._declare(f.name, f.default) for f in fields(ControllerConfig)}
+        values = {name: declare_like(self, name, default) for name, default in NODE_PARAMETERS.items()}
+        config = {f.name: declare_like(self, f.name, f.default) for f in fields(ControllerConfig)}
         return values, ControllerConfig(**config)
-
-    def _declare(self, name, default):
-        if self.has_parameter(name):
-            return self.get_parameter(name).value
-        if isinstance(default, bool):
-            return declare_bool(self, name, default)
-        if isinstance(default, int):
-            return declare_int(self, name, default, 0)
-        if isinstance(default, float):
-            return declare_float(self, name, default)
-        return declare_str(self, name, default, allow_empty=True)
 
     def on_configure(self, state) -> TransitionCallbackReturn:
         try:
@@ -177,10 +167,13 @@ class ControllerNode(LifecycleNode):
         if stamp == self.last_answered_ns:
             return                     # a repeat (sim_hw republishes step 0 until answered)
         self.last_answered_ns = stamp
-        if self.wait_for and stamp not in self.metrology:
-            self.pending_state = msg
+        start = time.perf_counter()
+        prepared = self.prepare(msg)
+        self.prepare_s = time.perf_counter() - start
+        if prepared and self.wait_for and stamp not in self.metrology:
+            self.pending_state = msg   # complete() when the metrology of this stamp arrives
             return
-        self.answer(msg)
+        self.answer(stamp, start)
 
     def on_metrology(self, buf: bytes) -> None:
         try:
@@ -196,7 +189,7 @@ class ControllerNode(LifecycleNode):
         pending = self.pending_state
         if self.active and pending is not None and pending.stamp_ns == stamp:
             self.pending_state = None
-            self.answer(pending)
+            self.answer(stamp, time.perf_counter())
 
     def on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
         core = self.core
@@ -231,22 +224,26 @@ class ControllerNode(LifecycleNode):
             self.safe_stop(f"drives/state: none for {self.values['state_timeout_s']:g} s")
 
     # ----------------------------------------------------------------- output
-    def answer(self, msg) -> None:
-        """Command for a drive state (pkm_common.cdr.JointStateData) and its metrology."""
+    def prepare(self, msg) -> bool:
+        """First half of the cycle on a drive state (pkm_common.cdr.JointStateData);
+        False when the controller is stopped (the answer is zero forces)."""
         core = self.core
-        was_stopped = core.stopped
-        stamp = msg.stamp_ns
-        position, velocity, effort = list(msg.position), list(msg.velocity), list(msg.effort)
-        if msg.name and list(msg.name) != self.names:
-            if sorted(msg.name) != sorted(self.names):
-                core.trip(f"drives/state: names {list(msg.name)} are not {self.names}")
-            else:
-                order = [list(msg.name).index(n) for n in self.names]
-                position, velocity = [position[i] for i in order], [velocity[i] for i in order]
-                effort = [effort[i] for i in order] if len(effort) == len(order) else effort
+        self.was_stopped = core.stopped
+        try:
+            msg = in_order(msg, self.names, "drives/state")
+        except ValueError as exc:
+            core.trip(str(exc))
+        return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort)
+
+    def answer(self, stamp: int, start: float) -> None:
+        """Complete the prepared cycle with the metrology of ``stamp`` and publish the
+        command; ``start``: when the last input arrived (the response time is timed)."""
+        core = self.core
         struts = pose = None
         extra = self.metrology.pop(stamp, None)
-        if self.wait_for == "struts":
+        if core.stopped:
+            pass                                  # zero forces: no metrology needed
+        elif self.wait_for == "struts":
             struts = list(extra.position)
         elif self.wait_for == "pose":
             try:
@@ -254,12 +251,14 @@ class ControllerNode(LifecycleNode):
                 pose = (position_m.tolist(), rotation)
             except ValueError as exc:             # NaN or a non-unit quaternion
                 core.trip(f"metrology/pose: {exc}")
-        start = time.perf_counter()
-        forces = core.update(stamp * 1e-9, position, velocity, effort, struts=struts, metrology_pose=pose)
-        self.compute_s.append(time.perf_counter() - start)
+        complete_start = time.perf_counter()
+        forces = core.complete(struts=struts, metrology_pose=pose)
+        end = time.perf_counter()
+        self.compute_s.append(self.prepare_s + end - complete_start)
+        self.response_s.append(end - start)
         self.pub_command.publish(self.command_encoder.encode(stamp, effort=forces))
         self.answers_published += 1
-        if core.stopped and not was_stopped:
+        if core.stopped and not self.was_stopped:
             self.safe_stop(core.stop_reason)
         self.publish_reference(stamp)
         if core.cycles % self.values["status_decimation"] == 0:
@@ -292,12 +291,11 @@ class ControllerNode(LifecycleNode):
     def destroy_node(self):
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.core is not None:
-            lat = np.array(self.compute_s or [math.nan]) * 1e6
             _, message, values = self.core.status()
             with open(path, "w", encoding="utf-8") as fh:
                 json.dump({"message": message, **values, "stopped": self.core.stopped,
-                           "compute_us_p50": float(np.percentile(lat, 50)),
-                           "compute_us_p99": float(np.percentile(lat, 99)),
+                           **percentiles_us("compute", self.compute_s),
+                           **percentiles_us("response", self.response_s),
                            "published": dict.fromkeys(("drives/command", "controller/reference"),
                                                       self.answers_published)}, fh, indent=2)
         return super().destroy_node()

@@ -158,18 +158,36 @@ class SensorSpaceFeedback:
         self._r_wb = sensor._r_wb
         self._p_tp = sensor._p_tp
         self.estimate = None                       # (p_bp, R_bp) of the real plate, or None
+        self._desired = None                       # what prepare() computed for the cycle
 
     def reset(self) -> None:
         self.estimate = None
+        self._desired = None
 
     def task_error(self, tool_position, tool_rotation, lengths) -> list:
         """The task-space error x_des - x_real (3) from the strut readings."""
+        self.prepare(tool_position, tool_rotation)
+        return self.error_from(lengths)
+
+    def prepare(self, tool_position, tool_rotation) -> None:
+        """What does not depend on the readings, done before they arrive: the plate
+        pose of the desired tool pose, l_des = IKM_GP (nominal geometry) and J_h at
+        the estimated real pose (the estimate of the previous cycle)."""
         p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
         l_des = strut_lengths_floats(self._legs, p_bp, r_bp)     # IKM_GP, nominal geometry
-        e_l = [a - b for a, b in zip(l_des, lengths)]
         at = self.estimate or (p_bp, r_bp)
-        jinv = self.platform.inverse_jacobian_rows(at[0], at[1])
-        d = np.linalg.solve(jinv, e_l).tolist()       # [dp; dw] = J_h e_l (MoM3 eq. 1)
+        j_h = np.linalg.inv(self.platform.inverse_jacobian_rows(at[0], at[1])).tolist()
+        self._desired = (p_bp, r_bp, l_des, j_h, tool_rotation)
+
+    def error_from(self, lengths) -> list:
+        """The task-space error x_des - x_real (3) for the readings ``lengths`` (6, m),
+        at the desired pose of the last ``prepare``."""
+        if self._desired is None:
+            raise RuntimeError("SensorSpaceFeedback.error_from: call prepare() first")
+        p_bp, r_bp, l_des, j_h, t = self._desired
+        e_l = [a - b for a, b in zip(l_des, lengths)]
+        d = [r0 * e_l[0] + r1 * e_l[1] + r2 * e_l[2] + r3 * e_l[3] + r4 * e_l[4] + r5 * e_l[5]
+             for r0, r1, r2, r3, r4, r5 in j_h]       # [dp; dw] = J_h e_l (MoM3 eq. 1)
         dp, dw = d[:3], d[3:]
         # estimate of the real plate pose for the next cycle: x_h,des - J_h e_l
         real_r = mul3(exp_so3_floats(-dw[0], -dw[1], -dw[2]), r_bp)
@@ -180,7 +198,6 @@ class SensorSpaceFeedback:
               r[6] * dw[0] + r[7] * dw[1] + r[8] * dw[2])
         pw = (r[0] * dp[0] + r[1] * dp[1] + r[2] * dp[2], r[3] * dp[0] + r[4] * dp[1] + r[5] * dp[2],
               r[6] * dp[0] + r[7] * dp[1] + r[8] * dp[2])
-        t = tool_rotation
         lx, ly, lz = self._p_tp
         ax = t[0] * lx + t[1] * ly + t[2] * lz
         ay = t[3] * lx + t[4] * ly + t[5] * lz

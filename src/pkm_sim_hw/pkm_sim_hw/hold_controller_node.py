@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import time
 
-import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -21,6 +20,7 @@ from sensor_msgs.msg import JointState
 from pkm_common.conversions import stamp_to_ns
 from pkm_common.params import declare_bool, declare_float, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
+from pkm_common.timing import percentiles_us
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import _min_two_norm_rows
@@ -98,10 +98,8 @@ class HoldControllerNode(Node):
 
     def destroy_node(self):
         if self.summary_path and self.latencies_s:
-            lat = np.array(self.latencies_s) * 1e6
             with open(self.summary_path, "w", encoding="utf-8") as fh:
-                json.dump({"answered": self.answered, "latency_us_p50": float(np.percentile(lat, 50)),
-                           "latency_us_p99": float(np.percentile(lat, 99))}, fh, indent=2)
+                json.dump({"answered": self.answered, **percentiles_us("latency", self.latencies_s)}, fh, indent=2)
         return super().destroy_node()
 
 

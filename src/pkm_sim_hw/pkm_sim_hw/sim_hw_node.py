@@ -30,7 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import Marker, MarkerArray
 
-from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
+from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -170,14 +170,11 @@ class SimHwNode(Node):
         """The efforts of a command (pkm_common.cdr.JointStateData) in plant order, or
         None (refused, reported)."""
         names = list(msg.name)
-        if len(msg.effort) != self.plant.n or (names and names != self.plant.names
-                                               and sorted(names) != sorted(self.plant.names)):
+        if len(msg.effort) != self.plant.n or (names and sorted(names) != sorted(self.plant.names)):
             self._refuse(f"expected {self.plant.n} efforts for {self.plant.names}, got {len(msg.effort)} "
                          f"for {names}")
             return None
-        effort = list(msg.effort)
-        if names and names != self.plant.names:
-            effort = [effort[names.index(name)] for name in self.plant.names]
+        effort = list(in_order(msg, self.plant.names).effort)
         if not math.isfinite(sum(effort)):        # NaN or inf in any of them
             self._refuse(f"non-finite effort {effort}")
             return None
