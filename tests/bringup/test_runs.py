@@ -76,6 +76,13 @@ def test_in_process_run_completes_and_loses_nothing(in_process_run):
                   "/pkm/controller/reference", "/clock"):
         assert run["published"][topic] == 801, topic
         assert run["lost"][topic] == 0, topic
+    # the loop's streams came through the nodes' recording taps, not subscriptions,
+    # and the tap's own batches are not in the bag
+    recorder = run["summaries"]["recorder"]
+    assert set(recorder["tapped"]) == {"/pkm/drives/state", "/pkm/drives/command", "/pkm/platform/true_pose",
+                                       "/pkm/metrology/struts", "/pkm/metrology/pose", "/pkm/controller/reference",
+                                       "/clock"}
+    assert recorder["tap_errors"] == 0 and not any("_recorder" in t for t in recorder["recorded"])
     m = run["metrics"]
     assert m["messages"]["lost_total"] == 0
     assert not m["controller"]["tripped"]

@@ -14,6 +14,13 @@ is at a fixed place in CDR, bytes 4-12, for every stamped message and for Clock)
 nodes count their publications the same way, so published minus recorded is the loss
 even when a node repeats a message during discovery.
 
+Tapped topics (``tapped_topics``): the loop's per-step streams, whose nodes run with
+``tap: true`` (pkm_common.tap), are not subscribed. Their nodes copy what they publish
+into batches on ``_recorder/tap`` (one message per node every 50 ms instead of one
+delivery per message to one more process, on the loop's critical path); each record
+is written to its topic's channel with the node's publish time as log time. The
+channel (type, offered QoS) comes from discovery as for any topic.
+
 Readiness: once every topic of ``expect_topics`` is subscribed and matched with at
 least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
 orchestrator starts the run only then, so that nothing of it is missed.
@@ -33,12 +40,15 @@ from pathlib import Path
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import UInt8MultiArray
 
 from pkm_bringup.bag import INFINITE_DURATION, BagWriter
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.runner import main_exit, run_node
+from pkm_common.tap import TAP_TOPIC, read_batch
 
 EXCLUDED = ("/parameter_events",)
+TAPPED = "tapped"           # subscriptions_by_topic: recorded through the tap, not subscribed
 _NS_MAX = 9223372036854775807
 
 
@@ -97,6 +107,8 @@ class RecorderNode(Node):
                              allow_empty=True)
         expect = declare_str(self, "expect_topics", "", "comma-separated topics that must be subscribed "
                              "and matched before the node is ready", allow_empty=True)
+        tapped = declare_str(self, "tapped_topics", "", "comma-separated topics whose publishers send them "
+                             "through the recording tap (pkm_common.tap) instead", allow_empty=True)
         self.ready_file = declare_str(self, "ready_file", "", "touched when ready", allow_empty=True)
         self.summary_path = declare_str(self, "summary_path", "", "JSON counts at exit", allow_empty=True)
         self.depth = declare_int(self, "depth", 1000, 1, 100000, "subscription queue depth")
@@ -109,9 +121,19 @@ class RecorderNode(Node):
             self.get_logger().info(f"SCHED_IDLE for {lower_cpu_priority()} threads")
         self.topics = {self.resolve(t) for t in topics.split(",") if t.strip()}
         self.expect = {self.resolve(t) for t in expect.split(",") if t.strip()}
+        self.tapped = {self.resolve(t) for t in tapped.split(",") if t.strip()}
+        self.tap_topic = self.resolve(TAP_TOPIC)
         self.writer = BagWriter(output)
-        self.subscriptions_by_topic = {}
+        self.subscriptions_by_topic = {}     # topic -> subscription, TAPPED, or None (not recordable)
+        self.channels = {}                   # topic -> channel id
         self.steps = {}            # topic -> messages with a new stamp (repeats of a stamp not counted)
+        self.last_stamp = {}
+        self.tap_errors = 0
+        if self.tapped:
+            self.tap_subscription = self.create_subscription(
+                UInt8MultiArray, self.tap_topic, self.on_tap,
+                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True)
         self.ready = False
         self.first_log_ns = None
         self.create_timer(discovery, self.discover)
@@ -122,48 +144,87 @@ class RecorderNode(Node):
         topic = topic.strip()
         return topic if topic.startswith("/") else f"{self.get_namespace().rstrip('/')}/{topic}"
 
+    def _count(self, name: str, data: bytes) -> None:
+        stamp = data[4:12]                   # the header stamp (or Clock's time): CDR bytes 4-12
+        if stamp != self.last_stamp.get(name):
+            self.last_stamp[name] = stamp
+            self.steps[name] = self.steps.get(name, 0) + 1
+
+    def _add_channel(self, name: str, msgtype: str, infos) -> int | None:
+        try:
+            message_class(msgtype)
+            channel = self.writer.add_topic(name, msgtype, [qos_dict(i.qos_profile) for i in infos])
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.get_logger().warning(f"{name}: not recorded ({exc})")
+            return None
+        self.channels[name] = channel
+        self.steps.setdefault(name, 0)
+        return channel
+
     def discover(self) -> None:
         for name, types in self.get_topic_names_and_types():
-            if name in self.subscriptions_by_topic or name in EXCLUDED or (self.topics and name not in self.topics):
+            if name in self.subscriptions_by_topic or name in EXCLUDED or name == self.tap_topic \
+                    or (self.topics and name not in self.topics):
                 continue
             infos = self.get_publishers_info_by_topic(name)
             if not infos or len(types) != 1:
                 continue
-            msgtype = types[0]
-            try:
-                cls = message_class(msgtype)
-                channel = self.writer.add_topic(name, msgtype, [qos_dict(i.qos_profile) for i in infos])
-            except (ImportError, AttributeError, ValueError) as exc:
-                self.get_logger().warning(f"{name}: not recorded ({exc})")
-                self.subscriptions_by_topic[name] = None
+            channel = self._add_channel(name, types[0], infos)
+            if channel is None or name in self.tapped:
+                self.subscriptions_by_topic[name] = None if channel is None else TAPPED
                 continue
-            write = self.writer.write
-            steps = self.steps
-            steps[name] = 0
-            last = [b""]
+            write, count = self.writer.write, self._count
 
-            def callback(data: bytes, channel=channel, write=write, name=name, last=last):
+            def callback(data: bytes, channel=channel, name=name):
                 write(channel, time.time_ns(), data)
-                if data[4:12] != last[0]:        # the header stamp (or Clock's time): CDR bytes 4-12
-                    last[0] = data[4:12]
-                    steps[name] += 1
+                count(name, data)
 
             self.subscriptions_by_topic[name] = self.create_subscription(
-                cls, name, callback, subscription_qos([i.qos_profile for i in infos], self.depth), raw=True)
-        if not self.ready and all(self.subscriptions_by_topic.get(t) is not None
-                                  and self.subscriptions_by_topic[t].get_publisher_count() > 0
-                                  for t in self.expect):
+                message_class(types[0]), name, callback,
+                subscription_qos([i.qos_profile for i in infos], self.depth), raw=True)
+        if not self.ready and all(self._receiving(t) for t in self.expect):
             self.ready = True
             self.get_logger().info(f"recorder ready: {len(self.subscriptions_by_topic)} topics")
             if self.ready_file:
                 Path(self.ready_file).touch()
+
+    def _receiving(self, topic: str) -> bool:
+        """Subscribed and matched; for a tapped topic, every node publishing it also
+        publishes on the tap."""
+        sub = self.subscriptions_by_topic.get(topic)
+        if sub is None:
+            return False
+        if sub is not TAPPED:
+            return sub.get_publisher_count() > 0
+        publishers = {(i.node_namespace, i.node_name) for i in self.get_publishers_info_by_topic(topic)}
+        tapping = {(i.node_namespace, i.node_name) for i in self.get_publishers_info_by_topic(self.tap_topic)}
+        return bool(publishers) and publishers <= tapping
+
+    def on_tap(self, buf: bytes) -> None:
+        try:
+            records = read_batch(buf)
+        except ValueError as exc:
+            self.tap_errors += 1
+            self.get_logger().error(str(exc))
+            return
+        write, count = self.writer.write, self._count
+        for name, msgtype, time_ns, data in records:
+            channel = self.channels.get(name)
+            if channel is None:              # before discovery saw the topic: add it now
+                channel = self._add_channel(name, msgtype, self.get_publishers_info_by_topic(name))
+                if channel is None:
+                    continue
+                self.subscriptions_by_topic.setdefault(name, TAPPED)
+            write(channel, time_ns, data, publish_time_ns=time_ns)
+            count(name, data)
 
     def destroy_node(self):
         if self.writer is not None:
             self.writer.close()
             if self.summary_path:
                 with open(self.summary_path, "w", encoding="utf-8") as fh:
-                    json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps}, fh, indent=2)
+                    json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps,
+                               "tapped": sorted(self.tapped), "tap_errors": self.tap_errors}, fh, indent=2)
             self.writer = None
         return super().destroy_node()
 

@@ -288,13 +288,24 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
                                "program_file": str(s.program)}
     if s.record:
+        # the loop's nodes hand their per-step streams to the recorder in batches
+        # (pkm_common.tap) instead of a delivery per message to one more process
+        tapped = [topic for node, topics in TAPPED_STREAMS.items() if node in nodes for topic in topics]
+        for node in TAPPED_STREAMS:
+            if node in nodes:
+                nodes[node]["tap"] = True
         nodes["recorder"] = {"output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
-                             "expect_topics": ",".join(expected_topics(s)),
+                             "expect_topics": ",".join(expected_topics(s)), "tapped_topics": ",".join(tapped),
                              "summary_path": str(summaries / "recorder.json"),
                              # its own process: it records on CPU time the loop leaves
                              "cpu_priority": "idle"}
     return {name: _typed(name, params) for name, params in nodes.items()}
 
+
+# node -> the per-step streams it publishes through its recording tap when recorded
+TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"),
+                  "gough_sensor": ("metrology/struts", "metrology/pose"),
+                  "controller": ("drives/command", "controller/reference")}
 
 START_TOPIC = "run/start"      # latched Bool: the orchestrator's start signal (scenarios without a program)
 

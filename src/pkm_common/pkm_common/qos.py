@@ -58,6 +58,13 @@ STREAM_PUBLISHER_QOS = QoSProfile(
 # recorder can subscribe RELIABLE and lose no tick
 CLOCK_PUBLISHER_QOS = STREAM_PUBLISHER_QOS
 
+# The recording tap (pkm_common.tap): a batch every 50 ms, kept for a recorder that
+# matches late (TRANSIENT_LOCAL, 200 batches = 10 s): nothing a node published before
+# the recorder saw it is lost
+TAP_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=200,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
 # topic (relative name) -> profile, for code that wires topics generically
 TOPIC_QOS = {
     'drives/state': STREAM_QOS,
@@ -77,4 +84,5 @@ TOPIC_QOS = {
     '/clock': CLOCK_QOS,
 }
 
-__all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TOPIC_QOS']
+__all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TAP_QOS',
+           'TOPIC_QOS']

@@ -33,6 +33,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, pose_from_components
+from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -61,6 +62,8 @@ class ControllerNode(LifecycleNode):
         self.start_received = False    # run/start (latched Bool) from an orchestrator
         self.last_answered_ns = None
         self.answers_published = 0     # drives/command and controller/reference, one each per answer
+        self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
+                                              "to a recorder in batches (pkm_common.tap)"))
         if declare_bool(self, "autostart", True, "configure and activate at start"):
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ValueError(self.configure_error)
@@ -106,6 +109,8 @@ class ControllerNode(LifecycleNode):
             self.decode_metrology = lambda buf: decode_pose_stamped(buf, "metrology/pose")
         self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
         self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_PUBLISHER_QOS)
+        self.publish_command = self.tap.wrap(self.pub_command, JointState).publish
+        self.publish_reference_bytes = self.tap.wrap(self.pub_reference, PoseStamped).publish
         self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_PUBLISHER_QOS)
         self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
         self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop,
@@ -256,7 +261,7 @@ class ControllerNode(LifecycleNode):
         end = time.perf_counter()
         self.compute_s.append(self.prepare_s + end - complete_start)
         self.response_s.append(end - start)
-        self.pub_command.publish(self.command_encoder.encode(stamp, effort=forces))
+        self.publish_command(self.command_encoder.encode(stamp, effort=forces))
         self.answers_published += 1
         if core.stopped and not self.was_stopped:
             self.safe_stop(core.stop_reason)
@@ -270,7 +275,7 @@ class ControllerNode(LifecycleNode):
             position, orientation = (x[0], x[1], 0.0), (0.0, 0.0, math.sin(0.5 * x[2]), math.cos(0.5 * x[2]))
         else:
             position, orientation = (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
-        self.pub_reference.publish(self.reference_encoder.encode(stamp_ns, position, orientation))
+        self.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
 
     def publish_status(self, extra: str = "") -> None:
         level, message, values = self.core.status()
@@ -289,6 +294,8 @@ class ControllerNode(LifecycleNode):
         self.publish_status()
 
     def destroy_node(self):
+        if hasattr(self, "tap"):
+            self.tap.flush()
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.core is not None:
             _, message, values = self.core.status()

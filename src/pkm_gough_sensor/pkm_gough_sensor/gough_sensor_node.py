@@ -31,7 +31,8 @@ from sensor_msgs.msg import JointState
 
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
-from pkm_common.params import ParameterError, declare_float, declare_int, declare_str
+from pkm_common.node_tap import NodeTap
+from pkm_common.params import ParameterError, declare_bool, declare_float, declare_int, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_gough_sensor.metrology import MAX_RESOLUTION_M, STRUT_NAMES, GoughSensorModel
@@ -74,8 +75,12 @@ class GoughSensorNode(Node):
         self.status_name = f'{self.get_name()}: metrology'
         self.hardware_id = f'{machine} gough platform'
 
-        self.pub_struts = self.create_publisher(JointState, 'metrology/struts', STREAM_PUBLISHER_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, 'metrology/pose', STREAM_PUBLISHER_QOS)
+        self.tap = NodeTap(self, declare_bool(self, 'tap', False, 'copy the per-step streams to a recorder '
+                                              'in batches (pkm_common.tap)'))
+        self.pub_struts = self.tap.wrap(self.create_publisher(JointState, 'metrology/struts', STREAM_PUBLISHER_QOS),
+                                        JointState)
+        self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, 'metrology/pose', STREAM_PUBLISHER_QOS),
+                                      PoseStamped)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
         # the per-step stream as bytes (pkm_common.cdr): an rclpy PoseStamped costs ~50 us
         # to take, a JointState ~13 us to publish; the bytes 1-3 us
@@ -101,6 +106,8 @@ class GoughSensorNode(Node):
         if getattr(self, 'summary_path', '') and hasattr(self, 'published'):
             with open(self.summary_path, 'w', encoding='utf-8') as fh:
                 json.dump({**self.counts, 'published': self.published}, fh, indent=2)
+        if hasattr(self, 'tap'):
+            self.tap.flush()
         return super().destroy_node()
 
     # --------------------------------------------------------------- stream

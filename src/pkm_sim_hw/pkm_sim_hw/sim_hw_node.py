@@ -30,6 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import Marker, MarkerArray
 
+from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
@@ -98,9 +99,13 @@ class SimHwNode(Node):
         self.state_encoder = JointStateEncoder(self.plant.names)
         self.pose_encoder = PoseStampedEncoder("world")
         self.command_decoder = JointStateDecoder("drives/command")
-        self.pub_clock = self.create_publisher(Clock, "/clock", CLOCK_PUBLISHER_QOS)
-        self.pub_state = self.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, "platform/true_pose", STREAM_PUBLISHER_QOS)
+        self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
+                                              "in batches (pkm_common.tap) instead of its subscribing to them"))
+        self.pub_clock = self.tap.wrap(self.create_publisher(Clock, "/clock", CLOCK_PUBLISHER_QOS), Clock)
+        self.pub_state = self.tap.wrap(self.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS),
+                                       JointState)
+        self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, "platform/true_pose",
+                                                            STREAM_PUBLISHER_QOS), PoseStamped)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
         self.create_subscription(JointState, "drives/command", self.on_command, STREAM_QOS, raw=True)
@@ -238,12 +243,14 @@ class SimHwNode(Node):
         self.publish_diagnostics()
         self.get_logger().info(f"run complete: {json.dumps(self.summary())}")
         self.write_summary()
+        self.tap.flush()                           # the last steps, while the context is up
         if self.shutdown_on_finish:
             rclpy.try_shutdown(context=self.context)
 
     def destroy_node(self):
         if not self.finished and hasattr(self, "steps_published"):
             self.write_summary()                   # interrupted: what was done so far
+            self.tap.flush()
         return super().destroy_node()
 
     def on_watchdog(self) -> None:

@@ -1,0 +1,37 @@
+"""A node's recording tap (the rclpy side of pkm_common.tap).
+
+``NodeTap(node, enabled)``: with ``enabled`` the node's per-step publishers wrapped by
+``wrap`` copy every message into a StreamTap, published on ``TAP_TOPIC`` every
+``period_s`` and by ``flush()`` (call it before the context goes down). Disabled,
+``wrap`` returns the publisher itself: nothing is added to the loop.
+"""
+
+from __future__ import annotations
+
+import time
+
+from std_msgs.msg import UInt8MultiArray
+
+from pkm_common.qos import TAP_QOS
+from pkm_common.tap import TAP_TOPIC, StreamTap, TappedPublisher, message_type_name
+
+
+class NodeTap:
+    def __init__(self, node, enabled: bool, period_s: float = 0.05):
+        self.tap = StreamTap() if enabled else None
+        self.batches = 0
+        if enabled:
+            self.publisher = node.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)
+            node.create_timer(period_s, self.flush)
+
+    def wrap(self, publisher, msg_class):
+        """``publisher`` (of CDR bytes), tapped when enabled."""
+        if self.tap is None:
+            return publisher
+        return TappedPublisher(publisher, self.tap, message_type_name(msg_class), time.time_ns)
+
+    def flush(self) -> None:
+        batch = None if self.tap is None else self.tap.take_batch()
+        if batch is not None:
+            self.publisher.publish(batch)
+            self.batches += 1
