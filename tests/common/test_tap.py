@@ -59,3 +59,28 @@ def test_a_tapped_publisher_publishes_and_records_the_same_bytes():
     assert Publisher.sent == [b"\x00\x01\x00\x00xyz"]
     assert read_batch(tap.take_batch()) == [("/ns/drives/state", "sensor_msgs/msg/JointState", 42,
                                              b"\x00\x01\x00\x00xyz")]
+
+
+def test_a_node_tap_publishes_batches_and_drops_one_on_a_dead_context():
+    import rclpy
+    from rclpy.node import Node
+
+    from pkm_common.node_tap import NodeTap
+    from pkm_common.qos import STREAM_PUBLISHER_QOS
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node("tap_test", context=context)
+    try:
+        assert NodeTap(node, False).wrap("publisher", JointState) == "publisher"     # off: nothing added
+        tap = NodeTap(node, True)
+        pub = tap.wrap(node.create_publisher(JointState, "x", STREAM_PUBLISHER_QOS), JointState)
+        pub.publish(b"\x00\x01\x00\x00" + bytes(40))
+        tap.flush()
+        tap.flush()                                                 # nothing new: no batch
+        assert (tap.batches, tap.dropped) == (1, 0)
+        pub.publish(b"\x00\x01\x00\x00" + bytes(40))
+    finally:
+        rclpy.shutdown(context=context)
+    tap.flush()                                                     # the teardown goes on
+    assert (tap.batches, tap.dropped) == (1, 1)
+    node.destroy_node()
