@@ -210,6 +210,8 @@ class RecorderNode(Node):
         write, count = self.writer.write, self._count
         for name, msgtype, time_ns, data in records:
             channel = self.channels.get(name)
+            if channel is None and self.topics and name not in self.topics:
+                continue                     # not one of the topics asked for
             if channel is None:              # before discovery saw the topic: add it now
                 channel = self._add_channel(name, msgtype, self.get_publishers_info_by_topic(name))
                 if channel is None:
