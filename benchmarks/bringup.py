@@ -66,17 +66,15 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
     recorded rate from the bag's first to last log time, messages lost)."""
     import rclpy
     from rclpy.experimental import EventsExecutor
-    from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import JointState
 
     from pkm_bringup.bag import read_counts
-    from pkm_bringup.processes import ros_environment, start_node, stop_nodes
+    from pkm_bringup.orchestrator import init_context
+    from pkm_bringup.processes import start_node, stop_nodes, use_ros_environment
     from pkm_bringup.scenario import params_file_text
     from pkm_common.conversions import joint_state_msg
     from pkm_common.qos import STREAM_PUBLISHER_QOS
-    env = ros_environment()
-    import os
-    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_")})
+    env = use_ros_environment()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         (tmp / "logs").mkdir()
@@ -84,8 +82,7 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
         params.write_text(params_file_text({"output": str(tmp / "bag"), "ready_file": str(tmp / "ready"),
                                             "expect_topics": "/bench/drives/state",
                                             "summary_path": str(tmp / "rec.json")}))
-        context = rclpy.Context()
-        rclpy.init(context=context, args=[], signal_handler_options=SignalHandlerOptions.NO)
+        context = init_context()
         node = rclpy.create_node("bench_publisher", namespace="/bench", context=context)
         pub = node.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
         executor = EventsExecutor(context=context)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pkm_common.timing import percentiles_us
 from pkm_controller.closed_loop import run
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import Reference
@@ -77,9 +78,8 @@ def compute_times(machine_name: str, strategy: str, distribution: str, cycles: i
     if core.stopped:
         raise RuntimeError(f"{strategy}/{distribution} stopped: {core.stop_reason}")
     prepare, complete = np.array(core.prepare_s[10:]), np.array(core.complete_s[10:])
-    total, after = (prepare + complete) * 1e6, complete * 1e6
-    return (float(np.percentile(total, 50)), float(np.percentile(total, 99)),
-            float(np.percentile(after, 50)), float(np.percentile(after, 99)))
+    cycle, after = percentiles_us("cycle", prepare + complete), percentiles_us("complete", complete)
+    return cycle["cycle_us_p50"], cycle["cycle_us_p99"], after["complete_us_p50"], after["complete_us_p99"]
 
 
 def graph_rate(duration_s: float) -> dict:

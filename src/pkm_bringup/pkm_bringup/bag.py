@@ -648,11 +648,8 @@ def _decompress_errors() -> tuple:
     zstandard = _mcap_writer.zstandard
     if zstandard is not None and hasattr(zstandard, "ZstdError"):
         errors.append(zstandard.ZstdError)
-    try:
-        import lz4.frame  # noqa: F401
+    if _mcap_writer.lz4 is not None:
         errors.append(RuntimeError)  # lz4 raises RuntimeError on bad frames
-    except ImportError:
-        pass
     return tuple(errors)
 
 
@@ -759,10 +756,7 @@ def recover(path, compression: str = "zstd", chunk_size: int = 1 << 20) -> dict[
                                                      schema_ids.get(record.schema_id, 0),
                                                      dict(record.metadata))
                     channel_ids[record.id] = new_id
-                    topics[new_id] = {
-                        "name": record.topic, "type": schema_names.get(record.schema_id, ""),
-                        "qos": _parse_qos_string(record.metadata.get("offered_qos_profiles", "")),
-                        "hash": record.metadata.get("topic_type_hash", ""), "count": 0}
+                    topics[new_id] = _topic_entry(record, schema_names)
             elif isinstance(record, Message):
                 new_id = channel_ids.get(record.channel_id)
                 if new_id is None:
@@ -770,10 +764,7 @@ def recover(path, compression: str = "zstd", chunk_size: int = 1 << 20) -> dict[
                 writer.add_message(new_id, record.log_time, record.data, record.publish_time,
                                    record.sequence)
                 topics[new_id]["count"] += 1
-                if start is None:
-                    start = end = record.log_time
-                else:
-                    start, end = min(start, record.log_time), max(end, record.log_time)
+                start, end = _widen(start, end, record.log_time)
             elif isinstance(record, Metadata) and record.name != "rosbag2":
                 writer.add_metadata(record.name, dict(record.metadata))
         info = _bag_info(target.name, list(topics.values()), start, end, None)
@@ -786,6 +777,18 @@ def recover(path, compression: str = "zstd", chunk_size: int = 1 << 20) -> dict[
     return {t["name"]: t["count"] for t in topics.values()}
 
 
+def _topic_entry(channel: Channel, schema_names: dict) -> dict:
+    """A bag-info topic (count 0) from an MCAP channel record of a rosbag2 file."""
+    return {"name": channel.topic, "type": schema_names.get(channel.schema_id, ""),
+            "qos": _parse_qos_string(channel.metadata.get("offered_qos_profiles", "")),
+            "hash": channel.metadata.get("topic_type_hash", ""), "count": 0}
+
+
+def _widen(start, end, t: int) -> tuple[int, int]:
+    """(start, end) extended to include t (None, None: nothing yet)."""
+    return (t, t) if start is None else (min(start, t), max(end, t))
+
+
 def _info_from_mcap(file: Path) -> dict:
     """bag info of a complete MCAP file (for a metadata.yaml that is missing)."""
     schemas: dict[int, str] = {}
@@ -795,12 +798,8 @@ def _info_from_mcap(file: Path) -> dict:
         if isinstance(record, Schema):
             schemas[record.id] = record.name
         elif isinstance(record, Channel):
-            topics.setdefault(record.id, {
-                "name": record.topic, "type": schemas.get(record.schema_id, ""),
-                "qos": _parse_qos_string(record.metadata.get("offered_qos_profiles", "")),
-                "hash": record.metadata.get("topic_type_hash", ""), "count": 0})
+            topics.setdefault(record.id, _topic_entry(record, schemas))
         elif isinstance(record, Message) and record.channel_id in topics:
             topics[record.channel_id]["count"] += 1
-            start = record.log_time if start is None else min(start, record.log_time)
-            end = record.log_time if end is None else max(end, record.log_time)
+            start, end = _widen(start, end, record.log_time)
     return _bag_info(file.name, list(topics.values()), start, end, None)

@@ -32,6 +32,7 @@ from pathlib import Path
 
 from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, expected_topics, load_scenario,
                                   node_parameters, params_file_text)
+from pkm_controller.controller import METROLOGY_STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
 START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
@@ -94,7 +95,7 @@ def _monitor(context, namespace: str):
     return node
 
 
-def _init_context():
+def init_context():
     """An rclpy context without rclpy's signal handlers: Ctrl-C / SIGTERM stay Python's
     KeyboardInterrupt, so the ordered stop always runs (rclpy's handlers shut the
     context down under a running spin_once)."""
@@ -110,7 +111,7 @@ def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 
     end = time.monotonic() + discovery_s
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.05)
-    for topic in ("/clock", f"{s.namespace.rstrip('/')}/drives/state"):
+    for topic in ("/clock", s.topic("drives/state")):
         if monitor.count_publishers(topic):
             raise RunFailed(f"another run is active: {topic} already has a publisher in ROS_DOMAIN_ID="
                             f"{os.environ.get('ROS_DOMAIN_ID', '0')}; use another domain (export ROS_DOMAIN_ID=...)")
@@ -130,10 +131,10 @@ def _connected(monitor, s: Scenario) -> bool:
     edges = ["drives/state", "drives/command"]
     if s.metrology:
         edges.append("platform/true_pose")
-    if s.strategy in ("sensor_space", "measured_space"):
+    if s.strategy in METROLOGY_STRATEGIES:
         edges.append("metrology/struts" if s.strategy == "sensor_space" else "metrology/pose")
     for topic in expected_topics(s):
-        name = topic if topic.startswith("/") else f"{s.namespace.rstrip('/')}/{topic}"
+        name = s.topic(topic)
         if monitor.count_publishers(name) < 1 or (topic in edges and monitor.count_subscribers(name) < 1):
             return False
     return True
@@ -145,7 +146,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     import rclpy
 
     from pkm_bringup.processes import start_node, stop_nodes
-    context = _init_context()
+    context = init_context()
     from rclpy.experimental import EventsExecutor
     executor = EventsExecutor(context=context)
     monitor = _monitor(context, s.namespace)
@@ -215,7 +216,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     from pkm_trajectory.trajectory_node import TrajectoryNode
     classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
                "controller": ControllerNode, "trajectory": TrajectoryNode}
-    context = _init_context()
+    context = init_context()
     executor = EventsExecutor(context=context)
     nodes = {}
 
@@ -314,8 +315,7 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     published = {}
     for node in ("sim_hw", "controller", "gough_sensor"):
         for topic, count in summaries.get(node, {}).get("published", {}).items():
-            name = topic if topic.startswith("/") else f"{s.namespace.rstrip('/')}/{topic}"
-            published[name] = count
+            published[s.topic(topic)] = count
     recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
     lost = {t: n - recorded.get(t, 0) for t, n in published.items()} if s.record else {}
     if any(v < 0 for v in lost.values()) and not error:
@@ -340,8 +340,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     for name, values in params.items():
         (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
     (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
-    from pkm_bringup.processes import ros_environment
-    os.environ.update({k: v for k, v in ros_environment().items() if k.startswith("ROS_")})
+    from pkm_bringup.processes import use_ros_environment
+    use_ros_environment()
     mode = "in_process" if in_process else "processes"
     start = time.monotonic()
     error, codes = "", {}

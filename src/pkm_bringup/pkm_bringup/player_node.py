@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 
 from pkm_bringup.recorder_node import message_class
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_str
-from pkm_common.qos import CLOCK_PUBLISHER_QOS, CLOCK_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS, TOPIC_QOS
+from pkm_common.qos import TOPIC_QOS, publisher_qos
 from pkm_common.runner import main_exit, run_node
 
 BATCH = 50           # messages per timer tick at most (as fast as possible)
@@ -47,14 +47,12 @@ class PlayerNode(Node):
         self.publishers_by_id = {}
         for c in connections:
             relative = c.topic.split("/", 2)[-1] if c.topic.count("/") > 1 else c.topic
-            qos = TOPIC_QOS.get(relative, TOPIC_QOS.get(c.topic, STREAM_QOS))
-            qos = {id(STREAM_QOS): STREAM_PUBLISHER_QOS, id(CLOCK_QOS): CLOCK_PUBLISHER_QOS}.get(id(qos), qos)
+            qos = publisher_qos(relative if relative in TOPIC_QOS else c.topic)
             self.publishers_by_id[c.id] = self.create_publisher(message_class(c.msgtype), c.topic, qos)
         self.clock_ids = {c.id for c in connections if c.topic == "/clock"}
         self.messages = self.reader.messages(connections=connections)
         self.pending = next(self.messages, None)
         self.published = 0
-        self.done = self.pending is None
         self.t0_bag = self.pending[1] if self.pending else 0
         self.t0_wall = None
         self.created_s = time.monotonic()
@@ -71,8 +69,7 @@ class PlayerNode(Node):
 
     def _advance(self):
         self.pending = next(self.messages, None)
-        if self.pending is None and not self.done:
-            self.done = True
+        if self.pending is None:                  # called only while messages were pending
             self.get_logger().info(f"played {self.published} messages")
 
     def on_tick(self) -> None:
@@ -91,7 +88,7 @@ class PlayerNode(Node):
                     break
             self._publish(self.pending)
             self._advance()
-        if self.done and self.pending is None:
+        if self.pending is None:
             self.finish()
 
     def on_step(self, request, response):

@@ -86,14 +86,20 @@ def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool
     return {node.name: node.popen.returncode for node in nodes}
 
 
-def ros_environment(domain_id: int | None = None) -> dict:
-    """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else
-    ``domain_id`` or one derived from the pid) and discovery on localhost."""
+def ros_environment() -> dict:
+    """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else one
+    derived from the pid and the time) and discovery on localhost."""
     env = dict(os.environ)
     env.pop("ROS_LOCALHOST_ONLY", None)
-    if domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_DOMAIN_ID", str(1 + (os.getpid() + time.time_ns() // 10**9) % 101))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def use_ros_environment() -> dict:
+    """``ros_environment`` for the children, its ROS_ variables applied to this process
+    too (so that its own nodes join the same domain); returns it."""
+    env = ros_environment()
+    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_")})
     return env

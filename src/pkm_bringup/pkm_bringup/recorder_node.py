@@ -42,8 +42,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt8MultiArray
 
-from pkm_bringup.bag import INFINITE_DURATION, BagWriter
+from pkm_bringup.bag import BagWriter, qos_profile
 from pkm_common.params import declare_float, declare_int, declare_str
+from pkm_common.qos import TAP_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_common.tap import TAP_TOPIC, read_batch
 
@@ -58,21 +59,13 @@ def message_class(msgtype: str):
     return getattr(importlib.import_module(package.replace("/", ".")), name)
 
 
-def _duration(d) -> dict:
-    ns = d.nanoseconds
-    if ns <= 0 or ns >= _NS_MAX:       # unset / infinite: what rosbag2 (Jazzy) writes
-        return dict(INFINITE_DURATION)
-    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
-
-
 def qos_dict(qos: QoSProfile) -> dict:
-    """An offered QoS profile as rosbag2 (Jazzy) writes it in ``offered_qos_profiles``."""
-    return {"history": qos.history.name.lower(), "depth": qos.depth,
-            "reliability": qos.reliability.name.lower(), "durability": qos.durability.name.lower(),
-            "deadline": _duration(qos.deadline), "lifespan": _duration(qos.lifespan),
-            "liveliness": qos.liveliness.name.lower(),
-            "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
-            "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions)}
+    """An offered QoS profile as rosbag2 (Jazzy) writes it in ``offered_qos_profiles``
+    (bag.qos_profile); an unset or infinite duration is rosbag2's infinite."""
+    def ns(d):
+        return d.nanoseconds if 0 < d.nanoseconds < _NS_MAX else None
+    return qos_profile(qos.reliability, qos.durability, qos.depth, qos.history, ns(qos.deadline), ns(qos.lifespan),
+                       qos.liveliness, ns(qos.liveliness_lease_duration), qos.avoid_ros_namespace_conventions)
 
 
 def subscription_qos(offered: list[QoSProfile], depth: int) -> QoSProfile:
@@ -131,11 +124,8 @@ class RecorderNode(Node):
         self.tap_errors = 0
         if self.tapped:
             self.tap_subscription = self.create_subscription(
-                UInt8MultiArray, self.tap_topic, self.on_tap,
-                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True)
+                UInt8MultiArray, self.tap_topic, self.on_tap, subscription_qos([TAP_QOS], self.depth), raw=True)
         self.ready = False
-        self.first_log_ns = None
         self.create_timer(discovery, self.discover)
         self.create_timer(flush, self.writer.flush)
         self.discover()

@@ -94,19 +94,19 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
     if data["estop_log_ns"] is not None:      # a stop from outside the sensor data: not replayable
         commands = [(t, c) for t, c in commands if t < data["estop_log_ns"]]
         note = f"estop recorded: the {len(commands)} commands before it are compared"
+    metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
     for i, (_, command) in enumerate(commands):
         stamp = stamp_to_ns(command.header.stamp)
         state = data["drives/state"].get(stamp)
-        metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
         if state is None or (metrology and stamp not in data[metrology]):
             missing = "drives/state" if state is None else metrology
             note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
             break
         struts = pose = None
-        if config.strategy == "sensor_space":
-            struts = list(data["metrology/struts"][stamp].position)
-        elif config.strategy == "measured_space":
-            position, rotation = pose_from_msg(data["metrology/pose"][stamp])
+        if metrology == "metrology/struts":
+            struts = list(data[metrology][stamp].position)
+        elif metrology == "metrology/pose":
+            position, rotation = pose_from_msg(data[metrology][stamp])
             pose = (position.tolist(), rotation)
         forces = core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
                              struts=struts, metrology_pose=pose)

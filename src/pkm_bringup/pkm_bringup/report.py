@@ -38,9 +38,6 @@ TRAJECTORY, LOAD, ESTOP = "trajectory", "load", "estop"
 KNOWN_SUFFIXES = (STATE, COMMAND, TRUE_POSE, REFERENCE, STRUTS, METROLOGY_POSE, STATUS,
                   DIAGNOSTICS, TRAJECTORY, LOAD, ESTOP)
 
-_TAKES_STAMP_DEDUPE = (STATE, COMMAND, TRUE_POSE, REFERENCE, STRUTS, METROLOGY_POSE)
-
-
 class NoBagError(FileNotFoundError):
     """The given directory holds no rosbag2 recording."""
 
@@ -155,16 +152,13 @@ def _dedupe_last(stamps: np.ndarray) -> np.ndarray:
     return (len(stamps) - 1 - first_in_rev).astype(np.int64)
 
 
-def _stamp(header) -> int:
-    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
-
 
 def _joint_series(msgs: list) -> JointSeries | None:
     if not msgs:
         return None
     names = next((list(m.name) for _, m in msgs if len(m.name)), [])
     n = len(names) or max(max(len(m.position), len(m.velocity), len(m.effort)) for _, m in msgs)
-    stamps = np.array([_stamp(m.header) for _, m in msgs], dtype=np.int64)
+    stamps = np.array([_stamp_time(m.header.stamp) for _, m in msgs], dtype=np.int64)
     logs = np.array([t for t, _ in msgs], dtype=np.int64)
     arrays = {k: np.full((len(msgs), n), np.nan) for k in ("position", "velocity", "effort")}
     for i, (_, m) in enumerate(msgs):
@@ -183,7 +177,7 @@ def _joint_series(msgs: list) -> JointSeries | None:
 def _pose_series(msgs: list) -> PoseSeries | None:
     if not msgs:
         return None
-    stamps = np.array([_stamp(m.header) for _, m in msgs], dtype=np.int64)
+    stamps = np.array([_stamp_time(m.header.stamp) for _, m in msgs], dtype=np.int64)
     logs = np.array([t for t, _ in msgs], dtype=np.int64)
     pos = np.array([(m.pose.position.x, m.pose.position.y, m.pose.position.z) for _, m in msgs], dtype=float)
     ori = np.array([(m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w)
@@ -253,13 +247,13 @@ def load_run(run_dir_or_bag, namespace: str | None = None) -> RunData:
                 name = s.name.rsplit("/", 1)[-1].strip()
                 level = int.from_bytes(s.level, "little") if isinstance(s.level, (bytes, bytearray)) else int(s.level)
                 run.statuses.setdefault(name, []).append(StatusRecord(
-                    _stamp(m.header), int(log_ns), topic, name, level, s.message,
+                    _stamp_time(m.header.stamp), int(log_ns), topic, name, level, s.message,
                     {kv.key: kv.value for kv in s.values}))
     if msgs[ESTOP]:
         run.estop_log_ns = np.array([t for t, _ in msgs[ESTOP]], dtype=np.int64)
         run.estop = np.array([bool(m.data) for _, m in msgs[ESTOP]])
     if msgs[LOAD]:
-        run.load_stamp_ns = np.array([_stamp(m.header) for _, m in msgs[LOAD]], dtype=np.int64)
+        run.load_stamp_ns = np.array([_stamp_time(m.header.stamp) for _, m in msgs[LOAD]], dtype=np.int64)
         run.load_force = np.array([(m.wrench.force.x, m.wrench.force.y, m.wrench.force.z) for _, m in msgs[LOAD]])
         run.load_torque = np.array([(m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z)
                                     for _, m in msgs[LOAD]])
@@ -461,7 +455,20 @@ def _peak(series: JointSeries | None) -> tuple[float | None, dict | None]:
     return _max_abs(series.effort.ravel()), per
 
 
-def metrics(run: RunData, machine_name: str | None = None, published: dict | None = None) -> dict:
+def analyse(run: RunData, machine_name: str | None = None) -> dict:
+    """What both ``metrics`` and ``plot`` derive from a run, computed once: the machine
+    (``cfg``, ``machine_source``), ``kind``, the tracking errors (``err``) and the
+    internal forces of the applied (``fi``) and commanded (``fc``, or None) forces."""
+    cfg, machine_source = _resolve_machine(run, machine_name)
+    kind = _kind(run, cfg)
+    fi = internal_forces(run, cfg)
+    fc = internal_forces(run, cfg, run.command) if run.command is not None and "error" not in fi else None
+    return {"cfg": cfg, "machine_source": machine_source, "kind": kind, "err": tracking_errors(run, kind),
+            "fi": fi, "fc": fc}
+
+
+def metrics(run: RunData, machine_name: str | None = None, published: dict | None = None,
+            analysis: dict | None = None) -> dict:
     """Metrics of a run (JSON-serialisable; None where not computable).
 
     * ``duration_s``: sim time from the first to the last drive state stamp (else /clock,
@@ -487,8 +494,8 @@ def metrics(run: RunData, machine_name: str | None = None, published: dict | Non
       numbers where possible); ``tripped`` if any controller status has level 2 or any
       estop message is true (``trip_reason`` the first such message).
     """
-    cfg, machine_source = _resolve_machine(run, machine_name)
-    kind = _kind(run, cfg)
+    a = analysis or analyse(run, machine_name)
+    cfg, machine_source, kind = a["cfg"], a["machine_source"], a["kind"]
     t0 = run.t0_ns()
     out: dict = {"bag": str(run.bag_path), "namespace": run.namespace,
                  "machine": cfg.name if cfg is not None else machine_name, "machine_source": machine_source,
@@ -512,7 +519,7 @@ def metrics(run: RunData, machine_name: str | None = None, published: dict | Non
                                  if getattr(run, a) is not None}
 
     # tracking
-    err = tracking_errors(run, kind)
+    err = a["err"]
     track: dict = {"samples": 0, "rms_m": None, "max_m": None, "max_time_s": None}
     if err is not None and len(err["stamp_ns"]):
         e = err["translation"]
@@ -535,7 +542,7 @@ def metrics(run: RunData, machine_name: str | None = None, published: dict | Non
                           "peak_commanded_per_drive_n": pc_per, "peak_applied_per_drive_n": pa_per}
 
     # internal force
-    fi = internal_forces(run, cfg)
+    fi = a["fi"]
     internal: dict = {"source": "drives/state effort (applied)", "max_n": None, "rms_n": None, "samples": 0}
     if "error" in fi:
         internal["error"] = fi["error"]
@@ -544,10 +551,9 @@ def metrics(run: RunData, machine_name: str | None = None, published: dict | Non
         internal.update(model=f"nominal {cfg.name}", pose_source=fi["pose_source"], redundancy=fi["redundancy"],
                         max_n=_max_abs(norm), rms_n=_rms(norm), samples=int(np.isfinite(norm).sum()),
                         unavailable_steps=int(len(run.state.stamp_ns) - np.isfinite(norm).sum()))
-        if run.command is not None:
-            fc = internal_forces(run, cfg, run.command)
-            if "error" not in fc:
-                internal.update(max_commanded_n=_max_abs(fc["norm"]), rms_commanded_n=_rms(fc["norm"]))
+        fc = a["fc"]
+        if fc is not None and "error" not in fc:
+            internal.update(max_commanded_n=_max_abs(fc["norm"]), rms_commanded_n=_rms(fc["norm"]))
     out["internal_force"] = internal
 
     # sim_hw diagnostics
@@ -631,7 +637,7 @@ def _figure(rows: int, height: float = 3.2):
     return fig, axes
 
 
-def plot(run: RunData, out_dir, machine_name: str | None = None) -> list[Path]:
+def plot(run: RunData, out_dir, machine_name: str | None = None, analysis: dict | None = None) -> list[Path]:
     """Figures of the run as PNG files in ``out_dir`` (created): ``path.png`` (tool path
     against the reference, x-y; yaw or z against time), ``tracking_error.png`` (µm, µrad),
     ``drive_forces.png`` (commanded and applied, N, one line per drive) and
@@ -639,8 +645,8 @@ def plot(run: RunData, out_dir, machine_name: str | None = None) -> list[Path]:
     lacks are skipped. Long runs are decimated to ~20k points (min/max per bucket)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    cfg, _ = _resolve_machine(run, machine_name)
-    kind = _kind(run, cfg)
+    a = analysis or analyse(run, machine_name)
+    cfg, kind = a["cfg"], a["kind"]
     planar = kind == "planar"
     t0 = run.t0_ns() or 0
     label = f"{cfg.name if cfg is not None else (machine_name or 'machine')} ({run.namespace or '/'})"
@@ -679,7 +685,7 @@ def plot(run: RunData, out_dir, machine_name: str | None = None) -> list[Path]:
         save(fig, "path.png")
 
     # 2. tracking error
-    err = tracking_errors(run, kind)
+    err = a["err"]
     if err is not None and len(err["stamp_ns"]):
         fig, axes = _figure(2 if planar else 1)
         i = _pick(len(err["stamp_ns"]), err["translation"])
@@ -717,13 +723,13 @@ def plot(run: RunData, out_dir, machine_name: str | None = None) -> list[Path]:
         save(fig, "drive_forces.png")
 
     # 4. internal force
-    fi = internal_forces(run, cfg)
+    fi = a["fi"]
     if "error" not in fi and len(fi["stamp_ns"]):
         fig, (ax,) = _figure(1)
         i = _pick(len(fi["stamp_ns"]), fi["norm"])
         ax.plot(t_of(fi["stamp_ns"][i]), fi["norm"][i], color="tab:purple", lw=1.0, label="applied")
-        if run.command is not None:
-            fc = internal_forces(run, cfg, run.command)
+        fc = a["fc"]
+        if fc is not None:
             if "error" not in fc and len(fc["stamp_ns"]):
                 j = _pick(len(fc["stamp_ns"]), fc["norm"])
                 ax.plot(t_of(fc["stamp_ns"][j]), fc["norm"][j], color="tab:orange", lw=0.8, ls="--",
@@ -756,9 +762,10 @@ def write_report(run_dir, out_dir=None) -> dict:
     run = load_run(run_dir, namespace=info.get("namespace"))
     out_dir = Path(out_dir) if out_dir is not None else run_dir / "report"
     out_dir.mkdir(parents=True, exist_ok=True)
-    result = metrics(run, info.get("machine"), info.get("published"))
+    analysis = analyse(run, info.get("machine"))
+    result = metrics(run, info.get("machine"), info.get("published"), analysis)
     result = {"scenario": info.get("scenario"), "run_dir": str(run_dir), **result}
-    files = plot(run, out_dir, result.get("machine"))
+    files = plot(run, out_dir, result.get("machine"), analysis)
     result["plots"] = [f.name for f in files]
     with open(out_dir / "metrics.json", "w", encoding="utf-8") as fh:
         json.dump(result, fh, indent=2, allow_nan=False)
@@ -813,10 +820,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         result = write_report(args.run_dir, args.out)
-    except NoBagError as exc:
-        print(f"pkm-report: error: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:                     # e.g. ambiguous namespace, unknown machine
+    except (NoBagError, ValueError) as exc:       # ValueError: e.g. ambiguous namespace, unknown machine
         print(f"pkm-report: error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out) if args.out else Path(args.run_dir) / "report"

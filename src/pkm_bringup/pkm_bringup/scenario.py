@@ -32,13 +32,12 @@ from pathlib import Path
 
 import yaml
 
-from pkm_controller.controller import STRATEGIES, ControllerConfig
+from pkm_controller.controller import METROLOGY_STRATEGIES, STRATEGIES, ControllerConfig
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "load", "record", "timeout_s")
-METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw"}
 
@@ -74,6 +73,10 @@ class Scenario:
     @property
     def strategy(self) -> str:
         return self.controller.get("strategy", "computed_torque")
+
+    def topic(self, name: str) -> str:
+        """A topic's full name: relative names are taken in the scenario's namespace."""
+        return name if name.startswith("/") else f"{self.namespace.rstrip('/')}/{name}"
 
 
 def _number(data: dict, key: str, default: float, lo: float, hi: float) -> float:
@@ -208,7 +211,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     if s.metrology and config.metrology is None:
         raise ScenarioError(f"metrology: machine {machine} has no metrology section")
     if s.program is not None and not s.duration_s:
-        s.duration_s = round(program_duration(s) + s.settle_s, 6)
+        s.duration_s = round(program_duration(s, config.model) + s.settle_s, 6)
     return s
 
 
@@ -221,13 +224,13 @@ def _node_defaults(name: str) -> dict:
     return dict(data.get("/**", {}).get("ros__parameters", {}))
 
 
-def program_duration(s: Scenario) -> float:
-    """The planned duration of the scenario's program, planned and validated exactly as
-    trajectory_node will (a program it would refuse fails here, before anything starts)."""
+def program_duration(s: Scenario, model) -> float:
+    """The planned duration of the scenario's program on ``model`` (the scenario's
+    machine), planned and validated exactly as trajectory_node will (a program it would
+    refuse fails here, before anything starts)."""
     from pkm_trajectory.planner import Limits, plan_validated
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
-    model = load_machine(s.machine).model
     planar = hasattr(model, "home_pose")
     home = model.home_pose if planar else model.home_position
     try:
@@ -262,8 +265,6 @@ def _typed(node: str, params: dict) -> dict:
             value = float(value)
         if isinstance(value, list):
             value = [float(v) for v in value]
-        if isinstance(value, Path):
-            value = str(value)
         out[key] = value
     return out
 
@@ -290,10 +291,10 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
         # (pkm_common.tap) instead of a delivery per message to one more process
-        tapped = [topic for node, topics in TAPPED_STREAMS.items() if node in nodes for topic in topics]
-        for node in TAPPED_STREAMS:
-            if node in nodes:
-                nodes[node]["tap"] = True
+        tapped = []
+        for node in (n for n in TAPPED_STREAMS if n in nodes):
+            nodes[node]["tap"] = True
+            tapped += TAPPED_STREAMS[node]
         nodes["recorder"] = {"output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
                              "expect_topics": ",".join(expected_topics(s)), "tapped_topics": ",".join(tapped),
                              "summary_path": str(summaries / "recorder.json"),

@@ -192,7 +192,7 @@ class JointStateDecoder:
             if values[0] == CDR_LE_HEADER and values[3] == lay._middle \
                     and all(values[i] == count for i, count in lay._count_index):
                 stamp = values[1] * NS_PER_S + values[2]
-                arrays = [values[start:start + count] for start, count in lay._array_slices]
+                arrays = [values[i + 1:i + 1 + count] for i, count in lay._count_index]
                 return JointStateData(stamp, lay.frame_id, lay.names, *arrays)
         data = decode_joint_state(buf, self.what)
         n = len(data.name)
@@ -242,13 +242,12 @@ class JointStateEncoder:
         self._middle = middle
         self._struct = struct.Struct("".join(fmt))
         self._counts = {f: (self.n if f in self.fields else 0) for f in self.FIELDS}
-        # where the counts and the arrays sit in the unpacked tuple (JointStateDecoder)
-        index, self._count_index, self._array_slices = 4, [], []
+        # (index of each array's count in the unpacked tuple, the count); the array
+        # follows its count (JointStateDecoder)
+        index, self._count_index = 4, []
         for field in self.FIELDS:
-            count = self._counts[field] if self.n else 0
             self._count_index.append((index, self._counts[field]))
-            self._array_slices.append((index + 1, count))
-            index += 1 + count
+            index += 1 + self._counts[field]
         self.size = self._struct.size
 
     def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:

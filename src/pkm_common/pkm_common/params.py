@@ -174,7 +174,7 @@ def declare_float_list(node, name: str, default, description: str = '', *,
 
 
 __all__ = ['ParameterError', 'declare_bool', 'declare_float', 'declare_float_list',
-           'declare_int', 'declare_str']
+           'declare_int', 'declare_like', 'declare_str']
 
 
 def declare_like(node, name: str, default):

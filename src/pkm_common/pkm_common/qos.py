@@ -84,5 +84,16 @@ TOPIC_QOS = {
     '/clock': CLOCK_QOS,
 }
 
+
+
+def publisher_qos(topic: str) -> QoSProfile:
+    """What a publisher of ``topic`` (a relative name, or /clock) offers in the graph:
+    the TOPIC_QOS profile, with the per-step streams' deeper publisher history."""
+    qos = TOPIC_QOS.get(topic, STREAM_QOS)
+    if qos is STREAM_QOS:
+        return STREAM_PUBLISHER_QOS
+    return CLOCK_PUBLISHER_QOS if qos is CLOCK_QOS else qos
+
+
 __all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TAP_QOS',
-           'TOPIC_QOS']
+           'TOPIC_QOS', 'publisher_qos']

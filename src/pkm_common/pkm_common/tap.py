@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import struct
 
+from pkm_common.cdr import CDR_LE_HEADER
+
 TAP_TOPIC = "_recorder/tap"                 # hidden (leading underscore), relative: per namespace
-TAP_TYPE = "std_msgs/msg/UInt8MultiArray"
 MAGIC = b"PKMTAP1\x00"
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _RECORD = struct.Struct("<HqI")
 _ARRAY_HEAD = struct.Struct("<4sIII")      # encapsulation, dim count, data_offset, data length
-_CDR_LE = b"\x00\x01\x00\x00"
 
 
 def message_type_name(msg_class) -> str:
@@ -71,7 +71,7 @@ class StreamTap:
             parts += [pack(index, time_ns, len(data)), data]
         self._records = []
         payload = b"".join(parts)
-        return _ARRAY_HEAD.pack(_CDR_LE, 0, 0, len(payload)) + payload
+        return _ARRAY_HEAD.pack(CDR_LE_HEADER, 0, 0, len(payload)) + payload
 
 
 def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
@@ -81,7 +81,7 @@ def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
     if len(buf) < _ARRAY_HEAD.size:
         raise ValueError(f"{TAP_TOPIC}: {len(buf)} bytes, too short for a UInt8MultiArray")
     encapsulation, dims, _, length = _ARRAY_HEAD.unpack_from(buf)
-    if encapsulation != _CDR_LE or dims != 0 or len(buf) < _ARRAY_HEAD.size + length:
+    if encapsulation != CDR_LE_HEADER or dims != 0 or len(buf) < _ARRAY_HEAD.size + length:
         raise ValueError(f"{TAP_TOPIC}: not a tap batch (encapsulation {encapsulation!r}, {dims} layout "
                          f"dimensions, data length {length} in {len(buf)} bytes)")
     data = memoryview(buf)[_ARRAY_HEAD.size:_ARRAY_HEAD.size + length]
@@ -104,15 +104,13 @@ def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
             index, time_ns, size = _RECORD.unpack_from(data, offset)
             offset += _RECORD.size
             if offset + size > len(data) or index >= len(topics):
-                raise ValueError(f"record {len(records)}: topic index {index} of {len(topics)}, {size} bytes "
-                                 f"at {offset} of {len(data)}")
+                raise ValueError(f"{TAP_TOPIC}: record {len(records)}: topic index {index} of {len(topics)}, "
+                                 f"{size} bytes at {offset} of {len(data)}")
             topic, msgtype = topics[index]
             records.append((topic, msgtype, time_ns, bytes(data[offset:offset + size])))
             offset += size
     except (struct.error, UnicodeDecodeError) as exc:
         raise ValueError(f"{TAP_TOPIC}: truncated or malformed batch ({exc})") from None
-    except ValueError as exc:
-        raise ValueError(f"{TAP_TOPIC}: {exc}") from None
     return records
 
 

@@ -132,7 +132,8 @@ class GoughSensorNode(Node):
         self._last_stamp_ns = ns
         # the readings first: a sensor-space controller waits for them, and the DKM
         # (~20 us) is then off its critical path; a measured-space one waits for the pose
-        self.pub_struts.publish(self._struts_encoder.encode(ns, position=lengths.tolist()))
+        lengths = lengths.tolist()
+        self.pub_struts.publish(self._struts_encoder.encode(ns, position=lengths))
         published['metrology/struts'] += new_step
         est_p, est_r, result = self.model.estimate(lengths)
         if result.converged:
@@ -143,7 +144,7 @@ class GoughSensorNode(Node):
             self.counts['failed'] += 1
             self._error(f'DKM failed: {result.reason}', {
                 'stamp_ns': ns, 'iterations': result.iterations,
-                'residual_m': result.residual_m, 'lengths_m': [float(v) for v in lengths]})
+                'residual_m': result.residual_m, 'lengths_m': lengths})
         self._max_callback_s = max(self._max_callback_s, time.perf_counter() - start)
 
     # ---------------------------------------------------------- diagnostics

@@ -163,7 +163,9 @@ class GoughSensorModel:
         self._travel = (float(self.nominal.strut_limits[0]), float(self.nominal.strut_limits[1]))
 
     # ------------------------------------------------------------- frames
-    def _plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
+    def plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
+        """:meth:`plate_pose` on floats, unchecked (per-cycle use): tool position (3
+        floats) and row-major rotation (9 floats) -> plate position and rotation."""
         # T_base_plate = T_world_base^-1 T_world_tool T_tool_plate
         rp = _mv(r_t, self._p_tp)
         d = (p_t[0] + rp[0] - self._p_wb[0], p_t[1] + rp[1] - self._p_wb[1], p_t[2] + rp[2] - self._p_wb[2])
@@ -176,14 +178,9 @@ class GoughSensorModel:
         return (self._p_wb[0] + wp[0] - rp[0], self._p_wb[1] + wp[1] - rp[1],
                 self._p_wb[2] + wp[2] - rp[2]), r_t
 
-    def plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
-        """:meth:`plate_pose` on floats, unchecked (per-cycle use): tool position (3
-        floats) and row-major rotation (9 floats) -> plate position and rotation."""
-        return self._plate_in_base(p_t, r_t)
-
     def plate_pose(self, tool_position, tool_rotation) -> tuple[np.ndarray, np.ndarray]:
         """The Gough plate pose in the Gough base frame for a tool pose in world."""
-        p, r = self._plate_in_base(finite_floats(tool_position, 3, 'tool_position'),
+        p, r = self.plate_in_base(finite_floats(tool_position, 3, 'tool_position'),
                                    rotation_floats(tool_rotation, 'tool_rotation'))
         return np.array(p), np.array(r).reshape(3, 3)
 

@@ -124,11 +124,7 @@ def min_two_norm(jac, wrench, check: bool = True) -> np.ndarray:
     Sliding Star eq. 9). No internal force: f is orthogonal to ker(J^T)."""
     jac, wrench = _validate(jac, wrench)
     if jac.shape[1] == 3:
-        rows = jac.tolist()
-        forces = _min_two_norm_rows(rows, wrench)
-        if check:
-            check_wrench(rows, forces, wrench)
-        return np.array(forces)
+        return np.array(_distribute_floats(jac.tolist(), wrench, False, check))
     if np.linalg.matrix_rank(jac) < jac.shape[1]:
         raise DistributionError(f"singular configuration: J has rank < {jac.shape[1]}")
     forces = np.linalg.pinv(jac.T) @ np.asarray(wrench)
@@ -259,11 +255,7 @@ def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
     if n_drives == dof:
         return min_two_norm(jac, wrench, check)
     if n_drives == 4 and dof == 3:
-        rows = jac.tolist()
-        forces = _min_inf_norm_1d_list(_min_two_norm_rows(rows, wrench), _null_direction_rows(rows))
-        if check:
-            check_wrench(rows, forces, wrench)
-        return np.array(forces)
+        return np.array(_distribute_floats(jac.tolist(), wrench, True, check))
     forces = min_inf_norm_lp(jac, wrench)
     if check:
         check_wrench(jac, forces, wrench)
@@ -399,13 +391,17 @@ def distribute_rows(method: str, rows, wrench) -> list[float] | None:
         return None
     if method == "inf_norm" and len(rows) != 4:
         return None
-    wrench = list(wrench)
-    if len(wrench) != 3 or not math.isfinite(wrench[0] + wrench[1] + wrench[2]):
-        raise ValueError(f"wrench: must be 3 finite numbers, got {wrench}")
+    return _distribute_floats(rows, finite_floats(wrench, 3, "wrench"), method == "inf_norm", True)
+
+
+def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[float]:
+    """The float paths of min_two_norm (J as n rows of 3) and min_inf_norm (4 rows):
+    the pseudo-inverse solution, moved along ker(J^T) to the least peak for inf_norm."""
     forces = _min_two_norm_rows(rows, wrench)
-    if method == "inf_norm":
+    if inf_norm:
         forces = _min_inf_norm_1d_list(forces, _null_direction_rows(rows))
-    check_wrench(rows, forces, wrench)
+    if check:
+        check_wrench(rows, forces, wrench)
     return forces
 
 

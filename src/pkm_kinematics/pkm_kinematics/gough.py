@@ -79,6 +79,13 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
     return np.array(base), np.array(plate)
 
 
+def _jinv_rows(geometry) -> list[tuple]:
+    """J_h^-1 rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3) from per-strut (u_i, R b_i) as
+    6-tuples of floats."""
+    return [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
+            for ux, uy, uz, rbx, rby, rbz in geometry]
+
+
 @dataclass
 class GoughPlatform:
     """A 6-strut Gough platform; geometry in its base frame (see module docstring)."""
@@ -138,16 +145,15 @@ class GoughPlatform:
         Rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3)."""
         px, py, pz = p
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-        rows = []
+        geometry = []
         for ax, ay, az, bx, by, bz in self._legs_f:
             rbx = r00 * bx + r01 * by + r02 * bz
             rby = r10 * bx + r11 * by + r12 * bz
             rbz = r20 * bx + r21 * by + r22 * bz
             lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
             n = math.sqrt(lx * lx + ly * ly + lz * lz)
-            ux, uy, uz = lx / n, ly / n, lz / n
-            rows.append((ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux))
-        return rows
+            geometry.append((lx / n, ly / n, lz / n, rbx, rby, rbz))
+        return _jinv_rows(geometry)
 
     def inverse_jacobian_batch(self, positions, rotations) -> np.ndarray:
         """J_h^-1 for N poses: (N, 6, 6)."""
@@ -248,10 +254,8 @@ class GoughPlatform:
                 return self._fail(iteration, evaluations, residual, "diverged: residual grew twice in a row")
             if jh is None or residual > 1e-3 * previous:
                 # (re)linearise at the current pose: J_h^-1 rows [u, (R b) x u] (eq. 2-3)
-                jinv = [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
-                        for ux, uy, uz, rbx, rby, rbz in geometry]
                 try:
-                    jh = np.linalg.inv(np.array(jinv)).tolist()
+                    jh = np.linalg.inv(np.array(_jinv_rows(geometry))).tolist()
                 except np.linalg.LinAlgError:
                     return self._fail(iteration, evaluations + 1, residual,
                                       "singular configuration (J_h^-1 not invertible)")
@@ -275,9 +279,7 @@ class GoughPlatform:
             # the solve travelled: it must not have crossed into another assembly mode,
             # which would flip the sign of det(J_h^-1) (a path between modes crosses a
             # singularity). Short warm-started solves cannot, and skip this 10 us check.
-            jinv = [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
-                    for ux, uy, uz, rbx, rby, rbz in geometry]
-            if np.linalg.det(np.array(jinv)) * self._home_det_sign <= 0.0:
+            if np.linalg.det(np.array(_jinv_rows(geometry))) * self._home_det_sign <= 0.0:
                 return self._fail(iterations, evaluations, residual,
                                   "another assembly mode: det(J_h^-1) has the opposite sign to home")
         return GoughDKMResult(np.array([px, py, pz]), np.array(rot).reshape(3, 3), True, iterations,
@@ -343,8 +345,8 @@ class GoughDKMSolver:
         self._p = (self.platform.home_position.tolist() if position is None
                    else finite_floats(position, 3, "position"))
         self._r = tuple(np.eye(3).ravel().tolist() if rotation is None else validate_rotation(rotation, "rotation"))
-        self._previous = None        # (position, rotation) one solve earlier, as floats
-        self._solved = False         # _p/_r is a solution (not a reset guess): its velocity is usable
+        self._previous = None        # (position, rotation) one solve earlier, as floats; None
+        #                              after a reset or a failure (_p/_r then a guess, no velocity)
         self._jh = None
 
     @property
@@ -373,10 +375,9 @@ class GoughDKMSolver:
             self._jh = result.jacobian
             p2, r2 = result.position.tolist(), tuple(result.rotation.ravel().tolist())
             # after a reset the guess is not a pose of the motion: no velocity to extrapolate
-            self._previous = (p1, r1) if self._solved else (p2, r2)
-            self._p, self._r, self._solved = p2, r2, True
+            self._previous = (p1, r1) if self._previous is not None else (p2, r2)
+            self._p, self._r = p2, r2
         else:
             self._jh = None
             self._previous = None
-            self._solved = False
         return result

@@ -171,12 +171,13 @@ class Plant:
     def schedule_load(self, rows) -> None:
         """Loads in simulated time: [(t_s, wrench)], times non-decreasing; each applies
         from the first step at or after t_s (counted in steps: no float drift)."""
-        schedule = []
+        schedule, last_t = [], 0.0
         for t, wrench in rows:
-            if not (math.isfinite(t) and t >= 0.0) or (schedule and t < schedule[-1][2] - 1e-12):
+            if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
                 raise ValueError(f"load_schedule: times must be finite, >= 0 and non-decreasing, got {t}")
-            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), finite_floats(wrench, 3, "load"), t))
-        self._schedule = [(k, w) for k, w, _ in schedule]
+            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), finite_floats(wrench, 3, "load")))
+            last_t = t
+        self._schedule = schedule
 
     def safe_stop(self, reason: str) -> None:
         """Brakes on: the platform stops where it is and holds; commands are ignored."""

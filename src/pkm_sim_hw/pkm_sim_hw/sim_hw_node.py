@@ -174,12 +174,14 @@ class SimHwNode(Node):
     def _effort(self, msg):
         """The efforts of a command (pkm_common.cdr.JointStateData) in plant order, or
         None (refused, reported)."""
-        names = list(msg.name)
-        if len(msg.effort) != self.plant.n or (names and sorted(names) != sorted(self.plant.names)):
+        try:
+            effort = list(in_order(msg, self.plant.names).effort)
+        except ValueError:                        # names that are not the plant's
+            effort = None
+        if effort is None or len(effort) != self.plant.n:
             self._refuse(f"expected {self.plant.n} efforts for {self.plant.names}, got {len(msg.effort)} "
-                         f"for {names}")
+                         f"for {list(msg.name)}")
             return None
-        effort = list(in_order(msg, self.plant.names).effort)
         if not math.isfinite(sum(effort)):        # NaN or inf in any of them
             self._refuse(f"non-finite effort {effort}")
             return None
@@ -217,8 +219,6 @@ class SimHwNode(Node):
         self.advance(self.latest_effort)
 
     def advance(self, effort) -> None:
-        if self.finished:
-            return
         self.plant.step(effort)
         self.publish_state()
         if self.duration_steps and self.plant.k >= self.duration_steps:
@@ -258,7 +258,7 @@ class SimHwNode(Node):
             return
         if not self.started:
             self.publish_state()                   # until the controller has discovered us
-        elif self.started and time.monotonic() - self.last_command_wall > self.timeout_s \
+        elif time.monotonic() - self.last_command_wall > self.timeout_s \
                 and not self.plant.stopped:        # lockstep and realtime alike
             self.counts["timeouts"] += 1
             self.plant.safe_stop(f"no drives/command within {self.timeout_s} s")
