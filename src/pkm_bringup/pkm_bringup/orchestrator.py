@@ -23,9 +23,12 @@ Run directory::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import os
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -36,6 +39,8 @@ from pkm_controller.controller import METROLOGY_STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
 START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
+# after the sim's last step, how long the loop's nodes keep running (see run_processes)
+LOOP_END_GRACE_S = 0.15
 STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "recorder")
 CONNECT_TIMEOUT_S = 60.0
 DRAIN_S = 0.5
@@ -178,18 +183,27 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             _publish_start(monitor)
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
-        while sim.running():
+        # the loop is over when the sim has exited, or LOOP_END_GRACE_S after its last
+        # step (the exit of a process with compiled kernels takes ~0.4 s, close to
+        # the controller's state watchdog; the grace lets the last state be answered)
+        last_step_wall = math.inf
+        while sim.running() and time.monotonic() < last_step_wall + LOOP_END_GRACE_S:
             check_alive(allowed_done=("sim_hw",))
             if time.monotonic() > deadline:
                 raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
-            executor.spin_once(timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.02)
             progress.update(monitor.sim_time_s)
+            if monitor.sim_time_s >= s.duration_s - 1e-6 and last_step_wall == math.inf:
+                last_step_wall = time.monotonic()
         progress.update(s.duration_s)
+        # stop the loop's nodes at once (their watchdogs would report the silent
+        # plant), then give the recorder time for the last messages
+        codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n not in ("recorder", "sim_hw")],
+                                together=True))
+        with contextlib.suppress(subprocess.TimeoutExpired):     # the sim ends by itself
+            sim.popen.wait(timeout=10.0)
         if sim.popen.returncode != 0:
             raise RunFailed(f"node sim_hw exited with code {sim.popen.returncode}; its last output:\n{sim.tail()}")
-        # the loop is over: stop its nodes at once (their watchdogs would report the
-        # silent plant), then give the recorder time for the last messages
-        stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n != "recorder"], together=True)
         end = time.monotonic() + DRAIN_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)

@@ -148,12 +148,14 @@ class CycleRecord:
 class _Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
-    __slots__ = ("t_s", "dt", "first", "q", "qdot", "pose", "rows", "v", "x_d", "v_d", "a_d",
+    __slots__ = ("t_s", "dt", "first", "q", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d", "a_d",
                  "a_model", "h_model")
 
-    def __init__(self, t_s, dt, first, q, qdot, pose, rows, v):
+    def __init__(self, t_s, dt, first, q, qdot, pose, rows, active_rows, v):
         self.t_s, self.dt, self.first, self.q, self.qdot = t_s, dt, first, q, qdot
-        self.pose, self.rows, self.v = pose, rows, v
+        # J_m as rows of 3 floats, and the rows of the active drives as one array for
+        # the compiled kernels (converted once per cycle)
+        self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
 
 
@@ -340,7 +342,7 @@ class ControllerCore:
             self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
         return ""
 
-    def _check_limits(self, q, rows, measured, error) -> str:
+    def _check_limits(self, q, active_rows, measured, error) -> str:
         c = self.config
         for i, (qi, lo, hi) in enumerate(zip(q, self._lower, self._upper)):
             if not lo <= qi <= hi:
@@ -349,7 +351,7 @@ class ControllerCore:
             if not lo <= v <= hi:
                 return (f"workspace: {'xyz'[k]} = {v:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
                         f"(workspace_margin_m {c.workspace_margin_m:g})")
-        cond = gram_condition([rows[k] for k in self.active])
+        cond = gram_condition(active_rows)
         if cond > c.max_condition:
             return f"singularity margin: condition number {cond:.4g} > max_condition {c.max_condition:g}"
         trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
@@ -398,11 +400,13 @@ class ControllerCore:
                 return False
         try:
             _, rows, _, _ = self.model.velocity_terms(pose, (0.0, 0.0, 0.0))
-            v = least_squares_velocity(rows, qdot)
+            rows_a = np.array(rows)
+            v = least_squares_velocity(rows_a, qdot)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"kinematics at the measured pose: {exc}")
             return False
-        self._cycle = _Cycle(t_s, dt, first, q, qdot, pose, rows, v)
+        active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
+        self._cycle = _Cycle(t_s, dt, first, q, qdot, pose, rows, active_rows, v)
         return first or self._prepare_reference(self._cycle)
 
     def _prepare_reference(self, c: "_Cycle") -> bool:
@@ -440,7 +444,7 @@ class ControllerCore:
                 return list(self.last_command)
         try:
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
-            problem = self._check_limits(c.q, c.rows, measured, error)
+            problem = self._check_limits(c.q, c.active_rows, measured, error)
             if problem:
                 return self.trip(problem)
             forces = self._strategy(c, error)
@@ -542,16 +546,15 @@ class ControllerCore:
         else:                                     # MoM3 §6.1: PI + velocity feed-forward
             v_c = [vd + g.outer_kp * e + i for vd, e, i in zip(v_d, error, integral)]
             wrench = velocity_cascade(c.a_model, c.h_model, a_d, v_c, v, g)
-        return self._distribute(wrench, rows, c.pose)
+        return self._distribute(wrench, c.active_rows, c.pose)
 
-    def _distribute(self, wrench, rows, pose) -> list:
+    def _distribute(self, wrench, active_rows, pose) -> list:
         c = self.config
-        active_rows = [rows[k] for k in self.active]
         method = c.distribution if len(self.active) == self.n else "pseudo_inverse"
         prestress = c.prestress_n if len(self.active) == self.n else 0.0
         forces = None if prestress else distribute_rows(method, active_rows, wrench)
         if forces is None:
-            forces = distribute(method, np.array(active_rows), wrench, machine=self.model, pose=pose, p=c.p_norm,
+            forces = distribute(method, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
                                 prestress_n=prestress, reference=[1.0] * len(active_rows)).tolist()
         return self._expand(forces)
 

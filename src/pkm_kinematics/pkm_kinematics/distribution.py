@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from .errors import DistributionError
+from .jit import kernel
 from .validation import finite_floats
 
 METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm")
@@ -35,20 +36,31 @@ P_NORM_MAX = 64.0
 def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
     """Raise DistributionError unless J^T f reproduces the wrench, to ``rtol`` of the
     magnitude of the terms summed (sum_i |J_ik f_i|, the rounding-error scale).
-    Plain floats: it runs every control cycle."""
-    rows = jac.tolist() if isinstance(jac, np.ndarray) else jac
-    f = forces.tolist() if isinstance(forces, np.ndarray) else forces
+    Compiled (:func:`_check_wrench_kernel`): it runs every control cycle."""
     w = _floats(wrench)
-    for k, wk in enumerate(w):
+    k, achieved = _check_wrench_kernel(_rows_array(jac), np.asarray(forces, dtype=float), np.array(w), rtol)
+    if k >= 0:
+        _raise_wrench_mismatch(k, achieved, w)
+
+
+def _raise_wrench_mismatch(k: int, achieved: float, w) -> None:
+    raise DistributionError(f"J^T f does not reproduce the wrench: component {k} is {achieved:.6g}, "
+                            f"requested {w[k]:.6g} (wrench {list(w)})")
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64)")
+def _check_wrench_kernel(rows, forces, wrench, rtol):
+    """(k, achieved): the first wrench component k that J^T f misses, -1 if none."""
+    for k in range(len(wrench)):
+        wk = wrench[k]
         achieved = magnitude = 0.0
-        for row, fi in zip(rows, f):
-            term = row[k] * fi
+        for i in range(rows.shape[0]):
+            term = rows[i, k] * forces[i]
             achieved += term
             magnitude += abs(term)
         if not abs(achieved - wk) <= rtol * max(1.0, magnitude, abs(wk)):
-            raise DistributionError(
-                f"J^T f does not reproduce the wrench: component {k} is {achieved:.6g}, "
-                f"requested {wk:.6g} (wrench {w})")
+            return k, achieved
+    return -1, 0.0
 
 
 def _floats(values) -> list[float]:
@@ -56,11 +68,18 @@ def _floats(values) -> list[float]:
     return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
 
+def _rows_array(rows) -> np.ndarray:
+    """J given as rows of 3 floats (or an array) as a float array for the kernels."""
+    return rows if isinstance(rows, np.ndarray) and rows.dtype == np.float64 else np.array(rows, dtype=float)
+
+
+@kernel("(float64[:, :],)")
 def gram_rows(rows) -> tuple:
-    """The 6 distinct entries (a00, a01, a02, a11, a12, a22) of J^T J for J given as
-    rows of 3 floats."""
+    """The 6 distinct entries (a00, a01, a02, a11, a12, a22) of J^T J for J an (n, 3)
+    float array."""
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for j0, j1, j2 in rows:
+    for i in range(rows.shape[0]):
+        j0, j1, j2 = rows[i, 0], rows[i, 1], rows[i, 2]
         a00 += j0 * j0
         a01 += j0 * j1
         a02 += j0 * j2
@@ -70,9 +89,9 @@ def gram_rows(rows) -> tuple:
     return a00, a01, a02, a11, a12, a22
 
 
-def _gram_solve_rows(rows, rhs) -> list[float]:
-    """Solve (J^T J) y = rhs for J given as rows of 3 floats (closed-form symmetric 3x3
-    inverse; LAPACK costs ~10 us per call on such tiny systems)."""
+@kernel()
+def _gram_solve_kernel(rows, b0, b1, b2):
+    """Solve (J^T J) y = b (closed-form symmetric 3x3 inverse): (y0, y1, y2, solvable)."""
     a00, a01, a02, a11, a12, a22 = gram_rows(rows)
     c00 = a11 * a22 - a12 * a12
     c01 = a12 * a02 - a01 * a22
@@ -80,19 +99,39 @@ def _gram_solve_rows(rows, rhs) -> list[float]:
     det = a00 * c00 + a01 * c01 + a02 * c02
     # relative singularity test: det of a Gram matrix against the product of its diagonal
     if not abs(det) > 1e-13 * abs(a00 * a11 * a22):
-        raise DistributionError("singular configuration: J^T J is not invertible (rank < 3)")
-    b0, b1, b2 = _floats(rhs)
+        return 0.0, 0.0, 0.0, False
     c11 = a00 * a22 - a02 * a02
     c12 = a01 * a02 - a00 * a12
     c22 = a00 * a11 - a01 * a01
-    return [(c00 * b0 + c01 * b1 + c02 * b2) / det,
-            (c01 * b0 + c11 * b1 + c12 * b2) / det,
-            (c02 * b0 + c12 * b1 + c22 * b2) / det]
+    return ((c00 * b0 + c01 * b1 + c02 * b2) / det, (c01 * b0 + c11 * b1 + c12 * b2) / det,
+            (c02 * b0 + c12 * b1 + c22 * b2) / det, True)
+
+
+SINGULAR_GRAM = "singular configuration: J^T J is not invertible (rank < 3)"
+SINGULAR_NULL = "singular configuration: ker(J^T) is more than one-dimensional"
+
+
+@kernel("(float64[:, :], float64[:])")
+def _least_squares_kernel(rows, values):
+    """y = (J^T J)^-1 J^T v, the least-squares solution of J y = v: (y0, y1, y2, solvable)."""
+    b0 = b1 = b2 = 0.0
+    for i in range(rows.shape[0]):
+        b0 += rows[i, 0] * values[i]
+        b1 += rows[i, 1] * values[i]
+        b2 += rows[i, 2] * values[i]
+    return _gram_solve_kernel(rows, b0, b1, b2)
+
+
+def least_squares_rows(rows, values) -> list[float]:
+    """(J^T J)^-1 J^T v for J given as n rows of 3 floats (or an (n, 3) array)."""
+    y0, y1, y2, ok = _least_squares_kernel(_rows_array(rows), np.asarray(values, dtype=float))
+    if not ok:
+        raise DistributionError(SINGULAR_GRAM)
+    return [y0, y1, y2]
 
 
 def _min_two_norm_rows(rows, wrench) -> list[float]:
-    y0, y1, y2 = _gram_solve_rows(rows, wrench)
-    return [j0 * y0 + j1 * y1 + j2 * y2 for j0, j1, j2 in rows]
+    return _distribute_floats(rows, _floats(wrench), False, False)
 
 
 def transpose_rows(rows, values) -> tuple[float, float, float]:
@@ -153,18 +192,31 @@ def _null_direction_rows(rows) -> list[float]:
     """Unit null vector of J^T for J given as 4 rows of 3 floats (sign not fixed)."""
     if len(rows) != 4 or len(rows[0]) != 3:
         raise ValueError(f"jac: null_direction needs a 4 x 3 Jacobian, got {len(rows)} x {len(rows[0])}")
-    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2), (d0, d1, d2) = rows
+    out, ok = _null_direction_kernel(_rows_array(rows))
+    if not ok:
+        raise DistributionError(SINGULAR_NULL)
+    return out.tolist()
+
+
+@kernel("(float64[:, :],)")
+def _null_direction_kernel(rows):
+    """(unit null vector of J^T for a 4 x 3 J, found): n_i = (-1)^i det(J without row i)."""
+    a0, a1, a2 = rows[0, 0], rows[0, 1], rows[0, 2]
+    b0, b1, b2 = rows[1, 0], rows[1, 1], rows[1, 2]
+    c0, c1, c2 = rows[2, 0], rows[2, 1], rows[2, 2]
+    d0, d1, d2 = rows[3, 0], rows[3, 1], rows[3, 2]
     # 2 x 2 minors of the last two columns, shared by the four 3 x 3 determinants
     ab, ac, ad = a1 * b2 - a2 * b1, a1 * c2 - a2 * c1, a1 * d2 - a2 * d1
     bc, bd, cd = b1 * c2 - b2 * c1, b1 * d2 - b2 * d1, c1 * d2 - c2 * d1
-    out = [b0 * cd - c0 * bd + d0 * bc,          # +det(rows 1, 2, 3)
-           -(a0 * cd - c0 * ad + d0 * ac),       # -det(rows 0, 2, 3)
-           a0 * bd - b0 * ad + d0 * ab,          # +det(rows 0, 1, 3)
-           -(a0 * bc - b0 * ac + c0 * ab)]       # -det(rows 0, 1, 2)
+    out = np.empty(4)
+    out[0] = b0 * cd - c0 * bd + d0 * bc            # +det(rows 1, 2, 3)
+    out[1] = -(a0 * cd - c0 * ad + d0 * ac)         # -det(rows 0, 2, 3)
+    out[2] = a0 * bd - b0 * ad + d0 * ab            # +det(rows 0, 1, 3)
+    out[3] = -(a0 * bc - b0 * ac + c0 * ab)         # -det(rows 0, 1, 2)
     norm = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2] + out[3] * out[3])
     if norm == 0.0:
-        raise DistributionError("singular configuration: ker(J^T) is more than one-dimensional")
-    return [v / norm for v in out]
+        return out, False
+    return out / norm, True
 
 
 def null_direction(jac, reference=None) -> np.ndarray:
@@ -183,27 +235,34 @@ def null_direction(jac, reference=None) -> np.ndarray:
     return n
 
 
-def _min_inf_norm_1d_list(f0: list[float], n: list[float]) -> list[float]:
-    scale = max(map(abs, n))
+@kernel("(float64[:], float64[:])")
+def _min_inf_norm_1d_kernel(f0, n):
+    """:func:`min_inf_norm_1d` (see there) on float arrays."""
+    scale = 0.0
+    for v in n:
+        scale = max(scale, abs(v))
     eps = 1e-12 * scale if scale > 0.0 else 1.0
-    intercepts, slopes, floor = [], [], 0.0    # rising lines a + b t (b > 0)
-    for fi, ni in zip(f0, n):
+    count = 0
+    intercepts = np.empty(len(n))     # rising lines a + b t (b > 0)
+    slopes = np.empty(len(n))
+    floor = 0.0
+    for k in range(len(n)):
+        fi, ni = f0[k], n[k]
         if ni > eps:
-            intercepts.append(fi)
-            slopes.append(ni)
+            intercepts[count], slopes[count] = fi, ni
+            count += 1
         elif ni < -eps:
-            intercepts.append(-fi)
-            slopes.append(-ni)
+            intercepts[count], slopes[count] = -fi, -ni
+            count += 1
         elif abs(fi) > floor:
             floor = abs(fi)
-    if not slopes:
-        return list(f0)
+    if count == 0:
+        return f0.copy()
     # the falling line of leg j is -a_j - b_j t. The crossing of a leg's own two lines
     # (height 0) never beats the other pairs once two legs have slopes: if the optimum
     # is 0, all lines meet at one t and every pair finds it; with a single sloped leg
     # no pair remains and the floor branch below places t.
     best_h, best_t = -math.inf, 0.0
-    count = len(slopes)
     for i in range(count):
         ai, bi = intercepts[i], slopes[i]
         for j in range(count):
@@ -217,14 +276,15 @@ def _min_inf_norm_1d_list(f0: list[float], n: list[float]) -> list[float]:
     if floor >= best_h:
         floor = max(floor, 0.0)
         lo, hi = -math.inf, math.inf
-        for fi, ni in zip(f0, n):
+        for k in range(len(n)):
+            fi, ni = f0[k], n[k]
             if abs(ni) > eps:
                 a, b = (-floor - fi) / ni, (floor - fi) / ni
                 if a > b:
                     a, b = b, a
                 lo, hi = max(lo, a), min(hi, b)
         t = min(max(0.0, lo), hi)
-    return [fi + t * ni for fi, ni in zip(f0, n)]
+    return f0 + t * n
 
 
 def min_inf_norm_1d(f0, n) -> np.ndarray:
@@ -239,7 +299,7 @@ def min_inf_norm_1d(f0, n) -> np.ndarray:
     the minimum 2-norm solution among the optimal ones (f0 is the pseudo-inverse one).
     O(n^2) float operations.
     """
-    return np.array(_min_inf_norm_1d_list(_floats(f0), _floats(n)))
+    return _min_inf_norm_1d_kernel(np.asarray(f0, dtype=float).copy(), np.asarray(n, dtype=float).copy())
 
 
 def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
@@ -396,13 +456,39 @@ def distribute_rows(method: str, rows, wrench) -> list[float] | None:
 
 def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[float]:
     """The float paths of min_two_norm (J as n rows of 3) and min_inf_norm (4 rows):
-    the pseudo-inverse solution, moved along ker(J^T) to the least peak for inf_norm."""
-    forces = _min_two_norm_rows(rows, wrench)
+    the pseudo-inverse solution, moved along ker(J^T) to the least peak for inf_norm.
+    Compiled (:func:`_distribute_kernel`)."""
+    forces, code, k, achieved = _distribute_kernel(_rows_array(rows), wrench[0], wrench[1], wrench[2],
+                                                   inf_norm, check)
+    if code == 1:
+        raise DistributionError(SINGULAR_GRAM)
+    if code == 2:
+        raise DistributionError(SINGULAR_NULL)
+    if code == 3:
+        _raise_wrench_mismatch(k, achieved, wrench)
+    return forces.tolist()
+
+
+@kernel("(float64[:, :], float64, float64, float64, boolean, boolean)")
+def _distribute_kernel(rows, w0, w1, w2, inf_norm, check):
+    """(forces, code, k, achieved): f = J (J^T J)^-1 F (ARCHI §4.4.1), for inf_norm
+    moved along ker(J^T) to the least peak (§4.4.2, :func:`min_inf_norm_1d`), then
+    J^T f = F checked. code 0 ok, 1 J^T J singular, 2 ker(J^T) not 1-D, 3 the check
+    failed on component k (J^T f gave ``achieved``)."""
+    y0, y1, y2, ok = _gram_solve_kernel(rows, w0, w1, w2)
+    if not ok:
+        return np.zeros(rows.shape[0]), 1, -1, 0.0
+    forces = rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2
     if inf_norm:
-        forces = _min_inf_norm_1d_list(forces, _null_direction_rows(rows))
+        n, ok = _null_direction_kernel(rows)
+        if not ok:
+            return forces, 2, -1, 0.0
+        forces = _min_inf_norm_1d_kernel(forces, n)
     if check:
-        check_wrench(rows, forces, wrench)
-    return forces
+        k, achieved = _check_wrench_kernel(rows, forces, np.array([w0, w1, w2]), 1e-9)
+        if k >= 0:
+            return forces, 3, k, achieved
+    return forces, 0, -1, 0.0
 
 
 def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 4.0,

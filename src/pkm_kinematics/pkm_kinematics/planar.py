@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
+from .jit import kernel
 from .validation import finite_array, finite_floats
 
 
@@ -82,6 +83,211 @@ def _solve3(a, b):
     return x0, x1, x2
 
 
+# forward_kinematics outcome codes (the compiled kernel returns a code, the method
+# turns it into the result's reason)
+FK_CONVERGED, FK_UNREACHABLE, FK_SINGULAR, FK_NO_CONVERGENCE, FK_ASSEMBLY, FK_PAIR = range(6)
+FK_REASONS = {FK_SINGULAR: "singular configuration: Jacobian rank < 3",
+              FK_NO_CONVERGENCE: "no convergence in {} iterations",
+              FK_ASSEMBLY: "converged to another working mode (assembly branch)",
+              FK_PAIR: "converged to another working mode (leg pair)"}
+
+
+@kernel()
+def _solve3_kernel(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):
+    """:func:`_solve3` for the kernels: (x0, x1, x2, solvable)."""
+    c00 = a11 * a22 - a12 * a21
+    c01 = a12 * a20 - a10 * a22
+    c02 = a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0 or not math.isfinite(det):
+        return 0.0, 0.0, 0.0, False
+    x0 = (b0 * c00 + b1 * (a02 * a21 - a01 * a22) + b2 * (a01 * a12 - a02 * a11)) / det
+    x1 = (b0 * c01 + b1 * (a00 * a22 - a02 * a20) + b2 * (a02 * a10 - a00 * a12)) / det
+    x2 = (b0 * c02 + b1 * (a01 * a20 - a00 * a21) + b2 * (a00 * a11 - a01 * a10)) / det
+    return x0, x1, x2, True
+
+
+@kernel("(float64[:, :], int64[:, :], float64[:], float64[:])")
+def _closed_form_kernel(legs, pairs, sides, q):
+    """Closed-form forward position (ARCHI §3.1): each shared platform point is the
+    intersection of the circles of radius L about its two carriages, on the side of
+    the working mode; the angle from the two points. ``legs`` rows (ox, oy, ux, uy,
+    L^2, bx, by, sigma). Returns (x, y, theta, code, i, j, d): code FK_UNREACHABLE
+    with the legs i, j whose carriages, d m apart, cannot close."""
+    px0 = py0 = px1 = py1 = 0.0
+    for k in range(2):
+        i, j, side = pairs[k, 0], pairs[k, 1], sides[k]
+        aix, aiy = legs[i, 0] + q[i] * legs[i, 2], legs[i, 1] + q[i] * legs[i, 3]
+        dx = legs[j, 0] + q[j] * legs[j, 2] - aix
+        dy = legs[j, 1] + q[j] * legs[j, 3] - aiy
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        along = (legs[i, 4] - legs[j, 4] + d2) / (2.0 * d) if d > 0.0 else math.inf
+        h2 = legs[i, 4] - along * along
+        if not h2 >= 0.0:
+            return 0.0, 0.0, 0.0, FK_UNREACHABLE, i, j, d
+        h = side * math.sqrt(h2)
+        px, py = aix + (along * dx - h * dy) / d, aiy + (along * dy + h * dx) / d
+        if k == 0:
+            px0, py0 = px, py
+        else:
+            px1, py1 = px, py
+    i1, i2 = pairs[0, 0], pairs[1, 0]
+    b1x, b1y, b2x, b2y = legs[i1, 5], legs[i1, 6], legs[i2, 5], legs[i2, 6]
+    theta = math.atan2(py1 - py0, px1 - px0) - math.atan2(b2y - b1y, b2x - b1x)
+    c, s = math.cos(theta), math.sin(theta)
+    return px0 - (c * b1x - s * b1y), py0 - (s * b1x + c * b1y), theta, FK_CONVERGED, 0, 0, 0.0
+
+
+@kernel("(float64[:, :], int64[:, :], float64[:], float64[:], float64, float64, float64, float64, int64)")
+def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol, max_iterations):
+    """The solver of :meth:`PlanarMachine.forward_kinematics` (see there), compiled.
+    Returns (x, y, theta, code, iterations, residual_m, i, j, d); (i, j, d) name the
+    legs of an unreachable closed form."""
+    n = legs.shape[0]
+    if pairs.shape[0] >= 2:
+        x, y, th, code, i, j, d = _closed_form_kernel(legs, pairs, sides, q)
+        if code != FK_CONVERGED:
+            return 0.0, 0.0, 0.0, code, 0, math.inf, i, j, d
+        th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))
+    else:
+        x, y, th = ref_x, ref_y, ref_th
+    ax = np.empty(n)
+    ay = np.empty(n)
+    length = np.empty(n)
+    for k in range(n):
+        ax[k] = legs[k, 0] + q[k] * legs[k, 2]
+        ay[k] = legs[k, 1] + q[k] * legs[k, 3]
+        length[k] = math.sqrt(legs[k, 4])
+    use_hessian = False
+    previous_size = math.inf
+    converged = False
+    iteration = 0
+    for iteration in range(1, max_iterations + 1):
+        c, s = math.cos(th), math.sin(th)
+        # Newton on C = 1/2 sum f_i^2, f_i = |e_i| - L_i, e_i = p + R b_i - A_i:
+        # grad f_i = g_i = [e^T, e^T E R b] / |e|; its Hessian is h_i h_i^T / |e| with
+        # h_i = [n^T, n^T E R b], n = E e / |e|, plus -e.(R b)/|e| in (theta, theta).
+        # When the drives disagree (model error) Gauss-Newton alone converges only
+        # linearly (~0.9 per step); the exact Hessian restores quadratic convergence.
+        # It is accumulated only then, inside the basin (see NEWTON_RADIUS).
+        a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
+        h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+        misfit = 0.0
+        for k in range(n):
+            bx, by = legs[k, 5], legs[k, 6]
+            rbx = c * bx - s * by
+            rby = s * bx + c * by
+            ex = x + rbx - ax[k]
+            ey = y + rby - ay[k]
+            dist = math.sqrt(ex * ex + ey * ey)
+            f = dist - length[k]
+            gx, gy, gt = ex / dist, ey / dist, (ey * rbx - ex * rby) / dist
+            a00 += gx * gx
+            a01 += gx * gy
+            a02 += gx * gt
+            a11 += gy * gy
+            a12 += gy * gt
+            a22 += gt * gt
+            r0 += gx * f
+            r1 += gy * f
+            r2 += gt * f
+            if abs(f) > misfit:
+                misfit = abs(f)
+            if use_hessian:
+                w = f / dist
+                nt = gx * rbx + gy * rby          # n . (E R b) with n = (-gy, gx)
+                h00 += w * gy * gy
+                h01 -= w * gy * gx
+                h02 -= w * gy * nt
+                h11 += w * gx * gx
+                h12 += w * gx * nt
+                h22 += w * (nt * nt - (ex * rbx + ey * rby))
+        dx, dy, dth, ok = _solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
+        if not ok:
+            return 0.0, 0.0, 0.0, FK_SINGULAR, iteration, math.inf, 0, 0, 0.0
+        if use_hessian:
+            nx_, ny_, nt_, ok = _solve3_kernel(a00 + h00, a01 + h01, a02 + h02, a01 + h01, a11 + h11, a12 + h12,
+                                               a02 + h02, a12 + h12, a22 + h22, r0, r1, r2)
+            if ok and nx_ * r0 + ny_ * r1 + nt_ * r2 > 0.0:     # a descent direction
+                dx, dy, dth = nx_, ny_, nt_
+        x -= dx
+        y -= dy
+        th -= dth
+        size = abs(dx) + abs(dy) + abs(dth)
+        # converged: a step below tol, or a step below 1e-6 that contracted
+        # quadratically (1000x smaller than the last): the next would be ~1e-12
+        if size < tol or (size < 1e-6 and size < 1e-3 * previous_size):
+            converged = True
+            break
+        previous_size = size
+        use_hessian = size < NEWTON_RADIUS and misfit > 1e-9
+    if not converged:
+        return 0.0, 0.0, 0.0, FK_NO_CONVERGENCE, max_iterations, math.nan, 0, 0, 0.0
+    th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))   # on the guess's revolution
+    # residual at the returned pose, and the working mode (see __post_init__)
+    c, s = math.cos(th), math.sin(th)
+    residual = 0.0
+    px = np.empty(n)
+    py = np.empty(n)
+    for k in range(n):
+        bx, by = legs[k, 5], legs[k, 6]
+        px[k], py[k] = x + c * bx - s * by, y + s * bx + c * by
+        ex, ey = px[k] - ax[k], py[k] - ay[k]
+        residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - length[k]))
+        if (ex * legs[k, 2] + ey * legs[k, 3]) * legs[k, 7] > 0.0:
+            return 0.0, 0.0, 0.0, FK_ASSEMBLY, iteration, residual, 0, 0, 0.0
+    for k in range(pairs.shape[0]):
+        i, j = pairs[k, 0], pairs[k, 1]
+        if ((ax[j] - ax[i]) * (py[i] - ay[i]) - (ay[j] - ay[i]) * (px[i] - ax[i])) * sides[k] < 0.0:
+            return 0.0, 0.0, 0.0, FK_PAIR, iteration, residual, 0, 0, 0.0
+    return x, y, th, FK_CONVERGED, iteration, residual, 0, 0, 0.0
+
+
+VT_OK, VT_UNREACHABLE, VT_SINGULAR = range(3)
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
+def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
+    """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
+    and twist (vx, vy, w), ARCHI §3.2, §3.4: per leg the carriage q_i closing
+    |B_i - A_i| = L_i on its assembly branch, the row g_i / s_i with g_i = [e_i,
+    e_i x R b_i] and s_i = e_i . u_i, and the derivative of the row along the twist.
+    ``code`` VT_UNREACHABLE or VT_SINGULAR names ``leg``."""
+    n = legs.shape[0]
+    q = np.empty(n)
+    rows = np.empty((n, 3))
+    qdots = np.empty(n)
+    biases = np.empty(n)
+    c, s = math.cos(th), math.sin(th)
+    for k in range(n):
+        ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],
+                                             legs[k, 5], legs[k, 6], legs[k, 7])
+        rbx = c * bx - s * by
+        rby = s * bx + c * by
+        wx, wy = x + rbx - ox, y + rby - oy
+        a = wx * ux + wy * uy
+        disc = l2 - wx * wx - wy * wy + a * a
+        if not disc >= 0.0:
+            return q, rows, qdots, biases, VT_UNREACHABLE, k
+        qi = a + sigma * math.sqrt(disc)
+        ex, ey = wx - qi * ux, wy - qi * uy
+        sv = ex * ux + ey * uy
+        if sv * sv <= 1e-18 * l2:
+            return q, rows, qdots, biases, VT_SINGULAR, k
+        g3 = ey * rbx - ex * rby
+        gv = ex * vx + ey * vy + g3 * w
+        qdot = gv / sv
+        edx, edy = vx - w * rby - qdot * ux, vy + w * rbx - qdot * uy
+        gdot_v = edx * vx + edy * vy + ((edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)) * w
+        sdot = edx * ux + edy * uy
+        q[k] = qi
+        rows[k, 0], rows[k, 1], rows[k, 2] = ex / sv, ey / sv, g3 / sv
+        qdots[k] = qdot
+        biases[k] = gdot_v / sv - gv * sdot / (sv * sv)
+    return q, rows, qdots, biases, VT_OK, -1
+
+
 @dataclass
 class PlanarMachine:
     """A planar PKM with n >= 3 PRR legs; see the module docstring for the model."""
@@ -127,6 +333,10 @@ class PlanarMachine:
             d = a_j - a_i
             pt = self._platform_points(self.home_pose)[i] - a_i
             self._pair_side.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
+        # the same as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
+        self._legs_a = np.array([leg[:8] for leg in self._legs_f], dtype=float)
+        self._pairs_a = np.array(self._pairs, dtype=np.int64).reshape(-1, 2)
+        self._sides_a = np.array(self._pair_side, dtype=float)
 
     # ----------------------------------------------------------------- helpers
     def _find_pairs(self) -> list[tuple[int, int]]:
@@ -272,39 +482,19 @@ class PlanarMachine:
         gdot = np.stack([edx, edy, g3dot], axis=1)
         return gdot / sv[:, None] - g * (sd / sv**2)[:, None]
 
-    def velocity_terms(self, pose: list, twist: list) -> tuple[list, list, list, list]:
+    def velocity_terms(self, pose, twist) -> tuple[list, list, list, list]:
         """Per-cycle kinematics of the dynamic model on plain floats (ARCHI §3.2, §3.4):
         (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
         Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
-        Raises UnreachablePoseError / SingularityError like ``jacobian``."""
-        x, y, th = pose
-        vx, vy, w = twist
-        c, s = math.cos(th), math.sin(th)
-        qs, rows, qdots, biases = [], [], [], []
-        for ox, oy, ux, uy, l2, bx, by, sigma, _lo, _hi, name in self._legs_f:
-            rbx = c * bx - s * by
-            rby = s * bx + c * by
-            wx, wy = x + rbx - ox, y + rby - oy
-            a = wx * ux + wy * uy
-            disc = l2 - wx * wx - wy * wy + a * a
-            if not disc >= 0.0:
-                raise UnreachablePoseError(f"pose {pose} is unreachable for leg {name}")
-            qi = a + sigma * math.sqrt(disc)
-            ex, ey = wx - qi * ux, wy - qi * uy
-            sv = ex * ux + ey * uy
-            if sv * sv <= 1e-18 * l2:
-                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
-            g3 = ey * rbx - ex * rby
-            gv = ex * vx + ey * vy + g3 * w
-            qdot = gv / sv
-            edx, edy = vx - w * rby - qdot * ux, vy + w * rbx - qdot * uy
-            gdot_v = edx * vx + edy * vy + ((edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)) * w
-            sdot = edx * ux + edy * uy
-            qs.append(qi)
-            rows.append((ex / sv, ey / sv, g3 / sv))
-            qdots.append(qdot)
-            biases.append(gdot_v / sv - gv * sdot / (sv * sv))
-        return qs, rows, qdots, biases
+        Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
+        (:func:`_velocity_terms_kernel`)."""
+        q, rows, qdot, bias, code, leg = _velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
+                                                                twist[0], twist[1], twist[2])
+        if code == VT_UNREACHABLE:
+            raise UnreachablePoseError(f"pose {list(pose)} is unreachable for leg {self.leg_names[leg]}")
+        if code == VT_SINGULAR:
+            raise SingularityError(f"leg {self.leg_names[leg]} is perpendicular to its rail (serial singularity)")
+        return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
 
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""
@@ -351,29 +541,14 @@ class PlanarMachine:
         return np.array(self._closed_form(finite_floats(q, self.n_legs, "q")))
 
     def _closed_form(self, qs: list) -> tuple:
-        points = []
-        for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
-            oxi, oyi, uxi, uyi, li2 = self._legs_f[i][:5]
-            oxj, oyj, uxj, uyj, lj2 = self._legs_f[j][:5]
-            aix, aiy = oxi + qs[i] * uxi, oyi + qs[i] * uyi
-            dx, dy = oxj + qs[j] * uxj - aix, oyj + qs[j] * uyj - aiy
-            d2 = dx * dx + dy * dy
-            d = math.sqrt(d2)
-            along = (li2 - lj2 + d2) / (2.0 * d) if d > 0.0 else math.inf
-            h2 = li2 - along * along
-            if not h2 >= 0.0:
-                raise UnreachablePoseError(
-                    f"legs {self.leg_names[i]}, {self.leg_names[j]}: carriages {d:.6g} m apart "
-                    f"cannot close with link lengths {math.sqrt(li2):.6g} m and {math.sqrt(lj2):.6g} m")
-            h = side * math.sqrt(h2)
-            points.append((aix + (along * dx - h * dy) / d, aiy + (along * dy + h * dx) / d))
-        (i1, _), (i2, _) = self._pairs[:2]
-        b1x, b1y = self._legs_f[i1][5:7]
-        b2x, b2y = self._legs_f[i2][5:7]
-        theta = (math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
-                 - math.atan2(b2y - b1y, b2x - b1x))
-        c, s = math.cos(theta), math.sin(theta)
-        return points[0][0] - (c * b1x - s * b1y), points[0][1] - (s * b1x + c * b1y), theta
+        x, y, th, code, i, j, d = _closed_form_kernel(self._legs_a, self._pairs_a, self._sides_a, np.array(qs))
+        if code:
+            raise UnreachablePoseError(self._closed_form_message(i, j, d))
+        return x, y, th
+
+    def _closed_form_message(self, i: int, j: int, d: float) -> str:
+        return (f"legs {self.leg_names[i]}, {self.leg_names[j]}: carriages {d:.6g} m apart cannot close "
+                f"with link lengths {self._length[i]:.6g} m and {self._length[j]:.6g} m")
 
     def forward_kinematics(self, q, guess=None, tol: float = 1e-12,
                            max_iterations: int = 50) -> ForwardKinematicsResult:
@@ -388,105 +563,19 @@ class PlanarMachine:
         the returned pose) says how far off they are. The angle is returned on the
         revolution of ``guess`` (unlimited rotation). The result's pose is NaN and
         ``converged`` False if the solve fails or lands on another working mode.
+        Compiled (:func:`_forward_kinematics_kernel`); ~3 us a call.
         """
-        qs = finite_floats(q, self.n_legs, "q")
-        ref = self.home_pose.tolist() if guess is None else finite_floats(guess, 3, "guess")
-        if self._pairs:
-            try:
-                x, y, th = self._closed_form(qs)
-            except UnreachablePoseError as exc:
-                return ForwardKinematicsResult(np.full(3, np.nan), False, 0, math.inf, str(exc))
-            th += 2.0 * math.pi * round((ref[2] - th) / (2.0 * math.pi))
-        else:
-            x, y, th = ref
-        legs = [(ox + qi * ux, oy + qi * uy, bx, by, math.sqrt(l2), ux, uy, sigma)
-                for (ox, oy, ux, uy, l2, bx, by, sigma, *_), qi in zip(self._legs_f, qs)]
-        use_hessian = False
-        previous_size = math.inf
-        for iteration in range(1, max_iterations + 1):
-            c, s = math.cos(th), math.sin(th)
-            # Newton on C = 1/2 sum f_i^2, f_i = |e_i| - L_i, e_i = p + R b_i - A_i:
-            # grad f_i = g_i = [e^T, e^T E R b] / |e|; its Hessian is h_i h_i^T / |e| with
-            # h_i = [n^T, n^T E R b], n = E e / |e|, plus -e.(R b)/|e| in (theta, theta).
-            # When the drives disagree (model error) Gauss-Newton alone converges only
-            # linearly (~0.9 per step); the exact Hessian restores quadratic convergence.
-            # It is accumulated only then, inside the basin (see NEWTON_RADIUS).
-            a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
-            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-            misfit = 0.0
-            for ax, ay, bx, by, length, *_ in legs:
-                rbx = c * bx - s * by
-                rby = s * bx + c * by
-                ex = x + rbx - ax
-                ey = y + rby - ay
-                dist = math.sqrt(ex * ex + ey * ey)
-                f = dist - length
-                gx, gy, gt = ex / dist, ey / dist, (ey * rbx - ex * rby) / dist
-                a00 += gx * gx
-                a01 += gx * gy
-                a02 += gx * gt
-                a11 += gy * gy
-                a12 += gy * gt
-                a22 += gt * gt
-                r0 += gx * f
-                r1 += gy * f
-                r2 += gt * f
-                if abs(f) > misfit:
-                    misfit = abs(f)
-                if use_hessian:
-                    w = f / dist
-                    nt = gx * rbx + gy * rby          # n . (E R b) with n = (-gy, gx)
-                    h00 += w * gy * gy
-                    h01 -= w * gy * gx
-                    h02 -= w * gy * nt
-                    h11 += w * gx * gx
-                    h12 += w * gx * nt
-                    h22 += w * (nt * nt - (ex * rbx + ey * rby))
-            try:
-                dx, dy, dth = _solve3(((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (r0, r1, r2))
-            except np.linalg.LinAlgError:
-                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, math.inf,
-                                               "singular configuration: Jacobian rank < 3")
-            if use_hessian:
-                try:
-                    nx_, ny_, nt_ = _solve3(((a00 + h00, a01 + h01, a02 + h02), (a01 + h01, a11 + h11, a12 + h12),
-                                             (a02 + h02, a12 + h12, a22 + h22)), (r0, r1, r2))
-                    if nx_ * r0 + ny_ * r1 + nt_ * r2 > 0.0:     # a descent direction
-                        dx, dy, dth = nx_, ny_, nt_
-                except np.linalg.LinAlgError:
-                    pass
-            x -= dx
-            y -= dy
-            th -= dth
-            size = abs(dx) + abs(dy) + abs(dth)
-            # converged: a step below tol, or a step below 1e-6 that contracted
-            # quadratically (1000x smaller than the last): the next would be ~1e-12
-            if size < tol or (size < 1e-6 and size < 1e-3 * previous_size):
-                break
-            previous_size = size
-            use_hessian = size < NEWTON_RADIUS and misfit > 1e-9
-        else:
-            return ForwardKinematicsResult(np.full(3, np.nan), False, max_iterations, math.nan,
-                                           f"no convergence in {max_iterations} iterations")
-        th += 2.0 * math.pi * round((ref[2] - th) / (2.0 * math.pi))   # on the guess's revolution
-        # residual at the returned pose, and the working mode (see __post_init__)
-        c, s = math.cos(th), math.sin(th)
-        residual = 0.0
-        points = []
-        for ax, ay, bx, by, length, ux, uy, sigma in legs:
-            px, py = x + c * bx - s * by, y + s * bx + c * by
-            ex, ey = px - ax, py - ay
-            residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - length))
-            points.append((px, py))
-            if (ex * ux + ey * uy) * sigma > 0.0:
-                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, residual,
-                                               "converged to another working mode (assembly branch)")
-        for (i, j), side in zip(self._pairs, self._pair_side):
-            (aix, aiy), (ajx, ajy), (px, py) = legs[i][:2], legs[j][:2], points[i]
-            if ((ajx - aix) * (py - aiy) - (ajy - aiy) * (px - aix)) * side < 0.0:
-                return ForwardKinematicsResult(np.full(3, np.nan), False, iteration, residual,
-                                               "converged to another working mode (leg pair)")
-        return ForwardKinematicsResult(np.array([x, y, th]), True, iteration, residual)
+        qs = np.array(finite_floats(q, self.n_legs, "q"))
+        ref = self.home_pose if guess is None else finite_floats(guess, 3, "guess")
+        x, y, th, code, iterations, residual, i, j, d = _forward_kinematics_kernel(
+            self._legs_a, self._pairs_a, self._sides_a, qs, float(ref[0]), float(ref[1]), float(ref[2]),
+            tol, max_iterations)
+        if code == FK_CONVERGED:
+            return ForwardKinematicsResult(np.array([x, y, th]), True, int(iterations), float(residual))
+        reason = self._closed_form_message(i, j, d) if code == FK_UNREACHABLE else FK_REASONS[code]
+        if code == FK_NO_CONVERGENCE:
+            reason = reason.format(max_iterations)
+        return ForwardKinematicsResult(np.full(3, np.nan), False, int(iterations), float(residual), reason)
 
     def forward_kinematics_batch(self, q, guesses=None, tol: float = 1e-12,
                                  max_iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,96 @@
+"""The compiled per-cycle kernels (pkm_kinematics.jit) against the same code
+interpreted (``.py_func``) and against independent numpy references."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pkm_kinematics import jit, load_machine
+from pkm_kinematics import distribution as dist
+from pkm_kinematics import gough as gough_module
+from pkm_kinematics import planar as planar_module
+from pkm_kinematics.rotations import exp_so3
+
+
+@pytest.fixture(scope="module")
+def archi():
+    return load_machine("archi")
+
+
+def test_the_kernels_are_compiled_in_the_project_environment():
+    # requirements.txt installs numba: the benchmarks and the loop must run compiled
+    assert jit.COMPILED
+    assert planar_module._forward_kinematics_kernel is not planar_module._forward_kinematics_kernel.py_func
+
+
+small = st.floats(-0.05, 0.05, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(dx=small, dy=small, dth=st.floats(-0.3, 0.3), leg_error=st.floats(-0.01, 0.01))
+def test_forward_kinematics_kernel_matches_interpreted(archi, dx, dy, dth, leg_error):
+    model = archi.model
+    pose = model.home_pose + [dx, dy, dth]
+    q = model.inverse_kinematics(pose, check_limits=False)
+    q[0] += leg_error                       # inconsistent drives: the Newton branch
+    args = (model._legs_a, model._pairs_a, model._sides_a, q, *model.home_pose.tolist(), 1e-12, 50)
+    compiled = planar_module._forward_kinematics_kernel(*args)
+    interpreted = planar_module._forward_kinematics_kernel.py_func(*args)
+    assert [float(v) for v in compiled] == pytest.approx([float(v) for v in interpreted], rel=1e-12, abs=1e-15)
+    if leg_error == 0.0:
+        assert compiled[3] == planar_module.FK_CONVERGED
+        np.testing.assert_allclose(compiled[:3], pose, atol=1e-12)
+
+
+def test_forward_kinematics_reports_the_failures_by_name(archi):
+    model = archi.model
+    result = model.forward_kinematics([0.0, 0.0, 0.0, 0.0])
+    assert not result.converged and "cannot close" in result.reason and "q1" in result.reason
+    result = model.forward_kinematics(model.inverse_kinematics(model.home_pose), max_iterations=0)
+    assert not result.converged and result.reason == "no convergence in 0 iterations"
+
+
+@settings(max_examples=60, deadline=None)
+@given(rows=st.lists(st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3), min_size=4, max_size=4),
+       wrench=st.lists(st.floats(-500.0, 500.0), min_size=3, max_size=3), inf_norm=st.booleans())
+def test_distribution_kernel_matches_interpreted_and_reproduces_the_wrench(rows, wrench, inf_norm):
+    jac = np.array(rows)
+    if np.linalg.matrix_rank(jac) < 3 or np.linalg.cond(jac) > 1e6:
+        return
+    compiled = dist._distribute_kernel(jac, *wrench, inf_norm, True)
+    interpreted = dist._distribute_kernel.py_func(jac, *wrench, inf_norm, True)
+    assert compiled[1] == interpreted[1]
+    np.testing.assert_allclose(compiled[0], interpreted[0], rtol=1e-12, atol=1e-9)
+    if compiled[1] == 0:
+        np.testing.assert_allclose(jac.T @ compiled[0], wrench, atol=1e-6 * (1.0 + np.abs(wrench).max()))
+        reference = np.linalg.pinv(jac.T) @ np.array(wrench)
+        if inf_norm:      # no worse peak than the pseudo-inverse, which it starts from
+            assert np.abs(compiled[0]).max() <= np.abs(reference).max() + 1e-9
+        else:
+            np.testing.assert_allclose(compiled[0], reference, rtol=1e-9, atol=1e-9)
+
+
+def test_distribution_errors_name_the_cause():
+    with pytest.raises(dist.DistributionError, match="rank < 3"):
+        dist.distribute_rows("pseudo_inverse", [(1.0, 0.0, 0.0)] * 4, [1.0, 0.0, 0.0])
+    with pytest.raises(dist.DistributionError, match="does not reproduce"):
+        dist.check_wrench([(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)], [1.0, 1.0, 1.0], [1.0, 1.0, 2.0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(p=st.lists(st.floats(-0.02, 0.02), min_size=3, max_size=3),
+       w=st.lists(st.floats(-0.2, 0.2), min_size=3, max_size=3))
+def test_gough_jacobian_rows_is_the_inverse_of_the_inverse_jacobian(archi, p, w):
+    platform = archi.metrology.platform
+    position = platform.home_position + np.array(p)
+    rotation = exp_so3(np.array(w))
+    rows = platform.jacobian_rows(position.tolist(), tuple(rotation.ravel().tolist()))
+    np.testing.assert_allclose(np.array(rows) @ platform.inverse_jacobian(position, rotation), np.eye(6),
+                               atol=1e-9)
+    interpreted = gough_module._jacobian_kernel.py_func(platform._legs_a, *position.tolist(),
+                                                        *rotation.ravel().tolist())
+    np.testing.assert_allclose(rows, interpreted, rtol=1e-9, atol=1e-12)
+    assert math.isfinite(sum(map(sum, rows)))
