@@ -13,11 +13,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 
 from pkm_kinematics.distribution import _rows_array, gram_rows, least_squares_rows, project_rows
+from pkm_kinematics.gough import _jacobian_kernel
 from pkm_kinematics.jit import kernel
-from pkm_gough_sensor.metrology import strut_lengths_floats
-from pkm_kinematics.rotations import exp_so3_floats, mul3
+from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
 
 @dataclass(frozen=True)
@@ -159,7 +160,7 @@ class SensorSpaceFeedback:
         self.sensor = sensor                       # GoughSensorModel (nominal geometry used)
         self.platform = sensor.nominal
         self.planar = planar
-        self._legs = self.platform._legs_f
+        self._legs_a = self.platform._legs_a
         self._r_wb = sensor._r_wb
         self._p_tp = sensor._p_tp
         self.estimate = None                       # (p_bp, R_bp) of the real plate, or None
@@ -179,10 +180,9 @@ class SensorSpaceFeedback:
         pose of the desired tool pose, l_des = IKM_GP (nominal geometry) and J_h at
         the estimated real pose (the estimate of the previous cycle)."""
         p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
-        l_des = strut_lengths_floats(self._legs, p_bp, r_bp)     # IKM_GP, nominal geometry
         at = self.estimate or (p_bp, r_bp)
-        j_h = self.platform.jacobian_rows(at[0], at[1])
-        self._desired = (p_bp, r_bp, l_des, j_h, tool_rotation)
+        l_des, j_h = _desired_lengths_and_jacobian(self._legs_a, p_bp, r_bp, at[0], at[1])
+        self._desired = (p_bp, r_bp, l_des, j_h, tuple(tool_rotation))
 
     def error_from(self, lengths) -> list:
         """The task-space error x_des - x_real (3) for the readings ``lengths`` (6, m),
@@ -190,27 +190,56 @@ class SensorSpaceFeedback:
         if self._desired is None:
             raise RuntimeError("SensorSpaceFeedback.error_from: call prepare() first")
         p_bp, r_bp, l_des, j_h, t = self._desired
-        e_l = [a - b for a, b in zip(l_des, lengths)]
-        d = [r0 * e_l[0] + r1 * e_l[1] + r2 * e_l[2] + r3 * e_l[3] + r4 * e_l[4] + r5 * e_l[5]
-             for r0, r1, r2, r3, r4, r5 in j_h]       # [dp; dw] = J_h e_l (MoM3 eq. 1)
-        dp, dw = d[:3], d[3:]
-        # estimate of the real plate pose for the next cycle: x_h,des - J_h e_l
-        real_r = mul3(exp_so3_floats(-dw[0], -dw[1], -dw[2]), r_bp)
-        self.estimate = ((p_bp[0] - dp[0], p_bp[1] - dp[1], p_bp[2] - dp[2]), real_r)
-        # to the tool in world: dw_w = R_wb dw; dp_t = R_wb dp + (R_t p_tp) x dw_w
-        r = self._r_wb
-        ww = (r[0] * dw[0] + r[1] * dw[1] + r[2] * dw[2], r[3] * dw[0] + r[4] * dw[1] + r[5] * dw[2],
-              r[6] * dw[0] + r[7] * dw[1] + r[8] * dw[2])
-        pw = (r[0] * dp[0] + r[1] * dp[1] + r[2] * dp[2], r[3] * dp[0] + r[4] * dp[1] + r[5] * dp[2],
-              r[6] * dp[0] + r[7] * dp[1] + r[8] * dp[2])
-        lx, ly, lz = self._p_tp
-        ax = t[0] * lx + t[1] * ly + t[2] * lz
-        ay = t[3] * lx + t[4] * ly + t[5] * lz
-        az = t[6] * lx + t[7] * ly + t[8] * lz
-        ex = pw[0] + ay * ww[2] - az * ww[1]
-        ey = pw[1] + az * ww[0] - ax * ww[2]
-        ez = pw[2] + ax * ww[1] - ay * ww[0]
-        return [ex, ey, ww[2]] if self.planar else [ex, ey, ez]
+        ex, ey, ez, wz, real_p, real_r = _sensor_space_error(j_h, l_des, np.asarray(lengths, dtype=float),
+                                                             p_bp, r_bp, self._r_wb, self._p_tp, t)
+        self.estimate = (real_p, real_r)
+        return [ex, ey, wz] if self.planar else [ex, ey, ez]
+
+
+_TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
+
+
+@kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")
+def _desired_lengths_and_jacobian(legs, p_des, r_des, p_at, r_at):
+    """l_des = IKM_GP at the desired plate pose (MoM3 §5.2: l_i = |p + R b_i - A_i|,
+    nominal geometry) and J_h at the estimated one (eq. 1-3). ``legs`` rows (A_i, b_i)."""
+    l_des = np.empty(6)
+    for i in range(6):
+        ax, ay, az, bx, by, bz = legs[i, 0], legs[i, 1], legs[i, 2], legs[i, 3], legs[i, 4], legs[i, 5]
+        lx = p_des[0] + r_des[0] * bx + r_des[1] * by + r_des[2] * bz - ax
+        ly = p_des[1] + r_des[3] * bx + r_des[4] * by + r_des[5] * bz - ay
+        lz = p_des[2] + r_des[6] * bx + r_des[7] * by + r_des[8] * bz - az
+        l_des[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
+    j_h = _jacobian_kernel(legs, p_at[0], p_at[1], p_at[2], r_at[0], r_at[1], r_at[2], r_at[3], r_at[4],
+                           r_at[5], r_at[6], r_at[7], r_at[8])
+    return l_des, j_h
+
+
+@kernel(f"(float64[:, :], float64[:], float64[:], {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")
+def _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t):
+    """(e_x, e_y, e_z, w_z, real plate position, real plate rotation): the tool error
+    x_des - x_real in the world frame from the strut errors e_l = l_des - l."""
+    e = l_des - lengths
+    d = np.zeros(6)
+    for k in range(6):                          # [dp; dw] = J_h e_l (MoM3 eq. 1)
+        for j in range(6):
+            d[k] += j_h[k, j] * e[j]
+    # estimate of the real plate pose for the next cycle: x_h,des - J_h e_l
+    real_r = mul3_kernel(exp_so3_kernel(-d[3], -d[4], -d[5]), r_bp)
+    real_p = (p_bp[0] - d[0], p_bp[1] - d[1], p_bp[2] - d[2])
+    # to the tool in world: dw_w = R_wb dw; dp_t = R_wb dp + (R_t p_tp) x dw_w
+    wwx = r_wb[0] * d[3] + r_wb[1] * d[4] + r_wb[2] * d[5]
+    wwy = r_wb[3] * d[3] + r_wb[4] * d[4] + r_wb[5] * d[5]
+    wwz = r_wb[6] * d[3] + r_wb[7] * d[4] + r_wb[8] * d[5]
+    pwx = r_wb[0] * d[0] + r_wb[1] * d[1] + r_wb[2] * d[2]
+    pwy = r_wb[3] * d[0] + r_wb[4] * d[1] + r_wb[5] * d[2]
+    pwz = r_wb[6] * d[0] + r_wb[7] * d[1] + r_wb[8] * d[2]
+    lx, ly, lz = p_tp
+    ax = t[0] * lx + t[1] * ly + t[2] * lz
+    ay = t[3] * lx + t[4] * ly + t[5] * lz
+    az = t[6] * lx + t[7] * ly + t[8] * lz
+    return (pwx + ay * wwz - az * wwy, pwy + az * wwx - ax * wwz, pwz + ax * wwy - ay * wwx, wwz,
+            real_p, real_r)
 
 
 def tool_pose_floats(x, planar: bool) -> tuple[tuple, tuple]:

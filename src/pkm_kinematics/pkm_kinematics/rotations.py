@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from .jit import kernel
+
 
 def skew(v) -> np.ndarray:
     """Cross-product matrix: skew(a) @ b == a x b."""
@@ -17,7 +19,8 @@ def skew(v) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def exp_so3_floats(wx: float, wy: float, wz: float) -> tuple:
+@kernel()
+def exp_so3_kernel(wx: float, wy: float, wz: float) -> tuple:
     """Rodrigues' formula on floats: the row-major 9-tuple of exp([w]x)."""
     theta2 = wx * wx + wy * wy + wz * wz
     if theta2 < 1e-16:
@@ -32,12 +35,18 @@ def exp_so3_floats(wx: float, wy: float, wz: float) -> tuple:
             -a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy))
 
 
+# the same formula interpreted, for Python callers (a compiled call costs more than it
+# saves on 9 floats); kernels call exp_so3_kernel
+exp_so3_floats = exp_so3_kernel.py_func
+
+
 def exp_so3(omega) -> np.ndarray:
     """Rodrigues' formula: the rotation by angle |omega| about omega/|omega|."""
     return np.array(exp_so3_floats(float(omega[0]), float(omega[1]), float(omega[2]))).reshape(3, 3)
 
 
-def mul3(a, b) -> tuple:
+@kernel()
+def mul3_kernel(a, b) -> tuple:
     """Product of two rotations given as row-major 9-tuples of floats."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = a
     b00, b01, b02, b10, b11, b12, b20, b21, b22 = b
@@ -47,6 +56,9 @@ def mul3(a, b) -> tuple:
             a10 * b02 + a11 * b12 + a12 * b22,
             a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
             a20 * b02 + a21 * b12 + a22 * b22)
+
+
+mul3 = mul3_kernel.py_func         # interpreted, for Python callers (see exp_so3_floats)
 
 
 def log_so3(rotation: np.ndarray) -> np.ndarray:
