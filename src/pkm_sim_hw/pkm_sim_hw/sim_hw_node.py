@@ -147,7 +147,8 @@ class SimHwNode(Node):
         out = self.plant.output()
         level = 2 if out.stopped else 0
         message = f"stopped: {self.plant.stop_reason}" if out.stopped else "running"
-        values = {"step": out.step, "time_s": out.time_s, "mode": "lockstep" if self.lockstep else "realtime",
+        values = {"step": out.step, "time_s": out.time_s, "finished": self.finished,
+                  "mode": "lockstep" if self.lockstep else "realtime",
                   "internal_force_norm_n": out.internal_force_norm, "saturated_drives": sum(out.saturated),
                   "faults": ",".join(out.faults_active) or "none", **self.counts}
         self.pub_diag.publish(diagnostic_array(ns_to_stamp(self.now_ns()),
