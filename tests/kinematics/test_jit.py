@@ -2,6 +2,7 @@
 interpreted (``.py_func``) and against independent numpy references."""
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -22,6 +23,8 @@ def archi():
 
 def test_the_kernels_are_compiled_in_the_project_environment():
     # requirements.txt installs numba: the benchmarks and the loop must run compiled
+    if os.environ.get("PKM_NO_JIT") == "1":
+        pytest.skip("PKM_NO_JIT=1 asks for the interpreted kernels")
     assert jit.COMPILED
     assert planar_module._forward_kinematics_kernel is not planar_module._forward_kinematics_kernel.py_func
 
@@ -94,3 +97,22 @@ def test_gough_jacobian_rows_is_the_inverse_of_the_inverse_jacobian(archi, p, w)
                                                         *rotation.ravel().tolist())
     np.testing.assert_allclose(rows, interpreted, rtol=1e-9, atol=1e-12)
     assert math.isfinite(sum(map(sum, rows)))
+
+
+def test_kernel_wrappers_check_shapes_and_accept_integers():
+    rows = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 0.0)]
+    dist.check_wrench(np.array(rows), np.array([1, 1, 1, 0]), np.array([1, 1, 1]))     # integer arrays
+    with pytest.raises(ValueError, match="forces: expected 4"):
+        dist.check_wrench(rows, [1.0, 1.0, 1.0], [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="jac: expected n rows of 4"):
+        dist.check_wrench(rows, [1.0, 1.0, 1.0, 0.0], [1.0, 1.0, 1.0, 0.0])
+    with pytest.raises(ValueError, match="values: expected 4"):
+        dist.least_squares_rows(rows, [1.0, 2.0])
+    with pytest.raises(dist.DistributionError, match="rank < 3"):
+        dist.least_squares_rows([], [])
+    with pytest.raises(ValueError, match="n: expected 4"):
+        dist.min_inf_norm_1d([1.0, 2.0, 3.0, 4.0], [1.0, 0.0])
+    from pkm_controller.laws import gram_condition
+    assert gram_condition([]) == 1.0
+    assert gram_condition(np.eye(3)) == pytest.approx(1.0)
+    assert gram_condition(np.diag([1.0, 1.0, 4.0])) == pytest.approx(4.0)

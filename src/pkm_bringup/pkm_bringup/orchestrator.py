@@ -195,10 +195,11 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             _publish_start(monitor)
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
-        # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it reported
-        # its last step (the exit of a process with compiled kernels takes ~0.4 s,
-        # close to the controller's state watchdog; the grace lets the last state be
-        # answered)
+        # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it finished
+        # (its last diagnostics, or its summary file, written before it shuts down: the
+        # exit of a process with compiled kernels takes ~0.4 s, close to the
+        # controller's state watchdog; the grace lets the last state be answered)
+        sim_summary = run_dir / "summaries" / "sim_hw.json"
         finished_wall = math.inf
         while sim.running() and time.monotonic() < finished_wall + LOOP_END_GRACE_S:
             check_alive(allowed_done=("sim_hw",))
@@ -206,7 +207,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                 raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
             executor.spin_once(timeout_sec=0.02)
             progress.update(monitor.sim_time_s)
-            if monitor.sim_finished and finished_wall == math.inf:
+            if finished_wall == math.inf and (monitor.sim_finished or sim_summary.exists()):
                 finished_wall = time.monotonic()
         progress.update(s.duration_s)
         # stop the loop's nodes at once (their watchdogs would report the silent
@@ -215,6 +216,8 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                                 together=True))
         with contextlib.suppress(subprocess.TimeoutExpired):     # the sim ends by itself
             sim.popen.wait(timeout=10.0)
+        if sim.popen.returncode is None:
+            raise RunFailed(f"node sim_hw finished but did not exit within 10 s; its last output:\n{sim.tail()}")
         if sim.popen.returncode != 0:
             raise RunFailed(f"node sim_hw exited with code {sim.popen.returncode}; its last output:\n{sim.tail()}")
         end = time.monotonic() + DRAIN_S
@@ -363,6 +366,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded."""
     for sub in ("params", "logs", "summaries"):
         (run_dir / sub).mkdir(parents=True, exist_ok=True)
+    for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
+        stale.unlink()
     params = node_parameters(s, run_dir)
     for name, values in params.items():
         (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")

@@ -1,10 +1,13 @@
-"""Control laws of the papers, one function per formula (pure core, plain floats).
+"""Control laws of the papers, one function per formula (pure core).
 
 They run every control cycle (1-2 kHz) on 3 DOF and 3-6 drives, where numpy costs
-~1 us per operation; so the arithmetic is written on Python floats.
+~1 us per operation; so the laws are written on Python floats, and the two heaviest
+formulas (the sensor-space mapping of the strut errors, the condition number of J)
+are compiled kernels (pkm_kinematics.jit).
 
 Notation: x task pose (planar (x, y, theta), translational (x, y, z)), v its velocity,
-q drive positions, J the nominal Jacobian J_m (qdot = J v) given as rows of 3 floats,
+q drive positions, J the nominal Jacobian J_m (qdot = J v) given as rows of 3 floats
+(or an (n, 3) array),
 F the platform wrench J^T f, f the drive forces.
 """
 

@@ -38,7 +38,10 @@ def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
     magnitude of the terms summed (sum_i |J_ik f_i|, the rounding-error scale).
     Compiled (:func:`_check_wrench_kernel`): it runs every control cycle."""
     w = _floats(wrench)
-    k, achieved = _check_wrench_kernel(_rows_array(jac), np.asarray(forces, dtype=float), np.array(w), rtol)
+    rows, f = _rows_array(jac, len(w)), np.asarray(forces, dtype=float).ravel()
+    if len(f) != rows.shape[0]:
+        raise ValueError(f"forces: expected {rows.shape[0]} values (one per row of J), got {len(f)}")
+    k, achieved = _check_wrench_kernel(rows, f, np.array(w, dtype=float), rtol)
     if k >= 0:
         _raise_wrench_mismatch(k, achieved, w)
 
@@ -68,9 +71,15 @@ def _floats(values) -> list[float]:
     return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
 
-def _rows_array(rows) -> np.ndarray:
-    """J given as rows of 3 floats (or an array) as a float array for the kernels."""
-    return rows if isinstance(rows, np.ndarray) and rows.dtype == np.float64 else np.array(rows, dtype=float)
+def _rows_array(rows, columns: int = 3) -> np.ndarray:
+    """J given as rows of ``columns`` floats (or an array) as an (n, columns) float
+    array for the kernels; ValueError for any other shape."""
+    arr = rows if isinstance(rows, np.ndarray) and rows.dtype == np.float64 else np.array(rows, dtype=float)
+    if arr.ndim == 2 and arr.shape[1] == columns:
+        return arr
+    if arr.size == 0:
+        return arr.reshape(0, columns)
+    raise ValueError(f"jac: expected n rows of {columns} values, got shape {arr.shape}")
 
 
 @kernel("(float64[:, :],)")
@@ -124,7 +133,10 @@ def _least_squares_kernel(rows, values):
 
 def least_squares_rows(rows, values) -> list[float]:
     """(J^T J)^-1 J^T v for J given as n rows of 3 floats (or an (n, 3) array)."""
-    y0, y1, y2, ok = _least_squares_kernel(_rows_array(rows), np.asarray(values, dtype=float))
+    rows, v = _rows_array(rows), np.asarray(values, dtype=float).ravel()
+    if len(v) != rows.shape[0]:
+        raise ValueError(f"values: expected {rows.shape[0]} (one per row of J), got {len(v)}")
+    y0, y1, y2, ok = _least_squares_kernel(rows, v)
     if not ok:
         raise DistributionError(SINGULAR_GRAM)
     return [y0, y1, y2]
@@ -163,7 +175,7 @@ def min_two_norm(jac, wrench, check: bool = True) -> np.ndarray:
     Sliding Star eq. 9). No internal force: f is orthogonal to ker(J^T)."""
     jac, wrench = _validate(jac, wrench)
     if jac.shape[1] == 3:
-        return np.array(_distribute_floats(jac.tolist(), wrench, False, check))
+        return np.array(_distribute_floats(jac, wrench, False, check))
     if np.linalg.matrix_rank(jac) < jac.shape[1]:
         raise DistributionError(f"singular configuration: J has rank < {jac.shape[1]}")
     forces = np.linalg.pinv(jac.T) @ np.asarray(wrench)
@@ -226,7 +238,7 @@ def null_direction(jac, reference=None) -> np.ndarray:
     normalised; its sign follows ``reference`` (n . reference >= 0) so that a control
     loop can keep it continuous, else the largest component is made positive.
     """
-    n = np.array(_null_direction_rows(np.asarray(jac, dtype=float).tolist()))
+    n = np.array(_null_direction_rows(np.asarray(jac, dtype=float)))
     if reference is not None:
         if float(n @ reference) < 0.0:
             n = -n
@@ -299,14 +311,17 @@ def min_inf_norm_1d(f0, n) -> np.ndarray:
     the minimum 2-norm solution among the optimal ones (f0 is the pseudo-inverse one).
     O(n^2) float operations.
     """
-    return _min_inf_norm_1d_kernel(np.asarray(f0, dtype=float).copy(), np.asarray(n, dtype=float).copy())
+    f0, n = np.array(f0, dtype=float).ravel(), np.array(n, dtype=float).ravel()
+    if len(f0) != len(n):
+        raise ValueError(f"n: expected {len(f0)} values (as many as f0), got {len(n)}")
+    return _min_inf_norm_1d_kernel(f0, n)
 
 
 def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
     """Drive forces of least peak magnitude max_i |f_i| with J^T f = F (exact).
 
     One-dimensional null space (four drives, three DOF): closed form of
-    :func:`min_inf_norm_1d` around the pseudo-inverse solution, on plain floats (it
+    :func:`min_inf_norm_1d` around the pseudo-inverse solution, compiled (it
     runs every control cycle). Otherwise a linear program (scipy HiGHS): minimise s
     subject to J^T f = F, -s <= f_i <= s.
     """
@@ -315,7 +330,7 @@ def min_inf_norm(jac, wrench, check: bool = True) -> np.ndarray:
     if n_drives == dof:
         return min_two_norm(jac, wrench, check)
     if n_drives == 4 and dof == 3:
-        return np.array(_distribute_floats(jac.tolist(), wrench, True, check))
+        return np.array(_distribute_floats(jac, wrench, True, check))
     forces = min_inf_norm_lp(jac, wrench)
     if check:
         check_wrench(jac, forces, wrench)

@@ -267,9 +267,10 @@ class GoughPlatform:
             if growth >= 2:
                 return self._fail(iteration, evaluations, residual, "diverged: residual grew twice in a row")
             if jh is None or residual > 1e-3 * previous:
-                # (re)linearise at the current pose: J_h^-1 rows [u, (R b) x u] (eq. 2-3)
+                # (re)linearise at the current pose: J_h = (J_h^-1)^-1 (eq. 1-3)
                 try:
-                    jh = np.linalg.inv(np.array(_jinv_rows(geometry))).tolist()
+                    jh = _jacobian_kernel(self._legs_a, px, py, pz, r00, r01, r02, r10, r11, r12,
+                                          r20, r21, r22).tolist()
                 except np.linalg.LinAlgError:
                     return self._fail(iteration, evaluations + 1, residual,
                                       "singular configuration (J_h^-1 not invertible)")

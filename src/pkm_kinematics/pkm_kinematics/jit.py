@@ -7,22 +7,41 @@ CPython each costs 10-30 us of interpreter overhead on 4-6 element loops; compil
 numpy arrays, tuples; no Python objects, errors returned as codes that the calling
 method turns into exceptions naming the field), so it is still plain Python: without
 numba (``PKM_NO_JIT=1``, or numba not installed) ``kernel`` returns the function
-unchanged and everything runs interpreted, with the same results.
+unchanged and everything runs interpreted, with the same results up to rounding
+(LAPACK's inverse of J_h differs in the last bits between numpy and numba).
 
-The machine code is cached next to the module (``__pycache__``), else in numba's
-user cache: the first process after an install compiles (~1-3 s per kernel), later
-ones load it. Entry points declare their argument types and are compiled when their
-module is imported (see ``kernel``).
+Entry points declare their argument types and are compiled, or loaded from the
+cache, when their module is imported (see ``kernel``): the first import after an
+install or an edit compiles (~10 s), later ones load the machine code (~1 s).
+numba's cache notices edits to a kernel's own file only, not to the kernels it
+calls in other files; the cache directory is therefore keyed by a hash of this
+package's sources (kernels outside it, e.g. in pkm_controller.laws, call only
+kernels of this package): ``$NUMBA_CACHE_DIR`` or ``~/.cache/pkm``, then
+``numba-<hash>``. Old directories there can be deleted at any time.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
+
+
+def _cache_dir() -> str:
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "pkm")
+    return os.path.join(base, "numba-" + digest.hexdigest()[:16])
+
 
 try:
     if os.environ.get("PKM_NO_JIT") == "1":
         raise ImportError("PKM_NO_JIT=1")
+    import numba
     from numba import njit as _njit
+    numba.config.CACHE_DIR = _cache_dir()
     COMPILED = True
 except ImportError:                    # interpreted fallback: same code, same results
     _njit = None

@@ -68,18 +68,12 @@ class ForwardKinematicsResult:
 
 
 def _solve3(a, b):
-    """Solve a 3x3 system by Cramer's rule on Python floats (10x faster than LAPACK here)."""
+    """Solve a 3x3 system by Cramer's rule on Python floats (10x faster than LAPACK
+    here): :func:`_solve3_kernel` interpreted, for Python callers."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    b0, b1, b2 = b
-    c00 = a11 * a22 - a12 * a21
-    c01 = a12 * a20 - a10 * a22
-    c02 = a10 * a21 - a11 * a20
-    det = a00 * c00 + a01 * c01 + a02 * c02
-    if det == 0.0 or not math.isfinite(det):
+    x0, x1, x2, ok = _solve3_kernel.py_func(a00, a01, a02, a10, a11, a12, a20, a21, a22, b[0], b[1], b[2])
+    if not ok:
         raise np.linalg.LinAlgError("singular 3x3 system")
-    x0 = (b0 * c00 + b1 * (a02 * a21 - a01 * a22) + b2 * (a01 * a12 - a02 * a11)) / det
-    x1 = (b0 * c01 + b1 * (a00 * a22 - a02 * a20) + b2 * (a02 * a10 - a00 * a12)) / det
-    x2 = (b0 * c02 + b1 * (a01 * a20 - a00 * a21) + b2 * (a00 * a11 - a01 * a10)) / det
     return x0, x1, x2
 
 
@@ -483,7 +477,7 @@ class PlanarMachine:
         return gdot / sv[:, None] - g * (sd / sv**2)[:, None]
 
     def velocity_terms(self, pose, twist) -> tuple[list, list, list, list]:
-        """Per-cycle kinematics of the dynamic model on plain floats (ARCHI §3.2, §3.4):
+        """Per-cycle kinematics of the dynamic model (ARCHI §3.2, §3.4), lists of floats:
         (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
         Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
         Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
@@ -491,7 +485,8 @@ class PlanarMachine:
         q, rows, qdot, bias, code, leg = _velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
                                                                 twist[0], twist[1], twist[2])
         if code == VT_UNREACHABLE:
-            raise UnreachablePoseError(f"pose {list(pose)} is unreachable for leg {self.leg_names[leg]}")
+            raise UnreachablePoseError(f"pose {[float(v) for v in pose]} is unreachable for leg "
+                                       f"{self.leg_names[leg]}")
         if code == VT_SINGULAR:
             raise SingularityError(f"leg {self.leg_names[leg]} is perpendicular to its rail (serial singularity)")
         return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
