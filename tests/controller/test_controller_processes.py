@@ -70,18 +70,34 @@ def test_four_processes_run_a_program_in_lockstep(tmp_path):
 
 
 @pytest.mark.slow
-def test_killing_the_sim_brings_the_controller_to_its_safe_state(tmp_path):
+def test_killing_the_sim_brings_the_controller_to_its_safe_state(tmp_path, ros_context):
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.experimental import EventsExecutor
+
+    from pkm_common.qos import STREAM_QOS
     ctrl_summary = tmp_path / "ctrl.json"
     procs = {"controller": _start("pkm_controller.controller_node", {
                  "summary_path": ctrl_summary, "state_timeout_s": 0.3}),
              "sim": _start("pkm_sim_hw.sim_hw_node", {"publish_markers": "false", "command_timeout_s": 10.0})}
+    cycles = []
+    node = rclpy.create_node("watch", namespace="/pkm", context=ros_context)
+    node.create_subscription(DiagnosticArray, "controller/status", lambda m: cycles.extend(
+        int(kv.value) for s in m.status for kv in s.values if kv.key == "cycles"), STREAM_QOS)
+    executor = EventsExecutor(context=ros_context)
+    executor.add_node(node)
     try:
-        time.sleep(4.0)                                   # discovery, then lockstep running
+        deadline = time.monotonic() + 60.0                # start-up, discovery, then lockstep running
+        while not (cycles and max(cycles) >= 200) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert cycles and max(cycles) >= 200, cycles
         assert procs["sim"].poll() is None
         procs["sim"].kill()                               # kill -9: no goodbye
         procs["sim"].wait(timeout=10)
         time.sleep(1.0)                                   # > state_timeout_s
     finally:
+        executor.shutdown()
+        node.destroy_node()
         results = _stop_all(procs)
     code, text = results["controller"]
     assert code == 0, text

@@ -295,7 +295,7 @@ class ControllerNode(LifecycleNode):
 
     def destroy_node(self):
         if hasattr(self, "tap"):
-            self.tap.flush()
+            self.tap.close()
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.core is not None:
             _, message, values = self.core.status()

@@ -107,7 +107,7 @@ class GoughSensorNode(Node):
             with open(self.summary_path, 'w', encoding='utf-8') as fh:
                 json.dump({**self.counts, 'published': self.published}, fh, indent=2)
         if hasattr(self, 'tap'):
-            self.tap.flush()
+            self.tap.close()
         return super().destroy_node()
 
     # --------------------------------------------------------------- stream

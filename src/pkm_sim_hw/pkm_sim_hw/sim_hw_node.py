@@ -244,14 +244,16 @@ class SimHwNode(Node):
         self.publish_diagnostics()
         self.get_logger().info(f"run complete: {json.dumps(self.summary())}")
         self.write_summary()
-        self.tap.flush()                           # the last steps, while the context is up
-        if self.shutdown_on_finish:
+        if self.shutdown_on_finish:                # the last steps, while the context is up
+            self.tap.close()
             rclpy.try_shutdown(context=self.context)
+        else:                                      # in one process: the run's executor drains it
+            self.tap.flush()
 
     def destroy_node(self):
         if not self.finished and hasattr(self, "steps_published"):
             self.write_summary()                   # interrupted: what was done so far
-            self.tap.flush()
+            self.tap.close()
         return super().destroy_node()
 
     def on_watchdog(self) -> None:
