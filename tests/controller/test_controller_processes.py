@@ -77,8 +77,9 @@ def test_killing_the_sim_brings_the_controller_to_its_safe_state(tmp_path, ros_c
 
     from pkm_common.qos import STREAM_QOS
     ctrl_summary = tmp_path / "ctrl.json"
+    # a 1 s watchdog: 0.3 s tripped on load alone in a CI run (74 cycles, before the kill)
     procs = {"controller": _start("pkm_controller.controller_node", {
-                 "summary_path": ctrl_summary, "state_timeout_s": 0.3}),
+                 "summary_path": ctrl_summary, "state_timeout_s": 1.0, "status_decimation": 10}),
              "sim": _start("pkm_sim_hw.sim_hw_node", {"publish_markers": "false", "command_timeout_s": 10.0})}
     cycles = []
     node = rclpy.create_node("watch", namespace="/pkm", context=ros_context)
@@ -90,17 +91,18 @@ def test_killing_the_sim_brings_the_controller_to_its_safe_state(tmp_path, ros_c
         deadline = time.monotonic() + 60.0                # start-up, discovery, then lockstep running
         while not (cycles and max(cycles) >= 200) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
-        assert cycles and max(cycles) >= 200, cycles
-        assert procs["sim"].poll() is None
-        procs["sim"].kill()                               # kill -9: no goodbye
-        procs["sim"].wait(timeout=10)
-        time.sleep(1.0)                                   # > state_timeout_s
+        running = bool(cycles) and max(cycles) >= 200 and procs["sim"].poll() is None
+        if running:
+            procs["sim"].kill()                           # kill -9: no goodbye
+            procs["sim"].wait(timeout=10)
+            time.sleep(2.0)                               # > state_timeout_s
     finally:
         executor.shutdown()
         node.destroy_node()
         results = _stop_all(procs)
     code, text = results["controller"]
+    assert running, f"lockstep not running (status cycles {cycles[-5:]}): {text[-3000:]}"
     assert code == 0, text
     ctrl = json.loads(ctrl_summary.read_text())
-    assert ctrl["stopped"] and ctrl["message"] == "stopped: drives/state: none for 0.3 s", ctrl
-    assert ctrl["cycles"] > 100 and "safe stop: drives/state: none for 0.3 s" in text
+    assert ctrl["stopped"] and ctrl["message"] == "stopped: drives/state: none for 1 s", ctrl
+    assert ctrl["cycles"] >= 200 and "safe stop: drives/state: none for 1 s" in text
