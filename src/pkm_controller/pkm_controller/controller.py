@@ -506,7 +506,7 @@ class ControllerCore:
 
     def _strategy(self, c: "_Cycle", error) -> list:
         strategy, g = self.config.strategy, self.gains
-        q, qdot, v, rows, x_d, v_d, a_d, dt = c.q, c.qdot, c.v, c.rows, c.x_d, c.v_d, c.a_d, c.dt
+        q, qdot, v, x_d, v_d, a_d, dt = c.q, c.qdot, c.v, c.x_d, c.v_d, c.a_d, c.dt
         if strategy in JOINT_STRATEGIES:
             q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
             # acceleration feed-forward with the mass each drive sees, as industrial
@@ -518,7 +518,7 @@ class ControllerCore:
             limit = self.config.force_limit_n
             integral = [min(limit, max(-limit, i + ki * ei * dt))
                         for i, ki, ei in zip(self.integral, self.joint_ki, e)]
-            active_rows = [rows[k] for k in self.active]
+            active_rows = c.active_rows
             if strategy == "decentralized_projected":
                 # Sliding Star Fig. 9: the projection also acts on the integral state
                 sub = project_to_range(active_rows, [integral[k] for k in self.active])

@@ -131,12 +131,18 @@ def _least_squares_kernel(rows, values):
     return _gram_solve_kernel(rows, b0, b1, b2)
 
 
-def least_squares_rows(rows, values) -> list[float]:
-    """(J^T J)^-1 J^T v for J given as n rows of 3 floats (or an (n, 3) array)."""
+def _rows_and_values(rows, values) -> tuple[np.ndarray, np.ndarray]:
+    """(J as an (n, 3) array, v as n floats) for the kernels; ValueError naming a
+    mismatch."""
     rows, v = _rows_array(rows), np.asarray(values, dtype=float).ravel()
     if len(v) != rows.shape[0]:
         raise ValueError(f"values: expected {rows.shape[0]} (one per row of J), got {len(v)}")
-    y0, y1, y2, ok = _least_squares_kernel(rows, v)
+    return rows, v
+
+
+def least_squares_rows(rows, values) -> list[float]:
+    """(J^T J)^-1 J^T v for J given as n rows of 3 floats (or an (n, 3) array)."""
+    y0, y1, y2, ok = _least_squares_kernel(*_rows_and_values(rows, values))
     if not ok:
         raise DistributionError(SINGULAR_GRAM)
     return [y0, y1, y2]
@@ -146,20 +152,21 @@ def _min_two_norm_rows(rows, wrench) -> list[float]:
     return _distribute_floats(rows, _floats(wrench), False, False)
 
 
-def transpose_rows(rows, values) -> tuple[float, float, float]:
-    """J^T v on floats, J given as rows of 3 (the wrench of drive forces v)."""
-    w0 = w1 = w2 = 0.0
-    for (j0, j1, j2), v in zip(rows, values):
-        w0 += j0 * v
-        w1 += j1 * v
-        w2 += j2 * v
-    return w0, w1, w2
+@kernel("(float64[:, :], float64[:])")
+def _project_kernel(rows, forces):
+    """(J (J^T J)^-1 J^T f, solvable)."""
+    y0, y1, y2, ok = _least_squares_kernel(rows, forces)
+    return rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2, ok
 
 
 def project_rows(rows, forces) -> list[float]:
-    """:func:`project_forces` on floats: J (J^T J)^-1 J^T f, the least-norm forces
-    producing the wrench of ``forces`` (their null-space part removed)."""
-    return _min_two_norm_rows(rows, transpose_rows(rows, forces))
+    """:func:`project_forces` on floats (J as n rows of 3, or an (n, 3) array):
+    J (J^T J)^-1 J^T f, the least-norm forces producing the wrench of ``forces``
+    (their null-space part removed)."""
+    projected, ok = _project_kernel(*_rows_and_values(rows, forces))
+    if not ok:
+        raise DistributionError(SINGULAR_GRAM)
+    return projected.tolist()
 
 
 def _validate(jac, wrench) -> tuple[np.ndarray, list[float]]:

@@ -80,13 +80,6 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
     return np.array(base), np.array(plate)
 
 
-def _jinv_rows(geometry) -> list[tuple]:
-    """J_h^-1 rows [u_i, (R b_i) x u_i] (MoM3 eq. 2-3) from per-strut (u_i, R b_i) as
-    6-tuples of floats."""
-    return [(ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux)
-            for ux, uy, uz, rbx, rby, rbz in geometry]
-
-
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
 def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """J_h = (J_h^-1)^-1 (MoM3 eq. 1) at the plate pose (p, R), J_h^-1 with rows
@@ -245,7 +238,7 @@ class GoughPlatform:
         residual = math.inf
         for iteration in range(max_iterations + 1):
             # strut lengths at the current pose: l_i = |p + R b_i - A_i|
-            res, geometry = [], []
+            res = []
             for (ax, ay, az, bx, by, bz), li in zip(legs, target):
                 rbx = r00 * bx + r01 * by + r02 * bz
                 rby = r10 * bx + r11 * by + r12 * bz
@@ -253,11 +246,10 @@ class GoughPlatform:
                 lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
                 length = math.sqrt(lx * lx + ly * ly + lz * lz)
                 res.append(li - length)
-                geometry.append((lx / length, ly / length, lz / length, rbx, rby, rbz))
             residual = max(map(abs, res))
             if residual <= tol_m:
                 return self._finish(px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22),
-                                    iteration, evaluations, residual, jh, geometry)
+                                    iteration, evaluations, residual, jh)
             if iteration == max_iterations:
                 break
             if not math.isfinite(residual) or residual > self._divergence_limit:
@@ -286,7 +278,7 @@ class GoughPlatform:
         return self._fail(max_iterations, evaluations, residual,
                           f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
 
-    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh, geometry) -> GoughDKMResult:
+    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
         if pz <= 0.0 or rot[8] <= 0.0:
             return self._fail(iterations, evaluations, residual,
                               "mirror assembly: the plate is below the base plane or flipped")
@@ -294,7 +286,8 @@ class GoughPlatform:
             # the solve travelled: it must not have crossed into another assembly mode,
             # which would flip the sign of det(J_h^-1) (a path between modes crosses a
             # singularity). Short warm-started solves cannot, and skip this 10 us check.
-            if np.linalg.det(np.array(_jinv_rows(geometry))) * self._home_det_sign <= 0.0:
+            position, rotation = np.array([px, py, pz]), np.array(rot).reshape(3, 3)
+            if np.linalg.det(self.inverse_jacobian(position, rotation)) * self._home_det_sign <= 0.0:
                 return self._fail(iterations, evaluations, residual,
                                   "another assembly mode: det(J_h^-1) has the opposite sign to home")
         return GoughDKMResult(np.array([px, py, pz]), np.array(rot).reshape(3, 3), True, iterations,
