@@ -10,7 +10,8 @@ fails the transition with its name and allowed range. activate: answer every
 trajectory / a latched ``run/start`` (an orchestrator's start signal); ``estop`` and every
 trip of the supervisor put the controller in its safe state (zero forces) and latch
 ``estop`` so the drives brake. A wall-clock watchdog trips when ``drives/state`` or
-the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``. (DDS deadline
+the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``, from the
+first state answered. (DDS deadline
 QoS would need the publisher to offer a deadline too; sim_hw in lockstep publishes
 only when answered, so a timer on the controller's side is the same test.)
 With ``autostart`` (default) the node configures and activates itself.
@@ -158,10 +159,13 @@ class ControllerNode(LifecycleNode):
     def on_state(self, buf: bytes) -> None:
         if not self.active:
             return
-        self.last_state_wall = time.monotonic()
         if (not self.trajectory_accepted and self.values["wait_for_trajectory"]) or \
                 (not self.start_received and self.values["wait_for_start"]):
             return                     # a scripted run starts at its first state, deterministically
+        # the watchdog is armed from the first state answered: before its start the
+        # sim only repeats step 0 for discovery, and on a loaded machine a pause in
+        # those repeats tripped a run before it began (a full test run, 2 tests)
+        self.last_state_wall = time.monotonic()
         try:
             msg = self.state_decoder.decode(buf)
         except ValueError as exc:      # malformed bytes from a raw publisher
