@@ -61,6 +61,8 @@ from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from pkm_bringup.mcap_writer import FastWriter
+
 try:  # mcap's own version string, for the Header's library field
     from importlib.metadata import version as _dist_version
     _MCAP_VERSION = _dist_version("mcap")
@@ -334,7 +336,7 @@ def _check_writer_args(chunk_size: int, compression: str) -> None:
 
 def _make_writer(stream, chunk_size: int, compression: str) -> Writer:
     _check_writer_args(chunk_size, compression)
-    writer = Writer(stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+    writer = FastWriter(stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
     writer.start(profile=PROFILE, library=LIBRARY)
     return writer
 
