@@ -18,7 +18,7 @@ PYTEST_ARGS ?= -q -p no:cacheprovider
 PKG_DIRS := $(sort $(patsubst %/setup.py,%,$(wildcard src/pkm_*/setup.py)))
 PKG_META := $(wildcard src/pkm_*/setup.py src/pkm_*/setup.cfg) \
 	$(foreach d,$(PKG_DIRS),$(wildcard $(d)/$(notdir $(d))))
-BENCHES := $(sort $(wildcard benchmarks/*.py))
+BENCHES := $(filter-out benchmarks/hoststat.py,$(sort $(wildcard benchmarks/*.py)))
 
 .PHONY: all venv test demo bench clean
 

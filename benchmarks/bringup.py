@@ -19,6 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from hoststat import CpuSteal  # noqa: E402  (benchmarks/hoststat.py)
+
 
 def run_once(scenario: str, record: bool, in_process: bool, duration_s: float) -> dict:
     from pkm_bringup.orchestrator import run_scenario
@@ -27,7 +30,7 @@ def run_once(scenario: str, record: bool, in_process: bool, duration_s: float) -
     if duration_s:
         overrides["duration_s"] = duration_s
     s = load_scenario(scenario, overrides)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, CpuSteal() as steal:
         run = run_scenario(s, Path(tmp) / "run", in_process=in_process, progress=False, report=False)
     if run["status"] != "completed":
         raise RuntimeError(run["error"])
@@ -35,7 +38,7 @@ def run_once(scenario: str, record: bool, in_process: bool, duration_s: float) -
     recorder = run["summaries"].get("recorder", {})
     return {"rate": sim["steps_per_s"], "wall_s": sim["wall_s"],
             "recorded": sum(recorder.get("recorded", {}).values()),
-            "lost": sum(max(v, 0) for v in run["lost"].values())}
+            "lost": sum(max(v, 0) for v in run["lost"].values()), "steal": steal.percent}
 
 
 def writer_throughput(messages: int = 200_000) -> float:
@@ -127,8 +130,8 @@ def main(argv=None) -> int:
           f"{rec_rate:,.0f} messages/s, lost {lost}")
     print()
     print(f"{args.scenario}: lockstep rate (steps/s), {args.repeats} alternated runs per row")
-    print("| mode | recording | steps/s (runs) | median | loop period | recorded msgs/s | lost |")
-    print("|---|---|---|---|---|---|---|")
+    print("| mode | recording | steps/s (runs) | CPU steal % (runs) | median | loop period | recorded msgs/s | lost |")
+    print("|---|---|---|---|---|---|---|---|")
     results = {}
     for in_process in (False, True):
         rows = {False: [], True: []}
@@ -142,7 +145,9 @@ def main(argv=None) -> int:
             results[(in_process, record)] = median
             thru = statistics.median(r["recorded"] / r["wall_s"] for r in rows[record]) if record else 0.0
             lost = sum(r["lost"] for r in rows[record])
-            print(f"| {mode} | {'on' if record else 'off'} | {', '.join(f'{x:.0f}' for x in rates)} | {median:.0f} | "
+            steal = ", ".join("n/a" if r["steal"] is None else f"{r['steal']:.1f}" for r in rows[record])
+            print(f"| {mode} | {'on' if record else 'off'} | {', '.join(f'{x:.0f}' for x in rates)} | {steal} "
+                  f"| {median:.0f} | "
                   f"{1e6 / median:.0f} us | {thru:,.0f} | {lost if record else '-'} |")
     print()
     for in_process in (False, True):

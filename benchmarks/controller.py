@@ -36,6 +36,7 @@ from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from hoststat import CpuSteal  # noqa: E402  (benchmarks/hoststat.py)
 from plant import start, stop_all  # noqa: E402  (benchmarks/plant.py: process helpers)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,7 +100,8 @@ def graph_rate(duration_s: float) -> dict:
                                                "summary_path": tmp / "sim.json", "publish_markers": "false",
                                                "command_timeout_s": 10.0}, env, tmp / "sim.log")
         try:
-            sim.wait(timeout=120 + 10 * duration_s)
+            with CpuSteal() as steal:
+                sim.wait(timeout=120 + 10 * duration_s)
         finally:
             stop_all(procs + [sim])
         sim_summary = json.loads((tmp / "sim.json").read_text())
@@ -107,7 +109,7 @@ def graph_rate(duration_s: float) -> dict:
         return {"steps_per_s": sim_summary["steps_per_s"], "stopped": ctrl["stopped"],
                 "compute_us_p50": ctrl["compute_us_p50"], "compute_us_p99": ctrl["compute_us_p99"],
                 "response_us_p50": ctrl["response_us_p50"], "response_us_p99": ctrl["response_us_p99"],
-                "max_tracking_error_m": ctrl["max_tracking_error_m"]}
+                "max_tracking_error_m": ctrl["max_tracking_error_m"], "steal": str(steal)}
 
 
 def main(argv=None) -> int:
@@ -133,7 +135,8 @@ def main(argv=None) -> int:
               f"{g['steps_per_s']:.0f} cycles/s ({g['steps_per_s'] / 2000:.0%} of 2,000); controller compute "
               f"in the graph p50 {g['compute_us_p50']:.0f} us, p99 {g['compute_us_p99']:.0f} us, from the "
               f"last input to the command p50 {g['response_us_p50']:.0f} us, p99 {g['response_us_p99']:.0f} us; "
-              f"stopped: {g['stopped']}; max tracking error {g['max_tracking_error_m'] * 1e6:.1f} um")
+              f"stopped: {g['stopped']}; max tracking error {g['max_tracking_error_m'] * 1e6:.1f} um; "
+              f"CPU steal by the hypervisor during the run: {g['steal']}")
     return 0
 
 

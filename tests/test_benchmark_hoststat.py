@@ -1,0 +1,33 @@
+"""benchmarks/hoststat.py: the CPU steal share printed next to each benchmark run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import hoststat  # noqa: E402
+
+
+def test_steal_is_the_share_of_all_cpu_time_between_enter_and_exit(monkeypatch):
+    #            user nice system idle iowait irq softirq steal guest guest_nice
+    samples = iter([[100, 0, 50, 800, 0, 0, 0, 50, 7, 0],
+                    [160, 0, 70, 880, 0, 0, 0, 90, 9, 0]])      # +60 +20 +80 +40 steal: 40 of 200
+    monkeypatch.setattr(hoststat, "_cpu_times", lambda: next(samples))
+    with hoststat.CpuSteal() as steal:
+        pass
+    assert steal.percent == 20.0
+    assert str(steal) == "20.0 %"
+
+
+def test_without_proc_stat_it_says_not_available(monkeypatch):
+    monkeypatch.setattr(hoststat, "_cpu_times", lambda: None)
+    with hoststat.CpuSteal() as steal:
+        pass
+    assert steal.percent is None and str(steal) == "n/a"
+
+
+def test_it_reads_this_hosts_proc_stat():
+    times = hoststat._cpu_times()
+    if Path("/proc/stat").exists():
+        assert times is not None and len(times) >= 8 and all(v >= 0 for v in times)
