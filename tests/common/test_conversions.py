@@ -13,8 +13,8 @@ from geometry_msgs.msg import PoseStamped
 from scipy.spatial.transform import Rotation
 
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
-                                    machine_to_tool_pose, ns_to_stamp, pose_from_msg, pose_msg,
-                                    stamp_to_ns, tool_pose_to_machine)
+                                    machine_pose_components, machine_to_tool_pose, ns_to_stamp,
+                                    pose_from_msg, pose_msg, stamp_to_ns, tool_pose_to_machine)
 
 
 # ------------------------------------------------------------------- stamps
@@ -133,6 +133,16 @@ def test_translational_machine_pose():
     np.testing.assert_array_equal(p, [0.1, 0.2, 0.9])
     np.testing.assert_array_equal(rot, np.eye(3))
     np.testing.assert_array_equal(tool_pose_to_machine('translational', p, rot), p)
+
+
+@pytest.mark.parametrize('planar, x', [(True, (0.1, -0.6, 0.25 * math.pi)), (True, (0.0, 0.2, -2.5)),
+                                       (False, (0.01, -0.02, 0.03))])
+def test_machine_pose_components_are_the_tool_pose_as_message_fields(planar, x):
+    position, orientation = machine_pose_components(planar, x)
+    p, r = machine_to_tool_pose('planar' if planar else 'translational', x)
+    assert np.allclose(position, p, atol=0.0)
+    assert np.allclose(Rotation.from_quat(orientation).as_matrix(), r, atol=1e-12)
+    assert all(type(v) is float for v in (*position, *orientation))
 
 
 def test_machine_pose_errors():

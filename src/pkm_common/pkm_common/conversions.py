@@ -190,6 +190,17 @@ def machine_to_tool_pose(kind: str, x) -> tuple[np.ndarray, np.ndarray]:
     return x.copy(), np.eye(3)
 
 
+def machine_pose_components(planar: bool, x) -> tuple[tuple, tuple]:
+    """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as floats for
+    a PoseStamped: the per-step form of :func:`machine_to_tool_pose`, without its
+    checks. planar (x, y, theta) -> ((x, y, 0), yaw theta about z); translational p ->
+    (p, identity)."""
+    if planar:
+        half = 0.5 * x[2]
+        return (x[0], x[1], 0.0), (0.0, 0.0, math.sin(half), math.cos(half))
+    return (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
+
+
 def tool_pose_to_machine(kind: str, position, rotation, reference_theta: float | None = None) -> np.ndarray:
     """Tool pose in world -> machine pose; inverse of :func:`machine_to_tool_pose`.
 

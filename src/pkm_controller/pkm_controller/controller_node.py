@@ -20,7 +20,6 @@ With ``autostart`` (default) the node configures and activates itself.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import fields
 
@@ -33,7 +32,8 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
-from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, pose_from_components
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp,
+                                    pose_from_components)
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -41,6 +41,7 @@ from pkm_common.runner import main_exit, run_node
 from pkm_common.timing import percentiles_us
 from pkm_kinematics import load_machine
 from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.lockstep import StampPairing
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
@@ -61,7 +62,6 @@ class ControllerNode(LifecycleNode):
         self.configure_error = ""
         self.trajectory_accepted = False
         self.start_received = False    # run/start (latched Bool) from an orchestrator
-        self.last_answered_ns = None
         self.answers_published = 0     # drives/command and controller/reference, one each per answer
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
                                               "to a recorder in batches (pkm_common.tap)"))
@@ -96,9 +96,7 @@ class ControllerNode(LifecycleNode):
         self.names = self.core.names
         metrology = config.strategy in ("sensor_space", "measured_space")
         self.wait_for = {"sensor_space": "struts", "measured_space": "pose"}.get(config.strategy)
-        self.pending_state = None
-        self.metrology: dict[int, object] = {}
-        self.last_state_wall = None
+        self.pairing = StampPairing(metrology, self.wait_for or "")
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
         # ~30-50 us to take and ~13 us to publish each, more than most control laws
         self.state_decoder = JointStateDecoder("drives/state")
@@ -131,7 +129,7 @@ class ControllerNode(LifecycleNode):
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.active = True
-        self.last_state_wall = None
+        self.pairing.reset_watchdog()
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -165,24 +163,21 @@ class ControllerNode(LifecycleNode):
         # the watchdog is armed from the first state answered: before its start the
         # sim only repeats step 0 for discovery, and on a loaded machine a pause in
         # those repeats tripped a run before it began (a full test run, 2 tests)
-        self.last_state_wall = time.monotonic()
+        now = time.monotonic()
         try:
             msg = self.state_decoder.decode(buf)
         except ValueError as exc:      # malformed bytes from a raw publisher
             if not self.core.stopped:
                 self.safe_stop(str(exc))
             return
-        stamp = msg.stamp_ns
-        if stamp == self.last_answered_ns:
+        if not self.pairing.state_arrived(msg.stamp_ns, now):
             return                     # a repeat (sim_hw republishes step 0 until answered)
-        self.last_answered_ns = stamp
         start = time.perf_counter()
         prepared = self.prepare(msg)
         self.prepare_s = time.perf_counter() - start
-        if prepared and self.wait_for and stamp not in self.metrology:
-            self.pending_state = msg   # complete() when the metrology of this stamp arrives
-            return
-        self.answer(stamp, start)
+        if prepared and self.pairing.wait_for_reading(msg):
+            return                     # complete() when the metrology of this stamp arrives
+        self.answer(msg.stamp_ns, start)
 
     def on_metrology(self, buf: bytes) -> None:
         try:
@@ -191,14 +186,9 @@ class ControllerNode(LifecycleNode):
             if self.active and not self.core.stopped:
                 self.safe_stop(str(exc))
             return
-        stamp = msg.stamp_ns
-        if len(self.metrology) > 8:    # readings no state asked for (0.1 s of them are kept)
-            self.metrology = {s: m for s, m in self.metrology.items() if s > stamp - 10**8}
-        self.metrology[stamp] = msg
-        pending = self.pending_state
-        if self.active and pending is not None and pending.stamp_ns == stamp:
-            self.pending_state = None
-            self.answer(stamp, time.perf_counter())
+        state = self.pairing.reading_arrived(msg.stamp_ns, msg)
+        if state is not None and self.active:
+            self.answer(state.stamp_ns, time.perf_counter())
 
     def on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
         core = self.core
@@ -221,16 +211,12 @@ class ControllerNode(LifecycleNode):
             self.safe_stop("estop")
 
     def on_watchdog(self) -> None:
-        core = self.core
-        if not self.active or core is None or core.stopped or self.last_state_wall is None:
+        if not self.active or self.core is None or self.core.stopped:
             return
-        silent = time.monotonic() - self.last_state_wall
-        if self.pending_state is not None and silent > self.values["metrology_timeout_s"]:
-            self.safe_stop(f"metrology/{self.wait_for}: nothing for the state of "
-                           f"{self.pending_state.stamp_ns * 1e-9:.3f} s within "
-                           f"{self.values['metrology_timeout_s']:g} s")
-        elif self.pending_state is None and silent > self.values["state_timeout_s"]:
-            self.safe_stop(f"drives/state: none for {self.values['state_timeout_s']:g} s")
+        fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
+                                           self.values["metrology_timeout_s"])
+        if fault:
+            self.safe_stop(fault)
 
     # ----------------------------------------------------------------- output
     def prepare(self, msg) -> bool:
@@ -249,7 +235,7 @@ class ControllerNode(LifecycleNode):
         command; ``start``: when the last input arrived (the response time is timed)."""
         core = self.core
         struts = pose = None
-        extra = self.metrology.pop(stamp, None)
+        extra = self.pairing.take_reading(stamp)
         if core.stopped:
             pass                                  # zero forces: no metrology needed
         elif self.wait_for == "struts":
@@ -274,11 +260,7 @@ class ControllerNode(LifecycleNode):
             self.publish_status()
 
     def publish_reference(self, stamp_ns: int) -> None:
-        x = self.core.record.reference
-        if self.core.planar:
-            position, orientation = (x[0], x[1], 0.0), (0.0, 0.0, math.sin(0.5 * x[2]), math.cos(0.5 * x[2]))
-        else:
-            position, orientation = (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
+        position, orientation = machine_pose_components(self.core.planar, self.core.record.reference)
         self.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
 
     def publish_status(self, extra: str = "") -> None:

@@ -32,7 +32,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock, in_order
-from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp
+from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -98,6 +98,7 @@ class SimHwNode(Node):
         # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
         self.state_encoder = JointStateEncoder(self.plant.names)
         self.pose_encoder = PoseStampedEncoder("world")
+        self.planar = self.config.kind == "planar"
         self.command_decoder = JointStateDecoder("drives/command")
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
                                               "in batches (pkm_common.tap) instead of its subscribing to them"))
@@ -129,13 +130,9 @@ class SimHwNode(Node):
         ns = self.now_ns()
         # the true pose first: the sensor's work is on the critical path of the step
         # (state -> sensor -> controller), the drive state and the clock are not
-        if self.config.kind == "planar":           # tool = (x, y, 0), yaw theta
-            x, y, theta = out.tool_pose
-            pose = self.pose_encoder.encode(ns, (x, y, 0.0), (0.0, 0.0, math.sin(0.5 * theta),
-                                                              math.cos(0.5 * theta)))
-        else:                                      # tool = p, orientation fixed
-            pose = self.pose_encoder.encode(ns, out.tool_pose, (0.0, 0.0, 0.0, 1.0))
-        self.pub_pose.publish(pose)
+        # planar: tool = (x, y, 0), yaw theta; translational: tool = p, orientation fixed
+        position, orientation = machine_pose_components(self.planar, out.tool_pose)
+        self.pub_pose.publish(self.pose_encoder.encode(ns, position, orientation))
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
             self.steps_published += 1
