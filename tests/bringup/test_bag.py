@@ -5,6 +5,7 @@ read back with rosbags' AnyReader and with mcap + mcap_ros2, which must agree wi
 other, with BagWriter.counts and with metadata.yaml.
 """
 
+import io
 import json
 import os
 import shutil
@@ -225,6 +226,52 @@ def test_sequence_and_publish_time(ts, tmp_path):
     assert [s for topic, s, _, _ in msgs if topic == '/b'] == [1, 2, 3, 4, 5, 6]
     assert all(p == t - 7 for topic, _, t, p in msgs if topic == '/a')
     assert all(p == t for topic, _, t, p in msgs if topic == '/b')
+
+
+def test_a_batch_writes_what_the_same_writes_one_by_one_would(ts, tmp_path):
+    data = [ts.serialize_cdr(make_msg(ts, CLOCK, i), CLOCK) for i in range(6)]
+    records = [(0, T0 + 3, data[0]), (1, T0 + 1, data[1]), (0, T0 + 5, bytearray(data[2])),
+               (1, T0 + 2, memoryview(data[3])), (0, T0 + 4, data[4]), (1, T0 + 9, data[5])]
+    files = []
+    for name, batch in (("one", False), ("batch", True)):
+        with BagWriter(tmp_path / name) as writer:
+            ids = [writer.add_topic('/a', CLOCK), writer.add_topic('/b', CLOCK)]
+            records_here = [(ids[c], t, d) for c, t, d in records]
+            if batch:
+                writer.write_batch(records_here[:2])
+                writer.write_batch(records_here[2:])
+            else:
+                for c, t, d in records_here:
+                    writer.write(c, t, d)
+        files.append(writer.mcap_path.read_bytes())
+        info = yaml.safe_load((tmp_path / name / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+        assert info['starting_time']['nanoseconds_since_epoch'] == T0 + 1
+        assert info['duration']['nanoseconds'] == 8
+    one, batch = _messages_of(files[0]), _messages_of(files[1])
+    assert one == batch
+    assert [(topic, seq, t, p) for topic, seq, t, p, _ in one] == [
+        ('/a', 1, T0 + 3, T0 + 3), ('/b', 1, T0 + 1, T0 + 1), ('/a', 2, T0 + 5, T0 + 5),
+        ('/b', 2, T0 + 2, T0 + 2), ('/a', 3, T0 + 4, T0 + 4), ('/b', 3, T0 + 9, T0 + 9)]
+
+
+def _messages_of(data: bytes) -> list:
+    return [(c.topic, m.sequence, m.log_time, m.publish_time, bytes(m.data))
+            for _, c, m in make_reader(io.BytesIO(data)).iter_messages(log_time_order=False)]
+
+
+def test_a_bad_record_stops_a_batch_after_the_good_ones_before_it(ts, tmp_path):
+    data = ts.serialize_cdr(make_msg(ts, CLOCK, 3), CLOCK)
+    with BagWriter(tmp_path / 'b') as writer:
+        cid = writer.add_topic('/clock', CLOCK)
+        for bad, match in (((99, T0, data), 'unknown channel id 99'), ((cid, -1, data), 'out of range'),
+                           ((cid, T0 + 0.5, data), 'integer nanoseconds'), ((cid, T0, 'text'), 'bytes-like')):
+            with pytest.raises(ValueError, match=match):
+                writer.write_batch([(cid, T0, data), bad, (cid, T0 + 1, data)])
+        assert writer.counts == {'/clock': 4}
+    with pytest.raises(ValueError, match='closed'):
+        writer.write_batch([(cid, T0, data)])
+    got, counts = anyreader_messages(ts, tmp_path / 'b')
+    assert counts == {'/clock': 4} and [t for t, _ in got['/clock']] == [T0] * 4
 
 
 # --- schemas, channels, metadata --------------------------------------------------------------

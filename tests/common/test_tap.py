@@ -32,6 +32,18 @@ def test_a_batch_reads_back_in_order_and_is_a_valid_uint8_multiarray(records):
     assert serialize_message(msg) == batch                        # and writes the same bytes
 
 
+@settings(max_examples=50, deadline=None)
+@given(RECORDS)
+def test_records_taken_in_process_are_what_the_batch_would_carry(records):
+    by_batch, by_list = StreamTap(), StreamTap()
+    for tap in (by_batch, by_list):
+        for topic, msgtype, data, time_ns in records:
+            tap.add(topic, msgtype, data, time_ns)
+    taken = by_list.take_records()
+    assert taken == (read_batch(by_batch.take_batch()) if records else [])
+    assert len(by_list) == 0 and by_list.take_records() == []
+
+
 def test_a_malformed_batch_is_refused_naming_the_tap():
     tap = StreamTap()
     tap.add("/drives/state", "sensor_msgs/msg/JointState", b"\x00\x01\x00\x00abcd", 5)
@@ -84,3 +96,30 @@ def test_a_node_tap_publishes_batches_and_drops_one_on_a_dead_context():
     tap.flush()                                                     # the teardown goes on
     assert (tap.batches, tap.dropped) == (1, 1)
     node.destroy_node()
+
+
+def test_a_node_tap_with_a_sink_hands_its_records_over_without_a_message():
+    import rclpy
+    from rclpy.node import Node
+
+    from pkm_common.node_tap import NodeTap
+    from pkm_common.qos import STREAM_PUBLISHER_QOS
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node("tap_sink_test", context=context)
+    try:
+        tap = NodeTap(node, True)
+        received = []
+        tap.sink = received.append
+        raw = tap.wrap(node.create_publisher(JointState, "y", STREAM_PUBLISHER_QOS), JointState)
+        data = b"\x00\x01\x00\x00" + bytes(40)
+        raw.publish(data)
+        raw.publish(data)
+        tap.flush()
+        tap.close()                                                 # nothing new: no second list
+        assert tap.batches == 1
+        assert [[(t, m, d) for t, m, _, d in r] for r in received] == [
+            [("/y", "sensor_msgs/msg/JointState", data)] * 2]
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

@@ -504,6 +504,40 @@ class BagWriter:
             elif log_time_ns < self._start:
                 self._start = log_time_ns
 
+    def write_batch(self, records) -> None:
+        """Append ``records``, each (channel_id, log_time_ns, data) with the publish time
+        equal to the log time (the recorder's tap batches): the checks of :meth:`write`
+        for each, under one lock. ValueError at the first bad record, before anything
+        of it is written (the records before it are)."""
+        with self._lock:
+            topics = self._topics
+            add = self._writer.add_message
+            start, end = self._start, self._end
+            try:
+                for channel_id, time_ns, data in records:
+                    if type(time_ns) is not int:
+                        time_ns = _as_time(time_ns, "log_time_ns")
+                    if not 0 <= time_ns <= _U64_MAX:
+                        raise ValueError(f"timestamps out of range [0, 2**64): {time_ns}")
+                    if not isinstance(data, (bytes, bytearray, memoryview)):
+                        raise ValueError(f"data must be bytes-like (raw CDR), got {type(data).__name__}")
+                    t = topics.get(channel_id)
+                    if t is None or self._closed:
+                        self._check_open()
+                        raise ValueError(f"write to unknown channel id {channel_id!r} "
+                                         f"(known: {sorted(topics)}); call add_topic() first")
+                    t.seq = seq = (t.seq + 1) & 0xFFFFFFFF
+                    add(channel_id, time_ns, data, time_ns, seq)
+                    t.count += 1
+                    if start is None:
+                        start = end = time_ns
+                    elif time_ns > end:
+                        end = time_ns
+                    elif time_ns < start:
+                        start = time_ns
+            finally:
+                self._start, self._end = start, end
+
     @property
     def counts(self) -> dict[str, int]:
         """Messages written so far, per topic (registered topics with none: 0)."""

@@ -262,6 +262,9 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
         except Exception as exc:                  # noqa: BLE001 - a refused configuration is the run's failure
             raise RunFailed(f"node {name} refused its configuration: {exc}") from None
         executor.add_node(nodes[name])
+        tap = getattr(nodes[name], "tap", None)
+        if "recorder" in nodes and tap is not None and tap.tap is not None:
+            tap.sink = nodes["recorder"].write_records    # one process: no batch messages
 
     def close(names):
         for name in names:

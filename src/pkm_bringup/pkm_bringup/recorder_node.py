@@ -4,7 +4,9 @@ Thin shell over :class:`pkm_bringup.bag.BagWriter`. Every topic of the graph (al
 them but ``/parameter_events``, or the ``topics`` listed) is subscribed **raw**: the
 callback receives the CDR bytes exactly as published and writes them as they are
 (ROS2_NOTES.md: re-serialising adds trailing bytes that rosbags refuses). Topics are
-discovered every ``discovery_period_s``; each is subscribed with the QoS its
+discovered every ``discovery_period_s`` until the node is ready, then every
+``running_discovery_period_s`` (a graph query costs ~1-2 ms with a whole in-process
+graph; at 10 Hz that was ~1.7 % of the loop's period); each is subscribed with the QoS its
 publishers offer (RELIABLE only if all of them are, TRANSIENT_LOCAL likewise, so a
 latched trajectory recorded late is still received) and a deep queue, and the offered
 profiles go into the channel metadata as ``ros2 bag record`` writes them.
@@ -106,7 +108,10 @@ class RecorderNode(Node):
         self.summary_path = declare_str(self, "summary_path", "", "JSON counts at exit", allow_empty=True)
         self.depth = declare_int(self, "depth", 1000, 1, 100000, "subscription queue depth")
         flush = declare_float(self, "flush_period_s", 0.5, 0.01, 60.0, "bag flush period", unit="s")
-        discovery = declare_float(self, "discovery_period_s", 0.1, 0.01, 10.0, unit="s")
+        discovery = declare_float(self, "discovery_period_s", 0.1, 0.01, 10.0, "until ready", unit="s")
+        self.running_discovery = declare_float(self, "running_discovery_period_s", 1.0, 0.01, 60.0,
+                                               "once ready: a topic that appears later is recorded "
+                                               "from at most this long after its first message", unit="s")
         priority = declare_str(self, "cpu_priority", "normal", "idle: the whole process (DDS threads "
                                "included) runs only on CPU time the loop leaves (SCHED_IDLE); only for a "
                                "recorder in its own process", choices=("normal", "idle"))
@@ -126,7 +131,7 @@ class RecorderNode(Node):
             self.tap_subscription = self.create_subscription(
                 UInt8MultiArray, self.tap_topic, self.on_tap, subscription_qos([TAP_QOS], self.depth), raw=True)
         self.ready = False
-        self.create_timer(discovery, self.discover)
+        self.discovery_timer = self.create_timer(discovery, self.discover)
         self.create_timer(flush, self.writer.flush)
         self.discover()
 
@@ -174,6 +179,7 @@ class RecorderNode(Node):
                 subscription_qos([i.qos_profile for i in infos], self.depth), raw=True)
         if not self.ready and all(self._receiving(t) for t in self.expect):
             self.ready = True
+            self.discovery_timer.timer_period_ns = round(self.running_discovery * 1e9)
             self.get_logger().info(f"recorder ready: {len(self.subscriptions_by_topic)} topics")
             if self.ready_file:
                 Path(self.ready_file).touch()
@@ -197,9 +203,16 @@ class RecorderNode(Node):
             self.tap_errors += 1
             self.get_logger().error(str(exc))
             return
-        write, count = self.writer.write, self._count
+        self.write_records(records)
+
+    def write_records(self, records) -> None:
+        """Record tap records (topic, type, publish time ns, CDR bytes): from a batch
+        message, or handed over by a node in the same process (NodeTap.sink)."""
+        if self.writer is None:              # destroyed: the loss shows in the counts
+            return
+        channels, count, batch = self.channels, self._count, []
         for name, msgtype, time_ns, data in records:
-            channel = self.channels.get(name)
+            channel = channels.get(name)
             if channel is None and self.topics and name not in self.topics:
                 continue                     # not one of the topics asked for
             if channel is None:              # before discovery saw the topic: add it now
@@ -207,8 +220,9 @@ class RecorderNode(Node):
                 if channel is None:
                     continue
                 self.subscriptions_by_topic.setdefault(name, TAPPED)
-            write(channel, time_ns, data, publish_time_ns=time_ns)
+            batch.append((channel, time_ns, data))
             count(name, data)
+        self.writer.write_batch(batch)
 
     def destroy_node(self):
         if self.writer is not None:

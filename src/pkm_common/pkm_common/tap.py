@@ -55,6 +55,13 @@ class StreamTap:
             self._topics.append(key)
         self._records.append((index, publish_time_ns, data))
 
+    def take_records(self) -> list[tuple[str, str, int, bytes]]:
+        """The records so far as :func:`read_batch` returns them (then forgotten): for a
+        recorder in the same process, which needs no batch message."""
+        topics, records = self._topics, self._records
+        self._records = []
+        return [(*topics[index], time_ns, data) for index, time_ns, data in records]
+
     def take_batch(self) -> bytes | None:
         """The records so far as the CDR bytes of a UInt8MultiArray (then forgotten),
         or None when there are none."""
