@@ -40,6 +40,7 @@ def _record(writer_class, calls, chunk_size, compression, data_kind=bytes) -> by
 @given(calls=_calls, chunk_size=st.sampled_from([64, 1000, 1 << 20]),
        compression=st.sampled_from([CompressionType.NONE, CompressionType.ZSTD, CompressionType.LZ4]))
 def test_the_same_calls_give_the_same_bytes_as_mcaps_writer(calls, chunk_size, compression):
+    assert FastWriter(io.BytesIO()).fast          # the pinned mcap: the fast path, not the fallback
     expected = _record(Writer, calls, chunk_size, compression)
     assert _record(FastWriter, calls, chunk_size, compression) == expected
     assert _record(FastWriter, calls, chunk_size, compression, data_kind=memoryview) == expected
@@ -57,6 +58,14 @@ def test_what_it_writes_reads_back_in_order_with_the_summary():
     messages = [(m.channel_id, m.log_time, m.sequence, m.publish_time, len(m.data))
                 for _, _, m in reader.iter_messages(log_time_order=False)]
     assert messages == [(c, t, s, t + 3, n) for _, c, t, n, _, s in calls]
+
+
+def test_without_the_private_attributes_it_falls_back_to_the_stock_path(monkeypatch):
+    calls = [("msg", 1 + k % 3, 10 * k, 30, 1, k) for k in range(50)] + [("flush",)]
+    expected = _record(Writer, calls, 500, CompressionType.ZSTD)
+    monkeypatch.setattr(FastWriter, "PRIVATE", FastWriter.PRIVATE + ("_Writer__renamed_in_a_later_mcap",))
+    assert not FastWriter(io.BytesIO()).fast
+    assert _record(FastWriter, calls, 500, CompressionType.ZSTD) == expected
 
 
 def test_it_refuses_to_write_without_chunks():

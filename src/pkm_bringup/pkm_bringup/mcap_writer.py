@@ -18,6 +18,8 @@ chunk indexes, statistics, summary, footer: all unchanged) with two parts replac
 It reaches into the writer's private attributes (``_Writer__...``); mcap is pinned in
 requirements.txt, and tests/bringup/test_mcap_writer.py compares the output with the
 stock writer byte for byte, so an mcap upgrade that changes them fails there first.
+With an mcap whose Writer lacks one of them (another install), it falls back to the
+stock path: slower, never wrong.
 """
 
 from __future__ import annotations
@@ -115,13 +117,20 @@ class FastWriter(Writer):
     """``mcap.writer.Writer`` (chunked; the arguments are the same) with the fast
     message path. ``add_message`` takes the same arguments and writes the same bytes."""
 
+    # what the fast path uses of mcap 1.6's Writer
+    PRIVATE = ("_Writer__chunk_builder", "_Writer__statistics", "_Writer__chunk_size", "_Writer__finalize_chunk")
+
     def __init__(self, *args, **kwargs):
         if kwargs.get("use_chunking", True) is False:
             raise ValueError("FastWriter writes chunks: use_chunking must be True")
         super().__init__(*args, **kwargs)
-        self._Writer__chunk_builder = FastChunkBuilder()
+        self.fast = all(hasattr(self, name) for name in self.PRIVATE)
+        if self.fast:
+            self._Writer__chunk_builder = FastChunkBuilder()
 
     def add_message(self, channel_id: int, log_time: int, data, publish_time: int, sequence: int = 0):
+        if not self.fast:
+            return super().add_message(channel_id, log_time, data, publish_time, sequence)
         stats = self._Writer__statistics
         if stats.message_count == 0:
             stats.message_start_time = stats.message_end_time = log_time
