@@ -39,6 +39,14 @@ _MESSAGE_FIELDS = _MESSAGE_HEAD.size - 9      # the 22 bytes before the data
 _INDEX_HEAD = struct.Struct("<BQHI")
 
 
+def _span(count: int, start: int, end: int, log_time: int) -> tuple[int, int]:
+    """(start, end) log times after one more message (``count`` before it); as mcap's
+    ``min``/``max`` updates, with the first message setting both."""
+    if count == 0:
+        return log_time, log_time
+    return (log_time if log_time < start else start), (log_time if log_time > end else end)
+
+
 class _FastMessageIndex(MessageIndex):
     """A MessageIndex record whose (timestamp, offset) pairs are packed in one call."""
 
@@ -94,12 +102,8 @@ class FastChunkBuilder:
         if index is None:
             index = self.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
         index.records.append((log_time, offset))
-        if self.num_messages == 0:
-            self.message_start_time = self.message_end_time = log_time
-        elif log_time < self.message_start_time:
-            self.message_start_time = log_time
-        elif log_time > self.message_end_time:
-            self.message_end_time = log_time
+        self.message_start_time, self.message_end_time = _span(
+            self.num_messages, self.message_start_time, self.message_end_time, log_time)
         self.num_messages += 1
 
     def add_message(self, message) -> None:
@@ -132,12 +136,8 @@ class FastWriter(Writer):
         if not self.fast:
             return super().add_message(channel_id, log_time, data, publish_time, sequence)
         stats = self._Writer__statistics
-        if stats.message_count == 0:
-            stats.message_start_time = stats.message_end_time = log_time
-        elif log_time < stats.message_start_time:
-            stats.message_start_time = log_time
-        elif log_time > stats.message_end_time:
-            stats.message_end_time = log_time
+        stats.message_start_time, stats.message_end_time = _span(
+            stats.message_count, stats.message_start_time, stats.message_end_time, log_time)
         stats.channel_message_counts[channel_id] += 1
         stats.message_count += 1
         chunk = self._Writer__chunk_builder
