@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-import sys
+import importlib.util
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import hoststat  # noqa: E402
+# loaded by path: benchmarks/ on sys.path would shadow names such as `controller`
+_SPEC = importlib.util.spec_from_file_location(
+    "pkm_benchmarks_hoststat", Path(__file__).resolve().parents[1] / "benchmarks" / "hoststat.py")
+hoststat = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(hoststat)
 
 
 def test_steal_is_the_share_of_all_cpu_time_between_enter_and_exit(monkeypatch):

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from pkm_bringup.mcap_writer import FastWriter
 
@@ -71,3 +71,5 @@ def test_without_the_private_attributes_it_falls_back_to_the_stock_path(monkeypa
 def test_it_refuses_to_write_without_chunks():
     with pytest.raises(ValueError, match="use_chunking"):
         FastWriter(io.BytesIO(), use_chunking=False)
+    with pytest.raises(ValueError, match="use_chunking"):     # the same, positional
+        FastWriter(io.BytesIO(), 1024, CompressionType.NONE, IndexType.ALL, True, True, False)

@@ -83,6 +83,8 @@ def test_in_process_run_completes_and_loses_nothing(in_process_run):
                                        "/pkm/metrology/struts", "/pkm/metrology/pose", "/pkm/controller/reference",
                                        "/clock"}
     assert recorder["tap_errors"] == 0 and not any("_recorder" in t for t in recorder["recorded"])
+    # one process: the taps hand their records over as lists (NodeTap.sink), no batch message
+    assert recorder["tap_lists"] > 0 and recorder["tap_batches"] == 0
     m = run["metrics"]
     assert m["messages"]["lost_total"] == 0
     assert not m["controller"]["tripped"]
@@ -185,6 +187,8 @@ def test_processes_compute_the_same_run_as_in_process(in_process_run, tmp_path):
     run = run_scenario(load_scenario("mom3_square", SHORT), proc_dir, in_process=False, progress=False)
     assert run["status"] == "completed", run["error"]
     assert run["lost"] and all(v == 0 for v in run["lost"].values()), run["lost"]
+    recorder = run["summaries"]["recorder"]
+    assert recorder["tap_batches"] > 0 and recorder["tap_lists"] == 0     # processes: batch messages
     a, b = _commands(run_dir), _commands(proc_dir)
     assert len(a) == 801 and a == b
     assert not _leftovers(proc_dir)

@@ -140,7 +140,7 @@ def test_translational_machine_pose():
 def test_machine_pose_components_are_the_tool_pose_as_message_fields(planar, x):
     position, orientation = machine_pose_components(planar, x)
     p, r = machine_to_tool_pose('planar' if planar else 'translational', x)
-    assert np.allclose(position, p, atol=0.0)
+    assert tuple(position) == tuple(p)
     assert np.allclose(Rotation.from_quat(orientation).as_matrix(), r, atol=1e-12)
     assert all(type(v) is float for v in (*position, *orientation))
 

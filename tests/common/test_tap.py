@@ -109,17 +109,25 @@ def test_a_node_tap_with_a_sink_hands_its_records_over_without_a_message():
     node = Node("tap_sink_test", context=context)
     try:
         tap = NodeTap(node, True)
-        received = []
+        received, batches = [], []
         tap.sink = received.append
+        tap.publisher = type("Publisher", (), {"publish": lambda self, batch: batches.append(batch)})()
         raw = tap.wrap(node.create_publisher(JointState, "y", STREAM_PUBLISHER_QOS), JointState)
         data = b"\x00\x01\x00\x00" + bytes(40)
         raw.publish(data)
         raw.publish(data)
         tap.flush()
         tap.close()                                                 # nothing new: no second list
-        assert tap.batches == 1
+        assert tap.batches == 1 and batches == []                   # handed over, no message
         assert [[(t, m, d) for t, m, _, d in r] for r in received] == [
             [("/y", "sensor_msgs/msg/JointState", data)] * 2]
+        raw.publish(data)
+        tap.sink = lambda records: False                           # the recorder is gone
+        tap.flush()
+        raw.publish(data)
+        tap.sink = lambda records: 1 / 0                           # the recorder fails
+        tap.flush()
+        assert (tap.batches, tap.dropped, batches) == (1, 2, [])
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)

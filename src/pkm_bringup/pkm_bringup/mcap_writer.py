@@ -19,7 +19,8 @@ It reaches into the writer's private attributes (``_Writer__...``); mcap is pinn
 requirements.txt, and tests/bringup/test_mcap_writer.py compares the output with the
 stock writer byte for byte, so an mcap upgrade that changes them fails there first.
 With an mcap whose Writer lacks one of them (another install), it falls back to the
-stock path: slower, never wrong.
+stock path. An mcap that kept the names but changed what they mean would not be
+noticed here: only the byte-identical test would show it.
 """
 
 from __future__ import annotations
@@ -128,6 +129,8 @@ class FastWriter(Writer):
         if kwargs.get("use_chunking", True) is False:
             raise ValueError("FastWriter writes chunks: use_chunking must be True")
         super().__init__(*args, **kwargs)
+        if getattr(self, "_Writer__chunk_builder", True) is None:        # use_chunking=False, positional
+            raise ValueError("FastWriter writes chunks: use_chunking must be True")
         self.fast = all(hasattr(self, name) for name in self.PRIVATE)
         if self.fast:
             self._Writer__chunk_builder = FastChunkBuilder()

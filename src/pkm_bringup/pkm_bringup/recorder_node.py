@@ -127,6 +127,8 @@ class RecorderNode(Node):
         self.steps = {}            # topic -> messages with a new stamp (repeats of a stamp not counted)
         self.last_stamp = {}
         self.tap_errors = 0
+        self.tap_batches = 0                 # tap batches received as messages
+        self.tap_lists = 0                   # ... handed over in the same process (NodeTap.sink)
         if self.tapped:
             self.tap_subscription = self.create_subscription(
                 UInt8MultiArray, self.tap_topic, self.on_tap, subscription_qos([TAP_QOS], self.depth), raw=True)
@@ -203,14 +205,20 @@ class RecorderNode(Node):
             self.tap_errors += 1
             self.get_logger().error(str(exc))
             return
-        self.write_records(records)
+        self.tap_batches += 1
+        self._write_tapped(records)
 
-    def write_records(self, records) -> None:
-        """Record tap records (topic, type, publish time ns, CDR bytes): from a batch
-        message, or handed over by a node in the same process (NodeTap.sink)."""
-        if self.writer is None:              # destroyed: the loss shows in the counts
-            return
-        channels, count, batch = self.channels, self._count, []
+    def write_records(self, records) -> bool:
+        """Record tap records (topic, type, publish time ns, CDR bytes) handed over by a
+        node in the same process (NodeTap.sink); False once the recorder is destroyed."""
+        if self.writer is None:
+            return False
+        self.tap_lists += 1
+        self._write_tapped(records)
+        return True
+
+    def _write_tapped(self, records) -> None:
+        channels, batch, counted = self.channels, [], []
         for name, msgtype, time_ns, data in records:
             channel = channels.get(name)
             if channel is None and self.topics and name not in self.topics:
@@ -221,8 +229,16 @@ class RecorderNode(Node):
                     continue
                 self.subscriptions_by_topic.setdefault(name, TAPPED)
             batch.append((channel, time_ns, data))
+            counted.append((name, data))
+        try:
+            self.writer.write_batch(batch)
+        except ValueError as exc:          # a bad record: those before it are written, none counted
+            self.tap_errors += 1
+            self.get_logger().error(f"tap records refused: {exc}")
+            return
+        count = self._count
+        for name, data in counted:
             count(name, data)
-        self.writer.write_batch(batch)
 
     def destroy_node(self):
         if self.writer is not None:
@@ -230,7 +246,8 @@ class RecorderNode(Node):
             if self.summary_path:
                 with open(self.summary_path, "w", encoding="utf-8") as fh:
                     json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps,
-                               "tapped": sorted(self.tapped), "tap_errors": self.tap_errors}, fh, indent=2)
+                               "tapped": sorted(self.tapped), "tap_errors": self.tap_errors,
+                               "tap_batches": self.tap_batches, "tap_lists": self.tap_lists}, fh, indent=2)
             self.writer = None
         return super().destroy_node()
 

@@ -191,9 +191,9 @@ def machine_to_tool_pose(kind: str, x) -> tuple[np.ndarray, np.ndarray]:
 
 
 def machine_pose_components(planar: bool, x) -> tuple[tuple, tuple]:
-    """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as floats for
-    a PoseStamped: the per-step form of :func:`machine_to_tool_pose`, without its
-    checks. planar (x, y, theta) -> ((x, y, 0), yaw theta about z); translational p ->
+    """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as numbers
+    for a PoseStamped (floats, or the input's numpy scalars): the per-step form of
+    :func:`machine_to_tool_pose`, without its checks. planar (x, y, theta) -> ((x, y, 0), yaw theta about z); translational p ->
     (p, identity)."""
     if planar:
         half = 0.5 * x[2]

@@ -7,7 +7,8 @@ context goes down). Disabled,
 ``wrap`` returns the publisher itself: nothing is added to the loop.
 
 ``sink``: a recorder in the same process (the orchestrator's in-process mode) sets it
-to its ``write_records``; the batches then go to it as lists, without a message
+to its ``write_records`` (False: not recorded, counted as ``dropped`` like a batch
+that cannot be published); the batches then go to it as lists, without a message
 (no serialising, publishing, taking and parsing of ~20 kB every 50 ms per node, on
 the loop's own thread). The tap publisher still exists: the recorder's readiness check
 looks for it.
@@ -48,9 +49,16 @@ class NodeTap:
             return
         if self.sink is not None:
             records = self.tap.take_records()
-            if records:
-                self.sink(records)
+            if not records:
+                return
+            try:
+                delivered = self.sink(records) is not False      # False: the recorder is gone
+            except Exception:              # noqa: BLE001 - never raised into the loop or the teardown
+                delivered = False
+            if delivered:
                 self.batches += 1
+            else:
+                self.dropped += 1
             return
         batch = self.tap.take_batch()
         if batch is None:
