@@ -17,6 +17,7 @@ __all__ = ["StampPairing"]
 
 KEEP_READINGS_NS = 100_000_000      # readings no state asked for: the last 0.1 s are kept
 PRUNE_ABOVE = 8                     # ... once more than this many are held
+OWN_STALL_S = 0.1                   # a watchdog check this late means this process was stalled
 
 
 class StampPairing:
@@ -34,6 +35,7 @@ class StampPairing:
         self.pending = None            # the state (with .stamp_ns) waiting for its reading
         self.last_answered_ns: int | None = None
         self.last_state_wall: float | None = None
+        self.last_check_wall: float | None = None
 
     def reset_watchdog(self) -> None:
         """Disarm the watchdog until the next state (activation)."""
@@ -78,9 +80,19 @@ class StampPairing:
         """Why the machine must stop at ``now_s``, or None: a pending state whose reading
         has not come within ``reading_timeout_s``, or no drive state for
         ``state_timeout_s``. Silent before the first state (the plant only repeats
-        step 0 for discovery until the run starts)."""
+        step 0 for discovery until the run starts).
+
+        Call it periodically. A call more than ``OWN_STALL_S`` after the previous one
+        means this process itself did not run (its executor busy with another node's
+        work, or the host stalled it): the states may be waiting in its queue, so that
+        gap is not counted as the plant's silence; the silence before and after it is.
+        (A test graph in one executor tripped while the trajectory node planned for
+        0.6 s.) Repeated stalls therefore delay a trip, never prevent it."""
+        last_check, self.last_check_wall = self.last_check_wall, now_s
         if self.last_state_wall is None:
             return None
+        if last_check is not None and now_s - last_check > OWN_STALL_S:
+            self.last_state_wall = min(now_s, self.last_state_wall + (now_s - last_check))
         silent = now_s - self.last_state_wall
         if self.pending is not None:
             if silent > reading_timeout_s:
