@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pkm_kinematics.distribution import _rows_array, gram_rows, least_squares_rows, project_rows
-from pkm_kinematics.gough import _jacobian_kernel
+from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
@@ -206,13 +206,8 @@ _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 def _desired_lengths_and_jacobian(legs, p_des, r_des, p_at, r_at):
     """l_des = IKM_GP at the desired plate pose (MoM3 §5.2: l_i = |p + R b_i - A_i|,
     nominal geometry) and J_h at the estimated one (eq. 1-3). ``legs`` rows (A_i, b_i)."""
-    l_des = np.empty(6)
-    for i in range(6):
-        ax, ay, az, bx, by, bz = legs[i, 0], legs[i, 1], legs[i, 2], legs[i, 3], legs[i, 4], legs[i, 5]
-        lx = p_des[0] + r_des[0] * bx + r_des[1] * by + r_des[2] * bz - ax
-        ly = p_des[1] + r_des[3] * bx + r_des[4] * by + r_des[5] * bz - ay
-        lz = p_des[2] + r_des[6] * bx + r_des[7] * by + r_des[8] * bz - az
-        l_des[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
+    l_des = strut_lengths_kernel(legs, p_des[0], p_des[1], p_des[2], r_des[0], r_des[1], r_des[2], r_des[3],
+                                 r_des[4], r_des[5], r_des[6], r_des[7], r_des[8])
     j_h = _jacobian_kernel(legs, p_at[0], p_at[1], p_at[2], r_at[0], r_at[1], r_at[2], r_at[3], r_at[4],
                            r_at[5], r_at[6], r_at[7], r_at[8])
     return l_des, j_h

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
-from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
+from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, strut_lengths_kernel
 from pkm_kinematics.rotations import mul3
 from pkm_kinematics.validation import finite_floats
 
@@ -81,20 +81,6 @@ def rotation_floats(value, name: str) -> tuple:
     if err > ROTATION_TOL or det <= 0.0:
         raise ValueError(f'{name}: not a rotation matrix (|R^T R - I| = {err:.3g}, det = {det:.6g})')
     return flat
-
-
-def strut_lengths_floats(legs, p, r) -> list:
-    """MoM3 §5.2 IKM_GP on floats: l_i = |p + R b_i - A_i| for ``legs`` given as
-    (A_x, A_y, A_z, b_x, b_y, b_z) tuples, p 3 floats, R a row-major 9-tuple."""
-    px, py, pz = p
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-    out = []
-    for ax, ay, az, bx, by, bz in legs:
-        lx = px + r00 * bx + r01 * by + r02 * bz - ax
-        ly = py + r10 * bx + r11 * by + r12 * bz - ay
-        lz = pz + r20 * bx + r21 * by + r22 * bz - az
-        out.append(math.sqrt(lx * lx + ly * ly + lz * lz))
-    return out
 
 
 class GoughSensorModel:
@@ -153,7 +139,7 @@ class GoughSensorModel:
             metrology.base_rotation).T
         plate_t = np.asarray(metrology.plate_position_in_tool) + self.true_platform.plate_points @ np.asarray(
             metrology.plate_rotation_in_tool).T
-        self._true_legs = [tuple(a) + tuple(b) for a, b in zip(base_w.tolist(), plate_t.tolist())]
+        self._true_legs = np.hstack([base_w, plate_t])
 
         # DKM tolerance: 1/1000 of the resolution. The strut residual then adds at most
         # 0.1 % to the quantisation error (|dl_i| <= res/2 + tol), and a warm-started
@@ -198,7 +184,7 @@ class GoughSensorModel:
 
     def _true_lengths(self, p_t, r_t) -> list:
         # A_i in world, b_i in the tool frame: no mounting transform per reading
-        return strut_lengths_floats(self._true_legs, p_t, r_t)
+        return strut_lengths_kernel(self._true_legs, p_t[0], p_t[1], p_t[2], *r_t).tolist()
 
     def measure(self, tool_position, tool_rotation) -> np.ndarray:
         """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),

@@ -81,6 +81,20 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
 
 
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
+def strut_lengths_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """IKM_GP (MoM3 §5.2): l_i = |p + R b_i - A_i| for ``legs`` rows (A_i, b_i), (n, 6),
+    at the pose (p, R row-major); the per-reading form of :meth:`GoughPlatform.strut_lengths`."""
+    out = np.empty(legs.shape[0])
+    for i in range(legs.shape[0]):
+        ax, ay, az, bx, by, bz = legs[i, 0], legs[i, 1], legs[i, 2], legs[i, 3], legs[i, 4], legs[i, 5]
+        lx = px + r00 * bx + r01 * by + r02 * bz - ax
+        ly = py + r10 * bx + r11 * by + r12 * bz - ay
+        lz = pz + r20 * bx + r21 * by + r22 * bz - az
+        out[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
+    return out
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
 def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """J_h = (J_h^-1)^-1 (MoM3 eq. 1) at the plate pose (p, R), J_h^-1 with rows
     [u_i, (R b_i) x u_i] (eq. 2-3); ``legs`` rows (A_i, b_i). Raises

@@ -165,6 +165,8 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         # When the drives disagree (model error) Gauss-Newton alone converges only
         # linearly (~0.9 per step); the exact Hessian restores quadratic convergence.
         # It is accumulated only then, inside the basin (see NEWTON_RADIUS).
+        # J^T J, J^T f and the Hessian term in one pass over the legs, each row made
+        # on the fly (distribution.gram_rows would need the rows as an array first)
         a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
         h00 = h01 = h02 = h11 = h12 = h22 = 0.0
         misfit = 0.0
