@@ -4,7 +4,7 @@
    space + inf-norm) as five processes, with and without the recorder, alternated
    ``--repeats`` times: lockstep rate (sim_hw steps per wall second) and the recording
    cost as a fraction of the loop period, and the same in one process.
-2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, zstd chunks), and
+2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, zstd chunks: BagWriter's default), and
    the recorder node end to end in the runs above (messages recorded per wall second).
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0]

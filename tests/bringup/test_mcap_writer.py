@@ -18,20 +18,30 @@ _message = st.tuples(st.just("msg"), st.integers(1, 3), st.integers(0, 2**40), s
 _calls = st.lists(st.one_of(_message, st.just(("flush",))), max_size=120)
 
 
-def _record(writer_class, calls, chunk_size, compression, data_kind=bytes) -> bytes:
+def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batched=False) -> bytes:
+    """The bytes of a recording; ``batched``: the messages between two flushes go to
+    ``add_messages`` in one call."""
     out = io.BytesIO()
     writer = writer_class(out, chunk_size=chunk_size, compression=compression)
     writer.start(profile="ros2", library="test")
     schema = writer.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
     for topic in ("/a", "/b", "/c"):
         writer.register_channel(topic, "cdr", schema, {"offered_qos_profiles": ""})
-    for call in calls:
+    batch = []
+    for call in calls + [("flush",)]:
         if call[0] == "flush":
+            if batch:
+                writer.add_messages(batch)
+                batch = []
             writer.flush()
             continue
         _, channel, log_time, size, publish_offset, sequence = call
         data = bytes((log_time + i) & 0xFF for i in range(size))
-        writer.add_message(channel, log_time, data_kind(data), log_time + publish_offset, sequence)
+        message = (channel, log_time, data_kind(data), log_time + publish_offset, sequence)
+        if batched:
+            batch.append(message)
+        else:
+            writer.add_message(*message)
     writer.finish()
     return out.getvalue()
 
@@ -44,6 +54,7 @@ def test_the_same_calls_give_the_same_bytes_as_mcaps_writer(calls, chunk_size, c
     expected = _record(Writer, calls, chunk_size, compression)
     assert _record(FastWriter, calls, chunk_size, compression) == expected
     assert _record(FastWriter, calls, chunk_size, compression, data_kind=memoryview) == expected
+    assert _record(FastWriter, calls, chunk_size, compression, batched=True) == expected
 
 
 def test_what_it_writes_reads_back_in_order_with_the_summary():
@@ -66,6 +77,7 @@ def test_without_the_private_attributes_it_falls_back_to_the_stock_path(monkeypa
     monkeypatch.setattr(FastWriter, "PRIVATE", FastWriter.PRIVATE + ("_Writer__renamed_in_a_later_mcap",))
     assert not FastWriter(io.BytesIO()).fast
     assert _record(FastWriter, calls, 500, CompressionType.ZSTD) == expected
+    assert _record(FastWriter, calls, 500, CompressionType.ZSTD, batched=True) == expected
 
 
 def test_it_refuses_to_write_without_chunks():

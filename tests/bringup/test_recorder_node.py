@@ -1,10 +1,16 @@
-"""recorder_node in a test process: discovery pace and the in-process tap hand-over."""
+"""recorder_node in a test process: discovery pace, the in-process tap hand-over and
+the chunk compression."""
 
 from __future__ import annotations
 
+import pytest
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 from rclpy.parameter import Parameter
+from rosbags.highlevel import AnyReader
 
 from pkm_bringup.recorder_node import RecorderNode
+from pkm_common.params import ParameterError
 
 
 def _recorder(ctx, tmp_path, name, **params):
@@ -32,3 +38,28 @@ def test_records_handed_over_are_written_and_refused_once_destroyed(ros_context,
     finally:
         node.destroy_node()
     assert node.write_records([("/clock", "rosgraph_msgs/msg/Clock", 8_000_000_000, clock)]) is False
+
+
+def _chunk_compressions(bag_dir) -> set:
+    with open(next(bag_dir.glob("*.mcap")), "rb") as fh:
+        return {r.compression for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, Chunk)}
+
+
+@pytest.mark.parametrize("compression", [None, "zstd", "none"])
+def test_chunks_are_lz4_unless_another_compression_is_asked_for(ros_context, tmp_path, compression):
+    params = {} if compression is None else {"compression": compression}
+    node = _recorder(ros_context, tmp_path, "d", **params)
+    clock = [b"\x00\x01\x00\x00" + k.to_bytes(4, "little") + (0).to_bytes(4, "little") for k in range(50)]
+    try:
+        node.write_records([("/clock", "rosgraph_msgs/msg/Clock", k * 10**9, c) for k, c in enumerate(clock)])
+    finally:
+        node.destroy_node()
+    assert _chunk_compressions(tmp_path / "d") == {{None: "lz4", "zstd": "zstd", "none": ""}[compression]}
+    with AnyReader([tmp_path / "d"]) as reader:                  # rosbags reads it back, byte for byte
+        assert [(t, bytes(raw)) for _, t, raw in reader.messages()] == [(k * 10**9, c) for k, c in enumerate(clock)]
+
+
+def test_an_unknown_compression_is_refused_by_name(ros_context, tmp_path):
+    with pytest.raises(ParameterError, match="compression.*lz4"):
+        _recorder(ros_context, tmp_path, "e", compression="bz2")
+    assert not (tmp_path / "e").exists()

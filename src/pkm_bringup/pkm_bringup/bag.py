@@ -511,8 +511,9 @@ class BagWriter:
         of it is written (the records before it are)."""
         with self._lock:
             topics = self._topics
-            add = self._writer.add_message
             start, end = self._start, self._end
+            messages = []
+            add = messages.append
             try:
                 for channel_id, time_ns, data in records:
                     if type(time_ns) is not int:
@@ -527,7 +528,7 @@ class BagWriter:
                         raise ValueError(f"write to unknown channel id {channel_id!r} "
                                          f"(known: {sorted(topics)}); call add_topic() first")
                     t.seq = seq = (t.seq + 1) & 0xFFFFFFFF
-                    add(channel_id, time_ns, data, time_ns, seq)
+                    add((channel_id, time_ns, data, time_ns, seq))
                     t.count += 1
                     if start is None:
                         start = end = time_ns
@@ -536,6 +537,7 @@ class BagWriter:
                     elif time_ns < start:
                         start = time_ns
             finally:
+                self._writer.add_messages(messages)            # FastWriter: one call for the batch
                 self._start, self._end = start, end
 
     @property

@@ -10,9 +10,10 @@ loop's thread, so that cost is on the loop's period.
 ``FastWriter`` is ``mcap.writer.Writer`` (header, schemas, channels, chunk compression,
 chunk indexes, statistics, summary, footer: all unchanged) with two parts replaced:
 
-* :class:`FastChunkBuilder` packs each Message record (opcode 0x05, u64 length, u16
-  channel id, u32 sequence, u64 log time, u64 publish time, data; MCAP spec) with one
-  ``struct.pack`` into a ``bytearray``;
+* each Message record (opcode 0x05, u64 length, u16 channel id, u32 sequence, u64
+  log time, u64 publish time, data; MCAP spec) is packed with one ``struct.pack`` into
+  the ``bytearray`` of a :class:`FastChunkBuilder`, a batch of them in one call
+  (``add_messages``);
 * its message indexes write their (log time, offset) pairs with one ``struct.pack``.
 
 It reaches into the writer's private attributes (``_Writer__...``); mcap is pinned in
@@ -61,8 +62,9 @@ class _FastMessageIndex(MessageIndex):
 
 
 class FastChunkBuilder:
-    """Drop-in for ``mcap._chunk_builder.ChunkBuilder`` (the attributes and methods
-    the Writer uses) with a one-pack message path."""
+    """Stands in for ``mcap._chunk_builder.ChunkBuilder`` (the attributes and methods
+    the Writer uses once ``add_message`` is FastWriter's): a ``bytearray`` that
+    :meth:`FastWriter.add_messages` packs the Message records into."""
 
     def __init__(self) -> None:
         self._buffer = bytearray()
@@ -91,26 +93,6 @@ class FastChunkBuilder:
     def add_schema(self, schema: Schema) -> None:
         self._add_record(schema)
 
-    def add_message_fields(self, channel_id: int, log_time: int, data, publish_time: int,
-                           sequence: int) -> None:
-        buffer = self._buffer
-        offset = len(buffer)
-        size = len(data) if type(data) is bytes else memoryview(data).nbytes
-        buffer += _MESSAGE_HEAD.pack(Opcode.MESSAGE, _MESSAGE_FIELDS + size, channel_id, sequence,
-                                     log_time, publish_time)
-        buffer += data
-        index = self.message_indices.get(channel_id)
-        if index is None:
-            index = self.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
-        index.records.append((log_time, offset))
-        self.message_start_time, self.message_end_time = _span(
-            self.num_messages, self.message_start_time, self.message_end_time, log_time)
-        self.num_messages += 1
-
-    def add_message(self, message) -> None:
-        self.add_message_fields(message.channel_id, message.log_time, message.data,
-                                message.publish_time, message.sequence)
-
     def reset(self) -> None:
         self._buffer = bytearray()
         self.message_indices = {}
@@ -138,12 +120,40 @@ class FastWriter(Writer):
     def add_message(self, channel_id: int, log_time: int, data, publish_time: int, sequence: int = 0):
         if not self.fast:
             return super().add_message(channel_id, log_time, data, publish_time, sequence)
+        self.add_messages(((channel_id, log_time, data, publish_time, sequence),))
+
+    def add_messages(self, messages) -> None:
+        """``add_message(*m)`` for each m = (channel id, log time, data, publish time,
+        sequence) of ``messages``, in order, and the same bytes; one call for a batch
+        (the recorder's tap batches: ~1.4 instead of ~2.5 us a message)."""
+        if not self.fast:
+            for message in messages:
+                super().add_message(*message)
+            return
         stats = self._Writer__statistics
-        stats.message_start_time, stats.message_end_time = _span(
-            stats.message_count, stats.message_start_time, stats.message_end_time, log_time)
-        stats.channel_message_counts[channel_id] += 1
-        stats.message_count += 1
+        counts, limit = stats.channel_message_counts, self._Writer__chunk_size
         chunk = self._Writer__chunk_builder
-        chunk.add_message_fields(channel_id, log_time, data, publish_time, sequence)
-        if chunk.count > self._Writer__chunk_size:
-            self._Writer__finalize_chunk()
+        pack, opcode = _MESSAGE_HEAD.pack, Opcode.MESSAGE
+        n, start, end = stats.message_count, stats.message_start_time, stats.message_end_time
+        try:
+            for channel_id, log_time, data, publish_time, sequence in messages:
+                start, end = _span(n, start, end, log_time)
+                n += 1
+                counts[channel_id] += 1
+                buffer = chunk._buffer
+                offset = len(buffer)
+                size = len(data) if type(data) is bytes else memoryview(data).nbytes
+                buffer += pack(opcode, _MESSAGE_FIELDS + size, channel_id, sequence, log_time, publish_time)
+                buffer += data
+                index = chunk.message_indices.get(channel_id)
+                if index is None:
+                    index = chunk.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
+                index.records.append((log_time, offset))
+                chunk.message_start_time, chunk.message_end_time = _span(
+                    chunk.num_messages, chunk.message_start_time, chunk.message_end_time, log_time)
+                chunk.num_messages += 1
+                if len(buffer) > limit:
+                    stats.message_count, stats.message_start_time, stats.message_end_time = n, start, end
+                    self._Writer__finalize_chunk()
+        finally:
+            stats.message_count, stats.message_start_time, stats.message_end_time = n, start, end

@@ -27,6 +27,11 @@ Readiness: once every topic of ``expect_topics`` is subscribed and matched with 
 least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
 orchestrator starts the run only then, so that nothing of it is missed.
 
+Chunks are compressed with lz4 by default (``compression``): on archi_demo's records
+it compresses ~4x faster than zstd's default level for 2.5x instead of 3.3x smaller
+chunks, and in one process that work is on the loop's thread. rosbag2, rosbags and
+mcap read both.
+
 The bag is flushed every ``flush_period_s`` (completed chunks reach the OS: a kill -9
 loses at most the open chunk, see bag.recover) and finalized (summary, metadata.yaml)
 when the node is destroyed: normal end, SIGINT and SIGTERM alike (runner.run_node).
@@ -115,13 +120,15 @@ class RecorderNode(Node):
         priority = declare_str(self, "cpu_priority", "normal", "idle: the whole process (DDS threads "
                                "included) runs only on CPU time the loop leaves (SCHED_IDLE); only for a "
                                "recorder in its own process", choices=("normal", "idle"))
+        compression = declare_str(self, "compression", "lz4", "chunk compression: lz4 (~4x faster than "
+                                  "zstd, files ~1.3x larger), zstd or none", choices=("lz4", "zstd", "none"))
         if priority == "idle":
             self.get_logger().info(f"SCHED_IDLE for {lower_cpu_priority()} threads")
         self.topics = {self.resolve(t) for t in topics.split(",") if t.strip()}
         self.expect = {self.resolve(t) for t in expect.split(",") if t.strip()}
         self.tapped = {self.resolve(t) for t in tapped.split(",") if t.strip()}
         self.tap_topic = self.resolve(TAP_TOPIC)
-        self.writer = BagWriter(output)
+        self.writer = BagWriter(output, compression=compression)
         self.subscriptions_by_topic = {}     # topic -> subscription, TAPPED, or None (not recordable)
         self.channels = {}                   # topic -> channel id
         self.steps = {}            # topic -> messages with a new stamp (repeats of a stamp not counted)
