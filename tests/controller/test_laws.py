@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.rotations import exp_so3
-from pkm_controller.laws import (Gains, SensorSpaceFeedback, gram_condition, least_squares_velocity, pose_error,
+from pkm_controller.laws import (Gains, SensorSpaceFeedback, gram_condition, pose_error,
                                  project_to_range, tool_pose_floats, wrap_angle)
 from pkm_controller.reference import Reference, unwrap_angles
 
@@ -41,12 +41,6 @@ def test_projection_keeps_the_wrench_and_removes_the_internal_force():
     null = np.linalg.svd(jac.T)[2][-1]
     assert abs(null @ n) < 1e-9
     assert abs(null @ np.array(n_d)) > 100.0          # there was fighting to remove
-
-
-def test_least_squares_velocity_inverts_consistent_drive_velocities():
-    pose, twist = [1.1, -0.35, 1.2], [0.2, -0.1, 0.7]
-    _, rows, qdot, _ = ARCHI.model.velocity_terms(pose, twist)
-    np.testing.assert_allclose(least_squares_velocity(rows, qdot), twist, atol=1e-12)
 
 
 def test_angle_helpers():

@@ -7,6 +7,7 @@ from scipy.integrate import solve_ivp
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import min_two_norm
 from pkm_kinematics.dynamics import DynamicModel, DynamicsParameters
+from pkm_kinematics.errors import UnreachablePoseError
 
 CASES = {"archi": ([1.0, -0.4, 0.7], [0.3, -0.2, 1.5]),
          "sliding_star": ([0.05, 0.02, 0.1], [0.2, 0.1, -0.4]),
@@ -73,3 +74,45 @@ def test_inverse_dynamics_inverts_forward_dynamics(name):
     e_plus = fric.energy([xi + h * vi for xi, vi in zip(x, v)], [vi + h * ai for vi, ai in zip(v, a)])
     qdot = fric.machine.jacobian(x) @ v
     assert (e_plus - e_minus) / (2 * h) == pytest.approx(-np.dot(fric.params.friction_ns_per_m, qdot**2), rel=1e-6)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_velocity_terms_against_the_jacobian_and_its_finite_difference(name):
+    """q, J_m, qdot = J_m v and Jdot_m v of the compiled velocity terms against the numpy
+    IKM and Jacobian, and Jdot_m v against a central difference of J_m(x + t v) v."""
+    machine = model(name).machine
+    x, v = CASES[name]
+    q, rows, qdot, bias = machine.velocity_terms(x, v)
+    jac = machine.jacobian(x)
+    np.testing.assert_allclose(q, machine.inverse_kinematics(x, check_limits=False), atol=1e-12)
+    np.testing.assert_allclose(rows, jac, atol=1e-12)
+    np.testing.assert_allclose(qdot, jac @ v, atol=1e-12)
+    h = 1e-6
+    jdot_v = (machine.jacobian(np.add(x, np.multiply(h, v))) - machine.jacobian(np.subtract(x, np.multiply(h, v)))) \
+        @ v / (2 * h)
+    np.testing.assert_allclose(bias, jdot_v, rtol=1e-6, atol=1e-8)
+    assert np.abs(bias).max() > 1e-3                    # the test velocity does make a Jdot term
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_measured_state_is_the_least_squares_velocity_and_the_model_there(name):
+    dyn = model(name)
+    x, v = CASES[name]
+    jac = dyn.machine.jacobian(x)
+    rng = np.random.default_rng(3)
+    qdot = jac @ v + (0.0 if jac.shape[0] == 3 else 1e-3 * rng.standard_normal(jac.shape[0]))
+    a, h, rows, v_ls = dyn.measured_state(x, qdot.tolist())
+    np.testing.assert_allclose(rows, jac, atol=1e-12)
+    np.testing.assert_allclose(v_ls, np.linalg.lstsq(jac, qdot, rcond=None)[0], atol=1e-12)
+    if jac.shape[0] == 3:
+        np.testing.assert_allclose(v_ls, v, atol=1e-12)     # consistent: the velocity itself
+    a_ref, h_ref, _, _, _ = dyn.terms(x, v_ls)
+    np.testing.assert_allclose(a, a_ref, rtol=1e-14)
+    np.testing.assert_allclose(h, h_ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name, far", [("archi", [9.0, 9.0, 0.0]), ("mom3", [5.0, 5.0, 5.0])])
+def test_measured_state_names_the_leg_that_cannot_reach(name, far):
+    dyn = model(name)
+    with pytest.raises(UnreachablePoseError, match=f"unreachable for leg {dyn.machine.leg_names[0]}"):
+        dyn.measured_state(far, [0.0] * dyn.machine.n_legs)

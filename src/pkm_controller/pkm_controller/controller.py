@@ -48,14 +48,13 @@ from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.planar import PlanarMachine
 
 from .laws import (Gains, SensorSpaceFeedback, cartesian_pid, computed_torque, gram_condition, joint_pid,
-                   least_squares_velocity, pose_error, project_to_range, tool_pose_floats, velocity_cascade)
+                   pose_error, project_to_range, tool_pose_floats, velocity_cascade)
 from .reference import Reference
 
 STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
               "measured_space")
 JOINT_STRATEGIES = ("joint_pid", "decentralized_projected")
 METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
-MODEL_STRATEGIES = ("computed_torque", "sensor_space", "measured_space")     # use A(x), H(x, v)
 
 
 @dataclass
@@ -399,26 +398,24 @@ class ControllerCore:
                 self.trip(problem)
                 return False
         try:
-            _, rows, _, _ = self.model.velocity_terms(pose, (0.0, 0.0, 0.0))
-            rows_a = np.array(rows)
-            v = least_squares_velocity(rows_a, qdot)
+            # J_m, v = J_m^+ qdot, and A(x), H(x, v) for the model-based strategies: one compiled call
+            a_model, h_model, rows_a, v = self.dynamics.measured_state(pose, qdot)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"kinematics at the measured pose: {exc}")
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
-        self._cycle = _Cycle(t_s, dt, first, q, qdot, pose, rows, active_rows, v)
-        return first or self._prepare_reference(self._cycle)
+        self._cycle = c = _Cycle(t_s, dt, first, q, qdot, pose, rows_a.tolist(), active_rows, v)
+        c.a_model, c.h_model = a_model, h_model
+        return first or self._prepare_reference(c)
 
     def _prepare_reference(self, c: "_Cycle") -> bool:
-        """The reference of the cycle and what the strategy derives from it and the
-        encoder state before the metrology arrives."""
+        """The reference of the cycle and what the strategy derives from it before the
+        metrology arrives (sensor_space: l_des and J_h)."""
         c.x_d, c.v_d, c.a_d = self.reference.sample(c.t_s - self.reference_start_s)
         strategy = self.config.strategy
         try:
             if strategy == "sensor_space":
                 self.metrology.prepare(*tool_pose_floats(c.x_d, self.planar))
-            if strategy in MODEL_STRATEGIES:
-                c.a_model, c.h_model, _, _, _ = self.dynamics.terms(c.pose, c.v)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             self._cycle = None
             self.trip(f"{strategy}: {exc}")

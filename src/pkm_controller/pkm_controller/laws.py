@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _rows_array, gram_rows, least_squares_rows, project_rows
+from pkm_kinematics.distribution import _rows_array, gram_rows, project_rows
 from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
@@ -72,12 +72,6 @@ def pose_error(x_d, x, planar: bool) -> list:
     if planar:
         e[2] = wrap_angle(e[2])
     return e
-
-
-def least_squares_velocity(rows, qdot) -> list:
-    """v = (J^T J)^-1 J^T qdot: the task velocity that best explains the drive
-    velocities (the exact one when they are consistent)."""
-    return least_squares_rows(rows, qdot)
 
 
 def project_to_range(rows, forces) -> list:

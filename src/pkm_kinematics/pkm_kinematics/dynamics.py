@@ -14,7 +14,10 @@ where g_u_i = g . u_i is gravity along rail i and f_n the external wrench on the
 platform. The seed's closing equation mixes the signs of f_n, M_n g and J^T f_d; this
 is the form that conserves energy (tested).
 
-Everything runs on plain floats (3 DOF, 3-6 drives): ~15 us per evaluation.
+Per evaluation: the machine's compiled velocity terms, then A and H in one compiled
+loop over the drives (:func:`_mass_terms_kernel`). ``measured_state`` is what a
+controller needs from its encoders each cycle (J_m, the task velocity that best
+explains the drive velocities, A and H there) in one compiled call.
 """
 
 from __future__ import annotations
@@ -23,7 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import planar, translational
+from .distribution import SINGULAR_GRAM, _least_squares_kernel
+from .errors import DistributionError
+from .jit import kernel
 from .planar import PlanarMachine, _solve3
+
+VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after planar.VT_*)
 
 
 @dataclass(frozen=True)
@@ -61,26 +70,31 @@ class DynamicModel:
         # weight of each carriage along its rail: m_i g . u_i
         self._drive_gravity = tuple(mi * float(np.dot(g, u)) for mi, u in zip(self._md, rails))
         self._rail_origin_gravity = sum(mi * float(np.dot(g, o)) for mi, o in zip(self._md, machine._o))
+        self._mass_args = (np.array(self._md), np.array(self._k), np.array(self._drive_gravity),
+                           *(float(v) for v in self._mn + self._platform_gravity))
 
     def terms(self, x, xdot):
         """(A as 3 rows, H (3,), J_m rows, q, qdot) at the state (x, xdot)."""
-        q, rows, qdot, jdv = self.machine.velocity_terms(x, xdot)
-        a00, a11, a22 = self._mn
-        a01 = a02 = a12 = 0.0
-        h0, h1, h2 = (-g for g in self._platform_gravity)
-        for (j0, j1, j2), mi, ki, qd, b, gi in zip(rows, self._md, self._k, qdot, jdv, self._drive_gravity):
-            a00 += mi * j0 * j0
-            a01 += mi * j0 * j1
-            a02 += mi * j0 * j2
-            a11 += mi * j1 * j1
-            a12 += mi * j1 * j2
-            a22 += mi * j2 * j2
-            c = mi * b + ki * qd - gi          # per-drive force not producing acceleration
-            h0 += j0 * c
-            h1 += j1 * c
-            h2 += j2 * c
-        a = ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22))
-        return a, (h0, h1, h2), rows, q, qdot
+        q, rows, qdot, jdv = self.machine.velocity_terms_arrays(x, xdot)
+        a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qdot, jdv, *self._mass_args)
+        return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows.tolist(), q.tolist(), \
+            qdot.tolist()
+
+    def measured_state(self, x, drive_velocities) -> tuple:
+        """(A as 3 rows, H (3,), J_m as an (n, 3) array, v as 3 floats) at the pose x
+        with the task velocity v = (J_m^T J_m)^-1 J_m^T qdot that best explains the
+        drive velocities (the exact one when they are consistent): what a controller
+        derives from its encoders every cycle, in one compiled call. Raises like
+        ``terms`` (unreachable, serial singularity) and DistributionError when J_m
+        has rank < 3."""
+        qdot = np.array(drive_velocities, dtype=float)
+        rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg = _measured_state_kernel(
+            self.planar, self.machine._legs_a, x[0], x[1], x[2], qdot, *self._mass_args)
+        if code == VT_LEAST_SQUARES_SINGULAR:
+            raise DistributionError(SINGULAR_GRAM)
+        if code != planar.VT_OK:
+            self.machine.raise_velocity_terms_error(code, leg, x)
+        return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, [v0, v1, v2]
 
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
         """xddot from A xddot = J^T f_d + f_n - H."""
@@ -109,3 +123,54 @@ class DynamicModel:
     def static_forces(self, x, wrench=(0.0, 0.0, 0.0)) -> np.ndarray:
         """The platform wrench the drives must produce to hold x still: H(x, 0) - f_n."""
         return self.inverse_dynamics(x, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), wrench)
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64, float64, "
+        "float64, float64, float64)")
+def _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+    """(A_00, A_01, A_02, A_11, A_12, A_22, H_0, H_1, H_2) from J_m (rows), qdot = J_m xdot
+    and Jdot_m xdot: A = J^T M_d J + M_n, H = J^T (M_d Jdot xdot + k qdot - M_d g_u) - M_n g
+    (module docstring; ``pg`` is M_n g, ``dg`` the carriages' weights along their rails)."""
+    a00, a11, a22 = mn0, mn1, mn2
+    a01 = a02 = a12 = 0.0
+    h0, h1, h2 = -pg0, -pg1, -pg2
+    for i in range(rows.shape[0]):
+        j0, j1, j2, mi = rows[i, 0], rows[i, 1], rows[i, 2], md[i]
+        a00 += mi * j0 * j0
+        a01 += mi * j0 * j1
+        a02 += mi * j0 * j2
+        a11 += mi * j1 * j1
+        a12 += mi * j1 * j2
+        a22 += mi * j2 * j2
+        c = mi * jdv[i] + k[i] * qdot[i] - dg[i]        # per-drive force not producing acceleration
+        h0 += j0 * c
+        h1 += j1 * c
+        h2 += j2 * c
+    return a00, a01, a02, a11, a12, a22, h0, h1, h2
+
+
+@kernel()
+def _machine_velocity_terms(planar_machine, legs, x0, x1, x2, v0, v1, v2):
+    """The velocity terms of either machine kind (planar: pose x, y, theta and twist;
+    translational: position and velocity)."""
+    if planar_machine:
+        return planar._velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
+    return translational._velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
+
+
+@kernel("(boolean, float64[:, :], float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "
+        "float64, float64, float64, float64, float64, float64)")
+def _measured_state_kernel(planar_machine, legs, x0, x1, x2, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+    """DynamicModel.measured_state: J_m at x (velocity terms at zero velocity), v by least
+    squares from qdot, then the velocity terms at (x, v) and A, H there. Returns (J_m,
+    v0, v1, v2, A's 6 entries, H, code, leg)."""
+    _, rows, _, _, code, leg = _machine_velocity_terms(planar_machine, legs, x0, x1, x2, 0.0, 0.0, 0.0)
+    if code != planar.VT_OK:
+        return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, code, leg
+    v0, v1, v2, ok = _least_squares_kernel(rows, qdot)
+    if not ok:
+        return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, VT_LEAST_SQUARES_SINGULAR, -1
+    _, rows, qd, jdv, code, leg = _machine_velocity_terms(planar_machine, legs, x0, x1, x2, v0, v1, v2)
+    a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
+                                                                  pg0, pg1, pg2)
+    return rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg

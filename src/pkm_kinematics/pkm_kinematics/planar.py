@@ -484,14 +484,23 @@ class PlanarMachine:
         Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
         Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
         (:func:`_velocity_terms_kernel`)."""
+        q, rows, qdot, bias = self.velocity_terms_arrays(pose, twist)
+        return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
+
+    def velocity_terms_arrays(self, pose, twist) -> tuple:
+        """:meth:`velocity_terms` as arrays (q (n,), J_m (n, 3), qdot, Jdot_m xdot)."""
         q, rows, qdot, bias, code, leg = _velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
                                                                 twist[0], twist[1], twist[2])
+        if code != VT_OK:
+            self.raise_velocity_terms_error(code, leg, pose)
+        return q, rows, qdot, bias
+
+    def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
+        """The exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
         if code == VT_UNREACHABLE:
             raise UnreachablePoseError(f"pose {[float(v) for v in pose]} is unreachable for leg "
                                        f"{self.leg_names[leg]}")
-        if code == VT_SINGULAR:
-            raise SingularityError(f"leg {self.leg_names[leg]} is perpendicular to its rail (serial singularity)")
-        return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
+        raise SingularityError(f"leg {self.leg_names[leg]} is perpendicular to its rail (serial singularity)")
 
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
+from .jit import kernel
+from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE
 from .validation import finite_array, finite_floats
 
 
@@ -33,6 +35,43 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
     out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     return out
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
+def _velocity_terms_kernel(legs, px, py, pz, vx, vy, vz):
+    """(rho, J_m (3, 3), rhodot = J_m pdot, Jdot_m pdot, code, leg) at the position p
+    and velocity v (Orthoglide eq. 3-8): per leg (rows of ``legs``: o, e, L^2, c,
+    sigma) the leg vector a_i = w_i - rho_i e_i, s_i = a_i . e_i, the row a_i / s_i,
+    rhodot_i = a_i . v / s_i, adot_i = v - rhodot_i e_i and
+    (Jdot v)_i = adot_i . v / s_i - (a_i . v)(adot_i . e_i) / s_i^2.
+    ``code`` VT_UNREACHABLE or VT_SINGULAR names ``leg``."""
+    n = legs.shape[0]
+    rho = np.empty(n)
+    rows = np.empty((n, 3))
+    rhodots = np.empty(n)
+    biases = np.empty(n)
+    for k in range(n):
+        ox, oy, oz, ex, ey, ez, l2 = legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4], legs[k, 5], \
+            legs[k, 6]
+        cx, cy, cz, sigma = legs[k, 7], legs[k, 8], legs[k, 9], legs[k, 10]
+        wx, wy, wz = px + cx - ox, py + cy - oy, pz + cz - oz
+        a = wx * ex + wy * ey + wz * ez
+        disc = l2 - (wx * wx + wy * wy + wz * wz) + a * a
+        if not disc >= 0.0:
+            return rho, rows, rhodots, biases, VT_UNREACHABLE, k
+        r = a + sigma * math.sqrt(disc)
+        ax, ay, az = wx - r * ex, wy - r * ey, wz - r * ez
+        sv = ax * ex + ay * ey + az * ez
+        if sv * sv <= 1e-18 * l2:
+            return rho, rows, rhodots, biases, VT_SINGULAR, k
+        av = ax * vx + ay * vy + az * vz
+        rd = av / sv
+        adx, ady, adz = vx - rd * ex, vy - rd * ey, vz - rd * ez
+        rho[k] = r
+        rows[k, 0], rows[k, 1], rows[k, 2] = ax / sv, ay / sv, az / sv
+        rhodots[k] = rd
+        biases[k] = (adx * vx + ady * vy + adz * vz) / sv - av * (adx * ex + ady * ey + adz * ez) / (sv * sv)
+    return rho, rows, rhodots, biases, VT_OK, -1
 
 
 @dataclass(frozen=True)
@@ -78,6 +117,8 @@ class TranslationalMachine:
                         for o, e, l2, c, sg, lo, hi, name in zip(
                             self._o, self._e, self._length2, self._c, self._sigma,
                             self.joint_lower, self.joint_upper, self.leg_names)]
+        # (o, e, L^2, c, sigma) per leg for the compiled velocity terms
+        self._legs_a = np.array([leg[:11] for leg in self._legs_f], dtype=float)
         # Forward branch: the platform lies on one side of the plane through the three
         # sphere centres; that side only changes through a parallel singularity
         # (Orthoglide §3.3: the points coplanar), so it is the working mode.
@@ -244,32 +285,27 @@ class TranslationalMachine:
         sdot = np.einsum("ij,ij->i", adot, self._e)
         return adot / s[:, None] - a * (sdot / s**2)[:, None]
 
-    def velocity_terms(self, position: list, velocity: list) -> tuple[list, list, list, list]:
-        """(rho, rows of J_m, rhodot, Jdot_m pdot) on plain floats for the dynamic model:
-        a_i leg vector, s_i = a_i . e_i, rhodot_i = a_i . v / s_i, adot_i = v - rhodot_i e_i,
-        (Jdot v)_i = adot_i . v / s_i - (a_i . v)(adot_i . e_i) / s_i^2."""
-        px, py, pz = position
-        vx, vy, vz = velocity
-        rhos, rows, rhodots, biases = [], [], [], []
-        for ox, oy, oz, ex, ey, ez, l2, cx, cy, cz, sigma, _lo, _hi, name in self._legs_f:
-            wx, wy, wz = px + cx - ox, py + cy - oy, pz + cz - oz
-            a = wx * ex + wy * ey + wz * ez
-            disc = l2 - (wx * wx + wy * wy + wz * wz) + a * a
-            if not disc >= 0.0:
-                raise UnreachablePoseError(f"position {position} is unreachable for leg {name}")
-            r = a + sigma * math.sqrt(disc)
-            ax, ay, az = wx - r * ex, wy - r * ey, wz - r * ez
-            sv = ax * ex + ay * ey + az * ez
-            if sv * sv <= 1e-18 * l2:
-                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
-            av = ax * vx + ay * vy + az * vz
-            rd = av / sv
-            adx, ady, adz = vx - rd * ex, vy - rd * ey, vz - rd * ez
-            rhos.append(r)
-            rows.append((ax / sv, ay / sv, az / sv))
-            rhodots.append(rd)
-            biases.append((adx * vx + ady * vy + adz * vz) / sv - av * (adx * ex + ady * ey + adz * ez) / (sv * sv))
-        return rhos, rows, rhodots, biases
+    def velocity_terms(self, position, velocity) -> tuple[list, list, list, list]:
+        """(rho, rows of J_m, rhodot, Jdot_m pdot) as lists of floats for the dynamic
+        model; see :func:`_velocity_terms_kernel`."""
+        rho, rows, rhodot, bias = self.velocity_terms_arrays(position, velocity)
+        return rho.tolist(), rows.tolist(), rhodot.tolist(), bias.tolist()
+
+    def velocity_terms_arrays(self, position, velocity) -> tuple:
+        """:meth:`velocity_terms` as arrays (rho (3,), J_m (3, 3), rhodot, Jdot_m pdot).
+        Raises UnreachablePoseError / SingularityError naming the leg. Compiled."""
+        rho, rows, rhodot, bias, code, leg = _velocity_terms_kernel(
+            self._legs_a, position[0], position[1], position[2], velocity[0], velocity[1], velocity[2])
+        if code != VT_OK:
+            self.raise_velocity_terms_error(code, leg, position)
+        return rho, rows, rhodot, bias
+
+    def raise_velocity_terms_error(self, code: int, leg: int, position) -> None:
+        """The exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
+        name = self.leg_names[leg]
+        if code == VT_UNREACHABLE:
+            raise UnreachablePoseError(f"position {[float(v) for v in position]} is unreachable for leg {name}")
+        raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
 
     def condition_number(self, position) -> float:
         return float(np.linalg.cond(self.jacobian(position)))
