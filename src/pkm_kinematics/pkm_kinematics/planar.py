@@ -243,6 +243,12 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = range(3)
 
 
+@kernel()
+def empty_velocity_terms(n):
+    """The outputs of a velocity-terms kernel for n legs: q (n,), J_m (n, 3), qdot, Jdot_m xdot."""
+    return np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n)
+
+
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
 def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
@@ -251,10 +257,7 @@ def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     e_i x R b_i] and s_i = e_i . u_i, and the derivative of the row along the twist.
     ``code`` VT_UNREACHABLE or VT_SINGULAR names ``leg``."""
     n = legs.shape[0]
-    q = np.empty(n)
-    rows = np.empty((n, 3))
-    qdots = np.empty(n)
-    biases = np.empty(n)
+    q, rows, qdots, biases = empty_velocity_terms(n)
     c, s = math.cos(th), math.sin(th)
     for k in range(n):
         ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],

@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .jit import kernel
-from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE
+from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms
 from .validation import finite_array, finite_floats
 
 
@@ -46,10 +46,7 @@ def _velocity_terms_kernel(legs, px, py, pz, vx, vy, vz):
     (Jdot v)_i = adot_i . v / s_i - (a_i . v)(adot_i . e_i) / s_i^2.
     ``code`` VT_UNREACHABLE or VT_SINGULAR names ``leg``."""
     n = legs.shape[0]
-    rho = np.empty(n)
-    rows = np.empty((n, 3))
-    rhodots = np.empty(n)
-    biases = np.empty(n)
+    rho, rows, rhodots, biases = empty_velocity_terms(n)
     for k in range(n):
         ox, oy, oz, ex, ey, ez, l2 = legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4], legs[k, 5], \
             legs[k, 6]
