@@ -4,7 +4,7 @@
    space + inf-norm) as five processes, with and without the recorder, alternated
    ``--repeats`` times: lockstep rate (sim_hw steps per wall second) and the recording
    cost as a fraction of the loop period, and the same in one process.
-2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, zstd chunks: BagWriter's default), and
+2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, lz4 chunks as the recorder writes), and
    the recorder node end to end in the runs above (messages recorded per wall second).
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0]
@@ -52,7 +52,7 @@ def writer_throughput(messages: int = 200_000) -> float:
     data = bytes(store.serialize_cdr(js(header=header, name=["q1", "q2", "q3", "q4"], position=np.ones(4),
                                         velocity=np.ones(4), effort=np.ones(4)), "sensor_msgs/msg/JointState"))
     with tempfile.TemporaryDirectory() as tmp:
-        with BagWriter(Path(tmp) / "bag") as writer:
+        with BagWriter(Path(tmp) / "bag", compression="lz4") as writer:
             channel = writer.add_topic("/pkm/drives/state", "sensor_msgs/msg/JointState")
             start = time.perf_counter()
             for i in range(messages):
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     rate, size = writer_throughput()
-    print(f"BagWriter.write: {rate:,.0f} messages/s ({size}-byte JointState, zstd chunks, flush every 500)")
+    print(f"BagWriter.write: {rate:,.0f} messages/s ({size}-byte JointState, lz4 chunks, flush every 500)")
     pub_rate, rec_rate, lost = recorder_throughput()
     print(f"recorder_node (own process), 20,000 JointState published at {pub_rate:,.0f}/s: recorded at "
           f"{rec_rate:,.0f} messages/s, lost {lost}")

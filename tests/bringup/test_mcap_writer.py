@@ -28,7 +28,7 @@ def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batch
     for topic in ("/a", "/b", "/c"):
         writer.register_channel(topic, "cdr", schema, {"offered_qos_profiles": ""})
     batch = []
-    for call in calls + [("flush",)]:
+    for call in calls:
         if call[0] == "flush":
             if batch:
                 writer.add_messages(batch)
@@ -42,6 +42,8 @@ def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batch
             batch.append(message)
         else:
             writer.add_message(*message)
+    if batch:                                      # the last batch, in the chunk finish() closes
+        writer.add_messages(batch)
     writer.finish()
     return out.getvalue()
 

@@ -11,6 +11,7 @@ import pytest
 
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
+from pkm_kinematics.errors import SingularityError
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan, plan_with_blending
 from pkm_trajectory.program import gcode_segments
@@ -224,6 +225,20 @@ def test_a_bad_state_is_refused_and_the_controller_stops(q, qdot, message):
     assert forces == [0.0] * 4 and core.stopped
     assert re.search(message, core.stop_reason), core.stop_reason
     assert core.update(0.001, [0.0] * 4, [0.0] * 4) == [0.0] * 4        # stays stopped
+
+
+def test_a_singular_measured_pose_stops_the_controller_naming_it(monkeypatch):
+    """J_m, the task velocity and A, H come from DynamicModel.measured_state; when it
+    refuses the measured pose the controller trips saying so, it does not raise."""
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
+
+    def singular(x, qdot):
+        raise SingularityError("leg q2 is perpendicular to its rail (serial singularity)")
+
+    monkeypatch.setattr(core.dynamics, "measured_state", singular)
+    assert core.update(0.0, *_state_at(ARCHI_HOME)) == [0.0] * 4
+    assert core.stopped
+    assert core.stop_reason == "kinematics at the measured pose: leg q2 is perpendicular to its rail (serial singularity)"
 
 
 def test_missing_metrology_stops_the_measured_space_controller():

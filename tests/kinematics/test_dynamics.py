@@ -116,3 +116,17 @@ def test_measured_state_names_the_leg_that_cannot_reach(name, far):
     dyn = model(name)
     with pytest.raises(UnreachablePoseError, match=f"unreachable for leg {dyn.machine.leg_names[0]}"):
         dyn.measured_state(far, [0.0] * dyn.machine.n_legs)
+
+
+@pytest.mark.parametrize("name", ["archi", "mom3"])
+def test_wrong_lengths_are_refused_by_name(name):
+    dyn = model(name)
+    x, v = CASES[name]
+    n = dyn.machine.n_legs
+    for qdot in ([0.0] * (n - 1), [0.0] * (n + 1)):
+        with pytest.raises(ValueError, match=f"drive_velocities: expected {n} values"):
+            dyn.measured_state(x, qdot)
+    with pytest.raises(ValueError, match="need 3 values each, got 2 and 3"):
+        dyn.machine.velocity_terms(x[:2], v)
+    with pytest.raises(ValueError, match="need 3 values each, got 3 and 4"):
+        dyn.machine.velocity_terms(x, [*v, 0.0])

@@ -508,11 +508,12 @@ class BagWriter:
         """Append ``records``, each (channel_id, log_time_ns, data) with the publish time
         equal to the log time (the recorder's tap batches): the checks of :meth:`write`
         for each, under one lock. ValueError at the first bad record, before anything
-        of it is written (the records before it are)."""
+        of it is written (the records before it are). The data must not change until
+        the call returns (the batch is packed at its end)."""
         with self._lock:
             topics = self._topics
             start, end = self._start, self._end
-            messages = []
+            messages, written = [], []
             add = messages.append
             try:
                 for channel_id, time_ns, data in records:
@@ -529,7 +530,7 @@ class BagWriter:
                                          f"(known: {sorted(topics)}); call add_topic() first")
                     t.seq = seq = (t.seq + 1) & 0xFFFFFFFF
                     add((channel_id, time_ns, data, time_ns, seq))
-                    t.count += 1
+                    written.append(t)
                     if start is None:
                         start = end = time_ns
                     elif time_ns > end:
@@ -538,6 +539,8 @@ class BagWriter:
                         start = time_ns
             finally:
                 self._writer.add_messages(messages)            # FastWriter: one call for the batch
+                for t in written:                              # counted once written
+                    t.count += 1
                 self._start, self._end = start, end
 
     @property

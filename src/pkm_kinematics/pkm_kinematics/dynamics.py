@@ -88,6 +88,8 @@ class DynamicModel:
         ``terms`` (unreachable, serial singularity) and DistributionError when J_m
         has rank < 3."""
         qdot = np.array(drive_velocities, dtype=float)
+        if qdot.shape != (self.machine.n_legs,):
+            raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
         rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg = _measured_state_kernel(
             self.planar, self.machine._legs_a, x[0], x[1], x[2], qdot, *self._mass_args)
         if code == VT_LEAST_SQUARES_SINGULAR:

@@ -492,6 +492,8 @@ class PlanarMachine:
 
     def velocity_terms_arrays(self, pose, twist) -> tuple:
         """:meth:`velocity_terms` as arrays (q (n,), J_m (n, 3), qdot, Jdot_m xdot)."""
+        if len(pose) != 3 or len(twist) != 3:
+            raise ValueError(f"velocity terms: pose and twist need 3 values each, got {len(pose)} and {len(twist)}")
         q, rows, qdot, bias, code, leg = _velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
                                                                 twist[0], twist[1], twist[2])
         if code != VT_OK:

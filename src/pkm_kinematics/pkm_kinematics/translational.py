@@ -291,6 +291,8 @@ class TranslationalMachine:
     def velocity_terms_arrays(self, position, velocity) -> tuple:
         """:meth:`velocity_terms` as arrays (rho (3,), J_m (3, 3), rhodot, Jdot_m pdot).
         Raises UnreachablePoseError / SingularityError naming the leg. Compiled."""
+        if len(position) != 3 or len(velocity) != 3:
+            raise ValueError(f"velocity terms: position and velocity need 3 values each, got {len(position)} and {len(velocity)}")
         rho, rows, rhodot, bias, code, leg = _velocity_terms_kernel(
             self._legs_a, position[0], position[1], position[2], velocity[0], velocity[1], velocity[2])
         if code != VT_OK:
