@@ -69,6 +69,8 @@ def test_parameters_are_typed_for_ros(tmp_path):
     ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp": 0.1}]}, "load[0].ramp"),
     ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp_s": 0.2}, {"t_s": 0.2, "wrench": [0, 0, 0]}]}, "load[1]"),
     ({"trajectory": {"scale": 50.0}}, "program"),       # the program leaves the workspace: refused up front
+    ({"recorder": {"compression": "bz2"}}, "recorder.compression"),
+    ({"recorder": {"output": "elsewhere"}}, "recorder.output"),        # pkm-run's wiring, not the scenario's
 ])
 def test_bad_scenarios_name_the_key(overrides, field):
     with pytest.raises(ScenarioError, match="^" + re.escape(field)):
@@ -94,3 +96,12 @@ def test_a_scenario_without_program_waits_for_the_start_signal(tmp_path):
     assert s.program is None and "trajectory" not in p
     assert p["controller"]["wait_for_start"] is True         # the loop starts after the recorder is ready
     assert p["controller"]["wait_for_trajectory"] is False
+
+
+def test_the_recorder_section_sets_recorder_parameters_and_pkm_run_the_wiring(tmp_path):
+    p = node_parameters(load_scenario("archi_demo"), tmp_path)["recorder"]
+    assert p["compression"] == "lz4" and p["cpu_priority"] == "idle"      # config/recorder.yaml
+    s = load_scenario("archi_demo", {"recorder": {"compression": "zstd", "flush_period_s": 2}})
+    p = node_parameters(s, tmp_path)["recorder"]
+    assert p["compression"] == "zstd" and p["flush_period_s"] == 2.0 and isinstance(p["flush_period_s"], float)
+    assert p["output"] == str(tmp_path / "bag") and "drives/state" in p["tapped_topics"].split(",")

@@ -16,6 +16,7 @@ node runs by default. Keys (all optional but ``machine``)::
     metrology: true                   # run gough_sensor_node (the machine needs a metrology section)
     sensor: {...}                     # gough_sensor_node parameters (noise_std_m, calibration_error_m, ...)
     plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
+    recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...; config/recorder.yaml)
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
@@ -37,9 +38,12 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
-        "trajectory", "controller", "metrology", "sensor", "plant", "load", "record", "timeout_s")
+        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "record", "timeout_s")
 # scenario section -> node whose parameters it sets
-SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw"}
+SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
+            "recorder": "recorder"}
+# parameters with a fixed set of values, checked when the scenario is loaded
+CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
 PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose")
@@ -65,6 +69,7 @@ class Scenario:
     metrology: bool = False
     sensor: dict = field(default_factory=dict)
     plant: dict = field(default_factory=dict)
+    recorder: dict = field(default_factory=dict)
     load: list = field(default_factory=list)      # [(t_s, (a, b, c))]
     record: bool = True
     timeout_s: float = 600.0
@@ -119,6 +124,9 @@ def _mapping(data: dict, key: str, node: str) -> dict:
         if isinstance(item, list) and not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                               and math.isfinite(v) for v in item):
             raise ScenarioError(f"{key}.{name}: must be a list of finite numbers, got {item!r}")
+        choices = CHOICES.get((key, name))
+        if choices is not None and item not in choices:
+            raise ScenarioError(f"{key}.{name}: must be one of {list(choices)}, got {item!r}")
     return dict(value)
 
 
@@ -295,11 +303,10 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
         for node in (n for n in TAPPED_STREAMS if n in nodes):
             nodes[node]["tap"] = True
             tapped += TAPPED_STREAMS[node]
-        nodes["recorder"] = {"output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
+        nodes["recorder"] = {**_node_defaults("recorder"), **s.recorder,   # cpu_priority idle: its own process
+                             "output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
                              "expect_topics": ",".join(expected_topics(s)), "tapped_topics": ",".join(tapped),
-                             "summary_path": str(summaries / "recorder.json"),
-                             # its own process: it records on CPU time the loop leaves
-                             "cpu_priority": "idle"}
+                             "summary_path": str(summaries / "recorder.json")}
     return {name: _typed(name, params) for name, params in nodes.items()}
 
 
