@@ -121,7 +121,7 @@ class RecorderNode(Node):
                                "included) runs only on CPU time the loop leaves (SCHED_IDLE); only for a "
                                "recorder in its own process", choices=("normal", "idle"))
         compression = declare_str(self, "compression", "lz4", "chunk compression: lz4 (~4x faster than "
-                                  "zstd, files ~1.3x larger), zstd or none", choices=("lz4", "zstd", "none"))
+                                  "zstd, files ~1.25x larger), zstd or none", choices=("lz4", "zstd", "none"))
         if priority == "idle":
             self.get_logger().info(f"SCHED_IDLE for {lower_cpu_priority()} threads")
         self.topics = {self.resolve(t) for t in topics.split(",") if t.strip()}
