@@ -133,7 +133,7 @@ class CycleRecord:
     error: tuple = (0.0, 0.0, 0.0)
     forces: tuple = ()
     saturated: int = 0
-    rows: tuple = ()                         # J_m rows of the cycle (nominal model)
+    rows: tuple = ()                         # J_m of the cycle (nominal model), (n, 3) array once run
 
     @property
     def internal_force_norm_n(self) -> float:
@@ -152,8 +152,7 @@ class _Cycle:
 
     def __init__(self, t_s, dt, first, q, qdot, pose, rows, active_rows, v):
         self.t_s, self.dt, self.first, self.q, self.qdot = t_s, dt, first, q, qdot
-        # J_m as rows of 3 floats, and the rows of the active drives as one array for
-        # the compiled kernels (converted once per cycle)
+        # J_m as the (n, 3) array measured_state made, and the rows of the active drives
         self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
 
@@ -404,7 +403,7 @@ class ControllerCore:
             self.trip(f"kinematics at the measured pose: {exc}")
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
-        self._cycle = c = _Cycle(t_s, dt, first, q, qdot, pose, rows_a.tolist(), active_rows, v)
+        self._cycle = c = _Cycle(t_s, dt, first, q, qdot, pose, rows_a, active_rows, v)
         c.a_model, c.h_model = a_model, h_model
         return first or self._prepare_reference(c)
 
@@ -584,7 +583,7 @@ class ControllerCore:
         self.max_error_m = max(self.max_error_m, trans)
         r = self.record
         r.time_s, r.reference, r.measured, r.error = t_s, tuple(x_d), tuple(measured), tuple(error)
-        r.forces, r.saturated, r.rows = tuple(forces), saturated, tuple(rows)
+        r.forces, r.saturated, r.rows = tuple(forces), saturated, rows
         return forces
 
     # ----------------------------------------------------------------- status

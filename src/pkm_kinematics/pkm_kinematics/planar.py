@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import JointLimitError, SingularityError, UnreachablePoseError
+from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .jit import kernel
 from .validation import finite_array, finite_floats
 
@@ -241,6 +241,14 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
 
 
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = range(3)
+
+
+def velocity_terms_error(code: int, leg_name: str, label: str, values) -> KinematicsError:
+    """The exception for a failure ``code`` of a velocity-terms kernel (this module's
+    or translational's): ``label`` and ``values`` name the pose that failed."""
+    if code == VT_UNREACHABLE:
+        return UnreachablePoseError(f"{label} {[float(v) for v in values]} is unreachable for leg {leg_name}")
+    return SingularityError(f"leg {leg_name} is perpendicular to its rail (serial singularity)")
 
 
 @kernel()
@@ -501,11 +509,8 @@ class PlanarMachine:
         return q, rows, qdot, bias
 
     def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
-        """The exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
-        if code == VT_UNREACHABLE:
-            raise UnreachablePoseError(f"pose {[float(v) for v in pose]} is unreachable for leg "
-                                       f"{self.leg_names[leg]}")
-        raise SingularityError(f"leg {self.leg_names[leg]} is perpendicular to its rail (serial singularity)")
+        """Raise the exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
+        raise velocity_terms_error(code, self.leg_names[leg], "pose", pose)
 
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .jit import kernel
-from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms
+from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms, velocity_terms_error
 from .validation import finite_array, finite_floats
 
 
@@ -300,11 +300,8 @@ class TranslationalMachine:
         return rho, rows, rhodot, bias
 
     def raise_velocity_terms_error(self, code: int, leg: int, position) -> None:
-        """The exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
-        name = self.leg_names[leg]
-        if code == VT_UNREACHABLE:
-            raise UnreachablePoseError(f"position {[float(v) for v in position]} is unreachable for leg {name}")
-        raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity)")
+        """Raise the exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
+        raise velocity_terms_error(code, self.leg_names[leg], "position", position)
 
     def condition_number(self, position) -> float:
         return float(np.linalg.cond(self.jacobian(position)))
