@@ -3,6 +3,7 @@ tracks; the papers' results (ARCHI Fig. 12 fighting, projection and Cartesian co
 not fighting, inf-norm lower peak force, MoM3 sensor-space accuracy under load);
 the safety supervisor's trips; bad input and configuration."""
 
+import math
 import re
 from pathlib import Path
 
@@ -239,6 +240,34 @@ def test_a_singular_measured_pose_stops_the_controller_naming_it(monkeypatch):
     assert core.update(0.0, *_state_at(ARCHI_HOME)) == [0.0] * 4
     assert core.stopped
     assert core.stop_reason == "kinematics at the measured pose: leg q2 is perpendicular to its rail (serial singularity)"
+
+
+@pytest.mark.parametrize("strategy", ["joint_pid", "computed_torque"])
+def test_a_drive_beyond_its_joint_limit_trips_naming_it(strategy):
+    """The joint limits come first among the per-cycle limits, on the Python (joint)
+    and the compiled (Cartesian) path alike."""
+    core = ControllerCore(MOM3, ControllerConfig(strategy=strategy))
+    q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()
+    core.update(0.0, q, [0.0] * 3)
+    assert not core.stopped
+    q[1] = 1.86                                           # limits [1.15, 1.85] m
+    assert core.update(0.001, q, [0.0] * 3) == [0.0] * 3
+    assert core.stop_reason == "joint limit: drive q2 at 1.86 m outside [1.15, 1.85] m"
+
+
+def test_a_non_finite_model_wrench_stops_the_controller_naming_it(monkeypatch):
+    """A NaN from the dynamic model reaches the wrench: refused before any drive moves."""
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
+    core.update(0.0, *_state_at(ARCHI_HOME))
+    measured_state = core.dynamics.measured_state
+
+    def nan_gravity(x, qdot):
+        a, h, rows, v = measured_state(x, qdot)
+        return a, (h[0], math.nan, h[2]), rows, v
+
+    monkeypatch.setattr(core.dynamics, "measured_state", nan_gravity)
+    assert core.update(0.001, *_state_at(ARCHI_HOME)) == [0.0] * 4
+    assert core.stop_reason.startswith("computed_torque: wrench: contains NaN or infinite values: [")
 
 
 def test_missing_metrology_stops_the_measured_space_controller():

@@ -11,8 +11,12 @@ from hypothesis import strategies as st
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.rotations import exp_so3
-from pkm_controller.laws import (Gains, SensorSpaceFeedback, gram_condition, pose_error,
-                                 project_to_range, tool_pose_floats, wrap_angle)
+from pkm_controller.laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, FOLLOWING_ERROR_M,
+                                 FOLLOWING_ERROR_RAD, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE,
+                                 LAW_VELOCITY_CASCADE, LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN,
+                                 WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains, SensorSpaceFeedback,
+                                 cartesian_command_kernel, clamp_forces_kernel, gram_condition, limits_kernel,
+                                 pose_error, project_to_range, tool_pose_floats, wrap_angle)
 from pkm_controller.reference import Reference, unwrap_angles
 
 ARCHI = load_machine("archi")
@@ -57,6 +61,100 @@ def test_cascade_gains_match_the_pd_characteristic():
     assert g.kd * g.outer_kp == pytest.approx(g.kp)
     assert g.ki == pytest.approx(g.kp / 0.05)
     assert Gains(10.0, 1.0, 0.0).ki == 0.0
+
+
+# ------------------------------------------------ the compiled Cartesian cycle
+JAC4 = ARCHI.model.jacobian([1.0, -0.4, 0.9])
+JOINT_BOX = np.array([[-1.0, 1.0]] * 4)
+TASK_BOX = np.array([[0.0, 2.0], [-1.0, 1.0]])
+
+
+def _limits(q=(0.0, 0.1, -0.2, 0.3), measured=(1.0, 0.0, 0.5), error=(1e-4, -2e-4, 1e-3), rows=JAC4,
+            planar=True):
+    return limits_kernel(np.array(q), JOINT_BOX, tuple(measured), TASK_BOX, rows, tuple(error), planar, 100.0,
+                         0.01, 0.05)
+
+
+def test_limits_kernel_reports_the_first_limit_violated():
+    code, _, trans = _limits()
+    assert code == LIMITS_OK and trans == pytest.approx(math.hypot(1e-4, 2e-4))
+    assert _limits(q=(0.0, 1.5, -0.2, math.nan))[:2] == (JOINT_LIMIT, 1)
+    assert _limits(q=(0.0, 0.1, math.nan, 0.3))[:2] == (JOINT_LIMIT, 2)         # NaN is outside every range
+    assert _limits(measured=(1.0, -1.2, 9.0)) == (WORKSPACE_LIMIT, 1, -1.2)    # theta has no box (planar)
+    singular = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [2.0, 1.0, 0.0]])
+    assert _limits(rows=singular)[0] == SINGULARITY_MARGIN
+    code, _, value = _limits(error=(0.008, 0.008, 0.0))
+    assert code == FOLLOWING_ERROR_M and value == pytest.approx(0.008 * math.sqrt(2.0))
+    assert _limits(error=(0.008, 0.0, 0.0), planar=False)[0] == LIMITS_OK
+    assert _limits(error=(0.008, 0.0, 0.008), planar=False)[0] == FOLLOWING_ERROR_M     # z counts in 3-D
+    assert _limits(error=(0.0, 0.0, -0.06)) == (FOLLOWING_ERROR_RAD, 2, 0.06)
+
+
+def test_clamp_forces_kernel():
+    clamped, saturated, peak, finite = clamp_forces_kernel(np.array([100.0, -2500.0, 2000.0, 3000.0]), 2000.0)
+    assert finite and saturated == 2 and peak == 2000.0
+    np.testing.assert_array_equal(clamped, [100.0, -2000.0, 2000.0, 2000.0])
+    assert not clamp_forces_kernel(np.array([1.0, math.inf, -math.inf]), 10.0)[3]
+
+
+def _command(law, distribution=DIST_PSEUDO_INVERSE, integrate=True, rows=JAC4, limit=1e6, h_nan=False):
+    rng = np.random.default_rng(0)
+    m = rng.normal(size=(3, 3))
+    a_model = m @ m.T + 3.0 * np.eye(3)
+    h, v_d, v, a_d = (rng.normal(size=3) for _ in range(4))
+    h[0] = math.nan if h_nan else h[0]
+    error = 1e-3 * rng.normal(size=3)
+    gains = np.abs(rng.normal(size=(4, 3))) * [[1e4], [1e2], [1e5], [10.0]]
+    integral = rng.normal(size=3)
+    out = cartesian_command_kernel(np.zeros(rows.shape[0]), np.array([[-1.0, 1.0]] * rows.shape[0]),
+                                   (1.0, 0.0, 0.0), TASK_BOX, rows, tuple(error), True, 1e3, 1.0, 1.0, law, gains,
+                                   integrate, tuple(integral), 1e-3, tuple(map(tuple, a_model)), tuple(h), tuple(v_d),
+                                   tuple(v), tuple(a_d), distribution, limit)
+    i_ref = integral + gains[2] * error * 1e-3 if integrate else integral
+    kp, kd, mass = gains[0], gains[1], gains[3]
+    if law == LAW_CARTESIAN_PID:        # Sliding Star eq. 9 with the mass feed-forward
+        wrench = kp * error + kd * (v_d - v) + i_ref + mass * a_d
+    elif law == LAW_COMPUTED_TORQUE:    # ARCHI §4.2
+        wrench = a_model @ (a_d + kd * (v_d - v) + kp * error + i_ref) + h
+    else:                               # MoM3 §6.1 cascade: v_c = v_d + Kp e + I
+        wrench = a_model @ (a_d + kd * (v_d + kp * error + i_ref - v)) + h
+    return out, i_ref, wrench
+
+
+@pytest.mark.parametrize("law", [LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE])
+@pytest.mark.parametrize("integrate", [True, False])
+def test_cartesian_command_kernel_laws_against_numpy(law, integrate):
+    (code, _, _, integral, wrench, forces, saturated, peak), i_ref, w_ref = _command(law, integrate=integrate)
+    assert code == LIMITS_OK and saturated == 0
+    np.testing.assert_allclose(integral, i_ref, rtol=1e-14)
+    np.testing.assert_allclose(wrench, w_ref, rtol=1e-12)
+    np.testing.assert_allclose(forces, np.linalg.pinv(JAC4.T) @ w_ref, rtol=1e-9)    # least 2-norm forces
+    assert peak == pytest.approx(np.abs(forces).max())
+
+
+def test_cartesian_command_kernel_distributions_and_clamp():
+    (_, _, _, _, _, f2, _, _), _, wrench = _command(LAW_COMPUTED_TORQUE, DIST_PSEUDO_INVERSE)
+    (code, _, _, _, _, finf, _, _), _, _ = _command(LAW_COMPUTED_TORQUE, DIST_INF_NORM)
+    assert code == LIMITS_OK
+    np.testing.assert_allclose(JAC4.T @ finf, wrench, rtol=1e-9)
+    assert np.abs(finf).max() < np.abs(f2).max()                   # the least peak (ARCHI §4.4.2)
+    assert len(_command(LAW_COMPUTED_TORQUE, NUMPY_DISTRIBUTION)[0][5]) == 0   # the caller distributes
+    limit = 0.5 * np.abs(f2).max()
+    (code, _, _, _, _, clamped, saturated, peak), _, _ = _command(LAW_COMPUTED_TORQUE, limit=limit)
+    assert code == LIMITS_OK and saturated == np.sum(np.abs(f2) > limit) >= 1 and peak == limit
+    np.testing.assert_allclose(clamped, np.clip(f2, -limit, limit))
+
+
+def test_cartesian_command_kernel_reports_instead_of_commanding():
+    singular = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
+    out, _, _ = _command(LAW_COMPUTED_TORQUE, rows=singular)
+    assert out[0] == SINGULARITY_MARGIN and len(out[5]) == 0
+    out, _, _ = _command(LAW_COMPUTED_TORQUE, h_nan=True)
+    assert out[0] == WRENCH_NOT_FINITE and math.isnan(out[4][0]) and len(out[5]) == 0
+    rng_rows = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    out, _, _ = _command(LAW_COMPUTED_TORQUE, DIST_INF_NORM, rows=rng_rows)
+    assert out[0] == LIMITS_OK           # a zero row: ker(J^T) is that drive, it gets no force
+    np.testing.assert_allclose(out[5][3], 0.0, atol=1e-12)
 
 
 def _sensor_error(true_offset, true_rotvec, desired):

@@ -42,13 +42,18 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import METHODS, distribute, distribute_rows, internal_force_rows
+from pkm_kinematics.distribution import METHODS, distribute, internal_force_rows, raise_distribution_error
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.planar import PlanarMachine
 
-from .laws import (Gains, SensorSpaceFeedback, cartesian_pid, computed_torque, gram_condition, joint_pid,
-                   pose_error, project_to_range, tool_pose_floats, velocity_cascade)
+from pkm_kinematics.validation import finite_floats
+
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, JOINT_LIMIT,
+                   LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE, LIMITS_OK, NUMPY_DISTRIBUTION,
+                   SINGULARITY_MARGIN, FOLLOWING_ERROR_M, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
+                   SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
+                   limits_kernel, pose_error, project_to_range, tool_pose_floats)
 from .reference import Reference
 
 STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
@@ -185,7 +190,16 @@ class ControllerCore:
         self._scale_gains()
         self._lower = self.model.joint_lower.tolist()
         self._upper = self.model.joint_upper.tolist()
+        self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
         self._workspace = self._workspace_box()
+        self._workspace_array = np.array(self._workspace, dtype=float)
+        self._law, self._law_gains = self._cartesian_law()
+        # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
+        self._distribution = NUMPY_DISTRIBUTION
+        if self.config.prestress_n == 0.0 and (self.config.distribution == "pseudo_inverse" or (
+                self.config.distribution == "inf_norm" and self.n == 4)):
+            self._distribution = DIST_PSEUDO_INVERSE if self.config.distribution == "pseudo_inverse" \
+                else DIST_INF_NORM
         self.reset()
 
     # ---------------------------------------------------------------- set-up
@@ -210,6 +224,18 @@ class ControllerCore:
         self.joint_kd = [g.kd * m for m in m_joint]
         self.joint_ki = [g.ki * m for m in m_joint]
 
+    def _cartesian_law(self) -> tuple[int, np.ndarray]:
+        """The law code of laws.cartesian_command_kernel and its gain rows (kp, kd, ki,
+        mass) per task axis: the scaled task gains for cartesian_pid; per unit mass
+        for computed_torque (A(x) scales them); the cascade's outer PI and inner
+        velocity gain Kv for the metrology strategies."""
+        g, strategy = self.gains, self.config.strategy
+        if strategy == "cartesian_pid":
+            return LAW_CARTESIAN_PID, np.array([self.task_kp, self.task_kd, self.task_ki, self.task_mass])
+        if strategy == "computed_torque":
+            return LAW_COMPUTED_TORQUE, np.array([[g.kp] * 3, [g.kd] * 3, [g.ki] * 3, [0.0] * 3])
+        return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * 3, [g.kd] * 3, [g.outer_ki] * 3, [0.0] * 3])
+
     def _workspace_box(self) -> list:
         w, m = self.model.workspace, self.config.workspace_margin_m
         if self.planar:
@@ -225,7 +251,7 @@ class ControllerCore:
         self.pose = None                         # encoder FK estimate (warm start)
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
-        self.integral = [0.0] * (self.n if self.config.strategy in JOINT_STRATEGIES else 3)
+        self.integral = [0.0] * self.n if self.config.strategy in JOINT_STRATEGIES else (0.0, 0.0, 0.0)
         self.active = list(range(self.n))
         self.failed: dict[int, str] = {}
         self.stopped = False
@@ -340,24 +366,29 @@ class ControllerCore:
             self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
         return ""
 
-    def _check_limits(self, q, active_rows, measured, error) -> str:
+    def _check_limits(self, q, active_rows, measured, error) -> tuple[str, float]:
+        """(what tripped or "", the translation error): laws.limits_kernel."""
         c = self.config
-        for i, (qi, lo, hi) in enumerate(zip(q, self._lower, self._upper)):
-            if not lo <= qi <= hi:
-                return f"joint limit: drive {self.names[i]} at {qi:.6g} m outside [{lo:g}, {hi:g}] m"
-        for k, (v, (lo, hi)) in enumerate(zip(measured, self._workspace)):
-            if not lo <= v <= hi:
-                return (f"workspace: {'xyz'[k]} = {v:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
-                        f"(workspace_margin_m {c.workspace_margin_m:g})")
-        cond = gram_condition(active_rows)
-        if cond > c.max_condition:
-            return f"singularity margin: condition number {cond:.4g} > max_condition {c.max_condition:g}"
-        trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
-        if trans > c.following_error_m:
-            return f"following error {trans * 1e3:.3f} mm > following_error_m {c.following_error_m:g}"
-        if self.planar and abs(error[2]) > c.following_error_rad:
-            return f"following error {abs(error[2]):.4f} rad > following_error_rad {c.following_error_rad:g}"
-        return ""
+        code, index, value = limits_kernel(np.array(q, dtype=float), self._joint_box, tuple(measured),
+                                           self._workspace_array, active_rows, tuple(error), self.planar,
+                                           c.max_condition, c.following_error_m, c.following_error_rad)
+        return ("", value) if code == LIMITS_OK else (self._limit_message(code, index, value), value)
+
+    def _limit_message(self, code: int, index: int, value: float) -> str:
+        """The trip message of a limits code of laws.limits_kernel."""
+        c = self.config
+        if code == JOINT_LIMIT:
+            return (f"joint limit: drive {self.names[index]} at {value:.6g} m outside "
+                    f"[{self._lower[index]:g}, {self._upper[index]:g}] m")
+        if code == WORKSPACE_LIMIT:
+            lo, hi = self._workspace[index]
+            return (f"workspace: {'xyz'[index]} = {value:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
+                    f"(workspace_margin_m {c.workspace_margin_m:g})")
+        if code == SINGULARITY_MARGIN:
+            return f"singularity margin: condition number {value:.4g} > max_condition {c.max_condition:g}"
+        if code == FOLLOWING_ERROR_M:
+            return f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}"
+        return f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}"
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
@@ -440,13 +471,15 @@ class ControllerCore:
                 return list(self.last_command)
         try:
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
-            problem = self._check_limits(c.q, c.active_rows, measured, error)
+            if self.config.strategy not in JOINT_STRATEGIES:
+                return self._cartesian_command(c, measured, error)
+            problem, trans = self._check_limits(c.q, c.active_rows, measured, error)
             if problem:
                 return self.trip(problem)
-            forces = self._strategy(c, error)
+            forces = self._joint_strategy(c)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             return self.trip(f"{self.config.strategy}: {exc}")
-        return self._finish(c.t_s, forces, c.rows, c.x_d, measured, error, c.dt)
+        return self._finish(c, forces, trans, measured, error)
 
     def _forward_kinematics(self, q) -> list:
         if self.planar:
@@ -500,59 +533,63 @@ class ControllerCore:
             return measured, pose_error(x_d, measured, self.planar)
         return pose, pose_error(x_d, pose, self.planar)
 
-    def _strategy(self, c: "_Cycle", error) -> list:
-        strategy, g = self.config.strategy, self.gains
-        q, qdot, v, x_d, v_d, a_d, dt = c.q, c.qdot, c.v, c.x_d, c.v_d, c.a_d, c.dt
-        if strategy in JOINT_STRATEGIES:
-            q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
-            # acceleration feed-forward with the mass each drive sees, as industrial
-            # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
-            feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
-                           for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
-            e = [a - b for a, b in zip(q_d, q)]
-            edot = [a - b for a, b in zip(qdot_d, qdot)]
-            limit = self.config.force_limit_n
-            integral = [min(limit, max(-limit, i + ki * ei * dt))
-                        for i, ki, ei in zip(self.integral, self.joint_ki, e)]
-            active_rows = c.active_rows
-            if strategy == "decentralized_projected":
-                # Sliding Star Fig. 9: the projection also acts on the integral state
-                sub = project_to_range(active_rows, [integral[k] for k in self.active])
-                integral = [0.0] * self.n
-                for k, f in zip(self.active, sub):
-                    integral[k] = f
-            self.integral = integral
-            n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
-            if strategy == "joint_pid":
-                return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
-            sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
-            return self._expand(sub)
-        edot = [a - b for a, b in zip(v_d, v)]
-        integral = self.integral
-        if self.record.saturated == 0:            # conditional integration (anti-windup)
-            ki = self.task_ki if strategy == "cartesian_pid" else \
-                [g.ki] * 3 if strategy == "computed_torque" else [g.outer_ki] * 3
-            integral = [i + k * e * dt for i, k, e in zip(integral, ki, error)]
+    def _joint_strategy(self, c: "_Cycle") -> list:
+        """joint_pid (ARCHI §4.1) and decentralized_projected (Sliding Star eq. 6-8)."""
+        q, qdot, x_d, v_d, a_d, dt = c.q, c.qdot, c.x_d, c.v_d, c.a_d, c.dt
+        q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
+        # acceleration feed-forward with the mass each drive sees, as industrial
+        # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
+        feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
+                       for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
+        e = [a - b for a, b in zip(q_d, q)]
+        edot = [a - b for a, b in zip(qdot_d, qdot)]
+        limit = self.config.force_limit_n
+        integral = [min(limit, max(-limit, i + ki * ei * dt))
+                    for i, ki, ei in zip(self.integral, self.joint_ki, e)]
+        active_rows = c.active_rows
+        if self.config.strategy == "decentralized_projected":
+            # Sliding Star Fig. 9: the projection also acts on the integral state
+            sub = project_to_range(active_rows, [integral[k] for k in self.active])
+            integral = [0.0] * self.n
+            for k, f in zip(self.active, sub):
+                integral[k] = f
         self.integral = integral
-        if strategy == "cartesian_pid":
-            wrench = [f + m * a for f, m, a in zip(cartesian_pid(error, edot, integral, self.task_kp, self.task_kd),
-                                                   self.task_mass, a_d)]
-        elif strategy == "computed_torque":       # A(x), H(x, v) from prepare()
-            wrench = computed_torque(c.a_model, c.h_model, a_d, error, edot, integral, g)
-        else:                                     # MoM3 §6.1: PI + velocity feed-forward
-            v_c = [vd + g.outer_kp * e + i for vd, e, i in zip(v_d, error, integral)]
-            wrench = velocity_cascade(c.a_model, c.h_model, a_d, v_c, v, g)
-        return self._distribute(wrench, c.active_rows, c.pose)
+        n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
+        if self.config.strategy == "joint_pid":
+            return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
+        sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
+        return self._expand(sub)
+
+    def _cartesian_command(self, c: "_Cycle", measured, error) -> list:
+        """The Cartesian strategies after the feedback: limits, integral, law (Sliding
+        Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
+        call (laws.cartesian_command_kernel); p_norm, two_arm and a prestress
+        distribute the wrench it returns with numpy."""
+        cfg = self.config
+        full = len(self.active) == self.n
+        code, index, value, self.integral, wrench, forces, saturated, peak = cartesian_command_kernel(
+            np.array(c.q, dtype=float), self._joint_box, tuple(measured), self._workspace_array, c.active_rows,
+            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, self._law,
+            self._law_gains, self.record.saturated == 0, self.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
+            c.v, tuple(c.a_d), self._distribution if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
+        if code == LIMITS_OK and forces.shape[0]:
+            return self._accept(c, self._expand(forces.tolist()), saturated, peak, value, measured, error)
+        if code == LIMITS_OK:                     # NUMPY_DISTRIBUTION
+            return self._finish(c, self._distribute(list(wrench), c.active_rows, c.pose), value, measured, error)
+        if code == WRENCH_NOT_FINITE:
+            finite_floats(wrench, 3, "wrench")    # raises the ValueError naming it
+        if code > DISTRIBUTION_FAILED:
+            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench)
+        if code == FORCES_NOT_FINITE:
+            return self.trip(f"{cfg.strategy}: non-finite drive forces {self._expand(forces.tolist())}")
+        return self.trip(self._limit_message(code, index, value))
 
     def _distribute(self, wrench, active_rows, pose) -> list:
+        """The distributions that are not compiled (p_norm, two_arm, a prestress); all
+        drives active (a degraded machine uses the compiled pseudo-inverse)."""
         c = self.config
-        method = c.distribution if len(self.active) == self.n else "pseudo_inverse"
-        prestress = c.prestress_n if len(self.active) == self.n else 0.0
-        forces = None if prestress else distribute_rows(method, active_rows, wrench)
-        if forces is None:
-            forces = distribute(method, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
-                                prestress_n=prestress, reference=[1.0] * len(active_rows)).tolist()
-        return self._expand(forces)
+        return distribute(c.distribution, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
+                          prestress_n=c.prestress_n, reference=[1.0] * len(active_rows)).tolist()
 
     def _expand(self, sub) -> list:
         if len(self.active) == self.n:
@@ -562,28 +599,32 @@ class ControllerCore:
             out[k] = f
         return out
 
-    def _finish(self, t_s, forces, rows, x_d, measured, error, dt) -> list:
-        c = self.config
-        limit = c.force_limit_n
-        if not math.isfinite(sum(forces)):
-            return self.trip(f"{c.strategy}: non-finite drive forces {forces}")
-        saturated = sum(1 for f in forces if abs(f) > limit)
-        forces = [max(-limit, min(limit, f)) for f in forces]
+    def _finish(self, c: "_Cycle", forces, trans, measured, error) -> list:
+        """Clamp the forces of the strategies computed in Python, then ``_accept``."""
+        clamped, saturated, peak, finite = clamp_forces_kernel(np.array(forces, dtype=float),
+                                                               self.config.force_limit_n)
+        if not finite:
+            return self.trip(f"{self.config.strategy}: non-finite drive forces {forces}")
+        return self._accept(c, clamped.tolist(), saturated, peak, trans, measured, error)
+
+    def _accept(self, c: "_Cycle", forces, saturated, peak, trans, measured, error) -> list:
+        """The clamped command of the cycle: the saturation supervisor, the statistics,
+        the record."""
+        cfg = self.config
         if saturated:
             self.saturation_count += 1
-            self._saturated_since = t_s if self._saturated_since is None else self._saturated_since
-            if c.saturation_trip_s and t_s - self._saturated_since >= c.saturation_trip_s - 1e-9:
-                return self.trip(f"drive forces saturated at {limit:g} N for {c.saturation_trip_s:g} s")
+            self._saturated_since = c.t_s if self._saturated_since is None else self._saturated_since
+            if cfg.saturation_trip_s and c.t_s - self._saturated_since >= cfg.saturation_trip_s - 1e-9:
+                return self.trip(f"drive forces saturated at {cfg.force_limit_n:g} N for {cfg.saturation_trip_s:g} s")
         else:
             self._saturated_since = None
         self.cycles += 1
         self.last_command = forces
-        self.peak_force_n = max(self.peak_force_n, max(abs(f) for f in forces))
-        trans = math.hypot(error[0], error[1]) if self.planar else math.sqrt(sum(e * e for e in error))
+        self.peak_force_n = max(self.peak_force_n, peak)
         self.max_error_m = max(self.max_error_m, trans)
         r = self.record
-        r.time_s, r.reference, r.measured, r.error = t_s, tuple(x_d), tuple(measured), tuple(error)
-        r.forces, r.saturated, r.rows = tuple(forces), saturated, rows
+        r.time_s, r.reference, r.measured, r.error = c.t_s, tuple(c.x_d), tuple(measured), tuple(error)
+        r.forces, r.saturated, r.rows = tuple(forces), saturated, c.rows
         return forces
 
     # ----------------------------------------------------------------- status

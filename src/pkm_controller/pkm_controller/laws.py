@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _rows_array, gram_rows, project_rows
+from pkm_kinematics.distribution import _distribute_kernel, _rows_array, gram_rows, project_rows
 from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
@@ -107,6 +107,138 @@ def _gram_condition_kernel(rows):
     return math.sqrt(lmax / lmin)
 
 
+# ------------------------------------------------------------- safety limits
+# codes of limits_kernel and cartesian_command_kernel (the caller words the message)
+LIMITS_OK, JOINT_LIMIT, WORKSPACE_LIMIT, SINGULARITY_MARGIN, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD = range(6)
+WRENCH_NOT_FINITE, FORCES_NOT_FINITE = 6, 7
+DISTRIBUTION_FAILED = 10      # + the code of pkm_kinematics.distribution._distribute_kernel (1-3)
+_TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
+
+
+@kernel(f"(float64[:], float64[:, :], {_TRIPLE}, float64[:, :], float64[:, :], {_TRIPLE}, boolean, float64, "
+        "float64, float64)")
+def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar, max_condition,
+                  following_error_m, following_error_rad):
+    """(code, index, value): the supervisor's per-cycle limits in order, the first one
+    violated. JOINT_LIMIT: drive ``index`` at q = value outside its row of
+    ``joint_box`` (lower, upper); WORKSPACE_LIMIT: task axis ``index`` of the measured
+    pose at ``value`` outside its row of ``workspace_box``; SINGULARITY_MARGIN:
+    cond(J of the active drives) = value > max_condition; FOLLOWING_ERROR_M: the
+    translation error ``value``; FOLLOWING_ERROR_RAD: |rotation error| = value
+    (planar). LIMITS_OK: ``value`` is the translation error. NaN fails every range."""
+    for i in range(q.shape[0]):
+        if not joint_box[i, 0] <= q[i] <= joint_box[i, 1]:
+            return JOINT_LIMIT, i, q[i]
+    for k in range(workspace_box.shape[0]):
+        if not workspace_box[k, 0] <= measured[k] <= workspace_box[k, 1]:
+            return WORKSPACE_LIMIT, k, measured[k]
+    cond = _gram_condition_kernel(active_rows)
+    if cond > max_condition:
+        return SINGULARITY_MARGIN, -1, cond
+    if planar:
+        trans = math.hypot(error[0], error[1])
+    else:
+        trans = math.sqrt(error[0] * error[0] + error[1] * error[1] + error[2] * error[2])
+    if trans > following_error_m:
+        return FOLLOWING_ERROR_M, -1, trans
+    if planar and abs(error[2]) > following_error_rad:
+        return FOLLOWING_ERROR_RAD, 2, abs(error[2])
+    return LIMITS_OK, -1, trans
+
+
+@kernel("(float64[:], float64)")
+def clamp_forces_kernel(forces, limit):
+    """(clamped copy, number of forces beyond +-limit, peak |clamped force|, finite):
+    the commands as the drives get them. Not finite: nothing clamped (the caller trips)."""
+    total = 0.0
+    for f in forces:
+        total += f
+    if not math.isfinite(total):
+        return forces.copy(), 0, 0.0, False
+    out = np.empty(forces.shape[0])
+    saturated, peak = 0, 0.0
+    for k in range(forces.shape[0]):
+        f = forces[k]
+        if abs(f) > limit:
+            saturated += 1
+        f = max(-limit, min(limit, f))
+        out[k] = f
+        peak = max(peak, abs(f))
+    return out, saturated, peak, True
+
+
+# the Cartesian laws of cartesian_command_kernel; ``gains`` rows: kp, kd, ki (per axis), mass
+LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE = 0, 1, 2
+# its distributions: the compiled ones, or NUMPY_DISTRIBUTION (the wrench is returned)
+DIST_PSEUDO_INVERSE, DIST_INF_NORM, NUMPY_DISTRIBUTION = 0, 1, -1
+_MATRIX3 = f"UniTuple({_TRIPLE}, 3)"
+
+
+@kernel(f"(float64[:], float64[:, :], {_TRIPLE}, float64[:, :], float64[:, :], {_TRIPLE}, boolean, float64, "
+        f"float64, float64, int64, float64[:, :], boolean, {_TRIPLE}, float64, {_MATRIX3}, {_TRIPLE}, {_TRIPLE}, "
+        f"{_TRIPLE}, {_TRIPLE}, int64, float64)")
+def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar, max_condition,
+                             following_error_m, following_error_rad, law, gains, integrate, integral, dt, a_model,
+                             h_model, v_d, v, a_d, distribution, force_limit):
+    """The second half of a Cartesian cycle in one compiled call, after the feedback:
+    the limits (:func:`limits_kernel`), the integral, the law, the distribution and the
+    clamp. Returns (code, index, value, integral, wrench, forces, saturated, peak):
+
+    - code LIMITS_OK: ``forces`` clamped (``saturated`` beyond the limit, ``peak``
+      the largest), ``value`` the translation error; empty with NUMPY_DISTRIBUTION,
+      whose caller distributes ``wrench`` itself;
+    - a limits code with its index and value; WRENCH_NOT_FINITE; DISTRIBUTION_FAILED
+      plus the code of :func:`_distribute_kernel` (``index`` the wrench component J^T f
+      missed, ``value`` what it achieved); FORCES_NOT_FINITE (``forces`` unclamped).
+
+    The laws, F = ... with e = x_d - x, edot = v_d - v, I = int Ki e (conditional
+    integration: only when ``integrate``, i.e. the last command was not saturated):
+    - LAW_CARTESIAN_PID: Kp e + Kd edot + I + m a_d (Sliding Star eq. 9, ARCHI §4.2,
+      diagonal-mass feed-forward);
+    - LAW_COMPUTED_TORQUE: A(x) (a_d + Kd edot + Kp e + I) + H(x, v) (ARCHI §4.2-4.4);
+    - LAW_VELOCITY_CASCADE: A (a_d + Kv (v_c - v)) + H with v_c = v_d + Kp e + I
+      (MoM3 §6.1 PI with velocity feed-forward; Kv in the kd row).
+    The distribution: f = J (J^T J)^-1 F, moved along ker(J^T) to the least peak for
+    DIST_INF_NORM (ARCHI §4.4.1-4.4.2)."""
+    empty = np.zeros(0)
+    code, index, value = limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar,
+                                       max_condition, following_error_m, following_error_rad)
+    if code != LIMITS_OK:
+        return code, index, value, integral, (0.0, 0.0, 0.0), empty, 0, 0.0
+    i0, i1, i2 = integral
+    if integrate:
+        i0 = i0 + gains[2, 0] * error[0] * dt
+        i1 = i1 + gains[2, 1] * error[1] * dt
+        i2 = i2 + gains[2, 2] * error[2] * dt
+    i_new = (i0, i1, i2)
+    w = np.empty(3)
+    u = np.empty(3)
+    for k in range(3):
+        edot = v_d[k] - v[k]
+        if law == LAW_CARTESIAN_PID:
+            w[k] = gains[0, k] * error[k] + gains[1, k] * edot + i_new[k] + gains[3, k] * a_d[k]
+        elif law == LAW_COMPUTED_TORQUE:
+            u[k] = a_d[k] + gains[1, k] * edot + gains[0, k] * error[k] + i_new[k]
+        else:
+            u[k] = a_d[k] + gains[1, k] * (v_d[k] + gains[0, k] * error[k] + i_new[k] - v[k])
+    if law != LAW_CARTESIAN_PID:
+        for k in range(3):
+            w[k] = a_model[k][0] * u[0] + a_model[k][1] * u[1] + a_model[k][2] * u[2] + h_model[k]
+    wrench = (w[0], w[1], w[2])
+    if distribution == NUMPY_DISTRIBUTION:
+        return LIMITS_OK, -1, value, i_new, wrench, empty, 0, 0.0
+    if not math.isfinite(w[0] + w[1] + w[2]):
+        return WRENCH_NOT_FINITE, -1, 0.0, i_new, wrench, empty, 0, 0.0
+    forces, dcode, k, achieved = _distribute_kernel(active_rows, w[0], w[1], w[2], distribution == DIST_INF_NORM,
+                                                    True)
+    if dcode != 0:
+        return DISTRIBUTION_FAILED + dcode, k, achieved, i_new, wrench, empty, 0, 0.0
+    clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)
+    if not finite:
+        return FORCES_NOT_FINITE, -1, value, i_new, wrench, forces, 0, 0.0
+    return LIMITS_OK, -1, value, i_new, wrench, clamped, saturated, peak
+
+
 # --------------------------------------------------------------- joint space
 def joint_pid(e, edot, integral, kp, kd) -> list:
     """f_i = kp_i e_i + kd_i edot_i + I_i: independent PID per drive on the
@@ -192,8 +324,6 @@ class SensorSpaceFeedback:
         self.estimate = (real_p, real_r)
         return [ex, ey, wz] if self.planar else [ex, ey, ez]
 
-
-_TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 
 
 @kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")

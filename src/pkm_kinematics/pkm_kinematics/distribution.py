@@ -482,13 +482,18 @@ def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[
     Compiled (:func:`_distribute_kernel`)."""
     forces, code, k, achieved = _distribute_kernel(_rows_array(rows), wrench[0], wrench[1], wrench[2],
                                                    inf_norm, check)
+    if code:
+        raise_distribution_error(code, k, achieved, wrench)
+    return forces.tolist()
+
+
+def raise_distribution_error(code: int, k: int, achieved: float, wrench) -> None:
+    """The DistributionError of a non-zero code of :func:`_distribute_kernel`."""
     if code == 1:
         raise DistributionError(SINGULAR_GRAM)
     if code == 2:
         raise DistributionError(SINGULAR_NULL)
-    if code == 3:
-        _raise_wrench_mismatch(k, achieved, wrench)
-    return forces.tolist()
+    _raise_wrench_mismatch(k, achieved, wrench)
 
 
 @kernel("(float64[:, :], float64, float64, float64, boolean, boolean)")

@@ -81,7 +81,7 @@ class DynamicModel:
             qdot.tolist()
 
     def measured_state(self, x, drive_velocities) -> tuple:
-        """(A as 3 rows, H (3,), J_m as an (n, 3) array, v as 3 floats) at the pose x
+        """(A as 3 rows, H (3,), J_m as an (n, 3) array, v as a tuple of 3 floats) at the pose x
         with the task velocity v = (J_m^T J_m)^-1 J_m^T qdot that best explains the
         drive velocities (the exact one when they are consistent): what a controller
         derives from its encoders every cycle, in one compiled call. Raises like
@@ -96,7 +96,7 @@ class DynamicModel:
             raise DistributionError(SINGULAR_GRAM)
         if code != planar.VT_OK:
             self.machine.raise_velocity_terms_error(code, leg, x)
-        return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, [v0, v1, v2]
+        return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
 
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
         """xddot from A xddot = J^T f_d + f_n - H."""
