@@ -137,6 +137,21 @@ def test_forward_kinematics_reports_impossible_drive_positions():
     assert "q1, q2" in res.reason
 
 
+@pytest.mark.parametrize("machine", [ARCHI, STAR], ids=["archi", "sliding_star"])
+def test_the_per_cycle_forward_kinematics_is_forward_kinematics(machine):
+    """forward_kinematics_floats (the controller's path): the same pose as the checked
+    method, warm-started on the revolution of the guess; a failed solve raises its reason."""
+    pose = machine.home_pose + [0.01, -0.02, 0.1]
+    q = machine.inverse_kinematics(pose).tolist()
+    guess = (pose + [0.0, 0.0, 2.0 * math.pi]).tolist()
+    np.testing.assert_array_equal(machine.forward_kinematics_floats(q, guess),
+                                  machine.forward_kinematics(q, guess).pose)
+    np.testing.assert_allclose(machine.forward_kinematics_floats(q, guess), guess, atol=1e-9)
+    if machine is ARCHI:
+        with pytest.raises(UnreachablePoseError, match="legs q1, q2: carriages 2.5 m apart"):
+            machine.forward_kinematics_floats([0.0, 2.5, 0.5, 1.0])
+
+
 def test_forward_kinematics_least_squares_with_model_error():
     """Drive positions of a machine whose leg 3 is 2 % longer: the nominal model finds
     the least-squares pose and reports the residual instead of hiding it."""

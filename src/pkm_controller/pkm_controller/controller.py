@@ -482,13 +482,8 @@ class ControllerCore:
         return self._finish(c, forces, trans, measured, error)
 
     def _forward_kinematics(self, q) -> list:
-        if self.planar:
-            result = self.model.forward_kinematics(q, self.pose)
-            if not result.converged:
-                raise KinematicsError(result.reason)
-            pose = result.pose.tolist()
-        else:
-            pose = self.model.forward_kinematics(q).tolist()
+        """The encoder pose (planar: warm-started at the last one); q checked finite."""
+        pose = list(self.model.forward_kinematics_floats(q, self.pose))
         self.pose = pose
         return pose
 

@@ -80,6 +80,7 @@ def _solve3(a, b):
 # forward_kinematics outcome codes (the compiled kernel returns a code, the method
 # turns it into the result's reason)
 FK_CONVERGED, FK_UNREACHABLE, FK_SINGULAR, FK_NO_CONVERGENCE, FK_ASSEMBLY, FK_PAIR = range(6)
+FK_TOL, FK_MAX_ITERATIONS = 1e-12, 50        # forward_kinematics' defaults: step (m, rad), iterations
 FK_REASONS = {FK_SINGULAR: "singular configuration: Jacobian rank < 3",
               FK_NO_CONVERGENCE: "no convergence in {} iterations",
               FK_ASSEMBLY: "converged to another working mode (assembly branch)",
@@ -566,8 +567,8 @@ class PlanarMachine:
         return (f"legs {self.leg_names[i]}, {self.leg_names[j]}: carriages {d:.6g} m apart cannot close "
                 f"with link lengths {self._length[i]:.6g} m and {self._length[j]:.6g} m")
 
-    def forward_kinematics(self, q, guess=None, tol: float = 1e-12,
-                           max_iterations: int = 50) -> ForwardKinematicsResult:
+    def forward_kinematics(self, q, guess=None, tol: float = FK_TOL,
+                           max_iterations: int = FK_MAX_ITERATIONS) -> ForwardKinematicsResult:
         """Pose from drive positions: Gauss-Newton least squares over all n legs.
 
         Started from the closed form where the legs pair up (ARCHI), else from
@@ -592,6 +593,21 @@ class PlanarMachine:
         if code == FK_NO_CONVERGENCE:
             reason = reason.format(max_iterations)
         return ForwardKinematicsResult(np.full(3, np.nan), False, int(iterations), float(residual), reason)
+
+    def forward_kinematics_floats(self, q, guess=None) -> tuple[float, float, float]:
+        """:meth:`forward_kinematics` on the per-cycle path: ``q`` n finite floats
+        (unchecked: the caller checked them), the pose as a tuple; a failed solve
+        raises KinematicsError with the result's reason (UnreachablePoseError for
+        legs that cannot close)."""
+        ref = self.home_pose if guess is None else guess
+        x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
+            self._legs_a, self._pairs_a, self._sides_a, np.array(q, dtype=float), float(ref[0]), float(ref[1]),
+            float(ref[2]), FK_TOL, FK_MAX_ITERATIONS)
+        if code == FK_CONVERGED:
+            return x, y, th
+        if code == FK_UNREACHABLE:
+            raise UnreachablePoseError(self._closed_form_message(i, j, d))
+        raise KinematicsError(FK_REASONS[code].format(FK_MAX_ITERATIONS))
 
     def forward_kinematics_batch(self, q, guesses=None, tol: float = 1e-12,
                                  max_iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:

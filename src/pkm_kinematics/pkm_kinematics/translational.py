@@ -71,6 +71,49 @@ def _velocity_terms_kernel(legs, px, py, pz, vx, vy, vz):
     return rho, rows, rhodots, biases, VT_OK, -1
 
 
+# _forward_kinematics_kernel outcome codes
+FK_OK, FK_COLLINEAR, FK_NOT_MEETING, FK_OTHER_BRANCH = range(4)
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64)")
+def _forward_kinematics_kernel(legs, r0, r1, r2, side):
+    """(px, py, pz, code, leg): the intersection of the three spheres (centres
+    S_i = o_i + rho_i e_i - c_i, radii L_i; rows of ``legs``: o, e, L^2, c, sigma) on
+    the working-mode ``side`` of the centres' plane, then the assembly branch of each
+    leg checked: (C_i - B_i) . e_i has the sign of -sigma_i. ``leg`` names the leg of
+    FK_OTHER_BRANCH."""
+    rho = (r0, r1, r2)
+    s = np.empty((3, 3))
+    for i in range(3):
+        for k in range(3):
+            s[i, k] = legs[i, k] + rho[i] * legs[i, 3 + k] - legs[i, 7 + k]
+    sq1, sq2, sq3 = legs[0, 6], legs[1, 6], legs[2, 6]          # squared radii L_i^2
+    ux, uy, uz = s[1, 0] - s[0, 0], s[1, 1] - s[0, 1], s[1, 2] - s[0, 2]
+    vx, vy, vz = s[2, 0] - s[0, 0], s[2, 1] - s[0, 1], s[2, 2] - s[0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    n2 = nx * nx + ny * ny + nz * nz
+    if not n2 > 1e-18 * (ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz):
+        return 0.0, 0.0, 0.0, FK_COLLINEAR, -1
+    k2 = 0.5 * (sq1 - sq2 + ux * ux + uy * uy + uz * uz)
+    k3 = 0.5 * (sq1 - sq3 + vx * vx + vy * vy + vz * vz)
+    # foot of the intersection line: (k2 (v x n) + k3 (n x u)) / |n|^2
+    fx = (k2 * (vy * nz - vz * ny) + k3 * (ny * uz - nz * uy)) / n2
+    fy = (k2 * (vz * nx - vx * nz) + k3 * (nz * ux - nx * uz)) / n2
+    fz = (k2 * (vx * ny - vy * nx) + k3 * (nx * uy - ny * ux)) / n2
+    rest = sq1 - (fx * fx + fy * fy + fz * fz)
+    if not rest >= 0.0:
+        return 0.0, 0.0, 0.0, FK_NOT_MEETING, -1
+    h = side * math.sqrt(rest / n2)
+    px, py, pz = s[0, 0] + fx + h * nx, s[0, 1] + fy + h * ny, s[0, 2] + fz + h * nz
+    for i in range(3):
+        ex, ey, ez = legs[i, 3], legs[i, 4], legs[i, 5]
+        along = ((px + legs[i, 7] - legs[i, 0] - rho[i] * ex) * ex + (py + legs[i, 8] - legs[i, 1] - rho[i] * ey) * ey
+                 + (pz + legs[i, 9] - legs[i, 2] - rho[i] * ez) * ez)
+        if along * legs[i, 10] > 0.0:
+            return px, py, pz, FK_OTHER_BRANCH, i
+    return px, py, pz, FK_OK, -1
+
+
 @dataclass(frozen=True)
 class TranslationalLeg:
     name: str
@@ -176,38 +219,25 @@ class TranslationalMachine:
         are collinear.
         """
         r = finite_floats(rho, 3, "rho")
-        # sphere centres S_i = o_i + rho_i e_i - c_i, radii L_i (scalar form of _trilaterate)
-        (s1, s2, s3) = [(ox + ri * ex - cx, oy + ri * ey - cy, oz + ri * ez - cz)
-                        for (ox, oy, oz, ex, ey, ez, _, cx, cy, cz, *_), ri in zip(self._legs_f, r)]
-        sq1, sq2, sq3 = (leg[6] for leg in self._legs_f)      # squared radii L_i^2
-        ux, uy, uz = s2[0] - s1[0], s2[1] - s1[1], s2[2] - s1[2]
-        vx, vy, vz = s3[0] - s1[0], s3[1] - s1[1], s3[2] - s1[2]
-        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        n2 = nx * nx + ny * ny + nz * nz
-        if not n2 > 1e-18 * (ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz):
+        return np.array(self.forward_kinematics_floats(r))
+
+    def forward_kinematics_floats(self, rho, guess=None) -> tuple[float, float, float]:
+        """:meth:`forward_kinematics` on the per-cycle path: ``rho`` 3 finite floats
+        (unchecked: the caller checked them), the position as a tuple. ``guess`` is
+        ignored (the closed form needs none; the planar machines' signature).
+        Compiled (:func:`_forward_kinematics_kernel`)."""
+        px, py, pz, code, leg = _forward_kinematics_kernel(self._legs_a, float(rho[0]), float(rho[1]),
+                                                           float(rho[2]), self._fk_side)
+        if code == FK_OK:
+            return px, py, pz
+        r = [float(v) for v in rho]
+        if code == FK_COLLINEAR:
             raise SingularityError(f"actuator positions {r} m: the three sphere centres are collinear "
                                    "(the platform position is not determined)")
-        k2 = 0.5 * (sq1 - sq2 + ux * ux + uy * uy + uz * uz)
-        k3 = 0.5 * (sq1 - sq3 + vx * vx + vy * vy + vz * vz)
-        # foot of the intersection line: (k2 (v x n) + k3 (n x u)) / |n|^2
-        fx = (k2 * (vy * nz - vz * ny) + k3 * (ny * uz - nz * uy)) / n2
-        fy = (k2 * (vz * nx - vx * nz) + k3 * (nz * ux - nx * uz)) / n2
-        fz = (k2 * (vx * ny - vy * nx) + k3 * (nx * uy - ny * ux)) / n2
-        rest = sq1 - (fx * fx + fy * fy + fz * fz)
-        if not rest >= 0.0:
-            raise UnreachablePoseError(
-                f"actuator positions {r} m cannot be assembled: the legs do not meet")
-        h = self._fk_side * math.sqrt(rest / n2)
-        p = (s1[0] + fx + h * nx, s1[1] + fy + h * ny, s1[2] + fz + h * nz)
-        # each leg must be on its assembly branch: (C_i - B_i) . e_i has the sign of -sigma_i
-        for (ox, oy, oz, ex, ey, ez, _, cx, cy, cz, sigma, _lo, _hi, name), ri in zip(self._legs_f, r):
-            along = ((p[0] + cx - ox - ri * ex) * ex + (p[1] + cy - oy - ri * ey) * ey
-                     + (p[2] + cz - oz - ri * ez) * ez)
-            if along * sigma > 0.0:
-                raise UnreachablePoseError(
-                    f"actuator positions {r} m assemble only with leg {name} on its other branch "
-                    f"(assembly {int(sigma):+d})")
-        return np.array(p)
+        if code == FK_NOT_MEETING:
+            raise UnreachablePoseError(f"actuator positions {r} m cannot be assembled: the legs do not meet")
+        raise UnreachablePoseError(f"actuator positions {r} m assemble only with leg {self.leg_names[leg]} on its "
+                                   f"other branch (assembly {int(self._sigma[leg]):+d})")
 
     def forward_kinematics_batch(self, rho) -> tuple[np.ndarray, np.ndarray]:
         """Vectorized forward kinematics, rho (N, 3): (positions, ok mask); NaN rows where
