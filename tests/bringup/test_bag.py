@@ -25,6 +25,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
+from pkm_common.tap import StreamTap, split_batch
 from pkm_bringup.bag import (
     INFINITE_DURATION,
     BagWriter,
@@ -228,28 +229,48 @@ def test_sequence_and_publish_time(ts, tmp_path):
     assert all(p == t for topic, _, t, p in msgs if topic == '/b')
 
 
-def test_a_batch_writes_what_the_same_writes_one_by_one_would(ts, tmp_path):
-    data = [ts.serialize_cdr(make_msg(ts, CLOCK, i), CLOCK) for i in range(6)]
-    records = [(0, T0 + 3, data[0]), (1, T0 + 1, data[1]), (0, T0 + 5, bytearray(data[2])),
-               (1, T0 + 2, memoryview(data[3])), (0, T0 + 4, data[4]), (1, T0 + 9, data[5])]
+def _tap_region(records):
+    """The records region of a recording-tap batch (pkm_common.tap) and its count."""
+    tap = StreamTap()
+    for topic, time_ns, data in records:
+        tap.add(topic, CLOCK, data, time_ns)
+    topics, region, count = split_batch(tap.take_payload())
+    return [t for t, _ in topics], region, count
+
+
+@pytest.mark.parametrize("chunk_size", [1 << 20, 150])
+def test_tap_records_write_what_the_same_writes_one_by_one_would(ts, tmp_path, chunk_size):
+    """write_tap_records (one compiled pass per batch) against write() per message:
+    the same file, byte for byte, chunk ends included; a topic mapped to -1 is skipped."""
+    data = [ts.serialize_cdr(make_msg(ts, CLOCK, i), CLOCK) for i in range(8)]
+    records = [('/a', T0 + 3, data[0]), ('/b', T0 + 1, data[1]), ('/skip', T0, data[6]), ('/a', T0 + 5, data[2]),
+               ('/b', T0 + 2, data[3]), ('/a', T0 + 4, data[4]), ('/skip', T0, data[7]), ('/b', T0 + 9, data[5])]
     files = []
-    for name, batch in (("one", False), ("batch", True)):
-        with BagWriter(tmp_path / name) as writer:
-            ids = [writer.add_topic('/a', CLOCK), writer.add_topic('/b', CLOCK)]
-            records_here = [(ids[c], t, d) for c, t, d in records]
-            if batch:
-                writer.write_batch(records_here[:2])
-                writer.write_batch(records_here[2:])
+    for name, packed in (("one", False), ("packed", True)):
+        (tmp_path / name).mkdir()
+        with BagWriter(tmp_path / name / "bag", chunk_size=chunk_size) as writer:     # the same file name
+            ids = {'/a': writer.add_topic('/a', CLOCK), '/b': writer.add_topic('/b', CLOCK), '/skip': -1}
+            if packed:
+                stamps = []
+                for part in (records[:3], records[3:]):
+                    topics, region, count = _tap_region(part)
+                    written, stamp = writer.write_tap_records(region, count, [ids[t] for t in topics])
+                    assert written.tolist() == [ids[t] for t, _, _ in part if t != '/skip']
+                    stamps += stamp.tolist()
+                assert stamps == [int.from_bytes(d[4:12], 'little', signed=True)
+                                  for t, _, d in records if t != '/skip']
             else:
-                for c, t, d in records_here:
-                    writer.write(c, t, d)
+                for topic, t, d in records:
+                    if topic != '/skip':
+                        writer.write(ids[topic], t, d)
         files.append(writer.mcap_path.read_bytes())
-        info = yaml.safe_load((tmp_path / name / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+        info = yaml.safe_load((tmp_path / name / 'bag' / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
         assert info['starting_time']['nanoseconds_since_epoch'] == T0 + 1
         assert info['duration']['nanoseconds'] == 8
-    one, batch = _messages_of(files[0]), _messages_of(files[1])
-    assert one == batch
-    assert [(topic, seq, t, p) for topic, seq, t, p, _ in one] == [
+        assert {t['topic_metadata']['name']: t['message_count'] for t in info['topics_with_message_count']} \
+            == {'/a': 3, '/b': 3}
+    assert files[0] == files[1]
+    assert [(topic, seq, t, p) for topic, seq, t, p, _ in _messages_of(files[1])] == [
         ('/a', 1, T0 + 3, T0 + 3), ('/b', 1, T0 + 1, T0 + 1), ('/a', 2, T0 + 5, T0 + 5),
         ('/b', 2, T0 + 2, T0 + 2), ('/a', 3, T0 + 4, T0 + 4), ('/b', 3, T0 + 9, T0 + 9)]
 
@@ -259,19 +280,28 @@ def _messages_of(data: bytes) -> list:
             for _, c, m in make_reader(io.BytesIO(data)).iter_messages(log_time_order=False)]
 
 
-def test_a_bad_record_stops_a_batch_after_the_good_ones_before_it(ts, tmp_path):
+def test_a_malformed_tap_batch_is_refused_whole(ts, tmp_path):
     data = ts.serialize_cdr(make_msg(ts, CLOCK, 3), CLOCK)
     with BagWriter(tmp_path / 'b') as writer:
         cid = writer.add_topic('/clock', CLOCK)
-        for bad, match in (((99, T0, data), 'unknown channel id 99'), ((cid, -1, data), 'out of range'),
-                           ((cid, T0 + 0.5, data), 'integer nanoseconds'), ((cid, T0, 'text'), 'bytes-like')):
+        topics, region, count = _tap_region([('/clock', T0, data), ('/clock', T0 + 1, data)])
+        assert writer.write_tap_records(region, count, [cid])[0].tolist() == [cid, cid]
+        negative = bytearray(region)
+        negative[14 + len(data) + 2:14 + len(data) + 10] = (-5).to_bytes(8, 'little', signed=True)
+        bad_index = bytearray(region)
+        bad_index[0:2] = (1).to_bytes(2, 'little')
+        for args, match in (((region[:-1], count, [cid]), 'record 1 runs past the end'),
+                            ((region, count + 1, [cid]), 'record 2 runs past the end'),
+                            ((bad_index, count, [cid]), 'record 0 names a topic index'),
+                            ((negative, count, [cid]), 'record 1 has a negative publish time'),
+                            ((region, count, [99]), 'unknown channel id 99')):
             with pytest.raises(ValueError, match=match):
-                writer.write_batch([(cid, T0, data), bad, (cid, T0 + 1, data)])
-        assert writer.counts == {'/clock': 4}
+                writer.write_tap_records(*args)
+        assert writer.counts == {'/clock': 2}
     with pytest.raises(ValueError, match='closed'):
-        writer.write_batch([(cid, T0, data)])
+        writer.write_tap_records(region, count, [cid])
     got, counts = anyreader_messages(ts, tmp_path / 'b')
-    assert counts == {'/clock': 4} and [t for t, _ in got['/clock']] == [T0] * 4
+    assert counts == {'/clock': 2} and [t for t, _ in got['/clock']] == [T0, T0 + 1]
 
 
 # --- schemas, channels, metadata --------------------------------------------------------------

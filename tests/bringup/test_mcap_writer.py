@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import io
+import struct
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -18,9 +20,24 @@ _message = st.tuples(st.just("msg"), st.integers(1, 3), st.integers(0, 2**40), s
 _calls = st.lists(st.one_of(_message, st.just(("flush",))), max_size=120)
 
 
-def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batched=False) -> bytes:
+def _packed(batch) -> tuple:
+    """Message records packed back to back as pkm_bringup.tap_records makes them
+    (MCAP spec: opcode 0x05, u64 length, u16 channel, u32 sequence, u64 log and publish
+    time, data), with their channels, log times and end offsets."""
+    parts, ends, end = [], [], 0
+    for channel, log_time, data, publish_time, sequence in batch:
+        parts.append(struct.pack("<BQHIQQ", 0x05, 22 + len(data), channel, sequence, log_time, publish_time)
+                     + bytes(data))
+        end += len(parts[-1])
+        ends.append(end)
+    return (np.frombuffer(b"".join(parts), np.uint8), np.array([m[0] for m in batch], np.int64),
+            np.array([m[1] for m in batch], np.int64), np.array(ends, np.int64))
+
+
+def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batched=False, packed=False) -> bytes:
     """The bytes of a recording; ``batched``: the messages between two flushes go to
-    ``add_messages`` in one call."""
+    ``add_messages`` in one call; ``packed``: to ``add_packed``, packed beforehand."""
+    batched = batched or packed
     out = io.BytesIO()
     writer = writer_class(out, chunk_size=chunk_size, compression=compression)
     writer.start(profile="ros2", library="test")
@@ -31,7 +48,7 @@ def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batch
     for call in calls:
         if call[0] == "flush":
             if batch:
-                writer.add_messages(batch)
+                writer.add_packed(*_packed(batch)) if packed else writer.add_messages(batch)
                 batch = []
             writer.flush()
             continue
@@ -43,7 +60,7 @@ def _record(writer_class, calls, chunk_size, compression, data_kind=bytes, batch
         else:
             writer.add_message(*message)
     if batch:                                      # the last batch, in the chunk finish() closes
-        writer.add_messages(batch)
+        writer.add_packed(*_packed(batch)) if packed else writer.add_messages(batch)
     writer.finish()
     return out.getvalue()
 
@@ -57,6 +74,7 @@ def test_the_same_calls_give_the_same_bytes_as_mcaps_writer(calls, chunk_size, c
     assert _record(FastWriter, calls, chunk_size, compression) == expected
     assert _record(FastWriter, calls, chunk_size, compression, data_kind=memoryview) == expected
     assert _record(FastWriter, calls, chunk_size, compression, batched=True) == expected
+    assert _record(FastWriter, calls, chunk_size, compression, packed=True) == expected
 
 
 def test_what_it_writes_reads_back_in_order_with_the_summary():
@@ -80,6 +98,7 @@ def test_without_the_private_attributes_it_falls_back_to_the_stock_path(monkeypa
     assert not FastWriter(io.BytesIO()).fast
     assert _record(FastWriter, calls, 500, CompressionType.ZSTD) == expected
     assert _record(FastWriter, calls, 500, CompressionType.ZSTD, batched=True) == expected
+    assert _record(FastWriter, calls, 500, CompressionType.ZSTD, packed=True) == expected
 
 
 def test_it_refuses_to_write_without_chunks():

@@ -11,6 +11,7 @@ from rosbags.highlevel import AnyReader
 
 from pkm_bringup.recorder_node import RecorderNode
 from pkm_common.params import ParameterError
+from pkm_common.tap import StreamTap
 
 
 def _recorder(ctx, tmp_path, name, **params):
@@ -29,15 +30,33 @@ def test_discovery_slows_down_once_the_recorder_is_ready(ros_context, tmp_path):
         ready.destroy_node()
 
 
+def _payload(records) -> bytes:
+    """A tap's batch payload of (topic, type, publish time ns, CDR bytes) records."""
+    tap = StreamTap()
+    for topic, msgtype, time_ns, data in records:
+        tap.add(topic, msgtype, data, time_ns)
+    return tap.take_payload()
+
+
+def _clock(sec: int) -> bytes:
+    return b"\x00\x01\x00\x00" + sec.to_bytes(4, "little") + (0).to_bytes(4, "little")
+
+
 def test_records_handed_over_are_written_and_refused_once_destroyed(ros_context, tmp_path):
+    """Written and counted per new stamp (a repeat of a stamp is recorded, not counted);
+    a malformed batch is refused whole and counted as a tap error."""
     node = _recorder(ros_context, tmp_path, "c")
-    clock = b"\x00\x01\x00\x00" + (7).to_bytes(4, "little") + (0).to_bytes(4, "little")
+    clock = "rosgraph_msgs/msg/Clock"
     try:
-        assert node.write_records([("/clock", "rosgraph_msgs/msg/Clock", 7_000_000_000, clock)]) is True
-        assert node.writer.counts["/clock"] == 1 and node.steps["/clock"] == 1
+        assert node.write_records(_payload([("/clock", clock, 7_000_000_000, _clock(7)),
+                                            ("/clock", clock, 7_000_000_001, _clock(7)),
+                                            ("/clock", clock, 8_000_000_000, _clock(8))])) is True
+        assert node.writer.counts["/clock"] == 3 and node.steps["/clock"] == 2
+        assert node.write_records(_payload([("/clock", clock, 9_000_000_000, _clock(8))])[:-3]) is True
+        assert node.tap_errors == 1 and node.writer.counts["/clock"] == 3
     finally:
         node.destroy_node()
-    assert node.write_records([("/clock", "rosgraph_msgs/msg/Clock", 8_000_000_000, clock)]) is False
+    assert node.write_records(_payload([("/clock", clock, 8_000_000_000, _clock(9))])) is False
 
 
 def _chunk_compressions(bag_dir) -> set:
@@ -51,7 +70,7 @@ def test_chunks_are_lz4_unless_another_compression_is_asked_for(ros_context, tmp
     node = _recorder(ros_context, tmp_path, "d", **params)
     clock = [b"\x00\x01\x00\x00" + k.to_bytes(4, "little") + (0).to_bytes(4, "little") for k in range(50)]
     try:
-        node.write_records([("/clock", "rosgraph_msgs/msg/Clock", k * 10**9, c) for k, c in enumerate(clock)])
+        node.write_records(_payload([("/clock", "rosgraph_msgs/msg/Clock", k * 10**9, c) for k, c in enumerate(clock)]))
     finally:
         node.destroy_node()
     assert _chunk_compressions(tmp_path / "d") == {{None: "lz4", "zstd": "zstd", "none": ""}[compression]}

@@ -7,7 +7,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt8MultiArray
 
-from pkm_common.tap import MAGIC, StreamTap, TappedPublisher, message_type_name, read_batch
+from pkm_common.tap import MAGIC, StreamTap, TappedPublisher, message_type_name, read_batch, split_batch
 
 RECORDS = st.lists(st.tuples(st.sampled_from(["/drives/state", "/ns/metrology/struts", "/clock"]),
                              st.sampled_from(["sensor_msgs/msg/JointState", "rosgraph_msgs/msg/Clock"]),
@@ -34,14 +34,19 @@ def test_a_batch_reads_back_in_order_and_is_a_valid_uint8_multiarray(records):
 
 @settings(max_examples=50, deadline=None)
 @given(RECORDS)
-def test_records_taken_in_process_are_what_the_batch_would_carry(records):
-    by_batch, by_list = StreamTap(), StreamTap()
-    for tap in (by_batch, by_list):
+def test_a_payload_taken_in_process_is_what_the_batch_carries(records):
+    by_batch, by_payload = StreamTap(), StreamTap()
+    for tap in (by_batch, by_payload):
         for topic, msgtype, data, time_ns in records:
             tap.add(topic, msgtype, data, time_ns)
-    taken = by_list.take_records()
-    assert taken == (read_batch(by_batch.take_batch()) if records else [])
-    assert len(by_list) == 0 and by_list.take_records() == []
+    payload = by_payload.take_payload()
+    if not records:
+        assert payload is None
+        return
+    batch = by_batch.take_batch()
+    assert batch.endswith(payload) and read_batch(payload) == read_batch(batch)
+    assert split_batch(payload)[1:] == split_batch(batch)[1:]
+    assert len(by_payload) == 0 and by_payload.take_payload() is None
 
 
 def test_a_malformed_batch_is_refused_naming_the_tap():
@@ -119,7 +124,7 @@ def test_a_node_tap_with_a_sink_hands_its_records_over_without_a_message():
         tap.flush()
         tap.close()                                                 # nothing new: no second list
         assert tap.batches == 1 and batches == []                   # handed over, no message
-        assert [[(t, m, d) for t, m, _, d in r] for r in received] == [
+        assert [[(t, m, d) for t, m, _, d in read_batch(r)] for r in received] == [
             [("/y", "sensor_msgs/msg/JointState", data)] * 2]
         raw.publish(data)
         tap.sink = lambda records: False                           # the recorder is gone

@@ -53,6 +53,7 @@ import struct
 import threading
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 import mcap.writer as _mcap_writer
@@ -62,6 +63,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from pkm_bringup.mcap_writer import FastWriter
+from pkm_bringup.tap_records import PACK_ERRORS, PACK_OK, pack_tap_records
 
 try:  # mcap's own version string, for the Header's library field
     from importlib.metadata import version as _dist_version
@@ -504,44 +506,40 @@ class BagWriter:
             elif log_time_ns < self._start:
                 self._start = log_time_ns
 
-    def write_batch(self, records) -> None:
-        """Append ``records``, each (channel_id, log_time_ns, data) with the publish time
-        equal to the log time (the recorder's tap batches): the checks of :meth:`write`
-        for each, under one lock. ValueError at the first bad record, before anything
-        of it is written (the records before it are). The data must not change until
-        the call returns (the batch is packed at its end)."""
+    def write_tap_records(self, region, count: int, channel_of) -> tuple[np.ndarray, np.ndarray]:
+        """Append the ``count`` records of a recording-tap batch's records region
+        (pkm_common.tap.split_batch) in one compiled pass (tap_records.pack_tap_records):
+        a record of the tap's topic index i on channel ``channel_of[i]`` (-1: not
+        recorded), log and publish time its publish time, numbered per channel like
+        :meth:`write`. Returns (channel ids, header stamps) of the records written, in
+        order. A malformed region, a negative time, an unknown channel or a closed bag:
+        ValueError, and nothing of the batch is written."""
         with self._lock:
+            self._check_open()
             topics = self._topics
-            start, end = self._start, self._end
-            messages, written = [], []
-            add = messages.append
-            try:
-                for channel_id, time_ns, data in records:
-                    if type(time_ns) is not int:
-                        time_ns = _as_time(time_ns, "log_time_ns")
-                    if not 0 <= time_ns <= _U64_MAX:
-                        raise ValueError(f"timestamps out of range [0, 2**64): {time_ns}")
-                    if not isinstance(data, (bytes, bytearray, memoryview)):
-                        raise ValueError(f"data must be bytes-like (raw CDR), got {type(data).__name__}")
-                    t = topics.get(channel_id)
-                    if t is None or self._closed:
-                        self._check_open()
-                        raise ValueError(f"write to unknown channel id {channel_id!r} "
-                                         f"(known: {sorted(topics)}); call add_topic() first")
-                    t.seq = seq = (t.seq + 1) & 0xFFFFFFFF
-                    add((channel_id, time_ns, data, time_ns, seq))
-                    written.append(t)
-                    if start is None:
-                        start = end = time_ns
-                    elif time_ns > end:
-                        end = time_ns
-                    elif time_ns < start:
-                        start = time_ns
-            finally:
-                self._writer.add_messages(messages)            # FastWriter: one call for the batch
-                for t in written:                              # counted once written
-                    t.count += 1
-                self._start, self._end = start, end
+            used = {c: topics.get(c) for c in channel_of if c >= 0}        # the channels of this batch
+            if None in used.values():
+                unknown = next(c for c, t in used.items() if t is None)
+                raise ValueError(f"write to unknown channel id {unknown!r} "
+                                 f"(known: {sorted(topics)}); call add_topic() first")
+            sequence = np.zeros(max(used, default=0) + 1, np.int64)
+            for channel_id, t in used.items():
+                sequence[channel_id] = t.seq
+            out, channels, times, ends, stamps, code, record = pack_tap_records(
+                np.frombuffer(bytearray(region), np.uint8), count, np.array(channel_of, dtype=np.int64),
+                sequence)
+            if code != PACK_OK:
+                raise ValueError(f"tap records: {PACK_ERRORS[code].format(k=record)} ({count} records, "
+                                 f"{len(region)} bytes)")
+            if len(channels):
+                self._writer.add_packed(out, channels, times, ends)
+                written = np.bincount(channels, minlength=len(sequence)).tolist()
+                for channel_id, t in used.items():
+                    t.seq, t.count = int(sequence[channel_id]), t.count + written[channel_id]
+                t_min, t_max = int(times.min()), int(times.max())
+                self._start = t_min if self._start is None else min(self._start, t_min)
+                self._end = t_max if self._end is None else max(self._end, t_max)
+            return channels, stamps
 
     @property
     def counts(self) -> dict[str, int]:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import struct
 
+import numpy as np
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import Channel, MessageIndex, Schema
@@ -50,14 +51,17 @@ def _span(count: int, start: int, end: int, log_time: int) -> tuple[int, int]:
 
 
 class _FastMessageIndex(MessageIndex):
-    """A MessageIndex record whose (timestamp, offset) pairs are packed in one call."""
+    """A MessageIndex record whose (timestamp, offset) pairs are kept flat (time,
+    offset, time, ...) in ``flat`` and packed in one call (``records`` stays empty)."""
+
+    def __init__(self, channel_id: int):
+        super().__init__(channel_id=channel_id, records=[])
+        self.flat: list[int] = []
 
     def write(self, stream: RecordBuilder):
-        pairs = self.records
-        stream.write(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + 16 * len(pairs), self.channel_id,
-                                      16 * len(pairs)))
-        if pairs:
-            flat = [v for pair in pairs for v in pair]
+        flat = self.flat
+        stream.write(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + 8 * len(flat), self.channel_id, 8 * len(flat)))
+        if flat:
             stream.write(struct.pack(f"<{len(flat)}Q", *flat))
 
 
@@ -147,8 +151,8 @@ class FastWriter(Writer):
                 buffer += data
                 index = chunk.message_indices.get(channel_id)
                 if index is None:
-                    index = chunk.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
-                index.records.append((log_time, offset))
+                    index = chunk.message_indices[channel_id] = _FastMessageIndex(channel_id)
+                index.flat += (log_time, offset)
                 chunk.message_start_time, chunk.message_end_time = _span(
                     chunk.num_messages, chunk.message_start_time, chunk.message_end_time, log_time)
                 chunk.num_messages += 1
@@ -157,3 +161,66 @@ class FastWriter(Writer):
                     self._Writer__finalize_chunk()
         finally:
             stats.message_count, stats.message_start_time, stats.message_end_time = n, start, end
+
+    def add_packed(self, records, channels, times, ends) -> None:
+        """Message records already packed back to back (pkm_bringup.tap_records:
+        ``records`` a uint8 array, per record its channel id, log time and end offset
+        in ``records``), with the same bytes as :meth:`add_message` for each in order
+        (chunk ends included): the chunk buffer takes them in slices, the indexes and
+        statistics per batch."""
+        if not self.fast:
+            self._add_packed_one_by_one(records, channels, times, ends)
+            return
+        stats, limit = self._Writer__statistics, self._Writer__chunk_size
+        view = memoryview(records).cast("B")
+        ends = np.asarray(ends, dtype=np.int64)
+        total, lo = len(ends), 0
+        while lo < total:
+            chunk = self._Writer__chunk_builder
+            base, first = len(chunk._buffer), int(ends[lo - 1]) if lo else 0
+            # add_message closes the chunk after the message that takes it past the limit
+            hi = min(total, int(np.searchsorted(ends, limit - base + first, side="right")) + 1)
+            m, seg_channels, seg_times = hi - lo, channels[lo:hi], times[lo:hi]
+            chunk._buffer += view[first:int(ends[hi - 1])]
+            # (log time, offset in the chunk) per message, grouped by channel in message order
+            order = np.argsort(seg_channels, kind="stable")
+            pairs = np.empty((m, 2), np.int64)
+            pairs[:, 0] = seg_times[order]
+            pairs[1:, 1] = ends[lo:hi - 1]
+            pairs[0, 1] = first
+            pairs[:, 1] = pairs[order, 1] + (base - first)
+            flat = pairs.ravel().tolist()
+            grouped = seg_channels[order]
+            bounds = [0, *(np.flatnonzero(grouped[1:] != grouped[:-1]) + 1).tolist(), m]
+            groups = sorted(zip(order[bounds[:-1]].tolist(), grouped[bounds[:-1]].tolist(), bounds, bounds[1:]))
+            for _, channel_id, a, b in groups:           # new indexes in the order of their first message
+                index = chunk.message_indices.get(channel_id)
+                if index is None:
+                    index = chunk.message_indices[channel_id] = _FastMessageIndex(channel_id)
+                index.flat += flat[2 * a:2 * b]
+                stats.channel_message_counts[channel_id] += b - a
+            t_min, t_max = int(seg_times.min()), int(seg_times.max())
+            chunk.message_start_time, chunk.message_end_time = _span_of(
+                chunk.num_messages, chunk.message_start_time, chunk.message_end_time, t_min, t_max)
+            chunk.num_messages += m
+            stats.message_start_time, stats.message_end_time = _span_of(
+                stats.message_count, stats.message_start_time, stats.message_end_time, t_min, t_max)
+            stats.message_count += m
+            lo = hi
+            if len(chunk._buffer) > limit:
+                self._Writer__finalize_chunk()
+
+    def _add_packed_one_by_one(self, records, channels, times, ends) -> None:
+        view, start = memoryview(records).cast("B"), 0
+        for channel_id, end in zip(np.asarray(channels).tolist(), np.asarray(ends).tolist()):
+            _, _, _, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(view, start)
+            super().add_message(channel_id, log_time, bytes(view[start + _MESSAGE_HEAD.size:end]), publish_time,
+                                sequence)
+            start = end
+
+
+def _span_of(count: int, start: int, end: int, t_min: int, t_max: int) -> tuple[int, int]:
+    """:func:`_span` after messages with log times in [t_min, t_max]."""
+    if count == 0:
+        return t_min, t_max
+    return min(start, t_min), max(end, t_max)

@@ -50,10 +50,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import UInt8MultiArray
 
 from pkm_bringup.bag import BagWriter, qos_profile
+from pkm_bringup.tap_records import StampCounter
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
 from pkm_common.runner import main_exit, run_node
-from pkm_common.tap import TAP_TOPIC, read_batch
+from pkm_common.tap import TAP_TOPIC, split_batch
 
 EXCLUDED = ("/parameter_events",)
 TAPPED = "tapped"           # subscriptions_by_topic: recorded through the tap, not subscribed
@@ -131,8 +132,9 @@ class RecorderNode(Node):
         self.writer = BagWriter(output, compression=compression)
         self.subscriptions_by_topic = {}     # topic -> subscription, TAPPED, or None (not recordable)
         self.channels = {}                   # topic -> channel id
-        self.steps = {}            # topic -> messages with a new stamp (repeats of a stamp not counted)
+        self.raw_steps = {}        # topic -> messages with a new stamp (repeats of a stamp not counted)
         self.last_stamp = {}
+        self.tapped_steps = StampCounter()   # the same per channel id, for the tapped topics
         self.tap_errors = 0
         self.tap_batches = 0                 # tap batches received as messages
         self.tap_lists = 0                   # ... handed over in the same process (NodeTap.sink)
@@ -152,7 +154,13 @@ class RecorderNode(Node):
         stamp = data[4:12]                   # the header stamp (or Clock's time): CDR bytes 4-12
         if stamp != self.last_stamp.get(name):
             self.last_stamp[name] = stamp
-            self.steps[name] = self.steps.get(name, 0) + 1
+            self.raw_steps[name] = self.raw_steps.get(name, 0) + 1
+
+    @property
+    def steps(self) -> dict[str, int]:
+        """Per topic recorded, the messages with a new header stamp."""
+        return {name: self.raw_steps.get(name, 0) + self.tapped_steps.count(channel)
+                for name, channel in self.channels.items()}
 
     def _add_channel(self, name: str, msgtype: str, infos) -> int | None:
         try:
@@ -162,7 +170,6 @@ class RecorderNode(Node):
             self.get_logger().warning(f"{name}: not recorded ({exc})")
             return None
         self.channels[name] = channel
-        self.steps.setdefault(name, 0)
         return channel
 
     def discover(self) -> None:
@@ -206,46 +213,39 @@ class RecorderNode(Node):
         return bool(publishers) and publishers <= tapping
 
     def on_tap(self, buf: bytes) -> None:
-        try:
-            records = read_batch(buf)
-        except ValueError as exc:
-            self.tap_errors += 1
-            self.get_logger().error(str(exc))
-            return
         self.tap_batches += 1
-        self._write_tapped(records)
+        self._write_tapped(buf)
 
-    def write_records(self, records) -> bool:
-        """Record tap records (topic, type, publish time ns, CDR bytes) handed over by a
-        node in the same process (NodeTap.sink); False once the recorder is destroyed."""
+    def write_records(self, payload: bytes) -> bool:
+        """Record the batch payload of a tap in the same process (NodeTap.sink,
+        StreamTap.take_payload); False once the recorder is destroyed."""
         if self.writer is None:
             return False
         self.tap_lists += 1
-        self._write_tapped(records)
+        self._write_tapped(payload)
         return True
 
-    def _write_tapped(self, records) -> None:
-        channels, batch, counted = self.channels, [], []
-        for name, msgtype, time_ns, data in records:
-            channel = channels.get(name)
-            if channel is None and self.topics and name not in self.topics:
-                continue                     # not one of the topics asked for
-            if channel is None:              # before discovery saw the topic: add it now
-                channel = self._add_channel(name, msgtype, self.get_publishers_info_by_topic(name))
-                if channel is None:
-                    continue
-                self.subscriptions_by_topic.setdefault(name, TAPPED)
-            batch.append((channel, time_ns, data))
-            counted.append((name, data))
+    def _write_tapped(self, batch) -> None:
+        """A tap batch to the bag in one compiled pass; a malformed one is refused
+        whole (counted in tap_errors, reported)."""
         try:
-            self.writer.write_batch(batch)
-        except ValueError as exc:          # a bad record: those before it are written, none counted
+            topics, region, count = split_batch(batch)
+            channels = [self._tapped_channel(name, msgtype) for name, msgtype in topics]
+            written, stamps = self.writer.write_tap_records(region, count, channels)
+        except ValueError as exc:
             self.tap_errors += 1
-            self.get_logger().error(f"tap records refused: {exc}")
+            self.get_logger().error(f"tap batch refused: {exc}")
             return
-        count = self._count
-        for name, data in counted:
-            count(name, data)
+        self.tapped_steps.add(written, stamps)
+
+    def _tapped_channel(self, name: str, msgtype: str) -> int:
+        """The channel of a tapped topic; -1 when it is not recorded."""
+        channel = self.channels.get(name)
+        known_unrecordable = name in self.subscriptions_by_topic and self.subscriptions_by_topic[name] is None
+        if channel is None and not known_unrecordable and (not self.topics or name in self.topics):
+            channel = self._add_channel(name, msgtype, self.get_publishers_info_by_topic(name))
+            self.subscriptions_by_topic.setdefault(name, None if channel is None else TAPPED)
+        return -1 if channel is None else channel
 
     def destroy_node(self):
         if self.writer is not None:

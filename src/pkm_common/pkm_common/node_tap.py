@@ -8,9 +8,9 @@ context goes down). Disabled,
 
 ``sink``: a recorder in the same process (the orchestrator's in-process mode) sets it
 to its ``write_records`` (False: not recorded, counted as ``dropped`` like a batch
-that cannot be published); the batches then go to it as lists, without a message
-(no serialising, publishing, taking and parsing of ~20 kB every 50 ms per node, on
-the loop's own thread). The tap publisher still exists: the recorder's readiness check
+that cannot be published); the batch payloads then go to it directly, without a
+message (no publishing and taking of ~20 kB every 50 ms per node, on the loop's own
+thread). The tap publisher still exists: the recorder's readiness check
 looks for it.
 """
 
@@ -48,11 +48,11 @@ class NodeTap:
         if self.tap is None:
             return
         if self.sink is not None:
-            records = self.tap.take_records()
-            if not records:
+            payload = self.tap.take_payload()
+            if payload is None:
                 return
             try:
-                delivered = self.sink(records) is not False      # False: the recorder is gone
+                delivered = self.sink(payload) is not False      # False: the recorder is gone
             except Exception:              # noqa: BLE001 - never raised into the loop or the teardown
                 delivered = False
             if delivered:

@@ -5,8 +5,8 @@ Why: a recorder that subscribes to a 1-2 kHz stream costs the publishing process
 delivery to one more reader per message (a shared-memory push and a wake-up of the
 reader's process), on the loop's own critical path. Machine-tool controllers record
 the same way (TwinCAT Scope, LinuxCNC halsampler): the cyclic task copies its samples
-into a buffer that another task drains. Here a node appends (topic, type, publish
-time, bytes) to a list, ~1 us, and publishes the list every ``period`` as one
+into a buffer that another task drains. Here a node appends (topic index, publish
+time, bytes) to a buffer, ~0.4 us, and publishes it every ``period`` as one
 ``std_msgs/UInt8MultiArray`` on ``TAP_TOPIC``; the recorder writes each record to its
 own topic's channel, exactly as a raw subscription would have received it.
 
@@ -36,64 +36,82 @@ def message_type_name(msg_class) -> str:
 
 
 class StreamTap:
-    """The records of one node since the last batch."""
+    """The records of one node since the last batch, kept as the batch will carry them
+    (the record layout of the module docstring) so that taking a batch is one copy."""
 
     def __init__(self):
         self._index: dict[tuple[str, str], int] = {}
         self._topics: list[tuple[str, str]] = []
-        self._records: list[tuple[int, int, bytes]] = []
+        self._records = bytearray()
+        self._count = 0
 
     def __len__(self) -> int:
-        return len(self._records)
+        return self._count
 
-    def add(self, topic: str, msgtype: str, data: bytes, publish_time_ns: int) -> None:
-        """One published message: the fully qualified topic, its type, the CDR bytes."""
+    def topic_index(self, topic: str, msgtype: str) -> int:
+        """The index of (topic, type) in this tap's topic table (added if new)."""
         key = (topic, msgtype)
         index = self._index.get(key)
         if index is None:
+            if len(self._topics) > 0xFFFF:
+                raise ValueError(f"{TAP_TOPIC}: more than 65536 topics in one tap")
             index = self._index[key] = len(self._topics)
             self._topics.append(key)
-        self._records.append((index, publish_time_ns, data))
+        return index
 
-    def take_records(self) -> list[tuple[str, str, int, bytes]]:
-        """The records so far as :func:`read_batch` returns them (then forgotten): for a
-        recorder in the same process, which needs no batch message."""
-        topics, records = self._topics, self._records
-        self._records = []
-        return [(*topics[index], time_ns, data) for index, time_ns, data in records]
+    def add(self, topic: str, msgtype: str, data: bytes, publish_time_ns: int) -> None:
+        """One published message: the fully qualified topic, its type, the CDR bytes."""
+        self.add_indexed(self.topic_index(topic, msgtype), data, publish_time_ns)
 
-    def take_batch(self) -> bytes | None:
-        """The records so far as the CDR bytes of a UInt8MultiArray (then forgotten),
-        or None when there are none."""
-        if not self._records:
+    def add_indexed(self, index: int, data: bytes, publish_time_ns: int) -> None:
+        """:meth:`add` for a topic of :meth:`topic_index` (the per-message path)."""
+        records = self._records
+        records.extend(_RECORD.pack(index, publish_time_ns, len(data)))
+        records.extend(data)
+        self._count += 1
+
+    def take_payload(self) -> bytes | None:
+        """The records so far as a batch payload (MAGIC...; then forgotten), or None
+        when there are none: what a recorder in the same process is handed."""
+        if not self._count:
             return None
         parts = [MAGIC, _U32.pack(len(self._topics))]
         for topic, msgtype in self._topics:
             for text in (topic, msgtype):
                 raw = text.encode()
                 parts += [_U16.pack(len(raw)), raw]
-        parts.append(_U32.pack(len(self._records)))
-        pack = _RECORD.pack
-        for index, time_ns, data in self._records:
-            parts += [pack(index, time_ns, len(data)), data]
-        self._records = []
+        parts += [_U32.pack(self._count), self._records]
         payload = b"".join(parts)
+        self._records.clear()
+        self._count = 0
+        return payload
+
+    def take_batch(self) -> bytes | None:
+        """The records so far as the CDR bytes of a UInt8MultiArray (then forgotten),
+        or None when there are none."""
+        payload = self.take_payload()
+        if payload is None:
+            return None
         return _ARRAY_HEAD.pack(CDR_LE_HEADER, 0, 0, len(payload)) + payload
 
 
-def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
-    """The records of a batch: (topic, type, publish time ns, CDR bytes). ValueError
-    naming what is wrong for anything that is not a batch of ``StreamTap``."""
-    buf = bytes(buf)
-    if len(buf) < _ARRAY_HEAD.size:
-        raise ValueError(f"{TAP_TOPIC}: {len(buf)} bytes, too short for a UInt8MultiArray")
-    encapsulation, dims, _, length = _ARRAY_HEAD.unpack_from(buf)
-    if encapsulation != CDR_LE_HEADER or dims != 0 or len(buf) < _ARRAY_HEAD.size + length:
-        raise ValueError(f"{TAP_TOPIC}: not a tap batch (encapsulation {encapsulation!r}, {dims} layout "
-                         f"dimensions, data length {length} in {len(buf)} bytes)")
-    data = memoryview(buf)[_ARRAY_HEAD.size:_ARRAY_HEAD.size + length]
+def split_batch(buf) -> tuple[list[tuple[str, str]], memoryview, int]:
+    """(topics, records, count) of a batch (the CDR bytes of the UInt8MultiArray, or
+    the payload alone): the topic table as (topic, type) pairs, and the records region
+    as a memoryview with its record count, unparsed (the recorder packs it into MCAP
+    in one compiled pass, pkm_bringup.tap_records). ValueError naming what is wrong
+    for anything that is not a batch of ``StreamTap``; the records are not checked."""
+    data = memoryview(buf).cast("B")
     if bytes(data[:len(MAGIC)]) != MAGIC:
-        raise ValueError(f"{TAP_TOPIC}: bad magic {bytes(data[:len(MAGIC)])!r}, expected {MAGIC!r}")
+        if len(data) < _ARRAY_HEAD.size:
+            raise ValueError(f"{TAP_TOPIC}: {len(data)} bytes, too short for a UInt8MultiArray")
+        encapsulation, dims, _, length = _ARRAY_HEAD.unpack_from(data)
+        if encapsulation != CDR_LE_HEADER or dims != 0 or len(data) < _ARRAY_HEAD.size + length:
+            raise ValueError(f"{TAP_TOPIC}: not a tap batch (encapsulation {encapsulation!r}, {dims} layout "
+                             f"dimensions, data length {length} in {len(data)} bytes)")
+        data = data[_ARRAY_HEAD.size:_ARRAY_HEAD.size + length]
+        if bytes(data[:len(MAGIC)]) != MAGIC:
+            raise ValueError(f"{TAP_TOPIC}: bad magic {bytes(data[:len(MAGIC)])!r}, expected {MAGIC!r}")
     try:
         offset = len(MAGIC)
         (count,), offset = _U32.unpack_from(data, offset), offset + 4
@@ -102,11 +120,25 @@ def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
             texts = []
             for _ in range(2):
                 (size,), offset = _U16.unpack_from(data, offset), offset + 2
+                if offset + size > len(data):
+                    raise ValueError(f"{TAP_TOPIC}: truncated topic table")
                 texts.append(bytes(data[offset:offset + size]).decode())
                 offset += size
             topics.append(tuple(texts))
         (count,), offset = _U32.unpack_from(data, offset), offset + 4
-        records = []
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise ValueError(f"{TAP_TOPIC}: truncated or malformed batch ({exc})") from None
+    return topics, data[offset:], count
+
+
+def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
+    """The records of a batch: (topic, type, publish time ns, CDR bytes). ValueError
+    naming what is wrong for anything that is not a batch of ``StreamTap``. (Python,
+    one tuple per record: for tests and tools; the recorder packs the records region
+    of :func:`split_batch` directly.)"""
+    topics, data, count = split_batch(buf)
+    offset, records = 0, []
+    try:
         for _ in range(count):
             index, time_ns, size = _RECORD.unpack_from(data, offset)
             offset += _RECORD.size
@@ -116,7 +148,7 @@ def read_batch(buf) -> list[tuple[str, str, int, bytes]]:
             topic, msgtype = topics[index]
             records.append((topic, msgtype, time_ns, bytes(data[offset:offset + size])))
             offset += size
-    except (struct.error, UnicodeDecodeError) as exc:
+    except struct.error as exc:
         raise ValueError(f"{TAP_TOPIC}: truncated or malformed batch ({exc})") from None
     return records
 
@@ -125,12 +157,13 @@ class TappedPublisher:
     """A publisher of CDR bytes whose every message also goes into a ``StreamTap``
     (the node's per-step streams when it is recorded)."""
 
-    __slots__ = ("publisher", "tap", "topic", "msgtype", "clock")
+    __slots__ = ("publisher", "tap", "topic", "msgtype", "clock", "index")
 
     def __init__(self, publisher, tap: StreamTap, msgtype: str, clock):
         self.publisher, self.tap, self.msgtype, self.clock = publisher, tap, msgtype, clock
         self.topic = publisher.topic_name
+        self.index = tap.topic_index(self.topic, msgtype)
 
     def publish(self, data: bytes) -> None:
         self.publisher.publish(data)
-        self.tap.add(self.topic, self.msgtype, data, self.clock())
+        self.tap.add_indexed(self.index, data, self.clock())
