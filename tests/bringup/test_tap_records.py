@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -33,7 +34,7 @@ def test_packed_records_are_the_mcap_messages_of_the_batch(records, channel_of_t
     topics, region, count = split_batch(payload)
     channel_of = np.array([channel_of_topic[TOPICS.index(t)] for t, _ in topics], np.int64)
     sequence = np.full(6, first_sequence, np.int64)
-    out, channels, times, ends, stamps, code, _ = pack_tap_records(np.frombuffer(bytearray(region), np.uint8),
+    out, channels, times, ends, stamps, per_topic, code, _ = pack_tap_records(np.frombuffer(bytearray(region), np.uint8),
                                                                    count, channel_of, sequence)
     assert code == PACK_OK
     expected, next_sequence = [], {}
@@ -52,10 +53,16 @@ def test_packed_records_are_the_mcap_messages_of_the_batch(records, channel_of_t
     assert channels.tolist() == [c for c, _, _, _ in expected] and times.tolist() == [t for _, _, t, _ in expected]
     assert stamps.tolist() == [_stamp(d) for _, _, _, d in expected]
     assert all(sequence[c] == s for c, s in next_sequence.items())
+    assert per_topic.tolist() == [sum(1 for t, _, _, _ in read_batch(payload) if t == name and c >= 0)
+                                  for (name, _), c in zip(topics, channel_of.tolist())]
 
 
 def test_the_stamp_counter_counts_changes_per_channel_across_batches():
     counter = StampCounter(channels=2)
+    counter.reserve(3)
     counter.add(np.array([1, 1, 3, 1], np.int64), np.array([5, 5, 5, 6], np.int64))
-    counter.add(np.array([1, 3, 70], np.int64), np.array([6, 7, 0], np.int64))       # grows for channel 70
+    counter.reserve(70)
+    counter.add(np.array([1, 3, 70], np.int64), np.array([6, 7, 0], np.int64))
     assert [counter.count(c) for c in (0, 1, 3, 70, 999)] == [0, 2, 2, 1, 0]
+    with pytest.raises(ValueError, match="channel 999: not reserved"):
+        counter.add(np.array([999], np.int64), np.array([0], np.int64))

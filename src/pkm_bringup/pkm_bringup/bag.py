@@ -517,28 +517,27 @@ class BagWriter:
         with self._lock:
             self._check_open()
             topics = self._topics
-            used = {c: topics.get(c) for c in channel_of if c >= 0}        # the channels of this batch
-            if None in used.values():
-                unknown = next(c for c, t in used.items() if t is None)
-                raise ValueError(f"write to unknown channel id {unknown!r} "
-                                 f"(known: {sorted(topics)}); call add_topic() first")
-            sequence = np.zeros(max(used, default=0) + 1, np.int64)
-            for channel_id, t in used.items():
-                sequence[channel_id] = t.seq
-            out, channels, times, ends, stamps, code, record = pack_tap_records(
+            used = [topics.get(c) if c >= 0 else None for c in channel_of]     # per topic index
+            sequence = np.zeros(max(channel_of, default=0) + 1, np.int64)
+            for channel_id, t in zip(channel_of, used):
+                if channel_id >= 0 and t is None:
+                    raise ValueError(f"write to unknown channel id {channel_id!r} "
+                                     f"(known: {sorted(topics)}); call add_topic() first")
+                if t is not None:
+                    sequence[channel_id] = t.seq
+            out, channels, times, ends, stamps, per_topic, code, record = pack_tap_records(
                 np.frombuffer(bytearray(region), np.uint8), count, np.array(channel_of, dtype=np.int64),
                 sequence)
             if code != PACK_OK:
                 raise ValueError(f"tap records: {PACK_ERRORS[code].format(k=record)} ({count} records, "
                                  f"{len(region)} bytes)")
             if len(channels):
-                self._writer.add_packed(out, channels, times, ends)
-                written = np.bincount(channels, minlength=len(sequence)).tolist()
-                for channel_id, t in used.items():
-                    t.seq, t.count = int(sequence[channel_id]), t.count + written[channel_id]
-                t_min, t_max = int(times.min()), int(times.max())
-                self._start = t_min if self._start is None else min(self._start, t_min)
-                self._end = t_max if self._end is None else max(self._end, t_max)
+                span = self._writer.add_packed(out, channels, times, ends)
+                for channel_id, t, written in zip(channel_of, used, per_topic.tolist()):
+                    if t is not None:
+                        t.seq, t.count = int(sequence[channel_id]), t.count + written
+                self._start = span[0] if self._start is None else min(self._start, span[0])
+                self._end = span[1] if self._end is None else max(self._end, span[1])
             return channels, stamps
 
     @property

@@ -34,6 +34,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, MessageIndex, Schema
 from mcap.writer import Writer
 
+from pkm_bringup.tap_records import index_packed_segment
+
 __all__ = ["FastChunkBuilder", "FastWriter"]
 
 # Message record: opcode, record length, channel id, sequence, log time, publish time
@@ -162,61 +164,56 @@ class FastWriter(Writer):
         finally:
             stats.message_count, stats.message_start_time, stats.message_end_time = n, start, end
 
-    def add_packed(self, records, channels, times, ends) -> None:
+    def add_packed(self, records, channels, times, ends) -> tuple[int, int] | None:
         """Message records already packed back to back (pkm_bringup.tap_records:
         ``records`` a uint8 array, per record its channel id, log time and end offset
         in ``records``), with the same bytes as :meth:`add_message` for each in order
         (chunk ends included): the chunk buffer takes them in slices, the indexes and
-        statistics per batch."""
+        statistics per batch. Returns the (first, last) log time of the records, None
+        for none."""
+        if not len(ends):
+            return None
         if not self.fast:
-            self._add_packed_one_by_one(records, channels, times, ends)
-            return
+            return self._add_packed_one_by_one(records, channels, times, ends)
         stats, limit = self._Writer__statistics, self._Writer__chunk_size
         view = memoryview(records).cast("B")
+        channels, times = np.asarray(channels, dtype=np.int64), np.asarray(times, dtype=np.int64)
         ends = np.asarray(ends, dtype=np.int64)
-        total, lo = len(ends), 0
+        lo, total, counts, span = 0, len(ends), stats.channel_message_counts, None
         while lo < total:
             chunk = self._Writer__chunk_builder
-            base, first = len(chunk._buffer), int(ends[lo - 1]) if lo else 0
-            # add_message closes the chunk after the message that takes it past the limit
-            hi = min(total, int(np.searchsorted(ends, limit - base + first, side="right")) + 1)
-            m, seg_channels, seg_times = hi - lo, channels[lo:hi], times[lo:hi]
-            chunk._buffer += view[first:int(ends[hi - 1])]
-            # (log time, offset in the chunk) per message, grouped by channel in message order
-            order = np.argsort(seg_channels, kind="stable")
-            pairs = np.empty((m, 2), np.int64)
-            pairs[:, 0] = seg_times[order]
-            pairs[1:, 1] = ends[lo:hi - 1]
-            pairs[0, 1] = first
-            pairs[:, 1] = pairs[order, 1] + (base - first)
-            flat = pairs.ravel().tolist()
-            grouped = seg_channels[order]
-            bounds = [0, *(np.flatnonzero(grouped[1:] != grouped[:-1]) + 1).tolist(), m]
-            groups = sorted(zip(order[bounds[:-1]].tolist(), grouped[bounds[:-1]].tolist(), bounds, bounds[1:]))
-            for _, channel_id, a, b in groups:           # new indexes in the order of their first message
+            hi, pairs, group_channels, bounds, t_min, t_max = index_packed_segment(
+                channels, times, ends, lo, len(chunk._buffer), limit)
+            chunk._buffer += view[int(ends[lo - 1]) if lo else 0:int(ends[hi - 1])]
+            flat, bounds = pairs.ravel().tolist(), bounds.tolist()
+            for g, channel_id in enumerate(group_channels.tolist()):
                 index = chunk.message_indices.get(channel_id)
                 if index is None:
                     index = chunk.message_indices[channel_id] = _FastMessageIndex(channel_id)
-                index.flat += flat[2 * a:2 * b]
-                stats.channel_message_counts[channel_id] += b - a
-            t_min, t_max = int(seg_times.min()), int(seg_times.max())
+                index.flat += flat[2 * bounds[g]:2 * bounds[g + 1]]
+                counts[channel_id] += bounds[g + 1] - bounds[g]
+            hi, t_min, t_max = int(hi), int(t_min), int(t_max)          # Python ints (numpy's without numba)
+            m = hi - lo
             chunk.message_start_time, chunk.message_end_time = _span_of(
                 chunk.num_messages, chunk.message_start_time, chunk.message_end_time, t_min, t_max)
             chunk.num_messages += m
             stats.message_start_time, stats.message_end_time = _span_of(
                 stats.message_count, stats.message_start_time, stats.message_end_time, t_min, t_max)
             stats.message_count += m
+            span = _span_of(0 if span is None else 1, *(span or (0, 0)), t_min, t_max)
             lo = hi
             if len(chunk._buffer) > limit:
                 self._Writer__finalize_chunk()
+        return span
 
-    def _add_packed_one_by_one(self, records, channels, times, ends) -> None:
+    def _add_packed_one_by_one(self, records, channels, times, ends) -> tuple[int, int]:
         view, start = memoryview(records).cast("B"), 0
         for channel_id, end in zip(np.asarray(channels).tolist(), np.asarray(ends).tolist()):
             _, _, _, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(view, start)
             super().add_message(channel_id, log_time, bytes(view[start + _MESSAGE_HEAD.size:end]), publish_time,
                                 sequence)
             start = end
+        return int(np.min(times)), int(np.max(times))
 
 
 def _span_of(count: int, start: int, end: int, t_min: int, t_max: int) -> tuple[int, int]:

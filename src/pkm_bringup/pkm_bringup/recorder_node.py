@@ -170,6 +170,7 @@ class RecorderNode(Node):
             self.get_logger().warning(f"{name}: not recorded ({exc})")
             return None
         self.channels[name] = channel
+        self.tapped_steps.reserve(channel)
         return channel
 
     def discover(self) -> None:

@@ -47,25 +47,31 @@ def _write_le(buf, offset, value, size):
         buf[offset + k] = (value >> (8 * k)) & 0xFF
 
 
+@kernel()
+def _nothing_packed(code, record):
+    empty = np.zeros(0, np.int64)
+    return np.zeros(0, np.uint8), empty, empty.copy(), empty.copy(), empty.copy(), empty.copy(), code, record
+
+
 @kernel("(uint8[:], int64, int64[:], int64[:])")
 def pack_tap_records(region, count, channel_of, sequence):
-    """(out, channels, times, ends, stamps, code, record): the ``count`` tap records of
-    ``region`` as MCAP Message records, back to back in ``out``.
+    """(out, channels, times, ends, stamps, per_topic, code, record): the ``count`` tap
+    records of ``region`` as MCAP Message records, back to back in ``out``.
 
     ``channel_of[i]``: the channel id of the tap's topic index i, -1 to skip its
     records. ``sequence[c]``: the last sequence number of channel c, advanced (mod
     2**32) for each record written. Per record written: its channel, its log time (=
     its publish time), the end of its Message record in ``out``, and its header stamp
     (CDR bytes 4-12 as an int64: std_msgs/Header and rosgraph_msgs/Clock start with it;
-    a message shorter than 12 bytes stands in with -1 - its length).
-    ``code`` PACK_OK, or what is wrong with record number ``record``: then nothing is
+    a message shorter than 12 bytes stands in with -1 - its length); ``per_topic``: the
+    records written per topic index. ``code`` PACK_OK, or what is wrong with record number ``record``: then nothing is
     written and ``sequence`` is unchanged."""
     size = region.shape[0]
     offset, written, out_size = 0, 0, 0
+    per_topic = np.zeros(channel_of.shape[0], np.int64)
     for k in range(count):
         if offset + TAP_RECORD_HEAD > size:
-            return np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), \
-                np.zeros(0, np.int64), PACK_TRUNCATED, k
+            return _nothing_packed(PACK_TRUNCATED, k)
         index, length = _read_le(region, offset, 2), _read_le(region, offset + 10, 4)
         offset += TAP_RECORD_HEAD + length
         code = PACK_OK
@@ -77,10 +83,10 @@ def pack_tap_records(region, count, channel_of, sequence):
             if region[offset - length - 5] >= 0x80:      # the sign byte of the i64 time
                 code = PACK_NEGATIVE_TIME
             written += 1
+            per_topic[index] += 1
             out_size += MESSAGE_HEAD + length
         if code != PACK_OK:
-            return np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), \
-                np.zeros(0, np.int64), code, k
+            return _nothing_packed(code, k)
     out = np.empty(out_size, np.uint8)
     channels, times = np.empty(written, np.int64), np.empty(written, np.int64)
     ends, stamps = np.empty(written, np.int64), np.empty(written, np.int64)
@@ -106,16 +112,66 @@ def pack_tap_records(region, count, channel_of, sequence):
         channels[w], times[w], ends[w] = channel, time_ns, position
         stamps[w] = _read_le(region, data + 4, 8) if length >= 12 else -1 - length
         w += 1
-    return out, channels, times, ends, stamps, PACK_OK, -1
+    return out, channels, times, ends, stamps, per_topic, PACK_OK, -1
+
+
+@kernel("(int64[:], int64[:], int64[:], int64, int64, int64)")
+def index_packed_segment(channels, times, ends, lo, base, limit):
+    """The part of a packed batch that goes into the open chunk, and its message
+    indexes: from record ``lo`` on, up to and including the record that takes the
+    chunk (``base`` bytes before it) past ``limit`` bytes, as MCAP's writer closes a
+    chunk after the message that crosses its size. Returns (hi, pairs, group_channels,
+    group_bounds, t_min, t_max): records lo..hi-1; their (log time, offset in the
+    chunk) pairs grouped by channel, in message order within a group, the groups in
+    the order of their channel's first message; group g is pairs[group_bounds[g]:
+    group_bounds[g + 1]] of channel group_channels[g]; the segment's time span."""
+    n = channels.shape[0]
+    first = ends[lo - 1] if lo > 0 else 0
+    hi = n
+    for k in range(lo, n):
+        if base + ends[k] - first > limit:
+            hi = k + 1
+            break
+    m = hi - lo
+    top = 0
+    for k in range(lo, hi):
+        top = max(top, channels[k])
+    group_of = np.full(top + 1, -1, np.int64)
+    group_channels = np.empty(m, np.int64)
+    sizes = np.zeros(m + 1, np.int64)
+    groups = 0
+    t_min, t_max = times[lo], times[lo]
+    for k in range(lo, hi):
+        c = channels[k]
+        if group_of[c] < 0:
+            group_of[c] = groups
+            group_channels[groups] = c
+            groups += 1
+        sizes[group_of[c] + 1] += 1
+        t_min, t_max = min(t_min, times[k]), max(t_max, times[k])
+    bounds = np.cumsum(sizes[:groups + 1])
+    fill = bounds[:groups].copy()
+    pairs = np.empty((m, 2), np.int64)
+    for k in range(lo, hi):
+        g = group_of[channels[k]]
+        pairs[fill[g], 0] = times[k]
+        pairs[fill[g], 1] = base + (ends[k - 1] if k > 0 else 0) - first
+        fill[g] += 1
+    return hi, pairs, group_channels[:groups].copy(), bounds, t_min, t_max
 
 
 @kernel("(int64[:], int64[:], int64[:], boolean[:], int64[:])")
 def _count_new_stamps(channels, stamps, last, seen, counts):
+    """The count of each record whose stamp differs from its channel's last one; -1,
+    or the first channel id outside the arrays (nothing counted from it on)."""
     for k in range(channels.shape[0]):
         c, s = channels[k], stamps[k]
+        if not 0 <= c < counts.shape[0]:
+            return c
         if not seen[c] or last[c] != s:
             seen[c], last[c] = True, s
             counts[c] += 1
+    return -1
 
 
 class StampCounter:
@@ -128,17 +184,20 @@ class StampCounter:
         self.seen = np.zeros(channels, bool)
         self.counts = np.zeros(channels, np.int64)
 
-    def add(self, channels: np.ndarray, stamps: np.ndarray) -> None:
-        """The records written, as :func:`pack_tap_records` returns them."""
-        if not len(channels):
-            return
-        top = int(channels.max()) + 1
-        if top > len(self.counts):
-            grow = max(top, 2 * len(self.counts)) - len(self.counts)
+    def reserve(self, channel: int) -> None:
+        """Make room for channel ids up to ``channel`` (when a channel is added)."""
+        if channel >= len(self.counts):
+            grow = max(channel + 1, 2 * len(self.counts)) - len(self.counts)
             self.last = np.concatenate([self.last, np.zeros(grow, np.int64)])
             self.seen = np.concatenate([self.seen, np.zeros(grow, bool)])
             self.counts = np.concatenate([self.counts, np.zeros(grow, np.int64)])
-        _count_new_stamps(channels, stamps, self.last, self.seen, self.counts)
+
+    def add(self, channels: np.ndarray, stamps: np.ndarray) -> None:
+        """The records written, as :func:`pack_tap_records` returns them (their
+        channels reserved: ValueError naming one that is not)."""
+        outside = _count_new_stamps(channels, stamps, self.last, self.seen, self.counts)
+        if outside >= 0:
+            raise ValueError(f"channel {outside}: not reserved in the stamp counter (0..{len(self.counts) - 1})")
 
     def count(self, channel: int) -> int:
         return int(self.counts[channel]) if 0 <= channel < len(self.counts) else 0
