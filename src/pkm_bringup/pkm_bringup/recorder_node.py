@@ -20,8 +20,11 @@ Tapped topics (``tapped_topics``): the loop's per-step streams, whose nodes run 
 ``tap: true`` (pkm_common.tap), are not subscribed. Their nodes copy what they publish
 into batches on ``_recorder/tap`` (one message per node every 50 ms instead of one
 delivery per message to one more process, on the loop's critical path); each record
-is written to its topic's channel with the node's publish time as log time. The
-channel (type, offered QoS) comes from discovery as for any topic.
+is written to its topic's channel with the node's publish time as log time, a whole
+batch in one compiled pass (pkm_bringup.tap_records; a malformed batch is refused
+whole and counted in ``tap_errors``). In one process the taps hand their batch
+payloads to ``write_records`` directly. The channel (type, offered QoS) comes from
+discovery as for any topic.
 
 Readiness: once every topic of ``expect_topics`` is subscribed and matched with at
 least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
@@ -39,17 +42,15 @@ when the node is destroyed: normal end, SIGINT and SIGTERM alike (runner.run_nod
 
 from __future__ import annotations
 
-import importlib
 import json
-import os
 import time
 from pathlib import Path
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt8MultiArray
 
-from pkm_bringup.bag import BagWriter, qos_profile
+from pkm_bringup.bag import BagWriter
+from pkm_bringup.recording import lower_cpu_priority, message_class, qos_dict, subscription_qos
 from pkm_bringup.tap_records import StampCounter
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
@@ -58,45 +59,6 @@ from pkm_common.tap import TAP_TOPIC, split_batch
 
 EXCLUDED = ("/parameter_events",)
 TAPPED = "tapped"           # subscriptions_by_topic: recorded through the tap, not subscribed
-_NS_MAX = 9223372036854775807
-
-
-def message_class(msgtype: str):
-    """'sensor_msgs/msg/JointState' -> the rclpy message class."""
-    package, _, name = msgtype.rpartition("/")
-    return getattr(importlib.import_module(package.replace("/", ".")), name)
-
-
-def qos_dict(qos: QoSProfile) -> dict:
-    """An offered QoS profile as rosbag2 (Jazzy) writes it in ``offered_qos_profiles``
-    (bag.qos_profile); an unset or infinite duration is rosbag2's infinite."""
-    def ns(d):
-        return d.nanoseconds if 0 < d.nanoseconds < _NS_MAX else None
-    return qos_profile(qos.reliability, qos.durability, qos.depth, qos.history, ns(qos.deadline), ns(qos.lifespan),
-                       qos.liveliness, ns(qos.liveliness_lease_duration), qos.avoid_ros_namespace_conventions)
-
-
-def subscription_qos(offered: list[QoSProfile], depth: int) -> QoSProfile:
-    """Compatible with every offered profile, deep enough not to drop at full rate."""
-    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
-
-
-def lower_cpu_priority() -> int:
-    """SCHED_IDLE for every thread of this process (Linux; unprivileged): it then runs
-    only on CPU time no other process wants. Threads created later inherit it.
-    Returns the number of threads changed."""
-    changed = 0
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setscheduler(int(tid), os.SCHED_IDLE, os.sched_param(0))
-            changed += 1
-        except (OSError, ValueError):       # a thread that has just ended
-            pass
-    return changed
 
 
 class RecorderNode(Node):
