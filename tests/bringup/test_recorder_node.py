@@ -59,6 +59,24 @@ def test_records_handed_over_are_written_and_refused_once_destroyed(ros_context,
     assert node.write_records(_payload([("/clock", clock, 8_000_000_000, _clock(9))])) is False
 
 
+def test_a_tap_batch_naming_a_bad_topic_or_type_is_not_recorded_and_does_not_stop_the_node(ros_context, tmp_path):
+    """The topic table comes from another process: an invalid topic name (rclpy
+    refuses it) or a type that is not a message type name is skipped and remembered,
+    the other topics of the batch are recorded."""
+    node = _recorder(ros_context, tmp_path, "e")
+    clock = "rosgraph_msgs/msg/Clock"
+    try:
+        batch = _payload([("/bad name", clock, 1, _clock(1)), ("/x", "../msg/Evil", 2, _clock(2)),
+                          ("/clock", clock, 3, _clock(3))])
+        assert node.write_records(batch) is True and node.write_records(batch) is True
+        counts = node.writer.counts
+        assert counts["/clock"] == 2 and "/bad name" not in counts and "/x" not in counts
+        assert node.tap_lists == 2 and node.tap_errors == 0
+        assert node.tap_refused == {("/bad name", clock), ("/x", "../msg/Evil")}
+    finally:
+        node.destroy_node()
+
+
 def _chunk_compressions(bag_dir) -> set:
     with open(next(bag_dir.glob("*.mcap")), "rb") as fh:
         return {r.compression for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, Chunk)}

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pkm_bringup.tap_records import PACK_OK, StampCounter, pack_tap_records
+from pkm_bringup.tap_records import PACK_BAD_CHANNEL, PACK_OK, StampCounter, pack_tap_records
 from pkm_common.tap import StreamTap, read_batch, split_batch
 
 TOPICS = ["/drives/state", "/metrology/struts", "/clock"]
@@ -66,3 +66,14 @@ def test_the_stamp_counter_counts_changes_per_channel_across_batches():
     assert [counter.count(c) for c in (0, 1, 3, 70, 999)] == [0, 2, 2, 1, 0]
     with pytest.raises(ValueError, match="channel 999: not reserved"):
         counter.add(np.array([999], np.int64), np.array([0], np.int64))
+
+
+def test_a_channel_outside_the_sequence_table_is_refused_before_anything_is_written():
+    tap = StreamTap()
+    tap.add("/clock", "rosgraph_msgs/msg/Clock", bytes(12), 5)
+    _, region, count = split_batch(tap.take_payload())
+    region = np.frombuffer(bytearray(region), np.uint8)
+    for channel, size in ((3, 3), (70_000, 70_001)):          # past the table; past u16
+        sequence = np.zeros(size, np.int64)
+        out, *_, code, record = pack_tap_records(region, count, np.array([channel], np.int64), sequence)
+        assert (code, record, len(out)) == (PACK_BAD_CHANNEL, 0, 0) and not sequence.any()

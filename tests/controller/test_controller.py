@@ -270,6 +270,24 @@ def test_a_non_finite_model_wrench_stops_the_controller_naming_it(monkeypatch):
     assert core.stop_reason.startswith("computed_torque: wrench: contains NaN or infinite values: [")
 
 
+def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypatch):
+    """Each component finite, their sum not: still a wrench (the checks are per
+    component), distributed, and the drives get the clamped forces, saturation
+    counted, the machine not tripped for it."""
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
+    core.update(0.0, *_state_at(ARCHI_HOME))
+    measured_state = core.dynamics.measured_state
+
+    def huge(x, qdot):
+        a, _, rows, v = measured_state(x, qdot)
+        return a, (1e308, 1e308, 0.0), rows, v
+
+    monkeypatch.setattr(core.dynamics, "measured_state", huge)
+    forces = core.update(0.001, *_state_at(ARCHI_HOME))
+    assert not core.stopped, core.stop_reason
+    assert max(abs(f) for f in forces) == core.config.force_limit_n and core.saturation_count == 1
+
+
 def test_missing_metrology_stops_the_measured_space_controller():
     core = ControllerCore(MOM3, ControllerConfig(strategy="measured_space"))
     q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()

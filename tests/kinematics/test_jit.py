@@ -78,7 +78,7 @@ def test_distribution_kernel_matches_interpreted_and_reproduces_the_wrench(rows,
 
 def test_distribution_errors_name_the_cause():
     with pytest.raises(dist.DistributionError, match="rank < 3"):
-        dist.distribute_rows("pseudo_inverse", [(1.0, 0.0, 0.0)] * 4, [1.0, 0.0, 0.0])
+        dist.min_two_norm([(1.0, 0.0, 0.0)] * 4, [1.0, 0.0, 0.0])
     with pytest.raises(dist.DistributionError, match="does not reproduce"):
         dist.check_wrench([(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)], [1.0, 1.0, 1.0], [1.0, 1.0, 2.0])
 

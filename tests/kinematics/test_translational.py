@@ -129,6 +129,16 @@ def test_forward_kinematics_keeps_every_leg_on_its_branch(machine):
         assert (~ok).sum() > 0
 
 
+@pytest.mark.parametrize("machine", [ORTHO, DELTA], ids=["orthoglide", "mom3_delta"])
+def test_the_per_cycle_forward_kinematics_is_forward_kinematics(machine):
+    rho = machine.inverse_kinematics(machine.home_position + [0.01, -0.02, 0.015]).tolist()
+    np.testing.assert_array_equal(machine.forward_kinematics_floats(rho), machine.forward_kinematics(rho))
+    with pytest.raises(ValueError, match="rho: expected 3 actuator positions, got 2"):
+        machine.forward_kinematics_floats(rho[:2])
+    with pytest.raises(SingularityError, match="collinear"):
+        ORTHO.forward_kinematics_floats([0.0, 0.0, -0.3])
+
+
 def test_singular_and_malformed_inputs_raise_clear_errors():
     with pytest.raises(SingularityError, match="collinear"):
         ORTHO.forward_kinematics([0.0, 0.0, -0.3])

@@ -14,7 +14,9 @@ chunk indexes, statistics, summary, footer: all unchanged) with two parts replac
   log time, u64 publish time, data; MCAP spec) is packed with one ``struct.pack`` into
   the ``bytearray`` of a :class:`FastChunkBuilder`, a batch of them in one call
   (``add_messages``);
-* its message indexes write their (log time, offset) pairs with one ``struct.pack``.
+* its message indexes write their (log time, offset) pairs with one ``struct.pack``;
+* ``add_packed`` takes Message records already packed by the recorder's compiled
+  pass (pkm_bringup.tap_records) and appends them per batch.
 
 It reaches into the writer's private attributes (``_Writer__...``); mcap is pinned in
 requirements.txt, and tests/bringup/test_mcap_writer.py compares the output with the
@@ -70,7 +72,8 @@ class _FastMessageIndex(MessageIndex):
 class FastChunkBuilder:
     """Stands in for ``mcap._chunk_builder.ChunkBuilder`` (the attributes and methods
     the Writer uses once ``add_message`` is FastWriter's): a ``bytearray`` that
-    :meth:`FastWriter.add_messages` packs the Message records into."""
+    :meth:`FastWriter.add_messages` packs the Message records into and
+    :meth:`FastWriter.add_packed` appends packed ones to."""
 
     def __init__(self) -> None:
         self._buffer = bytearray()
@@ -169,8 +172,8 @@ class FastWriter(Writer):
         ``records`` a uint8 array, per record its channel id, log time and end offset
         in ``records``), with the same bytes as :meth:`add_message` for each in order
         (chunk ends included): the chunk buffer takes them in slices, the indexes and
-        statistics per batch. Returns the (first, last) log time of the records, None
-        for none."""
+        statistics per batch. Returns the (earliest, latest) log time of the records,
+        None for none."""
         if not len(ends):
             return None
         if not self.fast:

@@ -99,7 +99,8 @@ class RecorderNode(Node):
         self.tapped_steps = StampCounter()   # the same per channel id, for the tapped topics
         self.tap_errors = 0
         self.tap_batches = 0                 # tap batches received as messages
-        self.tap_lists = 0                   # ... handed over in the same process (NodeTap.sink)
+        self.tap_lists = 0                   # ... payloads handed over in the same process (NodeTap.sink)
+        self.tap_refused = set()             # (topic, type) of tap batches that cannot be recorded
         if self.tapped:
             self.tap_subscription = self.create_subscription(
                 UInt8MultiArray, self.tap_topic, self.on_tap, subscription_qos([TAP_QOS], self.depth), raw=True)
@@ -128,7 +129,7 @@ class RecorderNode(Node):
         try:
             message_class(msgtype)
             channel = self.writer.add_topic(name, msgtype, [qos_dict(i.qos_profile) for i in infos])
-        except (ImportError, AttributeError, ValueError) as exc:
+        except (ImportError, AttributeError, TypeError, ValueError) as exc:
             self.get_logger().warning(f"{name}: not recorded ({exc})")
             return None
         self.channels[name] = channel
@@ -176,21 +177,22 @@ class RecorderNode(Node):
         return bool(publishers) and publishers <= tapping
 
     def on_tap(self, buf: bytes) -> None:
-        self.tap_batches += 1
-        self._write_tapped(buf)
+        if self._write_tapped(buf):
+            self.tap_batches += 1
 
     def write_records(self, payload: bytes) -> bool:
         """Record the batch payload of a tap in the same process (NodeTap.sink,
         StreamTap.take_payload); False once the recorder is destroyed."""
         if self.writer is None:
             return False
-        self.tap_lists += 1
-        self._write_tapped(payload)
+        if self._write_tapped(payload):
+            self.tap_lists += 1
         return True
 
-    def _write_tapped(self, batch) -> None:
+    def _write_tapped(self, batch) -> bool:
         """A tap batch to the bag in one compiled pass; a malformed one is refused
-        whole (counted in tap_errors, reported)."""
+        whole (counted in tap_errors, reported). The topic table comes from another
+        process: a name or type rclpy refuses is not recorded, never raised."""
         try:
             topics, region, count = split_batch(batch)
             channels = [self._tapped_channel(name, msgtype) for name, msgtype in topics]
@@ -198,17 +200,29 @@ class RecorderNode(Node):
         except ValueError as exc:
             self.tap_errors += 1
             self.get_logger().error(f"tap batch refused: {exc}")
-            return
+            return False
         self.tapped_steps.add(written, stamps)
+        return True
 
     def _tapped_channel(self, name: str, msgtype: str) -> int:
-        """The channel of a tapped topic; -1 when it is not recorded."""
+        """The channel of a tapped topic; -1 when it is not recorded (then not tried
+        again for this type; discovery still records the topic if its publishers
+        offer a type that can be)."""
         channel = self.channels.get(name)
-        known_unrecordable = name in self.subscriptions_by_topic and self.subscriptions_by_topic[name] is None
-        if channel is None and not known_unrecordable and (not self.topics or name in self.topics):
-            channel = self._add_channel(name, msgtype, self.get_publishers_info_by_topic(name))
-            self.subscriptions_by_topic.setdefault(name, None if channel is None else TAPPED)
-        return -1 if channel is None else channel
+        if channel is not None or (name, msgtype) in self.tap_refused or (self.topics and name not in self.topics):
+            return -1 if channel is None else channel
+        try:
+            infos = self.get_publishers_info_by_topic(name)
+        except Exception as exc:           # noqa: BLE001 - rclpy's InvalidTopicNameException and the like
+            self.get_logger().warning(f"{name!r}: not recorded ({exc})")
+            infos, channel = None, None
+        if infos is not None:
+            channel = self._add_channel(name, msgtype, infos)
+        if channel is None:
+            self.tap_refused.add((name, msgtype))
+            return -1
+        self.subscriptions_by_topic.setdefault(name, TAPPED)
+        return channel
 
     def destroy_node(self):
         if self.writer is not None:

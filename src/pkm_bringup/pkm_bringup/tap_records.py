@@ -24,10 +24,11 @@ TAP_RECORD_HEAD = 14                 # u16 topic index, i64 publish time, u32 le
 MESSAGE_HEAD = 31                    # opcode, u64 length, u16 channel, u32 sequence, u64 log, u64 publish time
 MESSAGE_OPCODE = 0x05
 # pack_tap_records outcome codes
-PACK_OK, PACK_TRUNCATED, PACK_UNKNOWN_TOPIC, PACK_NEGATIVE_TIME = range(4)
+PACK_OK, PACK_TRUNCATED, PACK_UNKNOWN_TOPIC, PACK_NEGATIVE_TIME, PACK_BAD_CHANNEL = range(5)
 PACK_ERRORS = {PACK_TRUNCATED: "record {k} runs past the end of the batch",
                PACK_UNKNOWN_TOPIC: "record {k} names a topic index the batch does not list",
-               PACK_NEGATIVE_TIME: "record {k} has a negative publish time"}
+               PACK_NEGATIVE_TIME: "record {k} has a negative publish time",
+               PACK_BAD_CHANNEL: "record {k}: its channel id is outside the sequence table or above 65535"}
 
 
 @kernel()
@@ -82,6 +83,8 @@ def pack_tap_records(region, count, channel_of, sequence):
         elif channel_of[index] >= 0:
             if region[offset - length - 5] >= 0x80:      # the sign byte of the i64 time
                 code = PACK_NEGATIVE_TIME
+            elif channel_of[index] >= sequence.shape[0] or channel_of[index] > 0xFFFF:
+                code = PACK_BAD_CHANNEL
             written += 1
             per_topic[index] += 1
             out_size += MESSAGE_HEAD + length
@@ -177,7 +180,8 @@ def _count_new_stamps(channels, stamps, last, seen, counts):
 class StampCounter:
     """Per channel id, the messages with a new header stamp (a repeat of the last
     stamp is not counted: sim_hw republishes step 0 until it is answered), as the
-    recorder reports them against what the nodes published."""
+    recorder reports them against what the nodes published. One thread (the
+    recorder's executor): ``reserve`` replaces the arrays ``add`` works on."""
 
     def __init__(self, channels: int = 64):
         self.last = np.zeros(channels, np.int64)

@@ -47,11 +47,9 @@ from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.planar import PlanarMachine
 
-from pkm_kinematics.validation import finite_floats
-
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, JOINT_LIMIT,
-                   LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE, LIMITS_OK, NUMPY_DISTRIBUTION,
-                   SINGULARITY_MARGIN, FOLLOWING_ERROR_M, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
+                   FORCES_NOT_FINITE, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
+                   LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
 from .reference import Reference
@@ -388,7 +386,9 @@ class ControllerCore:
             return f"singularity margin: condition number {value:.4g} > max_condition {c.max_condition:g}"
         if code == FOLLOWING_ERROR_M:
             return f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}"
-        return f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}"
+        if code == FOLLOWING_ERROR_RAD:
+            return f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}"
+        return f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})"
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
@@ -571,12 +571,12 @@ class ControllerCore:
             return self._accept(c, self._expand(forces.tolist()), saturated, peak, value, measured, error)
         if code == LIMITS_OK:                     # NUMPY_DISTRIBUTION
             return self._finish(c, self._distribute(list(wrench), c.active_rows, c.pose), value, measured, error)
-        if code == WRENCH_NOT_FINITE:
-            finite_floats(wrench, 3, "wrench")    # raises the ValueError naming it
         if code > DISTRIBUTION_FAILED:
             raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench)
         if code == FORCES_NOT_FINITE:
             return self.trip(f"{cfg.strategy}: non-finite drive forces {self._expand(forces.tolist())}")
+        if code == WRENCH_NOT_FINITE:
+            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}")
         return self.trip(self._limit_message(code, index, value))
 
     def _distribute(self, wrench, active_rows, pose) -> list:

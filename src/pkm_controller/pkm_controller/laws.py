@@ -1,9 +1,11 @@
 """Control laws of the papers, one function per formula (pure core).
 
 They run every control cycle (1-2 kHz) on 3 DOF and 3-6 drives, where numpy costs
-~1 us per operation; so the laws are written on Python floats, and the two heaviest
-formulas (the sensor-space mapping of the strut errors, the condition number of J)
-are compiled kernels (pkm_kinematics.jit).
+~1 us per operation and the interpreter's glue around a handful of float operations
+costs more than the operations: the Cartesian laws with the supervisor's limits, the
+distribution and the clamp (``cartesian_command_kernel``), the sensor-space mapping
+of the strut errors and the condition number of J are compiled kernels
+(pkm_kinematics.jit); the joint PIDs stay on Python floats.
 
 Notation: x task pose (planar (x, y, theta), translational (x, y, z)), v its velocity,
 q drive positions, J the nominal Jacobian J_m (qdot = J v) given as rows of 3 floats
@@ -150,11 +152,9 @@ def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, pla
 def clamp_forces_kernel(forces, limit):
     """(clamped copy, number of forces beyond +-limit, peak |clamped force|, finite):
     the commands as the drives get them. Not finite: nothing clamped (the caller trips)."""
-    total = 0.0
     for f in forces:
-        total += f
-    if not math.isfinite(total):
-        return forces.copy(), 0, 0.0, False
+        if not math.isfinite(f):
+            return forces.copy(), 0, 0.0, False
     out = np.empty(forces.shape[0])
     saturated, peak = 0, 0.0
     for k in range(forces.shape[0]):
@@ -227,7 +227,7 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
     wrench = (w[0], w[1], w[2])
     if distribution == NUMPY_DISTRIBUTION:
         return LIMITS_OK, -1, value, i_new, wrench, empty, 0, 0.0
-    if not math.isfinite(w[0] + w[1] + w[2]):
+    if not (math.isfinite(w[0]) and math.isfinite(w[1]) and math.isfinite(w[2])):
         return WRENCH_NOT_FINITE, -1, 0.0, i_new, wrench, empty, 0, 0.0
     forces, dcode, k, achieved = _distribute_kernel(active_rows, w[0], w[1], w[2], distribution == DIST_INF_NORM,
                                                     True)
@@ -245,30 +245,6 @@ def joint_pid(e, edot, integral, kp, kd) -> list:
     inverse-kinematics setpoints (ARCHI §4.1, the industrial baseline; I_i is the
     integral term, integrated by the caller)."""
     return [p * a + d * b + c for a, b, c, p, d in zip(e, edot, integral, kp, kd)]
-
-
-# ----------------------------------------------------------------- Cartesian
-def cartesian_pid(e, edot, integral, kp, kd) -> list:
-    """F = Kp e + Kd edot + I: the centralized PID on task coordinates (Sliding Star
-    §3.2 eq. 9, ARCHI §4.2 without the model); gains per axis (N/m, N s/m | N m/rad)."""
-    return [p * a + d * b + c for a, b, c, p, d in zip(e, edot, integral, kp, kd)]
-
-
-def computed_torque(a_model, h_model, a_d, e, edot, integral, gains: Gains) -> list:
-    """F = A(x) (a_d + Kd edot + Kp e + I) + H(x, v): the dynamic Cartesian scheme of
-    ARCHI §4.2 (Figure 13) with the model A, H of §3.4; I = Ki * integral of e."""
-    kp, kd = gains.kp, gains.kd
-    u = [ad + kd * b + kp * a + c for ad, a, b, c in zip(a_d, e, edot, integral)]
-    return [sum(a_model[i][j] * u[j] for j in range(3)) + h_model[i] for i in range(3)]
-
-
-def velocity_cascade(a_model, h_model, a_d, v_command, v, gains: Gains) -> list:
-    """Inner loop of the metrology schemes: the MoM3 position PI with velocity
-    feed-forward (§6.1) commands a velocity v_c = v_d + Kp e + Ki int(e); the drives'
-    velocity loop, here with the dynamic model, makes it: F = A (a_d + Kv (v_c - v)) + H."""
-    kv = gains.kd
-    u = [ad + kv * (vc - vi) for ad, vc, vi in zip(a_d, v_command, v)]
-    return [sum(a_model[i][j] * u[j] for j in range(3)) + h_model[i] for i in range(3)]
 
 
 # ----------------------------------------------------------- sensor space

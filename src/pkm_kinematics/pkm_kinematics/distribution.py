@@ -464,18 +464,6 @@ def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gra
     return nacelle_mass_kg * gravity * math.sin(theta_rad)
 
 
-def distribute_rows(method: str, rows, wrench) -> list[float] | None:
-    """The per-cycle float path of :func:`distribute` (J as n rows of 3 floats, no
-    prestress), checked like it: ``pseudo_inverse`` for any n >= 3, ``inf_norm`` for
-    four drives (:func:`min_inf_norm`'s closed form); None where only the numpy path
-    exists. Saves the array round trips of a 1-2 kHz loop."""
-    if method not in ("pseudo_inverse", "inf_norm") or len(rows) < 3 or len(rows[0]) != 3:
-        return None
-    if method == "inf_norm" and len(rows) != 4:
-        return None
-    return _distribute_floats(rows, finite_floats(wrench, 3, "wrench"), method == "inf_norm", True)
-
-
 def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[float]:
     """The float paths of min_two_norm (J as n rows of 3) and min_inf_norm (4 rows):
     the pseudo-inverse solution, moved along ker(J^T) to the least peak for inf_norm.

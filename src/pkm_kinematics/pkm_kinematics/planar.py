@@ -596,9 +596,11 @@ class PlanarMachine:
 
     def forward_kinematics_floats(self, q, guess=None) -> tuple[float, float, float]:
         """:meth:`forward_kinematics` on the per-cycle path: ``q`` n finite floats
-        (unchecked: the caller checked them), the pose as a tuple; a failed solve
+        (finiteness unchecked: the caller checked it), the pose as a tuple; a failed solve
         raises KinematicsError with the result's reason (UnreachablePoseError for
         legs that cannot close)."""
+        if len(q) != self.n_legs:
+            raise ValueError(f"q: expected {self.n_legs} drive positions, got {len(q)}")
         ref = self.home_pose if guess is None else guess
         x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
             self._legs_a, self._pairs_a, self._sides_a, np.array(q, dtype=float), float(ref[0]), float(ref[1]),
@@ -609,8 +611,8 @@ class PlanarMachine:
             raise UnreachablePoseError(self._closed_form_message(i, j, d))
         raise KinematicsError(FK_REASONS[code].format(FK_MAX_ITERATIONS))
 
-    def forward_kinematics_batch(self, q, guesses=None, tol: float = 1e-12,
-                                 max_iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    def forward_kinematics_batch(self, q, guesses=None, tol: float = FK_TOL,
+                                 max_iterations: int = FK_MAX_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
         """Vectorized forward kinematics for q of shape (N, n), with the semantics of
         :meth:`forward_kinematics` (step criterion, working-mode checks).
 

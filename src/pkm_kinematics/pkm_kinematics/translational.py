@@ -222,10 +222,12 @@ class TranslationalMachine:
         return np.array(self.forward_kinematics_floats(r))
 
     def forward_kinematics_floats(self, rho, guess=None) -> tuple[float, float, float]:
-        """:meth:`forward_kinematics` on the per-cycle path: ``rho`` 3 finite floats
-        (unchecked: the caller checked them), the position as a tuple. ``guess`` is
+        """:meth:`forward_kinematics` on the per-cycle path: ``rho`` 3 floats (finiteness
+        unchecked: the caller checked it), the position as a tuple. ``guess`` is
         ignored (the closed form needs none; the planar machines' signature).
         Compiled (:func:`_forward_kinematics_kernel`)."""
+        if len(rho) != 3:
+            raise ValueError(f"rho: expected 3 actuator positions, got {len(rho)}")
         px, py, pz, code, leg = _forward_kinematics_kernel(self._legs_a, float(rho[0]), float(rho[1]),
                                                            float(rho[2]), self._fk_side)
         if code == FK_OK:
