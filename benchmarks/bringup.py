@@ -18,6 +18,7 @@ Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--dur
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import sys
@@ -112,38 +113,57 @@ def writer_throughput(messages: int = 200_000) -> float:
     return messages / elapsed, len(data)
 
 
+@contextlib.contextmanager
+def recorder_beside(tmp: Path, node_name: str, recorder_params: dict, make_publishers):
+    """recorder_node in its own process (``recorder_params`` plus its output, ready
+    file and summary in ``tmp``) and a node of this process whose publishers
+    ``make_publishers(node)`` creates (before the recorder starts, so that it discovers
+    them); yields (publishers, recorder process) once the recorder is ready, and stops
+    both at the end."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    from pkm_bringup.orchestrator import init_context
+    from pkm_bringup.processes import start_node, stop_nodes, use_ros_environment
+    from pkm_bringup.scenario import params_file_text
+    env = use_ros_environment()
+    (tmp / "logs").mkdir()
+    params = tmp / "recorder.yaml"
+    params.write_text(params_file_text({"output": str(tmp / "bag"), "ready_file": str(tmp / "ready"),
+                                        "summary_path": str(tmp / "rec.json"), **recorder_params}))
+    context = init_context()
+    node = rclpy.create_node(node_name, namespace="/bench", context=context)
+    publishers = make_publishers(node)
+    executor = EventsExecutor(context=context)
+    executor.add_node(node)
+    recorder = start_node("recorder", "/bench", params, tmp / "logs", env)
+    try:
+        deadline = time.monotonic() + 60
+        while not (tmp / "ready").exists() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        yield publishers, recorder
+    finally:
+        stop_nodes([recorder])
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
 def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
     """recorder_node in its own process; this process publishes ``messages`` JointStates
     (RELIABLE, the graph's publisher history) as fast as it can. Returns (publish rate,
     recorded rate from the bag's first to last log time, messages lost)."""
-    import rclpy
-    from rclpy.experimental import EventsExecutor
+    from rosbags.highlevel import AnyReader
     from sensor_msgs.msg import JointState
 
     from pkm_bringup.bag import read_counts
-    from pkm_bringup.orchestrator import init_context
-    from pkm_bringup.processes import start_node, stop_nodes, use_ros_environment
-    from pkm_bringup.scenario import params_file_text
     from pkm_common.conversions import joint_state_msg
     from pkm_common.qos import STREAM_PUBLISHER_QOS
-    env = use_ros_environment()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        (tmp / "logs").mkdir()
-        params = tmp / "recorder.yaml"
-        params.write_text(params_file_text({"output": str(tmp / "bag"), "ready_file": str(tmp / "ready"),
-                                            "expect_topics": "/bench/drives/state",
-                                            "summary_path": str(tmp / "rec.json")}))
-        context = init_context()
-        node = rclpy.create_node("bench_publisher", namespace="/bench", context=context)
-        pub = node.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        recorder = start_node("recorder", "/bench", params, tmp / "logs", env)
-        try:
-            deadline = time.monotonic() + 60
-            while not (tmp / "ready").exists() and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
+        with recorder_beside(tmp, "bench_publisher", {"expect_topics": "/bench/drives/state"},
+                             lambda node: node.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS)
+                             ) as (pub, _):
             msg = joint_state_msg(["q1", "q2", "q3", "q4"], 0, position=[1.0] * 4, velocity=[0.0] * 4,
                                   effort=[0.0] * 4)
             start = time.perf_counter()
@@ -152,12 +172,6 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
                 pub.publish(msg)
             publish_rate = messages / (time.perf_counter() - start)
             time.sleep(2.0)
-        finally:
-            stop_nodes([recorder])
-            executor.shutdown()
-            node.destroy_node()
-            rclpy.try_shutdown(context=context)
-        from rosbags.highlevel import AnyReader
         with AnyReader([tmp / "bag"]) as reader:
             times = [t for _, t, _ in reader.messages()]
         recorded = read_counts(tmp / "bag").get("/bench/drives/state", 0)
@@ -173,14 +187,9 @@ def recorder_cpu_per_tapped_message(batches: int = 400) -> tuple[float, int, int
     recorded, sent)."""
     import json
 
-    import rclpy
-    from rclpy.experimental import EventsExecutor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import UInt8MultiArray
 
-    from pkm_bringup.orchestrator import init_context
-    from pkm_bringup.processes import start_node, stop_nodes, use_ros_environment
-    from pkm_bringup.scenario import params_file_text
     from pkm_common.qos import STREAM_PUBLISHER_QOS, TAP_QOS
     from pkm_common.tap import TAP_TOPIC, StreamTap
 
@@ -188,25 +197,14 @@ def recorder_cpu_per_tapped_message(batches: int = 400) -> tuple[float, int, int
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
-    env = use_ros_environment()
+    def publishers(node):   # the tap, and the streams it stands for (the recorder discovers their types)
+        return ([node.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)]
+                + [node.create_publisher(JointState, t, STREAM_PUBLISHER_QOS) for t in topics])
+
     topics, sizes = [f"/bench/stream{i}" for i in range(7)], (120, 200, 96, 150, 180, 110, 90)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        (tmp / "logs").mkdir()
-        params = tmp / "recorder.yaml"
-        params.write_text(params_file_text({"output": str(tmp / "bag"), "ready_file": str(tmp / "ready"),
-                                            "tapped_topics": ",".join(topics), "summary_path": str(tmp / "rec.json")}))
-        context = init_context()
-        node = rclpy.create_node("bench_tap", namespace="/bench", context=context)
-        tap_publisher = node.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)
-        node.stream_publishers = [node.create_publisher(JointState, t, STREAM_PUBLISHER_QOS) for t in topics]
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        recorder = start_node("recorder", "/bench", params, tmp / "logs", env)
-        try:
-            deadline = time.monotonic() + 60
-            while not (tmp / "ready").exists() and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
+        with recorder_beside(tmp, "bench_tap", {"tapped_topics": ",".join(topics)}, publishers) as (pubs, recorder):
             time.sleep(1.0)
             tap, step, start = StreamTap(), 0, cpu_s(recorder.popen.pid)
             for _ in range(batches):
@@ -215,15 +213,10 @@ def recorder_cpu_per_tapped_message(batches: int = 400) -> tuple[float, int, int
                     for topic, size in zip(topics, sizes):       # a header stamp at bytes 4-12
                         data = b"\x00\x01\x00\x00" + step.to_bytes(4, "little") + bytes(size - 8)
                         tap.add(topic, "sensor_msgs/msg/JointState", data, time.time_ns())
-                tap_publisher.publish(tap.take_batch())
+                pubs[0].publish(tap.take_batch())
                 time.sleep(0.01)
             time.sleep(1.5)
             used = cpu_s(recorder.popen.pid) - start
-        finally:
-            stop_nodes([recorder])
-            executor.shutdown()
-            node.destroy_node()
-            rclpy.try_shutdown(context=context)
         recorded = sum(json.loads((tmp / "rec.json").read_text())["recorded"].get(t, 0) for t in topics)
         return used * 1e6 / max(recorded, 1), recorded, batches * 25 * len(topics)
 
