@@ -32,15 +32,13 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp,
-                                    pose_from_components)
+from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
-from pkm_common.timing import percentiles_us
-from pkm_kinematics import load_machine
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.controller import ControllerConfig
+from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
 from pkm_controller.lockstep import StampPairing
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
@@ -79,18 +77,10 @@ class ControllerNode(LifecycleNode):
     def on_configure(self, state) -> TransitionCallbackReturn:
         try:
             values, config = self._read_parameters()
-            try:
-                machine = load_machine(values["machine"])
-            except ValueError as exc:
-                raise ValueError(f"machine: {exc}") from None
-            self.core = ControllerCore(machine, config)
+            self.core = core_from_parameters(values["machine"], config)
         except ValueError as exc:
-            message = str(exc)
-            if not message.startswith("parameter '"):       # "<field>: must be ..." from the core
-                name, _, rest = message.partition(": ")
-                message = f"parameter '{name}': {rest}"
-            self.configure_error = message
-            self.get_logger().error(f"configure refused: {message}")
+            self.configure_error = str(exc)
+            self.get_logger().error(f"configure refused: {exc}")
             return TransitionCallbackReturn.FAILURE
         self.values = values
         self.names = self.core.names
@@ -236,16 +226,11 @@ class ControllerNode(LifecycleNode):
         core = self.core
         struts = pose = None
         extra = self.pairing.take_reading(stamp)
-        if core.stopped:
-            pass                                  # zero forces: no metrology needed
-        elif self.wait_for == "struts":
-            struts = list(extra.position)
-        elif self.wait_for == "pose":
+        if not core.stopped:                      # stopped: zero forces, no metrology needed
             try:
-                position_m, rotation = pose_from_components(extra.position, extra.orientation)
-                pose = (position_m.tolist(), rotation)
+                struts, pose = metrology_inputs(self.wait_for, extra)
             except ValueError as exc:             # NaN or a non-unit quaternion
-                core.trip(f"metrology/pose: {exc}")
+                core.trip(str(exc))
         complete_start = time.perf_counter()
         forces = core.complete(struts=struts, metrology_pose=pose)
         end = time.perf_counter()
@@ -284,13 +269,9 @@ class ControllerNode(LifecycleNode):
             self.tap.close()
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.core is not None:
-            _, message, values = self.core.status()
             with open(path, "w", encoding="utf-8") as fh:
-                json.dump({"message": message, **values, "stopped": self.core.stopped,
-                           **percentiles_us("compute", self.compute_s),
-                           **percentiles_us("response", self.response_s),
-                           "published": dict.fromkeys(("drives/command", "controller/reference"),
-                                                      self.answers_published)}, fh, indent=2)
+                json.dump(run_summary(self.core, self.compute_s, self.response_s, self.answers_published), fh,
+                          indent=2)
         return super().destroy_node()
 
 

@@ -1,0 +1,55 @@
+"""What controller_node decides without rclpy: the core from its parameters (errors
+named as ROS parameters), the core's inputs from a metrology reading, and the
+summary written at exit."""
+
+from __future__ import annotations
+
+from pkm_common.conversions import pose_from_components
+from pkm_common.timing import percentiles_us
+from pkm_kinematics import load_machine
+
+from .controller import ControllerConfig, ControllerCore
+
+
+def core_from_parameters(machine_name: str, config: ControllerConfig) -> ControllerCore:
+    """The controller core of the machine ``machine_name`` (config/machines). A bad
+    value raises ValueError "parameter '<name>': <what is allowed>", the name being
+    the node's parameter (``machine`` or a ControllerConfig field)."""
+    try:
+        try:
+            machine = load_machine(machine_name)
+        except ValueError as exc:
+            raise ValueError(f"machine: {exc}") from None
+        return ControllerCore(machine, config)
+    except ValueError as exc:
+        message = str(exc)
+        if message.startswith("parameter '"):
+            raise
+        name, _, rest = message.partition(": ")        # "<field>: must be ..." from the core
+        raise ValueError(f"parameter '{name}': {rest}") from None
+
+
+def metrology_inputs(wait_for: str | None, reading) -> tuple[list | None, tuple | None]:
+    """(struts, metrology_pose) for ControllerCore.complete from the reading the
+    strategy waits for: ``"struts"`` a JointState's positions (m), ``"pose"`` a
+    PoseStamped's position and orientation (pkm_common.cdr data); (None, None) for
+    the encoder strategies. ValueError naming metrology/pose for a NaN or a
+    non-unit quaternion."""
+    if wait_for == "struts":
+        return list(reading.position), None
+    if wait_for == "pose":
+        try:
+            position_m, rotation = pose_from_components(reading.position, reading.orientation)
+        except ValueError as exc:
+            raise ValueError(f"metrology/pose: {exc}") from None
+        return None, (position_m.tolist(), rotation)
+    return None, None
+
+
+def run_summary(core: ControllerCore, compute_s, response_s, answers: int) -> dict:
+    """The node's summary at exit: the status values, whether it stopped, the compute
+    and response time percentiles (us), and the answers published per topic."""
+    _, message, values = core.status()
+    return {"message": message, **values, "stopped": core.stopped, **percentiles_us("compute", compute_s),
+            **percentiles_us("response", response_s),
+            "published": dict.fromkeys(("drives/command", "controller/reference"), answers)}
