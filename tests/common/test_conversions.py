@@ -12,7 +12,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from scipy.spatial.transform import Rotation
 
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg,
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg, line_list_markers,
                                     machine_pose_components, machine_to_tool_pose, ns_to_stamp,
                                     pose_from_msg, pose_msg, stamp_to_ns, tool_pose_to_machine)
 
@@ -173,3 +173,13 @@ def test_diagnostic_status_and_array():
     assert array.status[0].name == 'gough_sensor: metrology'
     with pytest.raises(ValueError, match='level'):
         diagnostic_status('x', 7, 'bad')
+
+
+def test_line_list_markers_hold_each_segment_as_a_pair_of_points():
+    markers = line_list_markers([([0.0, 1.0, 2.0], [3.0, 4.0, 5.0]), ([6.0, 7.0, 8.0], [9.0, 10.0, 11.0])],
+                                1_500_000_000)
+    (marker,) = markers.markers
+    assert marker.type == marker.LINE_LIST and marker.header.frame_id == "world"
+    assert (marker.header.stamp.sec, marker.header.stamp.nanosec) == (1, 500_000_000)
+    assert [(p.x, p.y, p.z) for p in marker.points] == [(0.0, 1.0, 2.0), (3.0, 4.0, 5.0), (6.0, 7.0, 8.0),
+                                                        (9.0, 10.0, 11.0)]

@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import min_two_norm
-from pkm_sim_hw.plant import Fault, Plant, PlantParameters
+from pkm_sim_hw.plant import Fault, Plant, PlantParameters, command_efforts
 
 ARCHI = load_machine("archi")
 MOM3 = load_machine("mom3")
@@ -211,3 +211,17 @@ def test_scheduled_loads_apply_at_their_step_without_drift():
         plant.schedule_load([(1.0, (0, 0, 0)), (0.5, (0, 0, 0))])
     with pytest.raises(ValueError, match="load"):
         plant.schedule_load([(1.0, (0, float("nan"), 0))])
+
+
+def test_command_efforts_come_in_drive_order_or_are_refused_with_the_reason():
+    from pkm_common.cdr import JointStateData
+
+    def command(names, effort):
+        return JointStateData(0, "", tuple(names), (), (), tuple(effort))
+    names = ["q1", "q2", "q3"]
+    assert command_efforts(command(["q3", "q1", "q2"], [3.0, 1.0, 2.0]), names) == ([1.0, 2.0, 3.0], "")
+    assert command_efforts(command([], [1.0, 2.0, 3.0]), names) == ([1.0, 2.0, 3.0], "")   # no names: in order
+    assert command_efforts(command(["q1", "q2"], [1.0, 2.0]), names) == (
+        None, "expected 3 efforts for ['q1', 'q2', 'q3'], got 2 for ['q1', 'q2']")
+    assert command_efforts(command(["q1", "q9", "q3"], [1.0, 2.0, 3.0]), names)[0] is None  # not the drives
+    assert command_efforts(command(names, [1.0, math.nan, 2.0]), names) == (None, "non-finite effort [1.0, nan, 2.0]")

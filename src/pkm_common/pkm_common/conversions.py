@@ -13,8 +13,9 @@ import math
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import Point, PoseStamped
 from sensor_msgs.msg import JointState
+from visualization_msgs.msg import Marker, MarkerArray
 
 from pkm_kinematics.rotations import rotation_about_z
 
@@ -256,3 +257,17 @@ def diagnostic_array(stamp, statuses) -> DiagnosticArray:
     msg.header.stamp = _stamp(stamp)
     msg.status = list(statuses)
     return msg
+
+
+def line_list_markers(segments, stamp, frame_id: str = "world", ns: str = "legs") -> MarkerArray:
+    """One LINE_LIST marker (1 cm wide, blue) of the segments (pairs of 3-D points),
+    e.g. the legs of a machine (pkm_sim_hw.plant.leg_segments), for RViz."""
+    marker = Marker(type=Marker.LINE_LIST, action=Marker.ADD, ns=ns, id=0)
+    marker.header.frame_id = frame_id
+    marker.header.stamp = _stamp(stamp)
+    marker.scale.x = 0.01
+    marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.2, 0.5, 0.9, 1.0
+    marker.pose.orientation.w = 1.0
+    for a, b in segments:
+        marker.points += [Point(x=a[0], y=a[1], z=a[2]), Point(x=b[0], y=b[1], z=b[2])]
+    return MarkerArray(markers=[marker])

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pkm_common.cdr import in_order
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force_rows
 from pkm_kinematics.errors import KinematicsError
@@ -346,3 +347,18 @@ def leg_segments(machine, x) -> list[tuple[list, list]]:
         return out
     return [((o + qi * e).tolist(), (np.asarray(x) + c).tolist())
             for o, e, c, qi in zip(machine._o, machine._e, machine._c, q)]
+
+
+def command_efforts(msg, names) -> tuple[list | None, str]:
+    """(efforts in the order of ``names``, "") of a drives/command read from its bytes
+    (pkm_common.cdr.JointStateData), or (None, why it is refused): names that are not
+    the drives', a wrong count, NaN or inf."""
+    try:
+        effort = list(in_order(msg, names).effort)
+    except ValueError:                        # names that are not the plant's
+        effort = None
+    if effort is None or len(effort) != len(names):
+        return None, f"expected {len(names)} efforts for {list(names)}, got {len(msg.effort)} for {list(msg.name)}"
+    if not math.isfinite(sum(effort)):        # NaN or inf in any of them
+        return None, f"non-finite effort {effort}"
+    return effort, ""

@@ -23,21 +23,22 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Point, PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from pkm_common.node_tap import NodeTap
-from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock, in_order
-from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
+from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
+                                    ns_to_stamp)
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_sim_hw.plant import Plant, PlantParameters, leg_segments
+from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
 
 
 class SimHwNode(Node):
@@ -152,15 +153,7 @@ class SimHwNode(Node):
                                                [diagnostic_status("sim_hw", level, message, values)]))
 
     def publish_marker_array(self) -> None:
-        marker = Marker(type=Marker.LINE_LIST, action=Marker.ADD, ns="legs", id=0)
-        marker.header.frame_id = "world"
-        marker.header.stamp = ns_to_stamp(self.now_ns())
-        marker.scale.x = 0.01
-        marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.2, 0.5, 0.9, 1.0
-        marker.pose.orientation.w = 1.0
-        for a, b in leg_segments(self.plant.machine, self.plant.x):
-            marker.points += [Point(x=a[0], y=a[1], z=a[2]), Point(x=b[0], y=b[1], z=b[2])]
-        self.pub_markers.publish(MarkerArray(markers=[marker]))
+        self.pub_markers.publish(line_list_markers(leg_segments(self.plant.machine, self.plant.x), self.now_ns()))
 
     # ------------------------------------------------------------------ inputs
     def _refuse(self, reason: str) -> None:
@@ -170,19 +163,10 @@ class SimHwNode(Node):
         self.publish_diagnostics()
 
     def _effort(self, msg):
-        """The efforts of a command (pkm_common.cdr.JointStateData) in plant order, or
-        None (refused, reported)."""
-        try:
-            effort = list(in_order(msg, self.plant.names).effort)
-        except ValueError:                        # names that are not the plant's
-            effort = None
-        if effort is None or len(effort) != self.plant.n:
-            self._refuse(f"expected {self.plant.n} efforts for {self.plant.names}, got {len(msg.effort)} "
-                         f"for {list(msg.name)}")
-            return None
-        if not math.isfinite(sum(effort)):        # NaN or inf in any of them
-            self._refuse(f"non-finite effort {effort}")
-            return None
+        """The efforts of a command in plant order, or None (refused, reported)."""
+        effort, problem = command_efforts(msg, self.plant.names)
+        if problem:
+            self._refuse(problem)
         return effort
 
     def on_command(self, buf: bytes) -> None:
