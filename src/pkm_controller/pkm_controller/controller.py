@@ -150,11 +150,12 @@ class CycleRecord:
 class _Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
-    __slots__ = ("t_s", "dt", "first", "q", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d", "a_d",
-                 "a_model", "h_model")
+    __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
+                 "a_d", "a_model", "h_model")
 
-    def __init__(self, t_s, dt, first, q, qdot, pose, rows, active_rows, v):
-        self.t_s, self.dt, self.first, self.q, self.qdot = t_s, dt, first, q, qdot
+    def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
+        # q as floats (the joint PIDs) and as the array the compiled kernels take
+        self.t_s, self.dt, self.first, self.q, self.q_array, self.qdot = t_s, dt, first, q, q_array, qdot
         # J_m as the (n, 3) array measured_state made, and the rows of the active drives
         self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
@@ -186,11 +187,9 @@ class ControllerCore:
         c = self.config
         self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
         self._scale_gains()
-        self._lower = self.model.joint_lower.tolist()
-        self._upper = self.model.joint_upper.tolist()
+        # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
-        self._workspace = self._workspace_box()
-        self._workspace_array = np.array(self._workspace, dtype=float)
+        self._workspace_box = self._task_box()
         self._law, self._law_gains = self._cartesian_law()
         # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
         self._distribution = NUMPY_DISTRIBUTION
@@ -234,12 +233,12 @@ class ControllerCore:
             return LAW_COMPUTED_TORQUE, np.array([[g.kp] * 3, [g.kd] * 3, [g.ki] * 3, [0.0] * 3])
         return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * 3, [g.kd] * 3, [g.outer_ki] * 3, [0.0] * 3])
 
-    def _workspace_box(self) -> list:
+    def _task_box(self) -> np.ndarray:
         w, m = self.model.workspace, self.config.workspace_margin_m
         if self.planar:
-            return [(w["x"][0] - m, w["x"][1] + m), (w["y"][0] - m, w["y"][1] + m)]
+            return np.array([(w["x"][0] - m, w["x"][1] + m), (w["y"][0] - m, w["y"][1] + m)], dtype=float)
         c, h = np.asarray(w["center"]).tolist(), 0.5 * float(w["size"]) + m
-        return [(ci - h, ci + h) for ci in c]
+        return np.array([(ci - h, ci + h) for ci in c], dtype=float)
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
@@ -367,8 +366,8 @@ class ControllerCore:
     def _check_limits(self, q, active_rows, measured, error) -> tuple[str, float]:
         """(what tripped or "", the translation error): laws.limits_kernel."""
         c = self.config
-        code, index, value = limits_kernel(np.array(q, dtype=float), self._joint_box, tuple(measured),
-                                           self._workspace_array, active_rows, tuple(error), self.planar,
+        code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
+                                           self._workspace_box, active_rows, tuple(error), self.planar,
                                            c.max_condition, c.following_error_m, c.following_error_rad)
         return ("", value) if code == LIMITS_OK else (self._limit_message(code, index, value), value)
 
@@ -376,10 +375,10 @@ class ControllerCore:
         """The trip message of a limits code of laws.limits_kernel."""
         c = self.config
         if code == JOINT_LIMIT:
-            return (f"joint limit: drive {self.names[index]} at {value:.6g} m outside "
-                    f"[{self._lower[index]:g}, {self._upper[index]:g}] m")
+            lo, hi = self._joint_box[index].tolist()
+            return f"joint limit: drive {self.names[index]} at {value:.6g} m outside [{lo:g}, {hi:g}] m"
         if code == WORKSPACE_LIMIT:
-            lo, hi = self._workspace[index]
+            lo, hi = self._workspace_box[index].tolist()
             return (f"workspace: {'xyz'[index]} = {value:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
                     f"(workspace_margin_m {c.workspace_margin_m:g})")
         if code == SINGULARITY_MARGIN:
@@ -413,12 +412,12 @@ class ControllerCore:
         if problem:
             self.trip(problem)
             return False
-        q, qdot = list(q), list(qdot)
+        q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None
         self.last_time_s = t_s
         try:
-            pose = self._forward_kinematics(q)
+            pose = self._forward_kinematics(q_array)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"forward kinematics of the encoders: {exc}")
             return False
@@ -434,7 +433,7 @@ class ControllerCore:
             self.trip(f"kinematics at the measured pose: {exc}")
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
-        self._cycle = c = _Cycle(t_s, dt, first, q, qdot, pose, rows_a, active_rows, v)
+        self._cycle = c = _Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
         c.a_model, c.h_model = a_model, h_model
         return first or self._prepare_reference(c)
 
@@ -473,7 +472,7 @@ class ControllerCore:
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
             if self.config.strategy not in JOINT_STRATEGIES:
                 return self._cartesian_command(c, measured, error)
-            problem, trans = self._check_limits(c.q, c.active_rows, measured, error)
+            problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
             if problem:
                 return self.trip(problem)
             forces = self._joint_strategy(c)
@@ -563,7 +562,7 @@ class ControllerCore:
         cfg = self.config
         full = len(self.active) == self.n
         code, index, value, self.integral, wrench, forces, saturated, peak = cartesian_command_kernel(
-            np.array(c.q, dtype=float), self._joint_box, tuple(measured), self._workspace_array, c.active_rows,
+            c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
             tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, self._law,
             self._law_gains, self.record.saturated == 0, self.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
             c.v, tuple(c.a_d), self._distribution if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)

@@ -603,7 +603,7 @@ class PlanarMachine:
             raise ValueError(f"q: expected {self.n_legs} drive positions, got {len(q)}")
         ref = self.home_pose if guess is None else guess
         x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
-            self._legs_a, self._pairs_a, self._sides_a, np.array(q, dtype=float), float(ref[0]), float(ref[1]),
+            self._legs_a, self._pairs_a, self._sides_a, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),
             float(ref[2]), FK_TOL, FK_MAX_ITERATIONS)
         if code == FK_CONVERGED:
             return x, y, th
