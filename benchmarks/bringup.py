@@ -7,18 +7,21 @@
 2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, lz4 chunks, as the recorder writes), and
    the recorder node end to end in the runs above (messages recorded per wall second).
 3. The recorder process's CPU per tapped message (fed archi_demo-like tap batches).
-4. The in-process recording cost inside one run, recording and silent windows
-   alternated (``alternating_windows``, 200-step windows over a 20 s run): alternated
-   runs of the same configuration differ by up to 20 % on this VM; adjacent windows
-   share its slow phases, and the median over ~50 pairs is steadier (+-3 %).
+4. The recording cost inside one run, as processes and in one process: the taps
+   record in every other window of 500 loop steps (``alternating_windows``). Alternated
+   runs of one configuration differ by up to 20 % on this VM, so rates (1.) cannot
+   show a few per cent; a window and its two neighbours share the VM's slow phases.
+   Printed: the median and the mean over all recording windows of ``--window-runs``
+   runs, each with a bootstrap 90 % interval.
 
-Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0]
+Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0] [--window-runs 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import os
 import statistics
 import sys
@@ -48,47 +51,75 @@ def run_once(scenario: str, record: bool, in_process: bool, duration_s: float) -
             "lost": sum(max(v, 0) for v in run["lost"].values()), "steal": steal.percent}
 
 
-def alternating_windows(scenario: str, duration_s: float, window: int = 200) -> dict:
-    """The in-process recording cost measured inside one run, so that this VM's slow
-    phases (the same code runs up to 1.5-2x slower for seconds to minutes, without
-    steal) fall on both sides alike: the taps record in every other window of
-    ``window`` loop steps and are silent in the others (the benchmark gates
-    ``TappedPublisher.publish`` and ``NodeTap.flush``; the recorder's own timers run
-    throughout). Per pair of adjacent windows, the mean step period recording over the
-    mean silent one; returns the median and the range of those ratios - 1."""
+GATE_DIR = Path(__file__).resolve().parent / "window_gate"
+
+
+def alternating_windows(scenario: str, duration_s: float, in_process: bool, window_steps: int = 500) -> dict:
+    """The recording cost measured inside one run, so that this VM's slow phases (the
+    same code runs up to 1.5-2x slower for seconds to minutes, with or without steal)
+    fall on both sides alike: the taps record in every other window of
+    ``window_steps`` loop steps of simulated time and are silent in the others
+    (``window_gate/sitecustomize.py``: in the node processes through their PYTHONPATH,
+    or installed in this one); the recorder runs throughout. Per pair of adjacent
+    windows, the mean step period recording over the mean silent one
+    (:func:`window_ratios`); returns those ratios - 1, the median silent step period
+    and the run's CPU steal."""
+    from pkm_bringup.scenario import load_scenario
+    spec = importlib.util.spec_from_file_location("window_gate", GATE_DIR / "sitecustomize.py")
+    gate = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gate)
+    window_ns = int(round(window_steps * load_scenario(scenario).dt_s * 1e9))
+    with tempfile.TemporaryDirectory() as logs:
+        saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "PKM_TAP_WINDOW_NS", "PKM_TAP_WINDOW_LOG")}
+        publish = None
+        try:
+            if in_process:
+                from pkm_common import tap
+                publish = tap.TappedPublisher.publish
+                steps = gate.install(window_ns, None)
+            else:
+                os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(GATE_DIR), saved["PYTHONPATH"]]))
+                os.environ["PKM_TAP_WINDOW_NS"], os.environ["PKM_TAP_WINDOW_LOG"] = str(window_ns), logs
+            run = run_once(scenario, True, in_process, duration_s)
+        finally:
+            if publish is not None:
+                tap.TappedPublisher.publish = publish
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        if not in_process:
+            files = list(Path(logs).glob("*.txt"))
+            if len(files) != 1:
+                raise RuntimeError(f"alternating_windows: {len(files)} step logs from the node processes, expected 1")
+            steps = [tuple(map(int, line.split())) for line in files[0].read_text().splitlines()]
+    ratios, period_s = window_ratios(steps, window_ns, window_steps // 2)
+    return {"ratios": ratios, "period_us": period_s * 1e6, "steal": run["steal"]}
+
+
+def window_ratios(steps, window_ns: int, min_steps: int):
+    """(ratios, silent period s): per recording window (even, of ``window_ns`` of
+    simulated time) between two silent ones, its mean step period over the mean of
+    theirs, - 1 (a drift of the VM's speed across the three windows cancels), from the
+    (stamp ns, perf_counter ns) of every step; and the median silent window's mean period.
+    Windows with fewer than ``min_steps`` steps (the ends of the run) are left out."""
     import numpy as np
+    stamps, times = np.array(sorted(steps), dtype=np.int64).T
+    periods, window = np.diff(times) * 1e-9, stamps[1:] // window_ns
+    means = {int(w): periods[window == w].mean() for w in np.unique(window)
+             if np.count_nonzero(window == w) >= min_steps}
+    ratios = np.array([means[w] / (0.5 * (means[w - 1] + means[w + 1])) - 1.0 for w in sorted(means)
+                       if w % 2 == 0 and w - 1 in means and w + 1 in means])
+    return ratios, float(np.median([means[w] for w in means if w % 2]))
 
-    from pkm_common import node_tap, tap
-    from pkm_sim_hw.sim_hw_node import SimHwNode
-    recording, stamps = [True], []
-    publish, flush, advance = tap.TappedPublisher.publish, node_tap.NodeTap.flush, SimHwNode.advance
 
-    def gated_publish(self, data):
-        if recording[0]:
-            publish(self, data)
-        else:
-            self.publisher.publish(data)
-
-    def gated_flush(self):
-        if recording[0]:
-            flush(self)
-
-    def timed_advance(self, effort):
-        advance(self, effort)
-        stamps.append(time.perf_counter())
-        recording[0] = (len(stamps) // window) % 2 == 0
-
-    tap.TappedPublisher.publish, node_tap.NodeTap.flush, SimHwNode.advance = gated_publish, gated_flush, timed_advance
-    try:
-        run = run_once(scenario, True, True, duration_s)
-    finally:
-        tap.TappedPublisher.publish, node_tap.NodeTap.flush, SimHwNode.advance = publish, flush, advance
-    periods = np.diff(np.array(stamps))
-    pairs = len(periods) // (2 * window)
-    means = periods[:pairs * 2 * window].reshape(pairs, 2, window).mean(axis=2)
-    ratios = means[1:, 0] / means[1:, 1] - 1.0           # the first pair: the start of the run
-    return {"cost": float(np.median(ratios)), "low": float(ratios.min()), "high": float(ratios.max()),
-            "pairs": len(ratios), "period_us": float(np.median(means[1:, 1]) * 1e6), "steal": run["steal"]}
+def bootstrap_90(values, statistic, draws: int = 5000) -> tuple[float, float]:
+    """The 5th and 95th percentiles of ``statistic`` over resamples of ``values``."""
+    import numpy as np
+    rng = np.random.default_rng(0)
+    samples = statistic(rng.choice(values, (draws, len(values))), axis=1)
+    return tuple(float(x) for x in np.percentile(samples, [5, 95]))
 
 
 def writer_throughput(messages: int = 200_000) -> float:
@@ -226,6 +257,7 @@ def main(argv=None) -> int:
     parser.add_argument("--scenario", default="archi_demo")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--duration-s", type=float, default=0.0, help="override (0: the scenario's)")
+    parser.add_argument("--window-runs", type=int, default=2, help="runs per mode of the alternating windows")
     args = parser.parse_args(argv)
 
     rate, size = writer_throughput()
@@ -263,10 +295,24 @@ def main(argv=None) -> int:
         cost = (1.0 / on - 1.0 / off) * off
         print(f"recording cost ({'in-process' if in_process else 'processes'}): {cost * 100:+.1f} % of the loop "
               f"period (target <= 5 %)")
-    w = alternating_windows(args.scenario, 20.0)
-    print(f"recording cost (in-process, alternating {w['pairs']} pairs of 200-step windows in one run): "
-          f"{w['cost'] * 100:+.1f} % of the {w['period_us']:.0f} us loop period (pairs {w['low'] * 100:+.1f} "
-          f"to {w['high'] * 100:+.1f} %; CPU steal {w['steal']:.1f} %)")
+    print()
+    print(f"{args.scenario}: recording cost inside one run, the taps recording in every other window of 500 steps "
+          f"({args.window_runs} runs per mode; per recording window, its mean step period over its two silent "
+          f"neighbours'; 90 % bootstrap intervals)")
+    print("| mode | run length | windows | silent step period (runs) | CPU steal % (runs) | median cost | "
+          "mean cost |")
+    print("|---|---|---|---|---|---|---|")
+    import numpy as np
+    for in_process, length_s in ((False, 60.0), (True, 40.0)):
+        runs = [alternating_windows(args.scenario, length_s, in_process) for _ in range(args.window_runs)]
+        ratios = np.concatenate([r["ratios"] for r in runs])
+        (mlo, mhi), (alo, ahi) = bootstrap_90(ratios, np.median), bootstrap_90(ratios, np.mean)
+        periods = ", ".join(f"{r['period_us']:.0f} us" for r in runs)
+        steals = ", ".join("n/a" if r["steal"] is None else f"{r['steal']:.1f}" for r in runs)
+        print(f"| {'in-process' if in_process else 'processes'} | {length_s:.0f} s | {len(ratios)} | "
+              f"{periods} | {steals} | "
+              f"{np.median(ratios) * 100:+.1f} % [{mlo * 100:+.1f}, {mhi * 100:+.1f}] | "
+              f"{ratios.mean() * 100:+.1f} % [{alo * 100:+.1f}, {ahi * 100:+.1f}] |")
     return 0
 
 
