@@ -6,7 +6,8 @@
    cost as a fraction of the loop period, and the same in one process.
 2. Recorder throughput: BagWriter.write alone (JointState-sized CDR, lz4 chunks, as the recorder writes), and
    the recorder node end to end in the runs above (messages recorded per wall second).
-3. The recorder process's CPU per tapped message (fed archi_demo-like tap batches).
+3. The recorder process's CPU per tapped message (fed archi_demo-like tap batches of
+   25 steps, the taps' former 50 ms, and of 200, their 0.2 s).
 4. The recording cost inside one run, as processes and in one process: the taps
    record in every other window of 500 loop steps (``alternating_windows``). Alternated
    runs of one configuration differ by up to 20 % on this VM, so rates (1.) cannot
@@ -210,9 +211,10 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
         return publish_rate, recorded / span, messages - recorded
 
 
-def recorder_cpu_per_tapped_message(batches: int = 400) -> tuple[float, int, int]:
+def recorder_cpu_per_tapped_message(batches: int = 50, steps: int = 200) -> tuple[float, int, int]:
     """recorder_node in its own process, fed tap batches like archi_demo's (7 topics
-    of 96-200 bytes, 25 steps a batch, every 10 ms) from this process: the recorder's
+    of 96-200 bytes, ``steps`` steps a batch: 200 at 1 kHz and the taps' 0.2 s; one
+    batch every 0.4 ms x ``steps``) from this process: the recorder's
     CPU time (user + system, all its threads, from /proc) per message recorded. Unlike
     a rate it hardly depends on what else the VM runs. Returns (us per message,
     recorded, sent)."""
@@ -239,17 +241,17 @@ def recorder_cpu_per_tapped_message(batches: int = 400) -> tuple[float, int, int
             time.sleep(1.0)
             tap, step, start = StreamTap(), 0, cpu_s(recorder.popen.pid)
             for _ in range(batches):
-                for _ in range(25):
+                for _ in range(steps):
                     step += 1
                     for topic, size in zip(topics, sizes):       # a header stamp at bytes 4-12
                         data = b"\x00\x01\x00\x00" + step.to_bytes(4, "little") + bytes(size - 8)
                         tap.add(topic, "sensor_msgs/msg/JointState", data, time.time_ns())
                 pubs[0].publish(tap.take_batch())
-                time.sleep(0.01)
+                time.sleep(0.0004 * steps)
             time.sleep(1.5)
             used = cpu_s(recorder.popen.pid) - start
         recorded = sum(json.loads((tmp / "rec.json").read_text())["recorded"].get(t, 0) for t in topics)
-        return used * 1e6 / max(recorded, 1), recorded, batches * 25 * len(topics)
+        return used * 1e6 / max(recorded, 1), recorded, batches * steps * len(topics)
 
 
 def main(argv=None) -> int:
@@ -265,9 +267,10 @@ def main(argv=None) -> int:
     pub_rate, rec_rate, lost = recorder_throughput()
     print(f"recorder_node (own process), 20,000 JointState published at {pub_rate:,.0f}/s: recorded at "
           f"{rec_rate:,.0f} messages/s, lost {lost}")
-    us, recorded, sent = recorder_cpu_per_tapped_message()
-    print(f"recorder_node (own process) fed tap batches: {us:.2f} us of its CPU per message ({recorded:,} of "
-          f"{sent:,} recorded)")
+    for batches, steps in ((400, 25), (50, 200)):
+        us, recorded, sent = recorder_cpu_per_tapped_message(batches, steps)
+        print(f"recorder_node (own process) fed tap batches of {steps} steps: {us:.2f} us of its CPU per message "
+              f"({recorded:,} of {sent:,} recorded)")
     print()
     print(f"{args.scenario}: lockstep rate (steps/s), {args.repeats} alternated runs per row")
     print("| mode | recording | steps/s (runs) | CPU steal % (runs) | median | loop period | recorded msgs/s | lost |")

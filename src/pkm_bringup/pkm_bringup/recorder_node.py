@@ -18,7 +18,7 @@ even when a node repeats a message during discovery.
 
 Tapped topics (``tapped_topics``): the loop's per-step streams, whose nodes run with
 ``tap: true`` (pkm_common.tap), are not subscribed. Their nodes copy what they publish
-into batches on ``_recorder/tap`` (one message per node every 50 ms instead of one
+into batches on ``_recorder/tap`` (one message per node every 0.2 s instead of one
 delivery per message to one more process, on the loop's critical path); each record
 is written to its topic's channel with the node's publish time as log time, a whole
 batch in one compiled pass (pkm_bringup.tap_records; a malformed batch is refused

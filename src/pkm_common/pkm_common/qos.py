@@ -58,11 +58,11 @@ STREAM_PUBLISHER_QOS = QoSProfile(
 # recorder can subscribe RELIABLE and lose no tick
 CLOCK_PUBLISHER_QOS = STREAM_PUBLISHER_QOS
 
-# The recording tap (pkm_common.tap): a batch every 50 ms, kept for a recorder that
-# matches late (TRANSIENT_LOCAL, 200 batches = 10 s): nothing a node published before
+# The recording tap (pkm_common.tap): a batch every 0.2 s, kept for a recorder that
+# matches late (TRANSIENT_LOCAL, 50 batches = 10 s): nothing a node published before
 # the recorder saw it is lost
 TAP_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=200,
+    history=HistoryPolicy.KEEP_LAST, depth=50,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 # topic (relative name) -> profile, for code that wires topics generically
