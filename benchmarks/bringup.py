@@ -9,11 +9,13 @@
 3. The recorder process's CPU per tapped message (fed archi_demo-like tap batches of
    25 steps, the taps' former 50 ms, and of 200, their 0.2 s).
 4. The recording cost inside one run, as processes and in one process: the taps
-   record in every other window of 500 loop steps (``alternating_windows``). Alternated
-   runs of one configuration differ by up to 20 % on this VM, so rates (1.) cannot
-   show a few per cent; a window and its two neighbours share the VM's slow phases.
-   Printed: the median and the mean over all recording windows of ``--window-runs``
-   runs, each with a bootstrap 90 % interval.
+   record in one window of 1000 loop steps in three (``alternating_windows``).
+   Alternated runs of one configuration differ by up to 20 % on this VM, so rates (1.)
+   cannot show a few per cent; neighbouring windows share the VM's slow phases.
+   Printed: per run the median cost of its cycles; over all cycles of
+   ``--window-runs`` runs the median and the ratio of the sums, each with a bootstrap
+   90 % interval (over cycles; adjacent cycles share a clean window, so it is a little
+   narrow).
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0] [--window-runs 2]
 """
@@ -55,23 +57,22 @@ def run_once(scenario: str, record: bool, in_process: bool, duration_s: float) -
 GATE_DIR = Path(__file__).resolve().parent / "window_gate"
 
 
-def alternating_windows(scenario: str, duration_s: float, in_process: bool, window_steps: int = 500) -> dict:
+def alternating_windows(scenario: str, duration_s: float, in_process: bool, window_steps: int = 1000) -> dict:
     """The recording cost measured inside one run, so that this VM's slow phases (the
     same code runs up to 1.5-2x slower for seconds to minutes, with or without steal)
-    fall on both sides alike: the taps record in every other window of
-    ``window_steps`` loop steps of simulated time and are silent in the others
+    fall on both sides alike: the taps record in one window of ``window_steps`` loop
+    steps of simulated time in three and are silent in the others
     (``window_gate/sitecustomize.py``: in the node processes through their PYTHONPATH,
-    or installed in this one); the recorder runs throughout. Per pair of adjacent
-    windows, the mean step period recording over the mean silent one
-    (:func:`window_ratios`); returns those ratios - 1, the median silent step period
-    and the run's CPU steal."""
+    or installed in this one); the recorder runs throughout. Returns the per-cycle
+    costs of :func:`window_costs`, the median clean step period and the run's CPU steal."""
     from pkm_bringup.scenario import load_scenario
     spec = importlib.util.spec_from_file_location("window_gate", GATE_DIR / "sitecustomize.py")
     gate = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gate)
     window_ns = int(round(window_steps * load_scenario(scenario).dt_s * 1e9))
     with tempfile.TemporaryDirectory() as logs:
-        saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "PKM_TAP_WINDOW_NS", "PKM_TAP_WINDOW_LOG")}
+        names = ("PYTHONPATH", "PKM_TAP_WINDOW_NS", "PKM_TAP_WINDOW_LOG", "PKM_TAP_DISCARD")
+        saved = {k: os.environ.pop(k, None) for k in names}
         publish = None
         try:
             if in_process:
@@ -95,24 +96,36 @@ def alternating_windows(scenario: str, duration_s: float, in_process: bool, wind
             if len(files) != 1:
                 raise RuntimeError(f"alternating_windows: {len(files)} step logs from the node processes, expected 1")
             steps = [tuple(map(int, line.split())) for line in files[0].read_text().splitlines()]
-    ratios, period_s = window_ratios(steps, window_ns, window_steps // 2)
-    return {"ratios": ratios, "period_us": period_s * 1e6, "steal": run["steal"]}
+    if run["lost"] < run["recorded"]:      # 2 in 3 of the tapped messages are never recorded
+        raise RuntimeError(f"alternating_windows: the gate did not act ({run['recorded']} messages recorded, "
+                           f"{run['lost']} not)")
+    extra, clean, period_s = window_costs(steps, window_ns, window_steps // 2, gate.CYCLE)
+    return {"extra": extra, "clean": clean, "period_us": period_s * 1e6, "steal": run["steal"]}
 
 
-def window_ratios(steps, window_ns: int, min_steps: int):
-    """(ratios, silent period s): per recording window (even, of ``window_ns`` of
-    simulated time) between two silent ones, its mean step period over the mean of
-    theirs, - 1 (a drift of the VM's speed across the three windows cancels), from the
-    (stamp ns, perf_counter ns) of every step; and the median silent window's mean period.
-    Windows with fewer than ``min_steps`` steps (the ends of the run) are left out."""
+def window_costs(steps, window_ns: int, min_steps: int, cycle: int = 3):
+    """(extra, clean, clean period s) per cycle of windows of ``window_ns`` simulated
+    time: recording (w % cycle == 0), draining (w + 1: the recording's deferred work
+    lands there), clean. ``extra``: the recording and draining windows' mean step
+    periods minus two clean ones'; ``clean``: the mean of the clean windows before and
+    after (w - 1 and w + 2, centred on the other two: a linear drift of the VM's
+    speed cancels). A cycle's cost, as a share of the loop period per recorded step,
+    is extra / clean. From the (stamp ns, perf_counter ns) of every step; each period
+    belongs to the step it starts from (the period after the state of step k holds
+    that step's sensor and controller work). Windows with fewer than ``min_steps``
+    steps (the ends of the run) are left out. Also the median clean window's period."""
     import numpy as np
     stamps, times = np.array(sorted(steps), dtype=np.int64).T
-    periods, window = np.diff(times) * 1e-9, stamps[1:] // window_ns
+    periods, window = np.diff(times) * 1e-9, stamps[:-1] // window_ns
     means = {int(w): periods[window == w].mean() for w in np.unique(window)
              if np.count_nonzero(window == w) >= min_steps}
-    ratios = np.array([means[w] / (0.5 * (means[w - 1] + means[w + 1])) - 1.0 for w in sorted(means)
-                       if w % 2 == 0 and w - 1 in means and w + 1 in means])
-    return ratios, float(np.median([means[w] for w in means if w % 2]))
+    extra, clean = [], []
+    for w in sorted(means):
+        if w % cycle == 0 and all(v in means for v in (w - 1, w + 1, w + 2)):
+            reference = 0.5 * (means[w - 1] + means[w + 2])
+            extra.append(means[w] + means[w + 1] - 2.0 * reference)
+            clean.append(reference)
+    return np.array(extra), np.array(clean), float(np.median([means[w] for w in means if w % cycle == cycle - 1]))
 
 
 def bootstrap_90(values, statistic, draws: int = 5000) -> tuple[float, float]:
@@ -211,13 +224,15 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
         return publish_rate, recorded / span, messages - recorded
 
 
-def recorder_cpu_per_tapped_message(batches: int = 50, steps: int = 200) -> tuple[float, int, int]:
+def recorder_cpu_per_tapped_message(batches: int = 50, steps: int = 200, depth: int = 50) -> tuple[float, int, int]:
     """recorder_node in its own process, fed tap batches like archi_demo's (7 topics
     of 96-200 bytes, ``steps`` steps a batch: 200 at 1 kHz and the taps' 0.2 s; one
     batch every 0.4 ms x ``steps``) from this process: the recorder's
     CPU time (user + system, all its threads, from /proc) per message recorded. Unlike
     a rate it hardly depends on what else the VM runs. Returns (us per message,
-    recorded, sent)."""
+    recorded, sent). ``depth``: the tap publisher's history (TAP_QOS keeps 50 batches,
+    10 s at 0.2 s; it kept 200 when the taps batched every 50 ms)."""
+    import copy
     import json
 
     from sensor_msgs.msg import JointState
@@ -230,8 +245,11 @@ def recorder_cpu_per_tapped_message(batches: int = 50, steps: int = 200) -> tupl
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
+    qos = copy.copy(TAP_QOS)
+    qos.depth = depth
+
     def publishers(node):   # the tap, and the streams it stands for (the recorder discovers their types)
-        return ([node.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)]
+        return ([node.create_publisher(UInt8MultiArray, TAP_TOPIC, qos)]
                 + [node.create_publisher(JointState, t, STREAM_PUBLISHER_QOS) for t in topics])
 
     topics, sizes = [f"/bench/stream{i}" for i in range(7)], (120, 200, 96, 150, 180, 110, 90)
@@ -260,15 +278,22 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--duration-s", type=float, default=0.0, help="override (0: the scenario's)")
     parser.add_argument("--window-runs", type=int, default=2, help="runs per mode of the alternating windows")
+    parser.add_argument("--windows-only", action="store_true", help="only the in-run measurement (4.)")
     args = parser.parse_args(argv)
+    if not args.windows_only:
+        throughput_and_rates(args)
+    windows(args)
+    return 0
 
+
+def throughput_and_rates(args) -> None:
     rate, size = writer_throughput()
     print(f"BagWriter.write: {rate:,.0f} messages/s ({size}-byte JointState, lz4 chunks, flush every 500)")
     pub_rate, rec_rate, lost = recorder_throughput()
     print(f"recorder_node (own process), 20,000 JointState published at {pub_rate:,.0f}/s: recorded at "
           f"{rec_rate:,.0f} messages/s, lost {lost}")
-    for batches, steps in ((400, 25), (50, 200)):
-        us, recorded, sent = recorder_cpu_per_tapped_message(batches, steps)
+    for batches, steps, depth in ((400, 25, 200), (50, 200, 50)):
+        us, recorded, sent = recorder_cpu_per_tapped_message(batches, steps, depth)
         print(f"recorder_node (own process) fed tap batches of {steps} steps: {us:.2f} us of its CPU per message "
               f"({recorded:,} of {sent:,} recorded)")
     print()
@@ -298,25 +323,30 @@ def main(argv=None) -> int:
         cost = (1.0 / on - 1.0 / off) * off
         print(f"recording cost ({'in-process' if in_process else 'processes'}): {cost * 100:+.1f} % of the loop "
               f"period (target <= 5 %)")
+
+
+def windows(args) -> None:
     print()
-    print(f"{args.scenario}: recording cost inside one run, the taps recording in every other window of 500 steps "
-          f"({args.window_runs} runs per mode; per recording window, its mean step period over its two silent "
-          f"neighbours'; 90 % bootstrap intervals)")
-    print("| mode | run length | windows | silent step period (runs) | CPU steal % (runs) | median cost | "
-          "mean cost |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"{args.scenario}: recording cost inside one run, the taps recording in one window of 1000 steps in "
+          f"three ({args.window_runs} runs per mode; per cycle, the extra time of the recording and draining "
+          f"windows over two clean ones, per recorded step; 90 % bootstrap intervals)")
+    print("| mode | run length | cycles | clean step period (runs) | CPU steal % (runs) | median per run | "
+          "median | ratio of sums |")
+    print("|---|---|---|---|---|---|---|---|")
     import numpy as np
-    for in_process, length_s in ((False, 60.0), (True, 40.0)):
+    for in_process, length_s in ((False, 90.0), (True, 60.0)):
         runs = [alternating_windows(args.scenario, length_s, in_process) for _ in range(args.window_runs)]
-        ratios = np.concatenate([r["ratios"] for r in runs])
-        (mlo, mhi), (alo, ahi) = bootstrap_90(ratios, np.median), bootstrap_90(ratios, np.mean)
-        periods = ", ".join(f"{r['period_us']:.0f} us" for r in runs)
+        extra, clean = np.concatenate([r["extra"] for r in runs]), np.concatenate([r["clean"] for r in runs])
+        costs = extra / clean
+        (mlo, mhi) = bootstrap_90(costs, np.median)
+        index = np.arange(len(costs))
+        sums = bootstrap_90(index, lambda i, axis: extra[i].sum(axis=axis) / clean[i].sum(axis=axis))
+        per_run = ", ".join(f"{np.median(r['extra'] / r['clean']) * 100:+.1f}" for r in runs)
+        periods = ", ".join(f"{r['period_us']:.0f}" for r in runs)
         steals = ", ".join("n/a" if r["steal"] is None else f"{r['steal']:.1f}" for r in runs)
-        print(f"| {'in-process' if in_process else 'processes'} | {length_s:.0f} s | {len(ratios)} | "
-              f"{periods} | {steals} | "
-              f"{np.median(ratios) * 100:+.1f} % [{mlo * 100:+.1f}, {mhi * 100:+.1f}] | "
-              f"{ratios.mean() * 100:+.1f} % [{alo * 100:+.1f}, {ahi * 100:+.1f}] |")
-    return 0
+        print(f"| {'in-process' if in_process else 'processes'} | {length_s:.0f} s | {len(costs)} | {periods} us | "
+              f"{steals} | {per_run} % | {np.median(costs) * 100:+.1f} % [{mlo * 100:+.1f}, {mhi * 100:+.1f}] | "
+              f"{extra.sum() / clean.sum() * 100:+.1f} % [{sums[0] * 100:+.1f}, {sums[1] * 100:+.1f}] |")
 
 
 if __name__ == "__main__":

@@ -1,12 +1,14 @@
-"""Benchmark-only: the recording taps record in every other window of simulated time.
+"""Benchmark-only: the recording taps record in one window of simulated time in three.
 
 ``benchmarks/bringup.py`` puts this folder first on the PYTHONPATH of a run's node
 processes (Python imports ``sitecustomize`` at start-up), with
 
 - ``PKM_TAP_WINDOW_NS``: the window length in simulated ns. A tapped message whose
   header stamp (CDR bytes 4-12, as in every per-step stream and in /clock) falls in
-  an even window is published and tapped, in an odd one only published: the recorder
-  then receives, packs and writes nothing for that window, while its timers run on.
+  a window w with w % ``CYCLE`` == 0 is published and tapped, in the others only
+  published. The window after a recording one *drains* it: the taps' last batch
+  (they flush every 0.2 s of wall time), its packing and writing by the recorder
+  and the bag's compression (every 0.5 s) land there; the third window is clean.
   Every node decides from the stamp alone, so the processes agree on the windows
   without talking to each other.
 - ``PKM_TAP_WINDOW_LOG``: a folder; the process that publishes drives/state (sim_hw,
@@ -26,6 +28,7 @@ import struct
 import time
 
 _STAMP = struct.Struct("<iI")
+CYCLE = 3                  # recording, draining, clean
 
 
 def discard_batches() -> None:
@@ -51,7 +54,7 @@ def install(window_ns: int, log_dir: str | None) -> list:
         stamp_ns = sec * 1_000_000_000 + nanosec
         if self.topic.endswith("/drives/state"):
             steps.append((stamp_ns, time.perf_counter_ns()))
-        if (stamp_ns // window_ns) % 2 == 0:
+        if (stamp_ns // window_ns) % CYCLE == 0:
             publish(self, data)
         else:
             self.publisher.publish(data)
