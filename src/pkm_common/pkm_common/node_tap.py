@@ -28,7 +28,8 @@ from pkm_common.tap import TAP_TOPIC, StreamTap, TappedPublisher, message_type_n
 # callback, topic table and calls), not per record. Measured on archi_demo (~60 kB a
 # batch at 1 kHz): the recorder process's CPU 3.9-5.6 -> 1.6-2.1 us a message from 50
 # ms to 0.2 s; in one process the batches' cost on the loop's thread 10-13.5 -> 3.8-5.2
-# us a step, in pauses of ~400 instead of ~250 us. A node killed with -9 loses at most its last 0.2 s of records (counted).
+# us a step, in pauses of ~400 instead of ~250 us. A node killed with -9 loses at most
+# its last 0.2 s of records (counted).
 TAP_PERIOD_S = 0.2
 
 
