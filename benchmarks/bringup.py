@@ -18,6 +18,7 @@
    narrow).
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0] [--window-runs 2]
+       [--windows-only]
 """
 
 from __future__ import annotations
@@ -71,8 +72,7 @@ def alternating_windows(scenario: str, duration_s: float, in_process: bool, wind
     spec.loader.exec_module(gate)
     window_ns = int(round(window_steps * load_scenario(scenario).dt_s * 1e9))
     with tempfile.TemporaryDirectory() as logs:
-        names = ("PYTHONPATH", "PKM_TAP_WINDOW_NS", "PKM_TAP_WINDOW_LOG", "PKM_TAP_DISCARD")
-        saved = {k: os.environ.pop(k, None) for k in names}
+        saved = {k: os.environ.pop(k, None) for k in ("PYTHONPATH", "PKM_TAP_WINDOW_NS", "PKM_TAP_WINDOW_LOG")}
         publish = None
         try:
             if in_process:
@@ -136,7 +136,7 @@ def bootstrap_90(values, statistic, draws: int = 5000) -> tuple[float, float]:
     return tuple(float(x) for x in np.percentile(samples, [5, 95]))
 
 
-def writer_throughput(messages: int = 200_000) -> float:
+def writer_throughput(messages: int = 200_000) -> tuple[float, int]:
     from pkm_bringup.bag import BagWriter
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -338,7 +338,7 @@ def windows(args) -> None:
         runs = [alternating_windows(args.scenario, length_s, in_process) for _ in range(args.window_runs)]
         extra, clean = np.concatenate([r["extra"] for r in runs]), np.concatenate([r["clean"] for r in runs])
         costs = extra / clean
-        (mlo, mhi) = bootstrap_90(costs, np.median)
+        mlo, mhi = bootstrap_90(costs, np.median)
         index = np.arange(len(costs))
         sums = bootstrap_90(index, lambda i, axis: extra[i].sum(axis=axis) / clean[i].sum(axis=axis))
         per_run = ", ".join(f"{np.median(r['extra'] / r['clean']) * 100:+.1f}" for r in runs)

@@ -14,8 +14,6 @@ processes (Python imports ``sitecustomize`` at start-up), with
 - ``PKM_TAP_WINDOW_LOG``: a folder; the process that publishes drives/state (sim_hw,
   once per loop step) writes there, at exit, the (stamp ns, perf_counter ns) of every
   step, from which the benchmark compares the step periods of adjacent windows.
-- ``PKM_TAP_DISCARD`` (optional): the taps' batches are taken and dropped, never
-  sent: what the appends alone cost (the recorder then records none of the streams).
 
 ``install()`` does the same in the calling process (the in-process mode).
 """
@@ -29,16 +27,6 @@ import time
 
 _STAMP = struct.Struct("<iI")
 CYCLE = 3                  # recording, draining, clean
-
-
-def discard_batches() -> None:
-    """The taps' batches taken and dropped, not sent: what the appends alone cost."""
-    from pkm_common import node_tap
-
-    def flush(self):
-        if self.tap is not None:
-            self.tap.take_payload()
-    node_tap.NodeTap.flush = flush
 
 
 def install(window_ns: int, log_dir: str | None) -> list:
@@ -71,5 +59,3 @@ def install(window_ns: int, log_dir: str | None) -> list:
 
 if os.environ.get("PKM_TAP_WINDOW_NS"):
     install(int(os.environ["PKM_TAP_WINDOW_NS"]), os.environ.get("PKM_TAP_WINDOW_LOG"))
-    if os.environ.get("PKM_TAP_DISCARD"):
-        discard_batches()
