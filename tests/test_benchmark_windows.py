@@ -59,10 +59,19 @@ def test_the_estimator_recovers_a_cost_split_between_recording_and_draining_unde
     assert 1e-3 < period < 1.5e-3
 
 
-def test_the_bootstrap_interval_brackets_the_median_of_a_sample():
-    values = np.random.default_rng(1).normal(0.03, 0.1, 400)
-    low, high = bringup.bootstrap_90(values, np.median)
-    assert low < np.median(values) < high and high - low < 0.05
+def test_the_two_stage_bootstrap_widens_with_the_spread_between_runs():
+    rng = np.random.default_rng(1)
+    runs = [(rng.normal(0.03, 0.1, 30), np.ones(30)) for _ in range(8)]
+
+    def ratio(e, c):
+        return e.sum() / c.sum()
+    pooled = ratio(np.concatenate([e for e, _ in runs]), np.ones(240))
+    low, high = bringup.two_stage_bootstrap_90(runs, ratio, draws=2000)
+    assert low < pooled < high and high - low < 0.04      # the cycles' spread alone: sd 0.1 / sqrt(240)
+    # the same cycles, each run shifted by +-0.06 (a VM phase): the runs are the units
+    shifted = [(e + (0.06 if k % 2 else -0.06), c) for k, (e, c) in enumerate(runs)]
+    low_s, high_s = bringup.two_stage_bootstrap_90(shifted, ratio, draws=2000)
+    assert low_s < pooled < high_s and high_s - low_s > 1.5 * (high - low)
 
 
 class _Publisher:
