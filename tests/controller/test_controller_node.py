@@ -2,6 +2,7 @@
 through trajectory_node -> controller -> sim_hw in lockstep, MoM3 sensor space with
 the Gough node in the loop under load, bad state messages, the watchdog."""
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,28 @@ def test_archi_test_motion_through_the_graph(ros_graph):
     assert status and status[-1].level == b"\x00"
     values = {kv.key: kv.value for kv in status[-1].values}
     assert values["distribution"] == "inf_norm" and float(values["peak_drive_force_n"]) > 50.0
+
+
+@pytest.mark.ros
+def test_a_long_callback_of_another_node_trips_neither_end_of_the_loop(ros_graph):
+    """All nodes in one executor: another node's callback holds it for 1.5 s, longer
+    than sim_hw's 1 s command timeout and the controller's 0.5 s state timeout. The
+    commands and states wait in the queues meanwhile; neither end calls it silence
+    (pkm_common.watchdog), and the loop goes on."""
+    ctx = ros_graph.context
+    sim = ros_graph.add_node(SimHwNode(context=ctx, parameter_overrides=overrides(publish_markers=False)))
+    ctrl = ros_graph.add_node(ControllerNode(context=ctx))
+    stalled_at = []
+
+    def hold_the_executor():
+        if sim.plant.k >= 200 and not stalled_at:
+            stalled_at.append(sim.plant.k)
+            time.sleep(1.5)
+    ros_graph.create_node("busy").create_timer(0.01, hold_the_executor)
+    assert ros_graph.spin_until(lambda: stalled_at and sim.plant.k >= stalled_at[0] + 300, timeout_sec=60.0)
+    assert not sim.plant.stopped, sim.plant.stop_reason
+    assert not ctrl.core.stopped, ctrl.core.stop_reason
+    assert sim.counts["timeouts"] == 0
 
 
 @pytest.mark.ros

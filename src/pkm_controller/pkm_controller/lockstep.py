@@ -13,6 +13,8 @@ must stop the machine.
 
 from __future__ import annotations
 
+from pkm_common.watchdog import SilenceWatchdog
+
 __all__ = ["StampPairing"]
 
 KEEP_READINGS_NS = 100_000_000      # readings no state asked for: the last 0.1 s are kept
@@ -34,18 +36,17 @@ class StampPairing:
         self.readings: dict[int, object] = {}
         self.pending = None            # the state (with .stamp_ns) waiting for its reading
         self.last_answered_ns: int | None = None
-        self.last_state_wall: float | None = None
-        self.last_check_wall: float | None = None
+        self.state_watchdog = SilenceWatchdog(OWN_STALL_S)
 
     def reset_watchdog(self) -> None:
         """Disarm the watchdog until the next state (activation)."""
-        self.last_state_wall = None
+        self.state_watchdog.disarm()
 
     def state_arrived(self, stamp_ns: int, now_s: float) -> bool:
         """A drive state arrived at ``now_s``: False for a repeat of the stamp last
         answered (nothing to do), True for a new step (it is counted as answered).
         The watchdog is armed from here on."""
-        self.last_state_wall = now_s
+        self.state_watchdog.feed(now_s)
         if stamp_ns == self.last_answered_ns:
             return False
         self.last_answered_ns = stamp_ns
@@ -83,17 +84,12 @@ class StampPairing:
         step 0 for discovery until the run starts).
 
         Call it periodically. A call more than ``OWN_STALL_S`` after the previous one
-        means this process itself did not run (its executor busy with another node's
-        work, or the host stalled it): the states may be waiting in its queue, so that
-        gap is not counted as the plant's silence; the silence before and after it is.
-        (A test graph in one executor tripped while the trajectory node planned for
-        0.6 s.) Repeated stalls therefore delay a trip, never prevent it."""
-        last_check, self.last_check_wall = self.last_check_wall, now_s
-        if self.last_state_wall is None:
+        means this process itself did not run: that gap is not counted as the plant's
+        silence (pkm_common.watchdog; a test graph in one executor tripped while the
+        trajectory node planned for 0.6 s)."""
+        silent = self.state_watchdog.silence_s(now_s)
+        if silent is None:
             return None
-        if last_check is not None and now_s - last_check > OWN_STALL_S:
-            self.last_state_wall = min(now_s, self.last_state_wall + (now_s - last_check))
-        silent = now_s - self.last_state_wall
         if self.pending is not None:
             if silent > reading_timeout_s:
                 return (f"metrology/{self.reading}: nothing for the state of {self.pending.stamp_ns * 1e-9:.3f} s "

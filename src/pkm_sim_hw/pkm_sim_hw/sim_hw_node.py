@@ -4,8 +4,9 @@ Timing (DESIGN.md): in ``lockstep`` (default) the node publishes the state of st
 (``/clock``, ``drives/state``, ``platform/true_pose``, all stamped t_k), waits for the
 ``drives/command`` stamped t_k, then integrates to k+1 and publishes again. Until the
 first command arrives the state is re-published at 10 Hz (discovery); after it, no
-command within ``command_timeout_s`` (wall clock) is a fault: brakes on, reported,
-and the node keeps stepping on the commands that do come (ignored while stopped).
+command within ``command_timeout_s`` (wall clock, not counting this process's own
+stalls: pkm_common.watchdog) is a fault: brakes on, reported, and the node keeps
+stepping on the commands that do come (ignored while stopped).
 In ``realtime`` a wall timer steps every dt with the latest command (zero-order
 hold), from the first command on (before it, the initial state is held and
 re-published as in lockstep); a step whose command was not for the previous state
@@ -37,6 +38,7 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_li
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.watchdog import SilenceWatchdog
 from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
 
@@ -92,7 +94,9 @@ class SimHwNode(Node):
         self.dt_ns = round(params.dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
         self.started = False
-        self.last_command_wall = time.monotonic()
+        # the command watchdog does not count this process's own stalls (another node's
+        # callback in a shared executor): 3 periods of its 0.1 s timer
+        self.command_watchdog = SilenceWatchdog(own_stall_s=0.3)
         self.latest_effort = [0.0] * n            # realtime: zero-order hold
         self.latest_stamp_ns = -1
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
@@ -185,9 +189,10 @@ class SimHwNode(Node):
             self.counts["stale_commands"] += 1    # an answer to an older state: not alive
             return
         self.started = True
-        self.last_command_wall = time.monotonic()  # only a fresh command feeds the watchdog
+        now = time.monotonic()
+        self.command_watchdog.feed(now)            # only a fresh command feeds the watchdog
         if self.first_command_wall is None:
-            self.first_command_wall = self.last_command_wall
+            self.first_command_wall = now
         if not self.lockstep:
             self.latest_effort, self.latest_stamp_ns = effort, stamp
             return
@@ -240,10 +245,10 @@ class SimHwNode(Node):
     def on_watchdog(self) -> None:
         if self.finished:
             return
+        silence_s = self.command_watchdog.silence_s(time.monotonic())
         if not self.started:
             self.publish_state()                   # until the controller has discovered us
-        elif time.monotonic() - self.last_command_wall > self.timeout_s \
-                and not self.plant.stopped:        # lockstep and realtime alike
+        elif silence_s > self.timeout_s and not self.plant.stopped:      # lockstep and realtime alike
             self.counts["timeouts"] += 1
             self.plant.safe_stop(f"no drives/command within {self.timeout_s} s")
             self.get_logger().error(self.plant.stop_reason)
