@@ -78,7 +78,8 @@ def alternating_windows(scenario: str, duration_s: float, in_process: bool, wind
             if in_process:
                 from pkm_common import tap
                 publish = tap.TappedPublisher.publish
-                steps = gate.install(window_ns, None)
+                steps, marks = gate.install(window_ns, None)
+                cpu_marks = {"in-process": marks}
             else:
                 os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(GATE_DIR), saved["PYTHONPATH"]]))
                 os.environ["PKM_TAP_WINDOW_NS"], os.environ["PKM_TAP_WINDOW_LOG"] = str(window_ns), logs
@@ -95,16 +96,28 @@ def alternating_windows(scenario: str, duration_s: float, in_process: bool, wind
             files = list(Path(logs).glob("*.txt"))
             if len(files) != 1:
                 raise RuntimeError(f"alternating_windows: {len(files)} step logs from the node processes, expected 1")
-            steps = [tuple(map(int, line.split())) for line in files[0].read_text().splitlines()]
+            steps = _pairs(files[0].read_text().splitlines())
+            cpu_marks = {}
+            for path in sorted(Path(logs).glob("*.cpu")):
+                module, *lines = path.read_text().splitlines()
+                cpu_marks[module.rpartition(".")[2]] = _pairs(lines)
+            for path in Path(logs).glob("*.rec"):
+                cpu_marks["recorder_node"] = marks_from_samples(_pairs(path.read_text().splitlines()), steps,
+                                                                window_ns)
     if run["lost"] < run["recorded"]:      # 2 in 3 of the tapped messages are never recorded
         raise RuntimeError(f"alternating_windows: the gate did not act ({run['recorded']} messages recorded, "
                            f"{run['lost']} not)")
-    extra, clean, period_s = window_costs(steps, window_ns, window_steps // 2, gate.CYCLE)
-    return {"extra": extra, "clean": clean, "period_us": period_s * 1e6, "steal": run["steal"]}
+    extra, clean, period_s, cycles = window_costs(steps, window_ns, window_steps // 2, gate.CYCLE)
+    cpu = {name: cpu_costs(window_cpu(marks), window_steps, cycles) for name, marks in cpu_marks.items()}
+    return {"extra": extra, "clean": clean, "period_us": period_s * 1e6, "steal": run["steal"], "cpu": cpu}
+
+
+def _pairs(lines) -> list[tuple[int, int]]:
+    return [tuple(map(int, line.split())) for line in lines if line.strip()]
 
 
 def window_costs(steps, window_ns: int, min_steps: int, cycle: int = 3):
-    """(extra, clean, clean period s) per cycle of windows of ``window_ns`` simulated
+    """(extra, clean, clean period s, cycles) per cycle of windows of ``window_ns`` simulated
     time: recording (w % cycle == 0), draining (w + 1: the recording's deferred work
     lands there), clean. ``extra``: the recording and draining windows' mean step
     periods minus two clean ones'; ``clean``: the mean of the clean windows before and
@@ -113,19 +126,52 @@ def window_costs(steps, window_ns: int, min_steps: int, cycle: int = 3):
     is extra / clean. From the (stamp ns, perf_counter ns) of every step; each period
     belongs to the step it starts from (the period after the state of step k holds
     that step's sensor and controller work). Windows with fewer than ``min_steps``
-    steps (the ends of the run) are left out. Also the median clean window's period."""
+    steps (the ends of the run) are left out. Also the median clean window's period,
+    and the cycles by their recording window."""
     import numpy as np
     stamps, times = np.array(sorted(steps), dtype=np.int64).T
     periods, window = np.diff(times) * 1e-9, stamps[:-1] // window_ns
     means = {int(w): periods[window == w].mean() for w in np.unique(window)
              if np.count_nonzero(window == w) >= min_steps}
-    extra, clean = [], []
+    extra, clean, cycles = [], [], []
     for w in sorted(means):
         if w % cycle == 0 and all(v in means for v in (w - 1, w + 1, w + 2)):
             reference = 0.5 * (means[w - 1] + means[w + 2])
             extra.append(means[w] + means[w + 1] - 2.0 * reference)
             clean.append(reference)
-    return np.array(extra), np.array(clean), float(np.median([means[w] for w in means if w % cycle == cycle - 1]))
+            cycles.append(w)
+    return (np.array(extra), np.array(clean), float(np.median([means[w] for w in means if w % cycle == cycle - 1])),
+            cycles)
+
+
+def window_cpu(marks) -> dict[int, float]:
+    """CPU seconds of a process in each window, from its (window, process CPU ns)
+    marks at its first tapped message of each window: the mark of w + 1 minus w's."""
+    at = dict(marks)
+    return {w: (at[w + 1] - at[w]) * 1e-9 for w in at if w + 1 in at}
+
+
+def cpu_costs(cpu: dict[int, float], window_steps: int, cycles):
+    """Per cycle (its recording window w), a process's extra CPU seconds per recorded
+    step: the recording and draining windows' CPU minus the clean ones' before and
+    after (w - 1, w + 2), over ``window_steps``; NaN where a window is missing. The
+    CPU-time view of :func:`window_costs`: it holds no preemption, steal or waiting,
+    so it varies far less than the step periods do."""
+    import numpy as np
+    return np.array([(cpu[w] + cpu[w + 1] - cpu[w - 1] - cpu[w + 2]) / window_steps
+                     if all(v in cpu for v in (w - 1, w, w + 1, w + 2)) else np.nan for w in cycles])
+
+
+def marks_from_samples(samples, steps, window_ns: int) -> list[tuple[int, float]]:
+    """(window, CPU ns) marks of a process sampled as (perf_counter ns, CPU ns), at
+    the wall time of each window's first loop step (sim_hw's (stamp ns,
+    perf_counter ns)): the recorder publishes nothing tapped to mark its windows."""
+    import numpy as np
+    t, cpu = np.array(sorted(samples), dtype=np.float64).T
+    stamps, times = np.array(sorted(steps), dtype=np.int64).T
+    windows, first = np.unique(stamps // window_ns, return_index=True)
+    inside = (times[first] >= t[0]) & (times[first] <= t[-1])
+    return [(int(w), float(c)) for w, c in zip(windows[inside], np.interp(times[first][inside], t, cpu))]
 
 
 def two_stage_bootstrap_90(runs, statistic, draws: int = 5000) -> tuple[float, float]:
@@ -340,6 +386,11 @@ def throughput_and_rates(args) -> None:
 
 
 def windows(args) -> None:
+    import numpy as np
+    modes = {"both": (False, True), "processes": (False,), "in-process": (True,)}[args.window_modes]
+    results = [(in_process, length_s, [alternating_windows(args.scenario, length_s, in_process)
+                                       for _ in range(args.window_runs)])
+               for in_process, length_s in ((False, 90.0), (True, 60.0)) if in_process in modes]
     print()
     print(f"{args.scenario}: recording cost inside one run, the taps recording in one window of 1000 steps in "
           f"three ({args.window_runs} runs per mode; per cycle, the extra time of the recording and draining "
@@ -348,12 +399,7 @@ def windows(args) -> None:
     print("| mode | run length | cycles | clean step period (runs) | CPU steal % (runs) | median per run | "
           "median | ratio of sums |")
     print("|---|---|---|---|---|---|---|---|")
-    import numpy as np
-    modes = {"both": (False, True), "processes": (False,), "in-process": (True,)}[args.window_modes]
-    for in_process, length_s in ((False, 90.0), (True, 60.0)):
-        if in_process not in modes:
-            continue
-        runs = [alternating_windows(args.scenario, length_s, in_process) for _ in range(args.window_runs)]
+    for in_process, length_s, runs in results:
         extra, clean = np.concatenate([r["extra"] for r in runs]), np.concatenate([r["clean"] for r in runs])
         costs = extra / clean
         pairs = [(r["extra"], r["clean"]) for r in runs]
@@ -365,6 +411,34 @@ def windows(args) -> None:
         print(f"| {'in-process' if in_process else 'processes'} | {length_s:.0f} s | {len(costs)} | {periods} us | "
               f"{steals} | {per_run} % | {np.median(costs) * 100:+.1f} % [{mlo * 100:+.1f}, {mhi * 100:+.1f}] | "
               f"{extra.sum() / clean.sum() * 100:+.1f} % [{sums[0] * 100:+.1f}, {sums[1] * 100:+.1f}] |")
+    print()
+    print("The same cycles in CPU time (cpu_costs): each process's extra CPU per recorded step, and as a share of "
+          "the clean step period (ratio of sums; 90 % two-stage bootstrap intervals). 'all' adds them up: the cost "
+          "if every microsecond of it delayed the loop")
+    print("| mode | process | extra CPU per recorded step: median | share of the clean period |")
+    print("|---|---|---|---|")
+    for in_process, _, runs in results:
+        names = sorted(set().union(*(r["cpu"] for r in runs)))
+        for name in names + ["all"]:
+            pairs = []
+            for r in runs:
+                if name == "all":
+                    if not all(n in r["cpu"] for n in names):
+                        continue
+                    extra = np.sum([r["cpu"][n] for n in names], axis=0)
+                else:
+                    extra = r["cpu"].get(name, np.full(len(r["clean"]), np.nan))
+                keep = np.isfinite(extra)
+                if keep.any():
+                    pairs.append((extra[keep], r["clean"][keep]))
+            if not pairs:
+                continue
+            e, c = np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
+            mlo, mhi = two_stage_bootstrap_90(pairs, lambda e, c: np.median(e))
+            lo, hi = two_stage_bootstrap_90(pairs, lambda e, c: e.sum() / c.sum())
+            print(f"| {'in-process' if in_process else 'processes'} | {name} | {np.median(e) * 1e6:.1f} us "
+                  f"[{mlo * 1e6:.1f}, {mhi * 1e6:.1f}] | {e.sum() / c.sum() * 100:+.2f} % "
+                  f"[{lo * 100:+.2f}, {hi * 100:+.2f}] |")
 
 
 if __name__ == "__main__":

@@ -47,14 +47,14 @@ def test_the_estimator_recovers_a_cost_split_between_recording_and_draining_unde
     w = k // window
     # 4 % of the period per recorded step: 3 % while recording, the 1 % deferred to the next window
     periods = drift * np.where(w % 3 == 0, 1.03, np.where(w % 3 == 1, 1.01, 1.0))
-    extra, clean, period = bringup.window_costs(_steps(periods), window * 1_000_000, window // 2)
+    extra, clean, period, _ = bringup.window_costs(_steps(periods), window * 1_000_000, window // 2)
     # cycles at windows 3, 6 and 9 (0 has no clean window before it; 12 is cut short)
     assert len(extra) == 3
     # the drift cancels to first order (the cost scales with it: the rest, <6e-4, is its second order)
     np.testing.assert_allclose(extra / clean, 0.04, atol=1e-3)
     assert extra.sum() / clean.sum() == pytest.approx(0.04, abs=1e-3)
     without_drain = (periods - drift * np.where(w % 3 == 1, 0.01, 0.0))       # a two-window design's view
-    extra, clean, _ = bringup.window_costs(_steps(without_drain), window * 1_000_000, window // 2)
+    extra, clean, _, _ = bringup.window_costs(_steps(without_drain), window * 1_000_000, window // 2)
     np.testing.assert_allclose(extra / clean, 0.03, atol=1e-3)
     assert 1e-3 < period < 1.5e-3
 
@@ -88,7 +88,7 @@ def _stamped(stamp_ns: int) -> bytes:
 
 def test_the_gate_taps_only_the_messages_of_one_window_in_three(monkeypatch):
     monkeypatch.setattr(TappedPublisher, "publish", TappedPublisher.publish)    # restored afterwards
-    steps = gate.install(window_ns=2_000_000, log_dir=None)
+    steps, cpu = gate.install(window_ns=2_000_000, log_dir=None)
     streams = StreamTap()
     state = TappedPublisher(_Publisher("/pkm/drives/state"), streams, "sensor_msgs/msg/JointState", lambda: 7)
     pose = TappedPublisher(_Publisher("/pkm/metrology/pose"), streams, "geometry_msgs/msg/PoseStamped", lambda: 7)
@@ -101,6 +101,8 @@ def test_the_gate_taps_only_the_messages_of_one_window_in_three(monkeypatch):
     assert [k for topic, k in tapped if topic == "/pkm/drives/state"] == [0, 1, 6, 7]
     assert [k for topic, k in tapped if topic == "/pkm/metrology/pose"] == [0, 1, 6, 7]
     assert [s for s, _ in steps] == [k * 1_000_000 for k in range(10)]             # drives/state: every step
+    assert [w for w, _ in cpu] == [0, 1, 2, 3, 4]          # a CPU mark at the first message of each window
+    assert all(a <= b for (_, a), (_, b) in zip(cpu, cpu[1:]))
 
 
 def test_a_node_process_loads_the_gate_from_its_pythonpath_and_logs_its_steps_at_exit(tmp_path):
@@ -118,6 +120,48 @@ def test_a_node_process_loads_the_gate_from_its_pythonpath_and_logs_its_steps_at
     logs = list(tmp_path.glob("*.txt"))
     assert len(logs) == 1
     assert [int(line.split()[0]) for line in logs[0].read_text().splitlines()] == [0, 1000, 2000, 3000]
+    module, *marks = next(tmp_path.glob("*.cpu")).read_text().splitlines()
+    assert module == Path(sys.executable).name                      # run with -c: no module
+    assert [int(line.split()[0]) for line in marks] == [0]            # all four stamps in window 0
+    assert not list(tmp_path.glob("*.rec"))                           # not the recorder: no sampler
+
+
+def test_the_recorder_s_cpu_sampler_writes_its_samples_at_exit(tmp_path):
+    code = ("import sitecustomize as gate, time\n"
+            "gate.sample_cpu(%r, period_s=0.005)\n"
+            "end = time.perf_counter() + 0.2\n"
+            "while time.perf_counter() < end: pass\n" % str(tmp_path))
+    env = {**os.environ, "PYTHONPATH": str(BENCHMARKS / "window_gate")}
+    env.pop("PKM_TAP_WINDOW_NS", None)
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=60)
+    samples = np.array([list(map(int, line.split())) for line in
+                        next(tmp_path.glob("*.rec")).read_text().splitlines()])
+    assert len(samples) >= 5 and (np.diff(samples, axis=0) >= 0).all()
+    # a busy loop: the process's CPU time grows, at most as fast as the wall time (one
+    # thread busy; how much less depends on what else the host runs)
+    wall_s, cpu_s = (samples[-1] - samples[0]) * 1e-9          # columns: perf_counter, CPU
+    assert 0.0 < cpu_s < 1.1 * wall_s + 0.01
+
+
+def test_cpu_costs_recover_a_known_extra_cpu_per_recorded_step():
+    window_steps, cycle_cpu = 100, {0: 0.05, 1: 0.02, 2: 0.0}     # extra CPU s per window, by w % 3
+    base = 0.4                                                    # s of CPU per clean window
+    marks, total = [], 0.0
+    for w in range(13):
+        marks.append((w, int(round(total * 1e9))))
+        total += base * (1.0 + 0.02 * w) + cycle_cpu[w % 3]         # with a slow drift
+    costs = bringup.cpu_costs(bringup.window_cpu(marks), window_steps, [3, 6, 9, 12])
+    np.testing.assert_allclose(costs[:3], 0.07 / window_steps, rtol=1e-6)     # the drift cancels
+    assert np.isnan(costs[3])                                     # window 13, 14 never marked
+
+
+def test_the_recorder_s_samples_become_marks_at_each_window_s_first_step():
+    steps = [(k * 1_000_000, 5_000_000_000 + k * 2_000_000) for k in range(40)]   # 2 ms per step
+    samples = [(5_000_000_000 + i * 10_000_000, i * 3_000_000) for i in range(10)]  # 0.3 CPU s per wall s
+    marks = bringup.marks_from_samples(samples, steps, window_ns=10_000_000)
+    # windows of 10 steps start at 0, 20, 40, 60 ms of wall time; the samples reach 90 ms
+    assert [w for w, _ in marks] == [0, 1, 2, 3]
+    np.testing.assert_allclose([c for _, c in marks], [0.0, 6e6, 12e6, 18e6])
 
 
 def test_the_gate_is_off_without_its_environment(monkeypatch):
