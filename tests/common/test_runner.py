@@ -1,10 +1,13 @@
 """pkm_common.runner.run_node: exit codes and teardown (the SIGINT path is exercised
 by the multi-process node tests)."""
 
+import gc
+import weakref
+
 import pytest
 
 from pkm_common.params import ParameterError, declare_float
-from pkm_common.runner import EXIT_BAD_PARAMETER, EXIT_ERROR, EXIT_OK, run_node
+from pkm_common.runner import EXIT_BAD_PARAMETER, EXIT_ERROR, EXIT_OK, run_node, start_up_frozen
 
 pytestmark = pytest.mark.ros
 
@@ -16,16 +19,42 @@ def _node(context, on_timer, **kwargs):
     return node
 
 
+class _Cycle:
+    def __init__(self):
+        self.me = self
+
+
+def test_the_start_up_heap_is_frozen_for_the_loop_and_returned_after():
+    assert gc.get_freeze_count() == 0
+    before = _Cycle()
+    with start_up_frozen():
+        assert gc.get_freeze_count() > 1000          # the interpreter's and pytest's objects at least
+        made_in_the_loop = _Cycle()
+        ref = weakref.ref(made_in_the_loop)
+        del made_in_the_loop
+        gc.collect()
+        assert ref() is None                         # cycles of the loop are still collected
+        before_ref = weakref.ref(before)
+        del before
+        gc.collect()
+        assert before_ref() is not None              # a frozen cycle is not
+    assert gc.get_freeze_count() == 0
+    gc.collect()
+    assert before_ref() is None                      # ... until it is returned
+
+
 @pytest.mark.parametrize('executor', ['single', 'events'])
 def test_shutdown_ends_the_loop_with_0(executor):
     seen = []
+    assert gc.get_freeze_count() == 0
 
     def stop(node, context):
-        seen.append(node.get_name())
+        seen.append((node.get_name(), gc.get_freeze_count() > 1000))     # the loop runs frozen
         context.try_shutdown()
 
     assert run_node(lambda context: _node(context, stop), args=[], executor=executor) == EXIT_OK
-    assert seen == ['runner_test']
+    assert seen == [('runner_test', True)]
+    assert gc.get_freeze_count() == 0                # an embedding process is left as it was
 
 
 def test_refused_parameter_exits_2(capfd):

@@ -240,6 +240,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     from rclpy.parameter import Parameter
 
     from pkm_bringup.recorder_node import RecorderNode
+    from pkm_common.runner import start_up_frozen
     from pkm_controller.controller_node import ControllerNode
     from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
     from pkm_sim_hw.sim_hw_node import SimHwNode
@@ -296,13 +297,14 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
         last = 0.0
-        while not sim.finished:
-            if time.monotonic() > deadline:
-                raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
-            executor.spin_once(timeout_sec=0.05)
-            if time.monotonic() - last > 0.1:
-                last = time.monotonic()
-                progress.update(sim.plant.t)
+        with start_up_frozen():
+            while not sim.finished:
+                if time.monotonic() > deadline:
+                    raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
+                executor.spin_once(timeout_sec=0.05)
+                if time.monotonic() - last > 0.1:
+                    last = time.monotonic()
+                    progress.update(sim.plant.t)
         progress.update(s.duration_s)
         # no node may be destroyed while the executor still runs (a queued callback would
         # publish on it); the drain is shorter than the controller's state watchdog

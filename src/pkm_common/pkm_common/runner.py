@@ -15,6 +15,8 @@ exception.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
 import signal
 import sys
@@ -37,6 +39,21 @@ def make_executor(kind: str, context):
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
     raise ValueError(f'executor: must be one of {list(EXECUTORS)}, got {kind!r}')
+
+
+@contextlib.contextmanager
+def start_up_frozen():
+    """The objects of start-up (modules, compiled kernels, the nodes) frozen out of the
+    cyclic garbage collector for the block (``gc.freeze``), then returned to it. The loop
+    allocates little, but each collection of the oldest generation scanned all of
+    them on the loop's thread: in one process of archi_demo (~150,000 objects) the
+    full collections took 86-182 ms each, the middle ones up to 9 ms."""
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def run_node(factory: Callable, args=None, executor: str = 'single', name: str = 'node',
@@ -70,8 +87,9 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
             return EXIT_BAD_PARAMETER
         exec_ = make_executor(executor, context)
         exec_.add_node(node)
-        while context.ok() and not stop:
-            exec_.spin_once(timeout_sec=spin_period_s)
+        with start_up_frozen():
+            while context.ok() and not stop:
+                exec_.spin_once(timeout_sec=spin_period_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = EXIT_OK
     except Exception as exc:          # noqa: BLE001 - reported, then a non-zero exit
