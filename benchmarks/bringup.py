@@ -13,12 +13,13 @@
    Alternated runs of one configuration differ by up to 20 % on this VM, so rates (1.)
    cannot show a few per cent; neighbouring windows share the VM's slow phases.
    Printed: per run the median cost of its cycles; over all cycles of
-   ``--window-runs`` runs the median and the ratio of the sums, each with a bootstrap
-   90 % interval (over cycles; adjacent cycles share a clean window, so it is a little
-   narrow).
+   ``--window-runs`` runs the median and the ratio of the sums, each with the 90 %
+   interval of a two-stage bootstrap (runs, then cycles). Then the same cycles in CPU
+   time, per process (``cpu_costs``): the extra CPU per recorded step, and their sum
+   as a share of the loop period.
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0] [--window-runs 2]
-       [--windows-only]
+       [--windows-only] [--window-modes both|processes|in-process]
 """
 
 from __future__ import annotations
