@@ -156,8 +156,8 @@ def cpu_costs(cpu: dict[int, float], window_steps: int, cycles):
     """Per cycle (its recording window w), a process's extra CPU seconds per recorded
     step: the recording and draining windows' CPU minus the clean ones' before and
     after (w - 1, w + 2), over ``window_steps``; NaN where a window is missing. The
-    CPU-time view of :func:`window_costs`: it holds no preemption, steal or waiting,
-    so it varies far less than the step periods do."""
+    CPU-time view of :func:`window_costs`: it holds no preemption or waiting, but the
+    VM's slow phases change it too, so it is hardly less noisy (session 11)."""
     import numpy as np
     return np.array([(cpu[w] + cpu[w + 1] - cpu[w - 1] - cpu[w + 2]) / window_steps
                      if all(v in cpu for v in (w - 1, w, w + 1, w + 2)) else np.nan for w in cycles])
@@ -420,7 +420,7 @@ def windows(args) -> None:
     print("|---|---|---|---|")
     for in_process, _, runs in results:
         names = sorted(set().union(*(r["cpu"] for r in runs)))
-        for name in names + ["all"]:
+        for name in names + (["all"] if len(names) > 1 else []):       # one process: 'all' is that row
             pairs = []
             for r in runs:
                 if name == "all":
