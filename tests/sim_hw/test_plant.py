@@ -225,3 +225,35 @@ def test_command_efforts_come_in_drive_order_or_are_refused_with_the_reason():
         None, "expected 3 efforts for ['q1', 'q2', 'q3'], got 2 for ['q1', 'q2']")
     assert command_efforts(command(["q1", "q9", "q3"], [1.0, 2.0, 3.0]), names)[0] is None  # not the drives
     assert command_efforts(command(names, [1.0, math.nan, 2.0]), names) == (None, "non-finite effort [1.0, nan, 2.0]")
+
+
+def test_encoder_slip_offsets_one_reading_from_its_start():
+    plant = Plant(load_machine("archi"), PlantParameters(faults=("1:encoder_slip:0.003:2e-4",)))
+    healthy = Plant(load_machine("archi"))
+    for k in range(6):
+        out, ref = plant.step([100.0] * 4), healthy.step([100.0] * 4)
+        # from its start on, only drive 1 reads 200 um more than the healthy machine's
+        slip = [0.0, 2e-4 if k >= 3 else 0.0, 0.0, 0.0]
+        np.testing.assert_allclose(np.subtract(out.encoder_positions, ref.encoder_positions), slip, atol=1e-12)
+    assert Fault.parse("0:encoder_slip", 4).size == 1e-4
+    with pytest.raises(ValueError, match="only encoder_slip takes a size"):
+        Fault.parse("0:locked:0.1:1e-4", 4)
+    with pytest.raises(ValueError, match=r"slip size must be in \[-0.01, 0.01\] m, got nan"):
+        Fault.parse("0:encoder_slip:0.1:nan", 4)
+
+
+def test_external_loads_are_bounded_and_a_refused_one_is_not_applied():
+    plant = Plant(load_machine("archi"), PlantParameters(max_load_n=1000.0, max_load_nm=50.0))
+    plant.set_load([900.0, -900.0, 40.0])
+    with pytest.raises(ValueError, match=r"load: fx must be in \[-1000, 1000\] N \(max_load_n\), got 1e\+07"):
+        plant.set_load([1e7, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"mz must be in \[-50, 50\] N m \(max_load_nm\), got 1e\+12"):
+        plant.set_load([0.0, 0.0, 1e12])
+    assert plant.load == [900.0, -900.0, 40.0]
+    with pytest.raises(ValueError, match=r"load_schedule: fx must be in"):
+        plant.schedule_load([(0.5, [1e12, 0.0, 0.0])])
+    mom3 = Plant(load_machine("mom3"), PlantParameters(max_load_n=1000.0))
+    with pytest.raises(ValueError, match=r"fz must be in \[-1000, 1000\] N"):
+        mom3.set_load([0.0, 0.0, 2000.0])
+    with pytest.raises(ValueError, match="max_load_n: must be"):
+        PlantParameters(max_load_n=math.nan).validate(4)

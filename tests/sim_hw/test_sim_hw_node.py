@@ -142,3 +142,92 @@ def test_realtime_stops_when_the_controller_dies(ros_graph):
     pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[58.9] * 3))
     assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=3.0)
     assert "no drives/command within 0.3 s" in sim.plant.stop_reason
+
+
+# ---------------------------------------------------------------- command authority
+def _hold_run(ros_graph, steps=50, **params):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi", publish_markers=False, **params)))
+    ctrl = ros_graph.add_node(HoldControllerNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi")))
+    assert ros_graph.spin_until(lambda: sim.plant.k >= steps, timeout_sec=30.0)
+    return sim, ctrl
+
+
+def test_a_second_publisher_on_drives_command_is_an_intruder(ros_graph):
+    """Only the controller the plant was connected to may move it: another node that
+    merely publishes on drives/command (sending nothing) stops the machine, named."""
+    sim, _ = _hold_run(ros_graph, command_source="/hold_controller")
+    refused = Recorder(ros_graph, DiagnosticArray, "drives/refused")
+    rogue = ros_graph.create_node("rogue")
+    rogue.create_publisher(JointState, "drives/command", STREAM_QOS)
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert str(sim.plant.stop_cause) == "intruder" and "/rogue" in sim.plant.stop_reason
+    assert sim.intruder == "/rogue" and sim.summary()["intruder"] == "/rogue"
+    assert ros_graph.spin_until(lambda: refused.messages, timeout_sec=5.0)
+    values = {kv.key: kv.value for kv in refused.messages[0].status[0].values}
+    assert values["cause"] == "intruder" and values["sender"] == "/rogue"
+
+
+def test_an_intruders_forces_never_move_the_machine_in_real_time(ros_graph):
+    """Realtime, the rogue sends 1e9 N commands stamped like the plant's step: the
+    plant stops on its match (before its data), the tool stays where it was."""
+    sim, _ = _hold_run(ros_graph, mode="realtime", command_source="/hold_controller")
+    rogue = ros_graph.create_node("rogue")
+    pub = rogue.create_publisher(JointState, "drives/command", STREAM_QOS)
+    x0 = list(sim.plant.x)
+    for _ in range(200):
+        pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[1e9] * 4))
+        ros_graph.spin_for(0.002)
+    assert sim.plant.stopped and str(sim.plant.stop_cause) == "intruder"
+    assert max(abs(a - b) for a, b in zip(sim.plant.x[:2], x0[:2])) < 1e-5
+
+
+def test_future_stamped_commands_are_refused(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi", publish_markers=False, mode="realtime")))
+    pub = ros_graph.create_node("ctrl").create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(joint_state_msg(sim.plant.names, sim.now_ns() + 10**9, effort=[500.0] * 4))
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert str(sim.plant.stop_cause) == "input_refused" and "ahead of the plant" in sim.plant.stop_reason
+    assert sim.counts["refused_commands"] == 1 and sim.plant.v == [0.0, 0.0, 0.0]
+
+
+def test_the_drive_state_carries_the_plant_status_in_band(ros_graph):
+    """frame_id '' while running, 'safe_stop:<cause>' once braked (a drive status word)."""
+    sim, _ = _hold_run(ros_graph, steps=5)
+    states = Recorder(ros_graph, JointState, "drives/state")
+    ros_graph.spin_until(lambda: states.messages, timeout_sec=5.0)
+    assert states.messages[-1].header.frame_id == ""
+    estop = ros_graph.create_node("op").create_publisher(Bool, "estop", LATCHED_QOS)
+    estop.publish(Bool(data=True))
+    assert ros_graph.spin_until(lambda: states.messages and states.messages[-1].header.frame_id == "safe_stop:estop",
+                                timeout_sec=5.0)
+
+
+def test_a_load_over_its_bound_is_refused_and_stops(ros_graph):
+    from geometry_msgs.msg import WrenchStamped
+    sim, _ = _hold_run(ros_graph, steps=5, max_load_n=2000.0)
+    pub = ros_graph.create_node("loader").create_publisher(WrenchStamped, "load", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    msg = WrenchStamped()
+    msg.wrench.force.x = 1e7
+    pub.publish(msg)
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert str(sim.plant.stop_cause) == "load_refused" and "max_load_n" in sim.plant.stop_reason
+    assert sim.plant.load == [0.0, 0.0, 0.0] and sim.counts["refused_loads"] == 1
+
+
+def test_refusals_are_logged_at_most_once_a_second(ros_graph):
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="archi", publish_markers=False)))
+    logged = []
+    sim.get_logger().error = logged.append
+    pub = ros_graph.create_node("bad").create_publisher(JointState, "drives/command", STREAM_QOS)
+    ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
+    for _ in range(30):
+        pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[math.nan] * 4))
+        ros_graph.spin_for(0.005)
+    assert ros_graph.spin_until(lambda: sim.counts["refused_commands"] >= 20, timeout_sec=10.0)
+    assert len(logged) == 1

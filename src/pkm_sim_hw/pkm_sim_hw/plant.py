@@ -12,10 +12,14 @@ structural compliance, external load and faults.
 * Drives: force saturation; faults ``no_force`` (the drive applies nothing) and
   ``locked`` (a brake holds it: a constraint J_i xdot = 0 with its reaction force).
 * Encoders: quantised at the resolution, optional Gaussian noise, velocity by backward
-  difference; fault ``encoder_freeze`` holds the last reading.
+  difference; fault ``encoder_freeze`` holds the last reading, ``encoder_slip`` adds a
+  constant offset (the fault's size, default 100 um) from its start on.
 * Compliance: the tool deflects by C f_load, invisible to the drive encoders and
   visible to a metrology on the tool (MoM3 §7.1: ~70-80 um under 110 N).
-* Safe stop: brakes on every drive (the platform stops and holds), commands ignored.
+* External load: bounded by ``max_load_n`` (force components) and ``max_load_nm``
+  (moment components); a larger one is refused (ValueError naming the bound).
+* Safe stop: brakes on every drive (the platform stops and holds), commands ignored;
+  the stop keeps its reason and its ``TripCause``.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pkm_common.causes import TripCause
 from pkm_common.cdr import in_order
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force_rows
@@ -35,33 +40,42 @@ from pkm_kinematics.planar import PlanarMachine
 from pkm_kinematics.translational import TranslationalMachine
 from pkm_kinematics.validation import finite_floats
 
-FAULT_KINDS = ("no_force", "locked", "encoder_freeze")
+FAULT_KINDS = ("no_force", "locked", "encoder_freeze", "encoder_slip")
+DEFAULT_SLIP_M = 1e-4
 
 
 @dataclass(frozen=True)
 class Fault:
-    """A drive fault that starts at ``at_s`` (simulated time)."""
+    """A drive fault that starts at ``at_s`` (simulated time); ``size``: the offset of
+    an ``encoder_slip`` (m)."""
 
     drive: int
     kind: str
     at_s: float = 0.0
+    size: float = 0.0
 
     @staticmethod
     def parse(text: str, n_drives: int) -> "Fault":
-        """``"<drive>:<kind>[:<at_s>]"``, drive counted from 0, e.g. ``"2:locked:0.5"``."""
+        """``"<drive>:<kind>[:<at_s>[:<size>]]"``, drive counted from 0, e.g.
+        ``"2:locked:0.5"``, ``"1:encoder_slip:0.3:2e-4"``."""
         parts = text.split(":")
         try:
             drive, kind = int(parts[0]), parts[1]
             at_s = float(parts[2]) if len(parts) > 2 else 0.0
+            size = float(parts[3]) if len(parts) > 3 else (DEFAULT_SLIP_M if kind == "encoder_slip" else 0.0)
         except (IndexError, ValueError):
-            raise ValueError(f"faults: expected '<drive>:<kind>[:<at_s>]', got {text!r}") from None
+            raise ValueError(f"faults: expected '<drive>:<kind>[:<at_s>[:<size>]]', got {text!r}") from None
+        if len(parts) > 4 or (len(parts) > 3 and kind != "encoder_slip"):
+            raise ValueError(f"faults: only encoder_slip takes a size, got {text!r}")
         if not 0 <= drive < n_drives:
             raise ValueError(f"faults: drive must be in [0, {n_drives - 1}], got {drive} in {text!r}")
         if kind not in FAULT_KINDS:
             raise ValueError(f"faults: kind must be one of {list(FAULT_KINDS)}, got {kind!r}")
-        if not at_s >= 0.0:
-            raise ValueError(f"faults: start time must be >= 0 s, got {at_s}")
-        return Fault(drive, kind, at_s)
+        if not (at_s >= 0.0 and math.isfinite(at_s)):
+            raise ValueError(f"faults: start time must be in [0, inf) s, got {at_s}")
+        if not (math.isfinite(size) and abs(size) <= 0.01):
+            raise ValueError(f"faults: slip size must be in [-0.01, 0.01] m, got {size}")
+        return Fault(drive, kind, at_s, size)
 
 
 @dataclass
@@ -79,6 +93,8 @@ class PlantParameters:
     rail_offset_errors_m: tuple = ()      # shift of each rail origin along its rail
     compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C in task coordinates (m/N, m/N, m/N or rad/(N m))
     faults: tuple = ()
+    max_load_n: float = 5000.0            # bound of each force component of the external load
+    max_load_nm: float = 500.0            # bound of a moment component (planar machines: m_z)
 
     def validate(self, n_drives: int) -> None:
         checks = [("dt_s", self.dt_s > 0.0 and self.dt_s <= 0.1, "(0, 0.1] s"),
@@ -91,7 +107,9 @@ class PlantParameters:
                    and all(abs(e) < 0.5 for e in self.link_length_errors), f"{n_drives} values in (-0.5, 0.5)"),
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
                   ("compliance", len(self.compliance) == 3 and all(c >= 0.0 for c in self.compliance),
-                   "3 values >= 0")]
+                   "3 values >= 0"),
+                  ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
+                  ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m")]
         for name, ok, allowed in checks:
             if not ok:
                 raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
@@ -155,6 +173,7 @@ class Plant:
         self._schedule: list = []          # [(step, wrench)] (schedule_load)
         self.stopped = False
         self.stop_reason = ""
+        self.stop_cause = TripCause.NONE
         self._rng = np.random.default_rng(self.params.seed)
         self._faults = [Fault.parse(f, n) if isinstance(f, str) else f for f in self.params.faults]
         self._lower = self.machine.joint_lower.tolist()
@@ -165,9 +184,15 @@ class Plant:
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
 
     # ------------------------------------------------------------------ inputs
+    def check_load(self, wrench, what: str = "load") -> list:
+        """The external load as 3 floats, or ValueError naming the bound it exceeds
+        (``max_load_n`` per force component, ``max_load_nm`` per moment component)."""
+        return check_load(wrench, self.config.kind == "planar", self.params, what)
+
     def set_load(self, wrench) -> None:
-        """External (cutting) load on the tool, task coordinates (N, N, N m | N)."""
-        self.load = finite_floats(wrench, 3, "load")
+        """External (cutting) load on the tool, task coordinates (N, N, N m | N);
+        ValueError (nothing applied) over its bound."""
+        self.load = self.check_load(wrench)
 
     def schedule_load(self, rows) -> None:
         """Loads in simulated time: [(t_s, wrench)], times non-decreasing; each applies
@@ -176,14 +201,15 @@ class Plant:
         for t, wrench in rows:
             if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
                 raise ValueError(f"load_schedule: times must be finite, >= 0 and non-decreasing, got {t}")
-            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), finite_floats(wrench, 3, "load")))
+            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), self.check_load(wrench, "load_schedule")))
             last_t = t
         self._schedule = schedule
 
-    def safe_stop(self, reason: str) -> None:
-        """Brakes on: the platform stops where it is and holds; commands are ignored."""
+    def safe_stop(self, reason: str, cause: TripCause = TripCause.PLANT_SAFE_STOP) -> None:
+        """Brakes on: the platform stops where it is and holds; commands are ignored.
+        The first stop's reason and cause are kept."""
         if not self.stopped:
-            self.stopped, self.stop_reason = True, reason
+            self.stopped, self.stop_reason, self.stop_cause = True, reason, TripCause(cause)
         self.v = [0.0, 0.0, 0.0]
 
     def active_faults(self) -> list[Fault]:
@@ -319,6 +345,9 @@ class Plant:
         q_true, rows, _, _ = terms or self.machine.velocity_terms(self.x, self.v)
         reading = self._read_encoders(q_true)
         frozen = {f.drive for f in faults if f.kind == "encoder_freeze"}
+        for f in faults:
+            if f.kind == "encoder_slip":
+                reading[f.drive] += f.size
         reading = [self._encoders[i] if i in frozen else r for i, r in enumerate(reading)]
         velocity = [(r - p) / self.params.dt_s for r, p in zip(reading, self._encoders)]
         self._encoders = reading
@@ -332,6 +361,20 @@ class Plant:
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""
         return self._last
+
+
+def check_load(wrench, planar: bool, params: PlantParameters, what: str = "load") -> list:
+    """An external load (task coordinates: fx, fy, mz on a planar machine, fx, fy, fz
+    otherwise) as 3 floats, or ValueError naming the component and its bound."""
+    values = finite_floats(wrench, 3, what)
+    for i, value in enumerate(values):
+        moment = planar and i == 2
+        bound, unit, name = (params.max_load_nm, "N m", "max_load_nm") if moment else \
+            (params.max_load_n, "N", "max_load_n")
+        if abs(value) > bound:
+            label = ("fx", "fy", "mz" if planar else "fz")[i]
+            raise ValueError(f"{what}: {label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
+    return values
 
 
 def leg_segments(machine, x) -> list[tuple[list, list]]:

@@ -12,8 +12,14 @@ hold), from the first command on (before it, the initial state is held and
 re-published as in lockstep); a step whose command was not for the previous state
 counts as a deadline miss.
 
-A command of the wrong length, with unknown names or NaN is refused with an ERROR
-diagnostic and the machine is stopped safely; so is ``estop`` (latched).
+A command of the wrong length, with unknown names or NaN, stamped ahead of the plant,
+or from any node but the controller (pkm_sim_hw.authority) is refused: the machine is
+stopped safely, with an ERROR diagnostic naming the cause (and the intruder); so is
+``estop`` (latched) and an external load over its bound. Every refusal is published on
+``drives/refused`` (a DiagnosticArray, so the bag shows it; at most
+REFUSALS_PER_S a second, the rest counted) and logged at most once a second.
+``drives/state`` carries the plant's status in its ``header.frame_id``, in band like a
+drive's status word: empty while running, ``safe_stop:<cause>`` once braked.
 """
 
 from __future__ import annotations
@@ -25,12 +31,14 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
+from pkm_common.causes import TripCause
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
@@ -40,7 +48,10 @@ from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QO
 from pkm_common.runner import main_exit, run_node
 from pkm_common.watchdog import SilenceWatchdog
 from pkm_kinematics import load_machine
+from pkm_sim_hw.authority import APPLY, STALE, CommandGate, Refusal
 from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
+
+REFUSALS_PER_S = 50          # refusal records published a second at most (the rest are counted)
 
 
 class SimHwNode(Node):
@@ -63,11 +74,21 @@ class SimHwNode(Node):
             rail_offset_errors_m=tuple(declare_float_list(self, "rail_offset_errors_m", [], "one per drive "
                                                           "(empty: none)", unit="m")),
             compliance=tuple(declare_float_list(self, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
-            faults=tuple(f.strip() for f in faults.split(",") if f.strip()))
+            faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
+            max_load_n=declare_float(self, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
+                                     "component", lo_open=True, unit="N"),
+            max_load_nm=declare_float(self, "max_load_nm", 500.0, 0.0, 1e9, "bound of an external load moment "
+                                      "component", lo_open=True, unit="N m"))
         initial = declare_float_list(self, "initial_pose", [], "empty: the machine's home pose")
         self.plant = Plant(self.config, params, initial_pose=initial or None)
         self.lockstep = declare_str(self, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
         self.timeout_s = declare_float(self, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
+        self.gate = CommandGate(
+            declare_str(self, "command_source", "", "the controller node's full name (empty: the one "
+                        "publisher at the first command); any other publisher on drives/command stops the "
+                        "machine", allow_empty=True),
+            self.lockstep, round(1e9 * declare_float(self, "command_max_age_s", 0.02, 0.0, 10.0, "real time: "
+                                                     "older commands are refused", lo_open=True, unit="s")))
         self.publish_markers = declare_bool(self, "publish_markers", True)
         self.duration_s = declare_float(self, "duration_s", 0.0, 0.0, 1e7, "stop after this simulated time "
                                         "(0: run until shut down)", unit="s")
@@ -92,7 +113,11 @@ class SimHwNode(Node):
         self.last_published_ns = -1
         self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
-        self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0}
+        self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0,
+                       "refused_loads": 0, "refusals_not_published": 0}
+        self.intruder = ""
+        self._refusal_window = (0.0, 0)         # (start of the second, records published in it)
+        self._next_log_s = 0.0
         self.started = False
         # the command watchdog does not count this process's own stalls (another node's
         # callback in a shared executor): 3 periods of its 0.1 s timer
@@ -102,6 +127,7 @@ class SimHwNode(Node):
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
         # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
         self.state_encoder = JointStateEncoder(self.plant.names)
+        self.stopped_encoder = None                # frame_id "safe_stop:<cause>", made at the stop
         self.pose_encoder = PoseStampedEncoder("world")
         self.planar = self.config.kind == "planar"
         self.command_decoder = JointStateDecoder("drives/command")
@@ -113,8 +139,11 @@ class SimHwNode(Node):
         self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, "platform/true_pose",
                                                             STREAM_PUBLISHER_QOS), PoseStamped)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        self.pub_refused = self.create_publisher(DiagnosticArray, "drives/refused", STREAM_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
-        self.create_subscription(JointState, "drives/command", self.on_command, STREAM_QOS, raw=True)
+        self.command_sub = self.create_subscription(
+            JointState, "drives/command", self.on_command, STREAM_QOS, raw=True,
+            event_callbacks=SubscriptionEventCallbacks(matched=self.on_command_matched))
         self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
         self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS)
         self.create_timer(0.1, self.on_watchdog)
@@ -141,8 +170,13 @@ class SimHwNode(Node):
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
             self.steps_published += 1
-        self.pub_state.publish(self.state_encoder.encode(ns, out.encoder_positions, out.encoder_velocities,
-                                                         out.applied_forces))
+        encoder = self.state_encoder
+        if out.stopped:                           # the status word: braked, and why
+            if self.stopped_encoder is None:
+                self.stopped_encoder = JointStateEncoder(self.plant.names, f"safe_stop:{self.plant.stop_cause}")
+            encoder = self.stopped_encoder
+        self.pub_state.publish(encoder.encode(ns, out.encoder_positions, out.encoder_velocities,
+                                              out.applied_forces))
         self.pub_clock.publish(encode_clock(ns))
 
     def publish_diagnostics(self) -> None:
@@ -150,6 +184,7 @@ class SimHwNode(Node):
         level = 2 if out.stopped else 0
         message = f"stopped: {self.plant.stop_reason}" if out.stopped else "running"
         values = {"step": out.step, "time_s": out.time_s, "finished": self.finished,
+                  "cause": str(self.plant.stop_cause), "intruder": self.intruder or "none",
                   "mode": "lockstep" if self.lockstep else "realtime",
                   "internal_force_norm_n": out.internal_force_norm, "saturated_drives": sum(out.saturated),
                   "faults": ",".join(out.faults_active) or "none", **self.counts}
@@ -160,20 +195,52 @@ class SimHwNode(Node):
         self.pub_markers.publish(line_list_markers(leg_segments(self.plant.machine, self.plant.x), self.now_ns()))
 
     # ------------------------------------------------------------------ inputs
-    def _refuse(self, reason: str) -> None:
-        self.counts["refused_commands"] += 1
-        self.plant.safe_stop(f"refused command: {reason}")
-        self.get_logger().error(f"drives/command refused: {reason}")
+    def _refuse(self, refusal: Refusal | str, topic: str = "drives/command") -> None:
+        """Not applied: counted, recorded on drives/refused, logged (at most once a
+        second) and, for most refusals, the machine stopped safely with its cause."""
+        if isinstance(refusal, str):
+            refusal = Refusal(refusal, TripCause.INPUT_REFUSED)
+        self.counts["refused_loads" if topic == "load" else "refused_commands"] += 1
+        if refusal.cause == TripCause.INTRUDER and not self.intruder:
+            self.intruder = refusal.sender or "unknown"
+        text = f"refused {'load' if topic == 'load' else 'command'}: {refusal.reason}"
+        if refusal.stop:
+            self.plant.safe_stop(text, refusal.cause)
+        self._record_refusal(refusal, topic)
+        now = time.monotonic()
+        if now >= self._next_log_s:                # a stream of bad commands must not flood /rosout
+            self._next_log_s = now + 1.0
+            self.get_logger().error(f"{text} ({self.counts['refused_commands']} commands, "
+                                    f"{self.counts['refused_loads']} loads refused so far)")
         self.publish_diagnostics()
 
-    def _effort(self, msg):
-        """The efforts of a command in plant order, or None (refused, reported)."""
-        effort, problem = command_efforts(msg, self.plant.names)
-        if problem:
-            self._refuse(problem)
-        return effort
+    def _record_refusal(self, refusal: Refusal, topic: str) -> None:
+        start, published = self._refusal_window
+        now = time.monotonic()
+        if now - start >= 1.0:
+            start, published = now, 0
+        if published >= REFUSALS_PER_S:
+            self.counts["refusals_not_published"] += 1
+            return
+        self._refusal_window = (start, published + 1)
+        values = {"topic": topic, "reason": refusal.reason, "cause": str(refusal.cause),
+                  "stamp_ns": refusal.stamp_ns, "sender": refusal.sender or "unknown",
+                  "plant_step": self.plant.k, "stopped": refusal.stop}
+        self.pub_refused.publish(diagnostic_array(ns_to_stamp(self.now_ns()),
+                                                  [diagnostic_status("sim_hw/refused", 2, refusal.reason, values)]))
 
-    def on_command(self, buf: bytes) -> None:
+    def command_publishers(self) -> list[str]:
+        """Full names of the nodes publishing drives/command (the graph's view)."""
+        return [f"{p.node_namespace.rstrip('/')}/{p.node_name}"
+                for p in self.get_publishers_info_by_topic(self.command_sub.topic_name)]
+
+    def on_command_matched(self, status) -> None:
+        """A publisher matched drives/command (before its first message is delivered)."""
+        if self.started and not self.intruder and not self.finished and status.current_count > 1:
+            self._refuse(self.gate.check_publishers(self.command_publishers()) or Refusal(
+                f"{status.current_count} publishers on drives/command", TripCause.INTRUDER))
+
+    def on_command(self, buf: bytes, info=None) -> None:
         if self.finished:
             return
         try:
@@ -182,12 +249,22 @@ class SimHwNode(Node):
             self._refuse(str(exc))
             return
         stamp = msg.stamp_ns
-        effort = self._effort(msg)
-        if effort is None:
-            effort = [0.0] * self.plant.n          # stopped anyway; lockstep goes on
-        if self.lockstep and stamp != self.now_ns():
+        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
+        intruder = self.gate.check_sequence(seq, stamp) or \
+            (None if self.started else self.gate.connect(self.command_publishers()))
+        if intruder:                               # braked; lockstep goes on with the answers that come
+            self._refuse(intruder)
+        verdict = self.gate.check_stamp(stamp, self.now_ns())
+        if verdict == STALE:
             self.counts["stale_commands"] += 1    # an answer to an older state: not alive
             return
+        if verdict != APPLY:                       # not an answer; in real time the last valid one holds
+            self._refuse(verdict)
+            return
+        effort, why = command_efforts(msg, self.plant.names)
+        if effort is None:
+            self._refuse(why)
+            effort = [0.0] * self.plant.n          # stopped anyway; lockstep goes on
         self.started = True
         now = time.monotonic()
         self.command_watchdog.feed(now)            # only a fresh command feeds the watchdog
@@ -215,7 +292,8 @@ class SimHwNode(Node):
         wall = time.monotonic() - (self.first_command_wall or time.monotonic())
         return {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
                 "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
-                "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason, **self.counts,
+                "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason,
+                "cause": str(self.plant.stop_cause), "intruder": self.intruder, **self.counts,
                 "published": dict.fromkeys(("drives/state", "platform/true_pose", "/clock"), self.steps_published),
                 "complete": self.finished}
 
@@ -248,9 +326,13 @@ class SimHwNode(Node):
         silence_s = self.command_watchdog.silence_s(time.monotonic())
         if not self.started:
             self.publish_state()                   # until the controller has discovered us
-        elif silence_s > self.timeout_s and not self.plant.stopped:      # lockstep and realtime alike
+        if self.started and not self.intruder:
+            intruder = self.gate.check_publishers(self.command_publishers())
+            if intruder:
+                self._refuse(intruder)
+        if self.started and silence_s > self.timeout_s and not self.plant.stopped:   # lockstep and realtime
             self.counts["timeouts"] += 1
-            self.plant.safe_stop(f"no drives/command within {self.timeout_s} s")
+            self.plant.safe_stop(f"no drives/command within {self.timeout_s} s", TripCause.WATCHDOG)
             self.get_logger().error(self.plant.stop_reason)
             self.publish_diagnostics()
             self.publish_state()
@@ -260,12 +342,12 @@ class SimHwNode(Node):
         wrench = [f.x, f.y, m.z] if self.config.kind == "planar" else [f.x, f.y, f.z]
         try:
             self.plant.set_load(wrench)
-        except ValueError as exc:
-            self.get_logger().error(f"load refused: {exc}")
+        except ValueError as exc:                  # nothing applied; the experiment cannot go on
+            self._refuse(Refusal(str(exc), TripCause.LOAD_REFUSED), topic="load")
 
     def on_estop(self, msg: Bool) -> None:
         if msg.data:
-            self.plant.safe_stop("estop")
+            self.plant.safe_stop("estop", TripCause.ESTOP)
             self.publish_diagnostics()
 
 

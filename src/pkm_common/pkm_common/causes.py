@@ -1,0 +1,57 @@
+"""Why a machine stopped: one enumeration of trip causes (pure, no rclpy).
+
+Every safe stop of the graph carries one ``TripCause``: the controller's supervisor
+and node, the plant (sim_hw) and the bringup. The cause travels as its string value
+in the ``cause`` key of ``controller/status`` and of sim_hw's ``diagnostics``, in
+the node summaries and in ``run.json``; the report states the cause of the *first*
+stop of a run (the one that started it), never a consequence of it (a plant that
+brakes on its own is seen by the controller as drives that stop following their
+commands: that is ``plant_safe_stop``, not ``drive_failure``).
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = ["TripCause", "parse_cause", "run_status"]
+
+
+class TripCause(str, enum.Enum):
+    """The cause that started a safe stop (value: the string on the wire)."""
+
+    NONE = "none"
+    JOINT_LIMIT = "joint_limit"              # a drive outside its range
+    WORKSPACE = "workspace"                  # the tool outside the workspace box
+    SINGULARITY = "singularity"              # condition number over max_condition
+    FOLLOWING_ERROR = "following_error"      # tracking error over its bound
+    SATURATION = "saturation"                # drive forces saturated too long
+    DRIVE_FAILURE = "drive_failure"          # a drive's force differs from its command
+    ENCODER_FAULT = "encoder_fault"          # a frozen or slipping encoder
+    INPUT_REFUSED = "input_refused"          # a malformed, NaN, stale or future input
+    INTRUDER = "intruder"                    # a second publisher on drives/command
+    ESTOP = "estop"                          # an operator's estop
+    WATCHDOG = "watchdog"                    # an input went silent
+    PLANT_SAFE_STOP = "plant_safe_stop"      # the plant braked on its own (end stop, timeout, ...)
+    LOAD_REFUSED = "load_refused"            # an external load over its bound
+    KINEMATICS = "kinematics"                # FK/IK failed, a law produced non-finite forces
+    DEACTIVATED = "deactivated"              # lifecycle deactivate
+
+    def __str__(self) -> str:
+        return self.value
+
+
+def parse_cause(text: str) -> TripCause:
+    """The cause of its wire string; an unknown string (a newer peer) is kept visible
+    as ``ValueError`` rather than mapped to a wrong cause."""
+    try:
+        return TripCause(text)
+    except ValueError:
+        raise ValueError(f"cause: must be one of {[c.value for c in TripCause]}, got {text!r}") from None
+
+
+def run_status(error: str, cause: TripCause) -> str:
+    """A run's status: ``failed`` (it could not run), ``tripped`` (the machine was
+    stopped by a safety function) or ``completed``."""
+    if error:
+        return "failed"
+    return "completed" if cause in (TripCause.NONE, TripCause.DEACTIVATED) else "tripped"

@@ -1,0 +1,107 @@
+"""Command authority of the simulated machine (pure, no rclpy): which drive commands
+the plant applies.
+
+Nothing but the controller the plant was connected to may move it (ros2_control's
+hardware/controller boundary, made explicit):
+
+* **Source.** ``command_source`` names the controller node (``/pkm/controller``); empty:
+  the one publisher on ``drives/command`` when the first command arrives. Any other
+  publisher on the topic, at any time, is an intruder: the plant holds safe and the
+  diagnostics name it. DDS gives no sender per message, so two more checks act per
+  message: each publisher numbers its messages (``publication_sequence_number``), so
+  a number that does not follow the last one means a second writer; and the graph is
+  asked who publishes (``get_publishers_info_by_topic``) at the first command and on
+  every watchdog tick.
+* **Stamps.** A command answers a published state: one stamped after the plant's
+  current step is refused; in real time one older than ``max_age_ns`` is refused too
+  (in lockstep older stamps are the discovery repeats, counted as stale).
+
+Every refusal is counted and kept as a :class:`Refusal` for the node to record.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pkm_common.causes import TripCause
+
+__all__ = ["CommandGate", "Refusal", "STALE", "APPLY"]
+
+APPLY = "apply"
+STALE = "stale"
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A command the plant did not apply: why, the cause class, the stamp, the sender
+    when it is known (a node name), and whether it must stop the machine."""
+
+    reason: str
+    cause: TripCause
+    stamp_ns: int = -1
+    sender: str = ""
+    stop: bool = True
+
+
+class CommandGate:
+    """Decides, per command, apply / stale / refuse (see the module docstring)."""
+
+    def __init__(self, command_source: str, lockstep: bool, max_age_ns: int):
+        if max_age_ns <= 0:
+            raise ValueError(f"command_max_age_s: must be > 0, got {max_age_ns * 1e-9:g} s")
+        self.expected = command_source
+        self.lockstep = lockstep
+        self.max_age_ns = max_age_ns
+        self.source = command_source         # the controller, once known
+        self.last_sequence = None
+
+    def check_stamp(self, stamp_ns: int, now_ns: int) -> str | Refusal:
+        """APPLY, STALE (lockstep: an answer to an older state) or a Refusal."""
+        if stamp_ns > now_ns:
+            return Refusal(f"stamp {stamp_ns * 1e-9:.6f} s is ahead of the plant's step {now_ns * 1e-9:.6f} s",
+                           TripCause.INPUT_REFUSED, stamp_ns)
+        if stamp_ns == now_ns:
+            return APPLY
+        if self.lockstep:
+            return STALE
+        if now_ns - stamp_ns > self.max_age_ns:
+            return Refusal(f"stamp {stamp_ns * 1e-9:.6f} s is {(now_ns - stamp_ns) * 1e-6:.3f} ms old "
+                           f"(command_max_age_s {self.max_age_ns * 1e-9:g})", TripCause.INPUT_REFUSED,
+                           stamp_ns, stop=False)
+        return APPLY
+
+    def check_sequence(self, sequence: int | None, stamp_ns: int) -> Refusal | None:
+        """A publication sequence number that does not follow the previous one: a
+        second writer on the topic (None when the middleware gives no number)."""
+        if not sequence:
+            return None
+        last, self.last_sequence = self.last_sequence, sequence
+        if last is None or sequence > last:
+            return None
+        return Refusal(f"a second publisher on drives/command (sequence number {sequence} after {last})",
+                       TripCause.INTRUDER, stamp_ns, self.source and f"not {self.source}")
+
+    def check_publishers(self, publishers: list[str]) -> Refusal | None:
+        """The fully qualified names of the nodes publishing drives/command: any
+        other than the controller is an intruder. Before the controller is known
+        (no ``command_source``, no command yet) nothing is decided."""
+        if not self.source:
+            return None
+        others = sorted({p for p in publishers if p != self.source})
+        if not others:
+            return None
+        return Refusal(f"{', '.join(others)} publishes on drives/command (only {self.source} may)",
+                       TripCause.INTRUDER, sender=", ".join(others))
+
+    def connect(self, publishers: list[str]) -> Refusal | None:
+        """At the first command: the controller is the expected one, or else the one
+        publisher there is; two publishers without a ``command_source`` are refused."""
+        if not self.source:
+            distinct = sorted(set(publishers))
+            if len(distinct) > 1:
+                return Refusal(f"{len(distinct)} publishers on drives/command ({', '.join(distinct)}): "
+                               "set command_source to the controller's node name", TripCause.INTRUDER,
+                               sender=", ".join(distinct))
+            if distinct:
+                self.source = distinct[0]
+        return self.check_publishers(publishers)
