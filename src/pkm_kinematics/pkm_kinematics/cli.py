@@ -8,7 +8,10 @@
     pkm-analyze report --machine archi
 
 A readable table by default, JSON with ``--json``. Bad input exits with status 2 and
-a message naming the field.
+one line on stderr naming the field, ``pkm-analyze: error: --samples: must be an
+integer >= 2, got 0``: argument values are checked by the argparse ``type=``
+validators below, everything else (machine files, ranges, unreachable poses) by the
+commands, which raise KinematicsError.
 """
 
 from __future__ import annotations
@@ -22,9 +25,66 @@ from dataclasses import asdict
 import numpy as np
 
 from . import analysis
-from .config import load_machine
-from .errors import KinematicsError
+from .config import MachineConfig, load_machine
+from .errors import KinematicsError, UnreachablePoseError
 from .planar import PlanarMachine
+
+
+# ----------------------------------------------------------- argument checks
+# One validator per kind of value; argparse reports their message as
+# "argument --name: <message>", which main() prints as one line.
+def real(lo: float = -math.inf, hi: float = math.inf):
+    """A finite number in [lo, hi]; refuses nan, inf and values that overflow (1e999)."""
+    allowed = ("a finite number" if lo == -math.inf and hi == math.inf
+               else f"a number in [{lo:g}, {hi:g}]")
+
+    def check(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text}")
+        return value
+    return check
+
+
+def integer(lo: int, hi: int | None = None):
+    """An integer in [lo, hi] (hi None: no upper bound), e.g. ``integer(2)`` for a
+    number of samples along an axis."""
+    allowed = f"an integer >= {lo}" if hi is None else f"an integer in [{lo}, {hi}]"
+
+    def check(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {value}")
+        return value
+    return check
+
+
+FINITE = real()
+# Grid and sweep axes include both ends, so they need at least two samples.
+AXIS_SAMPLES = integer(2)
+# Lengths (m): beyond 1 km is a typo, not a machine (and from about 1e154 m the
+# kinematics' squares overflow); under a micrometre the Orthoglide sizing underflows.
+POSITION_M = real(-1e3, 1e3)
+SIZE_M = real(1e-6, 1e3)
+
+
+class UsageError(Exception):
+    """A command-line argument argparse refused (message names the argument)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Raises UsageError instead of printing the usage and exiting, so that main()
+    reports every bad input the same way (one line, status 2). Sub-commands use the
+    same class."""
+
+    def error(self, message: str):
+        raise UsageError(message.removeprefix("argument "))
 
 
 def _table(title: str, rows: list[tuple[str, str]]) -> str:
@@ -38,8 +98,21 @@ def _um(v: float) -> str:
     return f"{v * 1e6:.3f} um"
 
 
+def _jsonable(workspace: dict) -> dict:
+    return {k: np.asarray(v).tolist() for k, v in workspace.items()}
+
+
+def _load(name: str) -> MachineConfig:
+    """load_machine, with an unreadable file reported against --machine."""
+    try:
+        return load_machine(name)
+    except (OSError, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise KinematicsError(f"--machine: cannot read {name!r}: {reason}") from None
+
+
 def _planar_machine(name: str) -> PlanarMachine:
-    model = load_machine(name).model
+    model = _load(name).model
     if not isinstance(model, PlanarMachine):
         raise KinematicsError(f"--machine: {name!r} is not a planar machine (condition sweeps need theta)")
     return model
@@ -53,6 +126,9 @@ def cmd_condition(args) -> tuple[dict, str]:
         raise KinematicsError(f"--theta-range: need MIN < MAX, got {lo} {hi}")
     sweep = analysis.condition_sweep(machine, args.x, args.y, lo, hi, samples=args.samples)
     full = sweep.full_condition
+    unreachable = int(np.isnan(full).sum())      # NaN: a leg cannot reach its platform point
+    if unreachable == len(full):
+        raise UnreachablePoseError(_unreachable_message(machine, args.x, args.y, sweep.theta_deg))
     data = {
         "machine": machine.name, "x_m": args.x, "y_m": args.y, "theta_range_deg": [lo, hi],
         "full_machine": {"legs": machine.n_legs, "condition_min": float(np.nanmin(full)),
@@ -66,6 +142,8 @@ def cmd_condition(args) -> tuple[dict, str]:
     }
     rows = [("full machine condition", f"{data['full_machine']['condition_min']:.4f} .. "
              f"{data['full_machine']['condition_max']:.4f}")]
+    if unreachable:
+        rows.append(("unreachable", f"at {unreachable} of {len(full)} sampled angles (left out above)"))
     for name, sub in data["sub_machines"].items():
         angles = ", ".join(f"{a:.4f}" for a in sub["singular_angles_deg"]) or "none"
         rows.append((f"{name} singular at (deg)", angles))
@@ -74,8 +152,20 @@ def cmd_condition(args) -> tuple[dict, str]:
     return data, text
 
 
+def _unreachable_message(machine: PlanarMachine, x: float, y: float, theta_deg: np.ndarray) -> str:
+    """Names the pose, the angles tried and, from the IK at the middle angle, the leg
+    that cannot reach."""
+    message = (f"--x, --y: pose x={x:g} m, y={y:g} m of {machine.name} is unreachable at every "
+               f"sampled theta in [{theta_deg[0]:g}, {theta_deg[-1]:g}] deg")
+    try:
+        machine.inverse_kinematics([x, y, math.radians(theta_deg[len(theta_deg) // 2])], check_limits=False)
+    except UnreachablePoseError as exc:
+        message += f"; e.g. {exc}"
+    return message
+
+
 def cmd_resolution(args) -> tuple[dict, str]:
-    cfg = load_machine(args.machine)
+    cfg = _load(args.machine)
     if cfg.metrology is None:
         raise KinematicsError(f"--machine: {args.machine!r} has no metrology section")
     met = cfg.metrology
@@ -109,10 +199,13 @@ def cmd_orthoglide_size(args) -> tuple[dict, str]:
 
 
 def cmd_workspace(args) -> tuple[dict, str]:
-    model = load_machine(args.machine).model
+    model = _load(args.machine).model
     summary = analysis.workspace_summary(model, args.points, args.theta_points)
-    data = {"machine": model.name, "workspace": {k: np.asarray(v).tolist() for k, v in model.workspace.items()},
-            **asdict(summary)}
+    if summary.reachable_fraction == 0.0:
+        raise UnreachablePoseError(
+            f"--machine: no pose of the workspace of {model.name} ({json.dumps(_jsonable(model.workspace))}) "
+            f"is reachable within the joint limits ({summary.poses} poses sampled)")
+    data = {"machine": model.name, "workspace": _jsonable(model.workspace), **asdict(summary)}
     rows = [("workspace", json.dumps(data["workspace"])),
             ("poses sampled", str(summary.poses)),
             ("reachable within joint limits", f"{100 * summary.reachable_fraction:.1f} %"),
@@ -127,7 +220,7 @@ def cmd_workspace(args) -> tuple[dict, str]:
 
 
 def cmd_gough_optimize(args) -> tuple[dict, str]:
-    cfg = load_machine(args.machine)
+    cfg = _load(args.machine)
     if cfg.metrology is None:
         raise KinematicsError(f"--machine: {args.machine!r} has no metrology section")
     met = cfg.metrology
@@ -145,7 +238,7 @@ def cmd_gough_optimize(args) -> tuple[dict, str]:
 
 
 def cmd_report(args) -> tuple[dict, str]:
-    cfg = load_machine(args.machine)
+    cfg = _load(args.machine)
     model = cfg.model
     home = model.home_pose if isinstance(model, PlanarMachine) else model.home_position
     q = model.inverse_kinematics(home)
@@ -179,9 +272,9 @@ def cmd_report(args) -> tuple[dict, str]:
 
 # ----------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pkm-analyze", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="machines: config/machines/*.yaml")
+    parser = _Parser(prog="pkm-analyze", description=__doc__.split("\n\n")[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                     epilog="machines: config/machines/*.yaml")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -191,51 +284,57 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("condition", help="condition numbers and sub-machine singular angles (ARCHI Fig. 10)")
     machine_arg(p)
-    p.add_argument("--x", type=float, required=True, help="platform x (m)")
-    p.add_argument("--y", type=float, required=True, help="platform y (m)")
-    p.add_argument("--theta-range", type=float, nargs=2, required=True, metavar=("MIN", "MAX"), help="deg")
-    p.add_argument("--samples", type=int, default=4001, help="angles sampled before refinement")
+    p.add_argument("--x", type=POSITION_M, required=True, help="platform x (m)")
+    p.add_argument("--y", type=POSITION_M, required=True, help="platform y (m)")
+    p.add_argument("--theta-range", type=FINITE, nargs=2, required=True, metavar=("MIN", "MAX"),
+                   help="deg, MIN < MAX")
+    p.add_argument("--samples", type=AXIS_SAMPLES, default=4001, help="angles sampled before refinement (>= 2)")
     p.set_defaults(func=cmd_condition)
 
     p = sub.add_parser("resolution", help="worst-case Gough metrology resolution (MoM3 §5.5)")
     machine_arg(p)
-    p.add_argument("--points", type=int, default=7, help="grid points per workspace axis")
+    p.add_argument("--points", type=AXIS_SAMPLES, default=7, help="grid points per workspace axis (>= 2)")
     p.set_defaults(func=cmd_resolution)
 
     p = sub.add_parser("orthoglide-size", help="size an Orthoglide for a cube and psi bounds (§4.4)")
-    p.add_argument("--cube", type=float, required=True, help="cube side (m)")
-    p.add_argument("--psi-min", type=float, required=True)
-    p.add_argument("--psi-max", type=float, required=True)
+    p.add_argument("--cube", type=SIZE_M, required=True, help="cube side (m)")
+    p.add_argument("--psi-min", type=FINITE, required=True, help="in (0, 1)")
+    p.add_argument("--psi-max", type=FINITE, required=True, help="> 1")
     p.set_defaults(func=cmd_orthoglide_size)
 
     p = sub.add_parser("workspace", help="reachability, conditioning and drive travel over the workspace")
     machine_arg(p)
-    p.add_argument("--points", type=int, default=11, help="grid points per position axis")
-    p.add_argument("--theta-points", type=int, default=13, help="grid points in theta (planar)")
+    p.add_argument("--points", type=AXIS_SAMPLES, default=11, help="grid points per position axis (>= 2)")
+    p.add_argument("--theta-points", type=AXIS_SAMPLES, default=13, help="grid points in theta (planar, >= 2)")
     p.set_defaults(func=cmd_workspace)
 
     p = sub.add_parser("gough-optimize", help="optimise the Gough geometry for tool-level resolution")
     machine_arg(p)
-    p.add_argument("--maxiter", type=int, default=40)
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--maxiter", type=integer(1), default=40, help="differential-evolution generations (>= 1)")
+    # numpy's generator seeds are 32-bit unsigned.
+    p.add_argument("--seed", type=integer(0, 2**32 - 1), default=1, help="random seed, in [0, 2^32 - 1]")
     p.set_defaults(func=cmd_gough_optimize)
 
     p = sub.add_parser("report", help="kinematic report of a machine")
     machine_arg(p, default="archi")
-    p.add_argument("--points", type=int, default=11)
-    p.add_argument("--theta-points", type=int, default=13)
-    p.add_argument("--resolution-points", type=int, default=7)
+    p.add_argument("--points", type=AXIS_SAMPLES, default=11, help="workspace grid points per position axis (>= 2)")
+    p.add_argument("--theta-points", type=AXIS_SAMPLES, default=13, help="workspace grid points in theta (>= 2)")
+    p.add_argument("--resolution-points", type=AXIS_SAMPLES, default=7,
+                   help="resolution grid points per axis (>= 2)")
     p.set_defaults(func=cmd_report)
     return parser
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)
         data, text = args.func(args)
-    except (KinematicsError, ValueError) as exc:
+    except (UsageError, KinematicsError, ValueError) as exc:
         print(f"pkm-analyze: error: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("pkm-analyze: error: not enough memory for the requested grid: lower --points, "
+              "--theta-points or --samples", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(data, indent=2, default=lambda o: None if isinstance(o, float) and math.isnan(o) else str(o)))
