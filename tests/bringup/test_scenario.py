@@ -1,5 +1,6 @@
 """Scenario files -> node parameters (pure; no ROS graph)."""
 
+import math
 import re
 from pathlib import Path
 
@@ -105,3 +106,136 @@ def test_the_recorder_section_sets_recorder_parameters_and_pkm_run_the_wiring(tm
     p = node_parameters(s, tmp_path)["recorder"]
     assert p["compression"] == "zstd" and p["flush_period_s"] == 2.0 and isinstance(p["flush_period_s"], float)
     assert p["output"] == str(tmp_path / "bag") and "drives/state" in p["tapped_topics"].split(",")
+
+
+# What a node would refuse at start is refused when the scenario is loaded, through the
+# node's own validation (ControllerConfig and the controller core, PlantParameters and
+# Fault, GoughSensorModel), the merged parameters (node defaults < section) included.
+@pytest.mark.parametrize("scenario, overrides, key, got", [
+    ("mom3_square", {"controller": {"bandwidth_hz": "high"}}, "controller.bandwidth_hz: must be a number",
+     "the string 'high'"),
+    ("mom3_square", {"controller": {"distribution": "magic"}}, "controller.distribution: must be one of",
+     "'magic'"),
+    ("mom3_square", {"controller": {"bandwidth_hz": 5000}}, "controller.bandwidth_hz: must be in (0, 100] Hz",
+     "5000"),
+    ("mom3_square", {"controller": {"damping_ratio": 0.01}}, "controller.damping_ratio: must be in", "0.01"),
+    ("mom3_square", {"controller": {"drive_mismatch_cycles": 2.5}},
+     "controller.drive_mismatch_cycles: must be an integer", "2.5"),
+    ("mom3_square", {"controller": {"continue_on_drive_failure": "yes"}},
+     "controller.continue_on_drive_failure: must be true or false", "the string 'yes'"),
+    ("mom3_square", {"controller": {"distribution": "two_arm"}}, "controller.distribution: must be two_arm only",
+     "'two_arm'"),
+    ("archi_fig12", {"plant": {"force_limit_n": math.nan}}, "plant.force_limit_n: must be", "nan"),
+    ("archi_fig12", {"plant": {"force_limit_n": math.inf}}, "plant.force_limit_n: must be a finite number", "inf"),
+    ("archi_fig12", {"plant": {"link_length_errors": [0.01, 0.02]}}, "plant.link_length_errors: must be 4 values",
+     "(0.01, 0.02)"),
+    ("archi_fig12", {"plant": {"compliance": 0.1}}, "plant.compliance: must be a list of finite numbers", "0.1"),
+    ("archi_fig12", {"plant": {"faults": "2:broken:0.5"}}, "plant.faults: kind must be one of", "'broken'"),
+    ("archi_fig12", {"plant": {"faults": "7:locked"}}, "plant.faults: drive must be in [0, 3]", "7 in '7:locked'"),
+    ("archi_fig12", {"plant": {"faults": "locked"}}, "plant.faults: expected '<drive>:<kind>", "'locked'"),
+    ("archi_fig12", {"plant": {"faults": ["2:locked"]}}, "plant.faults: must be a string", "['2:locked']"),
+    ("mom3_square", {"sensor": {"noise_std_m": -1e-6}}, "sensor.noise_std_m: must be in [0, inf) m", "-1e-06"),
+    ("mom3_square", {"sensor": {"resolution_m": 0.5}}, "sensor.resolution_m: must be in (0, 0.001] m", "0.5"),
+    ("mom3_square", {"sensor": {"seed": -1}}, "sensor.seed: ", "-1"),
+    ("mom3_square", {"trajectory": {"feed_override": math.nan}}, "trajectory.feed_override: must be a finite number",
+     "nan"),
+])
+def test_bad_node_parameters_are_refused_when_loaded(scenario, overrides, key, got):
+    with pytest.raises(ScenarioError) as refused:
+        load_scenario(scenario, overrides)
+    message = str(refused.value)
+    assert message.startswith(key) and f"got {got}" in message, message
+
+
+def test_a_load_over_the_plants_bound_is_refused_when_loaded():
+    # PlantParameters.max_load_n (sim_hw_node would refuse its load_schedule at start)
+    with pytest.raises(ScenarioError) as refused:
+        load_scenario("archi_fig12", {"load": [{"t_s": 0.5, "wrench": [1e6, 0.0, 0.0]}]})
+    assert str(refused.value).startswith("load: fx must be in") and str(refused.value).endswith(
+        "got 1e+06 at t_s = 0.5 s")
+
+
+def test_a_default_the_scenario_makes_invalid_is_named_as_the_nodes_default():
+    # MoM3's default bandwidth (20 Hz) is over a tenth of the control rate at dt_s 0.01
+    with pytest.raises(ScenarioError) as refused:
+        load_scenario("mom3_square", {"dt_s": 0.01})
+    assert str(refused.value) == ("controller.bandwidth_hz: must be in (0, 10] Hz (a tenth of the control rate), "
+                                  "got 20.0 (not set by the scenario: the default of config/controller/mom3.yaml)")
+
+
+def test_the_strategy_is_the_machines_default_when_the_scenario_sets_none(tmp_path):
+    # config/controller/mom3.yaml runs sensor_space: it needs the Gough sensor
+    path = tmp_path / "s.yaml"
+    path.write_text("machine: mom3\nmetrology: false\nduration_s: 1\n")
+    with pytest.raises(ScenarioError, match="^metrology: strategy sensor_space closes its loop"):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("plant: {force_limit_n: 1e12}", "plant.force_limit_n: must be a number, got the string '1e12' "
+                                     "(YAML reads 1e12 as a string: write 1.0e+12)"),
+    ("plant: {force_limit_n: 1.0e12}", "plant.force_limit_n: must be a number, got the string '1.0e12' "
+                                       "(YAML reads 1.0e12 as a string: write 1.0e+12)"),
+    ("plant: {force_limit_n: '2000'}", "plant.force_limit_n: must be a number, got the string '2000' "
+                                       "(quoted: write it without the quotes)"),
+    ("plant: {link_length_errors: [0, 1e-3, 0, 0]}",
+     "plant.link_length_errors: must be a list of finite numbers, at index 1 got the string '1e-3' "
+     "(YAML reads 1e-3 as a string: write 1.0e-3)"),
+    ("dt_s: 5e-4", "dt_s: must be a number in [1e-05, 0.1], got the string '5e-4' "
+                   "(YAML reads 5e-4 as a string: write 5.0e-4)"),
+])
+def test_a_number_yaml_reads_as_a_string_says_what_to_write(tmp_path, text, message):
+    path = tmp_path / "s.yaml"
+    path.write_text(f"machine: archi\nduration_s: 1\ncontroller: {{strategy: joint_pid}}\n{text}\n")
+    with pytest.raises(ScenarioError) as refused:
+        load_scenario(path)
+    assert str(refused.value) == message
+    written = re.search(r"write (\S+)\)$", message)
+    if written:                           # what it says to write is a float to YAML
+        assert isinstance(yaml.safe_load(written.group(1)), float)
+
+
+def _machine_file(tmp_path, name="archi"):
+    data = yaml.safe_load((config_dir() / "machines" / "archi.yaml").read_text())
+    data["name"] = name
+    path = tmp_path / f"{name}_copy.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_machine_file_takes_the_controller_defaults_of_its_name(tmp_path, monkeypatch):
+    by_name = node_parameters(load_scenario("archi_fig12"), tmp_path)["controller"]
+    for given in (_machine_file(tmp_path), "archi_copy.yaml"):            # absolute, and from the working dir
+        monkeypatch.chdir(tmp_path)
+        s = load_scenario("archi_fig12", {"machine": str(given)})
+        p = node_parameters(s, tmp_path)
+        assert s.machine == str(tmp_path / "archi_copy.yaml") and s.machine_name == "archi"
+        assert p["controller"]["distribution"] == "inf_norm"          # config/controller/archi.yaml's
+        assert {k: v for k, v in p["controller"].items() if k != "machine"} == \
+            {k: v for k, v in by_name.items() if k != "machine"}
+        assert p["sim_hw"]["machine"] == p["controller"]["machine"] == s.machine
+
+
+def test_a_machine_file_of_a_name_without_controller_defaults_runs_on_the_controllers_own(tmp_path):
+    # as a machine of config/machines without config/controller/<name>.yaml does
+    s = load_scenario("archi_fig12", {"machine": str(_machine_file(tmp_path, "archi_variant"))})
+    assert s.machine_name == "archi_variant"
+    assert "distribution" not in node_parameters(s, tmp_path)["controller"]      # ControllerConfig's
+
+
+def test_a_machine_file_refuses_the_gough_sensor_which_takes_a_name(tmp_path):
+    with pytest.raises(ScenarioError, match="^metrology: gough_sensor_node takes the name of a machine"):
+        load_scenario("archi_demo", {"machine": str(_machine_file(tmp_path))})
+
+
+def test_pkm_run_starts_nothing_on_a_bad_section(tmp_path, monkeypatch, capsys):
+    from pkm_bringup import orchestrator
+
+    def start(*_args, **_kwargs):
+        raise AssertionError("the run was started")
+    monkeypatch.setattr(orchestrator, "run_scenario", start)
+    path = tmp_path / "bad.yaml"
+    path.write_text("machine: archi\nduration_s: 1\ncontroller: {strategy: joint_pid, bandwidth_hz: high}\n")
+    assert orchestrator.main([str(path), "--runs", str(tmp_path / "runs"), "--no-progress"]) == 2
+    assert not (tmp_path / "runs").exists()
+    assert "pkm-run: controller.bandwidth_hz: must be a number, got the string 'high'" in capsys.readouterr().err

@@ -6,9 +6,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
 from pkm_controller.controller import ControllerConfig
+from pkm_kinematics.config import config_dir
 
 
 @pytest.mark.parametrize("machine, config, message", [
@@ -19,6 +21,15 @@ from pkm_controller.controller import ControllerConfig
 def test_a_bad_value_is_named_as_the_nodes_parameter(machine, config, message):
     with pytest.raises(ValueError, match=message):
         core_from_parameters(machine, config)
+
+
+def test_a_machine_the_core_cannot_run_is_named_as_the_machine_parameter(tmp_path):
+    data = yaml.safe_load((config_dir() / "machines" / "archi.yaml").read_text())
+    del data["dynamics"]
+    path = tmp_path / "no_dynamics.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError, match="^parameter 'machine': machine 'archi': the controller needs a 'dynamics'"):
+        core_from_parameters(str(path), ControllerConfig())
 
 
 def test_a_good_configuration_gives_the_core():

@@ -4,7 +4,9 @@ A scenario says what to run; the node parameter files (config/*.yaml) say how ea
 node runs by default. Keys (all optional but ``machine``)::
 
     name, description
-    machine: archi                    # config/machines/<name>.yaml
+    machine: archi                    # config/machines/<name>.yaml, or a machine file (a relative path
+                                      # from the working directory); its `name` picks the controller
+                                      # defaults (config/controller/<name>.yaml, if there is one)
     namespace: /pkm
     mode: lockstep | realtime
     dt_s: 0.001                       # exchange period of the plant and the controller
@@ -21,11 +23,16 @@ node runs by default. Keys (all optional but ``machine``)::
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
 
-Every error names the key and what is allowed; nothing is started on a bad scenario.
+Every error names the key and what is allowed; nothing is started on a bad scenario:
+the parameters each node will get (node defaults < scenario section < the run's wiring)
+go through the node's own pure validation when the scenario is loaded
+(``ControllerConfig`` and the controller core, ``PlantParameters`` and ``Fault``,
+``GoughSensorModel``; the program through the trajectory planner).
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
 from dataclasses import dataclass, field, fields
@@ -33,9 +40,9 @@ from pathlib import Path
 
 import yaml
 
-from pkm_controller.controller import METROLOGY_STRATEGIES, STRATEGIES, ControllerConfig
+from pkm_controller.controller import METROLOGY_STRATEGIES, ControllerConfig
 from pkm_kinematics import load_machine
-from pkm_kinematics.config import config_dir
+from pkm_kinematics.config import config_dir, machine_names
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "record", "timeout_s")
@@ -56,8 +63,9 @@ class ScenarioError(ValueError):
 @dataclass
 class Scenario:
     name: str
-    machine: str
+    machine: str                 # what the nodes load: a name in config/machines, or a file's absolute path
     source: Path
+    machine_name: str = ""       # the machine file's `name` (picks the controller defaults)
     namespace: str = "/pkm"
     mode: str = "lockstep"
     dt_s: float = 0.001
@@ -77,7 +85,9 @@ class Scenario:
 
     @property
     def strategy(self) -> str:
-        return self.controller.get("strategy", "computed_torque")
+        """The controller's strategy: the scenario's, else its machine's default."""
+        return {**controller_defaults(self.machine_name or self.machine), **self.controller}.get(
+            "strategy", ControllerConfig.strategy)
 
     def topic(self, name: str) -> str:
         """A topic's full name: relative names are taken in the scenario's namespace."""
@@ -88,8 +98,32 @@ def _number(data: dict, key: str, default: float, lo: float, hi: float) -> float
     value = data.get(key, default)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or not lo <= value <= hi:
-        raise ScenarioError(f"{key}: must be a number in [{lo:g}, {hi:g}], got {value!r}")
+        raise ScenarioError(f"{key}: must be a number in [{lo:g}, {hi:g}], got {_got(value)}")
     return float(value)
+
+
+def _got(value) -> str:
+    """A refused value as a message shows it. YAML 1.1 (PyYAML) reads a float only with
+    a '.' and, with an exponent, its sign: 1e12 and 1.0e12 are strings, 1.0e+12 is a
+    float; such a string is called out with what to write instead."""
+    if not isinstance(value, str):
+        return repr(value)
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not math.isfinite(number):
+        return f"the string {value!r}"
+    if isinstance(yaml.safe_load(value), (int, float)):
+        return f"the string {value!r} (quoted: write it without the quotes)"
+    hint = f"YAML reads {value.strip()} as a string"
+    m = re.fullmatch(r"\s*([-+]?)(\d*)\.?(\d*)[eE]([-+]?)(\d+)\s*", value)
+    if m:
+        sign, whole, fraction, exponent_sign, exponent = m.groups()
+        written = f"{sign}{whole or 0}.{fraction or 0}e{exponent_sign or '+'}{exponent}"
+        if yaml.safe_load(written) == number:
+            hint += f": write {written}"
+    return f"the string {value!r} ({hint})"
 
 
 def _boolean(data: dict, key: str, default: bool) -> bool:
@@ -113,17 +147,41 @@ def node_parameter_names(node: str) -> set[str]:
     return set(_parameter_defaults(node)) - {"machine", "summary_path"}
 
 
+def _check_type(key: str, value, default) -> None:
+    """``value`` of the type ROS will declare the parameter with: that of its default
+    (pkm_common.params.declare_like), an integer being taken for a double. The
+    ranges are the owners' (_check_nodes)."""
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise ScenarioError(f"{key}: must be a list of finite numbers, got {_got(value)}")
+        for k, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ScenarioError(f"{key}: must be a list of finite numbers, at index {k} got {_got(v)}")
+        return
+    if isinstance(default, bool):
+        wanted, ok = "true or false", isinstance(value, bool)
+    elif isinstance(default, int):
+        wanted, ok = "an integer", isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        wanted, ok = "a number", isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        wanted, ok = "a string", isinstance(value, str)
+    else:
+        return
+    if not ok:
+        raise ScenarioError(f"{key}: must be {wanted}, got {_got(value)}")
+
+
 def _mapping(data: dict, key: str, node: str) -> dict:
     value = data.get(key) or {}
     if not isinstance(value, dict):
         raise ScenarioError(f"{key}: must be a mapping of {node} parameters, got {value!r}")
+    defaults = _parameter_defaults(node)
     allowed = node_parameter_names(node)
     for name, item in value.items():
         if name not in allowed:
             raise ScenarioError(f"{key}.{name}: not a {node} parameter; allowed: {', '.join(sorted(allowed))}")
-        if isinstance(item, list) and not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                              and math.isfinite(v) for v in item):
-            raise ScenarioError(f"{key}.{name}: must be a list of finite numbers, got {item!r}")
+        _check_type(f"{key}.{name}", item, defaults[name])
         choices = CHOICES.get((key, name))
         if choices is not None and item not in choices:
             raise ScenarioError(f"{key}.{name}: must be one of {list(choices)}, got {item!r}")
@@ -183,8 +241,11 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"machine: {exc}") from None
     if config is None:
         raise ScenarioError(f"machine: required, the name of a file in config/machines, got {machine!r}")
+    given_as_file = machine not in machine_names()
+    if given_as_file:       # every node loads the same file, whatever its working directory
+        machine = str(Path(machine).resolve())
     s = Scenario(name=str(data.get("name", path.stem)), machine=machine, source=path.resolve(),
-                 description=str(data.get("description", "")))
+                 machine_name=config.name, description=str(data.get("description", "")))
     s.namespace = str(data.get("namespace", s.namespace))
     if not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", s.namespace):
         raise ScenarioError(f"namespace: must be an absolute ROS namespace such as '/pkm' (letters, digits, "
@@ -211,16 +272,105 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.metrology = _boolean(data, "metrology", False)
     s.record = _boolean(data, "record", True)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
-    if s.strategy not in STRATEGIES:
-        raise ScenarioError(f"controller.strategy: must be one of {list(STRATEGIES)}, got {s.strategy!r}")
     if s.strategy in METROLOGY_STRATEGIES and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
                             "set metrology: true")
     if s.metrology and config.metrology is None:
         raise ScenarioError(f"metrology: machine {machine} has no metrology section")
+    if s.metrology and given_as_file:
+        raise ScenarioError(f"metrology: gough_sensor_node takes the name of a machine in config/machines "
+                            f"({', '.join(machine_names())}), not a file: {machine}")
+    _check_nodes(s, config)
     if s.program is not None and not s.duration_s:
         s.duration_s = round(program_duration(s, config.model) + s.settle_s, 6)
     return s
+
+
+def controller_defaults(machine_name: str) -> dict:
+    """controller_node's parameters for the machine named ``machine_name``
+    (config/controller/<name>.yaml); empty for a machine without a file there (the
+    node then runs on ControllerConfig's defaults)."""
+    if machine_name not in {p.stem for p in (config_dir() / "controller").glob("*.yaml")}:
+        return {}
+    return _node_defaults(f"controller/{machine_name}")
+
+
+# The owners' validations of a node's parameters ``p`` (as node_parameters gives them)
+# on the scenario's machine ``config``; each raises the owner's ValueError.
+def _check_controller(p: dict, config) -> None:
+    from pkm_controller.configuration import core_from_parameters       # loads p["machine"] as the node does
+    known = {f.name for f in fields(ControllerConfig)}
+    core_from_parameters(p["machine"], ControllerConfig.from_dict({k: v for k, v in p.items() if k in known}))
+
+
+def _check_plant(p: dict, config) -> None:
+    from pkm_sim_hw.plant import Fault, PlantParameters, check_load
+    known = {f.name for f in fields(PlantParameters)}
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in known}
+    if "faults" in values:          # one string to ROS; split as sim_hw_node does
+        values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
+    params = PlantParameters(**values)
+    params.validate(config.model.n_legs)
+    for text in params.faults:
+        Fault.parse(text, config.model.n_legs)
+    schedule = p.get("load_schedule", [])          # flat [t_s, f1, f2, f3, ...]
+    for i in range(0, len(schedule), 4):
+        try:
+            check_load(schedule[i + 1:i + 4], config.kind == "planar", params)
+        except ValueError as exc:
+            raise ValueError(f"{exc} at t_s = {schedule[i]:g} s") from None
+
+
+def _check_sensor(p: dict, config) -> None:
+    from pkm_gough_sensor.metrology import GoughSensorModel
+    known = set(inspect.signature(GoughSensorModel).parameters) - {"metrology"}
+    values = {k: v for k, v in p.items() if k in known}
+    if not values.get("resolution_m"):         # 0: the machine file's (gough_sensor_node)
+        values.pop("resolution_m", None)
+    GoughSensorModel(config.metrology, **values)
+
+
+_OWNER_CHECKS = {"controller": _check_controller, "plant": _check_plant, "sensor": _check_sensor}
+
+
+def _check_nodes(s: Scenario, config) -> None:
+    """Refuse what a node would refuse once started: the parameters each node gets
+    (node_parameters; the run directory aside) through its owner's validation, then
+    the scenario's non-finite doubles (pkm_common.params declares finite ones; after
+    the owners, so that a NaN is told the owner's range where there is one)."""
+    params = node_parameters(s, Path("run"))
+    for key, check in _OWNER_CHECKS.items():
+        node = SECTIONS[key]
+        if node not in params:
+            continue
+        try:
+            check(params[node], config)
+        except ValueError as exc:
+            raise _owner_refusal(s, key, exc) from None
+    for key, node in SECTIONS.items():
+        floats = _float_parameters(node)
+        for name, value in getattr(s, key).items():
+            if name in floats and not math.isfinite(value):
+                raise ScenarioError(f"{key}.{name}: must be a finite number, got {value!r}")
+
+
+def _owner_refusal(s: Scenario, key: str, exc: ValueError) -> ScenarioError:
+    """An owner's ValueError ("<parameter>: <allowed, got>", or controller_node's
+    "parameter '<name>': ...") as a ScenarioError naming the scenario key; a value the
+    scenario did not set is said to be the node's default."""
+    message = str(exc)
+    quoted = re.match(r"parameter '(\w+)': (.*)", message, re.S)
+    name, rest = quoted.groups() if quoted else message.partition(": ")[::2]
+    if name not in node_parameter_names(SECTIONS[key]):
+        # a top-level key of the scenario (machine, load) or a message naming none
+        return ScenarioError(f"{name}: {rest}" if name in KEYS else f"{key}: {message}")
+    if name not in getattr(s, key):
+        source = f"config/{SECTIONS[key]}.yaml"
+        if key == "controller":
+            source = f"config/controller/{s.machine_name}.yaml" if name in controller_defaults(s.machine_name) \
+                else "ControllerConfig"
+        rest += f" (not set by the scenario: the default of {source})"
+    return ScenarioError(f"{key}.{name}: {rest}")
 
 
 def _node_defaults(name: str) -> dict:
@@ -285,7 +435,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
         "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
                    "duration_s": s.duration_s, "load_schedule": flat_load,
                    "summary_path": str(summaries / "sim_hw.json")},
-        "controller": {**_node_defaults(f"controller/{s.machine}"), **s.controller, "machine": s.machine,
+        "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "autostart": True, "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
                        "summary_path": str(summaries / "controller.json")},

@@ -4,6 +4,8 @@ summary written at exit."""
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 from pkm_common.conversions import pose_from_components
 from pkm_common.timing import percentiles_us
 from pkm_kinematics import load_machine
@@ -12,9 +14,11 @@ from .controller import ControllerConfig, ControllerCore
 
 
 def core_from_parameters(machine_name: str, config: ControllerConfig) -> ControllerCore:
-    """The controller core of the machine ``machine_name`` (config/machines). A bad
-    value raises ValueError "parameter '<name>': <what is allowed>", the name being
-    the node's parameter (``machine`` or a ControllerConfig field)."""
+    """The controller core of the machine ``machine_name`` (config/machines, or a
+    machine file). A bad value raises ValueError "parameter '<name>': <what is
+    allowed>", the name being the node's parameter (``machine`` or a ControllerConfig
+    field); what the core refuses about the machine itself (no dynamics section) is
+    named ``machine``."""
     try:
         try:
             machine = load_machine(machine_name)
@@ -26,6 +30,8 @@ def core_from_parameters(machine_name: str, config: ControllerConfig) -> Control
         if message.startswith("parameter '"):
             raise
         name, _, rest = message.partition(": ")        # "<field>: must be ..." from the core
+        if name != "machine" and name not in {f.name for f in fields(ControllerConfig)}:
+            name, rest = "machine", message
         raise ValueError(f"parameter '{name}': {rest}") from None
 
 
