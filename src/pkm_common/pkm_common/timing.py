@@ -6,9 +6,51 @@ import math
 
 import numpy as np
 
+__all__ = ["DurationHistogram", "percentiles_us"]
+
+
+class DurationHistogram:
+    """Durations in constant memory, however long a run is: counts in logarithmic bins
+    (``RELATIVE_WIDTH`` wide, from ``LOW_S`` to ``HIGH_S``; outside them the end bins),
+    plus the exact count, sum and maximum. A quantile is its bin's geometric centre:
+    within half a bin width (0.5 %) of the exact one."""
+
+    LOW_S, HIGH_S, RELATIVE_WIDTH = 1e-7, 100.0, 0.01
+
+    def __init__(self):
+        self._log_width = math.log1p(self.RELATIVE_WIDTH)
+        self._bins = math.ceil(math.log(self.HIGH_S / self.LOW_S) / self._log_width) + 1
+        self.counts = np.zeros(self._bins, dtype=np.int64)
+        self.count, self.total_s, self.max_s = 0, 0.0, 0.0
+
+    def add(self, duration_s: float) -> None:
+        """One duration (s); NaN is ignored."""
+        if not duration_s >= 0.0:
+            return
+        k = int(math.log(max(duration_s, self.LOW_S) / self.LOW_S) / self._log_width)
+        self.counts[min(k, self._bins - 1)] += 1
+        self.count += 1
+        self.total_s += duration_s
+        self.max_s = max(self.max_s, duration_s)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def quantile_s(self, q: float) -> float:
+        """The q-quantile (0..1) in seconds; NaN when empty."""
+        if not self.count:
+            return math.nan
+        k = int(np.searchsorted(np.cumsum(self.counts), q * self.count, side="left"))
+        if k >= self._bins - 1:                 # the open-ended last bin
+            return self.max_s
+        centre = self.LOW_S * math.exp((k + 0.5) * self._log_width)
+        return min(centre, self.max_s)
+
 
 def percentiles_us(name: str, samples_s) -> dict:
-    """{"<name>_us_p50": ..., "<name>_us_p99": ...} of durations given in seconds;
-    NaN when there are none (a run that never cycled)."""
+    """{"<name>_us_p50": ..., "<name>_us_p99": ...} of durations given in seconds (a
+    sequence or a DurationHistogram); NaN when there are none (a run that never cycled)."""
+    if isinstance(samples_s, DurationHistogram):
+        return {f"{name}_us_p50": samples_s.quantile_s(0.5) * 1e6, f"{name}_us_p99": samples_s.quantile_s(0.99) * 1e6}
     us = np.asarray(samples_s if len(samples_s) else [math.nan], dtype=float) * 1e6
     return {f"{name}_us_p50": float(np.percentile(us, 50)), f"{name}_us_p99": float(np.percentile(us, 99))}

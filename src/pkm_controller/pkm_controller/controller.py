@@ -28,8 +28,11 @@ Cartesian wrenches go to the drives through a distribution of pkm_kinematics
 supervisor checks the inputs (NaN, length), the joint and workspace limits, the
 singularity margin of the active drives, the following error, force saturation and
 the drives' reported forces against the commands (a failed drive). A trip puts the
-controller in its safe state: zero forces, ``stopped`` with the cause; the node adds
-the brakes (estop). On a redundant machine a drive that stops producing force is
+controller in its safe state: zero forces, ``stopped`` with the reason and its
+``TripCause`` (pkm_common.causes); the node adds the brakes (estop). A frozen or
+slipping encoder is seen from the motion the reference asks for (encoder_check), and
+a plant that braked on its own (``plant_stopped``, from the drives' status word) is
+reported with the plant's cause, not as the drives' failure it looks like. On a redundant machine a drive that stops producing force is
 dropped and the machine continues on the remaining ones when that sub-machine is
 far enough from singular.
 """
@@ -41,6 +44,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from pkm_common.causes import TripCause
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import METHODS, distribute, internal_force_rows, raise_distribution_error
 from pkm_kinematics.dynamics import DynamicModel
@@ -52,6 +56,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
+from .encoder_check import EncoderMonitor
 from .reference import Reference
 
 STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
@@ -83,6 +88,8 @@ class ControllerConfig:
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
     drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
     continue_on_drive_failure: bool = True
+    encoder_jump_m: float = 2e-5          # a reading off its expected motion by this much in one cycle (0: off)
+    encoder_freeze_m: float = 2e-4        # a reading held while the reference moved its drive this much (0: off)
 
     def validate(self, n_drives: int, planar: bool) -> None:
         checks = [
@@ -107,6 +114,8 @@ class ControllerConfig:
             ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < math.inf, "in [0, inf) rad"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
+            ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
+            ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
         ]
         if self.integral_time_s != 0.0:
             omega = 2.0 * math.pi * self.bandwidth_hz
@@ -151,7 +160,7 @@ class _Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
     __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model")
+                 "a_d", "a_model", "h_model", "applied")
 
     def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
         # q as floats (the joint PIDs) and as the array the compiled kernels take
@@ -253,7 +262,11 @@ class ControllerCore:
         self.failed: dict[int, str] = {}
         self.stopped = False
         self.stop_reason = ""
+        self.stop_cause = TripCause.NONE
         self.faults: list[str] = []
+        c = self.config
+        self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
+            if c.encoder_jump_m or c.encoder_freeze_m else None
         self.last_command = [0.0] * self.n
         self._mismatch = [0] * self.n
         self._saturated_since = None
@@ -302,14 +315,25 @@ class ControllerCore:
                              f"{self.config.start_tolerance_rad:g})")
 
     # ----------------------------------------------------------------- safety
-    def trip(self, reason: str) -> list:
-        """Safe state: zero forces from now on, the cause kept and reported."""
+    def trip(self, reason: str, cause: TripCause) -> list:
+        """Safe state: zero forces from now on; the first reason and cause are kept
+        and reported."""
         if not self.stopped:
-            self.stopped, self.stop_reason = True, reason
+            self.stopped, self.stop_reason, self.stop_cause = True, reason, TripCause(cause)
             self.faults.append(reason)
         self.last_command = [0.0] * self.n
         self.record.forces = tuple(self.last_command)
         return list(self.last_command)
+
+    def plant_stopped(self, status: str) -> list:
+        """The plant braked on its own; ``status``: the drives' status word
+        (``safe_stop:<cause>``). The stop is the plant's, with the plant's cause."""
+        _, _, text = status.partition(":")
+        try:
+            cause = TripCause(text)
+        except ValueError:
+            cause = TripCause.PLANT_SAFE_STOP
+        return self.trip(f"the plant stopped ({cause})", cause)
 
     def _check_state(self, q, qdot, applied) -> str:
         for name, values, size in (("position", q, self.n), ("velocity", qdot, self.n)):
@@ -363,31 +387,35 @@ class ControllerCore:
             self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
         return ""
 
-    def _check_limits(self, q, active_rows, measured, error) -> tuple[str, float]:
-        """(what tripped or "", the translation error): laws.limits_kernel."""
+    def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
+        """((what tripped, its cause) or None, the translation error): laws.limits_kernel."""
         c = self.config
         code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
                                            self._workspace_box, active_rows, tuple(error), self.planar,
                                            c.max_condition, c.following_error_m, c.following_error_rad)
-        return ("", value) if code == LIMITS_OK else (self._limit_message(code, index, value), value)
+        return (None, value) if code == LIMITS_OK else (self._limit_trip(code, index, value), value)
 
-    def _limit_message(self, code: int, index: int, value: float) -> str:
-        """The trip message of a limits code of laws.limits_kernel."""
+    def _limit_trip(self, code: int, index: int, value: float) -> tuple[str, TripCause]:
+        """The trip message and cause of a limits code of laws.limits_kernel."""
         c = self.config
         if code == JOINT_LIMIT:
             lo, hi = self._joint_box[index].tolist()
-            return f"joint limit: drive {self.names[index]} at {value:.6g} m outside [{lo:g}, {hi:g}] m"
+            return (f"joint limit: drive {self.names[index]} at {value:.6g} m outside [{lo:g}, {hi:g}] m",
+                    TripCause.JOINT_LIMIT)
         if code == WORKSPACE_LIMIT:
             lo, hi = self._workspace_box[index].tolist()
             return (f"workspace: {'xyz'[index]} = {value:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
-                    f"(workspace_margin_m {c.workspace_margin_m:g})")
+                    f"(workspace_margin_m {c.workspace_margin_m:g})", TripCause.WORKSPACE)
         if code == SINGULARITY_MARGIN:
-            return f"singularity margin: condition number {value:.4g} > max_condition {c.max_condition:g}"
+            return (f"singularity margin: condition number {value:.4g} > max_condition {c.max_condition:g}",
+                    TripCause.SINGULARITY)
         if code == FOLLOWING_ERROR_M:
-            return f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}"
+            return (f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}",
+                    TripCause.FOLLOWING_ERROR)
         if code == FOLLOWING_ERROR_RAD:
-            return f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}"
-        return f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})"
+            return (f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}",
+                    TripCause.FOLLOWING_ERROR)
+        return f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})", TripCause.KINEMATICS
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
@@ -406,11 +434,11 @@ class ControllerCore:
         False when the controller is (now) stopped: ``last_command`` (zeros) answers."""
         self._cycle = None
         if self.stopped:
-            self.trip(self.stop_reason)
+            self.trip(self.stop_reason, self.stop_cause)
             return False
         problem = self._check_state(q, qdot, applied)
         if problem:
-            self.trip(problem)
+            self.trip(problem, TripCause.INPUT_REFUSED)
             return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
@@ -419,37 +447,61 @@ class ControllerCore:
         try:
             pose = self._forward_kinematics(q_array)
         except (KinematicsError, ValueError) as exc:
-            self.trip(f"forward kinematics of the encoders: {exc}")
+            self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
         if applied is not None and len(applied) and not first:
             problem = self._check_drives(list(applied))
             if problem:
-                self.trip(problem)
+                self.trip(problem, TripCause.DRIVE_FAILURE)
                 return False
         try:
             # J_m, v = J_m^+ qdot, and A(x), H(x, v) for the model-based strategies: one compiled call
             a_model, h_model, rows_a, v = self.dynamics.measured_state(pose, qdot)
         except (KinematicsError, ValueError) as exc:
-            self.trip(f"kinematics at the measured pose: {exc}")
+            self.trip(f"kinematics at the measured pose: {exc}", TripCause.KINEMATICS)
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
         self._cycle = c = _Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
-        c.a_model, c.h_model = a_model, h_model
+        c.a_model, c.h_model, c.applied = a_model, h_model, applied
         return first or self._prepare_reference(c)
 
     def _prepare_reference(self, c: "_Cycle") -> bool:
         """The reference of the cycle and what the strategy derives from it before the
         metrology arrives (sensor_space: l_des and J_h)."""
         c.x_d, c.v_d, c.a_d = self.reference.sample(c.t_s - self.reference_start_s)
+        if self.encoders is not None and not self._check_encoders(c):
+            self._cycle = None
+            return False
         strategy = self.config.strategy
         try:
             if strategy == "sensor_space":
                 self.metrology.prepare(*tool_pose_floats(c.x_d, self.planar))
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             self._cycle = None
-            self.trip(f"{strategy}: {exc}")
+            self.trip(f"{strategy}: {exc}", TripCause.KINEMATICS)
             return False
         return True
+
+    def _check_encoders(self, c: "_Cycle") -> bool:
+        """encoder_check.EncoderMonitor on this cycle: the second difference of the
+        readings the dynamic model predicts from the forces the drives report,
+        J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
+        J_m v_d dt."""
+        rows = np.asarray(c.rows, dtype=float)
+        dt2 = c.dt * c.dt
+        if c.applied is not None and len(c.applied) == self.n:
+            acc = np.linalg.solve(np.asarray(c.a_model, dtype=float),
+                                  rows.T @ np.asarray(c.applied, dtype=float) - np.asarray(c.h_model, dtype=float))
+            expected_ddq = (rows @ acc * dt2).tolist()
+        else:
+            expected_ddq = [0.0] * self.n
+        expected_dq = (rows @ np.asarray(c.v_d, dtype=float) * c.dt).tolist()
+        consecutive = abs(c.dt - self.config.dt_s) < 1e-3 * self.config.dt_s
+        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, self.failed, consecutive)
+        if drive < 0:
+            return True
+        self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+        return False
 
     def complete(self, struts=None, metrology_pose=None) -> list:
         """The second half of the cycle ``prepare`` began: the feedback from the
@@ -458,12 +510,12 @@ class ControllerCore:
         distribution. Returns the drive forces (N) for the next period."""
         c, self._cycle = self._cycle, None
         if self.stopped:
-            return self.trip(self.stop_reason)
+            return self.trip(self.stop_reason, self.stop_cause)
         if c is None:
             raise RuntimeError("ControllerCore.complete: no cycle prepared (call prepare() first)")
         problem = self._check_metrology(struts, metrology_pose)
         if problem:
-            return self.trip(problem)
+            return self.trip(problem, TripCause.INPUT_REFUSED)
         if c.first:
             self._start(c.pose, struts, metrology_pose)
             if not self._prepare_reference(c):
@@ -474,10 +526,10 @@ class ControllerCore:
                 return self._cartesian_command(c, measured, error)
             problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
             if problem:
-                return self.trip(problem)
+                return self.trip(*problem)
             forces = self._joint_strategy(c)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
-            return self.trip(f"{self.config.strategy}: {exc}")
+            return self.trip(f"{self.config.strategy}: {exc}", TripCause.KINEMATICS)
         return self._finish(c, forces, trans, measured, error)
 
     def _forward_kinematics(self, q) -> list:
@@ -573,10 +625,12 @@ class ControllerCore:
         if code > DISTRIBUTION_FAILED:
             raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench)
         if code == FORCES_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: non-finite drive forces {self._expand(forces.tolist())}")
+            return self.trip(f"{cfg.strategy}: non-finite drive forces {self._expand(forces.tolist())}",
+                             TripCause.KINEMATICS)
         if code == WRENCH_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}")
-        return self.trip(self._limit_message(code, index, value))
+            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}",
+                             TripCause.KINEMATICS)
+        return self.trip(*self._limit_trip(code, index, value))
 
     def _distribute(self, wrench, active_rows, pose) -> list:
         """The distributions that are not compiled (p_norm, two_arm, a prestress); all
@@ -598,7 +652,7 @@ class ControllerCore:
         clamped, saturated, peak, finite = clamp_forces_kernel(np.array(forces, dtype=float),
                                                                self.config.force_limit_n)
         if not finite:
-            return self.trip(f"{self.config.strategy}: non-finite drive forces {forces}")
+            return self.trip(f"{self.config.strategy}: non-finite drive forces {forces}", TripCause.KINEMATICS)
         return self._accept(c, clamped.tolist(), saturated, peak, trans, measured, error)
 
     def _accept(self, c: "_Cycle", forces, saturated, peak, trans, measured, error) -> list:
@@ -609,7 +663,8 @@ class ControllerCore:
             self.saturation_count += 1
             self._saturated_since = c.t_s if self._saturated_since is None else self._saturated_since
             if cfg.saturation_trip_s and c.t_s - self._saturated_since >= cfg.saturation_trip_s - 1e-9:
-                return self.trip(f"drive forces saturated at {cfg.force_limit_n:g} N for {cfg.saturation_trip_s:g} s")
+                return self.trip(f"drive forces saturated at {cfg.force_limit_n:g} N for {cfg.saturation_trip_s:g} s",
+                                 TripCause.SATURATION)
         else:
             self._saturated_since = None
         self.cycles += 1
@@ -631,7 +686,7 @@ class ControllerCore:
                   "tracking_error_m": trans, "max_tracking_error_m": self.max_error_m,
                   "internal_force_norm_n": r.internal_force_norm_n, "peak_drive_force_n": self.peak_force_n,
                   "saturation_count": self.saturation_count, "cycles": self.cycles,
-                  "faults": "; ".join(self.faults) or "none"}
+                  "faults": "; ".join(self.faults) or "none", "cause": str(self.stop_cause)}
         if self.planar:
             values["tracking_error_rad"] = abs(r.error[2])
         if self.stopped:

@@ -31,12 +31,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.timing import DurationHistogram
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
 from pkm_controller.lockstep import StampPairing
@@ -53,8 +55,8 @@ class ControllerNode(LifecycleNode):
         self.core = None
         self.active = False
         self.entities = []
-        self.compute_s: list[float] = []     # prepare + complete per cycle
-        self.response_s: list[float] = []    # last input (state or metrology) -> command ready
+        self.compute_s = DurationHistogram()     # prepare + complete per cycle (constant memory)
+        self.response_s = DurationHistogram()    # last input (state or metrology) -> command ready
         self.prepare_s = 0.0
         self.was_stopped = False
         self.configure_error = ""
@@ -124,7 +126,7 @@ class ControllerNode(LifecycleNode):
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         self.active = False
-        self.safe_stop("deactivated")
+        self.safe_stop("deactivated", TripCause.DEACTIVATED)
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
@@ -158,8 +160,10 @@ class ControllerNode(LifecycleNode):
             msg = self.state_decoder.decode(buf)
         except ValueError as exc:      # malformed bytes from a raw publisher
             if not self.core.stopped:
-                self.safe_stop(str(exc))
+                self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
             return
+        if msg.frame_id.startswith("safe_stop") and not self.core.stopped:
+            self.safe_stop_plant(msg.frame_id)     # the drives' status word: the plant braked
         if not self.pairing.state_arrived(msg.stamp_ns, now):
             return                     # a repeat (sim_hw republishes step 0 until answered)
         start = time.perf_counter()
@@ -174,7 +178,7 @@ class ControllerNode(LifecycleNode):
             msg = self.decode_metrology(buf)
         except ValueError as exc:
             if self.active and not self.core.stopped:
-                self.safe_stop(str(exc))
+                self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
             return
         state = self.pairing.reading_arrived(msg.stamp_ns, msg)
         if state is not None and self.active:
@@ -198,7 +202,7 @@ class ControllerNode(LifecycleNode):
 
     def on_estop(self, msg: Bool) -> None:
         if msg.data and self.core is not None and not self.core.stopped:
-            self.safe_stop("estop")
+            self.safe_stop("estop", TripCause.ESTOP)
 
     def on_watchdog(self) -> None:
         if not self.active or self.core is None or self.core.stopped:
@@ -206,7 +210,7 @@ class ControllerNode(LifecycleNode):
         fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
                                            self.values["metrology_timeout_s"])
         if fault:
-            self.safe_stop(fault)
+            self.safe_stop(fault, TripCause.WATCHDOG)
 
     # ----------------------------------------------------------------- output
     def prepare(self, msg) -> bool:
@@ -217,7 +221,7 @@ class ControllerNode(LifecycleNode):
         try:
             msg = in_order(msg, self.names, "drives/state")
         except ValueError as exc:
-            core.trip(str(exc))
+            core.trip(str(exc), TripCause.INPUT_REFUSED)
         return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort)
 
     def answer(self, stamp: int, start: float) -> None:
@@ -230,16 +234,16 @@ class ControllerNode(LifecycleNode):
             try:
                 struts, pose = metrology_inputs(self.wait_for, extra)
             except ValueError as exc:             # NaN or a non-unit quaternion
-                core.trip(str(exc))
+                core.trip(str(exc), TripCause.INPUT_REFUSED)
         complete_start = time.perf_counter()
         forces = core.complete(struts=struts, metrology_pose=pose)
         end = time.perf_counter()
-        self.compute_s.append(self.prepare_s + end - complete_start)
-        self.response_s.append(end - start)
+        self.compute_s.add(self.prepare_s + end - complete_start)
+        self.response_s.add(end - start)
         self.publish_command(self.command_encoder.encode(stamp, effort=forces))
         self.answers_published += 1
         if core.stopped and not self.was_stopped:
-            self.safe_stop(core.stop_reason)
+            self.safe_stop(core.stop_reason, core.stop_cause)
         self.publish_reference(stamp)
         if core.cycles % self.values["status_decimation"] == 0:
             self.publish_status()
@@ -255,11 +259,17 @@ class ControllerNode(LifecycleNode):
         stamp = ns_to_stamp(round((self.core.last_time_s or 0.0) * 1e9))
         self.pub_status.publish(diagnostic_array(stamp, [diagnostic_status("controller", level, message, values)]))
 
-    def safe_stop(self, reason: str) -> None:
+    def safe_stop_plant(self, status: str) -> None:
+        """The plant stopped on its own (``safe_stop:<cause>`` in drives/state): the
+        controller stops with the plant's cause, not as a drive failure."""
+        self.core.plant_stopped(status)
+        self.safe_stop(self.core.stop_reason, self.core.stop_cause)
+
+    def safe_stop(self, reason: str, cause: TripCause) -> None:
         """Zero forces, brakes requested (estop latched), reported."""
         if self.core is None:
             return
-        self.core.trip(reason)
+        self.core.trip(reason, cause)
         self.get_logger().error(f"safe stop: {self.core.stop_reason}")
         self.pub_estop.publish(Bool(data=True))
         self.publish_status()

@@ -20,7 +20,7 @@ from sensor_msgs.msg import JointState
 from pkm_common.conversions import stamp_to_ns
 from pkm_common.params import declare_bool, declare_float, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
-from pkm_common.timing import percentiles_us
+from pkm_common.timing import DurationHistogram, percentiles_us
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import _min_two_norm_rows
@@ -40,7 +40,7 @@ class HoldControllerNode(Node):
         self.summary_path = declare_str(self, "summary_path", "", "JSON of answer latencies at exit",
                                         allow_empty=True)
         self.state_wall: dict[int, float] = {}       # stamp -> wall time the state arrived
-        self.latencies_s: list[float] = []           # state arrival -> answer (metrology wait)
+        self.latencies_s = DurationHistogram()       # state arrival -> answer (metrology wait)
         self.target = None
         self.pose = None
         self.pending = None                # a state waiting for its metrology
@@ -94,7 +94,7 @@ class HoldControllerNode(Node):
         self.answered += 1
         arrived = self.state_wall.get(stamp_to_ns(msg.header.stamp))
         if arrived is not None:
-            self.latencies_s.append(time.perf_counter() - arrived)
+            self.latencies_s.add(time.perf_counter() - arrived)
 
     def destroy_node(self):
         if self.summary_path and self.latencies_s:
