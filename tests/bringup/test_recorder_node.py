@@ -100,3 +100,31 @@ def test_an_unknown_compression_is_refused_by_name(ros_context, tmp_path):
     with pytest.raises(ParameterError, match="compression.*lz4"):
         _recorder(ros_context, tmp_path, "e", compression="bz2")
     assert not (tmp_path / "e").exists()
+
+
+def test_only_the_runs_namespace_and_the_global_topics_are_recorded(ros_context, tmp_path):
+    """A run beside another one in namespace /ns2 of the same domain records only its own."""
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from pkm_common.qos import STREAM_QOS
+    rec = _recorder(ros_context, tmp_path, "ns")
+    mine = Node("mine", namespace="/rec_test", context=ros_context)
+    other = Node("other", namespace="/ns2", context=ros_context)
+    try:
+        for node in (mine, other):
+            node.create_publisher(String, "chatter", STREAM_QOS)
+        mine.create_publisher(String, "/rosout_like_global", STREAM_QOS)
+        import time
+        end = time.monotonic() + 5.0
+        while "/rec_test/chatter" not in rec.subscriptions_by_topic and time.monotonic() < end:
+            rec.discover()
+            time.sleep(0.05)
+        rec.discover()
+        assert "/rec_test/chatter" in rec.subscriptions_by_topic
+        assert "/ns2/chatter" not in rec.subscriptions_by_topic
+        assert "/rosout_like_global" not in rec.subscriptions_by_topic
+        assert rec.in_scope("/clock") and rec.in_scope("/rosout")
+    finally:
+        for node in (mine, other, rec):
+            node.destroy_node()

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.orchestrator import EXIT_CODES, run_scenario
 from pkm_bringup.replay import replay_controller
 from pkm_bringup.scenario import load_scenario
 
@@ -253,6 +253,27 @@ def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
     assert np.isfinite(json.loads((run_dir / "run.json").read_text())["wall_s"])
 
 
+@pytest.mark.slow
+def test_after_a_recorder_kill_the_run_recovers_its_bag_and_reports_the_loss(tmp_path):
+    run_dir = tmp_path / "recorder_killed"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    _wait_running(run_dir, proc)
+    time.sleep(1.5)
+    victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_bringup.recorder_node" in line]
+    assert len(victims) == 1
+    os.kill(int(victims[0]), signal.SIGKILL)
+    out, _ = proc.communicate(timeout=90)
+    assert proc.returncode == 1 and "node recorder exited with code -9" in out, out
+    assert "bag recovered up to its last chunk" in out, out
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["recovered"]["messages"] > 1000 and run["summaries"]["recorder"]["recovered"]
+    lost = run["lost"]["/pkm/drives/state"]
+    assert 0 < lost < run["published"]["/pkm/drives/state"]      # the loss stated, not "100 % lost"
+    metrics = json.loads((run_dir / "report" / "metrics.json").read_text())
+    assert metrics                                               # the report made from what was saved
+    assert not _leftovers(run_dir)
+
+
 def test_player_steps_one_clock_tick_per_call(in_process_run, ros_context):
     from rclpy.parameter import Parameter
     from std_srvs.srv import Trigger
@@ -290,17 +311,54 @@ def test_realtime_scenario_runs_on_the_wall_clock_and_reports_deadline_misses(tm
     assert run["metrics"]["deadline_misses"] == sim["deadline_misses"]
 
 
-def test_a_tripping_scenario_completes_and_reports_the_trip(tmp_path):
+def test_a_tripping_scenario_ends_tripped_and_reports_the_cause(tmp_path):
     """archi_fig12 (joint PIDs, 2 % leg error, no program: a dwell starts the loop after
-    the recorder is ready): the drives fight, the supervisor stops the machine."""
+    the recorder is ready): the drives fight, the supervisor stops the machine; the run
+    ends "tripped" with the cause that started the stop (saturation), not "completed"."""
     run = run_scenario(load_scenario("archi_fig12", {"duration_s": 0.8}), tmp_path / "fig12", in_process=True,
                        progress=False)
-    assert run["status"] == "completed", run["error"]
+    assert run["status"] == "tripped" and not run["error"], run["error"]
+    assert run["cause"] == "saturation" and "saturated" in run["trip_reason"]
+    assert EXIT_CODES[run["status"]] == 3
     assert all(v == 0 for v in run["lost"].values()), run["lost"]
     assert run["metrics"]["controller"]["tripped"]
     assert "saturated" in run["summaries"]["controller"]["message"]
     result = replay_controller(tmp_path / "fig12")
     assert result.ok and "estop" in result.note
+
+
+def test_a_second_run_of_this_machine_is_refused_whatever_discovery_does(tmp_path, monkeypatch):
+    """The run lock, not discovery: a second run in the same domain and namespace is
+    refused at once, every time, and its directory holds no node's output."""
+    from pkm_bringup.orchestrator import RunLock
+    monkeypatch.setattr("pkm_bringup.orchestrator.LOCK_DIR", tmp_path / "locks")
+    with RunLock("/pkm"):
+        for k in range(3):
+            run = run_scenario(load_scenario("mom3_square", SHORT), tmp_path / f"second{k}", in_process=True,
+                               progress=False)
+            assert run["status"] == "failed" and "another run is active" in run["error"], run["error"]
+            assert not run["summaries"]
+    with RunLock("/other"):                     # another namespace is another run
+        pass
+
+
+@pytest.mark.slow
+def test_a_foreign_publisher_on_drives_command_is_refused_before_the_start(tmp_path, ros_context):
+    """A node that publishes on drives/command and sends nothing: named, at once (it used
+    to block the run for 60 s, "graph not connected")."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from pkm_common.qos import STREAM_QOS
+    rogue = rclpy.create_node("rogue", namespace="/pkm", context=ros_context)
+    rogue.create_publisher(JointState, "drives/command", STREAM_QOS)
+    try:
+        start = time.monotonic()
+        run = run_scenario(load_scenario("mom3_square", SHORT), tmp_path / "rogue", progress=False)
+    finally:
+        rogue.destroy_node()
+    assert run["status"] == "failed" and "intruder: /pkm/rogue publishes on /pkm/drives/command" in run["error"]
+    assert time.monotonic() - start < 30.0
 
 
 def test_a_second_run_in_the_same_domain_is_refused(tmp_path, ros_context):

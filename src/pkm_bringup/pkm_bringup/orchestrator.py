@@ -33,8 +33,9 @@ import sys
 import time
 from pathlib import Path
 
-from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, expected_topics, load_scenario,
-                                  node_parameters, params_file_text)
+from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
+                                  load_scenario, node_parameters, params_file_text)
+from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_controller.controller import METROLOGY_STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
@@ -45,6 +46,10 @@ STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "
 CONNECT_TIMEOUT_S = 60.0
 DRAIN_S = 0.5
 DRAIN_IN_PROCESS_S = 0.2
+
+
+# pkm-run's exit code per run status (2: the scenario or the arguments were refused)
+EXIT_CODES = {"completed": 0, "failed": 1, "tripped": 3}
 
 
 class RunFailed(RuntimeError):
@@ -123,8 +128,46 @@ def init_context():
     return context
 
 
+LOCK_DIR = Path(os.environ.get("PKM_RUN_LOCK_DIR", "/tmp/pkm-run-locks"))
+
+
+class RunLock:
+    """One run per DDS domain and namespace on this machine: an exclusive ``flock`` on
+    ``LOCK_DIR/domain-<id><namespace>.lock``, held for the run and released by the
+    kernel when the process ends (however it ends). Discovery is kept on localhost,
+    so this covers every run that could cross-talk, without waiting for discovery."""
+
+    def __init__(self, namespace: str):
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        self.path = LOCK_DIR / f"domain-{domain}{namespace.replace('/', '_')}.lock"
+        self.domain, self.namespace, self.fh = domain, namespace, None
+
+    def __enter__(self):
+        import fcntl
+        LOCK_DIR.mkdir(parents=True, exist_ok=True)
+        self.fh = open(self.path, "a+", encoding="utf-8")
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.fh.seek(0)
+            holder = self.fh.read().strip() or "another process"
+            self.fh.close()
+            raise RunFailed(f"another run is active in ROS_DOMAIN_ID={self.domain}, namespace {self.namespace} "
+                            f"({holder}); use another domain (export ROS_DOMAIN_ID=...) or namespace") from None
+        self.fh.seek(0)
+        self.fh.truncate()
+        self.fh.write(f"pid {os.getpid()}")
+        self.fh.flush()
+        return self
+
+    def __exit__(self, *exc):
+        self.fh.close()                       # closing releases the lock
+
+
 def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 1.0) -> None:
-    """Two runs in one DDS domain and namespace would answer each other's states."""
+    """Two runs in one DDS domain and namespace would answer each other's states. Runs of
+    this machine are refused by RunLock at once; this looks for any other (a graph
+    started by hand) for ``discovery_s``."""
     end = time.monotonic() + discovery_s
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.05)
@@ -141,6 +184,17 @@ def _publish_start(node) -> None:
     from pkm_common.qos import LATCHED_QOS
     node.start_publisher = node.create_publisher(Bool, START_TOPIC, LATCHED_QOS)
     node.start_publisher.publish(Bool(data=True))
+
+
+def _refuse_intruders(monitor, s: Scenario) -> None:
+    """Only the run's controller may publish drives/command (sim_hw stops on any other:
+    refused here before the run starts, naming the node)."""
+    topic = s.topic("drives/command")
+    others = sorted({f"{p.node_namespace.rstrip('/')}/{p.node_name}" for p in monitor.get_publishers_info_by_topic(topic)}
+                    - {controller_node_name(s)})
+    if others:
+        raise RunFailed(f"intruder: {', '.join(others)} publishes on {topic}, where only {controller_node_name(s)} "
+                        "may; stop it or use another domain")
 
 
 def _connected(monitor, s: Scenario) -> bool:
@@ -185,6 +239,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (_connected(monitor, s) and (not s.record or ready.exists())):
             check_alive()
+            _refuse_intruders(monitor, s)
             if time.monotonic() > deadline:
                 raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
             executor.spin_once(timeout_sec=0.05)
@@ -344,6 +399,21 @@ def _read_json(path: Path) -> dict:
         return {}
 
 
+def trip_cause(summaries: dict) -> tuple[TripCause, str]:
+    """The cause that started the run's stop, and its reason: the controller's (it takes
+    the plant's when the plant braked first), else the plant's."""
+    for node in ("controller", "sim_hw"):
+        summary = summaries.get(node, {})
+        if summary.get("stopped"):
+            try:
+                cause = parse_cause(summary.get("cause", "none"))
+            except ValueError:
+                continue
+            if cause != TripCause.NONE:
+                return cause, summary.get("stop_reason") or summary.get("message", "")
+    return TripCause.NONE, ""
+
+
 def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, error: str = "") -> dict:
     """run.json: node summaries, published vs recorded per topic, exit codes."""
     summaries = {p.stem: _read_json(p) for p in sorted((run_dir / "summaries").glob("*.json"))}
@@ -356,10 +426,12 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     if any(v < 0 for v in lost.values()) and not error:
         error = (f"more messages recorded than published on {[t for t, v in lost.items() if v < 0]}: "
                  "another graph publishes in this domain and namespace")
+    cause, reason = trip_cause(summaries)
     run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
            "metrology": s.metrology, "duration_s": s.duration_s, "wall_s": wall_s,
-           "status": "failed" if error else "completed", "error": error, "exit_codes": codes,
+           "status": run_status(error, cause), "error": error, "cause": str(cause), "trip_reason": reason,
+           "exit_codes": codes,
            "published": published, "recorded": recorded, "lost": lost, "summaries": summaries}
     (run_dir / "run.json").write_text(json.dumps(run, indent=2), encoding="utf-8")
     return run
@@ -384,18 +456,51 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     error, codes = "", {}
     try:
         run = run_in_process if in_process else run_processes
-        run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
+        with RunLock(s.namespace):
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
     except RunFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
         error = "interrupted (Ctrl-C / SIGTERM)"
     except Exception as exc:                      # noqa: BLE001 - reported in run.json, never a traceback
         error = f"{type(exc).__name__}: {exc}"
+    recovered = _recover_bag(s, run_dir)
     result = collect(s, run_dir, mode, time.monotonic() - start, codes, error)
+    if recovered:
+        result["recovered"] = recovered
+        (run_dir / "run.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         from pkm_bringup.report import write_report
         result["metrics"] = write_report(run_dir)
     return result
+
+
+def _recover_bag(s: Scenario, run_dir: Path) -> dict:
+    """A bag whose recorder died (no metadata.yaml): made readable up to its last
+    complete chunk (bag.recover); the recorder's summary then holds what was saved, so
+    that run.json states the loss. {} when there was nothing to recover."""
+    bag = run_dir / "bag"
+    if not s.record or not bag.is_dir() or (bag / "metadata.yaml").exists() or not any(bag.glob("*.mcap")):
+        return {}
+    from pkm_bringup.bag import recover
+    from pkm_common.cdr import stamp_ns_of
+    try:
+        counts = recover(bag)
+    except (OSError, ValueError) as exc:
+        return {"error": f"bag could not be recovered: {exc}"}
+    summary_path = run_dir / "summaries" / "recorder.json"
+    if not summary_path.exists():             # the recorder was killed: count what the bag kept
+        from rosbags.highlevel import AnyReader
+        last: dict[str, int] = {}
+        steps: dict[str, int] = {}
+        with AnyReader([bag]) as reader:         # new stamps per topic, as the recorder counts
+            for connection, _, data in reader.messages():
+                stamp = stamp_ns_of(data) if len(data) >= 12 else -1
+                if last.get(connection.topic) != stamp:
+                    last[connection.topic] = stamp
+                    steps[connection.topic] = steps.get(connection.topic, 0) + 1
+        summary_path.write_text(json.dumps({"recorded_stamps": steps, "recovered": True}), encoding="utf-8")
+    return {"messages": sum(counts.values()) if isinstance(counts, dict) else counts}
 
 
 def format_summary(run: dict, run_dir: Path) -> str:
@@ -405,6 +510,10 @@ def format_summary(run: dict, run_dir: Path) -> str:
              f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}): {run['status']}"]
     if run["error"]:
         lines.append(f"  error: {run['error']}")
+    if run.get("cause", "none") != "none":
+        lines.append(f"  stopped by {run['cause']}: {run.get('trip_reason', '')}")
+    if run.get("recovered"):
+        lines.append(f"  the recorder did not finish: bag recovered up to its last chunk ({run['recovered']})")
     if sims:
         rate = sims.get("steps_per_s")
         lines.append(f"  steps {sims.get('steps')}  sim {sims.get('sim_time_s', 0):.3f} s  wall {run['wall_s']:.1f} s"
@@ -447,7 +556,7 @@ def main(argv=None) -> int:
     print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated)", flush=True)
     run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress)
     print(format_summary(run, run_dir), flush=True)
-    return 0 if run["status"] == "completed" else 1
+    return EXIT_CODES[run["status"]]
 
 
 if __name__ == "__main__":

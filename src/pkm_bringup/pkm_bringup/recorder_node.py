@@ -61,6 +61,10 @@ EXCLUDED = ("/parameter_events",)
 TAPPED = "tapped"           # subscriptions_by_topic: recorded through the tap, not subscribed
 
 
+# recorded whatever the run's namespace (the loop's clock, every node's log)
+GLOBAL_TOPICS = ("/clock", "/rosout")
+
+
 class RecorderNode(Node):
     def __init__(self, context=None, **kwargs):
         super().__init__("recorder", context=context, **kwargs)
@@ -136,10 +140,16 @@ class RecorderNode(Node):
         self.tapped_steps.reserve(channel)
         return channel
 
+    def in_scope(self, name: str) -> bool:
+        """The topics of this run: its namespace's, and the global /clock and /rosout
+        (another run beside it in another namespace of the domain is not recorded)."""
+        prefix = self.get_namespace().rstrip("/") + "/"
+        return name.startswith(prefix) or name in GLOBAL_TOPICS
+
     def discover(self) -> None:
         for name, types in self.get_topic_names_and_types():
             if name in self.subscriptions_by_topic or name in EXCLUDED or name == self.tap_topic \
-                    or (self.topics and name not in self.topics):
+                    or (self.topics and name not in self.topics) or not self.in_scope(name):
                 continue
             infos = self.get_publishers_info_by_topic(name)
             if not infos or len(types) != 1:

@@ -427,6 +427,11 @@ def _typed(node: str, params: dict) -> dict:
     return out
 
 
+def controller_node_name(s: Scenario) -> str:
+    """The full name of the run's controller: the one node sim_hw takes commands from."""
+    return f"{s.namespace.rstrip('/')}/controller"
+
+
 def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     """node name -> its parameters for this run (node defaults < scenario < run wiring)."""
     summaries = run_dir / "summaries"
@@ -434,6 +439,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     nodes = {
         "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
                    "duration_s": s.duration_s, "load_schedule": flat_load,
+                   "command_source": controller_node_name(s),
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "autostart": True, "wait_for_trajectory": s.program is not None,
