@@ -487,6 +487,13 @@ class ControllerCore:
         readings the dynamic model predicts from the forces the drives report,
         J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
         J_m v_d dt."""
+        applied = c.applied
+        if applied is not None and len(applied) == self.n and any(
+                abs(applied[i] - self.last_command[i]) > self.config.drive_mismatch_n for i in self.active):
+            # a drive that does not apply its command (a brake engaging is an impulse the
+            # reported forces do not hold): the drive supervision's, not an encoder's
+            self.encoders.reset()
+            return True
         rows = np.asarray(c.rows, dtype=float)
         dt2 = c.dt * c.dt
         if c.applied is not None and len(c.applied) == self.n:
@@ -497,7 +504,8 @@ class ControllerCore:
             expected_ddq = [0.0] * self.n
         expected_dq = (rows @ np.asarray(c.v_d, dtype=float) * c.dt).tolist()
         consecutive = abs(c.dt - self.config.dt_s) < 1e-3 * self.config.dt_s
-        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, self.failed, consecutive)
+        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, self.failed, consecutive,
+                                          c.rows if self.n > 3 else None)
         if drive < 0:
             return True
         self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)

@@ -19,14 +19,20 @@ it:
   tripped when the net displacement the reference asked for since the reading last
   changed (``J_i v_d dt`` summed) exceeds ``freeze_m``.
 
-A locked drive is not an encoder fault: its reported force includes the brake's
-reaction, which the prediction uses. The test needs neither redundancy nor the
+A drive that stops (a brake) is not an encoder fault. On a redundant machine the
+readings tell them apart at once: after a brake (or a knock) they still agree with one
+platform motion (their least-squares residual, ``dq - J J^+ dq``, stays under a tenth
+of the jump), after a freeze or a slip they do not. On a 3-drive machine nothing tells them apart in the first cycle: a
+brake engaging at speed is reported as that drive's encoder frozen (the drive is
+named either way). The test needs neither redundancy nor the
 Gough, so it covers every machine; it cannot see a freeze while nothing moves.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 __all__ = ["EncoderMonitor"]
 
@@ -48,12 +54,13 @@ class EncoderMonitor:
         self.bias = [0.0] * self.n
         self.held_m = [0.0] * self.n          # displacement asked for since the reading last changed
 
-    def check(self, q, expected_ddq, expected_dq, skip=(), consecutive: bool = True) -> tuple[int, str]:
+    def check(self, q, expected_ddq, expected_dq, skip=(), consecutive: bool = True, rows=None) -> tuple[int, str]:
         """(drive, what) of this cycle's encoder fault, (-1, "") if none: ``q`` the
         readings, ``expected_ddq`` their second difference the dynamic model predicts,
         ``expected_dq`` the displacement the reference asked for over the last period,
         ``skip`` drives not to judge (dropped ones); ``consecutive`` False when states
-        were skipped since the last check (real time): no second difference then."""
+        were skipped since the last check (real time): no second difference then;
+        ``rows``: J_m (n x 3) of a redundant machine, for the consistency of a stop."""
         last, self.last_q = self.last_q, list(q)
         if last is None:
             return -1, ""
@@ -74,6 +81,19 @@ class EncoderMonitor:
             self.bias[i] += self.BIAS_GAIN * r
             if abs(r) > self.jump_m:
                 what = "frozen" if dq[i] == 0.0 else "slipped"
+                if self._consistent(dq, rows, abs(r)):
+                    self.bias[i] += r             # physical (a brake, a knock): not the encoder's
+                    continue
                 return i, (f"{what}: reading {r * 1e6:+.1f} um off the motion its force explains in one cycle "
                            f"(encoder_jump_m {self.jump_m:g})")
         return -1, ""
+
+    def _consistent(self, dq, rows, jump: float) -> bool:
+        """Do the readings of a redundant machine still agree with one platform motion?
+        (Their least-squares residual under a tenth of the jump, or two counts.)"""
+        if rows is None or self.n <= 3:
+            return False
+        j = np.asarray(rows, dtype=float)
+        d = np.asarray(dq, dtype=float)
+        residual = d - j @ np.linalg.lstsq(j, d, rcond=None)[0]
+        return float(np.linalg.norm(residual)) < max(0.1 * jump, 2e-6)
