@@ -76,6 +76,7 @@ def test_in_process_run_completes_and_loses_nothing(in_process_run):
                   "/pkm/controller/reference", "/clock"):
         assert run["published"][topic] == 801, topic
         assert run["lost"][topic] == 0, topic
+    assert run["sensor_missed_steps"] == 0 and run["cause"] == "none"     # stated, here none
     # the loop's streams came through the nodes' recording taps, not subscriptions,
     # and the tap's own batches are not in the bag
     recorder = run["summaries"]["recorder"]

@@ -427,11 +427,16 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
         error = (f"more messages recorded than published on {[t for t, v in lost.items() if v < 0]}: "
                  "another graph publishes in this domain and namespace")
     cause, reason = trip_cause(summaries)
+    # DDS delivery to the sensor is not a recording loss, but a true pose it never
+    # measured is a step the metrology missed: stated, not silent
+    sensor, sim = summaries.get("gough_sensor", {}), summaries.get("sim_hw", {})
+    sensor_missed = max(0, sim.get("published", {}).get("platform/true_pose", 0)
+                        - sensor.get("published", {}).get("metrology/struts", 0)) if sensor and sim else 0
     run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
            "metrology": s.metrology, "duration_s": s.duration_s, "wall_s": wall_s,
            "status": run_status(error, cause), "error": error, "cause": str(cause), "trip_reason": reason,
-           "exit_codes": codes,
+           "sensor_missed_steps": sensor_missed, "exit_codes": codes,
            "published": published, "recorded": recorded, "lost": lost, "summaries": summaries}
     (run_dir / "run.json").write_text(json.dumps(run, indent=2), encoding="utf-8")
     return run
@@ -512,6 +517,8 @@ def format_summary(run: dict, run_dir: Path) -> str:
         lines.append(f"  error: {run['error']}")
     if run.get("cause", "none") != "none":
         lines.append(f"  stopped by {run['cause']}: {run.get('trip_reason', '')}")
+    if run.get("sensor_missed_steps"):
+        lines.append(f"  gough_sensor: {run['sensor_missed_steps']} true poses not measured")
     if run.get("recovered"):
         lines.append(f"  the recorder did not finish: bag recovered up to its last chunk ({run['recovered']})")
     if sims:
