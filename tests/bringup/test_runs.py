@@ -50,7 +50,8 @@ def _wait_running(run_dir: Path, proc, timeout_s: float = 90.0) -> None:
         if log.exists() and "trajectory accepted" in log.read_text(errors="replace"):
             return
         time.sleep(0.1)
-    raise AssertionError(f"the run did not start (pkm-run exit code {proc.poll()})")
+    out = proc.communicate(timeout=30)[0] if proc.poll() is not None else ""
+    raise AssertionError(f"the run did not start (pkm-run exit code {proc.poll()}); its output:\n{out}")
 
 
 def _commands(run_dir: Path) -> dict:

@@ -190,8 +190,8 @@ def _refuse_intruders(monitor, s: Scenario) -> None:
     """Only the run's controller may publish drives/command (sim_hw stops on any other:
     refused here before the run starts, naming the node)."""
     topic = s.topic("drives/command")
-    others = sorted({f"{p.node_namespace.rstrip('/')}/{p.node_name}" for p in monitor.get_publishers_info_by_topic(topic)}
-                    - {controller_node_name(s)})
+    others = sorted({f"{p.node_namespace.rstrip('/')}/{p.node_name}" for p in monitor.get_publishers_info_by_topic(topic)
+                     if p.node_name != "_NODE_NAME_UNKNOWN_"} - {controller_node_name(s)})   # not known yet
     if others:
         raise RunFailed(f"intruder: {', '.join(others)} publishes on {topic}, where only {controller_node_name(s)} "
                         "may; stop it or use another domain")

@@ -51,6 +51,7 @@ from pkm_kinematics import load_machine
 from pkm_sim_hw.authority import APPLY, STALE, CommandGate, Refusal
 from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
 
+UNKNOWN = "_NODE_NAME_UNKNOWN_"   # an endpoint discovered before its node's name
 REFUSALS_PER_S = 50          # refusal records published a second at most (the rest are counted)
 
 
@@ -230,9 +231,11 @@ class SimHwNode(Node):
                                                   [diagnostic_status("sim_hw/refused", 2, refusal.reason, values)]))
 
     def command_publishers(self) -> list[str]:
-        """Full names of the nodes publishing drives/command (the graph's view)."""
+        """Full names of the nodes publishing drives/command (the graph's view; an
+        endpoint whose node is not known yet is left out: the matched count and the
+        later ticks see it)."""
         return [f"{p.node_namespace.rstrip('/')}/{p.node_name}"
-                for p in self.get_publishers_info_by_topic(self.command_sub.topic_name)]
+                for p in self.get_publishers_info_by_topic(self.command_sub.topic_name) if p.node_name != UNKNOWN]
 
     def on_command_matched(self, status) -> None:
         """A publisher matched drives/command (before its first message is delivered)."""
