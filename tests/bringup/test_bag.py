@@ -29,10 +29,13 @@ from pkm_common.tap import StreamTap, split_batch
 from pkm_bringup.bag import (
     INFINITE_DURATION,
     BagWriter,
+    IncompleteBagError,
+    check_complete,
     qos_profile,
     qos_profiles_yaml,
     read_counts,
     recover,
+    recover_bag,
 )
 
 T0 = 1_700_000_000_000_000_000  # log times (ns since the epoch)
@@ -672,6 +675,48 @@ def test_recover_is_idempotent_and_keeps_the_original(ts, tmp_path):
     before = writer.mcap_path.read_bytes()
     assert recover(src) == {topic: len(m) for topic, m in expected.items()}
     assert writer.mcap_path.read_bytes() == before and not list(src.glob('*.truncated'))
+
+
+def test_check_complete_and_what_recover_bag_says(ts, tmp_path):
+    src = tmp_path / 'full'
+    writer, expected = write_test_bag(ts, src, chunk_size=8 * 1024)
+    total = sum(len(m) for m in expected.values())
+    check_complete(src)
+    check_complete(writer.mcap_path)
+    complete = recover_bag(src)
+    assert not complete.rewritten and not complete.metadata_rebuilt and complete.lost is None
+    assert complete.describe() == f'complete bag, nothing to recover ({total} messages on {len(TOPICS)} topics)'
+
+    killed = tmp_path / 'killed'                    # cut, no metadata.yaml: the loss is not known
+    size = writer.mcap_path.stat().st_size
+    _copy_truncated(src, killed, size // 2)
+    with pytest.raises(IncompleteBagError, match='no metadata.yaml'):
+        check_complete(killed)
+    with pytest.raises(IncompleteBagError, match='without an MCAP footer'):
+        check_complete(next(killed.glob('*.mcap')))
+    recovery = recover_bag(killed)
+    kept = sum(recovery.counts.values())
+    assert recovery.rewritten and recovery.listed is None and recovery.lost is None and 0 < kept < total
+    assert 0 < recovery.dropped_bytes < size // 2
+    assert recovery.describe().startswith(f'recovered {kept} messages on ')
+    check_complete(killed)
+
+    cut_copy = tmp_path / 'cut_copy'                # cut, metadata.yaml kept: the loss is counted
+    _copy_truncated(src, cut_copy, size * 7 // 10)
+    shutil.copy(src / 'metadata.yaml', cut_copy / 'metadata.yaml')
+    with pytest.raises(IncompleteBagError, match='without an MCAP footer'):
+        check_complete(cut_copy)
+    recovery = recover_bag(cut_copy)
+    assert recovery.listed == {topic: len(m) for topic, m in expected.items()}
+    assert recovery.lost == total - sum(recovery.counts.values()) > 0
+    assert f'{recovery.lost} of the {total} messages its metadata.yaml listed are lost' in recovery.describe()
+
+    no_metadata = tmp_path / 'no_metadata'          # killed between the footer and metadata.yaml
+    _copy_truncated(src, no_metadata, size)
+    recovery = recover_bag(no_metadata)
+    assert not recovery.rewritten and recovery.metadata_rebuilt and sum(recovery.counts.values()) == total
+    assert 'nothing lost' in recovery.describe()
+    check_complete(no_metadata)
 
 
 _CHILD = textwrap.dedent('''\

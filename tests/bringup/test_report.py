@@ -2,7 +2,8 @@
 
 The bags are written with rosbags (rosbag2 version 9, MCAP, CDR, ros2msg schemas) like
 the recorder writes them, with known tracking errors, drive forces and internal forces,
-so the metrics can be checked against exact values."""
+so the metrics can be checked against exact values. The report streams the bag in
+blocks: the same metrics must come out whatever the block size."""
 
 import json
 import math
@@ -13,6 +14,9 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from pkm_bringup import report
+from pkm_bringup.report_data import RunReader
+from pkm_bringup.report_metrics import RunAnalysis, metrics_dict
+from pkm_bringup.report_plots import MinMaxDecimator, StrideDecimator, Unwrapper
 from pkm_kinematics import load_machine
 from pkm_kinematics.distribution import min_two_norm, null_direction
 
@@ -83,13 +87,13 @@ TYPES = {"/clock": "rosgraph_msgs/msg/Clock",
 
 
 def write_bag(path, records):
-    """records: (topic, log_ns, message); written in log-time order."""
+    """records: (topic, log_ns, message or CDR bytes); written in log-time order."""
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conns = {}
         for topic, log_ns, msg in sorted(records, key=lambda r: r[1]):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, TYPES[topic], typestore=TS)
-            writer.write(conns[topic], log_ns, TS.serialize_cdr(msg, TYPES[topic]))
+            writer.write(conns[topic], log_ns, msg if isinstance(msg, bytes) else TS.serialize_cdr(msg, TYPES[topic]))
 
 
 def count(records):
@@ -100,8 +104,9 @@ def count(records):
 
 
 # ------------------------------------------------------------ synthetic runs
-def archi_run(tmp_path, tripped=False):
-    """An ARCHI-like run with known errors and forces. Returns (run_dir, expected)."""
+def archi_run(tmp_path, tripped=False, extra=(), name="archi_run"):
+    """An ARCHI-like run with known errors and forces (``extra``: more (topic, log_ns,
+    message) records). Returns (run_dir, expected)."""
     cfg = load_machine("archi")
     model, names = cfg.model, cfg.model.leg_names
     s = np.arange(N) / N
@@ -154,7 +159,8 @@ def archi_run(tmp_path, tripped=False):
     if tripped:
         recs.append((f"{NS}/estop", WALL0 + N * WALL_STEP_NS, T["std_msgs/msg/Bool"](data=True)))
 
-    run_dir = tmp_path / "archi_run"
+    recs += list(extra)
+    run_dir = tmp_path / name
     run_dir.mkdir()
     write_bag(run_dir / "bag", recs)
     recorded = count(recs)
@@ -250,6 +256,7 @@ def test_archi_metrics(archi):
 
     c = m["controller"]
     assert not c["tripped"] and c["trip_reason"] is None and not c["estop"]
+    assert m["trip_cause"] == "none" and m["trip_reason"] == "" and m["trip_time_s"] is None
     assert c["final_status"]["level"] == 0 and c["final_status"]["message"] == "tracking"
     assert c["final_status"]["values"]["cycles"] == N and c["final_status"]["values"]["tracking_error_m"] == 1e-5
 
@@ -276,6 +283,9 @@ def test_tripped_run(tmp_path):
     assert m["controller"]["tripped"] and m["controller"]["estop"]
     assert m["controller"]["trip_reason"] == "controller status level 2: stopped: following error"
     assert m["controller"]["final_status"]["level"] == 2
+    # a status of level 2 that names no cause (recorded before causes were published)
+    assert m["trip_cause"] == "unknown" and m["trip_reason"] == "stopped: following error"
+    assert m["trip_source"] == "controller" and m["trip_time_s"] == pytest.approx((N - 1) * 1e-3)
 
 
 def test_write_report_and_plots(archi, capsys):
@@ -342,12 +352,167 @@ def test_mom3_no_redundancy(tmp_path):
     assert (run_dir / "report" / "metrics.json").is_file()
 
 
-def test_decimation_keeps_spikes():
+def test_decimation_keeps_spikes_and_bounds_the_points():
+    """Fed in pieces of any size, the min/max decimation holds at most ~limit points of a
+    long curve, in time order, and keeps a one-sample spike and dip; a short curve whole."""
     y = np.zeros(100_000)
-    y[54_321] = 7.0
-    idx = report._pick(len(y), y)
-    assert len(idx) <= report.MAX_PLOT_POINTS + 2 and 54_321 in idx
-    assert len(report._pick(100)) == 100
+    y[54_321], y[12_345] = 7.0, -3.0
+    y[80_000:80_010] = np.nan
+    decimator = MinMaxDecimator(2000)
+    for start, stop in zip(range(0, 100_000, 777), list(range(777, 100_000, 777)) + [100_000]):
+        decimator.add(np.arange(start, stop), y[start:stop])
+    t, v = decimator.curve()
+    assert len(t) <= 2000 + decimator.size and np.all(np.diff(t) > 0)
+    assert 54_321 in t and 12_345 in t and np.nanmax(v) == 7.0 and np.nanmin(v) == -3.0
+    short = MinMaxDecimator(2000)
+    short.add(np.arange(1500), np.sin(np.arange(1500.0)))
+    assert np.array_equal(short.curve()[0], np.arange(1500))
+
+
+def test_stride_decimation_and_piecewise_unwrap():
+    stride = StrideDecimator(2, limit=1000)
+    rows = np.column_stack([np.arange(10_007.0), -np.arange(10_007.0)])
+    for start in range(0, len(rows), 333):
+        stride.add(rows[start:start + 333])
+    kept = stride.rows()
+    assert len(kept) <= 1001 and kept[0, 0] == 0 and kept[-1, 0] == 10_006 and np.all(np.diff(kept[:, 0]) > 0)
+    angle = np.angle(np.exp(1j * np.linspace(0.0, 40.0, 5000)))       # wraps many times
+    unwrapper = Unwrapper()
+    pieces = np.concatenate([unwrapper.add(angle[k:k + 97]) for k in range(0, len(angle), 97)])
+    np.testing.assert_allclose(pieces, np.unwrap(angle), rtol=0, atol=1e-9)
+
+
+def _same(a, b, path=""):
+    """Equal metrics, floats to 1e-12 relative (a RMS sums blocks in another order)."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), path
+        for k in a:
+            _same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{i}]")
+    elif isinstance(a, float):
+        assert b == pytest.approx(a, rel=1e-12), path
+    else:
+        assert a == b, path
+
+
+def test_streaming_in_small_blocks_gives_the_same_metrics(archi):
+    """Blocks of 7 stamps closed 3 steps behind the newest: the stamps are deduplicated
+    and joined across block boundaries as in one block of the whole run."""
+    run_dir, exp = archi
+    whole = report.metrics(report.load_run(run_dir), "archi", exp["published"])
+    with RunReader(run_dir, block_rows=7, lookback_ns=3 * DT_NS) as reader:
+        analysis = RunAnalysis(reader.info, "archi")
+        sizes = []
+        for block in reader.blocks():
+            sizes.append(len(block))
+            analysis.add(block)
+    assert max(sizes) <= 7 and len(sizes) >= N // 7
+    _same(whole, metrics_dict(analysis.finish(), exp["published"]))
+    assert whole["late_dropped"] == {}
+
+
+def test_a_stamp_older_than_the_look_back_is_dropped_and_counted(tmp_path):
+    """A message of a stamp already handed out (older than the look-back) is not kept:
+    counted as dropped, the earlier copy of the stamp stays."""
+    late = joint_state(5 * DT_NS, ["q1", "q2", "q3", "q4"], [0.0] * 4, [0.0] * 4, [9999.0] * 4)
+    run_dir, exp = archi_run(tmp_path, extra=[(f"{NS}/drives/state", WALL0 + N * WALL_STEP_NS, late)])
+    with RunReader(run_dir, block_rows=16, lookback_ns=20 * DT_NS) as reader:
+        analysis = RunAnalysis(reader.info, "archi")
+        for block in reader.blocks():
+            analysis.add(block)
+    m = metrics_dict(analysis.finish())
+    assert m["late_dropped"] == {f"{NS}/drives/state": 1}
+    assert m["duplicates_dropped"][f"{NS}/drives/state"] == 3 + 1
+    assert m["drive_force"]["peak_applied_n"] == pytest.approx(np.max(np.abs(exp["applied"])))
+
+
+def test_mixed_layouts_are_decoded_message_by_message(tmp_path):
+    """Blocks whose messages do not share one layout (the plant's status word in
+    frame_id from a step on, drives in another order, an array of another length, big-
+    endian CDR) are decoded message by message, in the stream's drive order."""
+    names = ["q1", "q2", "q3", "q4"]
+    steps = 300
+    rng = np.random.default_rng(7)
+    q, f = rng.normal(size=(steps, 4)), rng.normal(scale=100.0, size=(steps, 4))
+    recs = []
+    for k in range(steps):
+        frame = "safe_stop:plant_safe_stop" if k >= 150 else ""
+        order = names[::-1] if k % 37 == 5 else names
+        pick = [names.index(n) for n in order]
+        effort = f[k, pick][:3] if k == 77 else f[k, pick]
+        msg = T["sensor_msgs/msg/JointState"](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=k * DT_NS),
+                                            frame_id=frame),
+            name=order, position=q[k, pick], velocity=np.zeros(4), effort=effort)
+        pose = pose_stamped(k * DT_NS, 1.0, -0.4, 0.0, 0.785)
+        recs += [(f"{NS}/drives/state", WALL0 + k * WALL_STEP_NS, msg),
+                 (f"{NS}/platform/true_pose", WALL0 + k * WALL_STEP_NS + 1,
+                  bytes(TS.serialize_cdr(pose, TYPES[f"{NS}/platform/true_pose"], little_endian=k % 2 == 0)))]
+    run_dir = tmp_path / "mixed"
+    run_dir.mkdir()
+    write_bag(run_dir / "bag", recs)
+    run = report.load_run(run_dir)
+    assert run.state.names == names and len(run.state.stamp_ns) == steps
+    np.testing.assert_array_equal(run.state.position, q)
+    expected = f.copy()
+    expected[77] = np.nan
+    np.testing.assert_array_equal(run.state.effort, expected)
+    np.testing.assert_allclose(run.true_pose.yaw, 0.785, rtol=0, atol=1e-12)
+    assert np.all(run.true_pose.position == [1.0, -0.4, 0.0])
+
+
+# ------------------------------------------------------------ the cause of a stop
+def _status(topic_suffix, k, log_ns, name, level, message, cause=None):
+    values = {"mode": "stopped" if level == 2 else "tracking"}
+    if cause is not None:
+        values["cause"] = cause
+    return (f"{NS}/{topic_suffix}", log_ns, diagnostics(k * DT_NS, name, level, message, values))
+
+
+def test_the_first_stop_by_stamp_gives_the_cause(tmp_path, capsys):
+    """The plant stops at step 200 on its own (plant_safe_stop); the controller, seeing
+    drives that no longer follow, stops at step 210 (drive_failure) and its status
+    reaches the bag first: the report names the plant's stop, the one that started it."""
+    wall = WALL0 + 210 * WALL_STEP_NS
+    stops = [_status("controller/status", 210, wall + 500_000, "controller", 2, "stopped: drive q2 failed",
+                     "drive_failure"),
+             _status("diagnostics", 200, wall + 900_000, "sim_hw", 2, "stopped: end stop q3", "plant_safe_stop"),
+             _status("diagnostics", 230, wall + 20 * WALL_STEP_NS, "sim_hw", 2, "stopped: end stop q3",
+                     "plant_safe_stop"),
+             (f"{NS}/estop", wall + 600_000, T["std_msgs/msg/Bool"](data=True))]
+    run_dir, _ = archi_run(tmp_path, extra=stops)
+    assert report.main([str(run_dir)]) == 0
+    text = capsys.readouterr().out
+    m = json.loads((run_dir / "report" / "metrics.json").read_text())
+    assert m["trip_cause"] == "plant_safe_stop" and m["trip_reason"] == "stopped: end stop q3"
+    assert m["trip_source"] == "sim_hw" and m["trip_time_s"] == pytest.approx(0.2)
+    assert m["sim_hw"]["stopped"] and m["controller"]["tripped"] and m["controller"]["estop"]
+    assert m["controller"]["trip_reason"] == "controller status level 2: stopped: drive q2 failed"
+    assert "plant_safe_stop at 0.200 s (sim_hw: stopped: end stop q3)" in text
+
+
+def test_a_controller_stop_before_the_plants_estop(tmp_path):
+    """The controller trips (following_error) and latches the estop; the plant brakes on
+    it a step later (cause estop): the cause is the controller's."""
+    stops = [_status("controller/status", 300, WALL0 + 300 * WALL_STEP_NS + 400_000, "controller", 2,
+                     "stopped: following error 12 mm", "following_error"),
+             _status("diagnostics", 301, WALL0 + 301 * WALL_STEP_NS + 1000, "sim_hw", 2, "stopped: estop", "estop")]
+    run_dir, _ = archi_run(tmp_path, extra=stops)
+    m = report.write_report(run_dir)
+    assert (m["trip_cause"], m["trip_reason"], m["trip_source"]) == \
+        ("following_error", "stopped: following error 12 mm", "controller")
+    assert "following_error at 0.300 s" in report.summary(m)
+
+
+def test_an_estop_without_an_error_status(tmp_path):
+    run_dir, _ = archi_run(tmp_path, extra=[(f"{NS}/estop", WALL0 + 10 * WALL_STEP_NS, T["std_msgs/msg/Bool"](
+        data=True))])
+    m = report.write_report(run_dir)
+    assert (m["trip_cause"], m["trip_reason"], m["trip_source"]) == ("estop", "estop true", "estop")
+    assert m["controller"]["tripped"] and m["controller"]["trip_reason"] == "estop true"
 
 
 def test_null_space_part_matches_distribution():

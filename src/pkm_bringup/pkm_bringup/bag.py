@@ -51,6 +51,7 @@ import os
 import re
 import struct
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -73,9 +74,13 @@ except Exception:  # pragma: no cover - metadata missing in odd installs
 
 __all__ = [
     "BagWriter",
+    "IncompleteBagError",
+    "Recovery",
+    "check_complete",
     "qos_profile",
     "qos_profiles_yaml",
     "recover",
+    "recover_bag",
     "read_counts",
     "ROSBAG2_VERSION",
     "LIBRARY",
@@ -841,3 +846,97 @@ def _info_from_mcap(file: Path) -> dict:
             topics[record.channel_id]["count"] += 1
             start, end = _widen(start, end, record.log_time)
     return _bag_info(file.name, list(topics.values()), start, end, None)
+
+
+# --- completeness -----------------------------------------------------------------------------
+
+class IncompleteBagError(ValueError):
+    """A bag its writer did not finish: an .mcap file without its footer (the writer was
+    killed, the disk filled up, the file was cut in a copy) or a directory without
+    metadata.yaml. :func:`recover` makes it readable up to its last complete chunk."""
+
+
+def check_complete(path) -> None:
+    """Raise :class:`IncompleteBagError` unless ``path`` (a bag directory or an .mcap
+    file) is a finished recording: a directory has its metadata.yaml and every .mcap
+    file it lists exists and ends with a footer and the closing magic (the check reads
+    the last 37 bytes of each file, not the data)."""
+    path = Path(path)
+    if path.is_file():
+        files = [path]
+    elif not path.is_dir():
+        raise ValueError(f"{str(path)!r} is neither a bag directory nor an .mcap file")
+    elif not (path / _METADATA_FILE).is_file():
+        raise IncompleteBagError(f"{path}: no {_METADATA_FILE} (the recording was not closed)")
+    else:
+        files = _mcap_files(path)
+    for file in files:
+        if not file.is_file():
+            raise IncompleteBagError(f"{path}: {file.name} is missing (an interrupted recovery?)")
+        if not _is_complete(file):
+            raise IncompleteBagError(f"{path}: {file.name} ends without an MCAP footer "
+                                     f"({file.stat().st_size} bytes: the recording was cut)")
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What :func:`recover_bag` did. ``counts``: the messages per topic in the bag now;
+    ``listed``: the per-topic counts of the metadata.yaml found beside a cut .mcap (None:
+    there was none, as after a kill -9, or the .mcap was complete); ``dropped_bytes``:
+    the bytes after the last complete record of the cut file (an unfinished chunk: its
+    messages are lost); ``rewritten``: the .mcap was rewritten (it was cut);
+    ``metadata_rebuilt``: metadata.yaml was missing and has been written."""
+    counts: dict
+    listed: dict | None
+    dropped_bytes: int
+    rewritten: bool
+    metadata_rebuilt: bool
+
+    @property
+    def lost(self) -> int | None:
+        """Messages lost: listed - recovered (None when nothing listed them)."""
+        if self.listed is None:
+            return None
+        return max(0, sum(self.listed.values()) - sum(self.counts.values()))
+
+    def describe(self) -> str:
+        """What was kept and lost, in one line."""
+        kept = f"{sum(self.counts.values())} messages on {len(self.counts)} topics"
+        if not self.rewritten:
+            if self.metadata_rebuilt:
+                return f"metadata.yaml rebuilt from the complete .mcap ({kept}, nothing lost)"
+            return f"complete bag, nothing to recover ({kept})"
+        if self.lost is not None:
+            lost = f"{self.lost} of the {sum(self.listed.values())} messages its metadata.yaml listed are lost"
+        else:
+            lost = "the messages of the unfinished chunk are lost (nothing recorded how many)"
+        return f"recovered {kept}; {lost}; {self.dropped_bytes} bytes dropped after the last complete record"
+
+
+def recover_bag(path) -> Recovery:
+    """:func:`recover` of a bag directory (or of the directory of an .mcap file), with
+    what it kept and lost (:class:`Recovery`). Only for a bag whose writer is dead."""
+    directory = Path(path)
+    if directory.is_file():
+        directory = directory.parent
+    files = sorted(directory.glob("*.mcap")) if directory.is_dir() else []
+    cut, dropped = not files, 0            # no .mcap: only the .truncated of an interrupted recover()
+    for file in files:
+        if not _is_complete(file):
+            cut = True
+            size = file.stat().st_size
+            with open(file, "rb") as fh:
+                end = _valid_prefix(fh, size)[0] if fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC else 0
+            dropped += max(0, size - end)
+    meta = directory / _METADATA_FILE
+    listed = None
+    if cut and meta.is_file():
+        try:
+            info = yaml.load(meta.read_text(encoding="utf-8"), Loader=_YamlLoader)["rosbag2_bagfile_information"]
+            listed = {t["topic_metadata"]["name"]: int(t["message_count"])
+                      for t in info["topics_with_message_count"]}
+        except (yaml.YAMLError, KeyError, TypeError, ValueError):
+            listed = None
+    metadata_rebuilt = not meta.is_file()
+    counts = recover(directory)
+    return Recovery(counts, listed, dropped, cut, metadata_rebuilt)

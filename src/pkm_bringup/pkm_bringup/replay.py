@@ -12,6 +12,10 @@ Stops from outside the sensor data (``estop`` from another node, wall-clock
 watchdogs) cannot be replayed: with an ``estop`` in the recording only the commands
 before it are compared; a missing state or metrology message ends the comparison
 there. Either is said in the result's note.
+
+A bag its recorder did not finish (killed, cut) is refused with one line saying so;
+``--recover`` first makes it readable up to its last complete chunk
+(``pkm_bringup.bag.recover``).
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ from pathlib import Path
 
 import yaml
 
+from pkm_bringup.bag import IncompleteBagError
+from pkm_bringup.report import incomplete_hint, recover_for_command
+from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_messages
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg
@@ -45,17 +52,17 @@ class ReplayResult:
 
 
 def read_streams(bag_dir: Path, namespace: str) -> dict:
-    """First message per stamp of the loop's topics, the commands in order, the trajectory."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
+    """First message per stamp of the loop's topics, the commands in order, the trajectory.
+    Raises ``IncompleteBagError`` for a bag its recorder did not finish and
+    ``BagReadError`` for one rosbags cannot read."""
     ns = namespace.rstrip("/")
     wanted = {f"{ns}/{t}": t for t in ("drives/state", "drives/command", "metrology/struts", "metrology/pose",
                                       "trajectory", "estop")}
     streams = {t: {} for t in wanted.values() if t not in ("trajectory", "drives/command", "estop")}
     commands, trajectory, estop_log_ns = [], None, None
-    with AnyReader([Path(bag_dir)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+    with open_bag(bag_dir) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
-        for connection, log_ns, raw in reader.messages(connections=connections):
+        for connection, log_ns, raw in read_messages(reader, bag_dir, connections):
             topic = wanted[connection.topic]
             msg = reader.deserialize(raw, connection.msgtype)
             if topic == "trajectory":
@@ -124,12 +131,25 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="pkm-replay", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", help="a run directory of pkm-run (with bag/ and params/controller.yaml)")
+    parser.add_argument("--recover", action="store_true",
+                        help="first make a bag whose recorder was killed readable up to its last complete chunk "
+                             "(pkm_bringup.bag.recover; the original .mcap is kept as .mcap.truncated)")
     args = parser.parse_args(argv)
     run_dir = Path(args.run_dir)
-    if not (run_dir / "bag" / "metadata.yaml").exists() or not (run_dir / "params" / "controller.yaml").exists():
-        print(f"pkm-replay: {run_dir} has no bag/metadata.yaml or params/controller.yaml", file=sys.stderr)
+    if not (run_dir / "bag").is_dir() or not (run_dir / "params" / "controller.yaml").exists():
+        print(f"pkm-replay: {run_dir} has no bag/ or params/controller.yaml", file=sys.stderr)
         return 2
-    result = replay_controller(run_dir)
+    try:
+        if args.recover:
+            recover_for_command("pkm-replay", run_dir)
+    except (NoBagError, ValueError) as exc:       # ValueError: not an MCAP file, several files, ...
+        print(f"pkm-replay: error: {run_dir / 'bag'} cannot be recovered: {exc}", file=sys.stderr)
+        return 2
+    try:
+        result = replay_controller(run_dir)
+    except (NoBagError, IncompleteBagError, BagReadError) as exc:
+        print(incomplete_hint("pkm-replay", run_dir, exc), file=sys.stderr)
+        return 2
     print(f"{result.compared} of {result.commands} recorded commands recomputed, {result.identical} identical, "
           f"max |difference| {result.max_abs_diff_n:.3g} N"
           + (f", first mismatch at command {result.first_mismatch}" if result.first_mismatch is not None else "")
