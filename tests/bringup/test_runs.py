@@ -55,9 +55,9 @@ def _wait_running(run_dir: Path, proc, timeout_s: float = 90.0) -> None:
 
 
 def _commands(run_dir: Path) -> dict:
-    from pkm_bringup.replay import read_streams
-    data = read_streams(run_dir / "bag", "/pkm")
-    return {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec: list(c.effort) for _, c in data["commands"]}
+    from pkm_bringup.replay import recorded_messages
+    return {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec: list(c.effort)
+            for _, _, c in recorded_messages(run_dir / "bag", "/pkm", ("drives/command",))}
 
 
 @pytest.fixture(scope="module")

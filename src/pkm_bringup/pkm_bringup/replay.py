@@ -51,32 +51,6 @@ class ReplayResult:
         return self.compared > 0 and self.identical == self.compared
 
 
-def read_streams(bag_dir: Path, namespace: str) -> dict:
-    """First message per stamp of the loop's topics, the commands in order, the trajectory.
-    Raises ``IncompleteBagError`` for a bag its recorder did not finish and
-    ``BagReadError`` for one rosbags cannot read."""
-    ns = namespace.rstrip("/")
-    wanted = {f"{ns}/{t}": t for t in ("drives/state", "drives/command", "metrology/struts", "metrology/pose",
-                                      "trajectory", "estop")}
-    streams = {t: {} for t in wanted.values() if t not in ("trajectory", "drives/command", "estop")}
-    commands, trajectory, estop_log_ns = [], None, None
-    with open_bag(bag_dir) as reader:
-        connections = [c for c in reader.connections if c.topic in wanted]
-        for connection, log_ns, raw in read_messages(reader, bag_dir, connections):
-            topic = wanted[connection.topic]
-            msg = reader.deserialize(raw, connection.msgtype)
-            if topic == "trajectory":
-                trajectory = trajectory or msg
-            elif topic == "drives/command":
-                commands.append((log_ns, msg))
-            elif topic == "estop":
-                if msg.data and estop_log_ns is None:
-                    estop_log_ns = log_ns
-            else:
-                streams[topic].setdefault(stamp_to_ns(msg.header.stamp), msg)
-    return {"commands": commands, "trajectory": trajectory, "estop_log_ns": estop_log_ns, **streams}
-
-
 def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
     params = yaml.safe_load((run_dir / "params" / "controller.yaml").read_text(encoding="utf-8"))
     params = params["/**"]["ros__parameters"]
@@ -84,48 +58,103 @@ def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
     return params["machine"], ControllerConfig(**{k: v for k, v in params.items() if k in names})
 
 
+LOOP_TOPICS = ("drives/state", "drives/command", "metrology/struts", "metrology/pose", "estop")
+
+
+def recorded_messages(bag_dir: Path, namespace: str, topics=LOOP_TOPICS):
+    """(topic without the namespace, log time ns, message) of ``topics``, in log time
+    order (a command is logged after the state and metrology it answers). Raises
+    ``IncompleteBagError`` for a bag its recorder did not finish and ``BagReadError``
+    for one rosbags cannot read."""
+    ns = namespace.rstrip("/")
+    wanted = {f"{ns}/{t}": t for t in topics}
+    with open_bag(bag_dir) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        if not connections:                   # (rosbags reads every connection for an empty list)
+            return
+        for connection, log_ns, raw in read_messages(reader, bag_dir, connections):
+            yield wanted[connection.topic], log_ns, reader.deserialize(raw, connection.msgtype)
+
+
+class _Replay:
+    """The comparison, fed one recorded message at a time: memory stays bounded by the
+    states and readings not answered yet, however long the run."""
+
+    def __init__(self, core: ControllerCore, metrology: str | None):
+        self.core, self.metrology = core, metrology
+        self.inputs = {"drives/state": {}, "metrology/struts": {}, "metrology/pose": {}}
+        self.commands = self.compared = self.identical = 0
+        self.max_diff, self.first, self.note = 0.0, None, ""
+        self.stopped = False             # an estop, or an input missing: nothing compared after it
+        self.trajectory_seen = False
+
+    def add(self, topic: str, msg) -> None:
+        if topic == "trajectory":
+            if not self.trajectory_seen:
+                self.trajectory_seen = True
+                self.core.set_trajectory(reference_from_msg(msg, self.core.planar), None)
+        elif topic == "estop":
+            if msg.data and not self.stopped:     # a stop from outside the sensor data: not replayable
+                self.stopped = True
+                self.note = f"estop recorded: the {self.commands} commands before it are compared"
+        elif topic == "drives/command":
+            self.command(msg)
+        else:
+            self.inputs[topic].setdefault(stamp_to_ns(msg.header.stamp), msg)
+
+    def command(self, command) -> None:
+        i, self.commands = self.commands, self.commands + 1
+        if self.stopped:
+            return
+        stamp = stamp_to_ns(command.header.stamp)
+        state = self.inputs["drives/state"].get(stamp)
+        metrology = self.inputs[self.metrology] if self.metrology else {}
+        if state is None or (self.metrology and stamp not in metrology):
+            missing = "drives/state" if state is None else self.metrology
+            self.note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
+            self.stopped = True
+            return
+        struts = pose = None
+        if self.metrology == "metrology/struts":
+            struts = list(metrology[stamp].position)
+        elif self.metrology == "metrology/pose":
+            position, rotation = pose_from_msg(metrology[stamp])
+            pose = (position.tolist(), rotation)
+        forces = self.core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
+                                  struts=struts, metrology_pose=pose)
+        for inputs in self.inputs.values():       # answered: older stamps are never asked for again
+            for old in [t for t in inputs if t <= stamp]:
+                del inputs[old]
+        recorded = [float(f) for f in command.effort]
+        self.compared += 1
+        if forces == recorded:
+            self.identical += 1
+        elif self.first is None:
+            self.first = i
+        self.max_diff = max(self.max_diff, max((abs(a - b) for a, b in zip(forces, recorded)), default=0.0))
+
+
 def replay_controller(run_dir: str | Path) -> ReplayResult:
-    """Recompute every recorded command of ``run_dir`` and compare (see module doc)."""
+    """Recompute every recorded command of ``run_dir`` and compare (see module doc),
+    streaming the bag."""
     run_dir = Path(run_dir)
     run = json.loads((run_dir / "run.json").read_text(encoding="utf-8")) if (run_dir / "run.json").exists() else {}
     machine, config = controller_config(run_dir)
-    data = read_streams(run_dir / "bag", run.get("namespace", "/pkm"))
     core = ControllerCore(load_machine(machine), config)
-    if data["trajectory"] is not None:
-        core.set_trajectory(reference_from_msg(data["trajectory"], core.planar), None)
-    compared = identical = 0
-    max_diff, first, note = 0.0, None, ""
-    if data["trajectory"] is None:
-        note = "no trajectory in the recording (the run ended before it started?)"
-    commands = data["commands"]
-    if data["estop_log_ns"] is not None:      # a stop from outside the sensor data: not replayable
-        commands = [(t, c) for t, c in commands if t < data["estop_log_ns"]]
-        note = f"estop recorded: the {len(commands)} commands before it are compared"
     metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
-    for i, (_, command) in enumerate(commands):
-        stamp = stamp_to_ns(command.header.stamp)
-        state = data["drives/state"].get(stamp)
-        if state is None or (metrology and stamp not in data[metrology]):
-            missing = "drives/state" if state is None else metrology
-            note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
-            break
-        struts = pose = None
-        if metrology == "metrology/struts":
-            struts = list(data[metrology][stamp].position)
-        elif metrology == "metrology/pose":
-            position, rotation = pose_from_msg(data[metrology][stamp])
-            pose = (position.tolist(), rotation)
-        forces = core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
-                             struts=struts, metrology_pose=pose)
-        recorded = [float(f) for f in command.effort]
-        compared += 1
-        diff = max((abs(a - b) for a, b in zip(forces, recorded)), default=0.0)
-        if forces == recorded:
-            identical += 1
-        elif first is None:
-            first = i
-        max_diff = max(max_diff, diff)
-    return ReplayResult(len(data["commands"]), compared, identical, max_diff, first, note)
+    replay = _Replay(core, metrology)
+    namespace = run.get("namespace", "/pkm")
+    # the trajectory first: the controller had it before its first answer, but the
+    # recorder logs it when it receives it (latched), which can be later
+    for topic, _, msg in recorded_messages(run_dir / "bag", namespace, ("trajectory",)):
+        replay.add(topic, msg)
+        break
+    for topic, _, msg in recorded_messages(run_dir / "bag", namespace):
+        replay.add(topic, msg)
+    note = replay.note
+    if not replay.trajectory_seen and not note:
+        note = "no trajectory in the recording (the run ended before it started?)"
+    return ReplayResult(replay.commands, replay.compared, replay.identical, replay.max_diff, replay.first, note)
 
 
 def main(argv=None) -> int:
