@@ -63,6 +63,8 @@ class ControllerNode(LifecycleNode):
         self.trajectory_accepted = False
         self.start_received = False    # run/start (latched Bool) from an orchestrator
         self.answers_published = 0     # drives/command and controller/reference, one each per answer
+        self.last_answer = (None, b"")  # (stamp, command bytes): sent again when the sim repeats the state
+        self.commands_resent = 0
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
                                               "to a recorder in batches (pkm_common.tap)"))
         if declare_bool(self, "autostart", True, "configure and activate at start"):
@@ -165,7 +167,13 @@ class ControllerNode(LifecycleNode):
         if msg.frame_id.startswith("safe_stop") and not self.core.stopped:
             self.safe_stop_plant(msg.frame_id)     # the drives' status word: the plant braked
         if not self.pairing.state_arrived(msg.stamp_ns, now):
-            return                     # a repeat (sim_hw republishes step 0 until answered)
+            # a repeat: sim_hw republishes a state it has no answer for (step 0 until the
+            # graph is connected; later a lost message); our answer was lost: again
+            stamp, command = self.last_answer
+            if stamp == msg.stamp_ns and command:
+                self.pub_command.publish(command)    # not tapped: the bag holds one per stamp
+                self.commands_resent += 1
+            return
         start = time.perf_counter()
         prepared = self.prepare(msg)
         self.prepare_s = time.perf_counter() - start
@@ -240,7 +248,9 @@ class ControllerNode(LifecycleNode):
         end = time.perf_counter()
         self.compute_s.add(self.prepare_s + end - complete_start)
         self.response_s.add(end - start)
-        self.publish_command(self.command_encoder.encode(stamp, effort=forces))
+        command = self.command_encoder.encode(stamp, effort=forces)
+        self.publish_command(command)
+        self.last_answer = (stamp, command)
         self.answers_published += 1
         if core.stopped and not self.was_stopped:
             self.safe_stop(core.stop_reason, core.stop_cause)
@@ -280,7 +290,8 @@ class ControllerNode(LifecycleNode):
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.core is not None:
             with open(path, "w", encoding="utf-8") as fh:
-                json.dump(run_summary(self.core, self.compute_s, self.response_s, self.answers_published), fh,
+                json.dump({**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
+                           "commands_resent": self.commands_resent}, fh,
                           indent=2)
         return super().destroy_node()
 

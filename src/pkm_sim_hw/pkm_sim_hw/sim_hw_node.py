@@ -51,6 +51,7 @@ from pkm_kinematics import load_machine
 from pkm_sim_hw.authority import APPLY, STALE, CommandGate, Refusal
 from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
 
+REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
 UNKNOWN = "_NODE_NAME_UNKNOWN_"   # an endpoint discovered before its node's name
 REFUSALS_PER_S = 50          # refusal records published a second at most (the rest are counted)
 
@@ -115,7 +116,7 @@ class SimHwNode(Node):
         self.first_command_wall = None
         self.dt_ns = round(params.dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0,
-                       "refused_loads": 0, "refusals_not_published": 0}
+                       "refused_loads": 0, "refusals_not_published": 0, "state_repeats": 0}
         self.intruder = ""
         self._refusal_window = (0.0, 0)         # (start of the second, records published in it)
         self._next_log_s = 0.0
@@ -329,6 +330,12 @@ class SimHwNode(Node):
         silence_s = self.command_watchdog.silence_s(time.monotonic())
         if not self.started:
             self.publish_state()                   # until the controller has discovered us
+        elif self.lockstep and silence_s is not None and silence_s >= REPEAT_AFTER_S:
+            # no answer yet: a state, a reading or a command was lost on the way (a
+            # reliable sample lost in transport waits for DDS's next heartbeat, seconds);
+            # the repeat is answered again (the controller re-sends its command)
+            self.counts["state_repeats"] += 1
+            self.publish_state()
         if self.started and not self.intruder:
             intruder = self.gate.check_publishers(self.command_publishers())
             if intruder:
