@@ -163,6 +163,10 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     if os.environ.get("PKM_CAMPAIGN_TABLE"):
         with open(os.environ["PKM_CAMPAIGN_TABLE"], "a", encoding="utf-8") as fh:
             fh.write(json.dumps(row) + "\n")
+    # deterministic to the stop and past it: every recorded command recomputed offline
+    from pkm_bringup.replay import replay_controller
+    replayed = replay_controller(tmp_path / case)
+    assert replayed.ok and replayed.compared >= round(ONSET_S / 0.001), replayed
     assert held < HOLD_BOUND_M, row
     assert error < FOLLOW_BOUND_M, row
     assert row["detection_ms"] < 500.0, row

@@ -189,9 +189,12 @@ def _publish_start(node) -> None:
 def _refuse_intruders(monitor, s: Scenario) -> None:
     """Only the run's controller may publish drives/command (sim_hw stops on any other:
     refused here before the run starts, naming the node)."""
+    from pkm_common.conversions import publisher_names
     topic = s.topic("drives/command")
-    others = sorted({f"{p.node_namespace.rstrip('/')}/{p.node_name}" for p in monitor.get_publishers_info_by_topic(topic)
-                     if p.node_name != "_NODE_NAME_UNKNOWN_"} - {controller_node_name(s)})   # not known yet
+    names = publisher_names(monitor.get_publishers_info_by_topic(topic))
+    others = sorted(set(names) - {controller_node_name(s)})
+    if names.count(controller_node_name(s)) > 1:          # an orphan of an earlier run, of the same name
+        others.append(f"a second {controller_node_name(s)}")
     if others:
         raise RunFailed(f"intruder: {', '.join(others)} publishes on {topic}, where only {controller_node_name(s)} "
                         "may; stop it or use another domain")
@@ -209,6 +212,22 @@ def _connected(monitor, s: Scenario) -> bool:
         if monitor.count_publishers(name) < 1 or (topic in edges and monitor.count_subscribers(name) < 1):
             return False
     return True
+
+
+def _scheduling(s: Scenario, node: str):
+    """The realtime profile's scheduling of ``node`` when the scenario asks for it."""
+    from pkm_bringup.rt_profile import scheduling
+    return scheduling(node) if s.realtime_profile else None
+
+
+def _in_process_profile(s: Scenario, in_process: bool):
+    """One process with the realtime profile: the whole orchestrator at the loop's
+    priority with its memory locked for the run (the recorder, on the loop's thread,
+    with it), then as before; a no-op otherwise."""
+    if not (in_process and s.realtime_profile):
+        return contextlib.nullcontext()
+    from pkm_bringup.rt_profile import applied_to_this_process
+    return applied_to_this_process()
 
 
 def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
@@ -234,7 +253,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         for name in START_ORDER:
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
-                                         run_dir / "logs", os.environ.copy())
+                                         run_dir / "logs", os.environ.copy(), _scheduling(s, name))
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (_connected(monitor, s) and (not s.record or ready.exists())):
@@ -245,7 +264,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             executor.spin_once(timeout_sec=0.05)
         if "trajectory" in params:          # the run starts when the controller has its trajectory
             nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
-                                             run_dir / "logs", os.environ.copy())
+                                             run_dir / "logs", os.environ.copy(), _scheduling(s, "trajectory"))
         else:                               # ... or the start signal
             _publish_start(monitor)
         deadline = time.monotonic() + s.timeout_s
@@ -434,7 +453,8 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
                         - sensor.get("published", {}).get("metrology/struts", 0)) if sensor and sim else 0
     run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
-           "metrology": s.metrology, "duration_s": s.duration_s, "wall_s": wall_s,
+           "metrology": s.metrology, "realtime_profile": s.realtime_profile, "duration_s": s.duration_s,
+           "wall_s": wall_s,
            "status": run_status(error, cause), "error": error, "cause": str(cause), "trip_reason": reason,
            "sensor_missed_steps": sensor_missed, "exit_codes": codes,
            "published": published, "recorded": recorded, "lost": lost, "summaries": summaries}
@@ -445,7 +465,12 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
 def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
                  report: bool = True) -> dict:
     """Run ``s`` into ``run_dir`` (created); returns run.json's content (status
-    ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded."""
+    ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded.
+    Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
+    when the scenario asks for the realtime profile and the OS does not allow it."""
+    if s.realtime_profile:
+        from pkm_bringup.rt_profile import check_permitted
+        check_permitted(in_process)
     for sub in ("params", "logs", "summaries"):
         (run_dir / sub).mkdir(parents=True, exist_ok=True)
     for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
@@ -461,7 +486,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     error, codes = "", {}
     try:
         run = run_in_process if in_process else run_processes
-        with RunLock(s.namespace):
+        with RunLock(s.namespace), _in_process_profile(s, in_process):
             run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
     except RunFailed as exc:
         error = str(exc)
@@ -476,7 +501,10 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         (run_dir / "run.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         from pkm_bringup.report import write_report
-        result["metrics"] = write_report(run_dir)
+        try:
+            result["metrics"] = write_report(run_dir)
+        except (ValueError, OSError) as exc:      # an unreadable bag (IncompleteBagError, ...): said, no traceback
+            result["report_error"] = str(exc)
     return result
 
 
@@ -530,6 +558,8 @@ def format_summary(run: dict, run_dir: Path) -> str:
     if ctrl:
         lines.append(f"  controller: {ctrl.get('message')}  compute p50 {ctrl.get('compute_us_p50', 0):.0f} us"
                      f"  p99 {ctrl.get('compute_us_p99', 0):.0f} us")
+    if run.get("report_error"):
+        lines.append(f"  no report: {run['report_error']}")
     if run.get("metrics"):
         from pkm_bringup.report import summary
         lines.append("  " + summary(run["metrics"]).replace("\n", "\n  "))
@@ -549,12 +579,24 @@ def main(argv=None) -> int:
     parser.add_argument("--run-dir", help="exact run directory (must not exist)")
     parser.add_argument("--no-record", action="store_true")
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--rt-profile", action="store_true",
+                        help="realtime profile: SCHED_FIFO and locked memory for the loop's nodes "
+                             "(the scenario key realtime_profile; needs root or CAP_SYS_NICE and CAP_IPC_LOCK)")
     args = parser.parse_args(argv)
+    overrides = {**({"record": False} if args.no_record else {}),
+                 **({"realtime_profile": True} if args.rt_profile else {})}
     try:
-        s = load_scenario(args.scenario, {"record": False} if args.no_record else None)
+        s = load_scenario(args.scenario, overrides)
     except ScenarioError as exc:
         print(f"pkm-run: {exc}", file=sys.stderr)
         return 2
+    if s.realtime_profile:                  # refused before anything is made or started
+        from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
+        try:
+            check_permitted(args.in_process)
+        except RealtimeProfileRefused as exc:
+            print(f"pkm-run: {exc}", file=sys.stderr)
+            return 2
     run_dir = (Path(args.run_dir) if args.run_dir else make_run_dir(s, Path(args.runs))).resolve()
     if run_dir.exists() and any(run_dir.iterdir()):
         print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)

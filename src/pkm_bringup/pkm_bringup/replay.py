@@ -31,6 +31,7 @@ import yaml
 from pkm_bringup.bag import IncompleteBagError
 from pkm_bringup.report import incomplete_hint, recover_for_command
 from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_messages
+from pkm_common.causes import plant_stop_cause
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg
@@ -99,7 +100,7 @@ class _Replay:
                 self.note = f"estop recorded: the {self.commands} commands before it are compared"
         elif topic == "drives/command":
             self.command(msg)
-        else:
+        elif not self.stopped:                    # after a stop nothing is compared: nothing kept
             self.inputs[topic].setdefault(stamp_to_ns(msg.header.stamp), msg)
 
     def command(self, command) -> None:
@@ -120,6 +121,9 @@ class _Replay:
         elif self.metrology == "metrology/pose":
             position, rotation = pose_from_msg(metrology[stamp])
             pose = (position.tolist(), rotation)
+        plant_cause = plant_stop_cause(state.header.frame_id)
+        if plant_cause is not None and not self.core.stopped:
+            self.core.plant_stopped(plant_cause)  # the node does so on the drives' status word
         forces = self.core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
                                   struts=struts, metrology_pose=pose)
         for inputs in self.inputs.values():       # answered: older stamps are never asked for again

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import enum
 
-__all__ = ["TripCause", "parse_cause", "run_status"]
+__all__ = ["TripCause", "parse_cause", "run_status", "plant_status_word", "plant_stop_cause"]
+
+STATUS_PREFIX = "safe_stop:"
 
 
 class TripCause(str, enum.Enum):
@@ -47,6 +49,23 @@ def parse_cause(text: str) -> TripCause:
         return TripCause(text)
     except ValueError:
         raise ValueError(f"cause: must be one of {[c.value for c in TripCause]}, got {text!r}") from None
+
+
+def plant_status_word(cause: TripCause) -> str:
+    """The plant's status in ``drives/state``'s ``header.frame_id`` once braked (empty
+    while running): in band, like a drive's status word."""
+    return f"{STATUS_PREFIX}{TripCause(cause).value}"
+
+
+def plant_stop_cause(frame_id: str) -> TripCause | None:
+    """The cause in a drive state's status word, None while the plant runs (an unknown
+    cause from a newer plant: ``PLANT_SAFE_STOP``)."""
+    if not frame_id.startswith(STATUS_PREFIX):
+        return None
+    try:
+        return TripCause(frame_id[len(STATUS_PREFIX):])
+    except ValueError:
+        return TripCause.PLANT_SAFE_STOP
 
 
 def run_status(error: str, cause: TripCause) -> str:

@@ -271,3 +271,13 @@ def line_list_markers(segments, stamp, frame_id: str = "world", ns: str = "legs"
     for a, b in segments:
         marker.points += [Point(x=a[0], y=a[1], z=a[2]), Point(x=b[0], y=b[1], z=b[2])]
     return MarkerArray(markers=[marker])
+
+
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"     # an endpoint discovered before its node's name
+
+
+def publisher_names(infos) -> list[str]:
+    """Full node names (``/ns/name``) of ``get_publishers_info_by_topic``'s entries, one
+    per publisher (a node with two publishers is named twice); endpoints whose node is
+    not discovered yet are left out."""
+    return [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos if i.node_name != UNKNOWN_NODE]

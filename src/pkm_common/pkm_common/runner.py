@@ -9,13 +9,15 @@ the context.
 Exit codes: 0 after SIGINT / SIGTERM (a flag ends the loop between callbacks, then
 the ordered teardown; a KeyboardInterrupt is caught too); 2 when
 the node refuses its parameters or configuration (ParameterError, or any ValueError
-raised while it is built; logged as one line naming the parameter); 1 for any other
-exception.
+raised while it is built; logged as one line naming the parameter), or when the memory
+lock asked for by ``PKM_MLOCKALL=1`` fails (pkm-run's realtime profile,
+pkm_bringup.rt_profile); 1 for any other exception.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import gc
 import os
 import signal
@@ -29,6 +31,29 @@ from rclpy.executors import ExternalShutdownException
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
 EXECUTORS = ('single', 'events')
+# "1": run_node locks the process's memory once the node is built (lock_memory)
+MEMORY_LOCK_ENV = 'PKM_MLOCKALL'
+_MCL_CURRENT, _MCL_FUTURE = 1, 2            # sys/mman.h
+
+
+def _libc():
+    return ctypes.CDLL(None, use_errno=True)
+
+
+def lock_memory() -> None:
+    """``mlockall(MCL_CURRENT | MCL_FUTURE)``: every page mapped now is faulted in and
+    locked, and so is every later mapping when it is made, so that the loop never waits
+    for a page (no swap-in, no reload of an evicted page of code, no first-touch fault
+    of a page mapped before). Raises OSError (ENOMEM: over the memlock limit without
+    CAP_IPC_LOCK, or out of memory; EPERM)."""
+    if _libc().mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:
+        err = ctypes.get_errno()
+        raise OSError(err, f'mlockall(MCL_CURRENT | MCL_FUTURE): {os.strerror(err)}')
+
+
+def unlock_memory() -> None:
+    """``munlockall``: undoes lock_memory (an embedding process left as it was)."""
+    _libc().munlockall()
 
 
 def make_executor(kind: str, context):
@@ -79,6 +104,7 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     node = None
     exec_ = None
     code = EXIT_OK
+    locked = False
     try:
         try:
             node = factory(context=context)
@@ -87,6 +113,13 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
             return EXIT_BAD_PARAMETER
         exec_ = make_executor(executor, context)
         exec_.add_node(node)
+        if os.environ.get(MEMORY_LOCK_ENV) == '1':
+            try:
+                lock_memory()
+                locked = True
+            except OSError as exc:
+                node.get_logger().error(f'realtime profile: memory not locked: {exc}')
+                return EXIT_BAD_PARAMETER
         with start_up_frozen():
             while context.ok() and not stop:
                 exec_.spin_once(timeout_sec=spin_period_s)
@@ -106,6 +139,8 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
         if exec_ is not None:
             exec_.shutdown()
         rclpy.try_shutdown(context=context)
+        if locked:
+            unlock_memory()
         for sig, handler in previous.items():     # leave an embedding process as it was
             signal.signal(sig, handler)
     return code

@@ -325,14 +325,9 @@ class ControllerCore:
         self.record.forces = tuple(self.last_command)
         return list(self.last_command)
 
-    def plant_stopped(self, status: str) -> list:
-        """The plant braked on its own; ``status``: the drives' status word
-        (``safe_stop:<cause>``). The stop is the plant's, with the plant's cause."""
-        _, _, text = status.partition(":")
-        try:
-            cause = TripCause(text)
-        except ValueError:
-            cause = TripCause.PLANT_SAFE_STOP
+    def plant_stopped(self, cause: TripCause) -> list:
+        """The plant braked on its own (the drives' status word, pkm_common.causes): the
+        stop is the plant's, with the plant's cause."""
         return self.trip(f"the plant stopped ({cause})", cause)
 
     def _check_state(self, q, qdot, applied) -> str:
@@ -503,8 +498,7 @@ class ControllerCore:
         else:
             expected_ddq = [0.0] * self.n
         expected_dq = (rows @ np.asarray(c.v_d, dtype=float) * c.dt).tolist()
-        consecutive = abs(c.dt - self.config.dt_s) < 1e-3 * self.config.dt_s
-        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, self.failed, consecutive,
+        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, c.dt, self.failed,
                                           c.rows if self.n > 3 else None)
         if drive < 0:
             return True

@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.causes import TripCause
+from pkm_common.causes import TripCause, plant_stop_cause
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
@@ -164,8 +164,9 @@ class ControllerNode(LifecycleNode):
             if not self.core.stopped:
                 self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
             return
-        if msg.frame_id.startswith("safe_stop") and not self.core.stopped:
-            self.safe_stop_plant(msg.frame_id)     # the drives' status word: the plant braked
+        plant_cause = plant_stop_cause(msg.frame_id)
+        if plant_cause is not None and not self.core.stopped:
+            self.safe_stop_plant(plant_cause)      # the drives' status word: the plant braked
         if not self.pairing.state_arrived(msg.stamp_ns, now):
             # a repeat: sim_hw republishes a state it has no answer for (step 0 until the
             # graph is connected; later a lost message); our answer was lost: again
@@ -269,10 +270,10 @@ class ControllerNode(LifecycleNode):
         stamp = ns_to_stamp(round((self.core.last_time_s or 0.0) * 1e9))
         self.pub_status.publish(diagnostic_array(stamp, [diagnostic_status("controller", level, message, values)]))
 
-    def safe_stop_plant(self, status: str) -> None:
-        """The plant stopped on its own (``safe_stop:<cause>`` in drives/state): the
+    def safe_stop_plant(self, cause: TripCause) -> None:
+        """The plant stopped on its own (its status word in drives/state): the
         controller stops with the plant's cause, not as a drive failure."""
-        self.core.plant_stopped(status)
+        self.core.plant_stopped(cause)
         self.safe_stop(self.core.stop_reason, self.core.stop_cause)
 
     def safe_stop(self, reason: str, cause: TripCause) -> None:

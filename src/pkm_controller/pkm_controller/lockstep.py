@@ -45,10 +45,11 @@ class StampPairing:
     def state_arrived(self, stamp_ns: int, now_s: float) -> bool:
         """A drive state arrived at ``now_s``: False for a repeat of the stamp last
         answered (nothing to do), True for a new step (it is counted as answered).
-        The watchdog is armed from here on."""
-        self.state_watchdog.feed(now_s)
+        Only a new step feeds the watchdog (armed from the first): the plant repeats a
+        state it has no answer for, and a repeat must not hide a silent metrology."""
         if stamp_ns == self.last_answered_ns:
             return False
+        self.state_watchdog.feed(now_s)
         self.last_answered_ns = stamp_ns
         return True
 

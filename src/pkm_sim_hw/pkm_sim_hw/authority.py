@@ -7,11 +7,13 @@ hardware/controller boundary, made explicit):
 * **Source.** ``command_source`` names the controller node (``/pkm/controller``); empty:
   the one publisher on ``drives/command`` when the first command arrives. Any other
   publisher on the topic, at any time, is an intruder: the plant holds safe and the
-  diagnostics name it. DDS gives no sender per message, so two more checks act per
-  message: each publisher numbers its messages (``publication_sequence_number``), so
-  a number that does not follow the last one means a second writer; and the graph is
-  asked who publishes (``get_publishers_info_by_topic``) at the first command and on
-  every watchdog tick.
+  diagnostics name it. DDS gives no sender per message; the node counts the
+  publishers matched to its subscription (the ``matched`` event, which comes before a
+  new publisher's first message) and asks the graph who publishes
+  (``get_publishers_info_by_topic``) at the first command and on every watchdog tick.
+  (Each publisher numbers its messages, but rclpy 7.1.6's EventsExecutor raises a
+  SystemError for a raw subscription that asks for the message info, so the numbers
+  are not used.)
 * **Stamps.** A command answers a published state: one stamped after the plant's
   current step is refused; in real time one older than ``max_age_ns`` is refused too
   (in lockstep older stamps are the discovery repeats, counted as stale).
@@ -53,7 +55,6 @@ class CommandGate:
         self.lockstep = lockstep
         self.max_age_ns = max_age_ns
         self.source = command_source         # the controller, once known
-        self.last_sequence = None
 
     def check_stamp(self, stamp_ns: int, now_ns: int) -> str | Refusal:
         """APPLY, STALE (lockstep: an answer to an older state) or a Refusal."""
@@ -70,32 +71,28 @@ class CommandGate:
                            stamp_ns, stop=False)
         return APPLY
 
-    def check_sequence(self, sequence: int | None, stamp_ns: int) -> Refusal | None:
-        """A publication sequence number that does not follow the previous one: a
-        second writer on the topic (None when the middleware gives no number)."""
-        if not sequence:
-            return None
-        last, self.last_sequence = self.last_sequence, sequence
-        if last is None or sequence > last:
-            return None
-        return Refusal(f"a second publisher on drives/command (sequence number {sequence} after {last})",
-                       TripCause.INTRUDER, stamp_ns, self.source and f"not {self.source}")
-
     def check_publishers(self, publishers: list[str]) -> Refusal | None:
-        """The fully qualified names of the nodes publishing drives/command: any
-        other than the controller is an intruder. Before the controller is known
-        (no ``command_source``, no command yet) nothing is decided."""
+        """The fully qualified names of the nodes publishing drives/command, one per
+        publisher: any other than the controller, or a second publisher under its
+        name (an orphan of an earlier run), is an intruder. Before the controller is
+        known (no ``command_source``, no command yet) nothing is decided."""
         if not self.source:
             return None
         others = sorted({p for p in publishers if p != self.source})
+        if publishers.count(self.source) > 1:
+            others.append(f"a second {self.source}")
         if not others:
             return None
         return Refusal(f"{', '.join(others)} publishes on drives/command (only {self.source} may)",
                        TripCause.INTRUDER, sender=", ".join(others))
 
-    def connect(self, publishers: list[str]) -> Refusal | None:
+    def connect(self, publishers: list[str], matched: int = 1) -> Refusal | None:
         """At the first command: the controller is the expected one, or else the one
-        publisher there is; two publishers without a ``command_source`` are refused."""
+        publisher there is; two publishers (``matched`` to the subscription, named or
+        not yet) without a ``command_source`` are refused."""
+        if not self.source and matched > 1:
+            return Refusal(f"{matched} publishers on drives/command: set command_source to the controller's node "
+                           "name", TripCause.INTRUDER, sender=", ".join(sorted(set(publishers))))
         if not self.source:
             distinct = sorted(set(publishers))
             if len(distinct) > 1:

@@ -38,11 +38,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from pkm_common.causes import TripCause
+from pkm_common.causes import TripCause, plant_status_word
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
-                                    ns_to_stamp)
+                                    ns_to_stamp, publisher_names)
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -52,7 +52,6 @@ from pkm_sim_hw.authority import APPLY, STALE, CommandGate, Refusal
 from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
-UNKNOWN = "_NODE_NAME_UNKNOWN_"   # an endpoint discovered before its node's name
 REFUSALS_PER_S = 50          # refusal records published a second at most (the rest are counted)
 
 
@@ -62,7 +61,8 @@ class SimHwNode(Node):
         machine = declare_str(self, "machine", "archi", "config/machines/<name>.yaml")
         self.config = load_machine(machine)
         n = self.config.model.n_legs
-        faults = declare_str(self, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>]'", allow_empty=True)
+        faults = declare_str(self, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>[:<size_m>]]' (size: "
+                             "encoder_slip)", allow_empty=True)
         params = PlantParameters(
             dt_s=declare_float(self, "dt_s", 0.001, 1e-5, 0.1, "exchange period", unit="s"),
             substeps=declare_int(self, "substeps", 1, 1, 1000, "physics substeps per period"),
@@ -118,6 +118,7 @@ class SimHwNode(Node):
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0,
                        "refused_loads": 0, "refusals_not_published": 0, "state_repeats": 0}
         self.intruder = ""
+        self.command_matches = 1                # publishers matched to drives/command (the matched event)
         self._refusal_window = (0.0, 0)         # (start of the second, records published in it)
         self._next_log_s = 0.0
         self.started = False
@@ -173,9 +174,9 @@ class SimHwNode(Node):
             self.last_published_ns = ns
             self.steps_published += 1
         encoder = self.state_encoder
-        if out.stopped:                           # the status word: braked, and why
+        if self.plant.stopped:                    # the status word: braked, and why (also before a step)
             if self.stopped_encoder is None:
-                self.stopped_encoder = JointStateEncoder(self.plant.names, f"safe_stop:{self.plant.stop_cause}")
+                self.stopped_encoder = JointStateEncoder(self.plant.names, plant_status_word(self.plant.stop_cause))
             encoder = self.stopped_encoder
         self.pub_state.publish(encoder.encode(ns, out.encoder_positions, out.encoder_velocities,
                                               out.applied_forces))
@@ -183,8 +184,8 @@ class SimHwNode(Node):
 
     def publish_diagnostics(self) -> None:
         out = self.plant.output()
-        level = 2 if out.stopped else 0
-        message = f"stopped: {self.plant.stop_reason}" if out.stopped else "running"
+        level = 2 if self.plant.stopped else 0
+        message = f"stopped: {self.plant.stop_reason}" if self.plant.stopped else "running"
         values = {"step": out.step, "time_s": out.time_s, "finished": self.finished,
                   "cause": str(self.plant.stop_cause), "intruder": self.intruder or "none",
                   "mode": "lockstep" if self.lockstep else "realtime",
@@ -232,19 +233,19 @@ class SimHwNode(Node):
                                                   [diagnostic_status("sim_hw/refused", 2, refusal.reason, values)]))
 
     def command_publishers(self) -> list[str]:
-        """Full names of the nodes publishing drives/command (the graph's view; an
-        endpoint whose node is not known yet is left out: the matched count and the
+        """Full names of the nodes publishing drives/command, one per publisher (the
+        graph's view; a node not known yet is left out: the matched count and the
         later ticks see it)."""
-        return [f"{p.node_namespace.rstrip('/')}/{p.node_name}"
-                for p in self.get_publishers_info_by_topic(self.command_sub.topic_name) if p.node_name != UNKNOWN]
+        return publisher_names(self.get_publishers_info_by_topic(self.command_sub.topic_name))
 
     def on_command_matched(self, status) -> None:
         """A publisher matched drives/command (before its first message is delivered)."""
+        self.command_matches = status.current_count
         if self.started and not self.intruder and not self.finished and status.current_count > 1:
             self._refuse(self.gate.check_publishers(self.command_publishers()) or Refusal(
                 f"{status.current_count} publishers on drives/command", TripCause.INTRUDER))
 
-    def on_command(self, buf: bytes, info=None) -> None:
+    def on_command(self, buf: bytes) -> None:
         if self.finished:
             return
         try:
@@ -253,9 +254,7 @@ class SimHwNode(Node):
             self._refuse(str(exc))
             return
         stamp = msg.stamp_ns
-        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
-        intruder = self.gate.check_sequence(seq, stamp) or \
-            (None if self.started else self.gate.connect(self.command_publishers()))
+        intruder = None if self.started else self.gate.connect(self.command_publishers(), self.command_matches)
         if intruder:                               # braked; lockstep goes on with the answers that come
             self._refuse(intruder)
         verdict = self.gate.check_stamp(stamp, self.now_ns())
