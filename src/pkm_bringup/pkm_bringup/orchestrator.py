@@ -13,6 +13,11 @@ else stopped. Ctrl-C / SIGTERM stop everything the same way (the bag is finalize
 In-process (``--in-process``): the same nodes and parameters in one executor, for fast
 tests; in lockstep both modes compute the same run (tests/bringup).
 
+Realtime profile (``--rt-profile``, or the scenario's ``realtime_profile: true``):
+SCHED_FIFO and locked memory for the loop's nodes (rt_profile.py), set as each
+process starts; in one process, for the whole process during the run. Refused (exit
+2, nothing started) where the OS does not allow it.
+
 Run directory::
 
     runs/<date>-<time>_<scenario>/
@@ -540,7 +545,8 @@ def format_summary(run: dict, run_dir: Path) -> str:
     sims = run["summaries"].get("sim_hw", {})
     ctrl = run["summaries"].get("controller", {})
     lines = [f"scenario {run['scenario']} ({run['machine']}, {run['strategy']}"
-             f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}): {run['status']}"]
+             f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}"
+             f"{', realtime profile' if run.get('realtime_profile') else ''}): {run['status']}"]
     if run["error"]:
         lines.append(f"  error: {run['error']}")
     if run.get("cause", "none") != "none":

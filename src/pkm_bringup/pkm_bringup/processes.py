@@ -5,6 +5,11 @@ in its own session (a Ctrl-C in the terminal reaches the orchestrator only, whic
 stops the nodes in order: the recorder last, so that it finalizes a complete bag), with
 ``PR_SET_PDEATHSIG`` = SIGTERM: if the orchestrator itself dies (even by kill -9), the
 kernel terminates its children. stdout and stderr go to ``logs/<node>.log``.
+
+With a ``Scheduling`` of the realtime profile (rt_profile.py), the child gets its
+policy between fork and exec (every thread it creates inherits it) and, when it locks
+its memory, ``PKM_MLOCKALL=1`` in its environment (honoured by
+``pkm_common.runner.run_node``).
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from pkm_bringup.rt_profile import Scheduling, child_environment, preexec
 
 MODULES = {
     "recorder": "pkm_bringup.recorder_node",
@@ -54,13 +61,19 @@ class NodeProcess:
         return "\n".join(text[-lines:])
 
 
-def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict) -> NodeProcess:
+def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict,
+               scheduling: Scheduling | None = None) -> NodeProcess:
+    """Start node ``name``; ``scheduling``: its realtime profile (None: as this process)."""
     log = log_dir / f"{name}.log"
     args = [sys.executable, "-u", "-m", MODULES[name], "--ros-args", "-r", f"__ns:={namespace}",
             "--params-file", str(params_file)]
+    preexec_fn = _die_with_parent
+    if scheduling is not None:
+        env = child_environment(env, scheduling)
+        preexec_fn = preexec(scheduling, before=_die_with_parent)
     with log.open("w") as out:
         popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True, preexec_fn=_die_with_parent)
+                                 start_new_session=True, preexec_fn=preexec_fn)
     return NodeProcess(name, popen, log)
 
 

@@ -22,6 +22,12 @@ node runs by default. Keys (all optional but ``machine``)::
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
+    realtime_profile: false           # SCHED_FIFO for the loop's nodes (controller 80, gough_sensor 70,
+                                      # sim_hw 60) and their memory locked; recorder and trajectory
+                                      # unchanged (pkm_bringup/rt_profile.py). Meant for mode: realtime;
+                                      # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
+                                      # (exit 2, nothing started) where the OS does not allow it.
+                                      # pkm-run --rt-profile sets it.
 
 Every error names the key and what is allowed; nothing is started on a bad scenario:
 the parameters each node will get (node defaults < scenario section < the run's wiring)
@@ -45,7 +51,8 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
-        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "record", "timeout_s")
+        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "record", "timeout_s",
+        "realtime_profile")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder"}
@@ -82,6 +89,7 @@ class Scenario:
     record: bool = True
     timeout_s: float = 600.0
     description: str = ""
+    realtime_profile: bool = False
 
     @property
     def strategy(self) -> str:
@@ -271,6 +279,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         setattr(s, key, _mapping(data, key, node))
     s.metrology = _boolean(data, "metrology", False)
     s.record = _boolean(data, "record", True)
+    s.realtime_profile = _boolean(data, "realtime_profile", False)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
     if s.strategy in METROLOGY_STRATEGIES and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
