@@ -64,17 +64,27 @@ def test_no_false_alarm_in_a_healthy_move_under_a_load_step(machine_name, strate
     assert not core.stopped, core.stop_reason
 
 
+def check(monitor, q, velocity, dt=1e-3):
+    """monitor.check on drives that each move along one task axis (J rows of the unit
+    matrix, A = I, H = 0, no force): the predicted second difference is 0, the
+    reference moves drive i by velocity[i] dt."""
+    n = len(q)
+    rows = np.eye(3)[:n]
+    v_d = list(velocity) + [0.0] * (3 - n)
+    return monitor.check(q, np.eye(3), np.zeros(3), rows, np.zeros(n), v_d, dt)
+
+
 def test_a_slip_is_confirmed_by_its_return_and_a_load_step_is_not_a_slip():
     monitor = EncoderMonitor(2, jump_m=2e-5, freeze_m=2e-4)
-    q, dt = [0.0, 0.0], 1e-3
+    q = [0.0, 0.0]
     for _ in range(5):
         q = [q[0] + 1e-5, q[1] + 1e-5]
-        assert monitor.check(q, [0.0, 0.0], [1e-5, 1e-5], dt) == (-1, "")
+        assert check(monitor, q, [1e-2, 1e-2]) == (-1, "")
     # drive 0: 15 um once (under the threshold); drive 1: a 30 um slip
     q = [q[0] + 1e-5 + 1.5e-5, q[1] + 1e-5 + 3e-5]
-    assert monitor.check(q, [0.0, 0.0], [1e-5, 1e-5], dt) == (-1, "")      # judged next cycle
+    assert check(monitor, q, [1e-2, 1e-2]) == (-1, "")      # judged next cycle
     q = [q[0] + 1e-5, q[1] + 1e-5]
-    drive, what = monitor.check(q, [0.0, 0.0], [1e-5, 1e-5], dt)
+    drive, what = check(monitor, q, [1e-2, 1e-2])
     assert drive == 1 and what.startswith("slipped") and "+30.0 um" in what
     # a lasting unexplained acceleration (a load step, 25 um per cycle squared) keeps its sign
     monitor = EncoderMonitor(1, jump_m=2e-5, freeze_m=2e-4)
@@ -82,23 +92,23 @@ def test_a_slip_is_confirmed_by_its_return_and_a_load_step_is_not_a_slip():
     for k in range(40):
         v += 2.5e-5 if k >= 5 else 0.0
         q = [q[0] + v]
-        assert monitor.check(q, [0.0], [v], dt) == (-1, ""), k
+        assert check(monitor, q, [v / 1e-3]) == (-1, ""), k
 
 
 def test_encoder_noise_raises_the_threshold_and_a_slip_over_it_is_still_seen():
     import random
     rng = random.Random(1)
     monitor = EncoderMonitor(1, jump_m=2e-5, freeze_m=2e-4)
-    true, dt = 0.0, 1e-3
+    true = 0.0
     for k in range(20000):                     # 20 s at 0.1 m/s, 3 um noise, 1 um counts
         true += 1e-4
         reading = round((true + rng.gauss(0.0, 3e-6)) / 1e-6) * 1e-6
-        assert monitor.check([reading], [0.0], [1e-4], dt) == (-1, ""), k
+        assert check(monitor, [reading], [0.1]) == (-1, ""), k
     assert monitor.threshold(0) > 2e-5
     true += 1e-4
-    monitor.check([round(true / 1e-6) * 1e-6 + 2e-4], [0.0], [1e-4], dt)
+    check(monitor, [round(true / 1e-6) * 1e-6 + 2e-4], [0.1])
     true += 1e-4
-    drive, what = monitor.check([round(true / 1e-6) * 1e-6 + 2e-4], [0.0], [1e-4], dt)
+    drive, what = check(monitor, [round(true / 1e-6) * 1e-6 + 2e-4], [0.1])
     assert drive == 0 and what.startswith("slipped")
 
 
@@ -113,9 +123,9 @@ def test_a_test_set_to_zero_is_off():
 
 def test_a_slow_freeze_is_seen_when_the_reference_has_moved_the_drive_freeze_m():
     monitor = EncoderMonitor(1, jump_m=2e-5, freeze_m=2e-4)
-    monitor.check([0.0], [0.0], [0.0], 1e-3)
+    check(monitor, [0.0], [0.0])
     for k in range(1, 300):                  # 1 mm/s: 1 um a cycle, the reading frozen at 0
-        drive, what = monitor.check([0.0], [0.0], [1e-6], 1e-3)
+        drive, what = check(monitor, [0.0], [1e-3])
         if drive >= 0:
             break
     assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202

@@ -265,6 +265,7 @@ class ControllerCore:
         self.stop_cause = TripCause.NONE
         self.faults: list[str] = []
         c = self.config
+        self._no_forces = np.zeros(self.n)
         self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
             if c.encoder_jump_m or c.encoder_freeze_m else None
         self.last_command = [0.0] * self.n
@@ -489,17 +490,9 @@ class ControllerCore:
             # reported forces do not hold): the drive supervision's, not an encoder's
             self.encoders.reset()
             return True
-        rows = np.asarray(c.rows, dtype=float)
-        dt2 = c.dt * c.dt
-        if c.applied is not None and len(c.applied) == self.n:
-            acc = np.linalg.solve(np.asarray(c.a_model, dtype=float),
-                                  rows.T @ np.asarray(c.applied, dtype=float) - np.asarray(c.h_model, dtype=float))
-            expected_ddq = (rows @ acc * dt2).tolist()
-        else:
-            expected_ddq = [0.0] * self.n
-        expected_dq = (rows @ np.asarray(c.v_d, dtype=float) * c.dt).tolist()
-        drive, what = self.encoders.check(c.q, expected_ddq, expected_dq, c.dt, self.failed,
-                                          c.rows if self.n > 3 else None)
+        drive, what = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
+                                          applied if applied is not None and len(applied) == self.n else
+                                          self._no_forces, c.v_d, c.dt, self.failed)
         if drive < 0:
             return True
         self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)

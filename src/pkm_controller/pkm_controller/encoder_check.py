@@ -36,16 +36,90 @@ import math
 
 import numpy as np
 
+from pkm_kinematics.jit import kernel
+
 __all__ = ["EncoderMonitor"]
+
+BIAS_GAIN = 0.2             # of the unexplained acceleration's low-pass (time constant ~5 cycles)
+NOISE_GAIN = 0.01           # of the innovation's running mean square (~100 cycles)
+NOISE_SIGMAS = 8.0          # the jump threshold is at least this many of its running RMS
+CONSISTENT_FRACTION = 0.1   # a redundant machine's readings agree when their residual is under this of the jump
+CONSISTENT_FLOOR_M = 2e-6   # ... or two counts
+
+# outcomes of innovation_kernel
+ENC_OK, ENC_FROZEN_SLOW, ENC_FROZEN, ENC_SLIPPED = 0, 1, 2, 3
+
+
+@kernel("(float64[:], float64[:], float64[:, :])")
+def _readings_consistent(dq, jump_abs, rows):
+    """(jump_abs as a 1-array) Do the readings of a redundant machine agree with one
+    platform motion: |dq - J (J^T J)^-1 J^T dq| under a tenth of the jump, or two counts?"""
+    gram = rows.T @ rows
+    x = np.linalg.solve(gram, rows.T @ dq)
+    residual = dq - rows @ x
+    return math.sqrt(np.sum(residual * residual)) < max(CONSISTENT_FRACTION * jump_abs[0], CONSISTENT_FLOOR_M)
+
+
+@kernel("(float64[:], float64[:], float64[:], boolean, float64[:, :], float64[:], float64[:, :], float64[:], "
+        "float64[:], float64, float64[:], float64[:], float64[:], float64[:], boolean[:], float64, float64, boolean)")
+def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, bias, mean_square, held, candidate,
+                      skip, jump_m, freeze_m, redundant):
+    """One cycle of the test (module docstring) on the readings ``q``; updates the
+    state arrays (last_q, last_dq, bias, mean_square, held, candidate: NaN for none) in
+    place. ``second``: last_dq holds the previous period's, of the same length.
+    Returns (outcome, drive, value): ENC_FROZEN_SLOW with the displacement asked for,
+    ENC_FROZEN / ENC_SLIPPED with the jump; (ENC_OK, -1, 0) if none."""
+    n = q.shape[0]
+    rhs = np.empty(3)
+    for j in range(3):                      # A acc = J^T f - H (ARCHI §3.4)
+        total = -h[j]
+        for i in range(n):
+            total += rows[i, j] * applied[i]
+        rhs[j] = total
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(rhs))):
+        return ENC_OK, -1, 0.0                # a non-finite model: the law's checks name it
+    acc = np.linalg.solve(a, rhs)
+    dq = q - last_q
+    previous = last_dq.copy()
+    last_q[:] = q
+    last_dq[:] = dq
+    dt2 = dt * dt
+    for i in range(n):
+        expected_dq = (rows[i, 0] * v_d[0] + rows[i, 1] * v_d[1] + rows[i, 2] * v_d[2]) * dt
+        if skip[i]:
+            held[i] = 0.0
+            candidate[i] = np.nan
+            continue
+        held[i] = held[i] + expected_dq if dq[i] == 0.0 else 0.0
+        if abs(held[i]) > freeze_m:
+            return ENC_FROZEN_SLOW, i, held[i]
+        if not second:
+            candidate[i] = np.nan
+            continue
+        expected_ddq = (rows[i, 0] * acc[0] + rows[i, 1] * acc[1] + rows[i, 2] * acc[2]) * dt2
+        r = dq[i] - previous[i] - expected_ddq - bias[i]
+        jump = candidate[i]
+        candidate[i] = np.nan
+        if not np.isnan(jump):
+            if dq[i] == 0.0 and previous[i] == 0.0:
+                return ENC_FROZEN, i, jump
+            if r * jump < 0.0 and abs(r) > 0.5 * abs(jump):
+                return ENC_SLIPPED, i, jump
+        threshold = max(jump_m, NOISE_SIGMAS * math.sqrt(mean_square[i]))
+        if abs(r) > threshold and np.isnan(jump):
+            magnitude = np.empty(1)
+            magnitude[0] = abs(r)
+            if not (redundant and _readings_consistent(dq, magnitude, rows)):
+                candidate[i] = r              # judged next cycle; the low-passes wait
+                continue
+        bias[i] += BIAS_GAIN * r
+        mean_square[i] += NOISE_GAIN * (r * r - mean_square[i])
+    return ENC_OK, -1, 0.0
 
 
 class EncoderMonitor:
-    """Per-drive innovation test (module docstring); ``check`` once per cycle.
-    ``jump_m`` or ``freeze_m`` infinite: that test is off."""
-
-    BIAS_GAIN = 0.2             # of the unexplained acceleration's low-pass (time constant ~5 cycles)
-    NOISE_GAIN = 0.01           # of the innovation's running mean square (~100 cycles)
-    NOISE_SIGMAS = 8.0          # the jump threshold is at least this many of its running RMS
+    """Per-drive innovation test (module docstring; innovation_kernel), ``check`` once
+    per cycle. ``jump_m`` or ``freeze_m`` infinite: that test is off."""
 
     def __init__(self, n: int, jump_m: float, freeze_m: float):
         if not (jump_m > 0.0 and freeze_m > 0.0):
@@ -54,71 +128,50 @@ class EncoderMonitor:
         self.reset()
 
     def reset(self) -> None:
-        self.last_q = None
-        self.last_dq = None
+        n = self.n
+        self.last_q, self.last_dq = np.zeros(n), np.zeros(n)
+        self.started = self.second = False
         self.last_dt = None
-        self.bias = [0.0] * self.n
-        self.mean_square = [0.0] * self.n
-        self.candidate: dict[int, float] = {}   # drive -> the jump that waits for its confirmation
-        self.held_m = [0.0] * self.n          # displacement asked for since the reading last changed
+        self.bias, self.mean_square, self.held = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.candidate = np.full(n, np.nan)   # the jump that waits for its confirmation, per drive
+        self.skip = np.zeros(n, dtype=bool)
 
     def threshold(self, i: int) -> float:
         """encoder_jump_m, raised above the innovation's own noise (encoder noise, a
         noisy load): NOISE_SIGMAS times its running RMS."""
-        return max(self.jump_m, self.NOISE_SIGMAS * math.sqrt(self.mean_square[i]))
+        return max(self.jump_m, NOISE_SIGMAS * math.sqrt(self.mean_square[i]))
 
-    def check(self, q, expected_ddq, expected_dq, dt: float, skip=(), rows=None) -> tuple[int, str]:
+    def check(self, q, a, h, rows, applied, v_d, dt: float, skip=()) -> tuple[int, str]:
         """(drive, what) of this cycle's encoder fault, (-1, "") if none: ``q`` the
-        readings, ``expected_ddq`` their second difference the dynamic model predicts,
-        ``expected_dq`` the displacement the reference asked for over the last period
-        ``dt`` (a period unlike the previous one, states skipped in real time: no
-        second difference then), ``skip`` drives not to judge (dropped ones),
-        ``rows``: J_m (n x 3) of a redundant machine, for the consistency of a jump.
-
-        A jump is confirmed in the next cycle, which tells it from a load step: a slip
-        is +delta then about -delta (the reading moved once), a freeze holds the
-        reading; a load step keeps its sign (the unexplained acceleration lasts)."""
-        last, self.last_q = self.last_q, list(q)
-        last_dt, self.last_dt = self.last_dt, dt
-        if last is None:
+        readings; the dynamic model at the measured pose, ``a`` = A (3 x 3), ``h`` = H,
+        ``rows`` = J_m (n x 3); ``applied`` the forces the drives report for the last
+        period ``dt``; ``v_d`` the reference velocity; ``skip`` drives not to judge
+        (dropped ones). A period unlike the previous one (states skipped in real
+        time) gives no second difference. A jump is confirmed in the next cycle,
+        which tells it from a load step: a slip is +delta then about -delta (the
+        reading moved once), a freeze holds the reading; a load step keeps its sign."""
+        q = np.asarray(q, dtype=float)
+        if not self.started:
+            self.started, self.last_dt = True, dt
+            self.last_q[:] = q
             return -1, ""
-        dq = [a - b for a, b in zip(q, last)]
-        last_dq, self.last_dq = self.last_dq, dq
-        if last_dt is None or abs(dt - last_dt) > 1e-3 * last_dt:
-            last_dq = None
-            self.candidate.clear()
-        for i in range(self.n):
-            self.held_m[i] = self.held_m[i] + expected_dq[i] if dq[i] == 0.0 and i not in skip else 0.0
-            if i in skip:
-                self.candidate.pop(i, None)
-                continue
-            if abs(self.held_m[i]) > self.freeze_m:
-                return i, (f"frozen: reading unchanged at {q[i]:.6f} m while the reference moved it "
-                           f"{self.held_m[i] * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
-            if last_dq is None:
-                continue
-            r = dq[i] - last_dq[i] - expected_ddq[i] - self.bias[i]
-            jump = self.candidate.pop(i, None)
-            if jump is not None:
-                if dq[i] == 0.0 and last_dq[i] == 0.0:
-                    return i, (f"frozen: reading held after a jump of {jump * 1e6:+.1f} um off the motion its force "
-                               f"explains (encoder_jump_m {self.jump_m:g})")
-                if r * jump < 0.0 and abs(r) > 0.5 * abs(jump):
-                    return i, (f"slipped: reading {jump * 1e6:+.1f} um off the motion its force explains in one "
-                               f"cycle, and back (encoder_jump_m {self.jump_m:g})")
-            if abs(r) > self.threshold(i) and jump is None and not self._consistent(dq, rows, abs(r)):
-                self.candidate[i] = r             # judged next cycle; the low-passes wait
-                continue
-            self.bias[i] += self.BIAS_GAIN * r
-            self.mean_square[i] += self.NOISE_GAIN * (r * r - self.mean_square[i])
-        return -1, ""
-
-    def _consistent(self, dq, rows, jump: float) -> bool:
-        """Do the readings of a redundant machine still agree with one platform motion?
-        (Their least-squares residual under a tenth of the jump, or two counts.)"""
-        if rows is None or self.n <= 3:
-            return False
-        j = np.asarray(rows, dtype=float)
-        d = np.asarray(dq, dtype=float)
-        residual = d - j @ np.linalg.lstsq(j, d, rcond=None)[0]
-        return float(np.linalg.norm(residual)) < max(0.1 * jump, 2e-6)
+        second = self.second and abs(dt - self.last_dt) <= 1e-3 * self.last_dt
+        self.second, self.last_dt = True, dt
+        self.skip[:] = False
+        for i in skip:
+            self.skip[i] = True
+        code, drive, value = innovation_kernel(
+            q, self.last_q, self.last_dq, second, np.asarray(a, dtype=float), np.asarray(h, dtype=float),
+            np.asarray(rows, dtype=float), np.asarray(applied, dtype=float), np.asarray(v_d, dtype=float),
+            float(dt), self.bias, self.mean_square, self.held, self.candidate, self.skip, self.jump_m,
+            self.freeze_m, self.n > 3)
+        if code == ENC_OK:
+            return -1, ""
+        if code == ENC_FROZEN_SLOW:
+            return drive, (f"frozen: reading unchanged at {q[drive]:.6f} m while the reference moved it "
+                           f"{value * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
+        if code == ENC_FROZEN:
+            return drive, (f"frozen: reading held after a jump of {value * 1e6:+.1f} um off the motion its force "
+                           f"explains (encoder_jump_m {self.jump_m:g})")
+        return drive, (f"slipped: reading {value * 1e6:+.1f} um off the motion its force explains in one cycle, "
+                       f"and back (encoder_jump_m {self.jump_m:g})")
