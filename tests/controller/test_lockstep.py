@@ -96,3 +96,26 @@ def test_repeated_stalls_delay_a_trip_but_never_prevent_it():
         fault = pairing.silence_fault(t, 0.5, 0.2) or _checks(pairing, t + 0.01, t + 0.15)[0]
         t += 0.15
     assert fault == "drives/state: none for 0.5 s" and 0.5 < t < 1.5     # later than 0.5 s, but caught
+
+
+def test_repeats_feed_the_watchdog_only_while_the_first_state_waits():
+    """Discovery may lose the first reading (the plant repeats step 0 until answered):
+    those repeats keep the watchdog quiet. Later a repeat of a pending state does not:
+    a silent Gough trips within metrology_timeout_s."""
+    from pkm_controller.lockstep import StampPairing
+
+    class State:
+        def __init__(self, stamp_ns):
+            self.stamp_ns = stamp_ns
+    pairing = StampPairing(True, "struts")
+    assert pairing.state_arrived(0, 0.0) and pairing.wait_for_reading(State(0))
+    for k in range(1, 20):                      # step 0 repeated every 0.05 s for 0.95 s
+        assert not pairing.state_arrived(0, 0.05 * k)
+        assert pairing.silence_fault(0.05 * k, 0.5, 0.5) is None
+    assert pairing.reading_arrived(0, "reading") is not None
+    assert pairing.state_arrived(1_000_000, 1.0) and pairing.wait_for_reading(State(1_000_000))
+    fault = None
+    for k in range(1, 20):                      # step 1 repeated, its reading never comes
+        assert not pairing.state_arrived(1_000_000, 1.0 + 0.05 * k)
+        fault = fault or pairing.silence_fault(1.0 + 0.05 * k, 0.5, 0.5)
+    assert fault and fault.startswith("metrology/struts: nothing for the state of 0.001 s")

@@ -36,6 +36,7 @@ class StampPairing:
         self.readings: dict[int, object] = {}
         self.pending = None            # the state (with .stamp_ns) waiting for its reading
         self.last_answered_ns: int | None = None
+        self.steps = 0                 # distinct states arrived
         self.state_watchdog = SilenceWatchdog(OWN_STALL_S)
 
     def reset_watchdog(self) -> None:
@@ -45,12 +46,18 @@ class StampPairing:
     def state_arrived(self, stamp_ns: int, now_s: float) -> bool:
         """A drive state arrived at ``now_s``: False for a repeat of the stamp last
         answered (nothing to do), True for a new step (it is counted as answered).
-        Only a new step feeds the watchdog (armed from the first): the plant repeats a
-        state it has no answer for, and a repeat must not hide a silent metrology."""
+        Once the loop runs only a new step feeds the watchdog (armed from the first):
+        the plant repeats a state it has no answer for, and a repeat must not hide a
+        silent metrology. The repeats of the first state do feed it: until the graph
+        is connected, its reading may be lost to discovery (the sensor answers a
+        repeat again)."""
         if stamp_ns == self.last_answered_ns:
+            if self.steps == 1:
+                self.state_watchdog.feed(now_s)
             return False
         self.state_watchdog.feed(now_s)
         self.last_answered_ns = stamp_ns
+        self.steps += 1
         return True
 
     def wait_for_reading(self, state) -> bool:
