@@ -45,6 +45,7 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_li
                                     ns_to_stamp, publisher_names)
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
+from pkm_common.ratelimit import RateLimit
 from pkm_common.runner import main_exit, run_node
 from pkm_common.watchdog import SilenceWatchdog
 from pkm_kinematics import load_machine
@@ -119,8 +120,8 @@ class SimHwNode(Node):
                        "refused_loads": 0, "refusals_not_published": 0, "state_repeats": 0}
         self.intruder = ""
         self.command_matches = 1                # publishers matched to drives/command (the matched event)
-        self._refusal_window = (0.0, 0)         # (start of the second, records published in it)
-        self._next_log_s = 0.0
+        self.record_limit = RateLimit(REFUSALS_PER_S)   # refusal records on drives/refused
+        self.log_limit = RateLimit(1)                   # refusal log lines
         self.started = False
         # the command watchdog does not count this process's own stalls (another node's
         # callback in a shared executor): 3 periods of its 0.1 s timer
@@ -211,21 +212,15 @@ class SimHwNode(Node):
             self.plant.safe_stop(text, refusal.cause)
         self._record_refusal(refusal, topic)
         now = time.monotonic()
-        if now >= self._next_log_s:                # a stream of bad commands must not flood /rosout
-            self._next_log_s = now + 1.0
+        if self.log_limit.allow(now):              # a stream of bad commands must not flood /rosout
             self.get_logger().error(f"{text} ({self.counts['refused_commands']} commands, "
                                     f"{self.counts['refused_loads']} loads refused so far)")
         self.publish_diagnostics()
 
     def _record_refusal(self, refusal: Refusal, topic: str) -> None:
-        start, published = self._refusal_window
-        now = time.monotonic()
-        if now - start >= 1.0:
-            start, published = now, 0
-        if published >= REFUSALS_PER_S:
-            self.counts["refusals_not_published"] += 1
+        if not self.record_limit.allow(time.monotonic()):
+            self.counts["refusals_not_published"] = self.record_limit.suppressed
             return
-        self._refusal_window = (start, published + 1)
         values = {"topic": topic, "reason": refusal.reason, "cause": str(refusal.cause),
                   "stamp_ns": refusal.stamp_ns, "sender": refusal.sender or "unknown",
                   "plant_step": self.plant.k, "stopped": refusal.stop}
