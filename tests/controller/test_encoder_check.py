@@ -129,3 +129,74 @@ def test_a_slow_freeze_is_seen_when_the_reference_has_moved_the_drive_freeze_m()
         if drive >= 0:
             break
     assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202
+
+
+# ---- the Gough cross-check (metrology strategies): each reading against q(x_g)
+
+GOUGH_ONLY = dict(encoder_jump_m=0.0, encoder_freeze_m=0.0)      # the model-based test off
+
+
+@pytest.mark.parametrize("machine_name", ["archi", "mom3"])
+@pytest.mark.parametrize("strategy", ["sensor_space", "measured_space"])
+@pytest.mark.parametrize("kind", ["encoder_freeze", "encoder_slip:0.1:2e-4"])
+def test_the_gough_alone_names_a_frozen_or_slipping_encoder(machine_name, strategy, kind):
+    fault = f"1:{kind}" if ":" in kind else f"1:{kind}:{FAULT_AT_S}"
+    core, log, onset, stop = move(machine_name, strategy, fault, **GOUGH_ONLY)
+    assert core.stopped and core.stop_cause == TripCause.ENCODER_FAULT, core.stop_reason
+    assert f"encoder of drive {core.names[1]} off the Gough metrology" in core.stop_reason, core.stop_reason
+    # a slip: the step and one confirmation; a freeze: the drive moves encoder_gough_m (100 um) first
+    assert stop - onset <= (3 if "slip" in kind else 40), (stop - onset, core.stop_reason)
+    error = np.linalg.norm(np.subtract(log.tool[stop], log.reference[stop])[:2])
+    assert error < 1e-3, error
+
+
+@pytest.mark.parametrize("machine_name", ["archi", "mom3"])
+def test_no_gough_false_alarm_in_a_healthy_move_under_a_load_step(machine_name):
+    core, _, _, _ = move(machine_name, "sensor_space", "",
+                         load=lambda t: [150.0, -100.0, 0.0] if t >= 0.2 else [0.0] * 3, **GOUGH_ONLY)
+    assert not core.stopped, core.stop_reason
+    assert core.gough_check is not None and core.gough_check.bias is not None
+
+
+def test_a_slip_under_encoder_gough_m_is_not_seen_by_the_gough():
+    core, _, _, _ = move("mom3", "sensor_space", "1:encoder_slip:0.1:5e-5", **GOUGH_ONLY)
+    assert not core.stopped, core.stop_reason
+
+
+def test_the_gough_cross_check_is_off_at_zero_and_on_the_encoder_strategies():
+    from pkm_controller.controller import ControllerCore
+    machine = load_machine("mom3")
+    assert ControllerCore(machine, ControllerConfig(strategy="sensor_space", encoder_gough_m=0.0)).gough_check is None
+    assert ControllerCore(machine, ControllerConfig(strategy="computed_torque")).gough_check is None
+    with pytest.raises(ValueError, match="encoder_gough_m: must be in"):
+        ControllerCore(machine, ControllerConfig(strategy="sensor_space", encoder_gough_m=-1.0))
+
+
+class _HiddenBrake(Plant):
+    """A drive whose brake engages without the drive reporting it (the reported force
+    stays the command): only the motion tells."""
+
+    def step(self, forces):
+        out = super().step(forces)
+        if not self.stopped:
+            out.applied_forces = [min(2000.0, max(-2000.0, f)) for f in forces]
+        return out
+
+
+def test_a_hidden_brake_on_a_three_drive_machine_is_not_blamed_on_the_encoder_when_the_gough_sees_it():
+    """The innovation test alone cannot tell a brake (the drive stops) from a frozen
+    reading on MoM3 (3 drives, no redundancy); the Gough can."""
+    results = {}
+    for gough_m in (0.0, 1e-4):
+        machine = load_machine("mom3")
+        home = machine.model.home_position.tolist()
+        samples = plan([Line(np.array(home), np.array([home[0] + 0.04, home[1] + 0.02, home[2]]))], LIMITS,
+                       translation_axes=3)
+        plant = _HiddenBrake(machine, PlantParameters(force_limit_n=2000.0, faults=(f"1:locked:{FAULT_AT_S}",)))
+        ref = Reference(samples.time_s, samples.position, samples.velocity, samples.acceleration)
+        core, _ = run(machine, ControllerConfig(strategy="sensor_space", force_limit_n=2000.0, encoder_gough_m=gough_m),
+                      plant, int(samples.duration_s * 1000) + 100, reference=ref,
+                      sensor=GoughSensorModel(machine.metrology))
+        results[gough_m] = core
+    assert results[0.0].stop_cause == TripCause.ENCODER_FAULT, results[0.0].stop_reason   # the old verdict
+    assert results[1e-4].stopped and results[1e-4].stop_cause != TripCause.ENCODER_FAULT, results[1e-4].stop_reason

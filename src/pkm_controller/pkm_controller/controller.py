@@ -56,7 +56,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
-from .encoder_check import EncoderMonitor
+from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .reference import Reference
 
 STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
@@ -90,6 +90,7 @@ class ControllerConfig:
     continue_on_drive_failure: bool = True
     encoder_jump_m: float = 2e-5          # a reading off its expected motion by this much in one cycle (0: off)
     encoder_freeze_m: float = 2e-4        # a reading held while the reference moved its drive this much (0: off)
+    encoder_gough_m: float = 1e-4         # metrology strategies: a reading this far off the Gough's (0: off)
 
     def validate(self, n_drives: int, planar: bool) -> None:
         checks = [
@@ -116,6 +117,7 @@ class ControllerConfig:
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
             ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
+            ("encoder_gough_m", 0.0 <= self.encoder_gough_m < math.inf, "in [0, inf) m (0: off)"),
         ]
         if self.integral_time_s != 0.0:
             omega = 2.0 * math.pi * self.bandwidth_hz
@@ -160,7 +162,7 @@ class _Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
     __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model", "applied")
+                 "a_d", "a_model", "h_model", "applied", "suspect")
 
     def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
         # q as floats (the joint PIDs) and as the array the compiled kernels take
@@ -168,6 +170,7 @@ class _Cycle:
         # J_m as the (n, 3) array measured_state made, and the rows of the active drives
         self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
+        self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
 
 
 class ControllerCore:
@@ -257,6 +260,7 @@ class ControllerCore:
         self.pose = None                         # encoder FK estimate (warm start)
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
+        self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
         self.integral = [0.0] * self.n if self.config.strategy in JOINT_STRATEGIES else (0.0, 0.0, 0.0)
         self.active = list(range(self.n))
         self.failed: dict[int, str] = {}
@@ -268,6 +272,8 @@ class ControllerCore:
         self._no_forces = np.zeros(self.n)
         self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
             if c.encoder_jump_m or c.encoder_freeze_m else None
+        self.gough_check = GoughCrossCheck(self.n, c.encoder_gough_m) \
+            if c.encoder_gough_m and c.strategy in METROLOGY_STRATEGIES else None
         self.last_command = [0.0] * self.n
         self._mismatch = [0] * self.n
         self._saturated_since = None
@@ -436,6 +442,8 @@ class ControllerCore:
         if problem:
             self.trip(problem, TripCause.INPUT_REFUSED)
             return False
+        if self._gough_pending is not None and not self._check_against_gough():
+            return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None
@@ -495,7 +503,37 @@ class ControllerCore:
                                           self._no_forces, c.v_d, c.dt, self.failed)
         if drive < 0:
             return True
+        if self.gough_check is not None:
+            c.suspect = (drive, what, self.encoders.fault_size)    # judged with the metrology (complete)
+            return True
         self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+        return False
+
+    def _check_against_gough(self) -> bool:
+        """encoder_check.GoughCrossCheck on the last cycle's readings and Gough pose
+        (judged here, while the metrology of this cycle is on its way, not between it
+        and the command): each reading against q(x_g), the inverse kinematics of the
+        tool pose the Gough measured; then that cycle's suspect of the innovation
+        test, if any: a drive whose reading moved as the Gough saw the tool move has
+        stopped for real (a brake, a jam: the following error's and the drive
+        supervision's to name), not lost its encoder."""
+        (q, measured, suspect), self._gough_pending = self._gough_pending, None
+        check = self.gough_check
+        try:
+            q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
+        except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
+            return True
+        drive, what = check.check(q, q_gough, self.failed)
+        if drive >= 0:
+            self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+            return False
+        if suspect is None:
+            return True
+        drive, what, size = suspect
+        if check.agrees(drive, size):
+            self.encoders.reset()
+            return True
+        self.trip(f"encoder of drive {self.names[drive]} {what}; the Gough metrology agrees", TripCause.ENCODER_FAULT)
         return False
 
     def complete(self, struts=None, metrology_pose=None) -> list:
@@ -517,6 +555,8 @@ class ControllerCore:
                 return list(self.last_command)
         try:
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
+            if self.gough_check is not None and not c.first:
+                self._gough_pending = (c.q_array, measured, c.suspect)    # judged in the next prepare
             if self.config.strategy not in JOINT_STRATEGIES:
                 return self._cartesian_command(c, measured, error)
             problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)

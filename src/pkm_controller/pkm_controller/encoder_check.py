@@ -38,7 +38,7 @@ import numpy as np
 
 from pkm_kinematics.jit import kernel
 
-__all__ = ["EncoderMonitor"]
+__all__ = ["EncoderMonitor", "GoughCrossCheck"]
 
 BIAS_GAIN = 0.2             # of the unexplained acceleration's low-pass (time constant ~5 cycles)
 NOISE_GAIN = 0.01           # of the innovation's running mean square (~100 cycles)
@@ -135,6 +135,7 @@ class EncoderMonitor:
         self.bias, self.mean_square, self.held = np.zeros(n), np.zeros(n), np.zeros(n)
         self.candidate = np.full(n, np.nan)   # the jump that waits for its confirmation, per drive
         self.skip = np.zeros(n, dtype=bool)
+        self.fault_size = 0.0                 # |jump| (or the displacement asked for) of the last verdict
 
     def threshold(self, i: int) -> float:
         """encoder_jump_m, raised above the innovation's own noise (encoder noise, a
@@ -167,6 +168,7 @@ class EncoderMonitor:
             self.freeze_m, self.n > 3)
         if code == ENC_OK:
             return -1, ""
+        self.fault_size = abs(value)
         if code == ENC_FROZEN_SLOW:
             return drive, (f"frozen: reading unchanged at {q[drive]:.6f} m while the reference moved it "
                            f"{value * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
@@ -175,3 +177,90 @@ class EncoderMonitor:
                            f"explains (encoder_jump_m {self.jump_m:g})")
         return drive, (f"slipped: reading {value * 1e6:+.1f} um off the motion its force explains in one cycle, "
                        f"and back (encoder_jump_m {self.jump_m:g})")
+
+
+GOUGH_BIAS_GAIN = 0.02      # of the encoder-Gough difference's low-pass (time constant ~50 cycles)
+
+
+@kernel("(float64[:], float64[:], float64[:], int64[:], float64[:], boolean[:], float64)")
+def gough_kernel(d, bias, mean_square, over, off, skip, jump_m):
+    """One cycle of GoughCrossCheck on d = q - q(x_g); updates bias, mean_square, over
+    (cycles over the threshold, per drive) and off (d - bias) in place. Returns the
+    drive that has been alone over its threshold for two cycles, or -1."""
+    n = d.shape[0]
+    count, last = 0, -1
+    for i in range(n):
+        off[i] = 0.0 if skip[i] else d[i] - bias[i]
+        if abs(off[i]) > max(jump_m, NOISE_SIGMAS * math.sqrt(mean_square[i])):
+            over[i] += 1
+            count, last = count + 1, i
+        else:
+            over[i] = 0
+    if count > 1:                    # the tool or the metrology moved: start again from here
+        for i in range(n):
+            bias[i], over[i] = d[i], 0
+        return -1
+    for i in range(n):
+        if over[i] == 0:
+            bias[i] += GOUGH_BIAS_GAIN * off[i]
+            mean_square[i] += NOISE_GAIN * (off[i] * off[i] - mean_square[i])
+    return last if count == 1 and over[last] >= 2 else -1
+
+
+class GoughCrossCheck:
+    """Each encoder against the Gough metrology, where the strategy has it (sensor_space,
+    measured_space): the reading q_i against q_i(x_g), the machine's inverse kinematics
+    at the tool pose the struts measure (MoM3 §5: an independent measurement of the
+    platform).
+
+    Their difference d_i = q_i - q_i(x_g) holds what the two disagree on slowly (the
+    Gough's calibration, the machine's geometric errors along the path, the lag of a
+    linearised measurement): ``b_i``, a low-pass of d_i (``GOUGH_BIAS_GAIN`` a cycle),
+    follows it. A frozen reading makes ``d_i - b_i`` grow with the drive's motion, a
+    slip steps it, and neither needs the dynamic model. A drive is named when its
+    ``|d_i - b_i|`` exceeds max(``jump_m``, eight times its running RMS) in two cycles
+    running while every other drive stays under its own threshold: a disagreement in
+    several drives at once is the tool's or the metrology's (a strut glitch, a knock on
+    the tool), not one encoder's, and is left to the law's checks (gough_kernel).
+
+    ``agrees(i, size)``: drive i's last reading moved as the Gough saw the tool move;
+    a drive that really stopped (a brake) agrees, a frozen encoder does not. The
+    controller asks it before it names an encoder the innovation test
+    (``EncoderMonitor``) suspects."""
+
+    def __init__(self, n: int, jump_m: float):
+        if not jump_m > 0.0:
+            raise ValueError(f"encoder_gough_m: must be > 0 m (inf: off), got {jump_m}")
+        self.n, self.jump_m = n, jump_m
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.n
+        self.started = False
+        self.bias, self.mean_square, self.off = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.over = np.zeros(n, dtype=np.int64)
+        self.skip = np.zeros(n, dtype=bool)
+
+    def agrees(self, i: int, size: float) -> bool:
+        """Did drive i's last reading move as the Gough saw the tool move, against a
+        suspected fault of ``size`` (m): its difference under half of it, and the
+        difference's noise (four RMS) too (a noisier Gough cannot tell)?"""
+        return self.started and abs(self.off[i]) < 0.5 * size and 4.0 * math.sqrt(self.mean_square[i]) < 0.5 * size
+
+    def check(self, q, q_gough, skip=()) -> tuple[int, str]:
+        """(drive, what) when one drive's reading has left the Gough's (class
+        docstring), (-1, "") otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
+        ``skip``: drives not to judge (dropped ones)."""
+        d = np.asarray(q, dtype=float) - np.asarray(q_gough, dtype=float)
+        if not self.started:
+            self.started = True
+            self.bias[:] = d
+            return -1, ""
+        self.skip[:] = False
+        for i in skip:
+            self.skip[i] = True
+        i = gough_kernel(d, self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m)
+        if i < 0:
+            return -1, ""
+        return i, (f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position the "
+                   f"measured tool pose gives, {self.over[i]} cycles running (encoder_gough_m {self.jump_m:g})")
