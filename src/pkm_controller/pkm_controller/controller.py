@@ -276,6 +276,7 @@ class ControllerCore:
             if c.encoder_gough_m and c.strategy in METROLOGY_STRATEGIES else None
         self.last_command = [0.0] * self.n
         self._mismatch = [0] * self.n
+        self._forces_mismatched = False          # a drive's reported force differs from its command, this cycle
         self._saturated_since = None
         self.cycles = 0
         self.saturation_count = 0
@@ -369,6 +370,7 @@ class ControllerCore:
         for i in self.active:
             if abs(applied[i] - self.last_command[i]) > c.drive_mismatch_n:
                 self._mismatch[i] += 1
+                self._forces_mismatched = True
             else:
                 self._mismatch[i] = 0
             if self._mismatch[i] < c.drive_mismatch_cycles:
@@ -453,6 +455,7 @@ class ControllerCore:
         except (KinematicsError, ValueError) as exc:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
+        self._forces_mismatched = False
         if applied is not None and len(applied) and not first:
             problem = self._check_drives(list(applied))
             if problem:
@@ -492,8 +495,7 @@ class ControllerCore:
         J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
         J_m v_d dt."""
         applied = c.applied
-        if applied is not None and len(applied) == self.n and any(
-                abs(applied[i] - self.last_command[i]) > self.config.drive_mismatch_n for i in self.active):
+        if self._forces_mismatched:       # _check_drives saw it in this cycle
             # a drive that does not apply its command (a brake engaging is an impulse the
             # reported forces do not hold): the drive supervision's, not an encoder's
             self.encoders.reset()
