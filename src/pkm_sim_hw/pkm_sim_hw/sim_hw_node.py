@@ -16,8 +16,8 @@ A command of the wrong length, with unknown names or NaN, stamped ahead of the p
 or from any node but the controller (pkm_sim_hw.authority) is refused: the machine is
 stopped safely, with an ERROR diagnostic naming the cause (and the intruder); so is
 ``estop`` (latched) and an external load over its bound. Every refusal is published on
-``drives/refused`` (a DiagnosticArray, so the bag shows it; at most
-REFUSALS_PER_S a second, the rest counted) and logged at most once a second.
+``drives/refused`` (pkm_sim_hw.refusals: a DiagnosticArray, so the bag shows it,
+rate-limited) and logged at most once a second. Parameters: pkm_sim_hw.parameters.
 ``drives/state`` carries the plant's status in its ``header.frame_id``, in band like a
 drive's status word: empty while running, ``safe_stop:<cause>`` once braked.
 """
@@ -25,7 +25,6 @@ drive's status word: empty while running, ``safe_stop:<cause>`` once braked.
 from __future__ import annotations
 
 import json
-import math
 import time
 
 import rclpy
@@ -43,85 +42,37 @@ from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
                                     ns_to_stamp, publisher_names)
-from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
-from pkm_common.ratelimit import RateLimit
 from pkm_common.runner import main_exit, run_node
 from pkm_common.watchdog import SilenceWatchdog
-from pkm_kinematics import load_machine
-from pkm_sim_hw.authority import APPLY, STALE, CommandGate, Refusal
-from pkm_sim_hw.plant import Plant, PlantParameters, command_efforts, leg_segments
+from pkm_sim_hw.authority import APPLY, STALE, Refusal
+from pkm_sim_hw.parameters import declare_settings
+from pkm_sim_hw.plant import command_efforts, leg_segments
+from pkm_sim_hw.refusals import RefusalReport
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
-REFUSALS_PER_S = 50          # refusal records published a second at most (the rest are counted)
 
 
 class SimHwNode(Node):
     def __init__(self, context=None, **kwargs):
         super().__init__("sim_hw", context=context, **kwargs)
-        machine = declare_str(self, "machine", "archi", "config/machines/<name>.yaml")
-        self.config = load_machine(machine)
-        n = self.config.model.n_legs
-        faults = declare_str(self, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>[:<size_m>]]' (size: "
-                             "encoder_slip)", allow_empty=True)
-        params = PlantParameters(
-            dt_s=declare_float(self, "dt_s", 0.001, 1e-5, 0.1, "exchange period", unit="s"),
-            substeps=declare_int(self, "substeps", 1, 1, 1000, "physics substeps per period"),
-            integrator=declare_str(self, "integrator", "semi_implicit", choices=("semi_implicit", "rk4")),
-            force_limit_n=declare_float(self, "force_limit_n", 2000.0, 0.0, 1e6, lo_open=True, unit="N"),
-            encoder_resolution_m=declare_float(self, "encoder_resolution_m", 1e-6, 0.0, 1e-3, unit="m"),
-            encoder_noise_m=declare_float(self, "encoder_noise_m", 0.0, 0.0, 1e-3, unit="m"),
-            seed=declare_int(self, "seed", 0, 0, 2**31 - 1),
-            link_length_errors=tuple(declare_float_list(self, "link_length_errors", [], "relative, one per "
-                                                        "drive (empty: none)", lo=-0.49, hi=0.49)),
-            rail_offset_errors_m=tuple(declare_float_list(self, "rail_offset_errors_m", [], "one per drive "
-                                                          "(empty: none)", unit="m")),
-            compliance=tuple(declare_float_list(self, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
-            faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
-            max_load_n=declare_float(self, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
-                                     "component", lo_open=True, unit="N"),
-            max_load_nm=declare_float(self, "max_load_nm", 500.0, 0.0, 1e9, "bound of an external load moment "
-                                      "component", lo_open=True, unit="N m"))
-        initial = declare_float_list(self, "initial_pose", [], "empty: the machine's home pose")
-        self.plant = Plant(self.config, params, initial_pose=initial or None)
-        self.lockstep = declare_str(self, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
-        self.timeout_s = declare_float(self, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
-        self.gate = CommandGate(
-            declare_str(self, "command_source", "", "the controller node's full name (empty: the one "
-                        "publisher at the first command); any other publisher on drives/command stops the "
-                        "machine", allow_empty=True),
-            self.lockstep, round(1e9 * declare_float(self, "command_max_age_s", 0.02, 0.0, 10.0, "real time: "
-                                                     "older commands are refused", lo_open=True, unit="s")))
-        self.publish_markers = declare_bool(self, "publish_markers", True)
-        self.duration_s = declare_float(self, "duration_s", 0.0, 0.0, 1e7, "stop after this simulated time "
-                                        "(0: run until shut down)", unit="s")
-        self.summary_path = declare_str(self, "summary_path", "", "write a JSON run summary here at exit",
-                                        allow_empty=True)
-        self.shutdown_on_finish = declare_bool(self, "shutdown_on_finish", True, "end the process when "
-                                               "duration_s is reached (in-process runs: False)")
-        schedule = declare_float_list(self, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task "
-                                      "coordinates) from t_s on, in simulated time (deterministic, unlike the "
-                                      "load topic)")
-        if len(schedule) % 4:
-            raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
-                                 f"{len(schedule)} numbers")
-        try:
-            self.plant.schedule_load([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
-        except ValueError as exc:
-            raise ParameterError("load_schedule", str(exc).partition(": ")[2]) from None
-        # simulated time as a step count (plant.t accumulates dt: 60 s at 1 kHz would be 60001 steps)
-        self.duration_steps = math.ceil(self.duration_s / params.dt_s - 1e-6) if self.duration_s else 0
+        settings = declare_settings(self)
+        self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
+        self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
+        self.publish_markers, self.duration_s = settings.publish_markers, settings.duration_s
+        self.duration_steps, self.summary_path = settings.duration_steps, settings.summary_path
+        self.shutdown_on_finish = settings.shutdown_on_finish
+        n, dt_s = self.plant.n, self.plant.params.dt_s
         self.finished = False
         self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
         self.last_published_ns = -1
         self.first_command_wall = None
-        self.dt_ns = round(params.dt_s * 1e9)
+        self.dt_ns = round(dt_s * 1e9)
         self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0,
                        "refused_loads": 0, "refusals_not_published": 0, "state_repeats": 0}
         self.intruder = ""
         self.command_matches = 1                # publishers matched to drives/command (the matched event)
-        self.record_limit = RateLimit(REFUSALS_PER_S)   # refusal records on drives/refused
-        self.log_limit = RateLimit(1)                   # refusal log lines
         self.started = False
         # the command watchdog does not count this process's own stalls (another node's
         # callback in a shared executor): 3 periods of its 0.1 s timer
@@ -143,7 +94,7 @@ class SimHwNode(Node):
         self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, "platform/true_pose",
                                                             STREAM_PUBLISHER_QOS), PoseStamped)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
-        self.pub_refused = self.create_publisher(DiagnosticArray, "drives/refused", STREAM_QOS)
+        self.refusals = RefusalReport(self, self.counts)
         self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
         self.command_sub = self.create_subscription(
             JointState, "drives/command", self.on_command, STREAM_QOS, raw=True,
@@ -155,7 +106,7 @@ class SimHwNode(Node):
         if self.publish_markers:
             self.create_timer(0.1, self.publish_marker_array)
         if not self.lockstep:
-            self.create_timer(params.dt_s, self.on_realtime_tick)
+            self.create_timer(dt_s, self.on_realtime_tick)
         self.publish_state()
 
     # ------------------------------------------------------------- publishing
@@ -210,22 +161,8 @@ class SimHwNode(Node):
         text = f"refused {'load' if topic == 'load' else 'command'}: {refusal.reason}"
         if refusal.stop:
             self.plant.safe_stop(text, refusal.cause)
-        self._record_refusal(refusal, topic)
-        now = time.monotonic()
-        if self.log_limit.allow(now):              # a stream of bad commands must not flood /rosout
-            self.get_logger().error(f"{text} ({self.counts['refused_commands']} commands, "
-                                    f"{self.counts['refused_loads']} loads refused so far)")
+        self.refusals.report(refusal, topic, text, self.plant.k, self.now_ns())
         self.publish_diagnostics()
-
-    def _record_refusal(self, refusal: Refusal, topic: str) -> None:
-        if not self.record_limit.allow(time.monotonic()):
-            self.counts["refusals_not_published"] = self.record_limit.suppressed
-            return
-        values = {"topic": topic, "reason": refusal.reason, "cause": str(refusal.cause),
-                  "stamp_ns": refusal.stamp_ns, "sender": refusal.sender or "unknown",
-                  "plant_step": self.plant.k, "stopped": refusal.stop}
-        self.pub_refused.publish(diagnostic_array(ns_to_stamp(self.now_ns()),
-                                                  [diagnostic_status("sim_hw/refused", 2, refusal.reason, values)]))
 
     def command_publishers(self) -> list[str]:
         """Full names of the nodes publishing drives/command, one per publisher (the

@@ -1,0 +1,84 @@
+"""sim_hw's ROS parameters, declared and range-checked (pkm_common.params), as the
+plant's configuration (plant.PlantParameters) and the node's settings."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_kinematics import MachineConfig, load_machine
+from pkm_sim_hw.authority import CommandGate
+from pkm_sim_hw.plant import Plant, PlantParameters
+
+
+@dataclass
+class SimHwSettings:
+    """What the node runs with; ``plant`` is built and loaded with its schedule."""
+
+    machine: MachineConfig
+    plant: Plant
+    lockstep: bool
+    command_timeout_s: float
+    gate: CommandGate
+    publish_markers: bool
+    duration_s: float
+    duration_steps: int              # simulated time as a step count (plant.t accumulates dt)
+    summary_path: str
+    shutdown_on_finish: bool
+
+
+def declare_settings(node) -> SimHwSettings:
+    """Declare every parameter of sim_hw on ``node``; a bad value raises ParameterError
+    naming it and its allowed range (the node does not start)."""
+    machine = load_machine(declare_str(node, "machine", "archi", "config/machines/<name>.yaml"))
+    faults = declare_str(node, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>[:<size_m>]]' (size: "
+                         "encoder_slip)", allow_empty=True)
+    params = PlantParameters(
+        dt_s=declare_float(node, "dt_s", 0.001, 1e-5, 0.1, "exchange period", unit="s"),
+        substeps=declare_int(node, "substeps", 1, 1, 1000, "physics substeps per period"),
+        integrator=declare_str(node, "integrator", "semi_implicit", choices=("semi_implicit", "rk4")),
+        force_limit_n=declare_float(node, "force_limit_n", 2000.0, 0.0, 1e6, lo_open=True, unit="N"),
+        encoder_resolution_m=declare_float(node, "encoder_resolution_m", 1e-6, 0.0, 1e-3, unit="m"),
+        encoder_noise_m=declare_float(node, "encoder_noise_m", 0.0, 0.0, 1e-3, unit="m"),
+        seed=declare_int(node, "seed", 0, 0, 2**31 - 1),
+        link_length_errors=tuple(declare_float_list(node, "link_length_errors", [], "relative, one per "
+                                                    "drive (empty: none)", lo=-0.49, hi=0.49)),
+        rail_offset_errors_m=tuple(declare_float_list(node, "rail_offset_errors_m", [], "one per drive "
+                                                      "(empty: none)", unit="m")),
+        compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
+        faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
+        max_load_n=declare_float(node, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
+                                 "component", lo_open=True, unit="N"),
+        max_load_nm=declare_float(node, "max_load_nm", 500.0, 0.0, 1e9, "bound of an external load moment "
+                                  "component", lo_open=True, unit="N m"))
+    initial = declare_float_list(node, "initial_pose", [], "empty: the machine's home pose")
+    plant = Plant(machine, params, initial_pose=initial or None)
+    lockstep = declare_str(node, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
+    timeout_s = declare_float(node, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
+    gate = CommandGate(
+        declare_str(node, "command_source", "", "the controller node's full name (empty: the one publisher at "
+                    "the first command); any other publisher on drives/command stops the machine",
+                    allow_empty=True),
+        lockstep, round(1e9 * declare_float(node, "command_max_age_s", 0.02, 0.0, 10.0, "real time: older "
+                                            "commands are refused", lo_open=True, unit="s")))
+    publish_markers = declare_bool(node, "publish_markers", True)
+    duration_s = declare_float(node, "duration_s", 0.0, 0.0, 1e7, "stop after this simulated time "
+                               "(0: run until shut down)", unit="s")
+    summary_path = declare_str(node, "summary_path", "", "write a JSON run summary here at exit", allow_empty=True)
+    shutdown_on_finish = declare_bool(node, "shutdown_on_finish", True, "end the process when duration_s is "
+                                      "reached (in-process runs: False)")
+    schedule = declare_float_list(node, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task "
+                                  "coordinates) from t_s on, in simulated time (deterministic, unlike the "
+                                  "load topic)")
+    if len(schedule) % 4:
+        raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
+                             f"{len(schedule)} numbers")
+    try:
+        plant.schedule_load([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
+    except ValueError as exc:
+        raise ParameterError("load_schedule", str(exc).partition(": ")[2]) from None
+    # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
+    duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
+    return SimHwSettings(machine, plant, lockstep, timeout_s, gate, publish_markers, duration_s, duration_steps,
+                         summary_path, shutdown_on_finish)
