@@ -335,3 +335,51 @@ def orthoglide_size(cube_m: float, psi_min: float, psi_max: float, check_points:
         q1=[lo_c] * 3, q2=[hi_c] * 3, workspace_center=[center] * 3,
         psi_range_on_cube=[float(np.nanmin(psi)), float(np.nanmax(psi))],
         range_ratio=(rho_max - rho_min) / cube_m)
+
+
+# ------------------------------------------------------------ sensor redundancy
+def degree_of_sensor_redundancy(c: int, m: int, o: int, d: int) -> int:
+    """dosr = C - (M - O + D) (MoM3 §3.1): C independent measures, M the dimension of
+    the space the end-effector moves in (O in the "perfect" case, 6 in the
+    "imperfect" one: parasitic motions), O its spatiality, D the mechanism's degrees
+    of freedom. < 0 under-measured, 0 iso-measured, > 0 over-measured."""
+    for name, value in (("C", c), ("M", m), ("O", o), ("D", d)):
+        if not (isinstance(value, int) and value >= 0):
+            raise ValueError(f"dosr: {name} must be an integer >= 0, got {value!r}")
+    if not 1 <= o <= m <= 6:
+        raise ValueError(f"dosr: needs 1 <= O <= M <= 6, got O = {o}, M = {m}")
+    return c - (m - o + d)
+
+
+def measurement_verdict(dosr: int) -> str:
+    """MoM3 §3.1's three cases."""
+    return "under-measured" if dosr < 0 else "iso-measured" if dosr == 0 else "over-measured"
+
+
+@dataclass(frozen=True)
+class SensorRedundancy:
+    """One row of :func:`sensor_redundancy`: a sensor set of a machine, its C, and the
+    dosr in the perfect (M = O) and imperfect (M = 6) cases."""
+
+    sensors: str
+    c: int
+    o: int
+    d: int
+    dosr_perfect: int
+    dosr_imperfect: int
+
+
+GOUGH_STRUTS = 6           # the passive Gough platform's measures (MoM3 §4.2: C = 6)
+
+
+def sensor_redundancy(n_drives: int, has_metrology: bool, dof: int = 3, spatiality: int = 3) -> list[SensorRedundancy]:
+    """The dosr of a machine's sensor sets (MoM3 §3): its drive encoders alone (one
+    measure per drive), and where it has the Gough metrology, the six struts alone
+    (the loop closed on them, as on MoM3) and both together. Every machine here has
+    D = O = 3 (three-DOF platforms; actuation redundancy adds drives, not DOF)."""
+    sets = [("encoders", n_drives)]
+    if has_metrology:
+        sets += [("gough struts", GOUGH_STRUTS), ("encoders + gough struts", n_drives + GOUGH_STRUTS)]
+    return [SensorRedundancy(name, c, spatiality, dof,
+                             degree_of_sensor_redundancy(c, spatiality, spatiality, dof),
+                             degree_of_sensor_redundancy(c, 6, spatiality, dof)) for name, c in sets]

@@ -6,6 +6,7 @@
     pkm-analyze workspace --machine sliding_star
     pkm-analyze gough-optimize --machine mom3
     pkm-analyze report --machine archi
+    pkm-analyze dosr
 
 A readable table by default, JSON with ``--json``. Bad input exits with status 2 and
 one line on stderr naming the field, ``pkm-analyze: error: --samples: must be an
@@ -25,7 +26,7 @@ from dataclasses import asdict
 import numpy as np
 
 from . import analysis
-from .config import MachineConfig, load_machine
+from .config import MachineConfig, load_machine, machine_names
 from .errors import KinematicsError, UnreachablePoseError
 from .planar import PlanarMachine
 
@@ -237,6 +238,21 @@ def cmd_gough_optimize(args) -> tuple[dict, str]:
     return data, _table(f"Gough geometry optimised for {cfg.name} (MoM3 §5.5.3)", rows)
 
 
+def cmd_dosr(args) -> tuple[dict, str]:
+    """The degree of sensor redundancy (MoM3 §3) of each machine's sensor sets."""
+    names = [args.machine] if args.machine else machine_names()
+    data, rows = {}, []
+    for name in names:
+        cfg = _load(name)
+        entries = analysis.sensor_redundancy(cfg.model.n_legs, cfg.metrology is not None)
+        data[cfg.name] = [asdict(e) for e in entries]
+        for e in entries:
+            rows.append((f"{cfg.name}: {e.sensors} (C = {e.c})",
+                         f"perfect (M = O = {e.o}): {e.dosr_perfect:+d} {analysis.measurement_verdict(e.dosr_perfect)}; "
+                         f"imperfect (M = 6): {e.dosr_imperfect:+d} {analysis.measurement_verdict(e.dosr_imperfect)}"))
+    return data, _table("Degree of sensor redundancy, dosr = C - (M - O + D), D = O = 3 (MoM3 §3)", rows)
+
+
 def cmd_report(args) -> tuple[dict, str]:
     cfg = _load(args.machine)
     model = cfg.model
@@ -314,6 +330,10 @@ def build_parser() -> argparse.ArgumentParser:
     # numpy's generator seeds are 32-bit unsigned.
     p.add_argument("--seed", type=integer(0, 2**32 - 1), default=1, help="random seed, in [0, 2^32 - 1]")
     p.set_defaults(func=cmd_gough_optimize)
+
+    p = sub.add_parser("dosr", help="degree of sensor redundancy of each machine's sensor sets (MoM3 §3)")
+    p.add_argument("--machine", default=None, help="one machine (default: every machine in config/machines)")
+    p.set_defaults(func=cmd_dosr)
 
     p = sub.add_parser("report", help="kinematic report of a machine")
     machine_arg(p, default="archi")
