@@ -41,7 +41,7 @@ from pathlib import Path
 from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
                                   load_scenario, node_parameters, params_file_text)
 from pkm_common.causes import TripCause, parse_cause, run_status
-from pkm_controller.controller import METROLOGY_STRATEGIES
+from pkm_controller.strategies import REGISTRY as STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
 START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
@@ -210,8 +210,9 @@ def _connected(monitor, s: Scenario) -> bool:
     edges = ["drives/state", "drives/command"]
     if s.metrology:
         edges.append("platform/true_pose")
-    if s.strategy in METROLOGY_STRATEGIES:
-        edges.append("metrology/struts" if s.strategy == "sensor_space" else "metrology/pose")
+    topic = STRATEGIES[s.strategy].metrology_topic
+    if topic:
+        edges.append(topic)
     for topic in expected_topics(s):
         name = s.topic(topic)
         if monitor.count_publishers(name) < 1 or (topic in edges and monitor.count_subscribers(name) < 1):

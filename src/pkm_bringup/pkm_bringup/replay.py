@@ -145,7 +145,7 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
     run = json.loads((run_dir / "run.json").read_text(encoding="utf-8")) if (run_dir / "run.json").exists() else {}
     machine, config = controller_config(run_dir)
     core = ControllerCore(load_machine(machine), config)
-    metrology = {"sensor_space": "metrology/struts", "measured_space": "metrology/pose"}.get(config.strategy)
+    metrology = core.strategy.metrology_topic or None
     replay = _Replay(core, metrology)
     namespace = run.get("namespace", "/pkm")
     # the trajectory first: the controller had it before its first answer, but the

@@ -46,7 +46,8 @@ from pathlib import Path
 
 import yaml
 
-from pkm_controller.controller import METROLOGY_STRATEGIES, ControllerConfig
+from pkm_controller.controller import ControllerConfig
+from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 
@@ -281,7 +282,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
-    if s.strategy in METROLOGY_STRATEGIES and not s.metrology:
+    if s.strategy in STRATEGIES and STRATEGIES[s.strategy].uses_metrology and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
                             "set metrology: true")
     if s.metrology and config.metrology is None:

@@ -16,6 +16,7 @@ from pkm_kinematics.config import MachineConfig
 
 from .controller import ControllerConfig, ControllerCore
 from .laws import tool_pose_floats
+from .strategies import Feedback
 
 
 @dataclass
@@ -62,7 +63,7 @@ def run(machine: MachineConfig, controller: ControllerConfig | ControllerCore, p
             p, r = tool_pose_floats(out.tool_pose, planar)
             rot = np.array(r).reshape(3, 3)
             struts = sensor.measure(p, rot)
-            if core.config.strategy == "measured_space":
+            if core.strategy.feedback == Feedback.GOUGH_POSE:
                 position, rotation, result = sensor.estimate(struts)
                 pose = (position.tolist(), rotation) if result.converged else None
             struts = struts.tolist()

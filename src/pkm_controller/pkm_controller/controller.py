@@ -9,12 +9,13 @@ state. A node splits it in two: ``prepare(t_s, q, qdot, applied)`` as soon as th
 drive state arrives (FK, supervision, reference, l_des, J_h, A(x), H(x, v)) and
 ``complete(struts, metrology_pose)`` when the metrology of that instant does, so the
 readings wait only for the feedback, the law and the distribution. Strategies
-(``STRATEGIES``):
+(the registry ``pkm_controller.strategies``):
 
 1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1), with
                                acceleration feed-forward of the mass each drive sees
 2. ``decentralized_projected`` the same PIDs, forces projected n = J (J^T J)^-1 J^T n_d
-                               and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 9)
+                               and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 8;
+                               its Fig. 9 projects the integral component only)
 3. ``cartesian_pid``           PID on the pose from forward kinematics of the encoders (+ the
                                same diagonal-mass feed-forward), F distributed (Sliding Star
                                eq. 9, ARCHI §4.2)
@@ -58,11 +59,9 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .reference import Reference
+from .strategies import NAMES, Feedback, Law, strategy
 
-STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
-              "measured_space")
-JOINT_STRATEGIES = ("joint_pid", "decentralized_projected")
-METROLOGY_STRATEGIES = ("sensor_space", "measured_space")
+STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), in its order
 
 
 @dataclass
@@ -94,7 +93,7 @@ class ControllerConfig:
 
     def validate(self, n_drives: int, planar: bool) -> None:
         checks = [
-            ("strategy", self.strategy in STRATEGIES, f"one of {list(STRATEGIES)}"),
+            ("strategy", self.strategy in NAMES, f"one of {list(NAMES)}"),
             ("distribution", self.distribution in METHODS, f"one of {list(METHODS)}"),
             ("distribution", self.distribution != "two_arm" or (planar and n_drives == 4),
              "two_arm only on a planar machine of two leg pairs (4 drives)"),
@@ -188,11 +187,11 @@ class ControllerCore:
             raise ValueError(f"machine {machine.name!r}: the controller needs a 'dynamics' section "
                              f"(model terms and gain scaling)")
         self.dynamics = DynamicModel(self.model, machine.dynamics)
-        strategy = self.config.strategy
+        self.strategy = strategy(self.config.strategy)
         self.metrology = None
-        if strategy in METROLOGY_STRATEGIES:
+        if self.strategy.uses_metrology:
             if machine.metrology is None:
-                raise ValueError(f"strategy: {strategy} needs a machine with a 'metrology' section, "
+                raise ValueError(f"strategy: {self.strategy.name} needs a machine with a 'metrology' section, "
                                  f"{machine.name!r} has none")
             from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
             self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar)
@@ -238,10 +237,10 @@ class ControllerCore:
         mass) per task axis: the scaled task gains for cartesian_pid; per unit mass
         for computed_torque (A(x) scales them); the cascade's outer PI and inner
         velocity gain Kv for the metrology strategies."""
-        g, strategy = self.gains, self.config.strategy
-        if strategy == "cartesian_pid":
+        g, law = self.gains, self.strategy.law
+        if law == Law.CARTESIAN_PID:
             return LAW_CARTESIAN_PID, np.array([self.task_kp, self.task_kd, self.task_ki, self.task_mass])
-        if strategy == "computed_torque":
+        if law == Law.COMPUTED_TORQUE:
             return LAW_COMPUTED_TORQUE, np.array([[g.kp] * 3, [g.kd] * 3, [g.ki] * 3, [0.0] * 3])
         return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * 3, [g.kd] * 3, [g.outer_ki] * 3, [0.0] * 3])
 
@@ -261,7 +260,7 @@ class ControllerCore:
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
         self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
-        self.integral = [0.0] * self.n if self.config.strategy in JOINT_STRATEGIES else (0.0, 0.0, 0.0)
+        self.integral = [0.0] * self.n if self.strategy.joint_space else (0.0, 0.0, 0.0)
         self.active = list(range(self.n))
         self.failed: dict[int, str] = {}
         self.stopped = False
@@ -273,7 +272,7 @@ class ControllerCore:
         self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
             if c.encoder_jump_m or c.encoder_freeze_m else None
         self.gough_check = GoughCrossCheck(self.n, c.encoder_gough_m) \
-            if c.encoder_gough_m and c.strategy in METROLOGY_STRATEGIES else None
+            if c.encoder_gough_m and self.strategy.uses_metrology else None
         self.last_command = [0.0] * self.n
         self._mismatch = [0] * self.n
         self._forces_mismatched = False          # a drive's reported force differs from its command, this cycle
@@ -350,10 +349,11 @@ class ControllerCore:
         return ""
 
     def _check_metrology(self, struts, metrology_pose) -> str:
-        if self.config.strategy == "sensor_space":
+        feedback = self.strategy.feedback
+        if feedback == Feedback.STRUTS:
             if struts is None or len(struts) != 6 or not math.isfinite(sum(struts)):
                 return f"metrology/struts: expected 6 finite strut lengths, got {struts}"
-        if self.config.strategy == "measured_space":
+        if feedback == Feedback.GOUGH_POSE:
             if metrology_pose is None:
                 return "metrology/pose: missing (the DKM did not converge or the sensor is silent)"
             p, r = metrology_pose
@@ -479,13 +479,12 @@ class ControllerCore:
         if self.encoders is not None and not self._check_encoders(c):
             self._cycle = None
             return False
-        strategy = self.config.strategy
         try:
-            if strategy == "sensor_space":
+            if self.strategy.feedback == Feedback.STRUTS:
                 self.metrology.prepare(*tool_pose_floats(c.x_d, self.planar))
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             self._cycle = None
-            self.trip(f"{strategy}: {exc}", TripCause.KINEMATICS)
+            self.trip(f"{self.strategy.name}: {exc}", TripCause.KINEMATICS)
             return False
         return True
 
@@ -559,7 +558,7 @@ class ControllerCore:
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
             if self.gough_check is not None and not c.first:
                 self._gough_pending = (c.q_array, measured, c.suspect)    # judged in the next prepare
-            if self.config.strategy not in JOINT_STRATEGIES:
+            if not self.strategy.joint_space:
                 return self._cartesian_command(c, measured, error)
             problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
             if problem:
@@ -579,10 +578,10 @@ class ControllerCore:
         """First cycle: hold where the machine is (as the strategy measures it), then
         start a trajectory that arrived before the first state."""
         hold = pose
-        if self.config.strategy == "measured_space":
+        if self.strategy.feedback == Feedback.GOUGH_POSE:
             hold = self._metrology_task_pose(metrology_pose, pose)
         self.reference, self.reference_start_s = Reference.hold(hold), self.last_time_s
-        if self.config.strategy == "sensor_space":
+        if self.strategy.feedback == Feedback.STRUTS:
             # the tool as the struts see it: one linearised step from the encoder pose
             p, r = tool_pose_floats(pose, self.planar)
             e = self.metrology.task_error(p, r, list(struts))
@@ -607,11 +606,11 @@ class ControllerCore:
 
     def _feedback(self, pose, x_d, struts, metrology_pose) -> tuple[list, list]:
         """(measured task pose, error x_d - measured) as the strategy sees them."""
-        strategy = self.config.strategy
-        if strategy == "sensor_space":
+        feedback = self.strategy.feedback
+        if feedback == Feedback.STRUTS:
             error = self.metrology.error_from(list(struts))          # prepared at x_d
             return [a - b for a, b in zip(x_d, error)], error
-        if strategy == "measured_space":
+        if feedback == Feedback.GOUGH_POSE:
             measured = self._metrology_task_pose(metrology_pose, x_d)
             return measured, pose_error(x_d, measured, self.planar)
         return pose, pose_error(x_d, pose, self.planar)
@@ -630,15 +629,15 @@ class ControllerCore:
         integral = [min(limit, max(-limit, i + ki * ei * dt))
                     for i, ki, ei in zip(self.integral, self.joint_ki, e)]
         active_rows = c.active_rows
-        if self.config.strategy == "decentralized_projected":
-            # Sliding Star Fig. 9: the projection also acts on the integral state
+        if self.strategy.projected:
+            # the projection also acts on the integral state (no wind-up along ker(J^T))
             sub = project_to_range(active_rows, [integral[k] for k in self.active])
             integral = [0.0] * self.n
             for k, f in zip(self.active, sub):
                 integral[k] = f
         self.integral = integral
         n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
-        if self.config.strategy == "joint_pid":
+        if not self.strategy.projected:
             return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
         sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
         return self._expand(sub)

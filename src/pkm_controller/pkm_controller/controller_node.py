@@ -42,6 +42,7 @@ from pkm_common.timing import DurationHistogram
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
 from pkm_controller.lockstep import StampPairing
+from pkm_controller.strategies import Feedback
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
@@ -88,15 +89,16 @@ class ControllerNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self.values = values
         self.names = self.core.names
-        metrology = config.strategy in ("sensor_space", "measured_space")
-        self.wait_for = {"sensor_space": "struts", "measured_space": "pose"}.get(config.strategy)
-        self.pairing = StampPairing(metrology, self.wait_for or "")
+        strategy = self.core.strategy
+        metrology = strategy.uses_metrology
+        self.wait_for = strategy.reading or None
+        self.pairing = StampPairing(metrology, strategy.reading)
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
         # ~30-50 us to take and ~13 us to publish each, more than most control laws
         self.state_decoder = JointStateDecoder("drives/state")
         self.command_encoder = JointStateEncoder(self.names, fields=("effort",))
         self.reference_encoder = PoseStampedEncoder("world")
-        if self.wait_for == "struts":
+        if strategy.feedback == Feedback.STRUTS:
             self.decode_metrology = JointStateDecoder("metrology/struts").decode
         else:
             self.decode_metrology = lambda buf: decode_pose_stamped(buf, "metrology/pose")
@@ -115,9 +117,9 @@ class ControllerNode(LifecycleNode):
                          self.create_subscription(Bool, "run/start", self.on_start, LATCHED_QOS),
                          self.create_timer(0.01, self.on_watchdog)]
         if metrology:
-            kind, topic = (JointState, "metrology/struts") if self.wait_for == "struts" else \
-                (PoseStamped, "metrology/pose")
-            self.entities.append(self.create_subscription(kind, topic, self.on_metrology, STREAM_QOS, raw=True))
+            kind = JointState if strategy.feedback == Feedback.STRUTS else PoseStamped
+            self.entities.append(self.create_subscription(kind, strategy.metrology_topic, self.on_metrology,
+                                                          STREAM_QOS, raw=True))
         self.get_logger().info(f"configured: {values['machine']}, {config.strategy}, {config.distribution}")
         return TransitionCallbackReturn.SUCCESS
 

@@ -54,9 +54,11 @@ ENC_OK, ENC_FROZEN_SLOW, ENC_FROZEN, ENC_SLIPPED = 0, 1, 2, 3
 def _readings_consistent(dq, jump_abs, rows):
     """(jump_abs as a 1-array) Do the readings of a redundant machine agree with one
     platform motion: |dq - J (J^T J)^-1 J^T dq| under a tenth of the jump, or two counts?"""
-    gram = rows.T @ rows
-    x = np.linalg.solve(gram, rows.T @ dq)
-    residual = dq - rows @ x
+    j = np.ascontiguousarray(rows)            # contiguous for BLAS (and no performance warning)
+    d = np.ascontiguousarray(dq)
+    gram = j.T @ j
+    x = np.linalg.solve(gram, j.T @ d)
+    residual = d - j @ x
     return math.sqrt(np.sum(residual * residual)) < max(CONSISTENT_FRACTION * jump_abs[0], CONSISTENT_FLOOR_M)
 
 

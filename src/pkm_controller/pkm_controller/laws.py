@@ -167,8 +167,32 @@ def clamp_forces_kernel(forces, limit):
     return out, saturated, peak, True
 
 
-# the Cartesian laws of cartesian_command_kernel; ``gains`` rows: kp, kd, ki (per axis), mass
+# the Cartesian laws of cartesian_command_kernel (strategies.Law); ``gains`` rows: kp, kd, ki (per axis), mass
 LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE = 0, 1, 2
+
+
+# ------------------------------------------------ the task-space laws, per axis
+# e = x_d - x, edot = v_d - v, integral = int Ki e; compiled helpers of
+# cartesian_command_kernel (one function per law, called by it on each task axis)
+@kernel()
+def cartesian_pid_wrench(kp, kd, mass, e, edot, integral, a_d):
+    """F = Kp e + Kd edot + I + m a_d: Sliding Star eq. 9, ARCHI §4.2 (the PID on the
+    task pose, with diagonal-mass acceleration feed-forward)."""
+    return kp * e + kd * edot + integral + mass * a_d
+
+
+@kernel()
+def computed_torque_acceleration(kp, kd, e, edot, integral, a_d):
+    """u = a_d + Kd edot + Kp e + I, then F = A(x) u + H(x, v): ARCHI §4.2-4.4
+    (gains per unit mass)."""
+    return a_d + kd * edot + kp * e + integral
+
+
+@kernel()
+def velocity_cascade_acceleration(kp, kv, e, v_d, v, integral, a_d):
+    """u = a_d + Kv (v_c - v) with v_c = v_d + Kp e + I, then F = A(x) u + H(x, v):
+    MoM3 §6.1 (PI on the pose with velocity feed-forward, inner velocity loop Kv)."""
+    return a_d + kv * (v_d + kp * e + integral - v)
 # its distributions: the compiled ones, or NUMPY_DISTRIBUTION (the wrench is returned)
 DIST_PSEUDO_INVERSE, DIST_INF_NORM, NUMPY_DISTRIBUTION = 0, 1, -1
 _MATRIX3 = f"UniTuple({_TRIPLE}, 3)"
@@ -191,13 +215,12 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
       plus the code of :func:`_distribute_kernel` (``index`` the wrench component J^T f
       missed, ``value`` what it achieved); FORCES_NOT_FINITE (``forces`` unclamped).
 
-    The laws, F = ... with e = x_d - x, edot = v_d - v, I = int Ki e (conditional
-    integration: only when ``integrate``, i.e. the last command was not saturated):
-    - LAW_CARTESIAN_PID: Kp e + Kd edot + I + m a_d (Sliding Star eq. 9, ARCHI §4.2,
-      diagonal-mass feed-forward);
-    - LAW_COMPUTED_TORQUE: A(x) (a_d + Kd edot + Kp e + I) + H(x, v) (ARCHI §4.2-4.4);
-    - LAW_VELOCITY_CASCADE: A (a_d + Kv (v_c - v)) + H with v_c = v_d + Kp e + I
-      (MoM3 §6.1 PI with velocity feed-forward; Kv in the kd row).
+    The laws, with I = int Ki e (conditional integration: only when ``integrate``,
+    i.e. the last command was not saturated): LAW_CARTESIAN_PID
+    :func:`cartesian_pid_wrench`; LAW_COMPUTED_TORQUE
+    :func:`computed_torque_acceleration`, LAW_VELOCITY_CASCADE
+    :func:`velocity_cascade_acceleration` (Kv in the kd row), both through
+    F = A(x) u + H(x, v).
     The distribution: f = J (J^T J)^-1 F, moved along ker(J^T) to the least peak for
     DIST_INF_NORM (ARCHI §4.4.1-4.4.2)."""
     empty = np.zeros(0)
@@ -216,11 +239,11 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
     for k in range(3):
         edot = v_d[k] - v[k]
         if law == LAW_CARTESIAN_PID:
-            w[k] = gains[0, k] * error[k] + gains[1, k] * edot + i_new[k] + gains[3, k] * a_d[k]
+            w[k] = cartesian_pid_wrench(gains[0, k], gains[1, k], gains[3, k], error[k], edot, i_new[k], a_d[k])
         elif law == LAW_COMPUTED_TORQUE:
-            u[k] = a_d[k] + gains[1, k] * edot + gains[0, k] * error[k] + i_new[k]
+            u[k] = computed_torque_acceleration(gains[0, k], gains[1, k], error[k], edot, i_new[k], a_d[k])
         else:
-            u[k] = a_d[k] + gains[1, k] * (v_d[k] + gains[0, k] * error[k] + i_new[k] - v[k])
+            u[k] = velocity_cascade_acceleration(gains[0, k], gains[1, k], error[k], v_d[k], v[k], i_new[k], a_d[k])
     if law != LAW_CARTESIAN_PID:
         for k in range(3):
             w[k] = a_model[k][0] * u[0] + a_model[k][1] * u[1] + a_model[k][2] * u[2] + h_model[k]
