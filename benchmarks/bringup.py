@@ -19,7 +19,7 @@
    as a share of the loop period.
 
 Usage: python benchmarks/bringup.py [--scenario archi_demo] [--repeats 2] [--duration-s 0] [--window-runs 2]
-       [--windows-only] [--window-modes both|processes|in-process]
+       [--windows-only] [--window-modes both|processes|in-process] [--window-length-s 0]
 """
 
 from __future__ import annotations
@@ -340,6 +340,9 @@ def main(argv=None) -> int:
     parser.add_argument("--windows-only", action="store_true", help="only the in-run measurement (4.)")
     parser.add_argument("--window-modes", choices=("both", "processes", "in-process"), default="both",
                         help="the modes of the in-run measurement")
+    parser.add_argument("--window-length-s", type=float, default=0.0,
+                        help="simulated length of each in-run measurement (0: 90 s as processes, 60 s in one "
+                             "process; at least 3 windows of 1000 steps)")
     args = parser.parse_args(argv)
     if not args.windows_only:
         throughput_and_rates(args)
@@ -391,7 +394,8 @@ def windows(args) -> None:
     modes = {"both": (False, True), "processes": (False,), "in-process": (True,)}[args.window_modes]
     results = [(in_process, length_s, [alternating_windows(args.scenario, length_s, in_process)
                                        for _ in range(args.window_runs)])
-               for in_process, length_s in ((False, 90.0), (True, 60.0)) if in_process in modes]
+               for in_process, length_s in ((False, args.window_length_s or 90.0), (True, args.window_length_s or 60.0))
+               if in_process in modes]
     print()
     print(f"{args.scenario}: recording cost inside one run, the taps recording in one window of 1000 steps in "
           f"three ({args.window_runs} runs per mode; per cycle, the extra time of the recording and draining "

@@ -1,6 +1,6 @@
 """Trajectory planning time: a 1,000-line G-code program and the ARCHI test motion.
 
-    .venv/bin/python benchmarks/trajectory.py
+    .venv/bin/python benchmarks/trajectory.py [--lines 1000] [--repeat 3]
 
 Rows: parse only; parse + time law + sampling at 1 kHz; the same plus validation of
 every sample against the machine model (IK, joint limits, joint velocity and
@@ -11,6 +11,7 @@ program's line moves at 0.1 mm.
 
 from __future__ import annotations
 
+import argparse
 import math
 import statistics
 import sys
@@ -49,14 +50,20 @@ def timed(fn, repeat=3):
     return statistics.median(runs), result
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--lines", type=int, default=1000, help="lines of the G-code program (>= 20)")
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args(argv)
     archi = load_machine("archi").model
-    text = program()
+    text = program(max(20, args.lines))
     start = archi.home_pose.tolist()
     rows = []
-    t, moves = timed(lambda: parse_gcode(text, start=(start[0], start[1], 0.0), start_rotation=start[2]))
-    rows.append((f"parse 1,000-line G-code ({len(moves)} moves)", t * 1e3, "ms"))
-    t, samples = timed(lambda: plan(gcode_segments(text, True, start), LIMITS, 1000.0, translation_axes=2))
+    t, moves = timed(lambda: parse_gcode(text, start=(start[0], start[1], 0.0), start_rotation=start[2]),
+                     args.repeat)
+    rows.append((f"parse {args.lines:,}-line G-code ({len(moves)} moves)", t * 1e3, "ms"))
+    t, samples = timed(lambda: plan(gcode_segments(text, True, start), LIMITS, 1000.0, translation_axes=2),
+                       args.repeat)
     rows.append((f"  + time law + 1 kHz sampling ({len(samples.time_s):,} samples, "
                  f"{samples.duration_s:.1f} s)", t * 1e3, "ms"))
     t, _ = timed(lambda: validate(samples, archi, 2.0, 50.0, 50.0), repeat=1)
@@ -65,9 +72,9 @@ def main() -> int:
     t, blended = timed(lambda: plan_blended(lines, LIMITS, 1e-4, 1000.0, translation_axes=2), repeat=1)
     rows.append(("blend 200 line moves at 0.1 mm", t * 1e3, "ms"))
     motion = [Line((1.0, -0.4, math.pi / 4), (1.1, -0.35, math.pi / 2))]
-    t, s = timed(lambda: plan(motion, LIMITS, 1000.0, translation_axes=2))
+    t, s = timed(lambda: plan(motion, LIMITS, 1000.0, translation_axes=2), args.repeat)
     rows.append((f"ARCHI test motion: plan + sample ({len(s.time_s)} samples)", t * 1e3, "ms"))
-    t, _ = timed(lambda: validate(s, archi, 2.0, 50.0, 50.0))
+    t, _ = timed(lambda: validate(s, archi, 2.0, 50.0, 50.0), args.repeat)
     rows.append(("ARCHI test motion: validation", t * 1e3, "ms"))
     width = max(len(r[0]) for r in rows)
     print(f"{'benchmark'.ljust(width)}  {'median':>10}  unit")

@@ -84,7 +84,7 @@ class GoughSensorNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
         # the per-step stream as bytes (pkm_common.cdr): an rclpy PoseStamped costs ~50 us
         # to take, a JointState ~13 us to publish; the bytes 1-3 us
-        self.create_subscription(PoseStamped, 'platform/true_pose', self._on_true_pose, STREAM_QOS, raw=True)
+        self.create_subscription(PoseStamped, 'platform/true_pose', self.on_true_pose, STREAM_QOS, raw=True)
         self._struts_encoder = JointStateEncoder(STRUT_NAMES, 'gough_base', fields=('position',))
         self._pose_encoder = PoseStampedEncoder('world')
         # summary on the wall clock: in lockstep, simulated time may crawl or race
@@ -111,7 +111,7 @@ class GoughSensorNode(Node):
         return super().destroy_node()
 
     # --------------------------------------------------------------- stream
-    def _on_true_pose(self, buf: bytes) -> None:
+    def on_true_pose(self, buf: bytes) -> None:
         start = time.perf_counter()
         self.counts['received'] += 1
         ns = -1

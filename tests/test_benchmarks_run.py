@@ -1,0 +1,42 @@
+"""Every benchmark of ``make bench`` runs: each is started as ``make bench`` starts it,
+with its smallest sizes, and must exit 0 and print its table. A benchmark that no
+longer matches the code it measures (a callback that now takes bytes, a renamed
+function) fails here instead of in the next ``make bench`` (issue 20: one did).
+The figures themselves are not checked: speed targets live in benchmarks/."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# benchmark -> (arguments that make it small, a line its output must have)
+SMALL = {
+    "kinematics.py": (["--repeat", "1"], "benchmark"),
+    "gough_sensor.py": (["--repeat", "1", "--cycles", "50"], "node callback"),
+    "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),
+    "controller.py": (["--cycles", "40", "--graph-duration", "0.3"], "| mom3 | measured_space"),
+    "plant.py": (["--duration", "0.05"], "steps/s"),
+    "lockstep_echo.py": ([], "steps/s"),
+    "report_memory.py": (["--seconds", "0.5"], "MiB"),
+    "realtime.py": (["--pairs", "1", "--rates", "1000", "--duration-s", "0.3", "--in-process"], "ratio"),
+    "bringup.py": (["--windows-only", "--window-modes", "in-process", "--window-runs", "1",
+                    "--window-length-s", "6"], "in-process"),
+}
+
+
+def test_every_benchmark_is_listed():
+    found = {p.name for p in (ROOT / "benchmarks").glob("*.py")} - {"hoststat.py"}
+    assert found == set(SMALL), found ^ set(SMALL)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_the_benchmark_runs(name):
+    args, expected = SMALL[name]
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / name), *args], cwd=ROOT, capture_output=True,
+                         text=True, timeout=240)
+    assert out.returncode == 0, f"{name} exited {out.returncode}:\n{out.stdout[-2000:]}\n{out.stderr[-3000:]}"
+    assert expected in out.stdout, out.stdout[-2000:]
