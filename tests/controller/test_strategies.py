@@ -7,7 +7,7 @@ import pytest
 from pkm_kinematics import load_machine
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.lockstep import StampPairing
-from pkm_controller.strategies import NAMES, REGISTRY, Feedback, Law, strategy
+from pkm_controller.strategies import NAMES, REGISTRY, Feedback, Law, Projection, strategy
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -21,12 +21,14 @@ def test_every_strategy_builds_a_core_that_waits_for_its_feedback(name):
 
 
 def test_the_registry_holds_the_papers_strategies():
-    assert NAMES == ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque", "sensor_space",
-                     "measured_space")
+    assert NAMES == ("joint_pid", "decentralized_projected", "decentralized_integral_projected", "cartesian_pid",
+                     "computed_torque", "sensor_space", "measured_space")
     assert {n for n, s in REGISTRY.items() if s.uses_metrology} == {"sensor_space", "measured_space"}
     assert REGISTRY["sensor_space"].metrology_topic == "metrology/struts"
     assert REGISTRY["measured_space"].feedback == Feedback.GOUGH_POSE
-    assert [n for n, s in REGISTRY.items() if s.projected] == ["decentralized_projected"]
+    assert {n: s.projection for n, s in REGISTRY.items() if s.projection != Projection.NONE} == {
+        "decentralized_projected": Projection.FORCES, "decentralized_integral_projected": Projection.INTEGRAL}
+    assert all(s.joint_space for s in REGISTRY.values() if s.projection != Projection.NONE)
     assert {s.law for s in REGISTRY.values()} == set(Law)
 
 

@@ -14,8 +14,9 @@ readings wait only for the feedback, the law and the distribution. Strategies
 1. ``joint_pid``               independent PID per drive on IK setpoints (ARCHI §4.1), with
                                acceleration feed-forward of the mass each drive sees
 2. ``decentralized_projected`` the same PIDs, forces projected n = J (J^T J)^-1 J^T n_d
-                               and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 8;
-                               its Fig. 9 projects the integral component only)
+                               and the integral kept in range(J) (Sliding Star eq. 6-8, Fig. 8)
+   ``decentralized_integral_projected`` the same PIDs, only the integral component
+                               projected (Sliding Star Fig. 9, the lab model's variant)
 3. ``cartesian_pid``           PID on the pose from forward kinematics of the encoders (+ the
                                same diagonal-mass feed-forward), F distributed (Sliding Star
                                eq. 9, ARCHI §4.2)
@@ -59,7 +60,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .reference import Reference
-from .strategies import NAMES, Feedback, Law, strategy
+from .strategies import NAMES, Feedback, Law, Projection, strategy
 
 STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), in its order
 
@@ -616,7 +617,8 @@ class ControllerCore:
         return pose, pose_error(x_d, pose, self.planar)
 
     def _joint_strategy(self, c: "_Cycle") -> list:
-        """joint_pid (ARCHI §4.1) and decentralized_projected (Sliding Star eq. 6-8)."""
+        """joint_pid (ARCHI §4.1), decentralized_projected (Sliding Star eq. 6-8) and
+        decentralized_integral_projected (its Fig. 9)."""
         q, qdot, x_d, v_d, a_d, dt = c.q, c.qdot, c.x_d, c.v_d, c.a_d, c.dt
         q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
         # acceleration feed-forward with the mass each drive sees, as industrial
@@ -629,15 +631,17 @@ class ControllerCore:
         integral = [min(limit, max(-limit, i + ki * ei * dt))
                     for i, ki, ei in zip(self.integral, self.joint_ki, e)]
         active_rows = c.active_rows
-        if self.strategy.projected:
-            # the projection also acts on the integral state (no wind-up along ker(J^T))
+        projection = self.strategy.projection
+        if projection != Projection.NONE:
+            # the integral state in range(J): no wind-up along ker(J^T) (Sliding Star
+            # Fig. 9 projects only this component; eq. 8 the whole command below)
             sub = project_to_range(active_rows, [integral[k] for k in self.active])
             integral = [0.0] * self.n
             for k, f in zip(self.active, sub):
                 integral[k] = f
         self.integral = integral
         n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
-        if not self.strategy.projected:
+        if projection != Projection.FORCES:
             return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
         sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
         return self._expand(sub)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-__all__ = ["Feedback", "Law", "Strategy", "REGISTRY", "NAMES", "strategy"]
+__all__ = ["Feedback", "Law", "Projection", "Strategy", "REGISTRY", "NAMES", "strategy"]
 
 
 class Feedback(str, Enum):
@@ -32,6 +32,16 @@ class Law(str, Enum):
     VELOCITY_CASCADE = "velocity_cascade"      # PI on the pose + velocity loop, through A(x), H(x, v)
 
 
+class Projection(str, Enum):
+    """What of a joint-space law is projected on range(J), n = J (J^T J)^-1 J^T n_d
+    (Sliding Star eq. 8): nothing, the whole command (and the integral state, so that
+    it cannot wind up along ker(J^T)), or the integral component only (its Fig. 9)."""
+
+    NONE = "none"
+    FORCES = "forces"
+    INTEGRAL = "integral"
+
+
 # what the node subscribes to for each metrology feedback, and the key of its pairing
 _METROLOGY_TOPICS = {Feedback.STRUTS: "metrology/struts", Feedback.GOUGH_POSE: "metrology/pose"}
 _READINGS = {Feedback.STRUTS: "struts", Feedback.GOUGH_POSE: "pose"}
@@ -40,13 +50,13 @@ _READINGS = {Feedback.STRUTS: "struts", Feedback.GOUGH_POSE: "pose"}
 @dataclass(frozen=True)
 class Strategy:
     """One control strategy. ``joint_space``: the law acts per drive (its integral is
-    one state per drive); else on the task wrench, then distributed. ``projected``:
-    the joint forces are projected on range(J) (Sliding Star eq. 8)."""
+    one state per drive); else on the task wrench, then distributed. ``projection``:
+    what of a joint-space law is projected on range(J) (Projection)."""
 
     name: str
     law: Law
     feedback: Feedback
-    projected: bool
+    projection: Projection
     source: str                    # the paper and section it implements
 
     @property
@@ -71,12 +81,15 @@ class Strategy:
 
 
 REGISTRY: dict[str, Strategy] = {s.name: s for s in (
-    Strategy("joint_pid", Law.JOINT_PID, Feedback.ENCODERS, False, "ARCHI §4.1"),
-    Strategy("decentralized_projected", Law.JOINT_PID, Feedback.ENCODERS, True, "Sliding Star eq. 6-8"),
-    Strategy("cartesian_pid", Law.CARTESIAN_PID, Feedback.ENCODERS, False, "Sliding Star eq. 9, ARCHI §4.2"),
-    Strategy("computed_torque", Law.COMPUTED_TORQUE, Feedback.ENCODERS, False, "ARCHI §4.2-4.4"),
-    Strategy("sensor_space", Law.VELOCITY_CASCADE, Feedback.STRUTS, False, "MoM3 §6.4"),
-    Strategy("measured_space", Law.VELOCITY_CASCADE, Feedback.GOUGH_POSE, False, "MoM3 §6.3"),
+    Strategy("joint_pid", Law.JOINT_PID, Feedback.ENCODERS, Projection.NONE, "ARCHI §4.1"),
+    Strategy("decentralized_projected", Law.JOINT_PID, Feedback.ENCODERS, Projection.FORCES,
+             "Sliding Star eq. 6-8, Fig. 8"),
+    Strategy("decentralized_integral_projected", Law.JOINT_PID, Feedback.ENCODERS, Projection.INTEGRAL,
+             "Sliding Star Fig. 9 (the lab model's variant)"),
+    Strategy("cartesian_pid", Law.CARTESIAN_PID, Feedback.ENCODERS, Projection.NONE, "Sliding Star eq. 9, ARCHI §4.2"),
+    Strategy("computed_torque", Law.COMPUTED_TORQUE, Feedback.ENCODERS, Projection.NONE, "ARCHI §4.2-4.4"),
+    Strategy("sensor_space", Law.VELOCITY_CASCADE, Feedback.STRUTS, Projection.NONE, "MoM3 §6.4"),
+    Strategy("measured_space", Law.VELOCITY_CASCADE, Feedback.GOUGH_POSE, Projection.NONE, "MoM3 §6.3"),
 )}
 NAMES = tuple(REGISTRY)
 
