@@ -506,7 +506,8 @@ class ControllerCore:
         if drive < 0:
             return True
         if self.gough_check is not None:
-            c.suspect = (drive, what, self.encoders.fault_size)    # judged with the metrology (complete)
+            # judged with the Gough's view of the same cycle, at the next prepare
+            c.suspect = (drive, what, self.encoders.fault_size, self.encoders.fault_held)
             return True
         self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
         return False
@@ -524,18 +525,20 @@ class ControllerCore:
         try:
             q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
         except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
-            return True
-        drive, what = check.check(q, q_gough, self.failed)
-        if drive >= 0:
-            self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
-            return False
+            q_gough = None
+        if q_gough is not None:
+            drive, what = check.check(q, q_gough, self.failed)
+            if drive >= 0:
+                self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+                return False
         if suspect is None:
             return True
-        drive, what, size = suspect
-        if check.agrees(drive, size):
+        drive, what, size, held = suspect
+        if q_gough is not None and check.agrees(drive, size, held):
             self.encoders.reset()
             return True
-        self.trip(f"encoder of drive {self.names[drive]} {what}; the Gough metrology agrees", TripCause.ENCODER_FAULT)
+        # the Gough saw the drive move where its reading did not (or cannot tell): the encoder
+        self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
         return False
 
     def complete(self, struts=None, metrology_pose=None) -> list:

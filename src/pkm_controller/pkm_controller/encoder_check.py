@@ -138,6 +138,7 @@ class EncoderMonitor:
         self.candidate = np.full(n, np.nan)   # the jump that waits for its confirmation, per drive
         self.skip = np.zeros(n, dtype=bool)
         self.fault_size = 0.0                 # |jump| (or the displacement asked for) of the last verdict
+        self.fault_held = False               # ... and whether it holds the reading (a freeze) or not (a slip)
 
     def threshold(self, i: int) -> float:
         """encoder_jump_m, raised above the innovation's own noise (encoder noise, a
@@ -171,6 +172,7 @@ class EncoderMonitor:
         if code == ENC_OK:
             return -1, ""
         self.fault_size = abs(value)
+        self.fault_held = code != ENC_SLIPPED
         if code == ENC_FROZEN_SLOW:
             return drive, (f"frozen: reading unchanged at {q[drive]:.6f} m while the reference moved it "
                            f"{value * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
@@ -184,11 +186,14 @@ class EncoderMonitor:
 GOUGH_BIAS_GAIN = 0.02      # of the encoder-Gough difference's low-pass (time constant ~50 cycles)
 
 
-@kernel("(float64[:], float64[:], float64[:], int64[:], float64[:], boolean[:], float64)")
-def gough_kernel(d, bias, mean_square, over, off, skip, jump_m):
-    """One cycle of GoughCrossCheck on d = q - q(x_g); updates bias, mean_square, over
-    (cycles over the threshold, per drive) and off (d - bias) in place. Returns the
-    drive that has been alone over its threshold for two cycles, or -1."""
+@kernel("(float64[:], float64[:], float64[:], float64[:], int64[:], float64[:], boolean[:], float64)")
+def gough_kernel(d, last_d, bias, mean_square, over, off, skip, jump_m):
+    """One cycle of GoughCrossCheck on d = q - q(x_g) (``last_d`` the previous cycle's);
+    updates bias, mean_square, over (cycles over the threshold, per drive) and off
+    (d - bias) in place. Returns the drive that has been alone over its threshold for
+    two cycles, or -1. The noise is estimated from the increments of d (half their
+    mean square: white noise counts twice in an increment), not from d - bias, whose
+    slow growth would raise its own threshold and hide a drift."""
     n = d.shape[0]
     count, last = 0, -1
     for i in range(n):
@@ -205,7 +210,8 @@ def gough_kernel(d, bias, mean_square, over, off, skip, jump_m):
     for i in range(n):
         if over[i] == 0:
             bias[i] += GOUGH_BIAS_GAIN * off[i]
-            mean_square[i] += NOISE_GAIN * (off[i] * off[i] - mean_square[i])
+            step = d[i] - last_d[i]
+            mean_square[i] += NOISE_GAIN * (0.5 * step * step - mean_square[i])
     return last if count == 1 and over[last] >= 2 else -1
 
 
@@ -225,10 +231,12 @@ class GoughCrossCheck:
     several drives at once is the tool's or the metrology's (a strut glitch, a knock on
     the tool), not one encoder's, and is left to the law's checks (gough_kernel).
 
-    ``agrees(i, size)``: drive i's last reading moved as the Gough saw the tool move;
-    a drive that really stopped (a brake) agrees, a frozen encoder does not. The
-    controller asks it before it names an encoder the innovation test
-    (``EncoderMonitor``) suspects."""
+    ``agrees(i, size, held)``: drive i's reading moved as the Gough saw the tool move,
+    over the suspect's window (since the reading last changed for a freeze, the last
+    two cycles for a slip); a drive that really stopped (a brake) agrees, a frozen
+    encoder does not. The controller asks it before it names an encoder the
+    innovation test (``EncoderMonitor``) suspects. Raw displacements, not the
+    low-passed difference: the low-pass follows a slow freeze's ramp."""
 
     def __init__(self, n: int, jump_m: float):
         if not jump_m > 0.0:
@@ -238,30 +246,52 @@ class GoughCrossCheck:
 
     def reset(self) -> None:
         n = self.n
-        self.started = False
+        self.cycles = 0
         self.bias, self.mean_square, self.off = np.zeros(n), np.zeros(n), np.zeros(n)
         self.over = np.zeros(n, dtype=np.int64)
         self.skip = np.zeros(n, dtype=bool)
+        # (reading, q(x_g)) of the last three cycles (the newest last), and q(x_g) when
+        # each reading last changed
+        self.history_q, self.history_g = np.zeros((3, n)), np.zeros((3, n))
+        self.hold_g = np.zeros(n)
+        self.last_d = np.zeros(n)
 
-    def agrees(self, i: int, size: float) -> bool:
-        """Did drive i's last reading move as the Gough saw the tool move, against a
-        suspected fault of ``size`` (m): its difference under half of it, and the
-        difference's noise (four RMS) too (a noisier Gough cannot tell)?"""
-        return self.started and abs(self.off[i]) < 0.5 * size and 4.0 * math.sqrt(self.mean_square[i]) < 0.5 * size
+    def agrees(self, i: int, size: float, held: bool) -> bool:
+        """Did drive i's reading move as the Gough saw the tool move, against a
+        suspected fault of ``size`` (m)? ``held``: a freeze, compared since the reading
+        last changed; else a slip, over the last two cycles. Yes when their
+        displacements differ by under half of ``size`` and the Gough's noise (four
+        RMS of the difference) is under half of it too (a noisier Gough cannot tell);
+        no before three cycles of history."""
+        if self.cycles < 3:
+            return False
+        if held:
+            mismatch = self.history_g[2, i] - self.hold_g[i]       # the reading did not move
+        else:
+            mismatch = (self.history_q[2, i] - self.history_q[0, i]) - (self.history_g[2, i] - self.history_g[0, i])
+        return abs(mismatch) < 0.5 * size and 4.0 * math.sqrt(self.mean_square[i]) < 0.5 * size
 
     def check(self, q, q_gough, skip=()) -> tuple[int, str]:
         """(drive, what) when one drive's reading has left the Gough's (class
         docstring), (-1, "") otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
         ``skip``: drives not to judge (dropped ones)."""
-        d = np.asarray(q, dtype=float) - np.asarray(q_gough, dtype=float)
-        if not self.started:
-            self.started = True
+        q, g = np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float)
+        changed = q != self.history_q[2]
+        self.hold_g[changed] = g[changed]
+        self.history_q[:2], self.history_g[:2] = self.history_q[1:], self.history_g[1:]
+        self.history_q[2], self.history_g[2] = q, g
+        self.cycles += 1
+        d = q - g
+        if self.cycles == 1:
+            self.hold_g[:] = g
             self.bias[:] = d
+            self.last_d = d
             return -1, ""
         self.skip[:] = False
         for i in skip:
             self.skip[i] = True
-        i = gough_kernel(d, self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m)
+        i = gough_kernel(d, self.last_d, self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m)
+        self.last_d = d
         if i < 0:
             return -1, ""
         return i, (f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position the "
