@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ConfigError, JointLimitError, UnreachablePoseError
+from .errors import ConfigError, JointLimitError, KinematicsError, UnreachablePoseError
 from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
 from .planar import PlanarLeg, PlanarMachine
@@ -215,10 +215,15 @@ def _translational(r: _Reader, name: str, description: str) -> TranslationalMach
         bounds = (lo, hi)
     home = r.vector("home_position", 3, unit="m")
     workspace = _workspace(r, planar=False)
+    margin = r.number("parallel_margin", 0.0, lo=0.0, hi=0.99)     # |det| of the unit leg directions
     try:
-        model = TranslationalMachine(name, legs, home, workspace, bounds, description)
+        model = TranslationalMachine(name, legs, home, workspace, bounds, description, margin)
         model.inverse_kinematics(home)
     except (UnreachablePoseError, JointLimitError) as exc:
+        raise ConfigError(r._name("home_position"), str(exc)) from None
+    try:
+        model.check_parallel_singularity(home)
+    except KinematicsError as exc:
         raise ConfigError(r._name("home_position"), str(exc)) from None
     return model
 

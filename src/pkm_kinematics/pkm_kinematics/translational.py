@@ -135,6 +135,7 @@ class TranslationalMachine:
     workspace: dict = field(default_factory=dict)
     transmission_bounds: tuple[float, float] | None = None
     description: str = ""
+    parallel_margin: float = 0.0     # poses with parallel_singularity_measure below it are refused (0: none)
 
     def __post_init__(self):
         if len(self.legs) != 3:
@@ -279,6 +280,35 @@ class TranslationalMachine:
         rho = (self.inverse_kinematics(p, check_limits=False) if rho is None
                else np.array(finite_floats(rho, 3, "rho")))
         return p + self._c - self._o - rho[:, None] * self._e
+
+    def parallel_singularity_measure(self, position, rho=None) -> float:
+        """|det| of the unit leg directions, the rows of A normalised (Orthoglide §3.3,
+        eq. 4a): 1 when the legs are orthogonal (the Orthoglide's isotropic
+        configuration), 0 at a parallel singularity (det A = 0: the legs coplanar or
+        parallel, where the platform moves with the drives locked and resists no
+        force)."""
+        a = self.parallel_jacobian(position, rho)
+        return float(abs(np.linalg.det(a / np.linalg.norm(a, axis=1, keepdims=True))))
+
+    def parallel_singularity_measure_batch(self, positions) -> np.ndarray:
+        """:meth:`parallel_singularity_measure` for positions (N, 3); NaN where unreachable."""
+        p = finite_array(positions, "positions", (-1, 3))
+        rho, _ = self.inverse_kinematics_batch(p)
+        a = p[:, None, :] + self._c[None] - self._o[None] - rho[:, :, None] * self._e[None]
+        with np.errstate(invalid="ignore"):
+            return np.abs(np.linalg.det(a / np.linalg.norm(a, axis=2, keepdims=True)))
+
+    def check_parallel_singularity(self, position, margin: float | None = None) -> None:
+        """Raise SingularityError when the pose is at a parallel singularity, or within
+        ``margin`` (default ``parallel_margin``) of one by :meth:`parallel_singularity_measure`."""
+        margin = self.parallel_margin if margin is None else margin
+        value = self.parallel_singularity_measure(position)
+        if not value > max(margin, 1e-9):
+            p = ", ".join(f"{v:.6g}" for v in np.asarray(position, dtype=float))
+            raise SingularityError(
+                f"position ({p}) m is {'at' if value <= 1e-9 else 'near'} a parallel singularity (Orthoglide "
+                f"§3.3: the legs nearly coplanar, the platform free with the drives locked): |det| of the unit leg "
+                f"directions {value:.3g}, parallel_margin {margin:g}")
 
     def serial_jacobian(self, position, rho=None) -> np.ndarray:
         """B = diag((c_i - b_i)^T e_i) (Orthoglide eq. 4)."""

@@ -294,6 +294,10 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
             bound = lo if psi[k].min() < lo else hi
             return f"velocity transmission factor {value:.4g} outside [{lo:g}, {hi:g}] by {abs(value - bound):.4g}"
         first(reachable & ((psi.min(axis=1) < lo) | (psi.max(axis=1) > hi)), 3, psi_message)
+    if getattr(machine, "parallel_margin", 0.0) > 0.0:          # Orthoglide §3.3: det A away from 0
+        measure = machine.parallel_singularity_measure_batch(x)
+        first(reachable & ~(measure > machine.parallel_margin), 3,
+              scalar_error(lambda k: machine.check_parallel_singularity(x[k])))
     jac0 = np.where(np.isfinite(jac), jac, 0.0)
     qdot = np.einsum("nij,nj->ni", jac0, v)
     # qddot = J xddot + Jdot xdot, Jdot xdot by a central difference of J along xdot
