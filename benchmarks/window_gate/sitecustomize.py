@@ -91,10 +91,12 @@ def sample_cpu(log_dir: str, period_s: float = 0.02) -> list:
 
     def write():
         stop.set()
+        sampler.join(timeout=1.0)     # its last sample first: taken before ours, appended after it otherwise
         samples.append((time.perf_counter_ns(), time.process_time_ns()))
         with open(os.path.join(log_dir, f"{os.getpid()}.rec"), "w") as out:
             out.write("\n".join(f"{t} {c}" for t, c in samples))
-    threading.Thread(target=sample, name="window_gate_cpu", daemon=True).start()
+    sampler = threading.Thread(target=sample, name="window_gate_cpu", daemon=True)
+    sampler.start()
     atexit.register(write)
     return samples
 
