@@ -35,7 +35,7 @@ def core_from_parameters(machine_name: str, config: ControllerConfig) -> Control
         raise ValueError(f"parameter '{name}': {rest}") from None
 
 
-def metrology_inputs(wait_for: str | None, reading) -> tuple[list | None, tuple | None]:
+def metrology_inputs(wait_for: str, reading) -> tuple[list | None, tuple | None]:
     """(struts, metrology_pose) for ControllerCore.complete from the reading the
     strategy waits for: ``"struts"`` a JointState's positions (m), ``"pose"`` a
     PoseStamped's position and orientation (pkm_common.cdr data); (None, None) for

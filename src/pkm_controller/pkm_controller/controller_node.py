@@ -90,18 +90,16 @@ class ControllerNode(LifecycleNode):
         self.values = values
         self.names = self.core.names
         strategy = self.core.strategy
-        metrology = strategy.uses_metrology
-        self.wait_for = strategy.reading or None
-        self.pairing = StampPairing(metrology, strategy.reading)
+        self.wait_for = strategy.reading          # "struts", "pose", or "" for the encoder strategies
+        self.pairing = StampPairing(strategy.uses_metrology, strategy.reading)
+        struts = strategy.feedback == Feedback.STRUTS
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
         # ~30-50 us to take and ~13 us to publish each, more than most control laws
         self.state_decoder = JointStateDecoder("drives/state")
         self.command_encoder = JointStateEncoder(self.names, fields=("effort",))
         self.reference_encoder = PoseStampedEncoder("world")
-        if strategy.feedback == Feedback.STRUTS:
-            self.decode_metrology = JointStateDecoder("metrology/struts").decode
-        else:
-            self.decode_metrology = lambda buf: decode_pose_stamped(buf, "metrology/pose")
+        self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
+            (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
         self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
         self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_PUBLISHER_QOS)
         self.publish_command = self.tap.wrap(self.pub_command, JointState).publish
@@ -116,10 +114,10 @@ class ControllerNode(LifecycleNode):
                          self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS),
                          self.create_subscription(Bool, "run/start", self.on_start, LATCHED_QOS),
                          self.create_timer(0.01, self.on_watchdog)]
-        if metrology:
-            kind = JointState if strategy.feedback == Feedback.STRUTS else PoseStamped
-            self.entities.append(self.create_subscription(kind, strategy.metrology_topic, self.on_metrology,
-                                                          STREAM_QOS, raw=True))
+        if strategy.uses_metrology:
+            self.entities.append(self.create_subscription(JointState if struts else PoseStamped,
+                                                          strategy.metrology_topic, self.on_metrology, STREAM_QOS,
+                                                          raw=True))
         self.get_logger().info(f"configured: {values['machine']}, {config.strategy}, {config.distribution}")
         return TransitionCallbackReturn.SUCCESS
 
