@@ -33,6 +33,8 @@ EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
 EXECUTORS = ('single', 'events')
 # "1": run_node locks the process's memory once the node is built (lock_memory)
 MEMORY_LOCK_ENV = 'PKM_MLOCKALL'
+# a directory: run_node profiles its spin loop (cProfile) into <dir>/<name>.prof
+PROFILE_DIR_ENV = 'PKM_PROFILE_DIR'
 _MCL_CURRENT, _MCL_FUTURE = 1, 2            # sys/mman.h
 
 
@@ -81,6 +83,26 @@ def start_up_frozen():
         gc.unfreeze()
 
 
+@contextlib.contextmanager
+def _profiled(name: str):
+    """The block under cProfile when ``PKM_PROFILE_DIR`` names a directory (for
+    experiments: where a node's loop spends its time, each node of a graph of processes
+    in its own file, read with ``python -m pstats``); otherwise nothing."""
+    directory = os.environ.get(PROFILE_DIR_ENV)
+    if not directory:
+        yield
+        return
+    import cProfile
+    profiler = cProfile.Profile()
+    profiler.enable()
+    try:
+        yield
+    finally:
+        profiler.disable()
+        os.makedirs(directory, exist_ok=True)
+        profiler.dump_stats(os.path.join(directory, f'{name}.prof'))
+
+
 def run_node(factory: Callable, args=None, executor: str = 'single', name: str = 'node',
              spin_period_s: float = 0.1) -> int:
     """Build ``factory(context=ctx)`` and spin it until shutdown; returns the exit code.
@@ -120,7 +142,7 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
             except OSError as exc:
                 node.get_logger().error(f'realtime profile: memory not locked: {exc}')
                 return EXIT_BAD_PARAMETER
-        with start_up_frozen():
+        with start_up_frozen(), _profiled(name):
             while context.ok() and not stop:
                 exec_.spin_once(timeout_sec=spin_period_s)
     except (KeyboardInterrupt, ExternalShutdownException):
