@@ -46,6 +46,7 @@ import errno
 import os
 import resource
 import threading
+import time
 from dataclasses import dataclass
 
 from pkm_common.runner import MEMORY_LOCK_ENV, lock_memory, unlock_memory
@@ -181,6 +182,12 @@ def _try_fifo(priority: int) -> int | None:
     thread = threading.Thread(target=attempt, name="rt-profile-probe")
     thread.start()
     thread.join()
+    # join returns when the Python thread is done, a moment before the kernel task of
+    # that thread (SCHED_FIFO now) is gone: wait for it, so that none is left behind
+    task = f"/proc/self/task/{thread.native_id}"
+    deadline = time.monotonic() + 1.0
+    while os.path.exists(task) and time.monotonic() < deadline:
+        time.sleep(0.0005)
     return result[0]
 
 
