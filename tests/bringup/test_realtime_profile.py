@@ -206,8 +206,11 @@ def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_lock
     recorder keeps its own SCHED_IDLE, the trajectory node SCHED_OTHER, neither locked."""
     from pkm_kinematics.config import config_dir
     scenario = yaml.safe_load((config_dir() / "scenarios" / "archi_demo.yaml").read_text())
+    # the sync error counter off: this 2-core VM misses bursts of 1 ms cycles (the
+    # benchmark's figures), which would brake the run; the scheduling is the point here
     scenario.update({"name": "archi_demo_rt", "mode": "realtime", "realtime_profile": True, "duration_s": 2.0,
-                     "program": str(config_dir() / "programs" / "archi_test_motion.nc")})
+                     "program": str(config_dir() / "programs" / "archi_test_motion.nc"),
+                     "plant": {**scenario["plant"], "sync_error_limit": 0}})
     path = tmp_path / "archi_demo_rt.yaml"
     path.write_text(yaml.safe_dump(scenario))
     run_dir = tmp_path / "run"

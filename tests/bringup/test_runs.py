@@ -311,8 +311,11 @@ def test_player_steps_one_clock_tick_per_call(in_process_run, ros_context):
 
 def test_realtime_scenario_runs_on_the_wall_clock_and_reports_deadline_misses(tmp_path):
     """mode: realtime — sim_hw steps on its timer from the first command on (zero-order
-    hold); misses are counted, not fatal."""
-    s = load_scenario("mom3_square", {"mode": "realtime", "dt_s": 0.002, "duration_s": 0.6, "record": True})
+    hold); misses are counted (the sync error counter, which brakes on too many of them,
+    is off: one process on a loaded machine may miss bursts of cycles)."""
+    plant = {**load_scenario("mom3_square").plant, "sync_error_limit": 0}
+    s = load_scenario("mom3_square", {"mode": "realtime", "dt_s": 0.002, "duration_s": 0.6, "record": True,
+                                      "plant": plant})
     run = run_scenario(s, tmp_path / "rt", in_process=True, progress=False)
     assert run["status"] == "completed", run["error"]
     sim = run["summaries"]["sim_hw"]

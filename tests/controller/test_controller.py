@@ -395,3 +395,32 @@ def test_shipped_controller_configs_are_valid(name):
     core = ControllerCore(load_machine(params["machine"]),
                           ControllerConfig.from_dict({k: v for k, v in params.items() if k not in node_keys}))
     assert core.config.strategy == params["strategy"]
+
+
+def _late_commands_loop(flag_held: bool, steps: int = 400):
+    """ARCHI settling a 1 mm step while its commands miss the plant's cycle in runs of
+    8 (realtime overload): on a miss the plant applies the last setpoint it got again,
+    so the forces it reports answer an older command than the controller's last."""
+    plant = Plant(ARCHI, PlantParameters(force_limit_n=CONTROL_LIMIT_N))
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", force_limit_n=CONTROL_LIMIT_N))
+    core.set_trajectory(step_reference(ARCHI_HOME, 0, 0.001))
+    out, applied, held = plant.output(), [0.0] * 4, False
+    for k in range(steps):
+        forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+                             setpoint_held=held and flag_held)
+        held = 2 <= k % 60 < 10                      # this command misses its tick
+        if not held:
+            applied = forces
+        out = plant.step(applied)
+    return core
+
+
+def test_a_held_setpoint_is_not_taken_for_a_failed_drive():
+    """Realtime overload: the plant says in the state's status word when it applied a
+    held setpoint (sim_hw, SETPOINT_HELD); the drive supervision skips those cycles.
+    Without the flag the same run trips as a drive failure: a consequence of missed
+    deadlines reported as a broken drive."""
+    core = _late_commands_loop(flag_held=True)
+    assert not core.stopped, core.stop_reason
+    unflagged = _late_commands_loop(flag_held=False)
+    assert unflagged.stopped and str(unflagged.stop_cause) == "drive_failure", unflagged.stop_reason

@@ -96,6 +96,7 @@ def test_timeout_and_estop(ros_graph):
 def test_realtime_mode_counts_deadline_misses(ros_graph):
     sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
         machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01)))
+    states = Recorder(ros_graph, JointState, "drives/state")
     ros_graph.spin_for(0.3)
     assert sim.plant.k == 0                       # held until the first command (no free fall)
     assert sim.counts["deadline_misses"] == 0
@@ -105,6 +106,34 @@ def test_realtime_mode_counts_deadline_misses(ros_graph):
     ros_graph.spin_for(0.2)
     assert sim.plant.k >= 10                      # from then on it steps on its own
     assert sim.counts["deadline_misses"] >= 5
+    # the status word of each step says whether it applied the setpoint asked for; the
+    # fifth held setpoint in a row, with no command at all, brakes: a silent controller
+    status = {stamp_to_ns(m.header.stamp) // 10_000_000: m.header.frame_id for m in states.messages}
+    assert status[1] == ""                        # step 0's command, answered in time
+    assert [status[k] for k in range(2, 7)] == ["setpoint_held"] * 4 + ["safe_stop:watchdog"]
+    assert sim.plant.stop_reason.startswith("no drives/command for the last 5 cycles")
+
+
+def test_realtime_commands_that_keep_missing_the_cycle_brake_the_plant_named(ros_graph):
+    """A controller one cycle late every time (it answers each state with the command
+    for the one before): every step holds an older setpoint; the sync error counter
+    brakes on the fifth, naming missed deadlines, not a drive or the following error."""
+    sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
+        machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01)))
+    node = ros_graph.create_node("late_controller")
+    pub = node.create_publisher(JointState, "drives/command", STREAM_QOS)
+    previous = []
+
+    def answer_late(state):
+        stamp = stamp_to_ns(state.header.stamp)
+        pub.publish(joint_state_msg(sim.plant.names, previous[-1] if previous else stamp, effort=[58.9] * 3))
+        previous.append(stamp)
+
+    node.create_subscription(JointState, "drives/state", answer_late, STREAM_QOS)
+    assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
+    assert str(sim.plant.stop_cause) == "deadline_missed", sim.plant.stop_reason
+    assert sim.plant.stop_reason.startswith("commands missed the plant's cycle: sync error count 15 > "
+                                            "sync_error_limit 12")
 
 
 @pytest.mark.parametrize("name,value,message", [
@@ -134,14 +163,19 @@ def test_stale_commands_do_not_keep_the_machine_alive(ros_graph):
     assert sim.plant.stopped and sim.counts["timeouts"] == 1 and sim.counts["stale_commands"] > 5
 
 
-def test_realtime_stops_when_the_controller_dies(ros_graph):
+@pytest.mark.parametrize("limit, reason", [
+    (12, "no drives/command for the last 5 cycles"),     # the sync error counter: a few cycles
+    (0, "no drives/command within 0.3 s"),                # without it, the command timeout
+])
+def test_realtime_stops_when_the_controller_dies(ros_graph, limit, reason):
     sim = ros_graph.add_node(SimHwNode(context=ros_graph.context, parameter_overrides=overrides(
-        machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01, command_timeout_s=0.3)))
+        machine="mom3", publish_markers=False, mode="realtime", dt_s=0.01, command_timeout_s=0.3,
+        sync_error_limit=limit)))
     pub = ros_graph.create_node("dying").create_publisher(JointState, "drives/command", STREAM_QOS)
     ros_graph.spin_until(lambda: pub.get_subscription_count() > 0)
     pub.publish(joint_state_msg(sim.plant.names, sim.now_ns(), effort=[58.9] * 3))
     assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=3.0)
-    assert "no drives/command within 0.3 s" in sim.plant.stop_reason
+    assert str(sim.plant.stop_cause) == "watchdog" and sim.plant.stop_reason.startswith(reason)
 
 
 # ---------------------------------------------------------------- command authority
@@ -172,7 +206,8 @@ def test_a_second_publisher_on_drives_command_is_an_intruder(ros_graph):
 def test_an_intruders_forces_never_move_the_machine_in_real_time(ros_graph):
     """Realtime, the rogue sends 1e9 N commands stamped like the plant's step: the
     plant stops on its match (before its data), the tool stays where it was."""
-    sim, _ = _hold_run(ros_graph, mode="realtime", command_source="/hold_controller")
+    # sync_error_limit 0: the one-process test executor misses 1 ms cycles; not the point here
+    sim, _ = _hold_run(ros_graph, mode="realtime", command_source="/hold_controller", sync_error_limit=0)
     rogue = ros_graph.create_node("rogue")
     pub = rogue.create_publisher(JointState, "drives/command", STREAM_QOS)
     x0 = list(sim.plant.x)

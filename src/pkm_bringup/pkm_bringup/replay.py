@@ -31,7 +31,7 @@ import yaml
 from pkm_bringup.bag import IncompleteBagError
 from pkm_bringup.report import incomplete_hint, recover_for_command
 from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_messages
-from pkm_common.causes import plant_stop_cause
+from pkm_common.causes import plant_stop_cause, setpoint_held
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_controller.reference import reference_from_msg
@@ -125,7 +125,8 @@ class _Replay:
         if plant_cause is not None and not self.core.stopped:
             self.core.plant_stopped(plant_cause)  # the node does so on the drives' status word
         forces = self.core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
-                                  struts=struts, metrology_pose=pose)
+                                  struts=struts, metrology_pose=pose,
+                                  setpoint_held=setpoint_held(state.header.frame_id))
         for inputs in self.inputs.values():       # answered: older stamps are never asked for again
             for old in [t for t in inputs if t <= stamp]:
                 del inputs[old]

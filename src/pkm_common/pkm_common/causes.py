@@ -13,9 +13,14 @@ from __future__ import annotations
 
 import enum
 
-__all__ = ["TripCause", "parse_cause", "run_status", "plant_status_word", "plant_stop_cause"]
+__all__ = ["TripCause", "parse_cause", "run_status", "plant_status_word", "plant_stop_cause",
+           "SETPOINT_HELD", "setpoint_held"]
 
 STATUS_PREFIX = "safe_stop:"
+# The status word of a running plant's step that applied the previous setpoint again:
+# the command for the step before missed the cycle (realtime mode), so the forces it
+# reports answer an older command (an EtherCAT drive's sync error flag, in band)
+SETPOINT_HELD = "setpoint_held"
 
 
 class TripCause(str, enum.Enum):
@@ -33,6 +38,7 @@ class TripCause(str, enum.Enum):
     INTRUDER = "intruder"                    # a second publisher on drives/command
     ESTOP = "estop"                          # an operator's estop
     WATCHDOG = "watchdog"                    # an input went silent
+    DEADLINE_MISSED = "deadline_missed"      # realtime: commands missed the plant's cycle too often
     PLANT_SAFE_STOP = "plant_safe_stop"      # the plant braked on its own (end stop, timeout, ...)
     LOAD_REFUSED = "load_refused"            # an external load over its bound
     KINEMATICS = "kinematics"                # FK/IK failed, a law produced non-finite forces
@@ -66,6 +72,11 @@ def plant_stop_cause(frame_id: str) -> TripCause | None:
         return TripCause(frame_id[len(STATUS_PREFIX):])
     except ValueError:
         return TripCause.PLANT_SAFE_STOP
+
+
+def setpoint_held(frame_id: str) -> bool:
+    """Whether a drive state's status word says the step applied a held setpoint."""
+    return frame_id == SETPOINT_HELD
 
 
 def run_status(error: str, cause: TripCause) -> str:

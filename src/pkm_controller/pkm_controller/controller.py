@@ -423,20 +423,24 @@ class ControllerCore:
         return f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})", TripCause.KINEMATICS
 
     # ------------------------------------------------------------------ cycle
-    def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None) -> list:
+    def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None,
+               setpoint_held: bool = False) -> list:
         """One control cycle; returns the drive forces (N) for the next period.
         The same as ``prepare`` on the drive state, then ``complete`` on the metrology."""
-        if not self.prepare(t_s, q, qdot, applied):
+        if not self.prepare(t_s, q, qdot, applied, setpoint_held):
             return list(self.last_command)
         return self.complete(struts, metrology_pose)
 
-    def prepare(self, t_s: float, q, qdot, applied=None) -> bool:
+    def prepare(self, t_s: float, q, qdot, applied=None, setpoint_held: bool = False) -> bool:
         """The first half of a cycle, on the drive state alone: the input checks, the
         encoder FK, the drive supervision, J_m and the task velocity, the reference
         and what the strategy computes from them (the Gough's l_des and J_h, the
         model A(x), H(x, v)). A node runs it while the metrology of the same instant
         is on its way, so only ``complete`` lies between the readings and the command.
-        False when the controller is (now) stopped: ``last_command`` (zeros) answers."""
+        False when the controller is (now) stopped: ``last_command`` (zeros) answers.
+        ``setpoint_held``: the plant says this step applied an older setpoint (our last
+        command missed its cycle): the reported forces answer that one, so the drive
+        supervision skips the cycle (its counts neither grow nor restart)."""
         self._cycle = None
         if self.stopped:
             self.trip(self.stop_reason, self.stop_cause)
@@ -457,7 +461,7 @@ class ControllerCore:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
         self._forces_mismatched = False
-        if applied is not None and len(applied) and not first:
+        if applied is not None and len(applied) and not first and not setpoint_held:
             problem = self._check_drives(list(applied))
             if problem:
                 self.trip(problem, TripCause.DRIVE_FAILURE)

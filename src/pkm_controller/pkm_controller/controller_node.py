@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.causes import TripCause, plant_stop_cause
+from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
 from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
@@ -231,7 +231,8 @@ class ControllerNode(LifecycleNode):
             msg = in_order(msg, self.names, "drives/state")
         except ValueError as exc:
             core.trip(str(exc), TripCause.INPUT_REFUSED)
-        return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort)
+        return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort,
+                            setpoint_held(msg.frame_id))
 
     def answer(self, stamp: int, start: float) -> None:
         """Complete the prepared cycle with the metrology of ``stamp`` and publish the

@@ -20,6 +20,7 @@ class SimHwSettings:
     plant: Plant
     lockstep: bool
     command_timeout_s: float
+    sync_error_limit: int            # realtime: the drives' sync error counter limit (sync_monitor)
     gate: CommandGate
     publish_markers: bool
     duration_s: float
@@ -56,6 +57,8 @@ def declare_settings(node) -> SimHwSettings:
     plant = Plant(machine, params, initial_pose=initial or None)
     lockstep = declare_str(node, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
     timeout_s = declare_float(node, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
+    sync_error_limit = declare_int(node, "sync_error_limit", 12, 0, 1_000_000, "realtime: brake when the "
+                                   "count (+3 per cycle on a held setpoint, -1 per fresh one) exceeds it (0: off)")
     gate = CommandGate(
         declare_str(node, "command_source", "", "the controller node's full name (empty: the one publisher at "
                     "the first command); any other publisher on drives/command stops the machine",
@@ -80,5 +83,5 @@ def declare_settings(node) -> SimHwSettings:
         raise ParameterError("load_schedule", str(exc).partition(": ")[2]) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
     duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
-    return SimHwSettings(machine, plant, lockstep, timeout_s, gate, publish_markers, duration_s, duration_steps,
+    return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s, duration_steps,
                          summary_path, shutdown_on_finish)

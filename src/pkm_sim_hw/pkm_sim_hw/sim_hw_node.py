@@ -10,7 +10,10 @@ stepping on the commands that do come (ignored while stopped).
 In ``realtime`` a wall timer steps every dt with the latest command (zero-order
 hold), from the first command on (before it, the initial state is held and
 re-published as in lockstep); a step whose command was not for the previous state
-counts as a deadline miss.
+counts as a deadline miss: its state says ``setpoint_held`` in the status word (the
+forces it reports answer an older command), and the drives' sync error counter
+(sync_monitor, ``sync_error_limit``) brakes the plant when the misses come too often
+(cause ``deadline_missed``).
 
 A command of the wrong length, with unknown names or NaN, stamped ahead of the plant,
 or from any node but the controller (pkm_sim_hw.authority) is refused: the machine is
@@ -37,7 +40,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from pkm_common.causes import TripCause, plant_status_word
+from pkm_common.causes import SETPOINT_HELD, TripCause, plant_status_word
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
@@ -50,6 +53,7 @@ from pkm_sim_hw.authority import APPLY, STALE, Refusal
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.plant import command_efforts, leg_segments
 from pkm_sim_hw.refusals import RefusalReport
+from pkm_sim_hw.sync_monitor import SyncErrorCounter
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
 
@@ -63,6 +67,8 @@ class SimHwNode(Node):
         self.publish_markers, self.duration_s = settings.publish_markers, settings.duration_s
         self.duration_steps, self.summary_path = settings.duration_steps, settings.summary_path
         self.shutdown_on_finish = settings.shutdown_on_finish
+        self.sync = SyncErrorCounter(settings.sync_error_limit)
+        self.command_arrived = False               # realtime: a command of any age since the last tick
         n, dt_s = self.plant.n, self.plant.params.dt_s
         self.finished = False
         self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
@@ -83,6 +89,8 @@ class SimHwNode(Node):
         # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
         self.state_encoder = JointStateEncoder(self.plant.names)
         self.stopped_encoder = None                # frame_id "safe_stop:<cause>", made at the stop
+        self.held_encoder = JointStateEncoder(self.plant.names, SETPOINT_HELD)
+        self.step_held = False                     # this step applied the last setpoint again (a miss)
         self.pose_encoder = PoseStampedEncoder("world")
         self.planar = self.config.kind == "planar"
         self.command_decoder = JointStateDecoder("drives/command")
@@ -125,7 +133,7 @@ class SimHwNode(Node):
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
             self.steps_published += 1
-        encoder = self.state_encoder
+        encoder = self.held_encoder if self.step_held else self.state_encoder
         if self.plant.stopped:                    # the status word: braked, and why (also before a step)
             if self.stopped_encoder is None:
                 self.stopped_encoder = JointStateEncoder(self.plant.names, plant_status_word(self.plant.stop_cause))
@@ -186,6 +194,7 @@ class SimHwNode(Node):
             self._refuse(str(exc))
             return
         stamp = msg.stamp_ns
+        self.command_arrived = True
         intruder = None if self.started else self.gate.connect(self.command_publishers(), self.command_matches)
         if intruder:                               # braked; lockstep goes on with the answers that come
             self._refuse(intruder)
@@ -213,12 +222,21 @@ class SimHwNode(Node):
     def on_realtime_tick(self) -> None:
         if not self.started or self.finished:
             return                                 # held until the controller's first command
-        if self.latest_stamp_ns != self.now_ns():
+        missed = self.latest_stamp_ns != self.now_ns()
+        if missed:
             self.counts["deadline_misses"] += 1
-        self.advance(self.latest_effort)
+        arrived, self.command_arrived = self.command_arrived, False
+        if self.sync.update(missed, arrived) and not self.plant.stopped:
+            self.plant.safe_stop(self.sync.tripped, self.sync.cause)
+            self.get_logger().error(self.plant.stop_reason)
+            self.publish_diagnostics()
+        self.advance(self.latest_effort, held=missed)
 
-    def advance(self, effort) -> None:
+    def advance(self, effort, held: bool = False) -> None:
+        """One step on ``effort``; ``held``: the setpoint of an earlier step again (the
+        answer to the last state missed the tick), said in the state's status word."""
         self.plant.step(effort)
+        self.step_held = held
         self.publish_state()
         if self.duration_steps and self.plant.k >= self.duration_steps:
             self.finish()

@@ -1,0 +1,59 @@
+"""The drives' sync error counter in realtime mode (pure, no rclpy).
+
+A drive on a cyclic bus applies, on every cycle, the last setpoint it received; when
+the controller's command for a cycle misses it, the drive holds the previous one. An
+EtherCAT drive counts such cycles with a leaky counter (ETG.1020, object 0x10F1:02
+"Sync Error Counter Limit"): +3 for each cycle without a fresh setpoint, -1 for each
+cycle with one, and a fault when the count exceeds its limit. The counter tolerates a
+burst of up to ``limit // 3`` held setpoints and any sustained miss rate below 25 %
+(3 r - (1 - r) < 0); anything worse means the controller cannot keep the cycle, and
+the plant brakes naming that as the cause (``TripCause.DEADLINE_MISSED``), before the
+stale setpoints show up as a following error or a drive that looks broken. When no
+command at all came during the held cycles, the controller is silent, not late: the
+cause is then ``TripCause.WATCHDOG`` (found within a few cycles, long before the
+command timeout).
+"""
+
+from __future__ import annotations
+
+from pkm_common.causes import TripCause
+
+MISS_WEIGHT, ON_TIME_CREDIT = 3, 1       # ETG.1020 0x10F1:02
+
+
+class SyncErrorCounter:
+    """``update(missed, arrived)`` once per plant cycle (``arrived``: a command of any
+    age came during the cycle); True when the count first exceeds ``limit`` (0: never:
+    the check is off), and then ``tripped`` says why and ``cause`` names it."""
+
+    def __init__(self, limit: int):
+        if not 0 <= limit <= 1_000_000:
+            raise ValueError(f"sync_error_limit: must be in [0, 1000000], got {limit}")
+        self.limit = limit
+        self.count = 0
+        self.missed = 0                  # held setpoints since the count last was 0
+        self.silent = 0                  # cycles in a row without any command
+        self.tripped = ""                 # why, from the cycle it tripped on
+        self.cause = TripCause.NONE
+
+    def update(self, missed: bool, arrived: bool = True) -> bool:
+        self.silent = 0 if arrived else self.silent + 1
+        if missed:
+            self.count += MISS_WEIGHT
+            self.missed += 1
+        else:
+            self.count = max(0, self.count - ON_TIME_CREDIT)
+            if self.count == 0:
+                self.missed = 0
+        if self.limit and not self.tripped and self.count > self.limit:
+            count = (f"sync error count {self.count} > sync_error_limit {self.limit} ({self.missed} held "
+                     f"setpoints since the count last was 0; +{MISS_WEIGHT} per held setpoint, "
+                     f"-{ON_TIME_CREDIT} per fresh one)")
+            if missed and self.silent >= self.count // MISS_WEIGHT:
+                self.cause = TripCause.WATCHDOG
+                self.tripped = f"no drives/command for the last {self.silent} cycles: {count}"
+            else:
+                self.cause = TripCause.DEADLINE_MISSED
+                self.tripped = f"commands missed the plant's cycle: {count}"
+            return True
+        return False

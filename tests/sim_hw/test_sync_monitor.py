@@ -1,0 +1,53 @@
+"""The drives' sync error counter (ETG.1020 0x10F1:02): +3 per held setpoint, -1 per
+fresh one, a fault once over the limit."""
+
+import pytest
+
+from pkm_sim_hw.sync_monitor import SyncErrorCounter
+
+
+def run(pattern: str, limit: int = 12) -> int | None:
+    """The cycle index at which the counter trips on ``pattern`` (x: held, .: fresh)."""
+    counter = SyncErrorCounter(limit)
+    for i, c in enumerate(pattern):
+        if counter.update(c == "x"):
+            return i
+    return None
+
+
+def test_a_burst_up_to_the_limit_passes_one_more_held_setpoint_trips():
+    assert run("xxxx" + "." * 50) is None            # 12: not over 12
+    assert run("xxxxx") == 4                           # 15 > 12 at the fifth
+
+
+def test_sustained_misses_trip_above_a_quarter_and_never_below():
+    assert run("x..." * 2000) is None                 # 25 %: +3 -3 per four cycles, stays bounded
+    assert run("x.." * 200) is not None               # 33 %: +1 per three cycles, grows
+    assert run("xx.." * 200) is not None              # 50 %
+
+
+def test_it_trips_once_and_says_why():
+    counter = SyncErrorCounter(3)
+    assert [counter.update(True) for _ in range(4)] == [False, True, False, False]
+    assert "sync error count 6 > sync_error_limit 3 (2 held setpoints" in counter.tripped
+
+
+def test_zero_turns_it_off_and_a_bad_limit_is_refused():
+    assert run("x" * 1000, limit=0) is None
+    with pytest.raises(ValueError, match=r"sync_error_limit: must be in \[0, 1000000\], got -1"):
+        SyncErrorCounter(-1)
+
+
+def test_a_silent_controller_is_named_as_such_a_late_one_as_late():
+    late = SyncErrorCounter(12)
+    assert not any(late.update(True, arrived=True) for _ in range(4))
+    assert late.update(True, arrived=True) and str(late.cause) == "deadline_missed"
+    assert late.tripped.startswith("commands missed the plant's cycle: sync error count 15")
+    silent = SyncErrorCounter(12)
+    assert not any(silent.update(True, arrived=False) for _ in range(4))
+    assert silent.update(True, arrived=False) and str(silent.cause) == "watchdog"
+    assert silent.tripped.startswith("no drives/command for the last 5 cycles")
+    # late for a while, then silent: the count built up by late commands says late
+    mixed = SyncErrorCounter(12)
+    assert [mixed.update(True, arrived=a) for a in (True, True, True, False, False)][-1]
+    assert str(mixed.cause) == "deadline_missed"
