@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'pkm-run = pkm_bringup.orchestrator:main',
+            'pkm-gallery = pkm_bringup.gallery:main',
             'pkm-report = pkm_bringup.report:main',
             'pkm-replay = pkm_bringup.replay:main',
             'recorder_node = pkm_bringup.recorder_node:main',
