@@ -210,6 +210,118 @@ def archi_fig12(bench: Bench) -> Outcome:
     return o
 
 
+# ------------------------------------------------------------------ ARCHI §4
+CROSSING = "archi_singularity_crossing"
+# the chain that crosses its singularity on that motion (its leg in line with the
+# nacelle) leaves J_234 singular; drive q1 lost -> the machine is J_234
+SINGULAR_SUB = "J_234"
+
+
+def _tracking_error_m(out: RunOutput) -> np.ndarray:
+    """|p_true - p_ref| (x, y) per step."""
+    s = out.steps
+    return np.hypot(*(s["position"][:, :2] - s["ref_position"][:, :2]).T)
+
+
+def _stop_index(out: RunOutput) -> int:
+    """The step of the stop (the first all-zero command after motion), else the last."""
+    zero = np.all(out.steps["command"] == 0.0, axis=1)
+    moving = np.nonzero(~zero)[0]
+    after = np.nonzero(zero[moving[0]:])[0] if len(moving) else []
+    return int(moving[0] + after[0]) if len(after) else len(zero) - 1
+
+
+def _controller_faults(out: RunOutput) -> str:
+    return str(out.run.get("summaries", {}).get("controller", {}).get("faults", ""))
+
+
+def archi_singularity_crossing(bench: Bench) -> Outcome:
+    """ARCHI §4's test motion, a translation while the nacelle turns pi/4 -> pi/2,
+    placed where a chain crosses its singularity; the 4-drive machine goes through
+    with a bounded condition number; with drive q1 failed from the start the machine
+    is the sub-machine J_234, which that crossing makes singular: it must stop before."""
+    full_run = bench.run(CROSSING, label="four_drives")
+    sub_run = bench.run(CROSSING, label="q1_failed", plant={"faults": "0:no_force:0.05"})
+    yaw, full, subs, crossings = _path_conditioning(full_run)
+    o = Outcome()
+    on_motion = [a for a in crossings[SINGULAR_SUB] if 45.5 < a < 89.5]
+    o.check(f"during the motion (theta 45 -> 90 deg) a chain crosses a singularity: {SINGULAR_SUB}'s "
+            "determinant changes sign on the measured path", f"{SINGULAR_SUB} crossed at "
+            + ", ".join(f"{a:.1f}" for a in crossings[SINGULAR_SUB]) + " deg", bool(on_motion))
+    err = _tracking_error_m(full_run)
+    o.check(f"the 4-drive machine tracks it with a bounded condition number (completed; cond(J_m) < "
+            f"{ARCHI_MAX_CONDITION:g}; tool error < 0.1 mm)",
+            f"{full_run.status}; max cond(J_m) {np.nanmax(full):.2f}; max tool error {1e6 * np.nanmax(err):.1f} um",
+            full_run.status == "completed" and np.nanmax(full) < ARCHI_MAX_CONDITION and np.nanmax(err) < 1e-4)
+    k = _stop_index(sub_run)
+    sub_yaw, _, sub_subs, sub_crossings = _path_conditioning(sub_run)
+    stop_cond = float(sub_subs[SINGULAR_SUB][min(k, len(sub_yaw) - 1)])
+    o.check(f"the same motion on the 3-drive sub-machine {SINGULAR_SUB} (drive q1 failed at 0.05 s) is stopped "
+            "safely before the singularity (cause singularity; its determinant never changes sign)",
+            f"{sub_run.status}, cause {sub_run.cause} at {sub_run.steps['t_s'][k]:.3f} s, cond({SINGULAR_SUB}) "
+            f"{stop_cond:.0f} there; crossings {len(sub_crossings[SINGULAR_SUB])}; controller: "
+            f"{_controller_faults(sub_run)}",
+            sub_run.status == "tripped" and sub_run.cause == "singularity" and not sub_crossings[SINGULAR_SUB]
+            and "continuing on J_234" in _controller_faults(sub_run))
+    o.table = [["run", "status", "cause", "max cond(J_m)", f"{SINGULAR_SUB} crossed at (deg)", "max tool error (um)"],
+               ["four drives", full_run.status, full_run.cause, f"{np.nanmax(full):.2f}",
+                ", ".join(f"{a:.1f}" for a in crossings[SINGULAR_SUB]), f"{1e6 * np.nanmax(err):.1f}"],
+               ["q1 failed (J_234)", sub_run.status, sub_run.cause, "-", "none",
+                f"{1e6 * np.nanmax(_tracking_error_m(sub_run)[:k + 1]):.1f} (to the stop)"]]
+
+    def draw(fig):
+        ax = fig.add_subplot(1, 1, 1)
+        t = full_run.steps["t_s"][np.isfinite(full_run.steps["yaw"])]
+        for name, cond in subs.items():
+            ax.semilogy(t, cond, lw=0.8, label=f"{name} (four drives' path)")
+        ax.semilogy(t, full, "k", lw=2.0, label="J_m (4 drives)")
+        ts = sub_run.steps["t_s"][np.isfinite(sub_run.steps["yaw"])][:k + 1]
+        ax.semilogy(ts, sub_subs[SINGULAR_SUB][:k + 1], "r--", lw=1.5, label="J_234, q1 failed: stopped")
+        ax.axhline(ARCHI_MAX_CONDITION, color="grey", ls=":", label="max_condition")
+        ax.set_ylim(1.0, 1e4)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("condition number")
+        ax.set_title("ARCHI §4-style motion through a chain singularity")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    o.figures.append(_plot(bench, "archi_singularity_crossing.png", draw))
+    return o
+
+
+FAIL_AT_S = 4.2          # just after the motion starts from (1, -0.6) m at 45 deg
+
+
+def archi_drive_failure(bench: Bench) -> Outcome:
+    """A drive loses its force mid-motion (plant fault no_force at 4.2 s, the motion of
+    archi_singularity_crossing): the controller continues on the three others where
+    that sub-machine is well conditioned (q3 lost: J_124) and stops safely where it is
+    not (q1 lost: J_234, close to its singularity there)."""
+    runs = {d: bench.run(CROSSING, label=f"{d}_fails", plant={"faults": f"{i}:no_force:{FAIL_AT_S}"})
+            for d, i in (("q3", 2), ("q1", 0))}
+    o = Outcome()
+    good = runs["q3"]
+    err = _tracking_error_m(good)
+    o.check("q3 fails: the controller continues on J_124 (well conditioned there) to the end (completed; tool "
+            "error < 0.5 mm)", f"{good.status}; {_controller_faults(good)}; max tool error {1e6 * np.nanmax(err):.1f} um",
+            good.status == "completed" and "continuing on J_124" in _controller_faults(good) and np.nanmax(err) < 5e-4)
+    bad = runs["q1"]
+    k = _stop_index(bad)
+    t_stop = float(bad.steps["t_s"][k])
+    after = bad.steps["position"][k:, :2]
+    drift = float(np.nanmax(np.hypot(*(after - after[0]).T))) if len(after) else math.nan
+    o.check("q1 fails: J_234 is close to its singularity there: the machine stops safely (tripped, cause "
+            "drive_failure naming the ill-conditioned sub-machine, within 10 ms of the failure; the tool moves "
+            "< 1 mm after the stop)", f"{bad.status}, cause {bad.cause}: {bad.run.get('trip_reason', '')}; stopped "
+            f"{1e3 * (t_stop - FAIL_AT_S):.0f} ms after the failure; {1e6 * drift:.0f} um after the stop",
+            bad.status == "tripped" and bad.cause == "drive_failure" and "too close to singular" in
+            bad.run.get("trip_reason", "") and t_stop - FAIL_AT_S <= 0.010 and drift < 1e-3)
+    o.table = [["drive failed at 4.2 s", "status", "cause", "controller", "max tool error (um)"],
+               ["q3", good.status, good.cause, _controller_faults(good), f"{1e6 * np.nanmax(err):.1f}"],
+               ["q1", bad.status, bad.cause, bad.run.get("trip_reason", ""),
+                f"{1e6 * np.nanmax(_tracking_error_m(bad)[:k + 1]):.1f} (to the stop)"]]
+    return o
+
+
 EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("archi_fig10", "Conditioning of the redundant machine and of its 3-leg sub-machines",
                "ARCHI", "§3.3, Figure 10", ("archi_fig10",), archi_fig10),
@@ -217,4 +329,8 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                "singularities", "ARCHI", "§1, §3.3", ("archi_unlimited_rotation",), archi_unlimited_rotation),
     Experiment("archi_fig12", "Joint PIDs fight under a 2 % leg error; projection and Cartesian control do not",
                "ARCHI", "§4.1, Figure 12", ("archi_fig12",), archi_fig12),
+    Experiment(CROSSING, "A translation while the nacelle turns pi/4 -> pi/2 through a chain singularity",
+               "ARCHI", "§4, Figure 11", (CROSSING,), archi_singularity_crossing),
+    Experiment("archi_drive_failure", "A drive fails mid-motion: continue on three drives, or stop where that "
+               "sub-machine is ill-conditioned", "ARCHI", "§2 (redundancy), §3.3", (CROSSING,), archi_drive_failure),
 )}

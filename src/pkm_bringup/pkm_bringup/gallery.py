@@ -121,10 +121,12 @@ class RunOutput:
 def step_arrays(run_dir: Path) -> dict:
     """The per-step streams of a recorded run as arrays over the drive-state stamps:
     ``t_s`` (from the first state), ``q``, ``applied`` (N, n); ``command`` (N, n);
-    ``position`` (N, 3) and ``yaw`` (N,) of the true pose (NaN where a stream has no
-    message of the stamp). A gallery run is a few thousand steps: held whole."""
+    ``position`` (N, 3) and ``yaw`` (N,) of the true pose, ``ref_position`` and
+    ``ref_yaw`` of the controller's reference (NaN where a stream has no message of
+    the stamp). A gallery run is a few thousand steps: held whole."""
     from pkm_bringup.report_data import RunReader, yaw_of
-    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw")}
+    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "ref_position",
+                                   "ref_yaw")}
     with RunReader(run_dir) as reader:
         for block in reader.blocks():
             state = block.rows.get("state")
@@ -137,13 +139,15 @@ def step_arrays(run_dir: Path) -> dict:
             command = block.rows.get("command")
             parts["command"].append(command.effort[keep] if command is not None
                                     else np.full_like(state.effort[keep], np.nan))
-            pose = block.rows.get("true_pose")
-            if pose is not None:
-                parts["position"].append(pose.position[keep])
-                parts["yaw"].append(yaw_of(pose.orientation[keep]))
-            else:
-                parts["position"].append(np.full((int(keep.sum()), 3), np.nan))
-                parts["yaw"].append(np.full(int(keep.sum()), np.nan))
+            for key, prefix in (("true_pose", ""), ("reference", "ref_")):
+                pose = block.rows.get(key)
+                if pose is not None:
+                    position, yaw = pose.position[keep], yaw_of(pose.orientation[keep])
+                    yaw[~pose.present[keep]] = np.nan
+                else:
+                    position, yaw = np.full((int(keep.sum()), 3), np.nan), np.full(int(keep.sum()), np.nan)
+                parts[prefix + "position"].append(position)
+                parts[prefix + "yaw"].append(yaw)
     out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     stamp = out.pop("stamp")
     out["t_s"] = (stamp - stamp[0]) * 1e-9 if len(stamp) else np.zeros(0)

@@ -412,7 +412,7 @@ class ControllerCore:
             return (f"workspace: {'xyz'[index]} = {value:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
                     f"(workspace_margin_m {c.workspace_margin_m:g})", TripCause.WORKSPACE)
         if code == SINGULARITY_MARGIN:
-            return (f"singularity margin: condition number {value:.4g} > max_condition {c.max_condition:g}",
+            return (f"singularity margin: condition number {value:.6g} > max_condition {c.max_condition:g}",
                     TripCause.SINGULARITY)
         if code == FOLLOWING_ERROR_M:
             return (f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}",
