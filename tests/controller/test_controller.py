@@ -424,3 +424,23 @@ def test_a_held_setpoint_is_not_taken_for_a_failed_drive():
     assert not core.stopped, core.stop_reason
     unflagged = _late_commands_loop(flag_held=False)
     assert unflagged.stopped and str(unflagged.stop_cause) == "drive_failure", unflagged.stop_reason
+
+
+def test_two_arm_with_gravity_sets_the_nacelle_internal_force_of_archi_4_3_2():
+    """distribution two_arm_gravity: the arms' forces on the nacelle satisfy
+    (f1 - f2) . n = M_n G sin(theta) (ARCHI §4.3.2; M_n 25 kg, g = (0, -9.81) in
+    config/machines/archi.yaml), two_arm sets it to 0 (§4.3.1); both produce the
+    controller's wrench (J^T f the same)."""
+    pose = [1.0, -0.4, 1.1]
+    model = ARCHI.model
+    force_map, jf = model.pair_force_map(pose)
+    out = {}
+    for distribution in ("two_arm", "two_arm_gravity"):
+        core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque", distribution=distribution))
+        q = model.inverse_kinematics(pose).tolist()
+        forces = np.array(core.update(0.0, q, [0.0] * 4))
+        assert not core.stopped, core.stop_reason
+        out[distribution] = (jf @ np.linalg.solve(force_map, forces), model.jacobian(pose).T @ forces)
+    assert out["two_arm"][0][3] == pytest.approx(0.0, abs=1e-6)
+    assert out["two_arm_gravity"][0][3] == pytest.approx(25.0 * 9.81 * math.sin(1.1), rel=1e-9)
+    np.testing.assert_allclose(out["two_arm"][1], out["two_arm_gravity"][1], atol=1e-6)

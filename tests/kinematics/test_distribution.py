@@ -156,6 +156,10 @@ def test_two_arm_matches_archi_section_4_3(theta):
     fg = fd.two_arm(ARCHI, pose, wrench, k)
     ptsg = point_forces(fg)
     assert (ptsg[:2] - ptsg[2:]) @ [c, s] == pytest.approx(20.0 * 9.81 * s, rel=1e-9)
+    # the gravity vector form: -M_n g . n, the same for g = (0, -G); a machine lying on
+    # its side (g along +x) gets -M_n G cos(theta)
+    assert fd.two_arm_gravity_internal_force(20.0, theta, (0.0, -9.81)) == pytest.approx(k, rel=1e-12)
+    assert fd.two_arm_gravity_internal_force(20.0, theta, (9.81, 0.0)) == pytest.approx(-20.0 * 9.81 * c, rel=1e-12)
     np.testing.assert_allclose(ARCHI.jacobian(pose).T @ fg, wrench, atol=1e-9)
 
 
@@ -192,11 +196,14 @@ def test_distribute_dispatch():
     wrench = np.array([10.0, 20.0, 3.0])
     n = fd.null_direction(jac)
     direct = {"pseudo_inverse": fd.min_two_norm(jac, wrench), "inf_norm": fd.min_inf_norm(jac, wrench),
-              "p_norm": fd.min_p_norm(jac, wrench, 4.0), "two_arm": fd.two_arm(ARCHI, pose, wrench)}
+              "p_norm": fd.min_p_norm(jac, wrench, 4.0), "two_arm": fd.two_arm(ARCHI, pose, wrench),
+              "two_arm_gravity": fd.two_arm(ARCHI, pose, wrench, 30.0)}
     assert set(direct) == set(fd.METHODS)
     for method, expected in direct.items():
-        np.testing.assert_allclose(fd.distribute(method, jac, wrench, machine=ARCHI, pose=pose), expected)
-        f = fd.distribute(method, jac, wrench, machine=ARCHI, pose=pose, prestress_n=5.0)
+        internal = 30.0 if method == "two_arm_gravity" else 0.0     # the caller's M_n G sin(theta)
+        np.testing.assert_allclose(fd.distribute(method, jac, wrench, machine=ARCHI, pose=pose,
+                                                 internal_force_n=internal), expected)
+        f = fd.distribute(method, jac, wrench, machine=ARCHI, pose=pose, prestress_n=5.0, internal_force_n=internal)
         np.testing.assert_allclose(f - expected, 5.0 * n, atol=1e-9)
 
 

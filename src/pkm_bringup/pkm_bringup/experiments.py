@@ -17,12 +17,12 @@ from pkm_bringup.gallery import Bench, Experiment, Outcome, RunOutput
 ARCHI_MAX_CONDITION = 100.0
 
 
-def _plot(bench: Bench, name: str, draw) -> str:
+def _plot(bench: Bench, name: str, draw, size=(8, 4.5)) -> str:
     """Draw a figure with ``draw(fig)`` (matplotlib's Agg canvas) into the bench's
     figure directory; returns its file name."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    fig = Figure(figsize=(8, 4.5), dpi=100)
+    fig = Figure(figsize=size, dpi=100)
     FigureCanvasAgg(fig)
     draw(fig)
     fig.tight_layout()
@@ -210,6 +210,70 @@ def archi_fig12(bench: Bench) -> Outcome:
     return o
 
 
+# ------------------------------------------------------------------ ARCHI §4.3-4.5
+DISTRIBUTIONS = ("two_arm", "two_arm_gravity", "pseudo_inverse", "inf_norm", "p_norm")
+REST_S = (0.05, 0.25)                    # the settle phase before the motion: statics only
+MOTION_FROM_S = 0.35
+
+
+def archi_distributions(bench: Bench) -> Outcome:
+    """ARCHI Figures 15-18: the test motion under computed torque with each force
+    distribution; peak drive force, internal force at rest and in motion, and the
+    largest change of the internal force per cycle (the "discontinuities" of §4.5)."""
+    runs = {d: bench.run("archi_distributions", label=d, controller={"strategy": "computed_torque",
+                                                                     "distribution": d}) for d in DISTRIBUTIONS}
+    fig = {}
+    for d, r in runs.items():
+        t, fi = r.steps["t_s"], _internal_force(r)
+        motion = t >= MOTION_FROM_S
+        fig[d] = {"peak": float(np.nanmax(np.abs(r.steps["applied"]))),
+                  "rest": float(np.nanmean(fi[(t >= REST_S[0]) & (t <= REST_S[1])])),
+                  "internal_max": float(np.nanmax(fi)),
+                  "jump": float(np.nanmax(np.abs(np.diff(fi[motion]))))}
+    o = Outcome()
+    o.check("every distribution runs the test motion (completed)", ", ".join(f"{d} {r.status}" for d, r in runs.items()),
+            all(r.status == "completed" for r in runs.values()))
+    two, grav = fig["two_arm"], fig["two_arm_gravity"]
+    o.check("two-arm control: neglecting gravity, the static internal force is quite important; with gravity "
+            "(§4.3.2) it is very small (at rest: at least 3x smaller)", f"{two['rest']:.0f} N without gravity, "
+            f"{grav['rest']:.0f} N with", two["rest"] >= 3.0 * grav["rest"])
+    pinv = fig["pseudo_inverse"]
+    o.check("pseudo-inverse: no drive force in the null space (internal force < 1 N), better than two-arm "
+            "(lower peak drive force than two-arm without gravity)", f"internal force <= {pinv['internal_max']:.2g} N; "
+            f"peak {pinv['peak']:.0f} N against {two['peak']:.0f} N",
+            pinv["internal_max"] < 1.0 and pinv["peak"] < two["peak"])
+    inf, pn = fig["inf_norm"], fig["p_norm"]
+    lowest = min(fig, key=lambda d: fig[d]["peak"])
+    o.check("infinity-norm: more efficient than the pseudo-inverse (the lowest peak drive force of all five)",
+            f"inf_norm {inf['peak']:.1f} N; lowest: {lowest}", lowest == "inf_norm")
+    o.check("p-norm (p = 4) as the compromise suggested in §4.5: peak between inf-norm's and the "
+            "pseudo-inverse's, and smaller jumps of the internal force per cycle than inf-norm's",
+            f"peak {pn['peak']:.1f} N in [{inf['peak']:.1f}, {pinv['peak']:.1f}]; largest jump {pn['jump']:.2f} N "
+            f"against {inf['jump']:.2f} N", inf["peak"] <= pn["peak"] <= pinv["peak"] and pn["jump"] < inf["jump"])
+    o.table = [["distribution", "peak drive force (N)", "internal force at rest (N)", "internal force, max (N)",
+                "largest change of the internal force per cycle in motion (N)"]]
+    o.table += [[d, f"{v['peak']:.1f}", f"{v['rest']:.1f}", f"{v['internal_max']:.1f}", f"{v['jump']:.2f}"]
+                for d, v in fig.items()]
+
+    def draw(figure):
+        for k, (d, r) in enumerate(runs.items()):
+            ax = figure.add_subplot(2, 3, k + 1)
+            ax.plot(r.steps["t_s"], r.steps["applied"], lw=0.8)
+            ax.set_title(d, fontsize=9)
+            ax.set_xlabel("t (s)", fontsize=8)
+            ax.set_ylabel("drive forces (N)", fontsize=8)
+            ax.grid(True, alpha=0.3)
+        ax = figure.add_subplot(2, 3, 6)
+        for d, r in runs.items():
+            ax.plot(r.steps["t_s"], _internal_force(r), lw=0.8, label=d)
+        ax.set_title("internal force ||f_int||", fontsize=9)
+        ax.set_xlabel("t (s)", fontsize=8)
+        ax.legend(fontsize=6)
+        ax.grid(True, alpha=0.3)
+    o.figures.append(_plot(bench, "archi_distributions.png", draw, size=(11, 6)))
+    return o
+
+
 # ------------------------------------------------------------------ ARCHI §4
 CROSSING = "archi_singularity_crossing"
 # the chain that crosses its singularity on that motion (its leg in line with the
@@ -329,6 +393,9 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                "singularities", "ARCHI", "§1, §3.3", ("archi_unlimited_rotation",), archi_unlimited_rotation),
     Experiment("archi_fig12", "Joint PIDs fight under a 2 % leg error; projection and Cartesian control do not",
                "ARCHI", "§4.1, Figure 12", ("archi_fig12",), archi_fig12),
+    Experiment("archi_distributions", "Force distributions on the test motion: two-arm with and without "
+               "gravity, pseudo-inverse, infinity-norm, p-norm", "ARCHI", "§4.3-4.5, Figures 15-18",
+               ("archi_distributions",), archi_distributions),
     Experiment(CROSSING, "A translation while the nacelle turns pi/4 -> pi/2 through a chain singularity",
                "ARCHI", "§4, Figure 11", (CROSSING,), archi_singularity_crossing),
     Experiment("archi_drive_failure", "A drive fails mid-motion: continue on three drives, or stop where that "

@@ -48,7 +48,8 @@ import numpy as np
 
 from pkm_common.causes import TripCause
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import METHODS, distribute, internal_force_rows, raise_distribution_error
+from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force_rows,
+                                        raise_distribution_error, two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.planar import PlanarMachine
@@ -96,8 +97,8 @@ class ControllerConfig:
         checks = [
             ("strategy", self.strategy in NAMES, f"one of {list(NAMES)}"),
             ("distribution", self.distribution in METHODS, f"one of {list(METHODS)}"),
-            ("distribution", self.distribution != "two_arm" or (planar and n_drives == 4),
-             "two_arm only on a planar machine of two leg pairs (4 drives)"),
+            ("distribution", self.distribution not in TWO_ARM or (planar and n_drives == 4),
+             f"{self.distribution} only on a planar machine of two leg pairs (4 drives)"),
             ("p_norm", 2.0 <= self.p_norm <= 64.0, "in [2, 64]"),
             ("prestress_n", math.isfinite(self.prestress_n) and (self.prestress_n == 0.0 or n_drives == 4),
              "0, or finite on a machine with one redundant drive (4 drives)"),
@@ -683,8 +684,13 @@ class ControllerCore:
         """The distributions that are not compiled (p_norm, two_arm, a prestress); all
         drives active (a degraded machine uses the compiled pseudo-inverse)."""
         c = self.config
+        internal = 0.0
+        if c.distribution == "two_arm_gravity":
+            p = self.dynamics.params
+            internal = two_arm_gravity_internal_force(p.platform_mass_kg, float(pose[2]), p.gravity_m_s2)
         return distribute(c.distribution, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
-                          prestress_n=c.prestress_n, reference=[1.0] * len(active_rows)).tolist()
+                          internal_force_n=internal, prestress_n=c.prestress_n,
+                          reference=[1.0] * len(active_rows)).tolist()
 
     def _expand(self, sub) -> list:
         if len(self.active) == self.n:

@@ -12,7 +12,8 @@ with J^T f = F checked (DistributionError otherwise).
                      gradient step, whose switching Figure 18 shows); closed form for
                      a one-dimensional null space, linear programming otherwise
 * ``min_p_norm``     the p-norm compromise suggested at the end of ARCHI §4.5
-* ``two_arm``        zero (or gravity-balancing) internal force in the nacelle (ARCHI §4.3)
+* ``two_arm``        zero internal force in the nacelle (ARCHI §4.3.1)
+* ``two_arm_gravity`` the internal force M_n G sin(theta) of ARCHI §4.3.2
 * ``project_forces`` n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 6-8)
 * ``add_prestress``  a chosen internal force along the null space
 """
@@ -27,7 +28,8 @@ from .errors import DistributionError
 from .jit import kernel
 from .validation import finite_floats
 
-METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm")
+METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm", "two_arm_gravity")
+TWO_ARM = ("two_arm", "two_arm_gravity")       # need a planar machine of two leg pairs
 # Above p ~ 64 the terms |f_i / max|f||^p underflow and the p-norm stops being
 # computable in floating point; the infinity norm is the limit anyway.
 P_NORM_MAX = 64.0
@@ -459,9 +461,15 @@ def two_arm(machine, pose, wrench, internal_force_n: float = 0.0, check: bool = 
     return forces
 
 
-def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gravity: float = 9.81) -> float:
-    """(f1 - f2) . n = M_n G sin(theta), the supplementary condition of ARCHI §4.3.2."""
-    return nacelle_mass_kg * gravity * math.sin(theta_rad)
+def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gravity=9.81) -> float:
+    """(f1 - f2) . n = M_n G sin(theta), the supplementary condition of ARCHI §4.3.2.
+
+    ``gravity``: G (m/s^2, along -y: the paper's vertical plane, y up), or the gravity
+    vector (g_x, g_y) of the machine, for which the condition reads -M_n g . n with
+    n = (cos theta, sin theta) (the same for g = (0, -G))."""
+    if isinstance(gravity, (int, float)):
+        gravity = (0.0, -float(gravity))
+    return -nacelle_mass_kg * (gravity[0] * math.cos(theta_rad) + gravity[1] * math.sin(theta_rad))
 
 
 def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[float]:
@@ -515,9 +523,9 @@ def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 
         forces = min_inf_norm(jac, wrench)
     elif method == "p_norm":
         forces = min_p_norm(jac, wrench, p)
-    elif method == "two_arm":
+    elif method in TWO_ARM:       # two_arm_gravity: the caller gives M_n G sin(theta) (§4.3.2)
         if machine is None or pose is None:
-            raise ValueError("two_arm: needs machine= and pose=")
+            raise ValueError(f"{method}: needs machine= and pose=")
         forces = two_arm(machine, pose, wrench, internal_force_n)
     else:
         raise ValueError(f"distribution: must be one of {list(METHODS)}, got {method!r}")
