@@ -122,11 +122,11 @@ def step_arrays(run_dir: Path) -> dict:
     """The per-step streams of a recorded run as arrays over the drive-state stamps:
     ``t_s`` (from the first state), ``q``, ``applied`` (N, n); ``command`` (N, n);
     ``position`` (N, 3) and ``yaw`` (N,) of the true pose, ``ref_position`` and
-    ``ref_yaw`` of the controller's reference (NaN where a stream has no message of
-    the stamp). A gallery run is a few thousand steps: held whole."""
+    ``ref_yaw`` of the controller's reference, ``gough_position`` and ``gough_yaw`` of
+    the Gough metrology's DKM pose (NaN where a stream has no message of the stamp). A gallery run is a few thousand steps: held whole."""
     from pkm_bringup.report_data import RunReader, yaw_of
     parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "ref_position",
-                                   "ref_yaw")}
+                                   "ref_yaw", "gough_position", "gough_yaw")}
     with RunReader(run_dir) as reader:
         for block in reader.blocks():
             state = block.rows.get("state")
@@ -139,7 +139,7 @@ def step_arrays(run_dir: Path) -> dict:
             command = block.rows.get("command")
             parts["command"].append(command.effort[keep] if command is not None
                                     else np.full_like(state.effort[keep], np.nan))
-            for key, prefix in (("true_pose", ""), ("reference", "ref_")):
+            for key, prefix in (("true_pose", ""), ("reference", "ref_"), ("metrology_pose", "gough_")):
                 pose = block.rows.get(key)
                 if pose is not None:
                     position, yaw = pose.position[keep], yaw_of(pose.orientation[keep])
