@@ -1,0 +1,39 @@
+(Orthoglide: a machining-like path over the prescribed 200 mm cube, corners Q1, Q2 on the)
+(x = y = z diagonal, centre 26.795 mm, 0.1 mm inside its faces: the sizing puts Q1, Q2)
+(exactly on the transmission bounds. The diagonal Q1 -> Q2, then a raster of passes at)
+(the top, middle and bottom of the cube, at the prototype's 1.2 m/s; mm)
+G21 G90
+G1 F72000 X-73.105 Y-73.105 Z-73.105
+G1 X126.695 Y126.695 Z126.695
+G1 X-73.105 Y126.695 Z126.695
+G1 X126.695
+G1 X126.695 Y76.795 Z126.695
+G1 X-73.105
+G1 X-73.105 Y26.795 Z126.695
+G1 X126.695
+G1 X126.695 Y-23.205 Z126.695
+G1 X-73.105
+G1 X-73.105 Y-73.105 Z126.695
+G1 X126.695
+G1 X-73.105 Y126.695 Z26.795
+G1 X126.695
+G1 X126.695 Y76.795 Z26.795
+G1 X-73.105
+G1 X-73.105 Y26.795 Z26.795
+G1 X126.695
+G1 X126.695 Y-23.205 Z26.795
+G1 X-73.105
+G1 X-73.105 Y-73.105 Z26.795
+G1 X126.695
+G1 X-73.105 Y126.695 Z-73.105
+G1 X126.695
+G1 X126.695 Y76.795 Z-73.105
+G1 X-73.105
+G1 X-73.105 Y26.795 Z-73.105
+G1 X126.695
+G1 X126.695 Y-23.205 Z-73.105
+G1 X-73.105
+G1 X-73.105 Y-73.105 Z-73.105
+G1 X126.695
+G1 X0 Y0 Z0
+M2
