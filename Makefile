@@ -8,7 +8,7 @@ STAMP := $(VENV)/.stamp
 PKG_STAMP := $(VENV)/.stamp-packages
 PIP := $(VPY) -m pip
 PIP_FLAGS ?= -q --disable-pip-version-check
-PYTEST_ARGS ?= -q -p no:cacheprovider
+PYTEST_ARGS ?= -q -p no:cacheprovider --durations=25
 
 # The ament_python packages, installed editable (their console scripts land in
 # $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new

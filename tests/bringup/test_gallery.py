@@ -28,10 +28,11 @@ def test_results_md_gives_each_claim_ours_and_a_verdict_and_flags_a_failure():
     bad = Outcome([Check("claim b", "3 N", True), Check("claim c", "9 N (limit 5 N)", False)])
     e1 = Experiment("e1", "first", "ARCHI", "§3.3", ("archi_fig10",), None)
     e2 = Experiment("e2", "second", "MoM3", "Table 2", ("mom3_square",), None)
-    text = results_markdown([(e1, good, 1.0), (e2, bad, 2.0)])
+    text = results_markdown([(e1, good, 1.0), (e2, bad, 2.0)], pending=[("e3", "MoM3 Table 3", "no frame model")])
     assert "| [e1](#e1) | ARCHI §3.3 | 1 / 1 | reproduced |" in text
     assert "| [e2](#e2) | MoM3 Table 2 | 1 / 2 | NOT reproduced |" in text
     assert "| claim c | 9 N (limit 5 N) | FAIL |" in text
+    assert "- `e3` (MoM3 Table 3): no frame model" in text
     assert "| a\\|b | 2 |" in text and "![a.png](figures/a.png)" in text
     assert not bad.passed and good.passed
     assert markdown_table([]) == ""

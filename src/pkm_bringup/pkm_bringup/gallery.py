@@ -168,9 +168,11 @@ def markdown_table(rows: list[list]) -> str:
     return "\n".join(lines)
 
 
-def results_markdown(results: list[tuple[Experiment, Outcome, float]], figure_prefix: str = "figures") -> str:
+def results_markdown(results: list[tuple[Experiment, Outcome, float]], figure_prefix: str = "figures",
+                     pending=()) -> str:
     """docs/results.md: the summary table, then per experiment the paper's claims,
-    ours and the verdicts, the measured table and the figures."""
+    ours and the verdicts, the measured table and the figures; ``pending``: (name,
+    where in the paper, why not here) of the experiments not run yet."""
     out = ["# Results: the papers' experiments on the simulated machines", "",
            "Written by `pkm-gallery` (`pkm_bringup.gallery`) from the runs of each experiment's",
            "scenarios (`config/scenarios/`, each runs alone with `pkm-run <name>`); every check below is",
@@ -182,10 +184,13 @@ def results_markdown(results: list[tuple[Experiment, Outcome, float]], figure_pr
         verdict = "reproduced" if outcome.passed else "NOT reproduced"
         out.append(f"| [{exp.name}](#{exp.name}) | {exp.paper} {exp.section} | {passed} / "
                    f"{len(outcome.checks)} | {verdict} |")
+    if pending:
+        out += ["", "Not reproduced here yet:", ""] + [f"- `{name}` ({where}): {why}" for name, where, why in pending]
     out += ["", "## References", ""] + [f"- **{k}**: {v}" for k, v in PAPERS.items()]
     for exp, outcome, seconds in results:
-        out += ["", f"## {exp.name}", "", f"**{exp.title}** ({exp.paper} {exp.section}; scenarios: "
-                + ", ".join(f"`{s}`" for s in exp.scenarios) + f"; {seconds:.0f} s here)", ""]
+        runs = ("scenarios: " + ", ".join(f"`{s}`" for s in exp.scenarios)) if exp.scenarios else "no run"
+        out += ["", f"## {exp.name}", "", f"**{exp.title}** ({exp.paper} {exp.section}; {runs}; "
+                f"{seconds:.0f} s here)", ""]
         out += [markdown_table([["the paper (our criterion)", "measured", "verdict"]]
                                + [[c.claim, c.measured, "pass" if c.passed else "FAIL"] for c in outcome.checks])]
         if outcome.table:
@@ -198,7 +203,7 @@ def results_markdown(results: list[tuple[Experiment, Outcome, float]], figure_pr
 
 # ------------------------------------------------------------------ command line
 def main(argv=None) -> int:
-    from pkm_bringup.experiments import EXPERIMENTS
+    from pkm_bringup.experiments import EXPERIMENTS, PENDING
     parser = argparse.ArgumentParser(prog="pkm-gallery", description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help=f"experiments (default: all): {', '.join(EXPERIMENTS)}")
     parser.add_argument("--docs", default="docs", help="where results.md and figures/ are written (default: docs)")
@@ -226,7 +231,7 @@ def main(argv=None) -> int:
                     print(f"    FAIL: {c.claim}: {c.measured}")
     if len(results) == len(EXPERIMENTS):
         docs.mkdir(parents=True, exist_ok=True)
-        (docs / "results.md").write_text(results_markdown(results), encoding="utf-8")
+        (docs / "results.md").write_text(results_markdown(results, pending=PENDING), encoding="utf-8")
         print(f"written: {docs / 'results.md'}")
     else:                          # results.md holds every experiment or none
         print(f"{docs / 'results.md'} not written (a subset ran); figures in {docs / 'figures'}")
