@@ -102,6 +102,29 @@ def test_deflection_is_compliance_times_load_and_invisible_to_encoders():
     np.testing.assert_allclose(out1.encoder_positions, out0.encoder_positions, atol=1e-12)
 
 
+def test_a_frame_load_moves_the_tool_with_the_actuation_chain_unseen_by_the_encoders():
+    """MoM3 §7.1.2, Table 3: 850 N on the Delta's frame moves the whole actuation chain
+    by C_frame f (here 70 nm/N: 59.5 um), the tool with it; the platform's dynamics and
+    the encoders do not change (the drives hold the same positions on a moved frame).
+    Scheduled in simulated time, from the first step at or after t_s."""
+    cf = 7e-8
+    params = PlantParameters(frame_compliance=(cf, cf, cf), encoder_resolution_m=0.0)
+    plain, loaded = Plant(MOM3, params), Plant(MOM3, params)
+    loaded.schedule_frame_load([(0.01, (0.0, 850.0, 0.0))])
+    for k in range(50):
+        out0 = plain.step(holding_forces(plain))
+        out1 = loaded.step(holding_forces(loaded))
+        if k == 5:                   # before 10 ms: no frame load yet
+            assert out1.tool_pose == out1.rigid_pose
+    assert out1.tool_pose[1] - out1.rigid_pose[1] == pytest.approx(59.5e-6, rel=1e-9)
+    assert out1.rigid_pose == out0.rigid_pose
+    np.testing.assert_allclose(out1.encoder_positions, out0.encoder_positions, atol=0.0)
+    with pytest.raises(ValueError, match="frame_load_schedule: times must be finite"):
+        loaded.schedule_frame_load([(0.2, (0.0, 1.0, 0.0)), (0.1, (0.0, 0.0, 0.0))])
+    with pytest.raises(ValueError, match="frame_compliance: must be 3 values >= 0"):
+        Plant(MOM3, PlantParameters(frame_compliance=(-1.0, 0.0, 0.0)))
+
+
 def test_internal_force_from_the_nominal_pseudo_inverse():
     """Forces distributed with the nominal model's pseudo-inverse load nothing when the
     geometry is exact, and fight when one leg is 2 % off (ARCHI §4.1)."""

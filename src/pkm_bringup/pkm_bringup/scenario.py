@@ -20,6 +20,7 @@ node runs by default. Keys (all optional but ``machine``)::
     plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
     recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...; config/recorder.yaml)
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
+    frame_load: [...]                 # the same on the machine's frame (plant frame_compliance)
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
     realtime_profile: false           # SCHED_FIFO for the loop's nodes (controller 80, gough_sensor 70,
@@ -52,8 +53,8 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
-        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "record", "timeout_s",
-        "realtime_profile")
+        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
+        "timeout_s", "realtime_profile")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder"}
@@ -87,6 +88,7 @@ class Scenario:
     plant: dict = field(default_factory=dict)
     recorder: dict = field(default_factory=dict)
     load: list = field(default_factory=list)      # [(t_s, (a, b, c))]
+    frame_load: list = field(default_factory=list)
     record: bool = True
     timeout_s: float = 600.0
     description: str = ""
@@ -197,26 +199,26 @@ def _mapping(data: dict, key: str, node: str) -> dict:
     return dict(value)
 
 
-def _load_profile(value, dt_s: float) -> list:
+def _load_profile(value, dt_s: float, key: str = "load") -> list:
     """[(t_s, wrench)] steps; an entry with ``ramp_s`` reaches its wrench linearly from
     the previous one over that time (a tool entering the material), one step per dt."""
     if not isinstance(value, list):
-        raise ScenarioError(f"load: must be a list of {{t_s, wrench: [3 numbers], ramp_s}}, got {value!r}")
+        raise ScenarioError(f"{key}: must be a list of {{t_s, wrench: [3 numbers], ramp_s}}, got {value!r}")
     rows, previous, last_t = [], (0.0, 0.0, 0.0), 0.0
     for i, row in enumerate(value):
         unknown = sorted(set(row) - {"t_s", "wrench", "ramp_s"}) if isinstance(row, dict) else []
         if unknown:
-            raise ScenarioError(f"load[{i}].{unknown[0]}: unknown key; allowed: t_s, wrench, ramp_s")
+            raise ScenarioError(f"{key}[{i}].{unknown[0]}: unknown key; allowed: t_s, wrench, ramp_s")
         wrench = row.get("wrench") if isinstance(row, dict) else None
         t = row.get("t_s") if isinstance(row, dict) else None
         ramp = row.get("ramp_s", 0.0) if isinstance(row, dict) else None
         if not isinstance(t, (int, float)) or not 0 <= t < 1e6 or not isinstance(wrench, list) or len(wrench) != 3 \
                 or not all(isinstance(w, (int, float)) and math.isfinite(w) for w in wrench) \
                 or not isinstance(ramp, (int, float)) or not 0.0 <= ramp <= 10.0:
-            raise ScenarioError(f"load[{i}]: must be {{t_s: >= 0, wrench: [3 finite numbers], ramp_s: [0, 10] "
+            raise ScenarioError(f"{key}[{i}]: must be {{t_s: >= 0, wrench: [3 finite numbers], ramp_s: [0, 10] "
                                 f"(optional)}}, got {row!r}")
         if t < last_t - 1e-9:
-            raise ScenarioError(f"load[{i}]: starts at t_s = {t:g} s, before the previous entry ends "
+            raise ScenarioError(f"{key}[{i}]: starts at t_s = {t:g} s, before the previous entry ends "
                                 f"({last_t:g} s, ramp included)")
         target = tuple(float(w) for w in wrench)
         steps = max(1, round(ramp / dt_s))
@@ -282,6 +284,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
+    s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load")
     if s.strategy in STRATEGIES and STRATEGIES[s.strategy].uses_metrology and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
                             "set metrology: true")
@@ -323,12 +326,13 @@ def _check_plant(p: dict, config) -> None:
     params.validate(config.model.n_legs)
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
-    schedule = p.get("load_schedule", [])          # flat [t_s, f1, f2, f3, ...]
-    for i in range(0, len(schedule), 4):
-        try:
-            check_load(schedule[i + 1:i + 4], config.kind == "planar", params)
-        except ValueError as exc:
-            raise ValueError(f"{exc} at t_s = {schedule[i]:g} s") from None
+    for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
+        schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
+        for i in range(0, len(schedule), 4):
+            try:
+                check_load(schedule[i + 1:i + 4], config.kind == "planar", params, key)
+            except ValueError as exc:
+                raise ValueError(f"{exc} at t_s = {schedule[i]:g} s") from None
 
 
 def _check_sensor(p: dict, config) -> None:
@@ -446,9 +450,10 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     """node name -> its parameters for this run (node defaults < scenario < run wiring)."""
     summaries = run_dir / "summaries"
     flat_load = [v for t, w in s.load for v in (t, *w)]
+    flat_frame_load = [v for t, w in s.frame_load for v in (t, *w)]
     nodes = {
         "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
-                   "duration_s": s.duration_s, "load_schedule": flat_load,
+                   "duration_s": s.duration_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load,
                    "command_source": controller_node_name(s),
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,

@@ -48,6 +48,8 @@ def declare_settings(node) -> SimHwSettings:
         rail_offset_errors_m=tuple(declare_float_list(node, "rail_offset_errors_m", [], "one per drive "
                                                       "(empty: none)", unit="m")),
         compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
+        frame_compliance=tuple(declare_float_list(node, "frame_compliance", [0.0, 0.0, 0.0], "the actuation "
+                                                  "frame's deflection per unit frame load", length=3, lo=0.0)),
         faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
         max_load_n=declare_float(node, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
                                  "component", lo_open=True, unit="N"),
@@ -71,16 +73,16 @@ def declare_settings(node) -> SimHwSettings:
     summary_path = declare_str(node, "summary_path", "", "write a JSON run summary here at exit", allow_empty=True)
     shutdown_on_finish = declare_bool(node, "shutdown_on_finish", True, "end the process when duration_s is "
                                       "reached (in-process runs: False)")
-    schedule = declare_float_list(node, "load_schedule", [], "flat [t_s, f1, f2, f3, ...]: the load (task "
-                                  "coordinates) from t_s on, in simulated time (deterministic, unlike the "
-                                  "load topic)")
-    if len(schedule) % 4:
-        raise ParameterError("load_schedule", f"must hold groups of 4 numbers [t_s, f1, f2, f3], got "
-                             f"{len(schedule)} numbers")
-    try:
-        plant.schedule_load([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
-    except ValueError as exc:
-        raise ParameterError("load_schedule", str(exc).partition(": ")[2]) from None
+    for name, schedule_into, what in (("load_schedule", plant.schedule_load, "the load on the tool"),
+                                      ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame")):
+        schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
+                                      "from t_s on, in simulated time (deterministic, unlike the load topic)")
+        if len(schedule) % 4:
+            raise ParameterError(name, f"must hold groups of 4 numbers [t_s, f1, f2, f3], got {len(schedule)} numbers")
+        try:
+            schedule_into([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
+        except ValueError as exc:
+            raise ParameterError(name, str(exc).partition(": ")[2]) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
     duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
     return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s, duration_steps,

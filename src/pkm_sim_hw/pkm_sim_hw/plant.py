@@ -15,7 +15,10 @@ structural compliance, external load and faults.
   difference; fault ``encoder_freeze`` holds the last reading, ``encoder_slip`` adds a
   constant offset (the fault's size, default 100 um) from its start on.
 * Compliance: the tool deflects by C f_load, invisible to the drive encoders and
-  visible to a metrology on the tool (MoM3 §7.1: ~70-80 um under 110 N).
+  visible to a metrology on the tool (MoM3 §7.1: ~70-80 um under 110 N). A load on the
+  machine's frame (``frame_load``, MoM3 §7.1.2: 850 N) moves the whole actuation chain
+  by C_frame f_frame, the tool with it: invisible to the encoders too, visible to a
+  metrology whose base is not on that frame (the Gough's, MoM3 Table 3).
 * External load: bounded by ``max_load_n`` (force components) and ``max_load_nm``
   (moment components); a larger one is refused (ValueError naming the bound).
 * Safe stop: brakes on every drive (the platform stops and holds), commands ignored;
@@ -92,6 +95,7 @@ class PlantParameters:
     link_length_errors: tuple = ()        # relative, per leg, e.g. (0, 0, 0.02, 0)
     rail_offset_errors_m: tuple = ()      # shift of each rail origin along its rail
     compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C in task coordinates (m/N, m/N, m/N or rad/(N m))
+    frame_compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C_frame: the actuation chain's frame under frame_load
     faults: tuple = ()
     max_load_n: float = 5000.0            # bound of each force component of the external load
     max_load_nm: float = 500.0            # bound of a moment component (planar machines: m_z)
@@ -108,6 +112,8 @@ class PlantParameters:
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
                   ("compliance", len(self.compliance) == 3 and all(c >= 0.0 for c in self.compliance),
                    "3 values >= 0"),
+                  ("frame_compliance", len(self.frame_compliance) == 3
+                   and all(c >= 0.0 for c in self.frame_compliance), "3 values >= 0"),
                   ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
                   ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m")]
         for name, ok, allowed in checks:
@@ -170,7 +176,9 @@ class Plant:
         self.t = 0.0
         self.k = 0
         self.load = [0.0, 0.0, 0.0]
+        self.frame_load = [0.0, 0.0, 0.0]
         self._schedule: list = []          # [(step, wrench)] (schedule_load)
+        self._frame_schedule: list = []    # [(step, wrench)] (schedule_frame_load)
         self.stopped = False
         self.stop_reason = ""
         self.stop_cause = TripCause.NONE
@@ -195,15 +203,22 @@ class Plant:
         self.load = self.check_load(wrench)
 
     def schedule_load(self, rows) -> None:
-        """Loads in simulated time: [(t_s, wrench)], times non-decreasing; each applies
-        from the first step at or after t_s (counted in steps: no float drift)."""
+        """Loads on the tool in simulated time: [(t_s, wrench)], times non-decreasing;
+        each applies from the first step at or after t_s (counted in steps: no float drift)."""
+        self._schedule = self._steps(rows, "load_schedule")
+
+    def schedule_frame_load(self, rows) -> None:
+        """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
+        self._frame_schedule = self._steps(rows, "frame_load_schedule")
+
+    def _steps(self, rows, what: str) -> list:
         schedule, last_t = [], 0.0
         for t, wrench in rows:
             if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
-                raise ValueError(f"load_schedule: times must be finite, >= 0 and non-decreasing, got {t}")
-            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), self.check_load(wrench, "load_schedule")))
+                raise ValueError(f"{what}: times must be finite, >= 0 and non-decreasing, got {t}")
+            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), self.check_load(wrench, what)))
             last_t = t
-        self._schedule = schedule
+        return schedule
 
     def safe_stop(self, reason: str, cause: TripCause = TripCause.PLANT_SAFE_STOP) -> None:
         """Brakes on: the platform stops where it is and holds; commands are ignored.
@@ -221,6 +236,8 @@ class Plant:
         cmd = finite_floats(forces, self.n, "drive forces")
         while self._schedule and self.k >= self._schedule[0][0]:
             self.load = self._schedule.pop(0)[1]
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0]:
+            self.frame_load = self._frame_schedule.pop(0)[1]
         limit = self.params.force_limit_n
         saturated = [abs(f) > limit for f in cmd]
         applied = [max(-limit, min(limit, f)) for f in cmd]
@@ -352,8 +369,8 @@ class Plant:
         velocity = [(r - p) / self.params.dt_s for r, p in zip(reading, self._encoders)]
         self._encoders = reading
         fint = internal_force_rows(rows, applied) if self.n > 3 else [0.0] * self.n
-        c = self.params.compliance
-        tool = [xi + ci * li for xi, ci, li in zip(self.x, c, self.load)]
+        c, cf = self.params.compliance, self.params.frame_compliance
+        tool = [xi + ci * li + cfi * fi for xi, ci, li, cfi, fi in zip(self.x, c, self.load, cf, self.frame_load)]
         return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(self.x),
                            fint, math.sqrt(sum(f * f for f in fint)),
                            [f"{f.drive}:{f.kind}" for f in faults], self.stopped)
