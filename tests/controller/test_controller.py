@@ -444,3 +444,19 @@ def test_two_arm_with_gravity_sets_the_nacelle_internal_force_of_archi_4_3_2():
     assert out["two_arm"][0][3] == pytest.approx(0.0, abs=1e-6)
     assert out["two_arm_gravity"][0][3] == pytest.approx(25.0 * 9.81 * math.sin(1.1), rel=1e-9)
     np.testing.assert_allclose(out["two_arm"][1], out["two_arm_gravity"][1], atol=1e-6)
+
+
+@pytest.mark.parametrize("fk, tolerance", [("integrated", 1e-6), ("integrated_euler", 5e-5)])
+def test_the_integrated_forward_kinematics_tracks_like_newton(fk, tolerance):
+    """forward_kinematics integrated / integrated_euler (Sliding Star §3.1): ARCHI
+    follows a 20 mm line in 0.1 s with its encoder pose carried by the increments; the
+    tool follows the Newton run's within the integration's error; a bad name is refused."""
+    ref = Reference([0.0, 0.1, 0.3], [ARCHI_HOME, [ARCHI_HOME[0] + 0.02, *ARCHI_HOME[1:]],
+                                      [ARCHI_HOME[0] + 0.02, *ARCHI_HOME[1:]]])
+    _, newton = closed_loop(ARCHI, "computed_torque", 300, ref)
+    core, integrated = closed_loop(ARCHI, "computed_torque", 300, ref, forward_kinematics=fk)
+    assert not core.stopped, core.stop_reason
+    gap = np.abs(np.array(integrated.tool)[:, :2] - np.array(newton.tool)[:, :2]).max()
+    assert 0.0 < gap < tolerance
+    with pytest.raises(ValueError, match=r"forward_kinematics: must be one of \['newton', 'integrated'"):
+        ControllerCore(ARCHI, ControllerConfig(forward_kinematics="euler"))

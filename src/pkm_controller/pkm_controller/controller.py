@@ -52,6 +52,7 @@ from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_
                                         raise_distribution_error, two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.planar import PlanarMachine
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
@@ -64,6 +65,10 @@ from .reference import Reference
 from .strategies import NAMES, Feedback, Law, Projection, strategy
 
 STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), in its order
+# how the encoder pose is found: solved every cycle (Newton, warm-started), or carried by
+# the drive increments (Sliding Star §3.1, pkm_kinematics.online_fk), by the midpoint
+# rule or by explicit Euler: name -> integration order (0: solved)
+FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
 
 
 @dataclass
@@ -92,6 +97,8 @@ class ControllerConfig:
     encoder_jump_m: float = 2e-5          # a reading off its expected motion by this much in one cycle (0: off)
     encoder_freeze_m: float = 2e-4        # a reading held while the reference moved its drive this much (0: off)
     encoder_gough_m: float = 1e-4         # metrology strategies: a reading this far off the Gough's (0: off)
+    forward_kinematics: str = "newton"    # the encoder pose: newton | integrated | integrated_euler (§3.1)
+    fk_resync_cycles: int = 0             # integrated: a Newton solution every N cycles (0: never)
 
     def validate(self, n_drives: int, planar: bool) -> None:
         checks = [
@@ -119,6 +126,8 @@ class ControllerConfig:
             ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_gough_m", 0.0 <= self.encoder_gough_m < math.inf, "in [0, inf) m (0: off)"),
+            ("forward_kinematics", self.forward_kinematics in FORWARD_KINEMATICS, f"one of {list(FORWARD_KINEMATICS)}"),
+            ("fk_resync_cycles", 0 <= self.fk_resync_cycles <= 10**9, "in [0, 1e9] (0: never)"),
         ]
         if self.integral_time_s != 0.0:
             omega = 2.0 * math.pi * self.bandwidth_hz
@@ -259,6 +268,7 @@ class ControllerCore:
         self.reference_start_s = 0.0
         self.pending: Reference | None = None
         self.pose = None                         # encoder FK estimate (warm start)
+        self._fk_q, self._fk_cycles = None, 0    # the readings of that estimate, cycles since reset
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
         self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
@@ -578,9 +588,18 @@ class ControllerCore:
         return self._finish(c, forces, trans, measured, error)
 
     def _forward_kinematics(self, q) -> list:
-        """The encoder pose (planar: warm-started at the last one); q checked finite."""
-        pose = list(self.model.forward_kinematics_floats(q, self.pose))
-        self.pose = pose
+        """The encoder pose (planar: warm-started at the last one); q checked finite.
+        ``integrated`` / ``integrated_euler``: carried by the increments since the last
+        cycle (Sliding Star §3.1), solved by Newton at the first cycle and every
+        ``fk_resync_cycles``."""
+        c = self.config
+        order = FORWARD_KINEMATICS[c.forward_kinematics]
+        if order and self.pose is not None and self._fk_q is not None and (
+                c.fk_resync_cycles == 0 or self._fk_cycles % c.fk_resync_cycles):
+            pose = integrate_forward_kinematics(self.model, self.pose, np.asarray(q) - self._fk_q, order).tolist()
+        else:
+            pose = list(self.model.forward_kinematics_floats(q, self.pose))
+        self.pose, self._fk_q, self._fk_cycles = pose, np.array(q, dtype=float), self._fk_cycles + 1
         return pose
 
     def _start(self, pose, struts, metrology_pose) -> None:
