@@ -123,7 +123,8 @@ def step_arrays(run_dir: Path) -> dict:
     ``t_s`` (from the first state), ``q``, ``applied`` (N, n); ``command`` (N, n);
     ``position`` (N, 3) and ``yaw`` (N,) of the true pose, ``ref_position`` and
     ``ref_yaw`` of the controller's reference, ``gough_position`` and ``gough_yaw`` of
-    the Gough metrology's DKM pose (NaN where a stream has no message of the stamp). A gallery run is a few thousand steps: held whole."""
+    the Gough metrology's DKM pose (NaN where a stream has no message of the stamp).
+    A gallery run is a few thousand steps: held whole."""
     from pkm_bringup.report_data import RunReader, yaw_of
     parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "ref_position",
                                    "ref_yaw", "gough_position", "gough_yaw")}

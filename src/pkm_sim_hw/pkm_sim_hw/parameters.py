@@ -73,8 +73,9 @@ def declare_settings(node) -> SimHwSettings:
     summary_path = declare_str(node, "summary_path", "", "write a JSON run summary here at exit", allow_empty=True)
     shutdown_on_finish = declare_bool(node, "shutdown_on_finish", True, "end the process when duration_s is "
                                       "reached (in-process runs: False)")
-    for name, schedule_into, what in (("load_schedule", plant.schedule_load, "the load on the tool"),
-                                      ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame")):
+    schedules = (("load_schedule", plant.schedule_load, "the load on the tool"),
+                 ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame"))
+    for name, schedule_into, what in schedules:
         schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
                                       "from t_s on, in simulated time (deterministic, unlike the load topic)")
         if len(schedule) % 4:
@@ -85,5 +86,5 @@ def declare_settings(node) -> SimHwSettings:
             raise ParameterError(name, str(exc).partition(": ")[2]) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
     duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
-    return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s, duration_steps,
-                         summary_path, shutdown_on_finish)
+    return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s,
+                         duration_steps, summary_path, shutdown_on_finish)
