@@ -70,7 +70,9 @@ def test_parameters_are_typed_for_ros(tmp_path):
     ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp": 0.1}]}, "load[0].ramp"),
     ({"load": [{"t_s": 0.1, "wrench": [1, 2, 3], "ramp_s": 0.2}, {"t_s": 0.2, "wrench": [0, 0, 0]}]}, "load[1]"),
     ({"frame_load": [{"t_s": 1.0, "wrench": [1, 2]}]}, "frame_load[0]"),
-    ({"frame_load": [{"t_s": 0.5, "wrench": [0.0, 1e6, 0.0]}]}, "frame_load: fy must be in"),
+    ({"frame_load": [{"t_s": 0.5, "wrench": [0.0, 1e6, 0.0]}], "plant": {"frame_compliance": [1e-8] * 3}},
+     "frame_load: fy must be in"),
+    ({"frame_load": [{"t_s": 0.5, "wrench": [0.0, 10.0, 0.0]}]}, "frame_load: needs plant.frame_compliance"),
     ({"plant": {"frame_compliance": [1e-7, -1.0, 0.0]}}, "plant.frame_compliance"),
     ({"trajectory": {"scale": 50.0}}, "program"),       # the program leaves the workspace: refused up front
     ({"recorder": {"compression": "bz2"}}, "recorder.compression"),

@@ -460,3 +460,30 @@ def test_the_integrated_forward_kinematics_tracks_like_newton(fk, tolerance):
     assert 0.0 < gap < tolerance
     with pytest.raises(ValueError, match=r"forward_kinematics: must be one of \['newton', 'integrated'"):
         ControllerCore(ARCHI, ControllerConfig(forward_kinematics="euler"))
+
+
+def test_two_arm_needs_two_leg_pairs():
+    """Sliding Star has 4 drives on a planar machine, but its legs do not pair up on two
+    platform points: two_arm is refused at configuration, not at the first cycle."""
+    star = load_machine("sliding_star")
+    for distribution in ("two_arm", "two_arm_gravity"):
+        with pytest.raises(ValueError, match=f"distribution: {distribution} needs two pairs of legs"):
+            ControllerCore(star, ControllerConfig(distribution=distribution))
+
+
+def test_fk_resync_cycles_puts_a_newton_solution_every_n_cycles():
+    """forward_kinematics integrated_euler with fk_resync_cycles 5: the encoder pose is
+    Newton's exactly at cycles 0, 5, 10, and the integrated one in between."""
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque", forward_kinematics="integrated_euler",
+                                                  fk_resync_cycles=5))
+    model = ARCHI.model
+    exact = []
+    for k in range(12):
+        pose = [ARCHI_HOME[0] + 2e-6 * k, ARCHI_HOME[1] + 1e-6 * k * k, ARCHI_HOME[2] + 1e-5 * k]
+        q = model.inverse_kinematics(pose).tolist()
+        previous = core.pose
+        core.update(0.001 * k, q, [0.0] * 4)
+        assert not core.stopped, core.stop_reason
+        newton = list(model.forward_kinematics_floats(q, previous))
+        exact.append(core.pose == newton)
+    assert exact == [k % 5 == 0 for k in range(12)]

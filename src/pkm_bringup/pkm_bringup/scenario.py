@@ -285,6 +285,9 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.realtime_profile = _boolean(data, "realtime_profile", False)
     s.load = _load_profile(data.get("load") or [], s.dt_s)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load")
+    if s.frame_load and not any(s.plant.get("frame_compliance") or []):
+        raise ScenarioError("frame_load: needs plant.frame_compliance (m/N, 3 values): without it the frame "
+                            "does not deflect and the load would do nothing")
     if s.strategy in STRATEGIES and STRATEGIES[s.strategy].uses_metrology and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
                             "set metrology: true")

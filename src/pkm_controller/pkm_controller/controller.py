@@ -194,6 +194,12 @@ class ControllerCore:
         self.n = self.model.n_legs
         self.names = list(self.model.leg_names)
         self.config.validate(self.n, self.planar)
+        if self.config.distribution in TWO_ARM:
+            try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
+                self.model.pair_force_map(self.model.home_pose)
+            except ValueError as exc:
+                raise ValueError(f"distribution: {self.config.distribution} needs two pairs of legs sharing a "
+                                 f"platform point (ARCHI §4.3): {exc}") from None
         if machine.dynamics is None:
             raise ValueError(f"machine {machine.name!r}: the controller needs a 'dynamics' section "
                              f"(model terms and gain scaling)")

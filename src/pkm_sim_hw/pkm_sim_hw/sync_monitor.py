@@ -49,7 +49,8 @@ class SyncErrorCounter:
             count = (f"sync error count {self.count} > sync_error_limit {self.limit} ({self.missed} held "
                      f"setpoints since the count last was 0; +{MISS_WEIGHT} per held setpoint, "
                      f"-{ON_TIME_CREDIT} per fresh one)")
-            if missed and self.silent >= self.count // MISS_WEIGHT:
+            # silent: no command for as many cycles as the limit lets pass in a row
+            if missed and self.silent >= self.limit // MISS_WEIGHT:
                 self.cause = TripCause.WATCHDOG
                 self.tripped = f"no drives/command for the last {self.silent} cycles: {count}"
             else:
