@@ -6,7 +6,11 @@ The recorded sensor data — ``drives/state`` and, for the metrology strategies,
 ``params/controller.yaml``, in the order the controller answered them (one recorded
 ``drives/command`` per answered state). Every recomputed force must equal the
 recorded one bit for bit: the control law is a pure function of its inputs, and a
-difference means hidden state, wall-clock dependence or a changed law.
+difference means hidden state, wall-clock dependence or a changed law. In real time
+under missed deadlines a state can come before the reading of the one before: the
+node prepared that one and left it (no command answers it), and so does the replay;
+and a command is kept until its inputs are in (the recorder may log a reading it
+received itself after the command that answered it).
 
 Stops from outside the sensor data (``estop`` from another node, wall-clock
 watchdogs) cannot be replayed: with an ``estop`` in the recording only the commands
@@ -21,6 +25,7 @@ A bag its recorder did not finish (killed, cut) is refused with one line saying 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import sys
 from dataclasses import dataclass, fields
@@ -60,6 +65,7 @@ def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
 
 
 LOOP_TOPICS = ("drives/state", "drives/command", "metrology/struts", "metrology/pose", "estop")
+MAX_WAITING = 2000              # recorded commands a missing input may lag behind (2 s at 1 kHz)
 
 
 def recorded_messages(bag_dir: Path, namespace: str, topics=LOOP_TOPICS):
@@ -84,6 +90,10 @@ class _Replay:
     def __init__(self, core: ControllerCore, metrology: str | None):
         self.core, self.metrology = core, metrology
         self.inputs = {"drives/state": {}, "metrology/struts": {}, "metrology/pose": {}}
+        # recorded commands whose inputs are not in yet: a stream the recorder receives
+        # itself (not through a tap) is logged when it gets it, which under load can be
+        # after the command that answered it
+        self.waiting: collections.deque = collections.deque()
         self.commands = self.compared = self.identical = 0
         self.max_diff, self.first, self.note = 0.0, None, ""
         self.stopped = False             # an estop, or an input missing: nothing compared after it
@@ -99,34 +109,55 @@ class _Replay:
                 self.stopped = True
                 self.note = f"estop recorded: the {self.commands} commands before it are compared"
         elif topic == "drives/command":
-            self.command(msg)
+            self.waiting.append((self.commands, msg))
+            self.commands += 1
+            self._drain()
         elif not self.stopped:                    # after a stop nothing is compared: nothing kept
             self.inputs[topic].setdefault(stamp_to_ns(msg.header.stamp), msg)
+            self._drain()
 
-    def command(self, command) -> None:
-        i, self.commands = self.commands, self.commands + 1
-        if self.stopped:
-            return
+    def _missing(self, stamp: int) -> str:
+        """The input of ``stamp`` not recorded (yet), or ""."""
+        if stamp not in self.inputs["drives/state"]:
+            return "drives/state"
+        return self.metrology if self.metrology and stamp not in self.inputs[self.metrology] else ""
+
+    def _drain(self, end: bool = False) -> None:
+        """Compare the waiting commands in order while their inputs are in; a command
+        still missing one after MAX_WAITING later ones (or at the end) ends the
+        comparison there."""
+        while self.waiting and not self.stopped:
+            i, command = self.waiting[0]
+            stamp = stamp_to_ns(command.header.stamp)
+            missing = self._missing(stamp)
+            if missing and (end or len(self.waiting) > MAX_WAITING):
+                self.note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
+                self.stopped = True
+            if missing:
+                return
+            self.waiting.popleft()
+            self.command(i, command)
+
+    def command(self, i: int, command) -> None:
+        """Recompute recorded command ``i`` (its inputs are in) and compare."""
         stamp = stamp_to_ns(command.header.stamp)
-        state = self.inputs["drives/state"].get(stamp)
+        state = self.inputs["drives/state"][stamp]
         metrology = self.inputs[self.metrology] if self.metrology else {}
-        if state is None or (self.metrology and stamp not in metrology):
-            missing = "drives/state" if state is None else self.metrology
-            self.note = f"command {i}: no recorded {missing} of stamp {stamp} ns; compared up to it"
-            self.stopped = True
-            return
         struts = pose = None
         if self.metrology == "metrology/struts":
             struts = list(metrology[stamp].position)
         elif self.metrology == "metrology/pose":
             position, rotation = pose_from_msg(metrology[stamp])
             pose = (position.tolist(), rotation)
-        plant_cause = plant_stop_cause(state.header.frame_id)
-        if plant_cause is not None and not self.core.stopped:
-            self.core.plant_stopped(plant_cause)  # the node does so on the drives' status word
-        forces = self.core.update(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
-                                  struts=struts, metrology_pose=pose,
-                                  setpoint_held=setpoint_held(state.header.frame_id))
+        states = self.inputs["drives/state"]
+        for older in sorted(t for t in states if t < stamp):
+            # a state the node prepared and then left: the next one came before its
+            # reading (realtime under missed deadlines). Preparing moved the core on.
+            self._prepare(states[older], older)
+        if self._prepare(state, stamp):
+            forces = self.core.complete(struts=struts, metrology_pose=pose)
+        else:                                     # stopped: the node answers the last command (zeros)
+            forces = list(self.core.last_command)
         for inputs in self.inputs.values():       # answered: older stamps are never asked for again
             for old in [t for t in inputs if t <= stamp]:
                 del inputs[old]
@@ -137,6 +168,17 @@ class _Replay:
         elif self.first is None:
             self.first = i
         self.max_diff = max(self.max_diff, max((abs(a - b) for a, b in zip(forces, recorded)), default=0.0))
+
+
+    def _prepare(self, state, stamp: int) -> bool:
+        """What controller_node does on a drive state: the plant's status word, then the
+        first half of the cycle (ControllerCore.prepare)."""
+        frame_id = state.header.frame_id
+        plant_cause = plant_stop_cause(frame_id)
+        if plant_cause is not None and not self.core.stopped:
+            self.core.plant_stopped(plant_cause)  # the node does so on the drives' status word
+        return self.core.prepare(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
+                                 setpoint_held(frame_id))
 
 
 def replay_controller(run_dir: str | Path) -> ReplayResult:
@@ -156,6 +198,7 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
         break
     for topic, _, msg in recorded_messages(run_dir / "bag", namespace):
         replay.add(topic, msg)
+    replay._drain(end=True)
     note = replay.note
     if not replay.trajectory_seen and not note:
         note = "no trajectory in the recording (the run ended before it started?)"
