@@ -215,6 +215,11 @@ def main(argv=None) -> int:
         print(f"pkm-gallery: unknown experiment(s) {unknown}; known: {list(EXPERIMENTS)}", file=sys.stderr)
         return 2
     import tempfile
+
+    import rclpy.logging
+    # the nodes run in this process: their INFO lines (configured, run complete...) would
+    # bury the table; warnings and errors still show (a node's logger inherits "pkm"'s)
+    rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.WARN)
     docs = Path(args.docs)
     results = []
     with tempfile.TemporaryDirectory(prefix="pkm-gallery-") as tmp:
