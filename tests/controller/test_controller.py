@@ -397,33 +397,59 @@ def test_shipped_controller_configs_are_valid(name):
     assert core.config.strategy == params["strategy"]
 
 
-def _late_commands_loop(flag_held: bool, steps: int = 400):
-    """ARCHI settling a 1 mm step while its commands miss the plant's cycle in runs of
-    8 (realtime overload): on a miss the plant applies the last setpoint it got again,
-    so the forces it reports answer an older command than the controller's last."""
-    plant = Plant(ARCHI, PlantParameters(force_limit_n=CONTROL_LIMIT_N))
+def _late_commands_loop(flag_held: bool, steps: int = 400, late=lambda k: 2 <= k % 60 < 10, faults=(),
+                        reference=None, arrive_late: bool = False):
+    """ARCHI following a reference while some of its commands miss the plant's cycle
+    (``late(k)``; realtime overload), as sim_hw in real time: at each tick the plant
+    applies the latest command it has; one that missed its tick arrives after it and
+    is applied at the next (``arrive_late``) or never (too old, refused), so the forces
+    a state reports answer an older command than the controller's last; with
+    ``flag_held`` the state says which (the status word)."""
+    plant = Plant(ARCHI, PlantParameters(force_limit_n=CONTROL_LIMIT_N, faults=faults))
     core = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", force_limit_n=CONTROL_LIMIT_N))
-    core.set_trajectory(step_reference(ARCHI_HOME, 0, 0.001))
-    out, applied, held = plant.output(), [0.0] * 4, False
+    core.set_trajectory(reference or step_reference(ARCHI_HOME, 0, 0.001))
+    out, latest, latest_stamp, held = plant.output(), [0.0] * 4, 0, False
     for k in range(steps):
+        stamp = round(out.time_s * 1e9)
         forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
-                             setpoint_held=held and flag_held)
-        held = 2 <= k % 60 < 10                      # this command misses its tick
+                             held=latest_stamp if held and flag_held else None)
+        held = late(k)                               # this command misses its tick...
         if not held:
-            applied = forces
-        out = plant.step(applied)
-    return core
+            latest, latest_stamp = forces, stamp
+        out = plant.step(latest)
+        if held and arrive_late:                     # ...and arrives after it: applied at the next
+            latest, latest_stamp = forces, stamp
+        if core.stopped:
+            break
+    return core, out.time_s
 
 
 def test_a_held_setpoint_is_not_taken_for_a_failed_drive():
-    """Realtime overload: the plant says in the state's status word when it applied a
-    held setpoint (sim_hw, SETPOINT_HELD); the drive supervision skips those cycles.
-    Without the flag the same run trips as a drive failure: a consequence of missed
-    deadlines reported as a broken drive."""
-    core = _late_commands_loop(flag_held=True)
+    """Realtime overload: the plant says in the state's status word which command it
+    applied again (sim_hw, setpoint_held:<stamp>); the drive supervision compares the
+    reported forces with that one. Without it the same run trips as a drive failure:
+    a consequence of missed deadlines reported as a broken drive."""
+    core, _ = _late_commands_loop(flag_held=True)
     assert not core.stopped, core.stop_reason
-    unflagged = _late_commands_loop(flag_held=False)
+    unflagged, _ = _late_commands_loop(flag_held=False)
     assert unflagged.stopped and str(unflagged.stop_cause) == "drive_failure", unflagged.stop_reason
+
+
+def test_a_locked_drive_is_found_while_every_setpoint_is_held():
+    """A controller one cycle late every time from 20 ms on (the sync error counter
+    off): every state is a held one, each answering the command before the last. The
+    supervision compares each reported force with the command the plant applied, so a
+    drive braked at 0.1 s in motion is found within the mismatch window (skipping the
+    held cycles, as first done, never checked a drive again)."""
+    always = lambda k: k >= 20                               # noqa: E731
+    moving = Reference([0.0, 0.3, 0.4], [ARCHI_HOME, [ARCHI_HOME[0] + 0.03, *ARCHI_HOME[1:]],
+                                          [ARCHI_HOME[0] + 0.03, *ARCHI_HOME[1:]]])     # braked in motion
+    core, _ = _late_commands_loop(flag_held=True, late=always, reference=moving, arrive_late=True)
+    assert not core.stopped, core.stop_reason
+    core, t_stop = _late_commands_loop(flag_held=True, late=always, faults=("2:locked:0.1",), reference=moving,
+                                       arrive_late=True)
+    assert core.stopped and str(core.stop_cause) == "drive_failure" and "drive q3" in core.stop_reason
+    assert 0.1 < t_stop <= 0.1 + 0.008, t_stop
 
 
 def test_two_arm_with_gravity_sets_the_nacelle_internal_force_of_archi_4_3_2():

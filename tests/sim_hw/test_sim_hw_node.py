@@ -110,7 +110,7 @@ def test_realtime_mode_counts_deadline_misses(ros_graph):
     # fifth held setpoint in a row, with no command at all, brakes: a silent controller
     status = {stamp_to_ns(m.header.stamp) // 10_000_000: m.header.frame_id for m in states.messages}
     assert status[1] == ""                        # step 0's command, answered in time
-    assert [status[k] for k in range(2, 7)] == ["setpoint_held"] * 4 + ["safe_stop:watchdog"]
+    assert [status[k] for k in range(2, 7)] == ["setpoint_held:0"] * 4 + ["safe_stop:watchdog"]   # step 0's again
     assert sim.plant.stop_reason.startswith("no drives/command for the last 5 cycles")
 
 

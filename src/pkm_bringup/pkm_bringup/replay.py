@@ -178,7 +178,7 @@ class _Replay:
         if plant_cause is not None and not self.core.stopped:
             self.core.plant_stopped(plant_cause)  # the node does so on the drives' status word
         return self.core.prepare(stamp * 1e-9, list(state.position), list(state.velocity), list(state.effort),
-                                 setpoint_held(frame_id))
+                                 held=setpoint_held(frame_id))
 
 
 def replay_controller(run_dir: str | Path) -> ReplayResult:

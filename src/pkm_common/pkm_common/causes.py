@@ -14,13 +14,15 @@ from __future__ import annotations
 import enum
 
 __all__ = ["TripCause", "parse_cause", "run_status", "plant_status_word", "plant_stop_cause",
-           "SETPOINT_HELD", "setpoint_held"]
+           "SETPOINT_HELD", "HELD_COMMAND_UNKNOWN", "setpoint_held", "setpoint_held_word"]
 
 STATUS_PREFIX = "safe_stop:"
-# The status word of a running plant's step that applied the previous setpoint again:
-# the command for the step before missed the cycle (realtime mode), so the forces it
-# reports answer an older command (an EtherCAT drive's sync error flag, in band)
+# The status word of a running plant's step that applied an earlier setpoint again,
+# "setpoint_held:<stamp ns of that command>": the command for the step before missed
+# the cycle (realtime mode), so the forces it reports answer that older command (an
+# EtherCAT drive's sync error flag, in band)
 SETPOINT_HELD = "setpoint_held"
+HELD_COMMAND_UNKNOWN = -1           # held, by a plant that does not say which command
 
 
 class TripCause(str, enum.Enum):
@@ -74,9 +76,21 @@ def plant_stop_cause(frame_id: str) -> TripCause | None:
         return TripCause.PLANT_SAFE_STOP
 
 
-def setpoint_held(frame_id: str) -> bool:
-    """Whether a drive state's status word says the step applied a held setpoint."""
-    return frame_id == SETPOINT_HELD
+def setpoint_held_word(command_stamp_ns: int) -> str:
+    """The status word of a step that applied the command of ``command_stamp_ns`` again."""
+    return f"{SETPOINT_HELD}:{int(command_stamp_ns)}"
+
+
+def setpoint_held(frame_id: str) -> int | None:
+    """None when a drive state's step applied a fresh setpoint; else the stamp (ns) of
+    the command it applied again (``HELD_COMMAND_UNKNOWN`` when the word does not say)."""
+    if not frame_id.startswith(SETPOINT_HELD):
+        return None
+    _, _, stamp = frame_id.partition(":")
+    try:
+        return int(stamp)
+    except ValueError:
+        return HELD_COMMAND_UNKNOWN
 
 
 def run_status(error: str, cause: TripCause) -> str:

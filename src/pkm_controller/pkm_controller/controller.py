@@ -69,6 +69,7 @@ STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), 
 # the drive increments (Sliding Star §3.1, pkm_kinematics.online_fk), by the midpoint
 # rule or by explicit Euler: name -> integration order (0: solved)
 FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
+ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
 
 
 @dataclass
@@ -292,6 +293,9 @@ class ControllerCore:
         self.gough_check = GoughCrossCheck(self.n, c.encoder_gough_m) \
             if c.encoder_gough_m and self.strategy.uses_metrology else None
         self.last_command = [0.0] * self.n
+        # the last answers by the stamp (ns) of their state: a realtime plant may apply
+        # one of them again (a held setpoint) and report the forces of that one
+        self._answers: dict[int, list] = {}
         self._mismatch = [0] * self.n
         self._forces_mismatched = False          # a drive's reported force differs from its command, this cycle
         self._saturated_since = None
@@ -379,14 +383,14 @@ class ControllerCore:
                 return f"metrology/pose: not a finite pose ({p})"
         return ""
 
-    def _check_drives(self, applied) -> str:
-        """Compare the forces the drives report with what was commanded for this
+    def _check_drives(self, applied, commanded) -> str:
+        """Compare the forces the drives report with what was ``commanded`` for this
         period; a drive off by more than drive_mismatch_n for drive_mismatch_cycles
         cycles has failed. No force -> drop it (if allowed and well conditioned); any
         other mismatch (a brake, a jam) -> trip."""
         c = self.config
         for i in self.active:
-            if abs(applied[i] - self.last_command[i]) > c.drive_mismatch_n:
+            if abs(applied[i] - commanded[i]) > c.drive_mismatch_n:
                 self._mismatch[i] += 1
                 self._forces_mismatched = True
             else:
@@ -394,7 +398,7 @@ class ControllerCore:
             if self._mismatch[i] < c.drive_mismatch_cycles:
                 continue
             kind = "no force" if abs(applied[i]) < c.drive_mismatch_n else \
-                f"reports {applied[i]:.1f} N for {self.last_command[i]:.1f} N commanded"
+                f"reports {applied[i]:.1f} N for {commanded[i]:.1f} N commanded"
             what = f"drive {self.names[i]} failed ({kind})"
             remaining = [k for k in self.active if k != i]
             if kind != "no force" or not c.continue_on_drive_failure or len(remaining) < 3:
@@ -441,23 +445,26 @@ class ControllerCore:
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None,
-               setpoint_held: bool = False) -> list:
+               held: int | None = None) -> list:
         """One control cycle; returns the drive forces (N) for the next period.
         The same as ``prepare`` on the drive state, then ``complete`` on the metrology."""
-        if not self.prepare(t_s, q, qdot, applied, setpoint_held):
+        if not self.prepare(t_s, q, qdot, applied, held):
             return list(self.last_command)
         return self.complete(struts, metrology_pose)
 
-    def prepare(self, t_s: float, q, qdot, applied=None, setpoint_held: bool = False) -> bool:
+    def prepare(self, t_s: float, q, qdot, applied=None, held: int | None = None) -> bool:
         """The first half of a cycle, on the drive state alone: the input checks, the
         encoder FK, the drive supervision, J_m and the task velocity, the reference
         and what the strategy computes from them (the Gough's l_des and J_h, the
         model A(x), H(x, v)). A node runs it while the metrology of the same instant
         is on its way, so only ``complete`` lies between the readings and the command.
         False when the controller is (now) stopped: ``last_command`` (zeros) answers.
-        ``setpoint_held``: the plant says this step applied an older setpoint (our last
-        command missed its cycle): the reported forces answer that one, so the drive
-        supervision skips the cycle (its counts neither grow nor restart)."""
+        ``held``: the plant says this step applied an older setpoint again (our last
+        command missed its cycle), the stamp (ns) of that command
+        (pkm_common.causes.setpoint_held): the drive supervision compares the reported
+        forces with the command of that stamp, and skips the cycle (its counts neither
+        grow nor restart) when it does not know it (HELD_COMMAND_UNKNOWN, or older than
+        the answers it keeps)."""
         self._cycle = None
         if self.stopped:
             self.trip(self.stop_reason, self.stop_cause)
@@ -478,8 +485,9 @@ class ControllerCore:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
         self._forces_mismatched = False
-        if applied is not None and len(applied) and not first and not setpoint_held:
-            problem = self._check_drives(list(applied))
+        commanded = self.last_command if held is None else self._answers.get(held)
+        if applied is not None and len(applied) and not first and commanded is not None:
+            problem = self._check_drives(list(applied), commanded)
             if problem:
                 self.trip(problem, TripCause.DRIVE_FAILURE)
                 return False
@@ -747,12 +755,19 @@ class ControllerCore:
             self._saturated_since = None
         self.cycles += 1
         self.last_command = forces
+        self._keep_answer(c.t_s, forces)
         self.peak_force_n = max(self.peak_force_n, peak)
         self.max_error_m = max(self.max_error_m, trans)
         r = self.record
         r.time_s, r.reference, r.measured, r.error = c.t_s, tuple(c.x_d), tuple(measured), tuple(error)
         r.forces, r.saturated, r.rows = tuple(forces), saturated, c.rows
         return forces
+
+    def _keep_answer(self, t_s: float, forces) -> None:
+        answers = self._answers
+        if len(answers) >= ANSWERS_KEPT:
+            del answers[next(iter(answers))]          # the oldest (insertion order)
+        answers[round(t_s * 1e9)] = forces
 
     # ----------------------------------------------------------------- status
     def status(self) -> tuple[int, str, dict]:

@@ -232,7 +232,7 @@ class ControllerNode(LifecycleNode):
         except ValueError as exc:
             core.trip(str(exc), TripCause.INPUT_REFUSED)
         return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort,
-                            setpoint_held(msg.frame_id))
+                            held=setpoint_held(msg.frame_id))
 
     def answer(self, stamp: int, start: float) -> None:
         """Complete the prepared cycle with the metrology of ``stamp`` and publish the

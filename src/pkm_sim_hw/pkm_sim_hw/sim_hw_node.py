@@ -10,8 +10,8 @@ stepping on the commands that do come (ignored while stopped).
 In ``realtime`` a wall timer steps every dt with the latest command (zero-order
 hold), from the first command on (before it, the initial state is held and
 re-published as in lockstep); a step whose command was not for the previous state
-counts as a deadline miss: its state says ``setpoint_held`` in the status word (the
-forces it reports answer an older command), and the drives' sync error counter
+counts as a deadline miss: its state says ``setpoint_held:<stamp>`` in the status word
+(the forces it reports answer the command of that stamp), and the drives' sync error counter
 (sync_monitor, ``sync_error_limit``) brakes the plant when the misses come too often
 (cause ``deadline_missed``).
 
@@ -40,7 +40,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from pkm_common.causes import SETPOINT_HELD, TripCause, plant_status_word
+from pkm_common.causes import TripCause, plant_status_word, setpoint_held_word
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
@@ -89,8 +89,7 @@ class SimHwNode(Node):
         # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
         self.state_encoder = JointStateEncoder(self.plant.names)
         self.stopped_encoder = None                # frame_id "safe_stop:<cause>", made at the stop
-        self.held_encoder = JointStateEncoder(self.plant.names, SETPOINT_HELD)
-        self.step_held = False                     # this step applied the last setpoint again (a miss)
+        self.held_encoder = None                   # frame_id "setpoint_held:<stamp>" of this step, if held
         self.pose_encoder = PoseStampedEncoder("world")
         self.planar = self.config.kind == "planar"
         self.command_decoder = JointStateDecoder("drives/command")
@@ -133,7 +132,7 @@ class SimHwNode(Node):
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
             self.steps_published += 1
-        encoder = self.held_encoder if self.step_held else self.state_encoder
+        encoder = self.held_encoder or self.state_encoder
         if self.plant.stopped:                    # the status word: braked, and why (also before a step)
             if self.stopped_encoder is None:
                 self.stopped_encoder = JointStateEncoder(self.plant.names, plant_status_word(self.plant.stop_cause))
@@ -236,7 +235,10 @@ class SimHwNode(Node):
         """One step on ``effort``; ``held``: the setpoint of an earlier step again (the
         answer to the last state missed the tick), said in the state's status word."""
         self.plant.step(effort)
-        self.step_held = held
+        # the status word names the command applied again (the drive supervision compares
+        # the reported forces with it); made per held step (~20 us, a late step only)
+        self.held_encoder = JointStateEncoder(self.plant.names, setpoint_held_word(self.latest_stamp_ns)) \
+            if held else None
         self.publish_state()
         if self.duration_steps and self.plant.k >= self.duration_steps:
             self.finish()
