@@ -7,9 +7,9 @@ increments: x_{k+1} = x_k + J_m^+ (q_{k+1} - q_k), with qdot = J_m xdot and J_m^
 least-squares inverse (a redundant machine's increments that no motion explains are
 left out). No iteration; the price is a drift, which nothing in the increments can
 see. ``order`` 1 (explicit Euler, J_m at x_k) errs by a term first order in the step:
-on Sliding Star at 0.5 m/s and 1 kHz about 100 um, not growing over repeated loops;
+on Sliding Star at 0.5 m/s and 1 kHz about 0.1 mm, not growing over repeated loops;
 ``order`` 2 (the midpoint rule, J_m at x_k + half the Euler step, two solves) by
-0.15 um (``pkm-gallery sliding_star_online_fk``). The controller's
+about 0.1 um (``pkm-gallery sliding_star_online_fk``). The controller's
 ``fk_resync_cycles`` also bounds either with a Newton solution every so many cycles.
 """
 
