@@ -3,7 +3,7 @@ fresh one, a fault once over the limit."""
 
 import pytest
 
-from pkm_sim_hw.sync_monitor import SyncErrorCounter
+from pkm_sim_hw.sync_monitor import SetpointHold, SyncErrorCounter
 
 
 def run(pattern: str, limit: int = 12) -> int | None:
@@ -59,3 +59,17 @@ def test_a_controller_late_once_then_dead_is_named_silent():
     counter = SyncErrorCounter(12)
     assert [counter.update(True, arrived=a) for a in (True, False, False, False, False)][-1]
     assert str(counter.cause) == "watchdog" and counter.tripped.startswith("no drives/command for the last 4 cycles")
+
+
+def test_the_hold_applies_the_latest_command_and_names_it_when_it_is_late():
+    """sim_hw's realtime zero-order hold: the answer to a tick's state is fresh; without
+    it the latest command is applied again and named by its stamp; five such ticks with
+    no command at all trip the counter as silence."""
+    hold = SetpointHold(2, 12)
+    hold.latch([1.0, 2.0], 0)
+    assert hold.tick(0) == ([1.0, 2.0], None, False)
+    hold.command_came()                              # an older command arrived: not an answer
+    assert hold.tick(1_000_000) == ([1.0, 2.0], 0, False)
+    results = [hold.tick(k * 1_000_000) for k in range(2, 6)]
+    assert [r[1] for r in results] == [0] * 4 and results[-1][2]
+    assert str(hold.sync.cause) == "watchdog"

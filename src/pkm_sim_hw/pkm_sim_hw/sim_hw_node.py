@@ -53,7 +53,7 @@ from pkm_sim_hw.authority import APPLY, STALE, Refusal
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.plant import command_efforts, leg_segments
 from pkm_sim_hw.refusals import RefusalReport
-from pkm_sim_hw.sync_monitor import SyncErrorCounter
+from pkm_sim_hw.sync_monitor import SetpointHold
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
 
@@ -67,8 +67,6 @@ class SimHwNode(Node):
         self.publish_markers, self.duration_s = settings.publish_markers, settings.duration_s
         self.duration_steps, self.summary_path = settings.duration_steps, settings.summary_path
         self.shutdown_on_finish = settings.shutdown_on_finish
-        self.sync = SyncErrorCounter(settings.sync_error_limit)
-        self.command_arrived = False               # realtime: a command of any age since the last tick
         n, dt_s = self.plant.n, self.plant.params.dt_s
         self.finished = False
         self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
@@ -83,8 +81,7 @@ class SimHwNode(Node):
         # the command watchdog does not count this process's own stalls (another node's
         # callback in a shared executor): 3 periods of its 0.1 s timer
         self.command_watchdog = SilenceWatchdog(own_stall_s=0.3)
-        self.latest_effort = [0.0] * n            # realtime: zero-order hold
-        self.latest_stamp_ns = -1
+        self.hold = SetpointHold(n, settings.sync_error_limit)    # realtime: the drives' zero-order hold
         # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
         # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
         self.state_encoder = JointStateEncoder(self.plant.names)
@@ -193,7 +190,7 @@ class SimHwNode(Node):
             self._refuse(str(exc))
             return
         stamp = msg.stamp_ns
-        self.command_arrived = True
+        self.hold.command_came()
         intruder = None if self.started else self.gate.connect(self.command_publishers(), self.command_matches)
         if intruder:                               # braked; lockstep goes on with the answers that come
             self._refuse(intruder)
@@ -214,31 +211,28 @@ class SimHwNode(Node):
         if self.first_command_wall is None:
             self.first_command_wall = now
         if not self.lockstep:
-            self.latest_effort, self.latest_stamp_ns = effort, stamp
+            self.hold.latch(effort, stamp)
             return
         self.advance(effort)
 
     def on_realtime_tick(self) -> None:
         if not self.started or self.finished:
             return                                 # held until the controller's first command
-        missed = self.latest_stamp_ns != self.now_ns()
-        if missed:
-            self.counts["deadline_misses"] += 1
-        arrived, self.command_arrived = self.command_arrived, False
-        if self.sync.update(missed, arrived) and not self.plant.stopped:
-            self.plant.safe_stop(self.sync.tripped, self.sync.cause)
+        effort, held, tripped = self.hold.tick(self.now_ns())
+        self.counts["deadline_misses"] += held is not None
+        if tripped and not self.plant.stopped:
+            self.plant.safe_stop(self.hold.sync.tripped, self.hold.sync.cause)
             self.get_logger().error(self.plant.stop_reason)
             self.publish_diagnostics()
-        self.advance(self.latest_effort, held=missed)
+        self.advance(effort, held)
 
-    def advance(self, effort, held: bool = False) -> None:
-        """One step on ``effort``; ``held``: the setpoint of an earlier step again (the
-        answer to the last state missed the tick), said in the state's status word."""
+    def advance(self, effort, held_stamp_ns: int | None = None) -> None:
+        """One step on ``effort``; ``held_stamp_ns``: it is the command of that stamp
+        again (the answer to the last state missed the tick), said in the status word,
+        where the drive supervision finds the command to compare (~20 us, a miss only)."""
         self.plant.step(effort)
-        # the status word names the command applied again (the drive supervision compares
-        # the reported forces with it); made per held step (~20 us, a late step only)
-        self.held_encoder = JointStateEncoder(self.plant.names, setpoint_held_word(self.latest_stamp_ns)) \
-            if held else None
+        self.held_encoder = None if held_stamp_ns is None else \
+            JointStateEncoder(self.plant.names, setpoint_held_word(held_stamp_ns))
         self.publish_state()
         if self.duration_steps and self.plant.k >= self.duration_steps:
             self.finish()

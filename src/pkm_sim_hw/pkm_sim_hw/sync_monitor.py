@@ -58,3 +58,30 @@ class SyncErrorCounter:
                 self.tripped = f"commands missed the plant's cycle: {count}"
             return True
         return False
+
+
+class SetpointHold:
+    """The drives' zero-order hold in realtime mode: the latest command they got and its
+    stamp, whether any command came since the last tick, and the sync error counter
+    over the ticks. sim_hw ``latch``-es each applicable command, calls ``command_came``
+    for any decoded one, and ``tick`` at each period."""
+
+    def __init__(self, n_drives: int, sync_error_limit: int):
+        self.effort, self.stamp_ns = [0.0] * n_drives, -1
+        self.arrived = False
+        self.sync = SyncErrorCounter(sync_error_limit)
+
+    def command_came(self) -> None:
+        self.arrived = True
+
+    def latch(self, effort, stamp_ns: int) -> None:
+        self.effort, self.stamp_ns = effort, stamp_ns
+
+    def tick(self, now_ns: int) -> tuple[list, int | None, bool]:
+        """At the tick of the state stamped ``now_ns``: (the effort to apply, the stamp
+        of the command applied again when it does not answer that state (a miss; None:
+        a fresh setpoint), whether the sync error counter trips on this tick)."""
+        held = None if self.stamp_ns == now_ns else self.stamp_ns
+        arrived, self.arrived = self.arrived, False
+        return self.effort, held, self.sync.update(held is not None, arrived)
+
