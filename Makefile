@@ -8,7 +8,10 @@ STAMP := $(VENV)/.stamp
 PKG_STAMP := $(VENV)/.stamp-packages
 PIP := $(VPY) -m pip
 PIP_FLAGS ?= -q --disable-pip-version-check
-PYTEST_ARGS ?= -q -p no:cacheprovider --durations=25
+# -n auto --maxprocesses 4: one worker per core, at most 4 (each worker claims its own DDS
+# domain in tests/conftest.py); worksteal keeps both cores busy to the end, when only the
+# slow multi-process tests are left. `make test PYTEST_ARGS=-q` runs it in one process.
+PYTEST_ARGS ?= -q -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
 
 # The ament_python packages, installed editable (their console scripts land in
 # $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new
