@@ -73,3 +73,17 @@ def test_the_hold_applies_the_latest_command_and_names_it_when_it_is_late():
     results = [hold.tick(k * 1_000_000) for k in range(2, 6)]
     assert [r[1] for r in results] == [0] * 4 and results[-1][2]
     assert str(hold.sync.cause) == "watchdog"
+
+
+def test_the_answer_to_the_published_state_is_applied_once_on_arrival():
+    """The fresh answer is stepped on when it arrives (latch says so, once) and the tick
+    then has nothing to apply; a late command (older stamp) is left to the tick, which
+    applies it as a held setpoint."""
+    hold = SetpointHold(2, 12)
+    assert hold.latch([1.0, 2.0], 0, published_ns=0)
+    assert not hold.latch([1.0, 2.0], 0, published_ns=0)      # a repeat: already applied
+    assert hold.tick(0) == (None, None, False)
+    assert not hold.latch([3.0, 4.0], 0, published_ns=1_000_000)   # late: for the tick
+    assert hold.tick(1_000_000) == ([3.0, 4.0], 0, False)
+    assert hold.latch([5.0, 6.0], 2_000_000, published_ns=2_000_000)
+    assert hold.tick(2_000_000) == (None, None, False)

@@ -7,10 +7,13 @@ first command arrives the state is re-published at 10 Hz (discovery); after it, 
 command within ``command_timeout_s`` (wall clock, not counting this process's own
 stalls: pkm_common.watchdog) is a fault: brakes on, reported, and the node keeps
 stepping on the commands that do come (ignored while stopped).
-In ``realtime`` a wall timer steps every dt with the latest command (zero-order
-hold), from the first command on (before it, the initial state is held and
-re-published as in lockstep); a step whose command was not for the previous state
-counts as a deadline miss: its state says ``setpoint_held:<stamp>`` in the status word
+In ``realtime`` a wall timer publishes a step every dt, applying the latest command
+(zero-order hold), from the first command on (before it, the initial state is held and
+re-published as in lockstep). The answer to the state last published is applied when
+it arrives (the plant integrates then, so that the tick only publishes: the step's
+~0.1 ms is off the deadline's path; the same numbers as stepping at the tick); without
+one, the tick steps on the command held. A step whose command was not for the
+previous state counts as a deadline miss: its state says ``setpoint_held:<stamp>`` in the status word
 (the forces it reports answer the command of that stamp), and the drives' sync error counter
 (sync_monitor, ``sync_error_limit``) brakes the plant when the misses come too often
 (cause ``deadline_missed``).
@@ -194,7 +197,7 @@ class SimHwNode(Node):
         intruder = None if self.started else self.gate.connect(self.command_publishers(), self.command_matches)
         if intruder:                               # braked; lockstep goes on with the answers that come
             self._refuse(intruder)
-        verdict = self.gate.check_stamp(stamp, self.now_ns())
+        verdict = self.gate.check_stamp(stamp, self.last_published_ns)     # realtime: plant may be ahead
         if verdict == STALE:
             self.counts["stale_commands"] += 1    # an answer to an older state: not alive
             return
@@ -211,26 +214,34 @@ class SimHwNode(Node):
         if self.first_command_wall is None:
             self.first_command_wall = now
         if not self.lockstep:
-            self.hold.latch(effort, stamp)
+            if self.hold.latch(effort, stamp, self.last_published_ns):
+                self.plant.step(effort)            # the next tick's step, made now; the tick publishes it
             return
         self.advance(effort)
 
     def on_realtime_tick(self) -> None:
         if not self.started or self.finished:
             return                                 # held until the controller's first command
-        effort, held, tripped = self.hold.tick(self.now_ns())
+        effort, held, tripped = self.hold.tick(self.last_published_ns)
         self.counts["deadline_misses"] += held is not None
         if tripped and not self.plant.stopped:
             self.plant.safe_stop(self.hold.sync.tripped, self.hold.sync.cause)
             self.get_logger().error(self.plant.stop_reason)
             self.publish_diagnostics()
-        self.advance(effort, held)
+        if effort is None:                         # stepped on the fresh answer at its arrival
+            self.publish_step()
+        else:
+            self.advance(effort, held)
 
     def advance(self, effort, held_stamp_ns: int | None = None) -> None:
-        """One step on ``effort``; ``held_stamp_ns``: it is the command of that stamp
+        """One step on ``effort``, published."""
+        self.plant.step(effort)
+        self.publish_step(held_stamp_ns)
+
+    def publish_step(self, held_stamp_ns: int | None = None) -> None:
+        """The step just made; ``held_stamp_ns``: its command was the one of that stamp
         again (the answer to the last state missed the tick), said in the status word,
         where the drive supervision finds the command to compare (~20 us, a miss only)."""
-        self.plant.step(effort)
         self.held_encoder = None if held_stamp_ns is None else \
             JointStateEncoder(self.plant.names, setpoint_held_word(held_stamp_ns))
         self.publish_state()

@@ -64,24 +64,38 @@ class SetpointHold:
     """The drives' zero-order hold in realtime mode: the latest command they got and its
     stamp, whether any command came since the last tick, and the sync error counter
     over the ticks. sim_hw ``latch``-es each applicable command, calls ``command_came``
-    for any decoded one, and ``tick`` at each period."""
+    for any decoded one, and ``tick`` at each period.
+
+    The answer to the state last published is the setpoint of the next tick whatever
+    else comes (nothing newer can: the controller answers states it has), so the plant
+    may integrate on it as soon as it arrives and leave the tick only the publishing:
+    ``latch`` says when."""
 
     def __init__(self, n_drives: int, sync_error_limit: int):
         self.effort, self.stamp_ns = [0.0] * n_drives, -1
         self.arrived = False
+        self.applied = False             # the fresh answer of this period was stepped on at arrival
         self.sync = SyncErrorCounter(sync_error_limit)
 
     def command_came(self) -> None:
         self.arrived = True
 
-    def latch(self, effort, stamp_ns: int) -> None:
+    def latch(self, effort, stamp_ns: int, published_ns: int | None = None) -> bool:
+        """The latest command; True when it is the first answer to the state published
+        as ``published_ns``: the plant steps on it now, and the tick will not."""
         self.effort, self.stamp_ns = effort, stamp_ns
+        if stamp_ns == published_ns and not self.applied:
+            self.applied = True
+            return True
+        return False
 
     def tick(self, now_ns: int) -> tuple[list, int | None, bool]:
-        """At the tick of the state stamped ``now_ns``: (the effort to apply, the stamp
-        of the command applied again when it does not answer that state (a miss; None:
-        a fresh setpoint), whether the sync error counter trips on this tick)."""
+        """At the tick of the state stamped ``now_ns``: (the effort to apply, None when
+        ``latch`` had it applied already; the stamp of the command applied again when it
+        does not answer that state (a miss; None: a fresh setpoint); whether the sync
+        error counter trips on this tick)."""
         held = None if self.stamp_ns == now_ns else self.stamp_ns
         arrived, self.arrived = self.arrived, False
-        return self.effort, held, self.sync.update(held is not None, arrived)
+        effort, self.applied = None if self.applied else self.effort, False
+        return effort, held, self.sync.update(held is not None, arrived)
 
