@@ -18,68 +18,18 @@ Fixtures:
   always driven by ``spin_once(timeout_sec=...)``; its ``spin()`` hangs).
 """
 
-import errno
-import fcntl
-import os
-import random
-import tempfile
 import threading
 import time
 
 import pytest
 
 # --- DDS domain isolation (must run before rclpy is imported anywhere) -------
+# One domain per session (per pytest-xdist worker), locked for the process's life by
+# pkm_common.domains (flock in $TMPDIR/pkm-ros-domain-locks, released by the kernel
+# even after a crash); PKM_TEST_ROS_DOMAIN_ID forces an ID.
+from pkm_common.domains import use_private_domain  # noqa: E402  (no rclpy inside)
 
-# Fast DDS on Linux: domain IDs 0-101 and 215-232 map to valid UDP ports.
-# 0 is everybody's default, so tests use 1..101.
-_DOMAIN_MIN, _DOMAIN_MAX = 1, 101
-_LOCK_DIR = os.path.join(tempfile.gettempdir(), 'pkm-ros-domain-locks')
-_domain_lock_fd = None  # kept open for the whole session: holds the lock
-
-
-def _claim_domain_id():
-    """Pick a domain ID no other live pytest session on this machine holds.
-
-    IDs are tried from a random start; the first one whose lock file can be
-    locked (``flock``, released by the kernel when this process exits, even on
-    a crash) is ours. ``PKM_TEST_ROS_DOMAIN_ID`` forces a given ID (e.g. to
-    watch a test with a ROS tool in the same domain).
-    """
-    global _domain_lock_fd
-    forced = os.environ.get('PKM_TEST_ROS_DOMAIN_ID')
-    if forced:
-        return int(forced)
-    ids = list(range(_DOMAIN_MIN, _DOMAIN_MAX + 1))
-    start = random.Random(os.getpid() ^ time.time_ns()).randrange(len(ids))
-    ids = ids[start:] + ids[:start]
-    try:
-        os.makedirs(_LOCK_DIR, exist_ok=True)
-        os.chmod(_LOCK_DIR, 0o1777)  # shared by all users, like /tmp
-    except OSError:
-        pass
-    for domain_id in ids:
-        path = os.path.join(_LOCK_DIR, f'{domain_id}.lock')
-        try:
-            fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o644)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            os.close(fd)
-            if e.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-                continue  # held by another live session
-            return domain_id  # locking unsupported here: take it unlocked
-        _domain_lock_fd = fd
-        return domain_id
-    return ids[0]  # all 101 held: share one rather than fail
-
-
-ROS_DOMAIN_ID = _claim_domain_id()
-os.environ['ROS_DOMAIN_ID'] = str(ROS_DOMAIN_ID)
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy, warns
-os.environ.pop('ROS_STATIC_PEERS', None)
+ROS_DOMAIN_ID = use_private_domain()
 
 
 def pytest_report_header(config):

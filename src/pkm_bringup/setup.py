@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'pkm-run = pkm_bringup.orchestrator:main',
             'pkm-gallery = pkm_bringup.gallery:main',
+            'pkm-study = pkm_bringup.study_engine:main',
             'pkm-report = pkm_bringup.report:main',
             'pkm-replay = pkm_bringup.replay:main',
             'recorder_node = pkm_bringup.recorder_node:main',

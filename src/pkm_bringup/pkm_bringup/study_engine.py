@@ -1,0 +1,237 @@
+"""``pkm-study``: a study's runs on Dask distributed (study.py says what a study is).
+
+    pkm-study archi_leg_errors                      # config/studies/<name>.yaml, or a file
+    pkm-study my_study.yaml --workers 2 --out studies/mine
+    pkm-study my_study.yaml --scheduler tcp://10.0.0.5:8786
+
+The engine is Dask's: a ``LocalCluster`` of ``--workers`` processes (one thread each)
+by default, or the scheduler of a cluster of machines that have the project installed
+at the same path (README, "Studies on a cluster"). Each run is a task; the worker runs
+it complete, in one process by default (``in_process: false`` runs the nodes as
+processes), in a DDS domain its process holds alone on its host
+(pkm_common.domains), one run at a time per worker process, into the run directory
+``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded
+unless it failed).
+
+Nothing lost, nothing twice: the client writes each run's row to
+``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
+only the runs without one. A run's key holds a hash of what it runs, so an edited
+study or base scenario never reuses an old row for a changed run. A run that fails
+(an error, a refused scenario) is a row with ``run.status: failed`` and its error; a
+run whose worker dies is given by Dask to another worker, and after Dask's
+``distributed.scheduler.allowed-failures`` deaths (3) it is recorded as failed, named
+as such. Task keys are the run keys, so a study restarted against a persistent
+scheduler joins the runs still in flight instead of starting them again.
+
+At the end (or on Ctrl-C, with what is done) it writes ``results.parquet`` and
+``results.csv`` (every run: its varied parameters and metrics), ``summary.csv`` (per
+group of ``group_by``: runs, completed, tripped, failed, and count, mean, std, min,
+median, max of each of ``metrics``) and the plots (study_tables.py). Exit codes: 0
+every run done and none failed, 1 some failed, 2 a bad study, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from pkm_bringup.study import Study, StudyError, describe, failed_metrics, load_study, result_row, run_metrics
+
+_ONE_RUN_AT_A_TIME = threading.Lock()       # a worker process with several threads still runs one graph
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """What a worker needs for one run (plain data: sent to the worker by pickle)."""
+    scenario: str               # the base scenario file (the same path on every worker)
+    overrides: dict
+    run_dir: str
+    in_process: bool
+
+
+def execute_run(task: RunTask) -> dict:
+    """Run one study run on this worker and return its metrics (study.run_metrics), or
+    ``failed_metrics`` with the error: never raises for a failing run."""
+    with _ONE_RUN_AT_A_TIME:
+        from pkm_common.domains import use_private_domain
+        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}", "run.domain_id": use_private_domain()}
+        _quiet_nodes()
+        try:
+            return {**_execute(task), **where}
+        except Exception as exc:       # noqa: BLE001 - a run's failure is a row, not a lost task
+            return {**failed_metrics(f"{type(exc).__name__}: {exc}"), **where}
+
+
+def _quiet_nodes() -> None:
+    import rclpy.logging
+    # the nodes run in the worker: a thousand runs' lines, trips included, would bury the
+    # progress bar; each row has the run's status, cause and reason (run.*)
+    rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.FATAL)
+
+
+def _execute(task: RunTask) -> dict:
+    from pkm_bringup.orchestrator import run_scenario
+    from pkm_bringup.scenario import ScenarioError, load_scenario
+    try:
+        s = load_scenario(task.scenario, task.overrides)
+    except ScenarioError as exc:
+        return failed_metrics(f"scenario refused: {exc}")
+    run_dir = Path(task.run_dir)
+    shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
+    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False)
+    report = None
+    if s.record and (run_dir / "bag" / "metadata.yaml").exists():
+        from pkm_bringup.report import analyse_bag
+        from pkm_bringup.report_metrics import metrics_dict
+        try:
+            report = metrics_dict(analyse_bag(run_dir, namespace=run.get("namespace"),
+                                              machine_name=run.get("machine")), run.get("published"))
+        except (ValueError, OSError) as exc:
+            run["error"] = run.get("error") or f"report: {exc}"
+    metrics = run_metrics(run, report)
+    if not s.record and metrics.get("run.status") != "failed":
+        shutil.rmtree(run_dir, ignore_errors=True)
+    return metrics
+
+
+# ------------------------------------------------------------------ the client
+def write_json_atomic(path: Path, data) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, allow_nan=True), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def done_keys(out_dir: Path) -> set[str]:
+    return {p.stem for p in (out_dir / "results").glob("*.json")}
+
+
+def _client(workers: int | None, scheduler: str | None):
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        return Client(scheduler), None
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler: str | None = None,
+              progress: bool = True, stream=sys.stderr) -> dict:
+    """Every run of ``study`` without a result in ``out_dir``, on Dask; then the tables
+    and plots. Returns {"runs", "done_before", "ran", "failed", "interrupted", "table"}."""
+    from dask.distributed import as_completed
+    from tqdm import tqdm
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "results").mkdir(exist_ok=True)
+    shutil.copyfile(study.source, out_dir / "study.yaml")
+    runs = study.runs()
+    done = done_keys(out_dir)
+    pending = [r for r in runs if r.key not in done]
+    outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
+               "interrupted": False}
+    if pending:
+        client, cluster = _client(workers, scheduler)
+        bar = tqdm(total=len(runs), initial=outcome["done_before"], unit="run", disable=not progress, file=stream,
+                   desc=study.name, smoothing=0.1)
+        futures = []
+        try:
+            tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
+                             study.in_process) for r in pending]
+            # by its module's name, also when this file runs as __main__ (python -m): the
+            # workers import it (cloudpickle would copy a __main__ function by value)
+            from pkm_bringup.study_engine import execute_run as task_function
+            futures = client.map(task_function, tasks, key=[f"pkm-study-{study.name}-{r.key}" for r in pending],
+                                 pure=False)
+            by_future = {f.key: r for f, r in zip(futures, pending)}
+            for future in as_completed(futures):
+                run = by_future[future.key]
+                metrics = _metrics_of(future)
+                write_json_atomic(out_dir / "results" / f"{run.key}.json", result_row(run, metrics))
+                outcome["ran"] += 1
+                outcome["failed"] += metrics.get("run.status") == "failed"
+                bar.set_postfix_str(f"failed {outcome['failed']}", refresh=False)
+                bar.update()
+        except KeyboardInterrupt:
+            outcome["interrupted"] = True
+        finally:
+            bar.close()
+            client.cancel(futures)
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    from pkm_bringup.study_tables import write_outputs
+    outcome["table"] = write_outputs(study, out_dir, runs)
+    outcome["failed_total"] = int((outcome["table"]["run.status"] == "failed").sum()) \
+        if "run.status" in outcome["table"] else 0
+    return outcome
+
+
+def _metrics_of(future) -> dict:
+    """The task's metrics; a task Dask gave up on (its worker died each time) or one
+    that raised anyway is a failed run, named."""
+    from distributed import KilledWorker
+    try:
+        return future.result()
+    except KilledWorker as exc:
+        return failed_metrics(f"the run's worker died each time it was tried (Dask KilledWorker: {exc})")
+    except Exception as exc:           # noqa: BLE001 - recorded as the run's failure
+        return failed_metrics(f"{type(exc).__name__}: {exc}")
+
+
+# ------------------------------------------------------------------ command line
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="pkm-study", description=__doc__.split("\n\n")[0])
+    parser.add_argument("study", help="study file, or the name of one in config/studies")
+    parser.add_argument("--out", help="output directory (default: studies/<name>); a study started "
+                                      "again there runs only what is missing")
+    parser.add_argument("--workers", type=int, help="LocalCluster worker processes (default: one per core)")
+    parser.add_argument("--scheduler", help="a Dask scheduler's address, e.g. tcp://HOST:8786, instead of a "
+                                            "LocalCluster")
+    parser.add_argument("--dry-run", action="store_true", help="list the runs and what is done; run nothing")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    if args.workers is not None and not 1 <= args.workers <= 1024:
+        print(f"pkm-study: --workers: must be in [1, 1024], got {args.workers}", file=sys.stderr)
+        return 2
+    if args.workers and args.scheduler:
+        print("pkm-study: --workers and --scheduler exclude each other (the cluster has its own workers)",
+              file=sys.stderr)
+        return 2
+    try:
+        study = load_study(args.study)
+    except StudyError as exc:
+        print(f"pkm-study: {exc}", file=sys.stderr)
+        return 2
+    out_dir = Path(args.out or Path("studies") / study.name)
+    runs = study.runs()
+    done = done_keys(out_dir)
+    print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({len(runs) - len(done & {r.key for r in runs})}"
+          f" to run) -> {out_dir}", flush=True)
+    if args.dry_run:
+        for r in runs:
+            print(f"  {r.key}  {'done ' if r.key in done else 'to do'}  {describe(r.values)}")
+        return 0
+    start = time.monotonic()
+    outcome = run_study(study, out_dir, workers=args.workers, scheduler=args.scheduler,
+                        progress=not args.no_progress)
+    from pkm_bringup.study_tables import format_summary
+    print(format_summary(study, outcome["table"]), flush=True)
+    print(f"{outcome['ran']} runs in {time.monotonic() - start:.1f} s ({outcome['done_before']} done before), "
+          f"{outcome['failed_total']} failed; written: {out_dir}/results.parquet, results.csv, summary.csv", flush=True)
+    if outcome["interrupted"]:
+        print(f"pkm-study: interrupted; {len(done_keys(out_dir) & {r.key for r in runs})} of {len(runs)} runs done: "
+              "run the same command again to finish", file=sys.stderr)
+        return 130
+    return 1 if outcome["failed_total"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

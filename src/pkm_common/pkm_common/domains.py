@@ -1,0 +1,77 @@
+"""One private ROS 2 DDS domain per process (no rclpy; safe to import before it).
+
+Test sessions (tests/conftest.py) and study workers (pkm_bringup.study_engine) run
+whole graphs side by side on one machine; each claims a domain ID that no other live
+process on the host holds, so their runs never answer each other's states. The claim
+is an exclusive ``flock`` on ``<lock dir>/<id>.lock``, held by an open file for the
+life of the process and released by the kernel when it ends, even on a crash or a
+``kill -9``. With discovery kept on localhost (``ROS_AUTOMATIC_DISCOVERY_RANGE=
+LOCALHOST``, set by :func:`use_private_domain`), processes on different hosts never
+meet whatever their IDs, so the claim only needs to be unique per host.
+
+Fast DDS on Linux maps IDs 0-101 and 215-232 to valid UDP ports (ROS 2 docs, "The
+ROS_DOMAIN_ID"); 0 is everybody's default, so :data:`DOMAIN_IDS` leaves it out.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import random
+import tempfile
+import time
+
+DOMAIN_IDS = tuple(range(1, 102)) + tuple(range(215, 233))
+LOCK_DIR = os.path.join(tempfile.gettempdir(), "pkm-ros-domain-locks")
+FORCE_ENV = "PKM_TEST_ROS_DOMAIN_ID"           # forces an ID (to watch a run with a ROS tool)
+
+_held: dict[int, int] = {}                      # domain ID -> the fd holding its lock (this process)
+
+
+def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR) -> int:
+    """A domain ID no other live process on this host holds, locked for this process.
+
+    IDs are tried from a random start; the first whose lock file can be locked is
+    ours. Where locking is not supported the first ID tried is taken unlocked; when
+    every ID is held, one is shared rather than failing."""
+    forced = os.environ.get(FORCE_ENV)
+    if forced:
+        return int(forced)
+    ids = list(ids)
+    start = random.Random(os.getpid() ^ time.time_ns()).randrange(len(ids))
+    ids = ids[start:] + ids[:start]
+    try:
+        os.makedirs(lock_dir, exist_ok=True)
+        os.chmod(lock_dir, 0o1777)          # shared by all users, like /tmp
+    except OSError:
+        pass
+    for domain_id in ids:
+        try:
+            fd = os.open(os.path.join(lock_dir, f"{domain_id}.lock"), os.O_RDONLY | os.O_CREAT, 0o644)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            os.close(fd)
+            if e.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                continue                    # held by another live process
+            return domain_id                # locking unsupported here: take it unlocked
+        _held[domain_id] = fd
+        return domain_id
+    return ids[0]
+
+
+def use_private_domain(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR) -> int:
+    """Claim a domain for this process (once: later calls return the same ID) and set
+    the environment every rclpy context and child process of it reads."""
+    current = os.environ.get("ROS_DOMAIN_ID")
+    if _held and current and int(current) in _held:
+        return int(current)
+    domain_id = claim_domain_id(ids, lock_dir)
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)      # deprecated in Jazzy, warns
+    os.environ.pop("ROS_STATIC_PEERS", None)
+    return domain_id
