@@ -110,6 +110,12 @@ def test_random_normal_draws_have_the_asked_mean_and_spread(tmp_path):
     assert abs(x.mean() - 0.3) < 4 * 0.02 / np.sqrt(len(x)) and abs(x.std() / 0.02 - 1) < 0.05
 
 
+@pytest.mark.parametrize("name", ["archi_leg_errors", "mom3_load_sweep"])
+def test_the_example_studies_load_with_every_grid_cell_accepted(name):
+    study = load_study(name)
+    assert len(study.runs()) == {"archi_leg_errors": 90, "mom3_load_sweep": 8}[name]
+
+
 def test_overrides_refuse_a_section_that_is_not_a_mapping():
     with pytest.raises(StudyError, match="plant.seed: the base scenario's plant is not a mapping"):
         scenario_overrides({"plant": [1]}, {"plant.seed": 3})

@@ -58,6 +58,8 @@ def _text(value) -> str:
         return f"{value:.4g}"
     if isinstance(value, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_text(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_text(v)}" for k, v in value.items()) + "}"
     return str(value)
 
 
