@@ -110,10 +110,11 @@ def test_random_normal_draws_have_the_asked_mean_and_spread(tmp_path):
     assert abs(x.mean() - 0.3) < 4 * 0.02 / np.sqrt(len(x)) and abs(x.std() / 0.02 - 1) < 0.05
 
 
-@pytest.mark.parametrize("name", ["archi_leg_errors", "mom3_load_sweep"])
+@pytest.mark.parametrize("name", ["archi_leg_errors", "mom3_load_sweep", "sliding_star_design"])
 def test_the_example_studies_load_with_every_grid_cell_accepted(name):
     study = load_study(name)
-    assert len(study.runs()) == {"archi_leg_errors": 90, "mom3_load_sweep": 8}[name]
+    size = study.design_values().shape if study.design else len(study.runs())
+    assert size == {"archi_leg_errors": 90, "mom3_load_sweep": 8, "sliding_star_design": (100000, 3)}[name]
 
 
 def test_overrides_refuse_a_section_that_is_not_a_mapping():
@@ -240,3 +241,58 @@ def test_a_study_on_a_scheduler_with_two_workers_survives_a_killed_worker(tmp_pa
     assert len(workers) >= 2
     firsts = [d[0] for d in workers]
     assert all(len(d) == 1 for d in workers) and len(set(firsts)) == len(firsts)   # one domain each, never shared
+
+
+# ------------------------------------------------------------------ design sweeps
+DESIGN = {"design": {"machine": "sliding_star", "kind": "planar", "points_per_axis": 5, "theta_points": 3,
+                     "chunk": 40},
+          "grid": {"link_length_scale": [0.9, 1.1]},
+          "sample": {"method": "lhs", "runs": 50, "seed": 4,
+                     "parameters": {"platform_scale": {"distribution": "uniform", "low": 0.7, "high": 1.3}}},
+          "objectives": {"cond_max": "min", "travel_max_m": "min"}}
+
+
+def _design_study(tmp_path: Path, **changes) -> Path:
+    path = tmp_path / "d.yaml"
+    path.write_text(yaml.safe_dump({**DESIGN, **changes}), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"design": {"machine": "mom3", "kind": "planar"}}, "design.kind: planar, but machine mom3 is translational"),
+    ({"design": {"machine": "sliding_star", "kind": "gough"}},
+     "design.kind: gough, but machine sliding_star has no metrology"),
+    ({"grid": {"wheel_base": [1.0]}}, "wheel_base: not a planar design parameter"),
+    ({"objectives": {"speed": "min"}}, "objectives.speed: not a planar design metric"),
+    ({"objectives": {"cond_max": "lowest"}}, "objectives.cond_max: must be min or max"),
+    ({"scenario": "mom3_square"}, "scenario: a design sweep"),
+])
+def test_a_bad_design_sweep_is_refused_naming_the_key(tmp_path, changes, message):
+    with pytest.raises(StudyError, match=message):
+        load_study(_design_study(tmp_path, **changes))
+
+
+def test_a_design_sweep_is_computed_in_chunks_resumed_and_has_its_pareto_front(tmp_path):
+    """On a LocalCluster of one worker: 100 variants in 3 chunks; the table's metrics are
+    those of pkm_kinematics.design directly; a chunk lost is the only one computed again."""
+    from pkm_bringup.design_study import run_design
+    from pkm_kinematics import load_machine
+    from pkm_kinematics.design import pareto_front, planar_metrics, workspace_poses
+    study = load_study(_design_study(tmp_path))
+    out = tmp_path / "out"
+    first = run_design(study, out, workers=1, progress=False)
+    table = first["table"]
+    assert (first["variants"], first["chunks"], first["ran"]) == (100, 3, 3) and len(table) == 100
+    machine = load_machine("sliding_star").model
+    ref = planar_metrics(machine, study.varied, study.design_values(), workspace_poses(machine, 5, 3))
+    np.testing.assert_array_equal(table["cond_max"], ref["cond_max"])
+    assert list(table["link_length_scale"][:50]) == [0.9] * 50 and list(table["link_length_scale"][50:]) == [1.1] * 50
+    assert np.array_equal(table["pareto"], pareto_front(np.c_[ref["cond_max"], ref["travel_max_m"]], ["min", "min"]))
+    front = pd.read_csv(out / "pareto.csv")
+    assert len(front) == table["pareto"].sum() and list(front["cond_max"]) == sorted(front["cond_max"])
+    lost = sorted((out / "results").glob("*.npz"))[1]
+    lost.unlink()
+    again = run_design(study, out, workers=1, progress=False)
+    assert (again["done_before"], again["ran"]) == (2, 1)
+    pd.testing.assert_frame_equal(again["table"], table)
+    assert pd.read_parquet(out / "results.parquet").shape == (100, len(table.columns))

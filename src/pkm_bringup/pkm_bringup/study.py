@@ -49,7 +49,10 @@ import yaml
 from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario
 from pkm_kinematics.config import config_dir
 
-STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process")
+STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
+              "design", "objectives")
+DESIGN_KEYS = ("machine", "kind", "points_per_axis", "theta_points", "chunk")
+SENSES = ("min", "max")
 SAMPLE_KEYS = ("method", "runs", "seed", "parameters")
 METHODS = ("random", "lhs")
 DISTRIBUTIONS = {"normal": ("mean", "std"), "uniform": ("low", "high")}
@@ -106,6 +109,8 @@ class Study:
     group_by: list = field(default_factory=list)
     metrics: list = field(default_factory=list)
     in_process: bool = True
+    design: dict | None = None                # a design sweep (design_study.py) instead of runs
+    objectives: dict = field(default_factory=dict)    # design metric -> "min" | "max" (the Pareto front)
 
     @property
     def varied(self) -> list[str]:
@@ -127,6 +132,14 @@ class Study:
                 index = len(out)
                 out.append(RunSpec(f"{index:05d}-{digest}", index, c, d, values, overrides))
         return out
+
+    def design_values(self) -> np.ndarray:
+        """A design sweep's variants, (V, len(varied)): the grid's cells times the draws."""
+        cells = list(product(*self.grid.values())) if self.grid else [()]
+        draws = self.sample_values()
+        names = [d.path for d in self.draws]
+        return np.array([[*cell, *(sample[n] for n in names)] for cell in cells for sample in draws],
+                        dtype=float).reshape(len(cells) * len(draws), len(self.varied))
 
     def sample_values(self) -> list[dict]:
         """The draws (dotted path -> value), ``runs_per_cell`` of them ([{}] without
@@ -242,16 +255,22 @@ def load_study(path: str | Path, check: bool = True) -> Study:
     unknown = sorted(set(data) - set(STUDY_KEYS))
     if unknown:
         raise StudyError(f"{unknown[0]}: unknown study key; allowed: {', '.join(STUDY_KEYS)}")
+    design = _design(data)
+    if design is not None and "scenario" in data:
+        raise StudyError("scenario: a design sweep (design) varies a machine, not a scenario: give one of them")
     study = Study(name=str(data.get("name", path.stem)), source=path.resolve(),
-                  scenario=_resolve_scenario(data.get("scenario"), path.resolve()),
-                  description=str(data.get("description", "")))
+                  scenario=_resolve_scenario(data.get("scenario"), path.resolve()) if design is None else Path(),
+                  description=str(data.get("description", "")), design=design)
+    check_path = split_path if design is None else _design_path_check(design["kind"])
     fixed = data.get("set") or {}
     grid = data.get("grid") or {}
+    if design is not None and fixed:
+        raise StudyError("set: a design sweep has no fixed scenario keys (its base is the machine file)")
     for key, value in (("set", fixed), ("grid", grid)):
         if not isinstance(value, dict):
             raise StudyError(f"{key}: must be a mapping of dotted paths")
         for p in value:
-            split_path(p)
+            check_path(p)
     for p, values in grid.items():
         if not isinstance(values, list) or not values:
             raise StudyError(f"grid.{p}: must be a non-empty list of values, got {values!r}")
@@ -276,7 +295,9 @@ def load_study(path: str | Path, check: bool = True) -> Study:
             raise StudyError("sample.parameters: must be a mapping of dotted path -> distribution")
         study.draws = [_draw(p, spec) for p, spec in params.items()]
         for d in study.draws:
-            split_path(d.path)
+            check_path(d.path)
+            if design is not None and d.size != 1:
+                raise StudyError(f"sample.parameters.{d.path}.size: a design parameter is one number")
     clash = sorted((set(study.grid) | set(study.fixed)) & {d.path for d in study.draws}) or \
         sorted(set(study.grid) & set(study.fixed))
     if clash:
@@ -288,14 +309,72 @@ def load_study(path: str | Path, check: bool = True) -> Study:
     bad = [g for g in study.group_by if g not in study.grid and g not in study.fixed]
     if bad:
         raise StudyError(f"group_by: {bad[0]} is not a grid parameter ({', '.join(study.grid) or 'none'})")
-    study.metrics = _names(data, "metrics", list(DEFAULT_METRICS))
+    study.metrics = _names(data, "metrics", list(DEFAULT_METRICS) if design is None else [])
+    if design is not None:
+        study.objectives = _objectives(data, design["kind"])
+        study.metrics = study.metrics or list(study.objectives)
+    elif "objectives" in data:
+        raise StudyError("objectives: only a design sweep has objectives (its Pareto front)")
     in_process = data.get("in_process", True)
     if not isinstance(in_process, bool):
         raise StudyError(f"in_process: must be true or false, got {in_process!r}")
     study.in_process = in_process
-    if check:
+    if check and design is None:
         check_runs(study)
     return study
+
+
+def _design(data: dict) -> dict | None:
+    """The ``design`` section: machine (config/machines name), kind (planar: the actuated
+    planar machine; gough: its Gough metrology), the workspace grid, the chunk size."""
+    from pkm_kinematics import load_machine
+    design = data.get("design")
+    if design is None:
+        return None
+    if not isinstance(design, dict):
+        raise StudyError("design: must be a mapping (machine, kind, points_per_axis, theta_points, chunk)")
+    unknown = sorted(set(design) - set(DESIGN_KEYS))
+    if unknown:
+        raise StudyError(f"design.{unknown[0]}: unknown; allowed: {', '.join(DESIGN_KEYS)}")
+    try:
+        config = load_machine(str(design.get("machine", "")))
+    except (ValueError, FileNotFoundError) as exc:
+        raise StudyError(f"design.machine: {exc}") from None
+    kind = design.get("kind", "planar")
+    if kind not in ("planar", "gough"):
+        raise StudyError(f"design.kind: must be planar or gough, got {kind!r}")
+    if kind == "planar" and config.kind != "planar":
+        raise StudyError(f"design.kind: planar, but machine {config.name} is {config.kind}")
+    if kind == "gough" and config.metrology is None:
+        raise StudyError(f"design.kind: gough, but machine {config.name} has no metrology section")
+    out = {"machine": config.name, "kind": kind}
+    for key, default, hi in (("points_per_axis", 11 if kind == "planar" else 3, 101), ("theta_points", 9, 361),
+                             ("chunk", 2000 if kind == "planar" else 50, 1_000_000)):
+        out[key] = _positive_int(design, key, default, hi, "design.")
+    return out
+
+
+def _design_path_check(kind: str):
+    from pkm_kinematics.design import PARAMETERS
+
+    def check(name: str):
+        if name not in PARAMETERS[kind]:
+            raise StudyError(f"{name}: not a {kind} design parameter; known: {', '.join(PARAMETERS[kind])}")
+    return check
+
+
+def _objectives(data: dict, kind: str) -> dict:
+    from pkm_kinematics.design import METRICS
+    value = data.get("objectives")
+    if not isinstance(value, dict) or not value:
+        raise StudyError(f"objectives: required for a design sweep, a mapping of metric -> min | max; "
+                         f"metrics: {', '.join(METRICS[kind])}")
+    for name, sense in value.items():
+        if name not in METRICS[kind]:
+            raise StudyError(f"objectives.{name}: not a {kind} design metric; known: {', '.join(METRICS[kind])}")
+        if sense not in SENSES:
+            raise StudyError(f"objectives.{name}: must be min or max, got {sense!r}")
+    return dict(value)
 
 
 def _names(data: dict, key: str, default: list) -> list[str]:

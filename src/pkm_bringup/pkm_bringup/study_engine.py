@@ -114,7 +114,9 @@ def done_keys(out_dir: Path) -> set[str]:
     return {p.stem for p in (out_dir / "results").glob("*.json")}
 
 
-def _client(workers: int | None, scheduler: str | None):
+def make_client(workers: int | None, scheduler: str | None):
+    """(Client, its LocalCluster or None): the scheduler at ``scheduler``, else a
+    LocalCluster of ``workers`` processes (default: one per core), one thread each."""
     from dask.distributed import Client, LocalCluster
     if scheduler:
         return Client(scheduler), None
@@ -138,7 +140,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
                "interrupted": False}
     if pending:
-        client, cluster = _client(workers, scheduler)
+        client, cluster = make_client(workers, scheduler)
         bar = tqdm(total=len(runs), initial=outcome["done_before"], unit="run", disable=not progress, file=stream,
                    desc=study.name, smoothing=0.1)
         futures = []
@@ -211,6 +213,8 @@ def main(argv=None) -> int:
         print(f"pkm-study: {exc}", file=sys.stderr)
         return 2
     out_dir = Path(args.out or Path("studies") / study.name)
+    if study.design is not None:
+        return _main_design(study, out_dir, args)
     runs = study.runs()
     done = done_keys(out_dir)
     print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({len(runs) - len(done & {r.key for r in runs})}"
@@ -231,6 +235,28 @@ def main(argv=None) -> int:
               "run the same command again to finish", file=sys.stderr)
         return 130
     return 1 if outcome["failed_total"] else 0
+
+
+def _main_design(study, out_dir: Path, args) -> int:
+    from pkm_bringup.design_study import format_front, run_design
+    values = study.design_values()
+    print(f"design sweep {study.name}: {len(values)} variants of {study.design['machine']} "
+          f"({study.design['kind']}), chunks of {study.design['chunk']} -> {out_dir}", flush=True)
+    if args.dry_run:
+        return 0
+    start = time.monotonic()
+    outcome = run_design(study, out_dir, workers=args.workers, scheduler=args.scheduler,
+                         progress=not args.no_progress)
+    wall = time.monotonic() - start
+    print(format_front(study, outcome["table"]), flush=True)
+    rate = outcome["evaluations"] / outcome["cpu_s"] if outcome["cpu_s"] else float("nan")
+    print(f"{outcome['ran']} of {outcome['chunks']} chunks in {wall:.1f} s ({outcome['done_before']} done before); "
+          f"{outcome['evaluations']:.3g} pose evaluations, {rate:.3g} per CPU second; written: "
+          f"{out_dir}/results.parquet, results.csv, pareto.csv", flush=True)
+    if outcome["interrupted"]:
+        print("pkm-study: interrupted: run the same command again to finish", file=sys.stderr)
+        return 130
+    return 0
 
 
 if __name__ == "__main__":

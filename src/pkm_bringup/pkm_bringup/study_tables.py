@@ -40,7 +40,8 @@ def read_rows(out_dir: Path, runs) -> pd.DataFrame:
     return frame.sort_values("index").reset_index(drop=True) if len(frame) else frame
 
 
-def _atomic(path: Path, write) -> None:
+def atomic_write(path: Path, write) -> None:
+    """``write(tmp)`` a temporary file beside ``path``, then rename it to ``path``."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     write(tmp)
     os.replace(tmp, path)
@@ -89,14 +90,14 @@ def write_outputs(study: Study, out_dir: Path, runs) -> pd.DataFrame:
     """results.parquet, results.csv, summary.csv and the plots; returns the table."""
     frame = read_rows(out_dir, runs)
     if len(frame):
-        _atomic(out_dir / "results.parquet", lambda p: frame.to_parquet(p, engine="pyarrow", index=False))
+        atomic_write(out_dir / "results.parquet", lambda p: frame.to_parquet(p, engine="pyarrow", index=False))
         as_text = frame.copy()
         for col in as_text.columns:
             if as_text[col].map(lambda v: isinstance(v, (list, tuple))).any():
                 as_text[col] = as_text[col].map(json.dumps)
-        _atomic(out_dir / "results.csv", lambda p: as_text.to_csv(p, index=False))
+        atomic_write(out_dir / "results.csv", lambda p: as_text.to_csv(p, index=False))
         summary = summarise(study, frame)
-        _atomic(out_dir / "summary.csv", lambda p: summary.to_csv(p, index=False))
+        atomic_write(out_dir / "summary.csv", lambda p: summary.to_csv(p, index=False))
         draw_plots(study, frame, out_dir)
     return frame
 
@@ -179,5 +180,5 @@ def draw_plots(study: Study, frame: pd.DataFrame, out_dir: Path) -> list[Path]:
 
 
 def _save(fig, path: Path) -> Path:
-    _atomic(path, lambda p: fig.savefig(p, dpi=110, format="png"))
+    atomic_write(path, lambda p: fig.savefig(p, dpi=110, format="png"))
     return path

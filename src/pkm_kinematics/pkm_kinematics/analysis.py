@@ -212,6 +212,20 @@ def gough_resolution(platform: GoughPlatform, epsilon_m: float, tool_box, center
     )
 
 
+def gough_design_figures(r_base: float, r_plate: float, alpha_base_deg: float, alpha_plate_deg: float,
+                         epsilon_m: float, tool_box, positions: np.ndarray, strut_limits, home) -> tuple:
+    """A MoM3-parametrised Gough platform (§5.2) judged over plate positions (null
+    orientation): (C_opt the worst tool-level resolution (eq. 20-21), the worst position
+    resolution, the shortest and longest strut, whether the struts fit their limits).
+    The criterion of ``optimize_gough_geometry`` and of design sweeps (design.py)."""
+    base, plate = mom3_points(r_base, r_plate, math.radians(alpha_base_deg), math.radians(alpha_plate_deg))
+    platform = GoughPlatform(base, plate, tuple(strut_limits), np.asarray(home, dtype=float))
+    lengths = platform.strut_lengths_batch(positions, np.broadcast_to(np.eye(3), (len(positions), 3, 3)))
+    pos, _, tool = resolution_at(platform, positions, epsilon_m, np.asarray(tool_box, dtype=float))
+    return (float(tool.max()), float(pos.max()), float(lengths.min()), float(lengths.max()),
+            bool(platform.within_strut_limits(lengths).all()))
+
+
 @dataclass
 class GoughDesign:
     r_base: float
@@ -237,22 +251,15 @@ def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, str
     from scipy.optimize import differential_evolution
 
     center = np.asarray(center, dtype=float)
-    home = center
     lo, hi = strut_limits
     positions = cube_points(center, size, points_per_axis)
-    eye = np.broadcast_to(np.eye(3), (len(positions), 3, 3))
-    tool_box = np.asarray(tool_box, dtype=float)
     count = [0]
 
     def criterion(params):
         count[0] += 1
-        rb, rp, ab, ap = params
-        base, plate = mom3_points(rb, rp, math.radians(ab), math.radians(ap))
-        platform = GoughPlatform(base, plate, (lo, hi), home)
-        lengths = platform.strut_lengths_batch(positions, eye)
-        violation = max(0.0, lo - lengths.min()) + max(0.0, lengths.max() - hi)
-        _, _, tool = resolution_at(platform, positions, epsilon_m, tool_box)
-        value = float(tool.max())
+        value, _, shortest, longest, _ = gough_design_figures(*params, epsilon_m, tool_box, positions,
+                                                              (lo, hi), center)
+        violation = max(0.0, lo - shortest) + max(0.0, longest - hi)
         if not math.isfinite(value):
             return 1.0
         return value + 10.0 * violation * epsilon_m / 1e-3
@@ -260,13 +267,9 @@ def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, str
     res = differential_evolution(criterion, bounds, seed=seed, maxiter=maxiter, popsize=popsize,
                                  tol=1e-8, polish=True)
     rb, rp, ab, ap = res.x
-    base, plate = mom3_points(rb, rp, math.radians(ab), math.radians(ap))
-    platform = GoughPlatform(base, plate, (lo, hi), home)
-    lengths = platform.strut_lengths_batch(positions, eye)
-    _, _, tool = resolution_at(platform, positions, epsilon_m, tool_box)
-    return GoughDesign(float(rb), float(rp), float(ab), float(ap), float(tool.max()),
-                       [float(lengths.min()), float(lengths.max())],
-                       bool(platform.within_strut_limits(lengths).all()), count[0])
+    value, _, shortest, longest, fit = gough_design_figures(rb, rp, ab, ap, epsilon_m, tool_box, positions,
+                                                            (lo, hi), center)
+    return GoughDesign(float(rb), float(rp), float(ab), float(ap), value, [shortest, longest], fit, count[0])
 
 
 # ------------------------------------------------ Orthoglide §4.4 sizing

@@ -163,6 +163,13 @@ class GoughMetrologyConfig:
     base_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     plate_position_in_tool: np.ndarray = field(default_factory=lambda: np.zeros(3))
     plate_rotation_in_tool: np.ndarray = field(default_factory=lambda: np.eye(3))
+    # the MoM3 §5.2 parameters the joints were made from (design sweeps vary them)
+    geometry: dict = field(default_factory=dict)
+
+    def design_parameters(self) -> tuple[float, float, float, float]:
+        """(r_b m, r_tp m, alpha_b deg, alpha_tp deg), design.GOUGH_PARAMETERS' order."""
+        g = self.geometry
+        return g["r_base"], g["r_plate"], g["alpha_base_deg"], g["alpha_plate_deg"]
 
 
 def _legs(r: _Reader, dim: int, attachment: str, leg_type) -> list:
@@ -230,12 +237,15 @@ def _translational(r: _Reader, name: str, description: str) -> TranslationalMach
 
 def _gough(r: _Reader) -> GoughMetrologyConfig:
     g = r.sub("geometry")
-    base, plate = mom3_points(
-        g.number("r_base", lo=0.0, lo_open=True, unit="m"),
-        g.number("r_plate", lo=0.0, lo_open=True, unit="m"),
-        math.radians(g.number("alpha_base_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg")),
-        math.radians(g.number("alpha_plate_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg")),
-        math.radians(g.number("plate_line_offset_deg", default=60.0, lo=-180.0, hi=180.0, unit="deg")))
+    geometry = {"r_base": g.number("r_base", lo=0.0, lo_open=True, unit="m"),
+                "r_plate": g.number("r_plate", lo=0.0, lo_open=True, unit="m"),
+                "alpha_base_deg": g.number("alpha_base_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg"),
+                "alpha_plate_deg": g.number("alpha_plate_deg", lo=0.0, lo_open=True, hi=120.0, unit="deg"),
+                "plate_line_offset_deg": g.number("plate_line_offset_deg", default=60.0, lo=-180.0, hi=180.0,
+                                                  unit="deg")}
+    base, plate = mom3_points(geometry["r_base"], geometry["r_plate"], math.radians(geometry["alpha_base_deg"]),
+                              math.radians(geometry["alpha_plate_deg"]),
+                              math.radians(geometry["plate_line_offset_deg"]))
     limits = r.interval("strut_limits", unit="m")
     if limits[0] <= 0.0:
         raise ConfigError(r._name("strut_limits"), f"min must be > 0 m, got {limits[0]:g}")
@@ -268,6 +278,7 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
         tool_box=tool_box,
         workspace_center=w.vector("center", 3, unit="m"),
         workspace_size_m=w.number("size", lo=0.0, lo_open=True, unit="m"),
+        geometry=geometry,
     )
 
 

@@ -258,6 +258,44 @@ def empty_velocity_terms(n):
     return np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n)
 
 
+def leg_array(origins, directions, link_lengths, platform_points, assemblies) -> np.ndarray:
+    """Legs as the compiled kernels take them: rows (o_x, o_y, u_x, u_y, L^2, b_x, b_y,
+    sigma) with u normalised, shape (..., n, 8) for inputs (..., n, 2), (..., n, 2),
+    (..., n), (..., n, 2), (..., n): one machine, or a batch of design variants."""
+    o = np.asarray(origins, dtype=float)
+    u = np.asarray(directions, dtype=float)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    length = np.asarray(link_lengths, dtype=float)
+    b = np.asarray(platform_points, dtype=float)
+    sigma = np.broadcast_to(np.asarray(assemblies, dtype=float), length.shape)
+    return np.concatenate([o, u, (length**2)[..., None], b, sigma[..., None]], axis=-1)
+
+
+@kernel()
+def leg_closure(legs, k, x, y, c, s):
+    """Leg ``k`` of ``legs`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y, sigma) at the pose
+    (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: (code, q_k, e_x, e_y, e . u,
+    R b_x, R b_y) with the carriage q_k = a + sigma sqrt(L^2 - |w|^2 + a^2) (w = B - o,
+    a = u . w) and the leg vector e = B - A; ``code`` VT_UNREACHABLE (the link cannot
+    reach B) or VT_SINGULAR (e perpendicular to the rail: e . u = 0, J_m unbounded).
+    The J_m row is [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u) (ARCHI §3.2)."""
+    ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],
+                                         legs[k, 5], legs[k, 6], legs[k, 7])
+    rbx = c * bx - s * by
+    rby = s * bx + c * by
+    wx, wy = x + rbx - ox, y + rby - oy
+    a = wx * ux + wy * uy
+    disc = l2 - wx * wx - wy * wy + a * a
+    if not disc >= 0.0:
+        return VT_UNREACHABLE, 0.0, 0.0, 0.0, 0.0, rbx, rby
+    qi = a + sigma * math.sqrt(disc)
+    ex, ey = wx - qi * ux, wy - qi * uy
+    sv = ex * ux + ey * uy
+    if sv * sv <= 1e-18 * l2:
+        return VT_SINGULAR, qi, ex, ey, sv, rbx, rby
+    return VT_OK, qi, ex, ey, sv, rbx, rby
+
+
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
 def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
@@ -269,20 +307,10 @@ def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     q, rows, qdots, biases = empty_velocity_terms(n)
     c, s = math.cos(th), math.sin(th)
     for k in range(n):
-        ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],
-                                             legs[k, 5], legs[k, 6], legs[k, 7])
-        rbx = c * bx - s * by
-        rby = s * bx + c * by
-        wx, wy = x + rbx - ox, y + rby - oy
-        a = wx * ux + wy * uy
-        disc = l2 - wx * wx - wy * wy + a * a
-        if not disc >= 0.0:
-            return q, rows, qdots, biases, VT_UNREACHABLE, k
-        qi = a + sigma * math.sqrt(disc)
-        ex, ey = wx - qi * ux, wy - qi * uy
-        sv = ex * ux + ey * uy
-        if sv * sv <= 1e-18 * l2:
-            return q, rows, qdots, biases, VT_SINGULAR, k
+        code, qi, ex, ey, sv, rbx, rby = leg_closure(legs, k, x, y, c, s)
+        if code != VT_OK:
+            return q, rows, qdots, biases, code, k
+        ux, uy = legs[k, 2], legs[k, 3]
         g3 = ey * rbx - ex * rby
         gv = ex * vx + ey * vy + g3 * w
         qdot = gv / sv
@@ -342,7 +370,7 @@ class PlanarMachine:
             pt = self._platform_points(self.home_pose)[i] - a_i
             self._pair_side.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
         # the same as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
-        self._legs_a = np.array([leg[:8] for leg in self._legs_f], dtype=float)
+        self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
         self._pairs_a = np.array(self._pairs, dtype=np.int64).reshape(-1, 2)
         self._sides_a = np.array(self._pair_side, dtype=float)
 

@@ -1,0 +1,275 @@
+"""Design sweeps: kinematic variants of a machine, each evaluated over a workspace grid
+(pure numpy/numba; pkm_bringup.design_study runs them in chunks on Dask).
+
+Sliding Star §2: the team evaluated about 50 structural and several hundred thousand
+parametric variants to choose TriJoint's and Sliding Star's geometry. Here a variant is
+the base machine with some of its dimensions changed (``PARAMETERS``, one registry per
+kind of design) and its figures of merit are computed over the base machine's
+workspace (the task it must do):
+
+Planar machines (ARCHI, Sliding Star), ``planar_metrics``, over a grid of (x, y, theta):
+
+- ``reach``: the share of the grid where every leg assembles on its branch and none is
+  perpendicular to its rail (ARCHI §3.1; the joint limits of the base machine are not
+  imposed: the drive travel is what the design must provide, below);
+- ``cond_min``, ``cond_max``: the 2-norm condition number of J_m over the reachable
+  poses (ARCHI §3.3, Fig. 10), ``inf`` at a parallel singularity;
+- ``sub_cond_max``: for a redundant machine (n > 3), the worst over the poses of the
+  best-conditioned 3-leg sub-machine, i.e. how well it can go on after any one drive
+  fails (ARCHI §4.2); equal to ``cond_max`` for n = 3;
+- ``travel_max_m``: the largest carriage travel (max - min of q_i) a drive needs;
+- ``tf_min``, ``tf_max``: the velocity transmission factors, the extreme singular values
+  of J_m over the poses (drive speed per unit tool speed, Orthoglide §4.1).
+
+The Gough metrology (MoM3 §5.2 parametrisation: r_b, r_tp, alpha_b, alpha_tp),
+``gough_metrics``: the worst tool-level resolution C_opt (MoM3 eq. 20-21) and the worst
+position resolution over the workspace cube, and the strut length range (the struts
+fit their limits or not).
+
+``pareto_front``: the variants no other variant beats in every objective.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from .jit import kernel
+from .planar import VT_OK, PlanarMachine, leg_array, leg_closure
+
+# ------------------------------------------------------------------ parameters
+# name -> (what it changes, the values it accepts)
+PLANAR_PARAMETERS = {
+    "link_length_scale": "every link length times this factor",
+    "platform_scale": "every platform point (b_i, from the platform centre) times this factor",
+    "rail_spacing_scale": "every rail moved along its normal: its distance from the home position times this factor",
+}
+GOUGH_PARAMETERS = {
+    "r_base_m": "radius of the base joints (MoM3 §5.2 r_b)",
+    "r_plate_m": "radius of the plate joints (r_tp)",
+    "alpha_base_deg": "angle between the two base joints of a pair (alpha_b)",
+    "alpha_plate_deg": "angle between the two plate joints of a pair (alpha_tp)",
+}
+PARAMETERS = {"planar": PLANAR_PARAMETERS, "gough": GOUGH_PARAMETERS}
+PLANAR_METRICS = ("reach", "cond_min", "cond_max", "sub_cond_max", "travel_max_m", "tf_min", "tf_max")
+GOUGH_METRICS = ("tool_resolution_m", "position_resolution_m", "strut_min_m", "strut_max_m", "struts_fit")
+METRICS = {"planar": PLANAR_METRICS, "gough": GOUGH_METRICS}
+
+
+def check_parameters(kind: str, names) -> None:
+    """ValueError naming the first parameter the kind of design does not have."""
+    known = PARAMETERS[kind]
+    for name in names:
+        if name not in known:
+            raise ValueError(f"{name}: not a {kind} design parameter; known: {', '.join(known)}")
+
+
+# ------------------------------------------------------------------ conditioning
+@kernel()
+def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
+    """(smallest, largest) eigenvalue of the symmetric 3x3 matrix [[a00, a01, a02],
+    [., a11, a12], [., ., a22]], closed form (O. K. Smith, "Eigenvalues of a symmetric
+    3 x 3 matrix", CACM 4(4), 1961): with q = tr/3, p = sqrt(|A - q I|_F^2 / 6),
+    r = det((A - q I) / p) / 2, the eigenvalues are q + 2 p cos(acos(r)/3 + 2 pi k/3).
+    Absolute accuracy ~1e-16 of the largest: a condition number from them is good to
+    ~1e7."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    d0, d1, d2 = a00 - q, a11 - q, a22 - q
+    p2 = d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * p1
+    if p2 <= 0.0:
+        return q, q                                   # a multiple of the identity
+    p = math.sqrt(p2 / 6.0)
+    b00, b11, b22, b01, b02, b12 = d0 / p, d1 / p, d2 / p, a01 / p, a02 / p, a12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    r = min(1.0, max(-1.0, r))
+    phi = math.acos(r) / 3.0
+    largest = q + 2.0 * p * math.cos(phi)
+    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return smallest, largest
+
+
+@kernel()
+def _gram_cond(rows, idx, m):
+    """(condition number, sigma_min, sigma_max) of the rows idx[:m] of ``rows`` (n, 3),
+    from the eigenvalues of J^T J; cond inf when J^T J is singular to ~1e-14."""
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for t in range(m):
+        k = idx[t]
+        r0, r1, r2 = rows[k, 0], rows[k, 1], rows[k, 2]
+        a00 += r0 * r0
+        a01 += r0 * r1
+        a02 += r0 * r2
+        a11 += r1 * r1
+        a12 += r1 * r2
+        a22 += r2 * r2
+    lo, hi = symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22)
+    s_hi = math.sqrt(max(hi, 0.0))
+    if lo <= 1e-14 * hi:
+        return math.inf, math.sqrt(max(lo, 0.0)), s_hi
+    s_lo = math.sqrt(lo)
+    return s_hi / s_lo, s_lo, s_hi
+
+
+@kernel("(float64[:, :, :], float64[:, :], int64[:, :])")
+def planar_metrics_kernel(legs, poses, subsets):
+    """PLANAR_METRICS of each variant, (V, 7): ``legs`` (V, n, 8) (planar.leg_array),
+    ``poses`` (P, 3), ``subsets`` (S, 3) the sub-machines' legs (S = 0: not redundant)."""
+    n_var, n, n_pose = legs.shape[0], legs.shape[1], poses.shape[0]
+    out = np.empty((n_var, 7))
+    rows = np.empty((n, 3))
+    q = np.empty(n)
+    qmin = np.empty(n)
+    qmax = np.empty(n)
+    every = np.arange(n)
+    cs = np.empty((n_pose, 2))
+    for p in range(n_pose):
+        cs[p, 0], cs[p, 1] = math.cos(poses[p, 2]), math.sin(poses[p, 2])
+    for v in range(n_var):
+        leg = legs[v]
+        reach = 0
+        cmin, cmax, sub_worst, tf_lo, tf_hi = math.inf, 0.0, 0.0, math.inf, 0.0
+        qmin[:] = math.inf
+        qmax[:] = -math.inf
+        for p in range(n_pose):
+            x, y, c, s = poses[p, 0], poses[p, 1], cs[p, 0], cs[p, 1]
+            ok = True
+            for k in range(n):
+                code, qk, ex, ey, sv, rbx, rby = leg_closure(leg, k, x, y, c, s)
+                if code != VT_OK:
+                    ok = False
+                    break
+                q[k] = qk
+                rows[k, 0], rows[k, 1], rows[k, 2] = ex / sv, ey / sv, (ey * rbx - ex * rby) / sv
+            if not ok:
+                continue
+            reach += 1
+            for k in range(n):
+                qmin[k] = min(qmin[k], q[k])
+                qmax[k] = max(qmax[k], q[k])
+            cond, s_lo, s_hi = _gram_cond(rows, every, n)
+            cmin, cmax = min(cmin, cond), max(cmax, cond)
+            tf_lo, tf_hi = min(tf_lo, s_lo), max(tf_hi, s_hi)
+            if subsets.shape[0]:
+                best = math.inf
+                for t in range(subsets.shape[0]):
+                    best = min(best, _gram_cond(rows, subsets[t], 3)[0])
+                sub_worst = max(sub_worst, best)
+            else:
+                sub_worst = cmax
+        travel = 0.0
+        for k in range(n):
+            travel = max(travel, qmax[k] - qmin[k])
+        if reach == 0:
+            out[v, :] = math.nan
+            out[v, 0] = 0.0
+        else:
+            out[v, 0], out[v, 1], out[v, 2], out[v, 3] = reach / n_pose, cmin, cmax, sub_worst
+            out[v, 4], out[v, 5], out[v, 6] = travel, tf_lo, tf_hi
+    return out
+
+
+# ------------------------------------------------------------------ planar variants
+def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
+    """The legs of each variant, (V, n, 8), from ``values`` (V, len(names)) of
+    PLANAR_PARAMETERS applied to the base machine (its public legs and home pose)."""
+    check_parameters("planar", names)
+    values = np.atleast_2d(np.asarray(values, dtype=float))
+    legs = machine.legs
+    o = np.array([leg.rail_origin for leg in legs], dtype=float)
+    u = np.array([leg.rail_direction for leg in legs], dtype=float)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    length = np.array([leg.link_length for leg in legs], dtype=float)
+    b = np.array([leg.platform_point for leg in legs], dtype=float)
+    sigma = np.array([float(leg.assembly) for leg in legs])
+    n_var = values.shape[0]
+    o_v, b_v = np.broadcast_to(o, (n_var, *o.shape)).copy(), np.broadcast_to(b, (n_var, *b.shape)).copy()
+    length_v = np.broadcast_to(length, (n_var, len(legs))).copy()
+    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)                  # each rail's normal
+    offset = ((o - machine.home_pose[:2]) * normal).sum(axis=1)     # its distance from home, signed
+    for j, name in enumerate(names):
+        f = values[:, j:j + 1]
+        if name == "link_length_scale":
+            length_v *= f
+        elif name == "platform_scale":
+            b_v *= f[:, :, None]
+        else:                                                       # rail_spacing_scale
+            o_v += ((f - 1.0) * offset)[:, :, None] * normal
+    return leg_array(o_v, np.broadcast_to(u, o_v.shape), length_v, b_v, sigma)
+
+
+def workspace_poses(machine: PlanarMachine, points_per_axis: int = 11, theta_points: int = 9) -> np.ndarray:
+    """A regular grid over the machine's configured workspace (x, y, theta), (P, 3)."""
+    ws = machine.workspace
+    axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
+            np.radians(np.linspace(*ws["theta_deg"], theta_points))]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def sub_machine_legs(n_legs: int) -> np.ndarray:
+    """Every 3-leg sub-machine of a redundant planar machine, (S, 3); (0, 3) for n = 3."""
+    if n_legs <= 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    return np.array(list(itertools.combinations(range(n_legs), 3)), dtype=np.int64)
+
+
+def planar_metrics(machine: PlanarMachine, names, values, poses) -> dict[str, np.ndarray]:
+    """PLANAR_METRICS of the variants (module docstring), each an array (V,)."""
+    legs = np.ascontiguousarray(planar_variants(machine, names, values))
+    out = planar_metrics_kernel(legs, np.ascontiguousarray(poses, dtype=float), sub_machine_legs(machine.n_legs))
+    return dict(zip(PLANAR_METRICS, out.T))
+
+
+# ------------------------------------------------------------------ Gough variants
+def gough_metrics(metrology, names, values, points_per_axis: int = 3) -> dict[str, np.ndarray]:
+    """GOUGH_METRICS of MoM3-parametrised Gough platforms, one per row of ``values``
+    (V, len(names)); parameters not named keep ``metrology``'s design values."""
+    from .analysis import cube_points, gough_design_figures
+    check_parameters("gough", names)
+    values = np.atleast_2d(np.asarray(values, dtype=float))
+    base = dict(zip(GOUGH_PARAMETERS, metrology.design_parameters()))
+    positions = cube_points(metrology.workspace_center, metrology.workspace_size_m, points_per_axis)
+    out = {k: np.empty(len(values)) for k in GOUGH_METRICS}
+    for v, row in enumerate(values):
+        p = {**base, **dict(zip(names, row))}
+        fig = gough_design_figures(p["r_base_m"], p["r_plate_m"], p["alpha_base_deg"], p["alpha_plate_deg"],
+                                   metrology.encoder_resolution_m, metrology.tool_box, positions,
+                                   metrology.platform.strut_limits, metrology.workspace_center)
+        for k, value in zip(GOUGH_METRICS, fig):
+            out[k][v] = value
+    return out
+
+
+# ------------------------------------------------------------------ Pareto front
+def pareto_front(objectives, senses) -> np.ndarray:
+    """Mask of the non-dominated rows of ``objectives`` (N, k): a row is dominated when
+    another is at least as good in every objective and better in one (``senses``:
+    "min" or "max" per column). Rows with a NaN are never on the front. Rows are taken
+    best-first by their rank sum, each checked against the front so far: O(N F)."""
+    x = np.asarray(objectives, dtype=float)
+    if x.ndim != 2 or x.shape[1] != len(senses):
+        raise ValueError(f"objectives: expected (N, {len(senses)}), got {x.shape}")
+    for s in senses:
+        if s not in ("min", "max"):
+            raise ValueError(f"senses: 'min' or 'max', got {s!r}")
+    x = np.where(np.array([s == "max" for s in senses]), -x, x)       # all minimised
+    valid = ~np.isnan(x).any(axis=1)
+    mask = np.zeros(len(x), dtype=bool)
+    order = np.flatnonzero(valid)
+    ranks = np.argsort(np.argsort(x[order], axis=0), axis=0).sum(axis=1)
+    front: list[int] = []
+    for i in order[np.argsort(ranks, kind="stable")]:
+        if front:
+            f = x[front]
+            if np.any(np.all(f <= x[i], axis=1) & np.any(f < x[i], axis=1)):
+                continue
+            # a row taken earlier cannot be dominated by a later one, except by an equal rank
+            # sum with ties: drop any front member this row dominates
+            beaten = np.all(x[i] <= f, axis=1) & np.any(x[i] < f, axis=1)
+            if beaten.any():
+                front = [j for j, b in zip(front, beaten) if not b]
+        front.append(int(i))
+    mask[front] = True
+    return mask
