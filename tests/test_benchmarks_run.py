@@ -22,6 +22,7 @@ SMALL = {
     "lockstep_echo.py": ([], "steps/s"),
     "report_memory.py": (["--seconds", "0.5"], "MiB"),
     "realtime.py": (["--pairs", "1", "--rates", "1000", "--duration-s", "0.3", "--in-process"], "ratio"),
+    "study.py": (["--runs", "3", "--duration-s", "0.2", "--variants", "2000", "--workers", "1"], "Pareto front"),
     "bringup.py": (["--windows-only", "--window-modes", "in-process", "--window-runs", "1",
                     "--window-length-s", "6"], "in-process"),
 }

@@ -89,7 +89,7 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
     chunks = chunk_keys(study, values)
     pending = [(k, rows) for k, rows in chunks if not (out_dir / "results" / f"{k}.npz").exists()]
     outcome = {"variants": len(values), "chunks": len(chunks), "done_before": len(chunks) - len(pending), "ran": 0,
-               "interrupted": False}
+               "interrupted": False, "started": time.monotonic(), "finished_at": []}
     if pending:
         client, cluster = make_client(workers, scheduler)
         bar = tqdm(total=len(values), initial=sum(r.stop - r.start for k, r in chunks) -
@@ -106,6 +106,7 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
                 k, rows = by_key[future.key]
                 _save_npz(out_dir / "results" / f"{k}.npz", future.result())
                 outcome["ran"] += 1
+                outcome["finished_at"].append(time.monotonic())
                 bar.update(rows.stop - rows.start)
         except KeyboardInterrupt:
             outcome["interrupted"] = True

@@ -65,10 +65,12 @@ def execute_run(task: RunTask) -> dict:
         from pkm_common.domains import use_private_domain
         where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}", "run.domain_id": use_private_domain()}
         _quiet_nodes()
+        start = time.monotonic()
         try:
-            return {**_execute(task), **where}
+            metrics = _execute(task)
         except Exception as exc:       # noqa: BLE001 - a run's failure is a row, not a lost task
-            return {**failed_metrics(f"{type(exc).__name__}: {exc}"), **where}
+            metrics = failed_metrics(f"{type(exc).__name__}: {exc}")
+        return {**metrics, **where, "run.task_s": time.monotonic() - start}
 
 
 def _quiet_nodes() -> None:
@@ -138,7 +140,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     done = done_keys(out_dir)
     pending = [r for r in runs if r.key not in done]
     outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
-               "interrupted": False}
+               "interrupted": False, "started": time.monotonic(), "finished_at": []}
     if pending:
         client, cluster = make_client(workers, scheduler)
         bar = tqdm(total=len(runs), initial=outcome["done_before"], unit="run", disable=not progress, file=stream,
@@ -158,6 +160,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
                 metrics = _metrics_of(future)
                 write_json_atomic(out_dir / "results" / f"{run.key}.json", result_row(run, metrics))
                 outcome["ran"] += 1
+                outcome["finished_at"].append((time.monotonic(), run.key))
                 outcome["failed"] += metrics.get("run.status") == "failed"
                 bar.set_postfix_str(f"failed {outcome['failed']}", refresh=False)
                 bar.update()

@@ -1,0 +1,119 @@
+"""Study benchmark (issue 21): closed-loop runs per hour on Dask, the study's overhead
+per run, and design-sweep throughput.
+
+1. A study of ``--runs`` lockstep runs of mom3_square (``--duration-s`` simulated, not
+   recorded, one process each) on a LocalCluster of 1 and of 2 workers: the start-up
+   (cluster and first run's imports), the steady rate in runs per hour (from the first
+   row to the last), and, with 1 worker, the overhead per run: the time between two
+   rows minus the run's own time on its worker (``run.task_s``: load the scenario, run
+   it, collect its metrics), as a share of the run's own time. Target: <= 5 %.
+2. A design sweep of ``--variants`` Sliding Star variants (11 x 11 x 9 workspace grid,
+   condition numbers of J_m and of the four sub-machines, travel, transmission) on 1
+   and 2 workers: pose evaluations per CPU second (target >= 1e6 per core for a planar
+   machine's condition number) and the speed-up from 1 to 2 workers (wall, without the
+   cluster's start-up: first chunk to last, scaled to all chunks).
+
+Usage: python benchmarks/study.py [--runs 8] [--duration-s 1.0] [--variants 40000] [--workers 1,2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+
+def closed_loop(workers: int, runs: int, duration_s: float) -> dict:
+    from pkm_bringup.study import load_study
+    from pkm_bringup.study_engine import run_study
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.yaml"
+        path.write_text(yaml.safe_dump({
+            "name": "bench", "scenario": "mom3_square", "set": {"duration_s": duration_s, "record": False},
+            "sample": {"runs": runs, "seed": 1, "parameters": {
+                "plant.encoder_noise_m": {"distribution": "uniform", "low": 0.0, "high": 1e-7}}},
+            "metrics": ["controller.max_tracking_error_m"]}), encoding="utf-8")
+        start = time.monotonic()
+        outcome = run_study(load_study(path), Path(tmp) / "out", workers=workers, progress=False)
+        wall = time.monotonic() - start
+    table = outcome["table"]
+    done = [t for t, _ in outcome["finished_at"]]
+    task_of = dict(zip(table["key"], table["run.task_s"]))
+    task = list(task_of.values())
+    out = {"workers": workers, "runs": len(table), "failed": int((table["run.status"] == "failed").sum()),
+           "wall_s": wall, "startup_s": done[0] - outcome["started"] - statistics.median(task),
+           "task_s": statistics.median(task),
+           "per_hour": (len(done) - 1) / (done[-1] - done[0]) * 3600 if len(done) > 1 else float("nan")}
+    if workers == 1 and len(done) > 2:
+        # with one worker the runs follow one another: between two rows, the second run
+        # and what the study adds to it
+        intervals = [b - a for a, b in zip(done, done[1:])]
+        overheads = [i - task_of[key] for i, (_, key) in zip(intervals, outcome["finished_at"][1:])]
+        out["overhead_s"] = statistics.median(overheads)
+        out["overhead_share"] = out["overhead_s"] / out["task_s"]
+    return out
+
+
+def design(workers: int, variants: int) -> dict:
+    from pkm_bringup.design_study import run_design
+    from pkm_bringup.study import load_study
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "design.yaml"
+        chunk = max(500, variants // 20)
+        path.write_text(yaml.safe_dump({
+            "name": "bench_design", "design": {"machine": "sliding_star", "kind": "planar", "points_per_axis": 11,
+                                               "theta_points": 9, "chunk": chunk},
+            "sample": {"method": "lhs", "runs": variants, "seed": 3, "parameters": {
+                k: {"distribution": "uniform", "low": 0.7, "high": 1.3}
+                for k in ("link_length_scale", "platform_scale", "rail_spacing_scale")}},
+            "objectives": {"cond_max": "min", "travel_max_m": "min"}}), encoding="utf-8")
+        start = time.monotonic()
+        outcome = run_design(load_study(path), Path(tmp) / "out", workers=workers, progress=False)
+        wall = time.monotonic() - start
+    done = outcome["finished_at"]
+    chunks = outcome["chunks"]
+    steady = (done[-1] - done[0]) * chunks / (chunks - 1) if chunks > 1 else wall
+    return {"workers": workers, "variants": outcome["variants"], "wall_s": wall, "steady_s": steady,
+            "per_cpu_s": outcome["evaluations"] / outcome["cpu_s"], "evaluations": outcome["evaluations"],
+            "front": int(outcome["table"]["pareto"].sum())}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=8)
+    parser.add_argument("--duration-s", type=float, default=1.0)
+    parser.add_argument("--variants", type=int, default=40000)
+    parser.add_argument("--workers", default="1,2")
+    args = parser.parse_args()
+    counts = [int(w) for w in args.workers.split(",")]
+    print(f"closed-loop study: {args.runs} runs of mom3_square, {args.duration_s:g} s simulated each, not recorded")
+    print("| workers | runs | failed | wall s | start-up s | run s (median) | runs per hour | overhead per run |")
+    print("|---|---|---|---|---|---|---|---|")
+    for w in counts:
+        r = closed_loop(w, args.runs, args.duration_s)
+        overhead = (f"{r['overhead_s'] * 1e3:.0f} ms = {r['overhead_share'] * 100:.1f} % (target <= 5 %)"
+                    if "overhead_s" in r else "-")
+        print(f"| {w} | {r['runs']} | {r['failed']} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | {r['task_s']:.2f} | "
+              f"{r['per_hour']:.0f} | {overhead} |", flush=True)
+    print()
+    print(f"design sweep: {args.variants} Sliding Star variants x 1089 poses (cond of J_m and 4 sub-machines, "
+          "travel, transmission)")
+    print("| workers | wall s | first to last chunk, scaled s | pose evaluations per CPU s (target >= 1e6) | "
+          "speed-up | Pareto front |")
+    print("|---|---|---|---|---|---|")
+    base = None
+    for w in counts:
+        d = design(w, args.variants)
+        base = base or d["steady_s"]
+        print(f"| {w} | {d['wall_s']:.1f} | {d['steady_s']:.1f} | {d['per_cpu_s']:.3g} | {base / d['steady_s']:.2f} | "
+              f"{d['front']} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
