@@ -330,12 +330,14 @@ def test_a_realtime_run_with_missed_deadlines_replays_bit_for_bit(tmp_path):
     them and leaves them (the core moves on), and the recorder logs some readings after
     the command that answered them. pkm-replay prepares the left states too and waits
     for late readings: every recorded command is recomputed bit for bit (before: the
-    first mismatch at command 1-3, then 'no recorded metrology/struts')."""
+    first mismatch at command 1-3, then 'no recorded metrology/struts'). On a loaded
+    machine (the suite on two workers) so many deadlines may pass that the supervisor
+    stops the machine: the run must replay bit for bit all the same, stop included."""
     plant = {**load_scenario("mom3_square").plant, "sync_error_limit": 0}
     s = load_scenario("mom3_square", {"mode": "realtime", "dt_s": 0.0005, "duration_s": 0.4, "record": True,
                                       "plant": plant})
     run = run_scenario(s, tmp_path / "rt2k", in_process=True, progress=False, report=False)
-    assert run["status"] == "completed", run["error"]
+    assert run["status"] in ("completed", "tripped") and not run["error"], run["error"]
     assert run["summaries"]["sim_hw"]["deadline_misses"] > 20
     result = replay_controller(tmp_path / "rt2k")
     assert result.ok and result.compared == result.commands > 700, result

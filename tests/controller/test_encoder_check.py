@@ -131,6 +131,23 @@ def test_a_slow_freeze_is_seen_when_the_reference_has_moved_the_drive_freeze_m()
     assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202
 
 
+def test_a_plant_standing_still_on_held_setpoints_is_not_a_frozen_encoder():
+    """In real time a controller that misses its deadlines leaves the drives on older
+    setpoints (the state says setpoint_held): a machine that stands still then is not
+    an encoder fault, however far the reference moved (the false cause of a loaded
+    2 kHz run: "encoder of drive q2 frozen"); the watch starts again after them."""
+    monitor = EncoderMonitor(1, jump_m=2e-5, freeze_m=2e-4)
+    check(monitor, [0.0], [0.0])
+    for k in range(1, 301):                  # as above, but every tenth period held (the last one too)
+        assert monitor.check([0.0], np.eye(3), np.zeros(3), np.eye(3)[:1], np.zeros(1), [1e-3, 0.0, 0.0], 1e-3,
+                             setpoint_held=k % 10 == 0) == (-1, ""), k
+    for k in range(1, 300):                  # then fresh setpoints only: the freeze is found as before
+        drive, what = check(monitor, [0.0], [1e-3])
+        if drive >= 0:
+            break
+    assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202
+
+
 # ---- the Gough cross-check (metrology strategies): each reading against q(x_g)
 
 GOUGH_ONLY = dict(encoder_jump_m=0.0, encoder_freeze_m=0.0)      # the model-based test off

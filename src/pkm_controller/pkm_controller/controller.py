@@ -173,7 +173,7 @@ class _Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
     __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model", "applied", "suspect")
+                 "a_d", "a_model", "h_model", "applied", "suspect", "held")
 
     def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
         # q as floats (the joint PIDs) and as the array the compiled kernels take
@@ -182,6 +182,7 @@ class _Cycle:
         self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
         self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
+        self.held = False          # the plant applied an older setpoint again in this period
 
 
 class ControllerCore:
@@ -499,7 +500,7 @@ class ControllerCore:
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
         self._cycle = c = _Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
-        c.a_model, c.h_model, c.applied = a_model, h_model, applied
+        c.a_model, c.h_model, c.applied, c.held = a_model, h_model, applied, held is not None
         return first or self._prepare_reference(c)
 
     def _prepare_reference(self, c: "_Cycle") -> bool:
@@ -531,7 +532,7 @@ class ControllerCore:
             return True
         drive, what = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
                                           applied if applied is not None and len(applied) == self.n else
-                                          self._no_forces, c.v_d, c.dt, self.failed)
+                                          self._no_forces, c.v_d, c.dt, self.failed, setpoint_held=c.held)
         if drive < 0:
             return True
         if self.gough_check is not None:

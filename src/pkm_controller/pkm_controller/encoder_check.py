@@ -145,7 +145,7 @@ class EncoderMonitor:
         noisy load): NOISE_SIGMAS times its running RMS."""
         return max(self.jump_m, NOISE_SIGMAS * math.sqrt(self.mean_square[i]))
 
-    def check(self, q, a, h, rows, applied, v_d, dt: float, skip=()) -> tuple[int, str]:
+    def check(self, q, a, h, rows, applied, v_d, dt: float, skip=(), setpoint_held: bool = False) -> tuple[int, str]:
         """(drive, what) of this cycle's encoder fault, (-1, "") if none: ``q`` the
         readings; the dynamic model at the measured pose, ``a`` = A (3 x 3), ``h`` = H,
         ``rows`` = J_m (n x 3); ``applied`` the forces the drives report for the last
@@ -153,8 +153,16 @@ class EncoderMonitor:
         (dropped ones). A period unlike the previous one (states skipped in real
         time) gives no second difference. A jump is confirmed in the next cycle,
         which tells it from a load step: a slip is +delta then about -delta (the
-        reading moved once), a freeze holds the reading; a load step keeps its sign."""
+        reading moved once), a freeze holds the reading; a load step keeps its sign.
+        ``setpoint_held``: the drives applied an older command again in this period (a
+        missed deadline): the motion the reference asked for since the readings last
+        changed is not what they were driven to do, and the slow-freeze watch starts
+        again (a plant starved of commands stands still, its encoders are fine); the
+        innovation test, on the forces the drives report, still runs."""
         q = np.asarray(q, dtype=float)
+        if setpoint_held:
+            self.held[:] = 0.0
+            v_d = np.zeros(3)
         if not self.started:
             self.started, self.last_dt = True, dt
             self.last_q[:] = q
