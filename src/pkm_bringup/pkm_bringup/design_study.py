@@ -165,6 +165,10 @@ def write_outputs(study: Study, out_dir: Path, table: pd.DataFrame) -> None:
         fig, ax = plt.subplots(figsize=(6.0, 4.5))
         ax.plot(table[a], table[b], ".", ms=2, alpha=0.3, color="0.6", label=f"{len(table)} variants")
         ax.plot(front[a], front[b], "o", ms=4, color="C3", label=f"Pareto front ({len(front)})")
+        for name, set_scale in ((a, ax.set_xscale), (b, ax.set_yscale)):
+            finite = table[name][np.isfinite(table[name])]
+            if len(finite) and finite.min() > 0 and finite.max() > 100 * finite.min():
+                set_scale("log")              # condition numbers near a singularity span decades
         ax.set_xlabel(f"{a} ({study.objectives[a]})")
         ax.set_ylabel(f"{b} ({study.objectives[b]})")
         ax.set_title(f"{study.name}: {study.design['machine']} variants", fontsize=9)
