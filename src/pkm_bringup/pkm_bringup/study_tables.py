@@ -110,12 +110,13 @@ def format_summary(study: Study, frame: pd.DataFrame) -> str:
         return "no results"
     lines = []
     metrics = [m for m in study.metrics if f"{m}.mean" in summary]
-    head = f"{'group':40s} {'runs':>5s} {'done':>5s} {'trip':>5s} {'fail':>5s}"
+    width = min(100, max(5, *(len(str(g)) for g in summary["group"])))
+    head = f"{'group':{width}s} {'runs':>5s} {'done':>5s} {'trip':>5s} {'fail':>5s}"
     for m in metrics:
         head += f"  {m + ' mean/std/max':>44s}"
     lines.append(head)
     for _, row in summary.iterrows():
-        line = f"{str(row['group'])[:40]:40s} {row['runs']:5d} {row['completed']:5d} {row['tripped']:5d} " \
+        line = f"{str(row['group'])[:width]:{width}s} {row['runs']:5d} {row['completed']:5d} {row['tripped']:5d} " \
                f"{row['failed']:5d}"
         for m in metrics:
             line += "  " + f"{_num(row[m + '.mean'])} / {_num(row[m + '.std'])} / {_num(row[m + '.max'])}".rjust(44)
