@@ -513,3 +513,24 @@ def test_fk_resync_cycles_puts_a_newton_solution_every_n_cycles():
         newton = list(model.forward_kinematics_floats(q, previous))
         exact.append(core.pose == newton)
     assert exact == [k % 5 == 0 for k in range(12)]
+
+
+def test_a_controller_stopped_in_its_first_cycle_reports_the_machine_where_it_is():
+    """ARCHI with leg-length errors of ~1 % starts 11.6 mm from the program's start in
+    the nominal model: the following error stops it in its first cycle. Its reference
+    (controller/reference, against which the report measures the tracking error) is
+    where the machine is, not (0, 0, 0): a study's report said 1.077 m of tracking
+    error, |(1, -0.4)|, for a machine that never moved."""
+    from pkm_controller.closed_loop import run
+    from pkm_controller.reference import Reference
+    from pkm_sim_hw.plant import Plant, PlantParameters
+    from pkm_trajectory.planner import Limits, Line, plan
+    machine = load_machine("archi")
+    home = machine.model.home_pose
+    samples = plan([Line(np.array(home), np.array(home) + [0.05, 0.0, 0.0])],
+                   Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), translation_axes=2)
+    plant = Plant(machine, PlantParameters(link_length_errors=(-0.0063, 0.0008, -0.013, -0.0004)))
+    core, log = run(machine, ControllerConfig(strategy="joint_pid"), plant, 3,
+                    reference=Reference(samples.time_s, samples.position, samples.velocity, samples.acceleration))
+    assert core.stopped and str(core.stop_cause) == "following_error"
+    assert np.allclose(log.reference[0][:2], home[:2], atol=0.05) and abs(log.reference[0][0]) > 0.5

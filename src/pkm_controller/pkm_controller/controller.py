@@ -485,6 +485,8 @@ class ControllerCore:
         except (KinematicsError, ValueError) as exc:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
+        if first:       # until a cycle has a reference of its own, the machine is asked to stay where it is
+            self.record.reference = self.record.measured = tuple(float(v) for v in pose)
         self._forces_mismatched = False
         commanded = self.last_command if held is None else self._answers.get(held)
         if applied is not None and len(applied) and not first and commanded is not None:
