@@ -46,6 +46,8 @@ def _study(tmp_path: Path, **data) -> Path:
     ({"group_by": ["plant.seed"]}, "group_by: plant.seed is not a grid parameter"),
     ({"set": {"dt_s": 0.001}, "grid": {"dt_s": [0.001]}}, "dt_s: set in more than one"),
     ({"scenario": "nope"}, "scenario: no such scenario 'nope'"),
+    ({"name": "../up"}, "name: letters, digits"),
+    ({"set": {"settle_s": 0.1}, "group_by": ["settle_s"]}, "group_by: settle_s is not a grid parameter"),
 ])
 def test_a_bad_study_is_refused_naming_the_key(tmp_path, data, message):
     with pytest.raises(StudyError, match=message):
@@ -54,7 +56,7 @@ def test_a_bad_study_is_refused_naming_the_key(tmp_path, data, message):
 
 def test_a_grid_cell_the_scenario_refuses_is_refused_before_anything_runs(tmp_path):
     path = _study(tmp_path, grid={"controller.strategy": ["joint_pid", "magic"]})
-    with pytest.raises(StudyError, match=r"run 00001-\w+ \(controller.strategy=magic\): .*strategy"):
+    with pytest.raises(StudyError, match=r"run \w+ \(controller.strategy=magic\): .*strategy"):
         load_study(path)
 
 
@@ -84,6 +86,8 @@ def test_a_run_key_changes_with_what_it_runs(tmp_path):
     first = keys(grid={"settle_s": [0.1, 0.2]})
     assert keys(grid={"settle_s": [0.1, 0.2]}) == first
     assert keys(grid={"settle_s": [0.1, 0.25]})[0] == first[0] and keys(grid={"settle_s": [0.1, 0.25]})[1] != first[1]
+    assert keys(grid={"settle_s": [0.05, 0.1, 0.2]})[1:] == first       # a value inserted: the others keep theirs
+    assert len(set(keys(sample={"runs": 3}))) == 3                       # identical runs stay apart
     base.write_text(base.read_text(encoding="utf-8") + "\nsettle_s: 0.5\n", encoding="utf-8")
     assert not set(keys(grid={"settle_s": [0.1, 0.2]})) & set(first)     # an edited base scenario: all new
 
@@ -135,6 +139,28 @@ def test_the_summary_counts_statuses_and_summarises_the_runs_that_did_not_fail(t
     assert b["m.std"] == pytest.approx(np.std([2.0, 4.0], ddof=1))
 
 
+def test_only_a_run_dask_gave_up_on_is_a_failed_row():
+    """A KilledWorker (its worker died each time) is the run's failure, a row; a task
+    cancelled (the scheduler went away) or a worker's own error is not: no row, and
+    the run runs when the study is started again."""
+    from distributed import KilledWorker
+    from pkm_bringup.study_engine import _metrics_of
+
+    class Done:
+        def __init__(self, error):
+            self.error = error
+
+        def result(self):
+            raise self.error
+    from types import SimpleNamespace
+    metrics, why = _metrics_of(Done(KilledWorker("pkm-study-x", SimpleNamespace(address="tcp://w"), 3)))
+    assert metrics["run.status"] == "failed" and "worker died each time" in metrics["run.error"] and not why
+    from distributed.client import FutureCancelledError
+    for error in (FutureCancelledError("k", "scheduler-connection-lost"), RuntimeError("all 119 ROS domain IDs")):
+        metrics, why = _metrics_of(Done(error))
+        assert metrics is None and type(error).__name__ in why
+
+
 # ------------------------------------------------------------------ whole studies
 TINY = {"scenario": "mom3_square", "set": {"duration_s": 0.25, "record": False},
         "grid": {"controller.strategy": ["joint_pid", "computed_torque"]},
@@ -182,7 +208,8 @@ def test_an_interrupted_study_resumes_running_only_what_is_missing(tmp_path):
     assert len(after) == 6 and all(after[k] == t for k, t in before.items())     # nothing twice
     table = pd.read_parquet(out / "results.parquet")
     csv = pd.read_csv(out / "results.csv")
-    assert list(table["key"]) == list(csv["key"]) == sorted(after)
+    assert list(table["key"]) == list(csv["key"]) and sorted(table["key"]) == sorted(after)
+    assert list(table["index"]) == list(range(6))
     assert set(table["run.status"]) == {"completed"}
     np.testing.assert_allclose(table["controller.max_tracking_error_m"], csv["controller.max_tracking_error_m"])
     assert [json.loads(v) for v in csv["plant.link_length_errors"]] == [list(v) for v in
@@ -266,6 +293,11 @@ def _design_study(tmp_path: Path, **changes) -> Path:
     ({"objectives": {"speed": "min"}}, "objectives.speed: not a planar design metric"),
     ({"objectives": {"cond_max": "lowest"}}, "objectives.cond_max: must be min or max"),
     ({"scenario": "mom3_square"}, "scenario: a design sweep"),
+    ({"design": {"machine": "config/machines/sliding_star.yaml"}}, "design.machine: the name of a machine"),
+    ({"grid": {"link_length_scale": [0.9, -1.0]}}, r"grid.link_length_scale: values must be numbers in \(0, 10\)"),
+    ({"grid": {"link_length_scale": ["long"]}}, "grid.link_length_scale: values must be numbers"),
+    ({"sample": {"runs": 5, "parameters": {"platform_scale": {"distribution": "normal", "mean": 1.0, "std": 0.3}}}},
+     r"sample.parameters.platform_scale: draws must stay in \(0, 10\); this normal draw spans \[-0.8, 2.8\]"),
 ])
 def test_a_bad_design_sweep_is_refused_naming_the_key(tmp_path, changes, message):
     with pytest.raises(StudyError, match=message):

@@ -22,7 +22,6 @@ and the chunk's values) and a restart computes only the missing chunks.
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import sys
 import time
@@ -68,10 +67,26 @@ def chunk_keys(study: Study, values: np.ndarray) -> list[tuple[str, slice]]:
     return out
 
 
+def _readable(path: Path) -> bool:
+    """A chunk's saved result that loads; an unreadable one is removed (computed again)."""
+    if not path.exists():
+        return False
+    try:
+        with np.load(path) as data:
+            data["cpu_s"]
+        return True
+    except (OSError, ValueError, KeyError, EOFError):
+        path.unlink(missing_ok=True)
+        return False
+
+
 def _save_npz(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, **data)
-    os.replace(tmp, path)
+    from pkm_bringup.study_tables import atomic_write
+
+    def write(tmp: Path):
+        with open(tmp, "wb") as fh:                  # a file object: np.savez adds no suffix
+            np.savez(fh, **data)
+    atomic_write(path, write)
 
 
 def run_design(study: Study, out_dir: Path, workers: int | None = None, scheduler: str | None = None,
@@ -81,30 +96,36 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
     from dask.distributed import as_completed
     from tqdm import tqdm
 
-    from pkm_bringup.study_engine import make_client
+    from pkm_bringup.study_engine import make_client, task_prefix
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results").mkdir(exist_ok=True)
     shutil.copyfile(study.source, out_dir / "study.yaml")
     values = study.design_values()
     chunks = chunk_keys(study, values)
-    pending = [(k, rows) for k, rows in chunks if not (out_dir / "results" / f"{k}.npz").exists()]
+    pending = [(k, rows) for k, rows in chunks if not _readable(out_dir / "results" / f"{k}.npz")]
     outcome = {"variants": len(values), "chunks": len(chunks), "done_before": len(chunks) - len(pending), "ran": 0,
-               "interrupted": False, "started": time.monotonic(), "finished_at": []}
+               "interrupted": False, "not_run": [], "started": time.monotonic(), "finished_at": []}
     if pending:
-        client, cluster = make_client(workers, scheduler)
+        client = cluster = None
         bar = tqdm(total=len(values), initial=sum(r.stop - r.start for k, r in chunks) -
                    sum(r.stop - r.start for k, r in pending), unit="variant", disable=not progress, file=stream,
                    desc=study.name, unit_scale=True)
         futures = []
         try:
+            client, cluster = make_client(workers, scheduler)
             from pkm_bringup.design_study import evaluate_chunk as task_function   # by name (see study_engine)
+            prefix = task_prefix("design", study.name, out_dir)
             futures = client.map(task_function, [study.design] * len(pending), [study.varied] * len(pending),
-                                 [values[rows] for _, rows in pending],
-                                 key=[f"pkm-design-{study.name}-{k}" for k, _ in pending], pure=False)
+                                 [values[rows] for _, rows in pending], key=[prefix + k for k, _ in pending], pure=False)
             by_key = {f.key: (k, rows) for f, (k, rows) in zip(futures, pending)}
             for future in as_completed(futures):
                 k, rows = by_key[future.key]
-                _save_npz(out_dir / "results" / f"{k}.npz", future.result())
+                try:
+                    result = future.result()
+                except Exception as exc:       # noqa: BLE001 - reported; the chunk is computed next time
+                    outcome["not_run"].append(f"chunk {k}: {type(exc).__name__}: {exc}")
+                    continue
+                _save_npz(out_dir / "results" / f"{k}.npz", result)
                 outcome["ran"] += 1
                 outcome["finished_at"].append(time.monotonic())
                 bar.update(rows.stop - rows.start)
@@ -112,8 +133,9 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
             outcome["interrupted"] = True
         finally:
             bar.close()
-            client.cancel(futures)
-            client.close()
+            if client is not None:
+                client.cancel(futures)
+                client.close()
             if cluster is not None:
                 cluster.close()
     table, cpu_s, evaluations = assemble(study, out_dir, values, chunks)

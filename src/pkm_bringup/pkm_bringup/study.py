@@ -39,6 +39,7 @@ import copy
 import hashlib
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from itertools import product
 from pathlib import Path
@@ -84,8 +85,10 @@ class Draw:
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One run of a study: its key (index and a hash of what it runs, so a changed study
-    never takes an old result for a new run) and the scenario's overrides."""
+    """One run of a study: its key (a hash of what it runs: the base scenario's, its
+    program's and its machine's files, the overrides and a repetition number, so that an
+    edited study keeps the rows of the runs it still has and never takes an old row for
+    a changed run), its place in the study and the scenario's overrides."""
     key: str
     index: int
     cell: int                    # grid cell
@@ -121,16 +124,16 @@ class Study:
         base = _scenario_data(self.scenario)
         cells = [dict(zip(self.grid, combo)) for combo in product(*self.grid.values())] if self.grid else [{}]
         samples = self.sample_values()
-        fingerprint = hashlib.sha256(self.scenario.read_bytes()).hexdigest()
-        out = []
+        fingerprint = scenario_fingerprint(self.scenario, base)
+        out, seen = [], {}
         for c, cell in enumerate(cells):
             for d, sample in enumerate(samples):
                 values = {**cell, **sample}
                 overrides = scenario_overrides(base, {**self.fixed, **values})
-                digest = hashlib.sha256(json.dumps([fingerprint, overrides, self.in_process], sort_keys=True,
-                                                   default=str).encode()).hexdigest()[:10]
-                index = len(out)
-                out.append(RunSpec(f"{index:05d}-{digest}", index, c, d, values, overrides))
+                what = json.dumps([fingerprint, overrides, self.in_process], sort_keys=True, default=str)
+                repetition = seen[what] = seen.get(what, -1) + 1        # identical runs (no draws) stay apart
+                key = hashlib.sha256(f"{what}#{repetition}".encode()).hexdigest()[:16]
+                out.append(RunSpec(key, len(out), c, d, values, overrides))
         return out
 
     def design_values(self) -> np.ndarray:
@@ -166,6 +169,21 @@ class Study:
 # ------------------------------------------------------------------ dotted paths
 def _scenario_data(path: Path) -> dict:
     return yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+
+
+def scenario_fingerprint(path: Path, data: dict) -> str:
+    """A hash of the base scenario file and of the program and machine files it names
+    (the node parameter files in config/ are not in it: after editing them, or the
+    code, start the study in a new directory)."""
+    from pkm_kinematics.config import machine_names
+    h = hashlib.sha256(path.read_bytes())
+    program = data.get("program")
+    machine = str(data.get("machine", ""))
+    for file in ((path.parent / str(program)) if program else None,
+                 config_dir() / "machines" / f"{machine}.yaml" if machine in machine_names() else Path(machine)):
+        if file is not None and file.is_file():
+            h.update(file.read_bytes())
+    return h.hexdigest()
 
 
 def split_path(path: str) -> tuple[str, str | None]:
@@ -258,7 +276,10 @@ def load_study(path: str | Path, check: bool = True) -> Study:
     design = _design(data)
     if design is not None and "scenario" in data:
         raise StudyError("scenario: a design sweep (design) varies a machine, not a scenario: give one of them")
-    study = Study(name=str(data.get("name", path.stem)), source=path.resolve(),
+    name = str(data.get("name", path.stem))
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
+        raise StudyError(f"name: letters, digits, '_', '-' and '.' only (it names the output directory), got {name!r}")
+    study = Study(name=name, source=path.resolve(),
                   scenario=_resolve_scenario(data.get("scenario"), path.resolve()) if design is None else Path(),
                   description=str(data.get("description", "")), design=design)
     check_path = split_path if design is None else _design_path_check(design["kind"])
@@ -306,11 +327,12 @@ def load_study(path: str | Path, check: bool = True) -> Study:
     if total > MAX_RUNS:
         raise StudyError(f"grid x sample.runs: {total} runs, more than {MAX_RUNS}")
     study.group_by = _names(data, "group_by", list(study.grid))
-    bad = [g for g in study.group_by if g not in study.grid and g not in study.fixed]
+    bad = [g for g in study.group_by if g not in study.grid]
     if bad:
         raise StudyError(f"group_by: {bad[0]} is not a grid parameter ({', '.join(study.grid) or 'none'})")
     study.metrics = _names(data, "metrics", list(DEFAULT_METRICS) if design is None else [])
     if design is not None:
+        _check_design_values(study)
         study.objectives = _objectives(data, design["kind"])
         study.metrics = study.metrics or list(study.objectives)
     elif "objectives" in data:
@@ -336,10 +358,11 @@ def _design(data: dict) -> dict | None:
     unknown = sorted(set(design) - set(DESIGN_KEYS))
     if unknown:
         raise StudyError(f"design.{unknown[0]}: unknown; allowed: {', '.join(DESIGN_KEYS)}")
-    try:
-        config = load_machine(str(design.get("machine", "")))
-    except (ValueError, FileNotFoundError) as exc:
-        raise StudyError(f"design.machine: {exc}") from None
+    from pkm_kinematics.config import machine_names
+    if design.get("machine") not in machine_names():
+        raise StudyError(f"design.machine: the name of a machine in config/machines ({', '.join(machine_names())}), "
+                         f"got {design.get('machine')!r}")
+    config = load_machine(design["machine"])
     kind = design.get("kind", "planar")
     if kind not in ("planar", "gough"):
         raise StudyError(f"design.kind: must be planar or gough, got {kind!r}")
@@ -352,6 +375,25 @@ def _design(data: dict) -> dict | None:
                              ("chunk", 2000 if kind == "planar" else 50, 1_000_000)):
         out[key] = _positive_int(design, key, default, hi, "design.")
     return out
+
+
+def _check_design_values(study: Study) -> None:
+    """Every grid value a number inside its parameter's range; a uniform draw inside it;
+    a normal one within six standard deviations of its bounds (design.PARAMETERS)."""
+    from pkm_kinematics.design import PARAMETERS
+    kind = study.design["kind"]
+    for name, values in study.grid.items():
+        lo, hi = PARAMETERS[kind][name][1]
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo < v < hi:
+                raise StudyError(f"grid.{name}: values must be numbers in ({lo:g}, {hi:g}), got {v!r}")
+    for d in study.draws:
+        lo, hi = PARAMETERS[kind][d.path][1]
+        low, high = (d.a, d.b) if d.distribution == "uniform" else (d.a - 6.0 * d.b, d.a + 6.0 * d.b)
+        if not lo < low <= high < hi:
+            raise StudyError(f"sample.parameters.{d.path}: draws must stay in ({lo:g}, {hi:g}); this "
+                             f"{d.distribution} draw spans [{low:g}, {high:g}]"
+                             + (" (mean +- 6 std)" if d.distribution == "normal" else ""))
 
 
 def _design_path_check(kind: str):

@@ -33,6 +33,8 @@ every run done and none failed, 1 some failed, 2 a bad study, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -60,10 +62,13 @@ class RunTask:
 
 def execute_run(task: RunTask) -> dict:
     """Run one study run on this worker and return its metrics (study.run_metrics), or
-    ``failed_metrics`` with the error: never raises for a failing run."""
+    ``failed_metrics`` with the error: never raises for a failing run. What fails
+    around the run (no free DDS domain, rclpy missing on this worker) raises: it is
+    the worker's fault, not the run's, and the study records no row for it."""
     with _ONE_RUN_AT_A_TIME:
         from pkm_common.domains import use_private_domain
-        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}", "run.domain_id": use_private_domain()}
+        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}",
+                 "run.domain_id": use_private_domain(strict=True)}
         _quiet_nodes()
         start = time.monotonic()
         try:
@@ -107,13 +112,51 @@ def _execute(task: RunTask) -> dict:
 
 # ------------------------------------------------------------------ the client
 def write_json_atomic(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1, allow_nan=True), encoding="utf-8")
-    os.replace(tmp, path)
+    from pkm_bringup.study_tables import atomic_write
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=1, allow_nan=True), encoding="utf-8"))
 
 
 def done_keys(out_dir: Path) -> set[str]:
-    return {p.stem for p in (out_dir / "results").glob("*.json")}
+    """The runs with a readable row; an unreadable one (a crash while the file system
+    wrote it) is removed, and its run runs again."""
+    done = set()
+    for p in (out_dir / "results").glob("*.json"):
+        try:
+            json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            p.unlink(missing_ok=True)
+            continue
+        done.add(p.stem)
+    return done
+
+
+class StudyBusy(RuntimeError):
+    """Another pkm-study works in the same output directory."""
+
+
+@contextlib.contextmanager
+def study_lock(out_dir: Path):
+    """One client per output directory (``flock`` on ``<out>/.lock``, released by the
+    kernel when the process ends): two would run the same missing runs twice."""
+    import fcntl
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / ".lock", "a+", encoding="utf-8") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise StudyBusy(f"another pkm-study is running in {out_dir}") from None
+        yield
+
+
+def task_prefix(kind: str, study_name: str, out_dir: Path) -> str:
+    """Dask task keys: the run's key under the study and its output directory (a study
+    run into two directories on one scheduler must not share results)."""
+    where = hashlib.sha256(str(out_dir.resolve()).encode()).hexdigest()[:8]
+    return f"pkm-{kind}-{study_name}-{where}-"
+
+
+class SchedulerUnreachable(RuntimeError):
+    """--scheduler names no scheduler that answers."""
 
 
 def make_client(workers: int | None, scheduler: str | None):
@@ -121,7 +164,10 @@ def make_client(workers: int | None, scheduler: str | None):
     LocalCluster of ``workers`` processes (default: one per core), one thread each."""
     from dask.distributed import Client, LocalCluster
     if scheduler:
-        return Client(scheduler), None
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster), cluster
@@ -140,24 +186,28 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     done = done_keys(out_dir)
     pending = [r for r in runs if r.key not in done]
     outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
-               "interrupted": False, "started": time.monotonic(), "finished_at": []}
+               "interrupted": False, "not_run": [], "started": time.monotonic(), "finished_at": []}
     if pending:
-        client, cluster = make_client(workers, scheduler)
+        client = cluster = None
         bar = tqdm(total=len(runs), initial=outcome["done_before"], unit="run", disable=not progress, file=stream,
                    desc=study.name, smoothing=0.1)
         futures = []
         try:
+            client, cluster = make_client(workers, scheduler)
             tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
                              study.in_process) for r in pending]
             # by its module's name, also when this file runs as __main__ (python -m): the
             # workers import it (cloudpickle would copy a __main__ function by value)
             from pkm_bringup.study_engine import execute_run as task_function
-            futures = client.map(task_function, tasks, key=[f"pkm-study-{study.name}-{r.key}" for r in pending],
-                                 pure=False)
+            prefix = task_prefix("study", study.name, out_dir)
+            futures = client.map(task_function, tasks, key=[prefix + r.key for r in pending], pure=False)
             by_future = {f.key: r for f, r in zip(futures, pending)}
             for future in as_completed(futures):
                 run = by_future[future.key]
-                metrics = _metrics_of(future)
+                metrics, problem = _metrics_of(future)
+                if metrics is None:                 # not the run's failure: no row, it runs next time
+                    outcome["not_run"].append(f"{run.key}: {problem}")
+                    continue
                 write_json_atomic(out_dir / "results" / f"{run.key}.json", result_row(run, metrics))
                 outcome["ran"] += 1
                 outcome["finished_at"].append((time.monotonic(), run.key))
@@ -168,8 +218,9 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
             outcome["interrupted"] = True
         finally:
             bar.close()
-            client.cancel(futures)
-            client.close()
+            if client is not None:
+                client.cancel(futures)
+                client.close()
             if cluster is not None:
                 cluster.close()
     from pkm_bringup.study_tables import write_outputs
@@ -179,16 +230,18 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     return outcome
 
 
-def _metrics_of(future) -> dict:
-    """The task's metrics; a task Dask gave up on (its worker died each time) or one
-    that raised anyway is a failed run, named."""
+def _metrics_of(future) -> tuple[dict | None, str]:
+    """(the task's metrics, "") for a row; a run Dask gave up on (its worker died each
+    time it was tried) is a failed run, named. Anything else (cancelled: the scheduler
+    went away; a worker without a free domain or without rclpy) is not the run's
+    failure: (None, why), no row, and the run runs when the study is started again."""
     from distributed import KilledWorker
     try:
-        return future.result()
+        return future.result(), ""
     except KilledWorker as exc:
-        return failed_metrics(f"the run's worker died each time it was tried (Dask KilledWorker: {exc})")
-    except Exception as exc:           # noqa: BLE001 - recorded as the run's failure
-        return failed_metrics(f"{type(exc).__name__}: {exc}")
+        return failed_metrics(f"the run's worker died each time it was tried (Dask KilledWorker: {exc})"), ""
+    except Exception as exc:           # noqa: BLE001 - reported, the run left to the next start
+        return None, f"{type(exc).__name__}: {exc}"
 
 
 # ------------------------------------------------------------------ command line
@@ -216,8 +269,15 @@ def main(argv=None) -> int:
         print(f"pkm-study: {exc}", file=sys.stderr)
         return 2
     out_dir = Path(args.out or Path("studies") / study.name)
-    if study.design is not None:
-        return _main_design(study, out_dir, args)
+    try:
+        with study_lock(out_dir):
+            return _main_design(study, out_dir, args) if study.design is not None else _main_runs(study, out_dir, args)
+    except (StudyBusy, SchedulerUnreachable) as exc:
+        print(f"pkm-study: {exc}", file=sys.stderr)
+        return 2
+
+
+def _main_runs(study, out_dir: Path, args) -> int:
     runs = study.runs()
     done = done_keys(out_dir)
     print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({len(runs) - len(done & {r.key for r in runs})}"
@@ -237,6 +297,10 @@ def main(argv=None) -> int:
         print(f"pkm-study: interrupted; {len(done_keys(out_dir) & {r.key for r in runs})} of {len(runs)} runs done: "
               "run the same command again to finish", file=sys.stderr)
         return 130
+    if outcome["not_run"]:
+        print(f"pkm-study: {len(outcome['not_run'])} runs not run, for reasons of the cluster, not of the runs "
+              f"(run the same command again): {outcome['not_run'][0]}", file=sys.stderr)
+        return 1
     return 1 if outcome["failed_total"] else 0
 
 
@@ -259,6 +323,10 @@ def _main_design(study, out_dir: Path, args) -> int:
     if outcome["interrupted"]:
         print("pkm-study: interrupted: run the same command again to finish", file=sys.stderr)
         return 130
+    if outcome["not_run"]:
+        print(f"pkm-study: {len(outcome['not_run'])} chunks not computed (run the same command again): "
+              f"{outcome['not_run'][0]}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -34,16 +34,24 @@ def read_rows(out_dir: Path, runs) -> pd.DataFrame:
     rows = []
     for run in runs:
         path = out_dir / "results" / f"{run.key}.json"
-        if path.exists():
+        try:
             rows.append(json.loads(path.read_text(encoding="utf-8")))
+        except (OSError, ValueError):            # missing, or unreadable (study_engine.done_keys removes it)
+            continue
     frame = pd.DataFrame(rows)
     return frame.sort_values("index").reset_index(drop=True) if len(frame) else frame
 
 
 def atomic_write(path: Path, write) -> None:
-    """``write(tmp)`` a temporary file beside ``path``, then rename it to ``path``."""
+    """``write(tmp)`` a temporary file beside ``path``, flush it to the disk, then rename
+    it to ``path``: a reader sees the old file or the whole new one, also after a crash."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     write(tmp)
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
     os.replace(tmp, path)
 
 

@@ -29,14 +29,20 @@ FORCE_ENV = "PKM_TEST_ROS_DOMAIN_ID"           # forces an ID (to watch a run wi
 _held: dict[int, int] = {}                      # domain ID -> the fd holding its lock (this process)
 
 
-def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR) -> int:
+class NoFreeDomain(RuntimeError):
+    """Every domain ID is held by a live process on this host (strict claims only)."""
+
+
+def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = False) -> int:
     """A domain ID no other live process on this host holds, locked for this process.
 
     IDs are tried from a random start; the first whose lock file can be locked is
     ours. Where locking is not supported the first ID tried is taken unlocked; when
-    every ID is held, one is shared rather than failing."""
+    every ID is held, one is shared rather than failing, unless ``strict`` (study
+    workers: runs must never share a domain), which raises NoFreeDomain and ignores
+    PKM_TEST_ROS_DOMAIN_ID."""
     forced = os.environ.get(FORCE_ENV)
-    if forced:
+    if forced and not strict:
         return int(forced)
     ids = list(ids)
     start = random.Random(os.getpid() ^ time.time_ns()).randrange(len(ids))
@@ -57,19 +63,24 @@ def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR) -> int:
             os.close(fd)
             if e.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                 continue                    # held by another live process
+            if strict:
+                raise NoFreeDomain(f"domain locks unsupported in {lock_dir}: {e}") from None
             return domain_id                # locking unsupported here: take it unlocked
         _held[domain_id] = fd
         return domain_id
+    if strict:
+        raise NoFreeDomain(f"all {len(ids)} ROS domain IDs are held by live processes on this host "
+                           f"(locks in {lock_dir}); fewer workers per host")
     return ids[0]
 
 
-def use_private_domain(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR) -> int:
+def use_private_domain(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = False) -> int:
     """Claim a domain for this process (once: later calls return the same ID) and set
     the environment every rclpy context and child process of it reads."""
     current = os.environ.get("ROS_DOMAIN_ID")
     if _held and current and int(current) in _held:
         return int(current)
-    domain_id = claim_domain_id(ids, lock_dir)
+    domain_id = claim_domain_id(ids, lock_dir, strict)
     os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_LOCALHOST_ONLY", None)      # deprecated in Jazzy, warns

@@ -213,12 +213,14 @@ def gough_resolution(platform: GoughPlatform, epsilon_m: float, tool_box, center
 
 
 def gough_design_figures(r_base: float, r_plate: float, alpha_base_deg: float, alpha_plate_deg: float,
-                         epsilon_m: float, tool_box, positions: np.ndarray, strut_limits, home) -> tuple:
+                         epsilon_m: float, tool_box, positions: np.ndarray, strut_limits, home,
+                         plate_line_offset_deg: float = 60.0) -> tuple:
     """A MoM3-parametrised Gough platform (§5.2) judged over plate positions (null
     orientation): (C_opt the worst tool-level resolution (eq. 20-21), the worst position
     resolution, the shortest and longest strut, whether the struts fit their limits).
     The criterion of ``optimize_gough_geometry`` and of design sweeps (design.py)."""
-    base, plate = mom3_points(r_base, r_plate, math.radians(alpha_base_deg), math.radians(alpha_plate_deg))
+    base, plate = mom3_points(r_base, r_plate, math.radians(alpha_base_deg), math.radians(alpha_plate_deg),
+                              math.radians(plate_line_offset_deg))
     platform = GoughPlatform(base, plate, tuple(strut_limits), np.asarray(home, dtype=float))
     lengths = platform.strut_lengths_batch(positions, np.broadcast_to(np.eye(3), (len(positions), 3, 3)))
     pos, _, tool = resolution_at(platform, positions, epsilon_m, np.asarray(tool_box, dtype=float))

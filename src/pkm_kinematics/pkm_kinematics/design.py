@@ -14,12 +14,14 @@ Planar machines (ARCHI, Sliding Star), ``planar_metrics``, over a grid of (x, y,
   imposed: the drive travel is what the design must provide, below);
 - ``cond_min``, ``cond_max``: the 2-norm condition number of J_m over the reachable
   poses (ARCHI §3.3, Fig. 10), ``inf`` at a parallel singularity;
-- ``sub_cond_max``: for a redundant machine (n > 3), the worst over the poses of the
-  best-conditioned 3-leg sub-machine, i.e. how well it can go on after any one drive
-  fails (ARCHI §4.2); equal to ``cond_max`` for n = 3;
+- ``failure_cond_max``: for a redundant machine (n > 3), the condition number of the
+  machine left after the loss of any one drive (its n - 1 legs), at its worst over the
+  poses and over which drive is lost: how well it can go on after a drive failure,
+  whichever fails (ARCHI §4.2); NaN for n = 3 (it cannot);
 - ``travel_max_m``: the largest carriage travel (max - min of q_i) a drive needs;
-- ``tf_min``, ``tf_max``: the velocity transmission factors, the extreme singular values
-  of J_m over the poses (drive speed per unit tool speed, Orthoglide §4.1).
+- ``tf_min``, ``tf_max``: the velocity transmission factors psi = 1 / sigma(J_m), the
+  tool speed per unit drive speed (Orthoglide §4.3, as translational.transmission_factors),
+  at their extremes over the poses.
 
 The Gough metrology (MoM3 §5.2 parametrisation: r_b, r_tp, alpha_b, alpha_tp),
 ``gough_metrics``: the worst tool-level resolution C_opt (MoM3 eq. 20-21) and the worst
@@ -36,24 +38,26 @@ import math
 
 import numpy as np
 
+from .analysis import workspace_grid
 from .jit import kernel
-from .planar import VT_OK, PlanarMachine, leg_array, leg_closure
+from .planar import VT_OK, PlanarMachine, jm_row, leg_array, leg_closure
 
 # ------------------------------------------------------------------ parameters
-# name -> (what it changes, the values it accepts)
+# name -> (what it changes, the open interval of its values)
 PLANAR_PARAMETERS = {
-    "link_length_scale": "every link length times this factor",
-    "platform_scale": "every platform point (b_i, from the platform centre) times this factor",
-    "rail_spacing_scale": "every rail moved along its normal: its distance from the home position times this factor",
+    "link_length_scale": ("every link length times this factor", (0.0, 10.0)),
+    "platform_scale": ("every platform point (b_i, from the platform centre) times this factor", (0.0, 10.0)),
+    "rail_spacing_scale": ("every rail moved along its normal: its distance from the home position times this "
+                           "factor", (0.0, 10.0)),
 }
 GOUGH_PARAMETERS = {
-    "r_base_m": "radius of the base joints (MoM3 §5.2 r_b)",
-    "r_plate_m": "radius of the plate joints (r_tp)",
-    "alpha_base_deg": "angle between the two base joints of a pair (alpha_b)",
-    "alpha_plate_deg": "angle between the two plate joints of a pair (alpha_tp)",
+    "r_base_m": ("radius of the base joints (MoM3 §5.2 r_b)", (0.0, 10.0)),
+    "r_plate_m": ("radius of the plate joints (r_tp)", (0.0, 10.0)),
+    "alpha_base_deg": ("angle between the two base joints of a pair (alpha_b)", (0.0, 120.0)),
+    "alpha_plate_deg": ("angle between the two plate joints of a pair (alpha_tp)", (0.0, 120.0)),
 }
 PARAMETERS = {"planar": PLANAR_PARAMETERS, "gough": GOUGH_PARAMETERS}
-PLANAR_METRICS = ("reach", "cond_min", "cond_max", "sub_cond_max", "travel_max_m", "tf_min", "tf_max")
+PLANAR_METRICS = ("reach", "cond_min", "cond_max", "failure_cond_max", "travel_max_m", "tf_min", "tf_max")
 GOUGH_METRICS = ("tool_resolution_m", "position_resolution_m", "strut_min_m", "strut_max_m", "struts_fit")
 METRICS = {"planar": PLANAR_METRICS, "gough": GOUGH_METRICS}
 
@@ -70,11 +74,14 @@ def check_parameters(kind: str, names) -> None:
 @kernel()
 def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
     """(smallest, largest) eigenvalue of the symmetric 3x3 matrix [[a00, a01, a02],
-    [., a11, a12], [., ., a22]], closed form (O. K. Smith, "Eigenvalues of a symmetric
-    3 x 3 matrix", CACM 4(4), 1961): with q = tr/3, p = sqrt(|A - q I|_F^2 / 6),
-    r = det((A - q I) / p) / 2, the eigenvalues are q + 2 p cos(acos(r)/3 + 2 pi k/3).
-    Absolute accuracy ~1e-16 of the largest: a condition number from them is good to
-    ~1e7."""
+    [., a11, a12], [., ., a22]]. The largest in closed form (O. K. Smith, "Eigenvalues
+    of a symmetric 3 x 3 matrix", CACM 4(4), 1961): with q = tr/3, p = sqrt(|A - q I|_F^2
+    / 6), r = det((A - q I) / p) / 2, the eigenvalues are q + 2 p cos(acos(r)/3 + 2 pi k/3).
+    The smallest from the 2 x 2 matrix A is on the plane normal to the largest's
+    eigenvector (deflation; its smaller eigenvalue as det / larger): Smith's formula
+    loses ~sqrt(eps) there when the two smaller eigenvalues nearly coincide. Absolute
+    accuracy ~1e-16 of the largest: a condition number of J from them (sqrt of their
+    ratio) is good to ~1e-8 relative up to cond(J) ~1e4, ~1e-4 at 1e6."""
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
     d0, d1, d2 = a00 - q, a11 - q, a22 - q
@@ -87,8 +94,41 @@ def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
     r = min(1.0, max(-1.0, r))
     phi = math.acos(r) / 3.0
     largest = q + 2.0 * p * math.cos(phi)
-    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
-    return smallest, largest
+    # its eigenvector: the longest cross product of two rows of A - largest I
+    r0x, r0y, r0z = a00 - largest, a01, a02
+    r1x, r1y, r1z = a01, a11 - largest, a12
+    r2x, r2y, r2z = a02, a12, a22 - largest
+    best, vx, vy, vz = -1.0, 0.0, 0.0, 0.0
+    for ax, ay, az, bx, by, bz in ((r0x, r0y, r0z, r1x, r1y, r1z), (r0x, r0y, r0z, r2x, r2y, r2z),
+                                   (r1x, r1y, r1z, r2x, r2y, r2z)):
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        norm2 = cx * cx + cy * cy + cz * cz
+        if norm2 > best:
+            best, vx, vy, vz = norm2, cx, cy, cz
+    if best <= 0.0:                                   # the two smaller coincide with it: A = q I
+        return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), largest
+    norm = math.sqrt(best)
+    vx, vy, vz = vx / norm, vy / norm, vz / norm
+    # an orthonormal pair (u, w) of the plane normal to v
+    if abs(vx) <= abs(vy) and abs(vx) <= abs(vz):
+        ux, uy, uz = 0.0, -vz, vy
+    elif abs(vy) <= abs(vz):
+        ux, uy, uz = vz, 0.0, -vx
+    else:
+        ux, uy, uz = -vy, vx, 0.0
+    norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / norm, uy / norm, uz / norm
+    wx, wy, wz = vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux
+    aux, auy, auz = a00 * ux + a01 * uy + a02 * uz, a01 * ux + a11 * uy + a12 * uz, a02 * ux + a12 * uy + a22 * uz
+    awx, awy, awz = a00 * wx + a01 * wy + a02 * wz, a01 * wx + a11 * wy + a12 * wz, a02 * wx + a12 * wy + a22 * wz
+    buu = ux * aux + uy * auy + uz * auz
+    bww = wx * awx + wy * awy + wz * awz
+    buw = ux * awx + uy * awy + uz * awz
+    half = 0.5 * (buu - bww)
+    larger = 0.5 * (buu + bww) + math.sqrt(half * half + buw * buw)
+    if larger <= 0.0:
+        return 0.0, largest
+    return (buu * bww - buw * buw) / larger, largest
 
 
 @kernel()
@@ -116,8 +156,10 @@ def _gram_cond(rows, idx, m):
 @kernel("(float64[:, :, :], float64[:, :], int64[:, :])")
 def planar_metrics_kernel(legs, poses, subsets):
     """PLANAR_METRICS of each variant, (V, 7): ``legs`` (V, n, 8) (planar.leg_array),
-    ``poses`` (P, 3), ``subsets`` (S, 3) the sub-machines' legs (S = 0: not redundant)."""
+    ``poses`` (P, 3), ``subsets`` (S, m) the legs left after each single drive failure
+    (S = 0: not redundant)."""
     n_var, n, n_pose = legs.shape[0], legs.shape[1], poses.shape[0]
+    m = subsets.shape[1]
     out = np.empty((n_var, 7))
     rows = np.empty((n, 3))
     q = np.empty(n)
@@ -130,7 +172,7 @@ def planar_metrics_kernel(legs, poses, subsets):
     for v in range(n_var):
         leg = legs[v]
         reach = 0
-        cmin, cmax, sub_worst, tf_lo, tf_hi = math.inf, 0.0, 0.0, math.inf, 0.0
+        cmin, cmax, sub_worst, sigma_lo, sigma_hi = math.inf, 0.0, 0.0, math.inf, 0.0
         qmin[:] = math.inf
         qmax[:] = -math.inf
         for p in range(n_pose):
@@ -142,7 +184,7 @@ def planar_metrics_kernel(legs, poses, subsets):
                     ok = False
                     break
                 q[k] = qk
-                rows[k, 0], rows[k, 1], rows[k, 2] = ex / sv, ey / sv, (ey * rbx - ex * rby) / sv
+                rows[k, 0], rows[k, 1], rows[k, 2] = jm_row(ex, ey, sv, rbx, rby)
             if not ok:
                 continue
             reach += 1
@@ -151,14 +193,9 @@ def planar_metrics_kernel(legs, poses, subsets):
                 qmax[k] = max(qmax[k], q[k])
             cond, s_lo, s_hi = _gram_cond(rows, every, n)
             cmin, cmax = min(cmin, cond), max(cmax, cond)
-            tf_lo, tf_hi = min(tf_lo, s_lo), max(tf_hi, s_hi)
-            if subsets.shape[0]:
-                best = math.inf
-                for t in range(subsets.shape[0]):
-                    best = min(best, _gram_cond(rows, subsets[t], 3)[0])
-                sub_worst = max(sub_worst, best)
-            else:
-                sub_worst = cmax
+            sigma_lo, sigma_hi = min(sigma_lo, s_lo), max(sigma_hi, s_hi)
+            for t in range(subsets.shape[0]):
+                sub_worst = max(sub_worst, _gram_cond(rows, subsets[t], m)[0])
         travel = 0.0
         for k in range(n):
             travel = max(travel, qmax[k] - qmin[k])
@@ -166,8 +203,12 @@ def planar_metrics_kernel(legs, poses, subsets):
             out[v, :] = math.nan
             out[v, 0] = 0.0
         else:
-            out[v, 0], out[v, 1], out[v, 2], out[v, 3] = reach / n_pose, cmin, cmax, sub_worst
-            out[v, 4], out[v, 5], out[v, 6] = travel, tf_lo, tf_hi
+            out[v, 0], out[v, 1], out[v, 2] = reach / n_pose, cmin, cmax
+            out[v, 3] = sub_worst if subsets.shape[0] else math.nan
+            # psi = 1 / sigma: the smallest psi from the largest sigma (0 at a serial singularity)
+            out[v, 4] = travel
+            out[v, 5] = 1.0 / sigma_hi if sigma_hi > 0.0 else math.inf
+            out[v, 6] = 1.0 / sigma_lo if sigma_lo > 0.0 else math.inf
     return out
 
 
@@ -201,24 +242,22 @@ def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
 
 
 def workspace_poses(machine: PlanarMachine, points_per_axis: int = 11, theta_points: int = 9) -> np.ndarray:
-    """A regular grid over the machine's configured workspace (x, y, theta), (P, 3)."""
-    ws = machine.workspace
-    axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
-            np.radians(np.linspace(*ws["theta_deg"], theta_points))]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    """The base machine's workspace grid (analysis.workspace_grid), contiguous."""
+    return np.ascontiguousarray(workspace_grid(machine, points_per_axis, theta_points), dtype=float)
 
 
-def sub_machine_legs(n_legs: int) -> np.ndarray:
-    """Every 3-leg sub-machine of a redundant planar machine, (S, 3); (0, 3) for n = 3."""
+def remaining_legs(n_legs: int) -> np.ndarray:
+    """The legs left after the loss of each one drive, (n, n - 1); (0, n - 1) when the
+    machine is not redundant (n = 3: it cannot go on)."""
     if n_legs <= 3:
-        return np.zeros((0, 3), dtype=np.int64)
-    return np.array(list(itertools.combinations(range(n_legs), 3)), dtype=np.int64)
+        return np.zeros((0, n_legs - 1), dtype=np.int64)
+    return np.array(list(itertools.combinations(range(n_legs), n_legs - 1)), dtype=np.int64)
 
 
 def planar_metrics(machine: PlanarMachine, names, values, poses) -> dict[str, np.ndarray]:
     """PLANAR_METRICS of the variants (module docstring), each an array (V,)."""
     legs = np.ascontiguousarray(planar_variants(machine, names, values))
-    out = planar_metrics_kernel(legs, np.ascontiguousarray(poses, dtype=float), sub_machine_legs(machine.n_legs))
+    out = planar_metrics_kernel(legs, np.ascontiguousarray(poses, dtype=float), remaining_legs(machine.n_legs))
     return dict(zip(PLANAR_METRICS, out.T))
 
 
@@ -236,7 +275,8 @@ def gough_metrics(metrology, names, values, points_per_axis: int = 3) -> dict[st
         p = {**base, **dict(zip(names, row))}
         fig = gough_design_figures(p["r_base_m"], p["r_plate_m"], p["alpha_base_deg"], p["alpha_plate_deg"],
                                    metrology.encoder_resolution_m, metrology.tool_box, positions,
-                                   metrology.platform.strut_limits, metrology.workspace_center)
+                                   metrology.platform.strut_limits, metrology.workspace_center,
+                                   metrology.geometry.get("plate_line_offset_deg", 60.0))
         for k, value in zip(GOUGH_METRICS, fig):
             out[k][v] = value
     return out
@@ -265,8 +305,8 @@ def pareto_front(objectives, senses) -> np.ndarray:
             f = x[front]
             if np.any(np.all(f <= x[i], axis=1) & np.any(f < x[i], axis=1)):
                 continue
-            # a row taken earlier cannot be dominated by a later one, except by an equal rank
-            # sum with ties: drop any front member this row dominates
+            # a row that dominates another has the smaller rank sum, but ties get arbitrary
+            # ranks (argsort), so a later row may still dominate a kept one: drop those
             beaten = np.all(x[i] <= f, axis=1) & np.any(x[i] < f, axis=1)
             if beaten.any():
                 front = [j for j, b in zip(front, beaten) if not b]

@@ -296,6 +296,13 @@ def leg_closure(legs, k, x, y, c, s):
     return VT_OK, qi, ex, ey, sv, rbx, rby
 
 
+@kernel()
+def jm_row(ex, ey, sv, rbx, rby):
+    """The J_m row of a leg from its closure (``leg_closure``), ARCHI §3.2:
+    [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u)."""
+    return ex / sv, ey / sv, (ey * rbx - ex * rby) / sv
+
+
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
 def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
@@ -318,7 +325,7 @@ def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
         gdot_v = edx * vx + edy * vy + ((edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)) * w
         sdot = edx * ux + edy * uy
         q[k] = qi
-        rows[k, 0], rows[k, 1], rows[k, 2] = ex / sv, ey / sv, g3 / sv
+        rows[k, 0], rows[k, 1], rows[k, 2] = jm_row(ex, ey, sv, rbx, rby)
         qdots[k] = qdot
         biases[k] = gdot_v / sv - gv * sdot / (sv * sv)
     return q, rows, qdots, biases, VT_OK, -1
