@@ -53,10 +53,12 @@ def evaluate_chunk(design: dict, names: list, values: np.ndarray) -> dict:
 
 def chunk_keys(study: Study, values: np.ndarray) -> list[tuple[str, slice]]:
     """(key, rows) of each chunk: its index and a hash of the machine file, the design
-    section, the parameter names and the chunk's values."""
+    section, the parameter names, the metrics computed and the chunk's values."""
     from pkm_kinematics.config import config_dir
     machine_file = config_dir() / "machines" / f"{study.design['machine']}.yaml"
-    base = hashlib.sha256(machine_file.read_bytes() + repr((sorted(study.design.items()), study.varied)).encode())
+    from pkm_kinematics.design import METRICS
+    base = hashlib.sha256(machine_file.read_bytes() + repr((sorted(study.design.items()), study.varied,
+                                                            METRICS[study.design["kind"]])).encode())
     size = study.design["chunk"]
     out = []
     for i, start in enumerate(range(0, len(values), size)):
