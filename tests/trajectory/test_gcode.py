@@ -305,3 +305,31 @@ def test_thousand_line_program():
     # an error at the very end still names its line
     with pytest.raises(GcodeError, match=r'^line 1001: G5: '):
         parse_gcode(generated_program(1000) + 'G5\n')
+
+
+# ---- path control: G61 / G64 (LinuxCNC's blend-test programs start "G20 G90 G64 ...")
+
+def test_g64_p_sets_the_blending_tolerance_of_the_moves_that_follow_and_g61_stops_them():
+    moves = parse_gcode("G21 G1 F600 X1\nG64 P0.05\nX2\nG20 G64 P0.001 X0.1\nG61\nY1\nG64\nY2\nM2")
+    assert [m.blend_tolerance for m in moves] == [None, 5e-5, pytest.approx(0.001 * 0.0254), 0.0, None]
+
+
+def test_a_linuxcnc_blend_program_header_is_accepted():
+    moves = parse_gcode("%\nG20 G90 G64 P0.0005 G40 G17\nG1 F60 X0.5\nY0.5\nX0\nY0\nM2\n%")
+    assert len(moves) == 4 and all(m.blend_tolerance == pytest.approx(0.0005 * 0.0254) for m in moves)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("G64 P-1", r"line 1: P-1: G64 blending tolerance must be >= 0"),
+    ("G61 P1", r"line 1: P1: P is not allowed with G61"),
+    ("G4 G64 P1", r"line 1: G4 and G64: P would be both a dwell and a blending tolerance"),
+    ("G61 G64", r"line 1: G61 and G64: two path control modes on one line"),
+    ("G64 P0.1 Q0.05", r"line 1: Q0.05: unsupported word Q"),
+    ("G61.1", r"line 1: G61.1: unsupported G-code"),
+    ("G41 D1", r"line 1: G41: cutter compensation is not supported"),
+    ("G1 F10 X1 P2", r"line 1: P2: P is only allowed with G4 \(dwell\) or G64"),
+    ("G1 F10 X1\no100 sub", r"line 2: O100: O-words \(subroutines, loops, conditionals\) are not supported"),
+])
+def test_path_control_words_it_cannot_honour_are_refused_with_line_and_word(text, message):
+    with pytest.raises(GcodeError, match=message):
+        parse_gcode(text)

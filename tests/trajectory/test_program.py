@@ -87,3 +87,33 @@ def test_zero_moves_and_zero_dwells_are_dropped():
     segs = gcode_segments("G21 G90 G1 F600 X1000 Y-400\nG4 P0\nG1 X1010\nM2", planar=True, start_pose=START)
     s = plan(segs, LIMITS, translation_axes=2)
     assert np.all(np.diff(s.time_s) > 0)
+
+
+def test_g64_blends_its_corners_within_p_and_g61_stops_at_its_own():
+    """A square under G64 P0.5 (mm) then the same square under G61, planned with the
+    node's default blending off: the G64 corners are passed moving, the path within
+    0.5 mm of the programmed one (planner._deviation); the G61 corners are reached at
+    rest, and so is the start point where the mode changes."""
+    from pkm_trajectory.planner import _deviation, plan_with_blending
+    square = "X50 Y0\nX50 Y50\nX0 Y50\nX0 Y0\n"
+    limits = Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))
+    segments = gcode_segments(f"G21 G90 G1 F3000\nG64 P0.5\n{square}G61\n{square}M2", planar=False,
+                              start_pose=(0.0, 0.0, 0.0))
+    s = plan_with_blending(segments, limits, 0.0, rate_hz=2000.0)
+    speed = np.linalg.norm(s.velocity[:, :2], axis=1)
+    at_start = np.flatnonzero((np.linalg.norm(s.position[:, :2], axis=1) < 1e-12) & (speed < 1e-12))
+    join = at_start[(at_start > 10) & (at_start < len(speed) - 10)]
+    assert len(join), "no stop at the start point between the G64 and the G61 square"
+    g64, g61 = slice(0, join[0]), slice(join[-1], None)
+    path = [(0.0, 0.0), (0.05, 0.0), (0.05, 0.05), (0.0, 0.05), (0.0, 0.0), (0.05, 0.0)]
+    for k in range(1, 4):
+        prev, corner, nxt = (np.array(path[k + d]) for d in (-1, 0, 1))
+        d = np.linalg.norm(s.position[g64, :2] - corner, axis=1)
+        near = d < 2e-3
+        deviation = max(_deviation(p, prev, corner, nxt) for p in s.position[g64, :2][near])
+        assert 1e-5 < d.min() and deviation <= 5e-4 * (1 + 1e-6) and speed[g64][d.argmin()] > 0.05
+        d = np.linalg.norm(s.position[g61, :2] - corner, axis=1)
+        assert d.min() < 1e-9 and speed[g61][d.argmin()] < 1e-9
+    exact = plan_with_blending(gcode_segments(f"G21 G90 G1 F3000\nG61\n{square}{square}M2", planar=False,
+                                              start_pose=(0.0, 0.0, 0.0)), limits, 0.0, rate_hz=2000.0)
+    assert s.duration_s < exact.duration_s - 0.1

@@ -15,6 +15,13 @@ Supported subset
   (absolute under G90, incremental under G91), ``M2``/``M30`` program end, ``N`` line
   numbers (first word only, ignored), comments ``( ... )`` and after ``;``, ``%``
   delimiter lines, blank lines.
+- Path control (LinuxCNC): ``G64 P<tolerance>`` blends the corners between line moves
+  within the tolerance (in the line's length unit), ``G64`` alone with the trajectory
+  node's ``blend_tolerance_m``, ``G61`` stops exactly at every corner. Modal; each move
+  carries the mode in force (``Move.blend_tolerance``: m, 0 for exact stop, None for
+  the node's setting, also before any G61/G64). ``G40`` (cutter compensation off, the
+  only state here) is accepted and does nothing; ``G64 Q`` (naive CAM tolerance),
+  ``G61.1`` and cutter compensation (``G41``/``G42``) are refused.
 - Motion is modal: a line with axis words (X Y Z C, or I J under G2/G3) and no motion
   code repeats the last of G0/G1/G2/G3. A motion code without axis words only sets
   the mode (``G1 F600``).
@@ -63,7 +70,7 @@ _NUMBER = re.compile(r'[+-]?(?:\d+(?:\.\d*)?|\.\d+)\Z')
 _NUMBER_CHARS = frozenset('0123456789.+-')
 _LINE_SPLIT = re.compile(r'\r\n|\n|\r')
 
-_SUPPORTED_G = 'G0 G1 G2 G3 G4 G17 G20 G21 G90 G91'
+_SUPPORTED_G = 'G0 G1 G2 G3 G4 G17 G20 G21 G40 G61 G64 G90 G91'
 _MOTION = {0.0: 0, 1.0: 1, 2.0: 2, 3.0: 3}
 _KIND = {0: 'rapid', 1: 'linear', 2: 'arc', 3: 'arc'}
 _VALUE_LETTERS = frozenset('XYZCIJFP')
@@ -90,6 +97,7 @@ class Move:
     center: tuple | None           # arc centre (x, y, z) absolute, m; arcs only
     clockwise: bool | None         # True for G2, False for G3, None otherwise
     dwell_s: float = 0.0           # G4 P, s
+    blend_tolerance: float | None = None   # G64 P (m) / G61 (0) in force; None: the node's blend_tolerance_m
 
 
 class GcodeError(ValueError):
@@ -151,6 +159,8 @@ def _tokenize(code: str, n: int) -> list[_Word]:
         while j < size and code[j] in _NUMBER_CHARS:
             j += 1
         text = code[i:j]
+        if letter == 'O':          # before the rest of the line (o100 sub, o101 if [...]) is read as words
+            raise GcodeError(n, f'O{text}: O-words (subroutines, loops, conditionals) are not supported')
         if not text:
             raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
         if not _NUMBER.match(text):
@@ -189,6 +199,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
     motion = None        # modal 0/1/2/3
     feed = None          # m/s
     ended_at = None      # (line, word text) of M2/M30
+    blend = None         # modal G61 (0.0) / G64 P (m) / G64 (None: the node's setting)
     moves: list[Move] = []
 
     for n, raw in enumerate(_LINE_SPLIT.split(text), start=1):
@@ -202,7 +213,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
 
         # --- classify the words of the line --------------------------------------
         values: dict[str, _Word] = {}
-        motion_word = dwell_word = plane_word = units_word = distance_word = end_word = None
+        motion_word = dwell_word = plane_word = units_word = distance_word = end_word = path_word = None
         for k, w in enumerate(words):
             L = w.letter
             if L == 'N':
@@ -237,6 +248,15 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                     if distance_word is not None:
                         raise GcodeError(n, f'{distance_word.text} and {w.text}: two distance modes on one line')
                     distance_word = w
+                elif v in (61.0, 64.0):
+                    if path_word is not None:
+                        raise GcodeError(n, f'{path_word.text} and {w.text}: two path control modes on one line')
+                    path_word = w
+                elif v == 40.0:
+                    pass                   # cutter compensation off: the only state the planner has
+                elif v in (41.0, 42.0, 41.1, 42.1):
+                    raise GcodeError(n, f'{w.text}: cutter compensation is not supported (the planner follows '
+                                        'the programmed path; G40 is accepted)')
                 else:
                     raise GcodeError(n, f'{w.text}: unsupported G-code (supported: {_SUPPORTED_G})')
             elif L == 'M':
@@ -274,6 +294,23 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
         axes = [values[a] for a in 'XYZC' if a in values]
         offsets = [values[a] for a in 'IJ' if a in values]
 
+        # --- path control (G61 / G64 P) -------------------------------------------
+        if path_word is not None:
+            if path_word.value == 61.0:
+                if 'P' in values:
+                    raise GcodeError(n, f"{values['P'].text}: P is not allowed with G61 (exact stop)")
+                blend = 0.0
+            elif dwell_word is not None:
+                raise GcodeError(n, f'{dwell_word.text} and {path_word.text}: P would be both a dwell and a '
+                                    'blending tolerance; put them on separate lines')
+            elif 'P' in values:
+                p = values['P']
+                if p.value < 0.0:
+                    raise GcodeError(n, f'{p.text}: G64 blending tolerance must be >= 0')
+                blend = p.value * unit
+            else:
+                blend = None
+
         # --- dwell ---------------------------------------------------------------
         if dwell_word is not None:
             if motion_word is not None:
@@ -289,8 +326,8 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
             if p.value < 0.0:
                 raise GcodeError(n, f'{p.text}: dwell time must be >= 0 s')
             moves.append(Move('dwell', n, tuple(pos), None, None, None, None, p.value))
-        elif 'P' in values:
-            raise GcodeError(n, f"{values['P'].text}: P is only allowed with G4 (dwell)")
+        elif 'P' in values and (path_word is None or path_word.value != 64.0):
+            raise GcodeError(n, f"{values['P'].text}: P is only allowed with G4 (dwell) or G64 (blending tolerance)")
 
         # --- motion --------------------------------------------------------------
         if motion_word is not None:
@@ -320,7 +357,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
 
             if motion in (0, 1):
                 moves.append(Move(_KIND[motion], n, tuple(target), new_rotation,
-                                  feed if motion == 1 else None, None, None))
+                                  feed if motion == 1 else None, None, None, blend_tolerance=blend))
             else:
                 if not offsets:
                     raise GcodeError(n, f'{mname}: arc without I and J: the centre is required '
@@ -343,7 +380,8 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                                         f'{r0:.9g} m at the start, {r1:.9g} m at the end '
                                         f'(differ by {abs(r1 - r0):.3g} m > {tol:.3g} m; '
                                         'I J inconsistent with the end point)')
-                moves.append(Move('arc', n, tuple(target), new_rotation, feed, center, motion == 2))
+                moves.append(Move('arc', n, tuple(target), new_rotation, feed, center, motion == 2,
+                                  blend_tolerance=blend))
             pos = target
 
         if end_word is not None:

@@ -55,6 +55,7 @@ class Line:
     start: tuple
     end: tuple
     speed: float | None = None     # path speed cap of the translation (m/s), e.g. a G-code feed
+    blend_tolerance: float | None = None   # its corner's blending (G64 P / G61: 0), None: the plan's own
 
     def point(self, u):
         if u >= 1.0:
@@ -461,24 +462,32 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
 
 def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz: float = 1000.0,
                        translation_axes: int = 3) -> Samples:
-    """Runs of consecutive lines are blended within ``blend_tolerance``; arcs and dwells
-    (and every corner when the tolerance is 0) stop exactly. The pieces are joined in
-    time at rest, so the limits hold across the joins."""
-    if blend_tolerance <= 0.0:
+    """Runs of consecutive lines with the same tolerance are blended within it: a line's
+    own ``blend_tolerance`` (G64 P, G61: 0) or else ``blend_tolerance``; arcs, dwells,
+    the corners of lines under 0 and the corners where the tolerance changes stop
+    exactly. The pieces are joined in time at rest, so the limits hold across the joins."""
+    def tolerance(seg) -> float:
+        own = seg.blend_tolerance if isinstance(seg, Line) else None
+        return blend_tolerance if own is None else own
+    if all(tolerance(seg) <= 0.0 for seg in segments if isinstance(seg, Line)):
         return plan(segments, limits, rate_hz, translation_axes)
     groups, run = [], []
     for seg in segments:
-        if isinstance(seg, Line):
+        if isinstance(seg, Line) and (not run or tolerance(seg) == tolerance(run[0])):
             run.append(seg)
             continue
         if run:
             groups.append(("lines", run))
             run = []
-        groups.append(("other", [seg]))
+        if isinstance(seg, Line):
+            run.append(seg)
+        else:
+            groups.append(("other", [seg]))
     if run:
         groups.append(("lines", run))
-    parts = [plan_blended(g, limits, blend_tolerance, rate_hz, translation_axes) if kind == "lines"
-             else plan(g, limits, rate_hz, translation_axes) for kind, g in groups]
+    parts = [plan_blended(g, limits, tolerance(g[0]), rate_hz, translation_axes)
+             if kind == "lines" and tolerance(g[0]) > 0.0 else plan(g, limits, rate_hz, translation_axes)
+             for kind, g in groups]
     t0, out = 0.0, []
     for k, part in enumerate(parts):
         skip = 0 if k == 0 else 1            # the first sample repeats the previous end

@@ -57,7 +57,7 @@ def program_segments(moves: list[Move], planar: bool, start_pose, feed_override:
         speed = None if move.feed is None else move.feed * feed_override
         if move.kind in ("rapid", "linear"):
             if target != pose:
-                segments.append(Line(tuple(pose), tuple(target), speed))
+                segments.append(Line(tuple(pose), tuple(target), speed, move.blend_tolerance))
         else:  # arc in the XY plane about the (scaled) centre
             cx = origin[0] + scale * (move.center[0] - origin[0])
             cy = origin[1] + scale * (move.center[1] - origin[1])
