@@ -57,6 +57,8 @@ GOUGH_PARAMETERS = {
     "alpha_plate_deg": ("angle between the two plate joints of a pair (alpha_tp)", (0.0, 120.0)),
 }
 PARAMETERS = {"planar": PLANAR_PARAMETERS, "gough": GOUGH_PARAMETERS}
+NEAR_DOUBLE = 0.99          # |r| of Smith's formula beyond which two eigenvalues are nearly equal
+ILL_CONDITIONED = 1e-6      # smallest / largest eigenvalue under which the smallest is deflated
 PLANAR_METRICS = ("reach", "cond_min", "cond_max", "failure_cond_max", "travel_max_m", "tf_min", "tf_max")
 GOUGH_METRICS = ("tool_resolution_m", "position_resolution_m", "strut_min_m", "strut_max_m", "struts_fit")
 METRICS = {"planar": PLANAR_METRICS, "gough": GOUGH_METRICS}
@@ -77,11 +79,14 @@ def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
     [., a11, a12], [., ., a22]]. The largest in closed form (O. K. Smith, "Eigenvalues
     of a symmetric 3 x 3 matrix", CACM 4(4), 1961): with q = tr/3, p = sqrt(|A - q I|_F^2
     / 6), r = det((A - q I) / p) / 2, the eigenvalues are q + 2 p cos(acos(r)/3 + 2 pi k/3).
-    The smallest from the 2 x 2 matrix A is on the plane normal to the largest's
-    eigenvector (deflation; its smaller eigenvalue as det / larger): Smith's formula
-    loses ~sqrt(eps) there when the two smaller eigenvalues nearly coincide. Absolute
-    accuracy ~1e-16 of the largest: a condition number of J from them (sqrt of their
-    ratio) is good to ~1e-8 relative up to cond(J) ~1e4, ~1e-4 at 1e6."""
+    Where two eigenvalues nearly coincide (|r| > NEAR_DOUBLE: acos loses ~sqrt(eps)) or
+    the smallest is tiny (under ILL_CONDITIONED of the largest, where Smith's absolute
+    error ~eps of the largest is a large part of it), the smallest is taken otherwise:
+    the two larger nearly equal, as det A / (largest middle); else from the 2 x 2 matrix
+    A is on the plane normal to the largest's eigenvector (deflation; its smaller
+    eigenvalue as det / larger). Checked against numpy: the smallest to 1e-6 relative
+    down to 1e-8 of the largest (cond(J) = 1e4), the largest to 1e-8 (sqrt(eps) where
+    it is nearly double: harmless to a condition number)."""
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
     d0, d1, d2 = a00 - q, a11 - q, a22 - q
@@ -94,6 +99,13 @@ def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
     r = min(1.0, max(-1.0, r))
     phi = math.acos(r) / 3.0
     largest = q + 2.0 * p * math.cos(phi)
+    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    if abs(r) < NEAR_DOUBLE and smallest > ILL_CONDITIONED * largest:
+        return smallest, largest                  # no two eigenvalues close, none tiny: Smith's is accurate
+    if r <= -NEAR_DOUBLE:                         # the two larger nearly equal (r = -1): det A / (largest middle)
+        middle = 3.0 * q - largest - smallest
+        det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+        return (det / (largest * middle) if middle > 0.0 else smallest), largest
     # its eigenvector: the longest cross product of two rows of A - largest I
     r0x, r0y, r0z = a00 - largest, a01, a02
     r1x, r1y, r1z = a01, a11 - largest, a12
