@@ -8,7 +8,8 @@ per run, and design-sweep throughput.
    rows minus the run's own time on its worker (``run.task_s``: load the scenario, run
    it, collect its metrics), as a share of the run's own time. Target: <= 5 %.
 2. A design sweep of ``--variants`` Sliding Star variants (11 x 11 x 9 workspace grid,
-   condition numbers of J_m and of the four sub-machines, travel, transmission) on 1
+   condition numbers of J_m and of the four machines left after a drive failure, travel,
+   transmission factors) on 1
    and 2 workers: pose evaluations per CPU second (target >= 1e6 per core for a planar
    machine's condition number) and the speed-up from 1 to 2 workers (wall, without the
    cluster's start-up: first chunk to last, scaled to all chunks).
@@ -101,8 +102,8 @@ def main() -> int:
         print(f"| {w} | {r['runs']} | {r['failed']} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | {r['task_s']:.2f} | "
               f"{r['per_hour']:.0f} | {overhead} |", flush=True)
     print()
-    print(f"design sweep: {args.variants} Sliding Star variants x 1089 poses (cond of J_m and 4 sub-machines, "
-          "travel, transmission)")
+    print(f"design sweep: {args.variants} Sliding Star variants x 1089 poses (cond of J_m and of the 4 machines "
+          "left after a drive failure, travel, transmission factors)")
     print("| workers | wall s | first to last chunk, scaled s | pose evaluations per CPU s (target >= 1e6) | "
           "speed-up | Pareto front |")
     print("|---|---|---|---|---|---|")
