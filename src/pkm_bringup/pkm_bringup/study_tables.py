@@ -163,7 +163,9 @@ def draw_plots(study: Study, frame: pd.DataFrame, out_dir: Path) -> list[Path]:
         for i, v in enumerate(per_group, start=1):
             ax.plot(np.full(len(v), i) + np.linspace(-0.12, 0.12, len(v)) if len(v) > 1 else [i] * len(v), v, ".",
                     alpha=0.6)
-        ax.set_xticks(range(1, len(groups) + 1), [g.replace(", ", "\n") for g in groups], fontsize=8)
+        # one line per key, the value under its name: long strategy names do not overlap
+        ax.set_xticks(range(1, len(groups) + 1), [g.replace(", ", "\n").replace("=", "=\n") for g in groups],
+                      fontsize=7)
         ax.set_ylabel(m)
         ax.set_title(f"{study.name}: {m} per group ({int(ok.sum())} runs)", fontsize=9)
         fig.tight_layout()
@@ -181,7 +183,7 @@ def draw_plots(study: Study, frame: pd.DataFrame, out_dir: Path) -> list[Path]:
             ax.set_ylabel(m)
             if len(groups) > 1:
                 ax.legend(fontsize=7)
-            ax.set_title(f"{study.name}: {m} against {d.path}", fontsize=9)
+            ax.set_title(f"{study.name}: {m}\nagainst {d.path}", fontsize=9)
             fig.tight_layout()
             files.append(_save(fig, out_dir / f"{m}_vs_{d.path}.png"))
             plt.close(fig)
