@@ -109,6 +109,41 @@ def test_in_process_run_completes_and_loses_nothing(in_process_run):
     assert (run_dir / "report" / "metrics.json").exists() and (run_dir / "report" / "path.png").exists()
 
 
+def test_a_run_as_dataframes_has_the_values_rosbags_reads(in_process_run):
+    """pkm_bringup.runs against rosbags' own deserialisation of the bag: the drive state
+    and the true pose of every step (the last message of a stamp, as the report keeps
+    it), drives and struts named, and the run's metrics, scenario and status."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    from pkm_bringup.runs import open_run
+    run_dir, run = in_process_run
+    frames = open_run(run_dir)
+    state, pose, struts = frames.frame("state"), frames.frame("true_pose"), frames.frame("struts")
+    ref_state, ref_pose = {}, {}
+    with AnyReader([run_dir / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _, raw in reader.messages():
+            if conn.topic in ("/pkm/drives/state", "/pkm/platform/true_pose"):
+                msg = reader.deserialize(raw, conn.msgtype)
+                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                if conn.topic == "/pkm/drives/state":
+                    ref_state[stamp] = (list(msg.name), list(msg.position), list(msg.effort))
+                else:
+                    ref_pose[stamp] = (msg.pose.position.x, msg.pose.position.y, msg.pose.position.z)
+    stamps = sorted(ref_state)
+    assert len(state) == len(stamps) == 801 and np.allclose(state.index, np.array(stamps) * 1e-9, atol=0, rtol=0)
+    names = ref_state[stamps[0]][0]
+    assert list(state.columns[:len(names)]) == [f"position.{n}" for n in names]
+    np.testing.assert_array_equal(state[[f"position.{n}" for n in names]].to_numpy(),
+                                  [ref_state[t][1] for t in stamps])
+    np.testing.assert_array_equal(state[[f"effort.{n}" for n in names]].to_numpy(), [ref_state[t][2] for t in stamps])
+    np.testing.assert_array_equal(pose[["x", "y", "z"]].to_numpy(), [ref_pose[t] for t in sorted(ref_pose)])
+    assert len([c for c in struts.columns if c.startswith("position.")]) == 6
+    assert frames.metrics["tracking_error"]["max_m"] == run["metrics"]["tracking_error"]["max_m"]
+    assert frames.scenario["name"] == "mom3_square" and frames.info["status"] == "completed"
+    with pytest.raises(ValueError, match="stream: one of state, command"):
+        frames.frame("speed")
+
+
 def test_recording_reads_the_same_with_rosbags_and_mcap(in_process_run):
     """rosbags AnyReader and mcap + mcap_ros2 see the same messages with the same content."""
     from mcap.reader import make_reader

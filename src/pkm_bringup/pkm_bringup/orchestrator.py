@@ -290,6 +290,9 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             if finished_wall == math.inf and (monitor.sim_finished or sim_summary.exists()):
                 finished_wall = time.monotonic()
         progress.update(s.duration_s)
+        if "recorder" in nodes:       # the loop is over: its idle priority would starve the last batches
+            from pkm_bringup.recording import normal_cpu_priority
+            normal_cpu_priority(nodes["recorder"].popen.pid)
         # stop the loop's nodes at once (their watchdogs would report the silent
         # plant), then give the recorder time for the last messages
         codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n not in ("recorder", "sim_hw")],

@@ -45,6 +45,25 @@ def subscription_qos(offered: list[QoSProfile], depth: int) -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
+def normal_cpu_priority(pid: int) -> int:
+    """SCHED_OTHER again for every thread of process ``pid`` (after lower_cpu_priority):
+    once the loop has ended, the recorder must not wait behind everything else for its
+    last messages. Best effort (another user's process, or SCHED_IDLE -> OTHER without
+    CAP_SYS_NICE beyond RLIMIT_NICE, is refused): returns the threads changed."""
+    changed = 0
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return 0
+    for tid in tids:
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_OTHER, os.sched_param(0))
+            changed += 1
+        except (OSError, ValueError):
+            pass
+    return changed
+
+
 def lower_cpu_priority() -> int:
     """SCHED_IDLE for every thread of this process (Linux; unprivileged): it then runs
     only on CPU time no other process wants. Threads created later inherit it.

@@ -77,12 +77,13 @@ class NodeTap:
         except Exception:                  # noqa: BLE001 - rclpy's RCLError on a dead context
             self.dropped += 1
 
-    def close(self, linger_s: float = 0.25) -> None:
+    def close(self, linger_s: float = 2.0) -> None:
         """The last flush, before the node goes down: the batch, then up to
-        ``linger_s`` for the recorder to acknowledge it. A reliable writer that is
-        destroyed right after publishing cannot resend what a busy (idle-priority)
-        reader has not taken yet: an interrupted run lost the controller's last batch
-        that way (1 CI run in ~10)."""
+        ``linger_s`` for the recorder to acknowledge it (at once when it is there). A
+        reliable writer that is destroyed right after publishing cannot resend what a
+        busy (idle-priority) reader has not taken yet: an interrupted run lost the
+        controller's last batch that way, and with the suite on two workers a whole run
+        lost the sensor's last two steps after 0.25 s."""
         before = self.batches
         self.flush()
         if self.batches > before and self.sink is None:
