@@ -25,6 +25,7 @@ setup(
             'pkm-run = pkm_bringup.orchestrator:main',
             'pkm-gallery = pkm_bringup.gallery:main',
             'pkm-study = pkm_bringup.study_engine:main',
+            'foxglove_bridge = pkm_bringup.foxglove_bridge_node:main',
             'pkm-report = pkm_bringup.report:main',
             'pkm-replay = pkm_bringup.replay:main',
             'recorder_node = pkm_bringup.recorder_node:main',

@@ -118,7 +118,8 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
             from pkm_bringup.design_study import evaluate_chunk as task_function   # by name (see study_engine)
             prefix = task_prefix("design", study.name, out_dir)
             futures = client.map(task_function, [study.design] * len(pending), [study.varied] * len(pending),
-                                 [values[rows] for _, rows in pending], key=[prefix + k for k, _ in pending], pure=False)
+                                 [values[rows] for _, rows in pending], key=[prefix + k for k, _ in pending],
+                                 pure=False)
             by_key = {f.key: (k, rows) for f, (k, rows) in zip(futures, pending)}
             for future in as_completed(futures):
                 k, rows = by_key[future.key]
@@ -209,5 +210,6 @@ def format_front(study: Study, table: pd.DataFrame, rows: int = 8) -> str:
     first = list(study.objectives)[0]
     front = table[table["pareto"]].sort_values(first, ascending=study.objectives[first] == "min")
     cols = study.varied + list(study.objectives)
-    return (f"Pareto front: {len(front)} of {len(table)} variants ({', '.join(f'{k} {v}' for k, v in study.objectives.items())})\n"
+    senses = ", ".join(f"{k} {v}" for k, v in study.objectives.items())
+    return (f"Pareto front: {len(front)} of {len(table)} variants ({senses})\n"
             + front[cols].head(rows).to_string(index=False, float_format=lambda v: f"{v:.4g}"))

@@ -252,7 +252,10 @@ def _draw(path: str, spec) -> Draw:
 def _resolve_scenario(value, source: Path) -> Path:
     if not isinstance(value, str) or not value:
         raise StudyError("scenario: required, the name of a file in config/scenarios or a scenario file")
-    path = (source.parent / value) if value.endswith((".yaml", ".yml")) else config_dir() / "scenarios" / f"{value}.yaml"
+    if value.endswith((".yaml", ".yml")):
+        path = source.parent / value
+    else:
+        path = config_dir() / "scenarios" / f"{value}.yaml"
     if not path.is_file():
         raise StudyError(f"scenario: no such scenario {value!r} ({path})")
     return path.resolve()

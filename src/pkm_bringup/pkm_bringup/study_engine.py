@@ -280,8 +280,8 @@ def main(argv=None) -> int:
 def _main_runs(study, out_dir: Path, args) -> int:
     runs = study.runs()
     done = done_keys(out_dir)
-    print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({len(runs) - len(done & {r.key for r in runs})}"
-          f" to run) -> {out_dir}", flush=True)
+    to_run = len(runs) - len(done & {r.key for r in runs})
+    print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({to_run} to run) -> {out_dir}", flush=True)
     if args.dry_run:
         for r in runs:
             print(f"  {r.key}  {'done ' if r.key in done else 'to do'}  {describe(r.values)}")
