@@ -39,6 +39,7 @@ import math
 import numpy as np
 
 from .analysis import workspace_grid
+from .distribution import gram_rows
 from .jit import kernel
 from .planar import VT_OK, PlanarMachine, jm_row, leg_array, leg_closure
 
@@ -144,19 +145,11 @@ def symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22):
 
 
 @kernel()
-def _gram_cond(rows, idx, m):
-    """(condition number, sigma_min, sigma_max) of the rows idx[:m] of ``rows`` (n, 3),
-    from the eigenvalues of J^T J; cond inf when J^T J is singular to ~1e-14."""
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for t in range(m):
-        k = idx[t]
-        r0, r1, r2 = rows[k, 0], rows[k, 1], rows[k, 2]
-        a00 += r0 * r0
-        a01 += r0 * r1
-        a02 += r0 * r2
-        a11 += r1 * r1
-        a12 += r1 * r2
-        a22 += r2 * r2
+def _gram_cond(rows):
+    """(condition number, sigma_min, sigma_max) of J = ``rows`` (m, 3), from the
+    eigenvalues of J^T J (distribution.gram_rows); cond inf when J^T J is singular to
+    ~1e-14."""
+    a00, a01, a02, a11, a12, a22 = gram_rows(rows)
     lo, hi = symmetric3_eigen_extremes(a00, a01, a02, a11, a12, a22)
     s_hi = math.sqrt(max(hi, 0.0))
     if lo <= 1e-14 * hi:
@@ -174,10 +167,10 @@ def planar_metrics_kernel(legs, poses, subsets):
     m = subsets.shape[1]
     out = np.empty((n_var, 7))
     rows = np.empty((n, 3))
+    left = np.empty((m, 3))                       # the rows of the machine left after a failure
     q = np.empty(n)
     qmin = np.empty(n)
     qmax = np.empty(n)
-    every = np.arange(n)
     cs = np.empty((n_pose, 2))
     for p in range(n_pose):
         cs[p, 0], cs[p, 1] = math.cos(poses[p, 2]), math.sin(poses[p, 2])
@@ -203,11 +196,14 @@ def planar_metrics_kernel(legs, poses, subsets):
             for k in range(n):
                 qmin[k] = min(qmin[k], q[k])
                 qmax[k] = max(qmax[k], q[k])
-            cond, s_lo, s_hi = _gram_cond(rows, every, n)
+            cond, s_lo, s_hi = _gram_cond(rows)
             cmin, cmax = min(cmin, cond), max(cmax, cond)
             sigma_lo, sigma_hi = min(sigma_lo, s_lo), max(sigma_hi, s_hi)
             for t in range(subsets.shape[0]):
-                sub_worst = max(sub_worst, _gram_cond(rows, subsets[t], m)[0])
+                for r in range(m):
+                    k = subsets[t, r]
+                    left[r, 0], left[r, 1], left[r, 2] = rows[k, 0], rows[k, 1], rows[k, 2]
+                sub_worst = max(sub_worst, _gram_cond(left)[0])
         travel = 0.0
         for k in range(n):
             travel = max(travel, qmax[k] - qmin[k])
