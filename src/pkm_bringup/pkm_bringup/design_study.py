@@ -95,10 +95,9 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
                progress: bool = True, stream=sys.stderr) -> dict:
     """Every missing chunk on Dask, then the table, the front and the plot. Returns
     {"variants", "chunks", "done_before", "ran", "interrupted", "table", "cpu_s", "evaluations"}."""
-    from dask.distributed import as_completed
     from tqdm import tqdm
 
-    from pkm_bringup.study_engine import make_client, task_prefix
+    from pkm_bringup.study_engine import completed_on_dask, task_prefix
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results").mkdir(exist_ok=True)
     shutil.copyfile(study.source, out_dir / "study.yaml")
@@ -108,21 +107,17 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
     outcome = {"variants": len(values), "chunks": len(chunks), "done_before": len(chunks) - len(pending), "ran": 0,
                "interrupted": False, "not_run": [], "started": time.monotonic(), "finished_at": []}
     if pending:
-        client = cluster = None
         bar = tqdm(total=len(values), initial=sum(r.stop - r.start for k, r in chunks) -
                    sum(r.stop - r.start for k, r in pending), unit="variant", disable=not progress, file=stream,
                    desc=study.name, unit_scale=True)
-        futures = []
         try:
-            client, cluster = make_client(workers, scheduler)
             from pkm_bringup.design_study import evaluate_chunk as task_function   # by name (see study_engine)
             prefix = task_prefix("design", study.name, out_dir)
-            futures = client.map(task_function, [study.design] * len(pending), [study.varied] * len(pending),
-                                 [values[rows] for _, rows in pending], key=[prefix + k for k, _ in pending],
-                                 pure=False)
-            by_key = {f.key: (k, rows) for f, (k, rows) in zip(futures, pending)}
-            for future in as_completed(futures):
-                k, rows = by_key[future.key]
+            iterables = [[study.design] * len(pending), [study.varied] * len(pending),
+                         [values[rows] for _, rows in pending]]
+            for i, future in completed_on_dask(task_function, iterables, [prefix + k for k, _ in pending],
+                                               workers, scheduler):
+                k, rows = pending[i]
                 try:
                     result = future.result()
                 except Exception as exc:       # noqa: BLE001 - reported; the chunk is computed next time
@@ -136,11 +131,6 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
             outcome["interrupted"] = True
         finally:
             bar.close()
-            if client is not None:
-                client.cancel(futures)
-                client.close()
-            if cluster is not None:
-                cluster.close()
     table, cpu_s, evaluations = assemble(study, out_dir, values, chunks)
     outcome.update(table=table, cpu_s=cpu_s, evaluations=evaluations)
     if len(table):

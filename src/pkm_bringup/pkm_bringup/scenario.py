@@ -232,17 +232,25 @@ def _load_profile(value, dt_s: float, key: str = "load") -> list:
     return rows
 
 
-def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
-    """Read and validate a scenario; ``overrides`` replace top-level keys (tests, CLI)."""
+def read_mapping_file(path: str | Path, folder: str, what: str, error: type) -> tuple[Path, dict]:
+    """(its path, its content) of a YAML mapping file given by path, or by name in
+    ``config/<folder>``; ``error`` names ``what`` and the file when it cannot be read
+    or is not a mapping."""
     path = Path(path)
     if not path.exists() and not path.suffix:
-        path = config_dir() / "scenarios" / f"{path}.yaml"
+        path = config_dir() / folder / f"{path}.yaml"
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError) as exc:
-        raise ScenarioError(f"scenario {path}: {exc}") from None
+        raise error(f"{what} {path}: {exc}") from None
     if not isinstance(data, dict):
-        raise ScenarioError(f"scenario {path}: must be a mapping")
+        raise error(f"{what} {path}: must be a mapping")
+    return path, data
+
+
+def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
+    """Read and validate a scenario; ``overrides`` replace top-level keys (tests, CLI)."""
+    path, data = read_mapping_file(path, "scenarios", "scenario", ScenarioError)
     data.update(overrides or {})
     unknown = sorted(set(data) - set(KEYS))
     if unknown:

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario
+from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario, read_mapping_file
 from pkm_kinematics.config import config_dir
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
@@ -264,15 +264,7 @@ def _resolve_scenario(value, source: Path) -> Path:
 def load_study(path: str | Path, check: bool = True) -> Study:
     """Read and validate a study file; with ``check``, every grid cell's scenario (with
     the first draw) goes through load_scenario, so that nothing starts on a bad study."""
-    path = Path(path)
-    if not path.exists() and not path.suffix:
-        path = config_dir() / "studies" / f"{path}.yaml"
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise StudyError(f"study {path}: {exc}") from None
-    if not isinstance(data, dict):
-        raise StudyError(f"study {path}: must be a mapping")
+    path, data = read_mapping_file(path, "studies", "study", StudyError)
     unknown = sorted(set(data) - set(STUDY_KEYS))
     if unknown:
         raise StudyError(f"{unknown[0]}: unknown study key; allowed: {', '.join(STUDY_KEYS)}")

@@ -173,11 +173,34 @@ def make_client(workers: int | None, scheduler: str | None):
     return Client(cluster), cluster
 
 
+def completed_on_dask(function, iterables, keys: list, workers: int | None, scheduler: str | None):
+    """``function`` mapped over ``iterables`` on a Dask client (make_client), one task
+    per key: yields (position in the map, future) as they complete. The client (and its
+    LocalCluster) is closed, the futures left cancelled, however the caller's loop ends
+    (Ctrl-C inside the wait included: the KeyboardInterrupt goes on to the caller).
+    ``function`` must be reachable by its module's name (not defined in __main__), or
+    cloudpickle sends it by value."""
+    from dask.distributed import as_completed
+    client = cluster = None
+    futures = []
+    try:
+        client, cluster = make_client(workers, scheduler)
+        futures = client.map(function, *iterables, key=keys, pure=False)
+        position = {f.key: i for i, f in enumerate(futures)}
+        for future in as_completed(futures):
+            yield position[future.key], future
+    finally:
+        if client is not None:
+            client.cancel(futures)
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler: str | None = None,
               progress: bool = True, stream=sys.stderr) -> dict:
     """Every run of ``study`` without a result in ``out_dir``, on Dask; then the tables
     and plots. Returns {"runs", "done_before", "ran", "failed", "interrupted", "table"}."""
-    from dask.distributed import as_completed
     from tqdm import tqdm
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results").mkdir(exist_ok=True)
@@ -188,22 +211,17 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
                "interrupted": False, "not_run": [], "started": time.monotonic(), "finished_at": []}
     if pending:
-        client = cluster = None
         bar = tqdm(total=len(runs), initial=outcome["done_before"], unit="run", disable=not progress, file=stream,
                    desc=study.name, smoothing=0.1)
-        futures = []
         try:
-            client, cluster = make_client(workers, scheduler)
             tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
                              study.in_process) for r in pending]
-            # by its module's name, also when this file runs as __main__ (python -m): the
-            # workers import it (cloudpickle would copy a __main__ function by value)
+            # by its module's name, also when this file runs as __main__ (python -m)
             from pkm_bringup.study_engine import execute_run as task_function
             prefix = task_prefix("study", study.name, out_dir)
-            futures = client.map(task_function, tasks, key=[prefix + r.key for r in pending], pure=False)
-            by_future = {f.key: r for f, r in zip(futures, pending)}
-            for future in as_completed(futures):
-                run = by_future[future.key]
+            for i, future in completed_on_dask(task_function, [tasks], [prefix + r.key for r in pending],
+                                               workers, scheduler):
+                run = pending[i]
                 metrics, problem = _metrics_of(future)
                 if metrics is None:                 # not the run's failure: no row, it runs next time
                     outcome["not_run"].append(f"{run.key}: {problem}")
@@ -218,11 +236,6 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
             outcome["interrupted"] = True
         finally:
             bar.close()
-            if client is not None:
-                client.cancel(futures)
-                client.close()
-            if cluster is not None:
-                cluster.close()
     from pkm_bringup.study_tables import write_outputs
     outcome["table"] = write_outputs(study, out_dir, runs)
     outcome["failed_total"] = int((outcome["table"]["run.status"] == "failed").sum()) \
