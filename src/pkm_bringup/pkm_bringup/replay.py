@@ -12,6 +12,11 @@ node prepared that one and left it (no command answers it), and so does the repl
 and a command is kept until its inputs are in (the recorder may log a reading it
 received itself after the command that answered it).
 
+What an operator did while the run went on — a program or jog (``trajectory``), the
+feed override, a strategy or gain change — is replayed from ``controller/events``: the
+controller applied each right after answering a state and recorded which
+(pkm_controller.operator), and the replay applies it after the same state.
+
 Stops from outside the sensor data (``estop`` from another node, wall-clock
 watchdogs) cannot be replayed: with an ``estop`` in the recording only the commands
 before it are compared; a missing state or metrology message ends the comparison
@@ -39,6 +44,7 @@ from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_mes
 from pkm_common.causes import plant_stop_cause, setpoint_held
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.operator import Action, apply_action
 from pkm_controller.reference import reference_from_msg
 from pkm_kinematics import load_machine
 
@@ -98,6 +104,35 @@ class _Replay:
         self.max_diff, self.first, self.note = 0.0, None, ""
         self.stopped = False             # an estop, or an input missing: nothing compared after it
         self.trajectory_seen = False
+        self.actions: dict[int, list] = collections.defaultdict(list)   # after_ns -> [(Action, payload, event)]
+
+    def operator_events(self, events: list, trajectories) -> None:
+        """The recorded controller/events; ``trajectories``: the recorded trajectory
+        messages in order (one per trajectory event). Those of before the first state
+        are applied now, the others after the answer of their state."""
+        for event in events:
+            action = Action(event["kind"])
+            payload = event.get("value", event.get("changes"))
+            if action == Action.TRAJECTORY:
+                msg = next(trajectories, None)
+                if msg is None:
+                    self.note = self.note or "a trajectory event without its recorded trajectory: replay incomplete"
+                    continue
+                if "points" not in event:          # the node could not read it: nothing was applied
+                    continue
+                payload = reference_from_msg(msg, self.core.planar)
+                self.trajectory_seen = True
+            if event["after_ns"] is None:
+                self._apply(action, payload, event)
+            else:
+                self.actions[event["after_ns"]].append((action, payload, event))
+
+    def _apply(self, action: Action, payload, event: dict) -> None:
+        replayed = apply_action(self.core, action, payload)
+        if replayed["ok"] != event["ok"] and not self.note:
+            self.note = (f"{action.value} after {event['after_ns']} ns: recorded "
+                         f"{'applied' if event['ok'] else 'refused'}, replayed "
+                         f"{'applied' if replayed['ok'] else 'refused: ' + replayed['message']}")
 
     def add(self, topic: str, msg) -> None:
         if topic == "trajectory":
@@ -161,6 +196,8 @@ class _Replay:
         for inputs in self.inputs.values():       # answered: older stamps are never asked for again
             for old in [t for t in inputs if t <= stamp]:
                 del inputs[old]
+        for action, payload, event in self.actions.pop(stamp, ()):
+            self._apply(action, payload, event)     # what the operator did after this answer
         recorded = [float(f) for f in command.effort]
         self.compared += 1
         if forces == recorded:
@@ -191,11 +228,17 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
     metrology = core.strategy.metrology_topic or None
     replay = _Replay(core, metrology)
     namespace = run.get("namespace", "/pkm")
-    # the trajectory first: the controller had it before its first answer, but the
-    # recorder logs it when it receives it (latched), which can be later
-    for topic, _, msg in recorded_messages(run_dir / "bag", namespace, ("trajectory",)):
-        replay.add(topic, msg)
-        break
+    events = [json.loads(msg.data) for _, _, msg in
+              recorded_messages(run_dir / "bag", namespace, ("controller/events",))]
+    if events:
+        replay.operator_events(events, (msg for _, _, msg in
+                                        recorded_messages(run_dir / "bag", namespace, ("trajectory",))))
+    else:
+        # a recording without events (made before they existed): its first trajectory,
+        # which the controller had before its first answer
+        for topic, _, msg in recorded_messages(run_dir / "bag", namespace, ("trajectory",)):
+            replay.add(topic, msg)
+            break
     for topic, _, msg in recorded_messages(run_dir / "bag", namespace):
         replay.add(topic, msg)
     replay._drain(end=True)

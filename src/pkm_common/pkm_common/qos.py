@@ -16,6 +16,8 @@ a TRANSIENT_LOCAL subscriber gets the latched message).
 | `trajectory`                                   | trajectory_msgs/MultiDOFJointTrajectory | LATCHED_QOS |
 | `markers`                                      | visualization_msgs/MarkerArray | LATCHED_QOS  |
 | `goal`, `program`                              | PoseStamped, std_msgs/String  | STREAM_QOS    |
+| `controller/feed_override`, `controller/settings` | std_msgs/Float64, String (JSON) | STREAM_QOS |
+| `controller/events`                            | std_msgs/String (JSON)        | EVENTS_QOS    |
 | `load`                                         | geometry_msgs/WrenchStamped   | STREAM_QOS    |
 | `estop`                                        | std_msgs/Bool                 | LATCHED_QOS   |
 | `diagnostics`                                  | diagnostic_msgs/DiagnosticArray | STREAM_QOS  |
@@ -26,6 +28,9 @@ a TRANSIENT_LOCAL subscriber gets the latched message).
 - LATCHED_QOS: RELIABLE, KEEP_LAST 1, TRANSIENT_LOCAL: the last message is kept for
   late joiners (a controller started after the planner still gets the trajectory).
   `estop` is latched too: a node that starts during an emergency stop must see it.
+- EVENTS_QOS: RELIABLE, KEEP_LAST 1000, TRANSIENT_LOCAL: the operator's actions as the
+  controller applied them (pkm_controller.operator); rare, and every one is needed to
+  replay the run, so a recorder that subscribes late still gets them all.
 - CLOCK_QOS: as rclpy's own `/clock` subscription (time_source.py): BEST_EFFORT,
   KEEP_LAST 1, VOLATILE. A publisher of `/clock` must offer at least this.
 """
@@ -38,6 +43,10 @@ STREAM_QOS = QoSProfile(
 
 LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+EVENTS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 CLOCK_QOS = QoSProfile(
@@ -81,6 +90,9 @@ TOPIC_QOS = {
     'trajectory': LATCHED_QOS,
     'markers': LATCHED_QOS,
     'estop': LATCHED_QOS,
+    'controller/feed_override': STREAM_QOS,
+    'controller/settings': STREAM_QOS,
+    'controller/events': EVENTS_QOS,
     '/clock': CLOCK_QOS,
 }
 
@@ -95,5 +107,5 @@ def publisher_qos(topic: str) -> QoSProfile:
     return CLOCK_PUBLISHER_QOS if qos is CLOCK_QOS else qos
 
 
-__all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TAP_QOS',
+__all__ = ['CLOCK_PUBLISHER_QOS', 'CLOCK_QOS', 'EVENTS_QOS', 'LATCHED_QOS', 'STREAM_PUBLISHER_QOS', 'STREAM_QOS', 'TAP_QOS',
            'TOPIC_QOS', 'publisher_qos']

@@ -42,7 +42,7 @@ far enough from singular.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -61,6 +61,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
                    limits_kernel, pose_error, project_to_range, tool_pose_floats)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
+from .feed import FeedClock, scaled_reference
 from .reference import Reference
 from .strategies import NAMES, Feedback, Law, Projection, strategy
 
@@ -69,6 +70,9 @@ STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), 
 # the drive increments (Sliding Star §3.1, pkm_kinematics.online_fk), by the midpoint
 # rule or by explicit Euler: name -> integration order (0: solved)
 FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
+# what an operator may change in a running controller (ControllerCore.change_settings)
+RUNTIME_SETTINGS = ("strategy", "distribution", "p_norm", "prestress_n", "bandwidth_hz", "damping_ratio",
+                    "integral_time_s")
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
 
 
@@ -195,17 +199,11 @@ class ControllerCore:
         self.planar = isinstance(self.model, PlanarMachine)
         self.n = self.model.n_legs
         self.names = list(self.model.leg_names)
-        self.config.validate(self.n, self.planar)
-        if self.config.distribution in TWO_ARM:
-            try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
-                self.model.pair_force_map(self.model.home_pose)
-            except ValueError as exc:
-                raise ValueError(f"distribution: {self.config.distribution} needs two pairs of legs sharing a "
-                                 f"platform point (ARCHI §4.3): {exc}") from None
         if machine.dynamics is None:
             raise ValueError(f"machine {machine.name!r}: the controller needs a 'dynamics' section "
                              f"(model terms and gain scaling)")
         self.dynamics = DynamicModel(self.model, machine.dynamics)
+        self._check_config(self.config)
         self.strategy = strategy(self.config.strategy)
         self.metrology = None
         if self.strategy.uses_metrology:
@@ -214,22 +212,70 @@ class ControllerCore:
                                  f"{machine.name!r} has none")
             from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
             self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar)
-        c = self.config
-        self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
-        self._scale_gains()
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
         self._workspace_box = self._task_box()
-        self._law, self._law_gains = self._cartesian_law()
-        # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
-        self._distribution = NUMPY_DISTRIBUTION
-        if self.config.prestress_n == 0.0 and (self.config.distribution == "pseudo_inverse" or (
-                self.config.distribution == "inf_norm" and self.n == 4)):
-            self._distribution = DIST_PSEUDO_INVERSE if self.config.distribution == "pseudo_inverse" \
-                else DIST_INF_NORM
+        self._apply_config()
         self.reset()
 
     # ---------------------------------------------------------------- set-up
+    def _check_config(self, config: ControllerConfig) -> None:
+        """ControllerConfig.validate, and what only this machine can say (ValueError)."""
+        config.validate(self.n, self.planar)
+        if config.distribution in TWO_ARM:
+            try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
+                self.model.pair_force_map(self.model.home_pose)
+            except ValueError as exc:
+                raise ValueError(f"distribution: {config.distribution} needs two pairs of legs sharing a "
+                                 f"platform point (ARCHI §4.3): {exc}") from None
+
+    def _apply_config(self) -> None:
+        """What the strategy, the gains and the distribution make of ``self.config``."""
+        c = self.config
+        self.strategy = strategy(c.strategy)
+        self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
+        self._scale_gains()
+        self._law, self._law_gains = self._cartesian_law()
+        # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
+        self._distribution = NUMPY_DISTRIBUTION
+        if c.prestress_n == 0.0 and (c.distribution == "pseudo_inverse" or (
+                c.distribution == "inf_norm" and self.n == 4)):
+            self._distribution = DIST_PSEUDO_INVERSE if c.distribution == "pseudo_inverse" else DIST_INF_NORM
+
+    def change_settings(self, changes: dict) -> dict:
+        """Change the strategy, the distribution or the gains of a running controller
+        (an operator's panel; Sliding Star Fig. 12: regulator gains, projection ON/OFF),
+        between two cycles. Only ``RUNTIME_SETTINGS``; a strategy only to one fed by the
+        same measurement (the graph's topics stay); the whole set validated like a
+        start-up configuration. The integral state is kept when the law stays (a joint
+        PID with or without the projection), else restarts at zero. Returns the
+        settings changed; ValueError (naming the field and its range), nothing changed."""
+        if not isinstance(changes, dict) or not changes:
+            raise ValueError("settings: expected a non-empty mapping of name: value")
+        unknown = sorted(set(changes) - set(RUNTIME_SETTINGS))
+        if unknown:
+            raise ValueError(f"{unknown[0]}: cannot be changed while running (can: {list(RUNTIME_SETTINGS)})")
+        if self.stopped:
+            raise ValueError(f"settings refused: the controller is stopped ({self.stop_reason})")
+        for name, value in changes.items():
+            default = getattr(ControllerConfig, name)
+            if isinstance(default, str) != isinstance(value, str) or isinstance(value, bool):
+                raise ValueError(f"{name}: must be a {'name' if isinstance(default, str) else 'number'}, "
+                                 f"got {value!r}")
+        new = replace(self.config, **{k: (v if isinstance(v, str) else float(v)) for k, v in changes.items()})
+        self._check_config(new)
+        new_strategy = strategy(new.strategy)
+        if new_strategy.feedback != self.strategy.feedback:
+            raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
+                             f"{self.strategy.name} {self.strategy.feedback.value}: only a strategy on the same "
+                             f"measurement can take over without a restart")
+        same_integral = new_strategy.law == self.strategy.law
+        self.config = new
+        self._apply_config()
+        if not same_integral:
+            self.integral = [0.0] * self.n if self.strategy.joint_space else (0.0, 0.0, 0.0)
+        return dict(changes)
+
     def _home(self) -> list:
         return (self.model.home_pose if self.planar else self.model.home_position).tolist()
 
@@ -273,7 +319,7 @@ class ControllerCore:
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
         self.reference: Reference | None = None
-        self.reference_start_s = 0.0
+        self.feed = FeedClock()                  # the trajectory's time under the feed override
         self.pending: Reference | None = None
         self.pose = None                         # encoder FK estimate (warm start)
         self._fk_q, self._fk_cycles = None, 0    # the readings of that estimate, cycles since reset
@@ -316,7 +362,7 @@ class ControllerCore:
         if self.reference is None or self.reference.duration_s == 0.0:
             return "holding"
         return "tracking" if self.last_time_s is not None and \
-            self.last_time_s - self.reference_start_s < self.reference.duration_s else "holding"
+            self.feed.peek(self.last_time_s) < self.reference.duration_s else "holding"
 
     def set_trajectory(self, reference: Reference, now_s: float | None = None) -> None:
         """Start ``reference`` at ``now_s`` (the time of the next state; None: at the next
@@ -330,9 +376,10 @@ class ControllerCore:
             self.pending = reference
             return
         now = self.last_time_s if now_s is None else now_s
-        current, _, _ = self.reference.sample(now - self.reference_start_s)
+        current, _, _ = self.reference.sample(self.feed.peek(now))
         self._check_start(reference, current)
-        self.reference, self.reference_start_s = reference, now
+        self.reference = reference
+        self.feed.restart(now)
 
     def _check_start(self, reference: Reference, current) -> None:
         e = pose_error(reference.start, current, self.planar)
@@ -508,7 +555,8 @@ class ControllerCore:
     def _prepare_reference(self, c: "_Cycle") -> bool:
         """The reference of the cycle and what the strategy derives from it before the
         metrology arrives (sensor_space: l_des and J_h)."""
-        c.x_d, c.v_d, c.a_d = self.reference.sample(c.t_s - self.reference_start_s)
+        tau, s, sdot = self.feed.advance(c.t_s)           # feed.py: the trajectory's time under the override
+        c.x_d, c.v_d, c.a_d = scaled_reference(self.reference.sample(tau), s, sdot)
         if self.encoders is not None and not self._check_encoders(c):
             self._cycle = None
             return False
@@ -625,7 +673,8 @@ class ControllerCore:
         hold = pose
         if self.strategy.feedback == Feedback.GOUGH_POSE:
             hold = self._metrology_task_pose(metrology_pose, pose)
-        self.reference, self.reference_start_s = Reference.hold(hold), self.last_time_s
+        self.reference = Reference.hold(hold)
+        self.feed.restart(self.last_time_s)
         if self.strategy.feedback == Feedback.STRUTS:
             # the tool as the struts see it: one linearised step from the encoder pose
             p, r = tool_pose_floats(pose, self.planar)

@@ -28,7 +28,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import TransitionCallbackReturn
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
@@ -36,12 +36,13 @@ from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEnco
 from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
-from pkm_common.qos import LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
+from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_common.timing import DurationHistogram
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
 from pkm_controller.lockstep import StampPairing
+from pkm_controller.operator import Action, apply_action, event_json
 from pkm_controller.strategies import Feedback
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
@@ -66,6 +67,7 @@ class ControllerNode(LifecycleNode):
         self.answers_published = 0     # drives/command and controller/reference, one each per answer
         self.last_answer = (None, b"")  # (stamp, command bytes): sent again when the sim repeats the state
         self.commands_resent = 0
+        self.pending_actions = []      # (Action, payload) from an operator, applied after the next answer
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
                                               "to a recorder in batches (pkm_common.tap)"))
         if declare_bool(self, "autostart", True, "configure and activate at start"):
@@ -106,7 +108,12 @@ class ControllerNode(LifecycleNode):
         self.publish_reference_bytes = self.tap.wrap(self.pub_reference, PoseStamped).publish
         self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_PUBLISHER_QOS)
         self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
-        self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop,
+        self.pub_events = self.create_publisher(String, "controller/events", EVENTS_QOS)
+        self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop, self.pub_events,
+                         self.create_subscription(Float64, "controller/feed_override",
+                                                  lambda m: self.operator(Action.FEED_OVERRIDE, m.data), STREAM_QOS),
+                         self.create_subscription(String, "controller/settings",
+                                                  lambda m: self.operator(Action.SETTINGS, m.data), STREAM_QOS),
                          self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS,
                                                   raw=True),
                          self.create_subscription(MultiDOFJointTrajectory, "trajectory", self.on_trajectory,
@@ -194,17 +201,36 @@ class ControllerNode(LifecycleNode):
             self.answer(state.stamp_ns, time.perf_counter())
 
     def on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
-        core = self.core
         try:
-            ref = reference_from_msg(msg, core.planar)
-            now = None if core.last_time_s is None else core.last_time_s + core.config.dt_s
-            core.set_trajectory(ref, now)
-        except ValueError as exc:
+            ref = reference_from_msg(msg, self.core.planar)
+        except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
+            self.pub_events.publish(String(data=event_json(apply_action(self.core, Action.TRAJECTORY, exc))))
             self.get_logger().error(str(exc))
             self.publish_status(extra=f"trajectory refused: {exc}")
             return
-        self.trajectory_accepted = True
-        self.get_logger().info(f"trajectory accepted: {ref.duration_s:.3f} s, {len(ref.time_s)} points")
+        self.operator(Action.TRAJECTORY, ref)
+
+    def operator(self, action: Action, payload) -> None:
+        """A trajectory, feed override or settings change (operator.py): applied at once
+        before the first cycle, else right after the next answer (between two cycles)."""
+        if self.core is None:
+            return
+        self.pending_actions.append((action, payload))
+        if self.core.last_time_s is None:
+            self.apply_pending()
+
+    def apply_pending(self) -> None:
+        actions, self.pending_actions = self.pending_actions, []
+        for action, payload in actions:
+            event = apply_action(self.core, action, payload)
+            self.pub_events.publish(String(data=event_json(event)))
+            if not event["ok"]:
+                self.get_logger().error(event["message"])
+                self.publish_status(extra=f"{action.value} refused: {event['message']}")
+                continue
+            self.trajectory_accepted |= action == Action.TRAJECTORY
+            self.get_logger().info(f"{action.value} applied: " + ", ".join(
+                f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message")))
 
     def on_start(self, msg: Bool) -> None:
         self.start_received = self.start_received or bool(msg.data)
@@ -259,6 +285,8 @@ class ControllerNode(LifecycleNode):
         self.publish_reference(stamp)
         if core.cycles % self.values["status_decimation"] == 0:
             self.publish_status()
+        if self.pending_actions:
+            self.apply_pending()
 
     def publish_reference(self, stamp_ns: int) -> None:
         position, orientation = machine_pose_components(self.core.planar, self.core.record.reference)

@@ -1,0 +1,56 @@
+"""An operator's actions on a running controller, applied between two cycles (pure core).
+
+A trajectory (a program, a jog), the feed override (feed hold at 0) and the settings
+an operator may change while running (ControllerCore.change_settings: strategy,
+distribution, gains) reach the controller node as messages at any moment. The node
+applies them right after answering a state, never between the two halves of a cycle,
+and records each as an event (JSON on ``controller/events``) that says after which
+answered state it was applied and what came of it. ``pkm-replay`` applies the same
+events after the same states, so a run driven from a panel recomputes bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+from enum import Enum
+
+from .feed import check_override
+
+
+class Action(str, Enum):
+    TRAJECTORY = "trajectory"        # payload: a reference.Reference
+    FEED_OVERRIDE = "feed_override"  # payload: s in [0, 1]
+    SETTINGS = "settings"            # payload: {name: value} (JSON text or a dict)
+
+
+def apply_action(core, action: Action, payload) -> dict:
+    """Apply one action to ``core`` (a ControllerCore) now; the event that records it:
+    kind, after_ns (the stamp of the last state answered, None before the first),
+    ok, message (why it was refused) and what was applied. A ValueError as the
+    payload: the message could not be read; refused with its message."""
+    after = None if core.last_time_s is None else round(core.last_time_s * 1e9)
+    event = {"kind": action.value, "after_ns": after, "ok": True, "message": ""}
+    if isinstance(payload, ValueError):          # the message itself could not be read
+        event.update(ok=False, message=str(payload))
+        return event
+    try:
+        if action == Action.TRAJECTORY:
+            now = None if core.last_time_s is None else core.last_time_s + core.config.dt_s
+            event.update(duration_s=payload.duration_s, points=len(payload.time_s))
+            core.set_trajectory(payload, now)
+        elif action == Action.FEED_OVERRIDE:
+            event["value"] = check_override(payload)
+            core.feed.set_target(event["value"])
+        else:
+            changes = json.loads(payload) if isinstance(payload, (str, bytes)) else payload
+            event["changes"] = changes
+            core.change_settings(changes)
+    except json.JSONDecodeError as exc:
+        event.update(ok=False, message=f"settings: not JSON ({exc})")
+    except ValueError as exc:
+        event.update(ok=False, message=str(exc))
+    return event
+
+
+def event_json(event: dict) -> str:
+    return json.dumps(event, sort_keys=True)
