@@ -6,6 +6,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=[package_name],
+    # the operator panel's page (pkm-panel serves it from the package directory)
+    package_data={package_name: ['panel_static/*']},
     data_files=[
         ('share/ament_index/resource_index/packages',
             ['resource/' + package_name]),
@@ -25,6 +27,7 @@ setup(
             'pkm-run = pkm_bringup.orchestrator:main',
             'pkm-gallery = pkm_bringup.gallery:main',
             'pkm-study = pkm_bringup.study_engine:main',
+            'pkm-panel = pkm_bringup.panel_main:main',
             'foxglove_bridge = pkm_bringup.foxglove_bridge_node:main',
             'pkm-report = pkm_bringup.report:main',
             'pkm-replay = pkm_bringup.replay:main',

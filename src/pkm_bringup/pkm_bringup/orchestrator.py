@@ -5,7 +5,9 @@ Multi-process (default): recorder, sim_hw, gough_sensor, controller as processes
 ``<run_dir>/params/<node>.yaml``. The run starts only when the graph is connected
 (every stream of the scenario has its publisher and subscriber, the recorder is
 subscribed to all of them); then trajectory_node is started, the controller (told to
-wait for its trajectory) answers the first state and the lockstep begins. The run ends
+wait for its trajectory) answers the first state and the lockstep begins; without a
+program the controller starts at a start signal, and in realtime mode trajectory_node
+runs all the same, for the goals and programs of an operator (pkm-panel). The run ends
 when sim_hw reaches ``duration_s``; the nodes are then stopped in order, the recorder
 last. A node that exits early is a crash: reported with its last output, everything
 else stopped. Ctrl-C / SIGTERM stop everything the same way (the bag is finalized).
@@ -256,22 +258,26 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                                 f"{node.tail()}")
     try:
         _refuse_if_another_run(executor, monitor, s)
-        for name in START_ORDER:
+        # a planner for an operator (realtime, no program) starts with the loop's nodes and
+        # is up before the start: its start-up (imports, ~1 s of CPU) stalled a running loop
+        operator_planner = "trajectory" in params and s.program is None
+        for name in START_ORDER + (("trajectory",) if operator_planner else ()):
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
                                          run_dir / "logs", os.environ.copy(), _scheduling(s, name))
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
-        while not (_connected(monitor, s) and (not s.record or ready.exists())):
+        while not (_connected(monitor, s) and (not s.record or ready.exists()) and
+                   (not operator_planner or monitor.count_publishers(s.topic("trajectory")) > 0)):
             check_alive()
             _refuse_intruders(monitor, s)
             if time.monotonic() > deadline:
                 raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
             executor.spin_once(timeout_sec=0.05)
-        if "trajectory" in params:          # the run starts when the controller has its trajectory
+        if "trajectory" in params and not operator_planner:   # the run starts when the controller has its trajectory
             nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
                                              run_dir / "logs", os.environ.copy(), _scheduling(s, "trajectory"))
-        else:                               # ... or the start signal
+        if s.program is None:               # ... or at the start signal (realtime: the planner waits for goals)
             _publish_start(monitor)
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
@@ -372,7 +378,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
             executor.spin_once(timeout_sec=0.05)
         if "trajectory" in params:
             create("trajectory")
-        else:
+        if s.program is None:
             starter = _monitor(context, s.namespace)
             executor.add_node(starter)
             nodes["starter"] = starter

@@ -185,9 +185,12 @@ class _Replay:
             position, rotation = pose_from_msg(metrology[stamp])
             pose = (position.tolist(), rotation)
         states = self.inputs["drives/state"]
-        for older in sorted(t for t in states if t < stamp):
+        for older in sorted(t for t in states if t < stamp and self.metrology):
             # a state the node prepared and then left: the next one came before its
             # reading (realtime under missed deadlines). Preparing moved the core on.
+            # Without a metrology reading to wait for the node answers every state it
+            # takes: a recorded state without its command never reached it (realtime:
+            # seen while a long callback, a 1000-point trajectory, held the node)
             self._prepare(states[older], older)
         if self._prepare(state, stamp):
             forces = self.core.complete(struts=struts, metrology_pose=pose)

@@ -10,7 +10,8 @@ node runs by default. Keys (all optional but ``machine``)::
     namespace: /pkm
     mode: lockstep | realtime
     dt_s: 0.001                       # exchange period of the plant and the controller
-    program: ../programs/x.nc         # G-code, relative to the scenario file
+    program: ../programs/x.nc         # G-code, relative to the scenario file (realtime: optional; the
+                                      # planner runs anyway, for an operator's goals and programs)
     duration_s: 0                     # simulated time; 0: the program's duration + settle_s
     settle_s: 0.2
     trajectory: {...}                 # trajectory_node parameters (limits, feed_override, ...)
@@ -485,9 +486,9 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     if s.metrology:
         nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
                                  "summary_path": str(summaries / "gough_sensor.json")}
-    if s.program is not None:
+    if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
-                               "program_file": str(s.program)}
+                               "program_file": str(s.program or "")}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
         # (pkm_common.tap) instead of a delivery per message to one more process

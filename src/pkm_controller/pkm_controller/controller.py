@@ -47,6 +47,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from pkm_common.causes import TripCause
+from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force_rows,
                                         raise_distribution_error, two_arm_gravity_internal_force)
@@ -310,11 +311,7 @@ class ControllerCore:
         return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * 3, [g.kd] * 3, [g.outer_ki] * 3, [0.0] * 3])
 
     def _task_box(self) -> np.ndarray:
-        w, m = self.model.workspace, self.config.workspace_margin_m
-        if self.planar:
-            return np.array([(w["x"][0] - m, w["x"][1] + m), (w["y"][0] - m, w["y"][1] + m)], dtype=float)
-        c, h = np.asarray(w["center"]).tolist(), 0.5 * float(w["size"]) + m
-        return np.array([(ci - h, ci + h) for ci in c], dtype=float)
+        return np.array(workspace_box(self.model, self.config.workspace_margin_m), dtype=float)
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
@@ -831,7 +828,9 @@ class ControllerCore:
                   "tracking_error_m": trans, "max_tracking_error_m": self.max_error_m,
                   "internal_force_norm_n": r.internal_force_norm_n, "peak_drive_force_n": self.peak_force_n,
                   "saturation_count": self.saturation_count, "cycles": self.cycles,
-                  "faults": "; ".join(self.faults) or "none", "cause": str(self.stop_cause)}
+                  "faults": "; ".join(self.faults) or "none", "cause": str(self.stop_cause),
+                  "feed_override": self.feed.target, "feed_scale": self.feed.scale, "dt_s": self.config.dt_s,
+                  **{name: getattr(self.config, name) for name in RUNTIME_SETTINGS}}
         if self.planar:
             values["tracking_error_rad"] = abs(r.error[2])
         if self.stopped:

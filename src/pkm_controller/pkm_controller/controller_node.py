@@ -228,9 +228,12 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().error(event["message"])
                 self.publish_status(extra=f"{action.value} refused: {event['message']}")
                 continue
-            self.trajectory_accepted |= action == Action.TRAJECTORY
-            self.get_logger().info(f"{action.value} applied: " + ", ".join(
-                f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message")))
+            if action == Action.TRAJECTORY:
+                self.trajectory_accepted = True
+                self.get_logger().info(f"trajectory accepted: {event['duration_s']:.3f} s, {event['points']} points")
+            else:
+                self.get_logger().info(f"{action.value} applied: " + ", ".join(
+                    f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message")))
 
     def on_start(self, msg: Bool) -> None:
         self.start_received = self.start_received or bool(msg.data)

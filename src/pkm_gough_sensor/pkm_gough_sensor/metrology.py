@@ -186,6 +186,14 @@ class GoughSensorModel:
         # A_i in world, b_i in the tool frame: no mounting transform per reading
         return strut_lengths_kernel(self._true_legs, p_t[0], p_t[1], p_t[2], *r_t).tolist()
 
+    def strut_segments(self, tool_position, tool_rotation) -> list[tuple[list, list]]:
+        """(base joint, plate joint) of every strut in world coordinates for a tool pose
+        (the true geometry): what a drawing of the sensor needs."""
+        p = np.asarray(finite_floats(tool_position, 3, 'tool_position'))
+        r = np.asarray(rotation_floats(tool_rotation, 'tool_rotation')).reshape(3, 3)
+        legs = self._true_legs
+        return [(a.tolist(), (p + r @ b).tolist()) for a, b in zip(legs[:, :3], legs[:, 3:])]
+
     def measure(self, tool_position, tool_rotation) -> np.ndarray:
         """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),
         rounded to the nearest multiple of the resolution (MoM3 §4.3 linear scales)."""

@@ -52,6 +52,16 @@ def condition_map(machine, poses) -> np.ndarray:
     return cond
 
 
+def workspace_box(machine, margin_m: float = 0.0) -> list[tuple[float, float]]:
+    """(lower, upper) per translation axis of the configured workspace, widened by
+    ``margin_m``: planar (x, y), translational (x, y, z) of the cube."""
+    ws = machine.workspace
+    if isinstance(machine, PlanarMachine):
+        return [(ws["x"][0] - margin_m, ws["x"][1] + margin_m), (ws["y"][0] - margin_m, ws["y"][1] + margin_m)]
+    half = 0.5 * float(ws["size"]) + margin_m
+    return [(float(c) - half, float(c) + half) for c in ws["center"]]
+
+
 def workspace_grid(machine, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
     """A regular grid over the machine's configured workspace: (N, 3) poses/positions."""
     ws = machine.workspace

@@ -1,0 +1,158 @@
+"""``pkm-panel``: the web operator panel of a running graph.
+
+    pkm-panel --start panel_archi            # starts the graph (pkm-run) and serves the panel
+    pkm-panel --machine archi                # joins a graph already running (pkm-run, realtime)
+
+then open http://127.0.0.1:8080/ . The panel joins the graph of this shell's
+``ROS_DOMAIN_ID`` in ``--namespace`` (with ``--start``: the scenario's). It is bound to
+127.0.0.1 by default; bound to any other address it requires a token for control
+(``--token``, or one is made and printed), and the E-stop stays open to every page.
+Every action is logged, accepted or refused (stderr, and ``--log`` as JSON lines).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import json
+import logging
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+LOG = logging.getLogger("pkm-panel")
+
+
+class Graph:
+    """A graph the panel started: ``pkm-run SCENARIO`` as a child process; a reset
+    ends it (SIGTERM: its run is recorded and reported as interrupted) and starts
+    another run of the same scenario."""
+
+    def __init__(self, scenario: str, runs: str):
+        self.scenario, self.runs, self.process = scenario, runs, None
+        self.lock = threading.Lock()
+
+    def start(self) -> None:
+        with self.lock:
+            self.process = subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", self.scenario,
+                                             "--runs", self.runs, "--no-progress"])
+            LOG.info("graph started: pkm-run %s (pid %d)", self.scenario, self.process.pid)
+
+    def stop(self, timeout_s: float = 60.0) -> None:
+        with self.lock:
+            if self.process is not None and self.process.poll() is None:
+                self.process.send_signal(signal.SIGTERM)
+                try:
+                    self.process.wait(timeout_s)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait()
+
+    def restart(self) -> None:
+        self.stop()
+        self.start()
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="pkm-panel", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--start", metavar="SCENARIO", help="start this scenario's graph (pkm-run) and reset it "
+                                                             "from the panel (mode: realtime scenarios)")
+    parser.add_argument("--runs", default="runs", help="parent of the started runs' directories (default: runs)")
+    parser.add_argument("--machine", help="the machine of a running graph (default: the scenario's, or archi)")
+    parser.add_argument("--namespace", help="the graph's namespace (default: the scenario's, or /pkm)")
+    parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8080, help="port (0: any free one; default 8080)")
+    parser.add_argument("--token", help="token required for control (made and printed when bound beyond localhost)")
+    parser.add_argument("--rate-hz", type=float, default=25.0, help="snapshots per second to each page (1-100)")
+    parser.add_argument("--log", help="append every action (JSON lines) to this file")
+    parser.add_argument("--url-file", help="write the panel's URL here once it serves (scripts, tests)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s pkm-panel: %(message)s")
+    if not 0 <= args.port <= 65535:
+        parser.error(f"--port: must be in [0, 65535], got {args.port}")
+    if not 1.0 <= args.rate_hz <= 100.0:
+        parser.error(f"--rate-hz: must be in [1, 100], got {args.rate_hz}")
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    import uvicorn
+
+    from pkm_bringup.panel import Panel, PanelModel
+    from pkm_bringup.panel_app import create_app
+    from pkm_bringup.panel_node import PanelNode
+    from pkm_bringup.scenario import ScenarioError, load_scenario
+    from pkm_kinematics import load_machine
+
+    machine, namespace = args.machine or "archi", args.namespace or "/pkm"
+    if args.start:
+        try:
+            s = load_scenario(args.start)
+        except ScenarioError as exc:
+            print(f"pkm-panel: {exc}", file=sys.stderr)
+            return 2
+        if s.mode != "realtime":
+            print(f"pkm-panel: --start {args.start}: mode must be realtime (a lockstep graph runs as fast as it "
+                  f"can and ends), got {s.mode}", file=sys.stderr)
+            return 2
+        machine, namespace = args.machine or s.machine, args.namespace or s.namespace
+    token = args.token
+    if token is None and not _loopback(args.host):
+        token = secrets.token_urlsafe(16)
+    log_file = open(args.log, "a", encoding="utf-8") if args.log else None   # noqa: SIM115 - until exit
+
+    def log_line(entry: dict) -> None:
+        LOG.info("%s %s from %s: %s", "done" if entry["ok"] else "REFUSED", entry["type"], entry["client"],
+                 entry["message"])
+        if log_file is not None:
+            log_file.write(json.dumps(entry) + "\n")
+            log_file.flush()
+
+    graph = Graph(args.start, args.runs) if args.start else None
+    panel = Panel(PanelModel(load_machine(machine)), can_reset=graph is not None, log=log_line)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = PanelNode(panel, namespace, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, name="panel-ros", daemon=True)
+    spinner.start()
+    app = create_app(panel, node.publish, token, args.rate_hz, on_restart=graph.restart if graph else None)
+    sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((args.host, args.port))
+    host, port = sock.getsockname()[:2]
+    url = f"http://{host if ':' not in host else f'[{host}]'}:{port}/" + (f"?token={token}" if token else "")
+    if graph is not None:
+        graph.start()
+    print(f"pkm-panel: {machine} in {namespace}: {url}", flush=True)
+    if args.url_file:
+        Path(args.url_file).write_text(url, encoding="utf-8")
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
+    signal.signal(signal.SIGTERM, lambda *_: setattr(server, "should_exit", True))
+    try:
+        server.run(sockets=[sock])
+    finally:
+        if graph is not None:
+            graph.stop()
+        rclpy.try_shutdown(context=context)      # ends executor.spin
+        spinner.join(5.0)
+        executor.shutdown()
+        node.destroy_node()
+        if log_file is not None:
+            log_file.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""The operator panel's rclpy side (thin shell over panel.Panel): subscribes to what the
+panel shows, publishes what its actions ask for, and runs the jog watchdog on the
+executor's own thread, so that a stuck web loop still holds a jog whose page went
+silent. Nothing here reaches the drives: the panel talks to the controller and the
+planner only (``estop``, ``program``, ``goal``, ``controller/feed_override``,
+``controller/settings``), and the controller decides.
+"""
+
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64, String
+
+from pkm_common.cdr import JointStateDecoder, decode_pose_stamped
+from pkm_common.conversions import machine_pose_components
+from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
+
+WATCHDOG_PERIOD_S = 0.05
+
+
+class PanelNode(Node):
+    def __init__(self, panel, namespace: str = "/pkm", context=None):
+        super().__init__("panel", namespace=namespace, context=context)
+        self.panel = panel
+        self.state_decoder = JointStateDecoder("drives/state")
+        self.pubs = {"estop": self.create_publisher(Bool, "estop", LATCHED_QOS),
+                     "program": self.create_publisher(String, "program", STREAM_QOS),
+                     "goal": self.create_publisher(PoseStamped, "goal", STREAM_QOS),
+                     "controller/feed_override": self.create_publisher(Float64, "controller/feed_override",
+                                                                       STREAM_QOS),
+                     "controller/settings": self.create_publisher(String, "controller/settings", STREAM_QOS)}
+        self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS, raw=True)
+        self.create_subscription(PoseStamped, "platform/true_pose", self.on_true_pose, STREAM_QOS, raw=True)
+        self.create_subscription(JointState, "metrology/struts", lambda _: panel.on_struts(), STREAM_QOS, raw=True)
+        self.create_subscription(PoseStamped, "controller/reference", self.on_reference, STREAM_QOS, raw=True)
+        self.create_subscription(DiagnosticArray, "controller/status", self.on_status, STREAM_QOS)
+        self.create_subscription(DiagnosticArray, "diagnostics", self.on_status, STREAM_QOS)
+        self.create_subscription(Bool, "estop", lambda m: panel.on_estop(bool(m.data)), LATCHED_QOS)
+        self.create_subscription(String, "controller/events", lambda m: panel.on_event(m.data), EVENTS_QOS)
+        self.create_timer(WATCHDOG_PERIOD_S, self.on_watchdog)
+
+    def on_state(self, buf: bytes) -> None:
+        m = self.state_decoder.decode(buf)
+        self.panel.on_state(m.stamp_ns, m.name, m.position, m.velocity, m.effort, m.frame_id)
+
+    def on_true_pose(self, buf: bytes) -> None:
+        m = decode_pose_stamped(buf, "platform/true_pose")
+        self.panel.on_true_pose(m.stamp_ns, m.position, m.orientation)
+
+    def on_reference(self, buf: bytes) -> None:
+        m = decode_pose_stamped(buf, "controller/reference")
+        self.panel.on_reference(m.stamp_ns, m.position, m.orientation)
+
+    def on_status(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:          # level is a byte in rclpy's messages
+            level = status.level[0] if isinstance(status.level, bytes) else int(status.level)
+            values = {}
+            for kv in status.values:
+                try:
+                    values[kv.key] = float(kv.value)
+                except ValueError:
+                    values[kv.key] = kv.value
+            self.panel.on_status(status.name, level, status.message, values)
+
+    def on_watchdog(self) -> None:
+        result = self.panel.watchdog()
+        if result is not None:
+            self.publish(result.publish)
+            self.get_logger().warning(result.message)
+
+    def publish(self, items) -> None:
+        """[(topic, payload)] of a panel.Result (thread-safe: rcl publishers are)."""
+        for topic, payload in items:
+            if topic == "estop":
+                self.pubs[topic].publish(Bool(data=bool(payload)))
+            elif topic == "controller/feed_override":
+                self.pubs[topic].publish(Float64(data=float(payload)))
+            elif topic == "goal":
+                msg = PoseStamped()
+                msg.header.frame_id = "world"
+                position, orientation = machine_pose_components(self.panel.model.planar, payload)
+                p, o = msg.pose.position, msg.pose.orientation
+                p.x, p.y, p.z = (float(v) for v in position)
+                o.x, o.y, o.z, o.w = (float(v) for v in orientation)
+                self.pubs[topic].publish(msg)
+            else:
+                self.pubs[topic].publish(String(data=payload))
