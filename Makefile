@@ -11,7 +11,7 @@ PIP_FLAGS ?= -q --disable-pip-version-check
 # -n auto --maxprocesses 4: one worker per core, at most 4 (each worker claims its own DDS
 # domain in tests/conftest.py); worksteal keeps both cores busy to the end, when only the
 # slow multi-process tests are left. `make test PYTEST_ARGS=-q` runs it in one process.
-PYTEST_ARGS ?= -q -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
+PYTEST_ARGS ?= -q -rs -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
 
 # The ament_python packages, installed editable (their console scripts land in
 # $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new
@@ -45,6 +45,8 @@ $(PKG_STAMP): $(STAMP) $(PKG_META)
 	@touch $(PKG_STAMP)
 
 test: venv
+	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || \
+		echo "make test: chromium not found: the operator panel's browser test is skipped (apt-get install chromium)"
 	$(VPY) -m pytest $(PYTEST_ARGS)
 
 # The default scenario (config/scenarios/archi_demo.yaml): ARCHI test motion under a

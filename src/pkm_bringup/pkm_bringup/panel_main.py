@@ -1,6 +1,6 @@
 """``pkm-panel``: the web operator panel of a running graph.
 
-    pkm-panel --start panel_archi            # starts the graph (pkm-run) and serves the panel
+    pkm-panel --start panel_archi [--rt-profile]   # starts the graph (pkm-run) and serves the panel
     pkm-panel --machine archi                # joins a graph already running (pkm-run, realtime)
 
 then open http://127.0.0.1:8080/ . The panel joins the graph of this shell's
@@ -32,14 +32,15 @@ class Graph:
     ends it (SIGTERM: its run is recorded and reported as interrupted) and starts
     another run of the same scenario."""
 
-    def __init__(self, scenario: str, runs: str):
+    def __init__(self, scenario: str, runs: str, rt_profile: bool = False):
         self.scenario, self.runs, self.process = scenario, runs, None
+        self.options = ["--rt-profile"] if rt_profile else []
         self.lock = threading.Lock()
 
     def start(self) -> None:
         with self.lock:
             self.process = subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", self.scenario,
-                                             "--runs", self.runs, "--no-progress"])
+                                             "--runs", self.runs, "--no-progress", *self.options])
             LOG.info("graph started: pkm-run %s (pid %d)", self.scenario, self.process.pid)
 
     def stop(self, timeout_s: float = 60.0) -> None:
@@ -68,6 +69,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="pkm-panel", description=__doc__.split("\n\n")[0])
     parser.add_argument("--start", metavar="SCENARIO", help="start this scenario's graph (pkm-run) and reset it "
                                                              "from the panel (mode: realtime scenarios)")
+    parser.add_argument("--rt-profile", action="store_true",
+                        help="start the graph with the realtime profile (pkm-run --rt-profile: SCHED_FIFO for the "
+                             "loop, ahead of the browser and the panel on the same cores; needs root or "
+                             "CAP_SYS_NICE and CAP_IPC_LOCK)")
     parser.add_argument("--runs", default="runs", help="parent of the started runs' directories (default: runs)")
     parser.add_argument("--machine", help="the machine of a running graph (default: the scenario's, or archi)")
     parser.add_argument("--namespace", help="the graph's namespace (default: the scenario's, or /pkm)")
@@ -106,6 +111,13 @@ def main(argv=None) -> int:
                   f"can and ends), got {s.mode}", file=sys.stderr)
             return 2
         machine, namespace = args.machine or s.machine, args.namespace or s.namespace
+        if args.rt_profile or s.realtime_profile:
+            from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
+            try:
+                check_permitted()
+            except RealtimeProfileRefused as exc:
+                print(f"pkm-panel: {exc}", file=sys.stderr)
+                return 2
     token = args.token
     if token is None and not _loopback(args.host):
         token = secrets.token_urlsafe(16)
@@ -118,7 +130,7 @@ def main(argv=None) -> int:
             log_file.write(json.dumps(entry) + "\n")
             log_file.flush()
 
-    graph = Graph(args.start, args.runs) if args.start else None
+    graph = Graph(args.start, args.runs, args.rt_profile) if args.start else None
     panel = Panel(PanelModel(load_machine(machine)), can_reset=graph is not None, log=log_line)
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -131,6 +143,7 @@ def main(argv=None) -> int:
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((args.host, args.port))
+    sock.listen(64)                     # connections wait in the backlog until uvicorn serves
     host, port = sock.getsockname()[:2]
     url = f"http://{host if ':' not in host else f'[{host}]'}:{port}/" + (f"?token={token}" if token else "")
     if graph is not None:

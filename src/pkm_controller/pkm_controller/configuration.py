@@ -35,6 +35,35 @@ def core_from_parameters(machine_name: str, config: ControllerConfig) -> Control
         raise ValueError(f"parameter '{name}': {rest}") from None
 
 
+def warm_up(core: ControllerCore, cycles: int = 3) -> None:
+    """A few cycles of a scratch core of the same machine and configuration, standing
+    at home: what the loop's first cycles load or allocate on first use is done
+    before the first real state. Cold, the first full cycle of a 250 Hz realtime
+    graph answered its state 14-17 ms late (65 ms beside a browser drawing the panel),
+    and the drives, holding their setpoint meanwhile, drifted 11 mm; warmed, 0.5 ms.
+    ``core`` itself is not touched."""
+    import numpy as np
+    scratch = ControllerCore(core.machine, core.config)
+    model = core.model
+    home = model.home_pose if core.planar else model.home_position
+    q = [float(v) for v in model.inverse_kinematics(home)]
+    zeros = [0.0] * core.n
+    struts = pose = None
+    if core.metrology is not None:
+        from pkm_common.conversions import machine_pose_components
+        from pkm_gough_sensor.metrology import GoughSensorModel
+        sensor = GoughSensorModel(core.machine.metrology)
+        position, orientation = machine_pose_components(core.planar, [float(v) for v in home])
+        p, r = pose_from_components(position, orientation)
+        struts = sensor.measure(p, r).tolist()
+        estimate = sensor.estimate(np.asarray(struts))
+        pose = (estimate[0].tolist(), estimate[1])
+    for k in range(cycles):
+        if scratch.prepare(k * core.config.dt_s, q, zeros, zeros):
+            scratch.complete(struts=struts, metrology_pose=pose)
+    scratch.status()
+
+
 def metrology_inputs(wait_for: str, reading) -> tuple[list | None, tuple | None]:
     """(struts, metrology_pose) for ControllerCore.complete from the reading the
     strategy waits for: ``"struts"`` a JointState's positions (m), ``"pose"`` a

@@ -40,7 +40,7 @@ from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM
 from pkm_common.runner import main_exit, run_node
 from pkm_common.timing import DurationHistogram
 from pkm_controller.controller import ControllerConfig
-from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
+from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary, warm_up
 from pkm_controller.lockstep import StampPairing
 from pkm_controller.operator import Action, apply_action, event_json
 from pkm_controller.strategies import Feedback
@@ -85,6 +85,7 @@ class ControllerNode(LifecycleNode):
         try:
             values, config = self._read_parameters()
             self.core = core_from_parameters(values["machine"], config)
+            warm_up(self.core)              # the kernels loaded now, not in the first cycles
         except ValueError as exc:
             self.configure_error = str(exc)
             self.get_logger().error(f"configure refused: {exc}")

@@ -65,6 +65,7 @@ function render(s) {
   if (s.silent_s === null || s.silent_s > 1.0) mode = s.silent_s === null ? "waiting for the graph" :
                                                        `graph silent ${s.silent_s.toFixed(0)} s`;
   $("mode").textContent = mode;
+  $("simtime").textContent = s.t_s !== undefined ? s.t_s.toFixed(3) : "–";
   $("mode").className = "badge " + mode;
   $("feedstate").textContent = `feed ${Math.round(100 * (v.feed_scale ?? 1))} %`;
   $("estopbar").hidden = !(s.estop && s.estop.latched);

@@ -1,0 +1,202 @@
+"""The operator panel's core (pkm_bringup.panel, no ROS, no browser): every action is
+validated before anything is published (the field and its range named), motion only
+while the machine holds still, the E-stop latched; the jog watchdog holds a jog whose
+page fell silent; the drawing against the machine's own geometry; the tracking error
+of the plot paired by step."""
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from pkm_bringup.panel import HEARTBEAT_TIMEOUT_S, Panel, PanelModel
+from pkm_common.conversions import machine_pose_components
+from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_kinematics import load_machine
+
+ARCHI = load_machine("archi")
+MOM3 = load_machine("mom3")
+HOME = ARCHI.model.home_pose.tolist()
+HOLDING = {"mode": "holding", "strategy": "decentralized_projected", "distribution": "inf_norm", "p_norm": 4.0,
+           "prestress_n": 0.0, "bandwidth_hz": 20.0, "damping_ratio": 1.0, "integral_time_s": 0.05, "dt_s": 0.004}
+
+
+class Clock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def live_panel(reference=HOME, **kwargs):
+    """A panel that has heard a holding controller at ``reference``."""
+    clock = Clock()
+    panel = Panel(PanelModel(ARCHI), clock=clock, **kwargs)
+    panel.on_status("controller", 0, "holding", dict(HOLDING))
+    position, orientation = machine_pose_components(True, reference)
+    panel.on_reference(1_000_000, position, orientation)
+    return panel, clock
+
+
+def test_the_model_knows_each_machines_axes_and_workspace():
+    archi, mom3 = PanelModel(ARCHI).describe(), PanelModel(MOM3).describe()
+    assert archi["axes"] == ["x", "y", "theta"] and mom3["axes"] == ["x", "y", "z"]
+    assert archi["workspace"] == [[0.6, 1.4], [-0.6, -0.25]]
+    np.testing.assert_allclose(mom3["workspace"], [[-0.15, 0.15], [-0.15, 0.15], [0.732, 1.032]], atol=1e-12)
+    assert archi["drives"] == ["q1", "q2", "q3", "q4"]
+
+
+def test_the_drawing_has_the_legs_and_struts_of_the_machines_geometry():
+    """Each ARCHI leg drawn is as long as its link (config), each strut as long as the
+    Gough model's own length at that pose."""
+    pose = [1.05, -0.42, 0.9]
+    drawing = PanelModel(ARCHI).drawing(pose)
+    lengths = [math.dist(a, b) for a, b in drawing["legs"]]
+    np.testing.assert_allclose(lengths, [1.0] * 4, atol=1e-12)
+    position, orientation = machine_pose_components(True, pose)
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    struts = [math.dist(a, b) for a, b in drawing["struts"]]
+    expected = GoughSensorModel(ARCHI.metrology).true_lengths(position, [[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    np.testing.assert_allclose(struts, expected, atol=1e-12)
+    assert len(drawing["platform"]) == 4
+    assert PanelModel(ARCHI).drawing(pose, struts=False)["struts"] == []
+
+
+def test_a_jog_moves_the_reference_by_its_step_inside_the_workspace():
+    panel, _ = live_panel()
+    result = panel.handle({"type": "jog", "axis": "y", "step": -0.004}, "page")
+    assert result.ok and result.publish[0][0] == "goal"
+    np.testing.assert_allclose(result.publish[0][1], [HOME[0], HOME[1] - 0.004, HOME[2]], atol=1e-12)
+    again = panel.handle({"type": "jog", "axis": "x", "step": 0.001}, "page")      # the first one still runs
+    assert not again.ok and "holding still, it is jogging" in again.message and again.publish == []
+
+
+@pytest.mark.parametrize("action, message", [
+    ({"type": "jog", "axis": "z", "step": 0.001}, r"jog: axis must be one of \['x', 'y', 'theta'\], got 'z'"),
+    ({"type": "jog", "axis": "x", "step": 0.5}, r"jog: step must be a number with 0 < \|step\| <= 0.01 m"),
+    ({"type": "jog", "axis": "x", "step": True}, r"jog: step must be a number"),
+    ({"type": "jog", "axis": "x", "step": float("nan")}, r"jog: step must be a number"),
+    ({"type": "jog", "axis": "theta", "step": 0.2}, r"0 < \|step\| <= 0.1 rad"),
+    ({"type": "jog", "axis": "y", "step": 0.01}, r"jog: y would reach -0.2450 m, outside the workspace "
+                                                 r"\[-0.6, -0.25\] m"),
+    ({"type": "feed", "percent": 150}, r"feed: percent must be a number in \[0, 100\], got 150"),
+    ({"type": "feed", "percent": "fast"}, r"feed: percent must be a number in \[0, 100\]"),
+    ({"type": "settings", "changes": {"bandwidth_hz": 500}}, r"bandwidth_hz: must be in \(0, 25\] Hz"),
+    ({"type": "settings", "changes": {"strategy": "sensor_space"}}, r"strategy: sensor_space feeds back struts"),
+    ({"type": "settings", "changes": {"force_limit_n": 1.0}}, r"force_limit_n: cannot be changed while running"),
+    ({"type": "settings", "changes": []}, r"settings: changes must be a non-empty object"),
+    ({"type": "program", "text": "G1 X10 Q4\n"}, r"line 1: Q4: unsupported word Q"),
+    ({"type": "program", "text": "  "}, r"program: text must be non-empty G-code"),
+    ({"type": "start"}, r"start: load a program first"),
+    ({"type": "teleport"}, r"type: must be one of estop, reset, program"),
+    ({"kind": "jog"}, r"action: expected a JSON object with a 'type'"),
+])
+def test_bad_input_is_refused_with_its_range_and_nothing_is_published(action, message):
+    panel, _ = live_panel(reference=[HOME[0], -0.255, HOME[2]])
+    result = panel.handle(action, "page")
+    assert not result.ok and result.publish == []
+    assert re.search(message, result.message), result.message
+    assert panel.snapshot()["actions"][-1]["ok"] is False        # logged too
+
+
+def test_motion_waits_for_the_machine_to_hold_still():
+    panel, _ = live_panel()
+    panel.on_status("controller", 0, "tracking", {**HOLDING, "mode": "tracking"})
+    assert panel.handle({"type": "program", "text": "G91 G1 X10 F600\n"}, "page").ok     # loading is fine
+    for action in ({"type": "start"}, {"type": "jog", "axis": "x", "step": 0.001}):
+        result = panel.handle(action, "page")
+        assert not result.ok and "must be holding still, it is tracking" in result.message
+    panel.on_status("controller", 0, "holding", dict(HOLDING))
+    start = panel.handle({"type": "start"}, "page")
+    assert start.ok and start.publish == [("program", "G91 G1 X10 F600\n")]
+
+
+def test_the_estop_latches_needs_no_token_and_only_a_reset_clears_it():
+    panel, _ = live_panel(can_reset=True)
+    assert not panel.handle({"type": "feed", "percent": 50}, "viewer", authorized=False).ok
+    stop = panel.handle({"type": "estop"}, "viewer", authorized=False)
+    assert stop.ok and stop.publish == [("estop", True)]
+    refused = panel.handle({"type": "feed", "percent": 50}, "page")
+    assert not refused.ok and refused.message.startswith("E-stop latched (E-stop pressed on the panel (viewer))")
+    reset = panel.handle({"type": "reset"}, "page")
+    assert reset.ok and reset.restart and reset.publish == [("estop", False)]
+    assert not panel.snapshot()["estop"]["latched"]
+    panel_without_graph, _ = live_panel()
+    panel_without_graph.handle({"type": "estop"}, "page")
+    refused = panel_without_graph.handle({"type": "reset"}, "page")
+    assert not refused.ok and "start a new run" in refused.message
+
+
+def test_a_controller_that_stops_latches_the_panel_with_its_reason():
+    panel, _ = live_panel()
+    panel.on_status("controller", 2, "stopped: following error 10.2 mm", {**HOLDING, "mode": "stopped"})
+    snap = panel.snapshot()["estop"]
+    assert snap["latched"] and "following error 10.2 mm" in snap["why"]
+
+
+def test_a_jog_is_held_when_its_page_falls_silent_and_ends_when_it_arrives():
+    panel, clock = live_panel()
+    target = panel.handle({"type": "jog", "axis": "x", "step": 0.002}, "page").publish[0][1]
+    for _ in range(5):                       # heartbeats every 0.1 s: nothing happens
+        clock.t += 0.1
+        panel.handle({"type": "heartbeat"}, "page")
+        assert panel.watchdog() is None
+    clock.t += HEARTBEAT_TIMEOUT_S + 0.01
+    held = panel.watchdog()
+    assert held is not None and held.publish == [("controller/feed_override", 0.0)]
+    assert "silent for more than 0.5 s" in held.message and panel.watchdog() is None    # once
+    # a jog that arrives is over: a silent page afterwards holds nothing
+    panel, clock = live_panel()
+    target = panel.handle({"type": "jog", "axis": "x", "step": 0.002}, "page").publish[0][1]
+    position, orientation = machine_pose_components(True, target)
+    panel.on_reference(2_000_000, position, orientation)
+    assert panel.watchdog() is None and panel.snapshot()["jog"] is None
+    clock.t += 10.0
+    assert panel.watchdog() is None
+    # a page that closes during a jog: held at once
+    panel, clock = live_panel()
+    panel.handle({"type": "jog", "axis": "x", "step": 0.002}, "page")
+    panel.disconnected("page")
+    assert "connection closed" in panel.watchdog().message
+
+
+def test_settings_go_out_as_json_after_the_controllers_own_check():
+    panel, _ = live_panel()
+    result = panel.handle({"type": "settings", "changes": {"strategy": "joint_pid", "bandwidth_hz": 12.5}}, "page")
+    assert result.ok and result.publish == [("controller/settings", json.dumps({"strategy": "joint_pid",
+                                                                                 "bandwidth_hz": 12.5}))]
+    # integral_time_s must stay above 1 / (2 zeta omega) of the gains it runs with
+    low = panel.handle({"type": "settings", "changes": {"integral_time_s": 0.001}}, "page")
+    assert not low.ok and "integral_time_s: must be 0, or in (0.003979" in low.message
+
+
+def test_the_plot_pairs_reference_and_pose_of_the_same_step_in_either_order():
+    panel, _ = live_panel()
+    for k, (first, dy) in enumerate([("pose", 5e-6), ("reference", 12e-6), ("pose", 1e-6)]):
+        stamp = (k + 2) * 100_000_000
+        ref = machine_pose_components(True, HOME)
+        pose = machine_pose_components(True, [HOME[0], HOME[1] + dy, HOME[2]])
+        calls = [lambda: panel.on_true_pose(stamp, *pose), lambda: panel.on_reference(stamp, *ref)]
+        for call in (calls if first == "pose" else calls[::-1]):
+            call()
+        panel.on_reference(stamp + 50_000_000, *ref)            # an unpaired step in between: not plotted
+    plot = panel.snapshot()["plot"]
+    assert [round(t, 1) for t, _ in plot] == [0.2, 0.3, 0.4]
+    np.testing.assert_allclose([e for _, e in plot], [5.0, 12.0, 1.0], atol=1e-6)
+
+
+def test_latencies_from_the_action_to_the_controller_and_to_the_drives():
+    panel, clock = live_panel()
+    panel.handle({"type": "feed", "percent": 40}, "page")
+    clock.t += 0.012
+    panel.on_event(json.dumps({"kind": "feed_override", "ok": True, "after_ns": 5, "value": 0.4}))
+    panel.handle({"type": "estop"}, "page")
+    clock.t += 0.007
+    panel.on_state(3_000_000, ["q1"], [0.0], [0.0], [0.0], "")                 # still running
+    clock.t += 0.001
+    panel.on_state(4_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:estop")   # braked
+    latency = panel.snapshot()["latency_ms"]
+    assert latency["feed_override"] == pytest.approx(12.0) and latency["estop"] == pytest.approx(8.0)
