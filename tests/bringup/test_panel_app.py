@@ -1,0 +1,87 @@
+"""The panel's web side (pkm_bringup.panel_app on a real uvicorn server, no ROS): the
+page is served; snapshots are pushed at the configured rate; with a token set, a page
+without it is view only while the E-stop (WebSocket or its own HTTP route) still gets
+through; what an action publishes reaches the node's publish function."""
+
+import json
+import socket
+import threading
+import time
+import urllib.request
+
+import pytest
+import uvicorn
+from websockets.sync.client import connect
+
+from pkm_bringup.panel import Panel, PanelModel
+from pkm_bringup.panel_app import create_app
+from pkm_kinematics import load_machine
+
+
+@pytest.fixture
+def server():
+    """A panel app with token 'secret' on a free port; yields (url, published)."""
+    published = []
+    panel = Panel(PanelModel(load_machine("archi")))
+    app = create_app(panel, published.extend, token="secret", rate_hz=25.0)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(16)
+    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
+    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    url = f"http://127.0.0.1:{sock.getsockname()[1]}/"
+    deadline = time.monotonic() + 10
+    while not srv.started and time.monotonic() < deadline:
+        time.sleep(0.02)
+    yield url, published
+    srv.should_exit = True
+    thread.join(10)
+
+
+def result_of(ws, action) -> dict:
+    ws.send(action if isinstance(action, str) else json.dumps(action))
+    while True:
+        message = json.loads(ws.recv(timeout=5))
+        if message["type"] == "result":
+            return message
+
+
+def test_the_page_and_the_snapshots_at_their_rate(server):
+    url, _ = server
+    with urllib.request.urlopen(url, timeout=5) as response:
+        assert "E-STOP" in response.read().decode()
+    with connect(url.replace("http", "ws") + "ws") as ws:
+        hello = json.loads(ws.recv(timeout=5))
+        assert hello["type"] == "hello" and hello["machine"]["axes"] == ["x", "y", "theta"]
+        start, count = time.monotonic(), 0
+        while time.monotonic() - start < 2.0:
+            count += json.loads(ws.recv(timeout=5))["type"] == "snapshot"
+    assert 40 <= count <= 55, count                # 25 per second, paced from one clock
+
+
+def test_without_the_token_a_page_is_view_only_but_can_stop_the_machine(server):
+    url, published = server
+    with connect(url.replace("http", "ws") + "ws") as ws:
+        assert json.loads(ws.recv(timeout=5))["authorized"] is False
+        refused = result_of(ws, {"type": "feed", "percent": 50})
+        assert not refused["ok"] and "not authorized" in refused["message"] and published == []
+        assert result_of(ws, {"type": "estop"})["ok"]
+    assert published == [("estop", True)]
+    request = urllib.request.Request(url + "api/estop", method="POST")
+    with urllib.request.urlopen(request, timeout=5) as response:
+        assert json.load(response)["ok"]
+    assert published == [("estop", True), ("estop", True)]
+
+
+def test_with_the_token_a_page_controls(server):
+    url, published = server
+    with connect(url.replace("http", "ws") + "ws?token=secret") as ws:
+        assert json.loads(ws.recv(timeout=5))["authorized"] is True
+        assert result_of(ws, {"type": "feed", "percent": 50})["ok"]
+        bad = result_of(ws, {"type": "feed", "percent": 500})
+        assert not bad["ok"] and "percent must be a number in [0, 100]" in bad["message"]
+        assert "expected a JSON object" in result_of(ws, "not json")["message"]
+    assert published == [("controller/feed_override", 0.5)]
+    with connect(url.replace("http", "ws") + "ws?token=wrong") as ws:
+        assert json.loads(ws.recv(timeout=5))["authorized"] is False
