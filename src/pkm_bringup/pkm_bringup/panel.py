@@ -75,7 +75,7 @@ class PanelModel:
         self.kind = "planar" if self.planar else "translational"
         self.axes = ("x", "y", "theta") if self.planar else ("x", "y", "z")
         self.box = workspace_box(self.model)
-        self.home = [float(v) for v in (self.model.home_pose if self.planar else self.model.home_position)]
+        self.home = [float(v) for v in self.model.home]
         self.gough = None
         if machine.metrology is not None:
             from pkm_gough_sensor.metrology import GoughSensorModel

@@ -426,7 +426,7 @@ def program_duration(s: Scenario, model) -> float:
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
     planar = hasattr(model, "home_pose")
-    home = model.home_pose if planar else model.home_position
+    home = model.home
     try:
         segments = gcode_segments(s.program.read_text(encoding="utf-8"), planar=planar,
                                   start_pose=[float(v) for v in home],

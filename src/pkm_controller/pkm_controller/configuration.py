@@ -45,7 +45,7 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
     import numpy as np
     scratch = ControllerCore(core.machine, core.config)
     model = core.model
-    home = model.home_pose if core.planar else model.home_position
+    home = model.home
     q = [float(v) for v in model.inverse_kinematics(home)]
     zeros = [0.0] * core.n
     struts = pose = None

@@ -278,7 +278,7 @@ class ControllerCore:
         return dict(changes)
 
     def _home(self) -> list:
-        return (self.model.home_pose if self.planar else self.model.home_position).tolist()
+        return self.model.home.tolist()
 
     def _scale_gains(self) -> None:
         """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint

@@ -256,7 +256,7 @@ def cmd_dosr(args) -> tuple[dict, str]:
 def cmd_report(args) -> tuple[dict, str]:
     cfg = _load(args.machine)
     model = cfg.model
-    home = model.home_pose if isinstance(model, PlanarMachine) else model.home_position
+    home = model.home
     q = model.inverse_kinematics(home)
     if isinstance(model, PlanarMachine):
         fk = model.forward_kinematics(q).pose

@@ -60,7 +60,7 @@ class DynamicModel:
         self.planar = isinstance(machine, PlanarMachine)
         m = params.platform_mass_kg
         g = tuple(float(v) for v in params.gravity_m_s2)
-        rails = machine._u if self.planar else machine._e
+        rails = machine.rail_directions
         if len(g) != rails.shape[1]:
             raise ValueError(f"dynamics.gravity_m_s2: needs {rails.shape[1]} components, got {len(g)}")
         self._mn = (m, m, params.platform_inertia_kgm2 if self.planar else m)
@@ -69,7 +69,7 @@ class DynamicModel:
         self._k = tuple(float(v) for v in params.friction_ns_per_m)
         # weight of each carriage along its rail: m_i g . u_i
         self._drive_gravity = tuple(mi * float(np.dot(g, u)) for mi, u in zip(self._md, rails))
-        self._rail_origin_gravity = sum(mi * float(np.dot(g, o)) for mi, o in zip(self._md, machine._o))
+        self._rail_origin_gravity = sum(mi * float(np.dot(g, o)) for mi, o in zip(self._md, machine.rail_origins))
         self._mass_args = (np.array(self._md), np.array(self._k), np.array(self._drive_gravity),
                            *(float(v) for v in self._mn + self._platform_gravity))
 
@@ -91,7 +91,7 @@ class DynamicModel:
         if qdot.shape != (self.machine.n_legs,):
             raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
         rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg = _measured_state_kernel(
-            self.planar, self.machine._legs_a, x[0], x[1], x[2], qdot, *self._mass_args)
+            self.planar, self.machine.leg_kernel_data, x[0], x[1], x[2], qdot, *self._mass_args)
         if code == VT_LEAST_SQUARES_SINGULAR:
             raise DistributionError(SINGULAR_GRAM)
         if code != planar.VT_OK:
@@ -156,8 +156,8 @@ def _machine_velocity_terms(planar_machine, legs, x0, x1, x2, v0, v1, v2):
     """The velocity terms of either machine kind (planar: pose x, y, theta and twist;
     translational: position and velocity)."""
     if planar_machine:
-        return planar._velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
-    return translational._velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
+        return planar.velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
+    return translational.velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
 
 
 @kernel("(boolean, float64[:, :], float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "

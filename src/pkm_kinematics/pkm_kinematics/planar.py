@@ -304,7 +304,7 @@ def jm_row(ex, ey, sv, rbx, rby):
 
 
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
-def _velocity_terms_kernel(legs, x, y, th, vx, vy, w):
+def velocity_terms_kernel(legs, x, y, th, vx, vy, w):
     """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
     and twist (vx, vy, w), ARCHI §3.2, §3.4: per leg the carriage q_i closing
     |B_i - A_i| = L_i on its assembly branch, the row g_i / s_i with g_i = [e_i,
@@ -398,6 +398,37 @@ class PlanarMachine:
     @property
     def pairs(self) -> list[tuple[int, int]]:
         return list(self._pairs)
+
+    # ------------------------------------------------- the bars (machine.ParallelMachine)
+    @property
+    def home(self) -> np.ndarray:
+        """The home pose (x, y, theta)."""
+        return self.home_pose
+
+    @property
+    def rail_origins(self) -> np.ndarray:
+        """o_i, the origin of each drive's rail (n, 2), world frame."""
+        return self._o.copy()
+
+    @property
+    def rail_directions(self) -> np.ndarray:
+        """u_i, each rail's unit direction (n, 2): a carriage is at o_i + q_i u_i."""
+        return self._u.copy()
+
+    @property
+    def leg_kernel_data(self) -> np.ndarray:
+        """The per-leg rows the compiled kernels take (leg_array); read only."""
+        return self._legs_a
+
+    def leg_joints(self, pose, q=None) -> tuple[np.ndarray, np.ndarray]:
+        """Each leg's two joints at ``pose`` in world coordinates, (n, 3) each with
+        z = 0: the carriage A_i = o_i + q_i u_i and the platform point B_i = p + R b_i
+        (ARCHI §3.1). ``q``: the drive positions (default: the inverse kinematics)."""
+        q = self.inverse_kinematics(pose, check_limits=False) if q is None else np.asarray(q, dtype=float)
+        carriages, points = np.zeros((self.n_legs, 3)), np.zeros((self.n_legs, 3))
+        carriages[:, :2] = self._o + q[:, None] * self._u
+        points[:, :2] = self._platform_points(pose)
+        return carriages, points
 
     def _platform_points(self, pose) -> np.ndarray:
         """World coordinates of the platform points B_i = p + R b_i, shape (n, 2)."""
@@ -530,7 +561,7 @@ class PlanarMachine:
         (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
         Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
         Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
-        (:func:`_velocity_terms_kernel`)."""
+        (:func:`velocity_terms_kernel`)."""
         q, rows, qdot, bias = self.velocity_terms_arrays(pose, twist)
         return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
 
@@ -538,14 +569,14 @@ class PlanarMachine:
         """:meth:`velocity_terms` as arrays (q (n,), J_m (n, 3), qdot, Jdot_m xdot)."""
         if len(pose) != 3 or len(twist) != 3:
             raise ValueError(f"velocity terms: pose and twist need 3 values each, got {len(pose)} and {len(twist)}")
-        q, rows, qdot, bias, code, leg = _velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
+        q, rows, qdot, bias, code, leg = velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
                                                                 twist[0], twist[1], twist[2])
         if code != VT_OK:
             self.raise_velocity_terms_error(code, leg, pose)
         return q, rows, qdot, bias
 
     def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
-        """Raise the exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
+        """Raise the exception for a failure ``code`` of :func:`velocity_terms_kernel`."""
         raise velocity_terms_error(code, self.leg_names[leg], "pose", pose)
 
     def jacobian_batch(self, poses) -> np.ndarray:

@@ -38,7 +38,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
-def _velocity_terms_kernel(legs, px, py, pz, vx, vy, vz):
+def velocity_terms_kernel(legs, px, py, pz, vx, vy, vz):
     """(rho, J_m (3, 3), rhodot = J_m pdot, Jdot_m pdot, code, leg) at the position p
     and velocity v (Orthoglide eq. 3-8): per leg (rows of ``legs``: o, e, L^2, c,
     sigma) the leg vector a_i = w_i - rho_i e_i, s_i = a_i . e_i, the row a_i / s_i,
@@ -167,6 +167,35 @@ class TranslationalMachine:
         centres = self._o + rho[:, None] * self._e - self._c
         normal = np.cross(centres[1] - centres[0], centres[2] - centres[0])
         self._fk_side = math.copysign(1.0, float(normal @ (self.home_position - centres[0])))
+
+    # ------------------------------------------------- the bars (machine.ParallelMachine)
+    @property
+    def home(self) -> np.ndarray:
+        """The home position (x, y, z)."""
+        return self.home_position
+
+    @property
+    def rail_origins(self) -> np.ndarray:
+        """o_i, the origin of each drive's rail (3, 3), world frame."""
+        return self._o.copy()
+
+    @property
+    def rail_directions(self) -> np.ndarray:
+        """e_i, each rail's unit direction (3, 3): a carriage is at o_i + rho_i e_i."""
+        return self._e.copy()
+
+    @property
+    def leg_kernel_data(self) -> np.ndarray:
+        """The per-leg rows the compiled kernels take (o, e, L^2, c, sigma); read only."""
+        return self._legs_a
+
+    def leg_joints(self, position, q=None) -> tuple[np.ndarray, np.ndarray]:
+        """Each leg's two joints at ``position`` in world coordinates, (3, 3) each: the
+        carriage o_i + rho_i e_i and the platform joint p + c_i (Orthoglide §3.1; the
+        parallelogram drawn as one bar). ``q``: the drive positions (default: the
+        inverse kinematics)."""
+        q = self.inverse_kinematics(position, check_limits=False) if q is None else np.asarray(q, dtype=float)
+        return self._o + q[:, None] * self._e, np.asarray(position, dtype=float)[None, :] + self._c
 
     # ----------------------------------------------------------------- inverse
     def inverse_kinematics(self, position, check_limits: bool = True) -> np.ndarray:
@@ -346,7 +375,7 @@ class TranslationalMachine:
 
     def velocity_terms(self, position, velocity) -> tuple[list, list, list, list]:
         """(rho, rows of J_m, rhodot, Jdot_m pdot) as lists of floats for the dynamic
-        model; see :func:`_velocity_terms_kernel`."""
+        model; see :func:`velocity_terms_kernel`."""
         rho, rows, rhodot, bias = self.velocity_terms_arrays(position, velocity)
         return rho.tolist(), rows.tolist(), rhodot.tolist(), bias.tolist()
 
@@ -355,14 +384,14 @@ class TranslationalMachine:
         Raises UnreachablePoseError / SingularityError naming the leg. Compiled."""
         if len(position) != 3 or len(velocity) != 3:
             raise ValueError(f"velocity terms: position and velocity need 3 values each, got {len(position)} and {len(velocity)}")
-        rho, rows, rhodot, bias, code, leg = _velocity_terms_kernel(
+        rho, rows, rhodot, bias, code, leg = velocity_terms_kernel(
             self._legs_a, position[0], position[1], position[2], velocity[0], velocity[1], velocity[2])
         if code != VT_OK:
             self.raise_velocity_terms_error(code, leg, position)
         return rho, rows, rhodot, bias
 
     def raise_velocity_terms_error(self, code: int, leg: int, position) -> None:
-        """Raise the exception for a failure ``code`` of :func:`_velocity_terms_kernel`."""
+        """Raise the exception for a failure ``code`` of :func:`velocity_terms_kernel`."""
         raise velocity_terms_error(code, self.leg_names[leg], "position", position)
 
     def condition_number(self, position) -> float:

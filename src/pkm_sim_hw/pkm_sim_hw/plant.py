@@ -169,7 +169,7 @@ class Plant:
         self.names = list(config.model.leg_names)
         self.machine = true_machine(config.model, self.params.link_length_errors, self.params.rail_offset_errors_m)
         self.dynamics = DynamicModel(self.machine, config.dynamics)
-        home = config.model.home_pose if config.kind == "planar" else config.model.home_position
+        home = config.model.home
         self.x = finite_floats(home if initial_pose is None else initial_pose, 3, "initial_pose")
         self.machine.inverse_kinematics(self.x)          # reachable with the true geometry
         self.v = [0.0, 0.0, 0.0]
@@ -396,17 +396,9 @@ def check_load(wrench, planar: bool, params: PlantParameters, what: str = "load"
 
 def leg_segments(machine, x) -> list[tuple[list, list]]:
     """(carriage, platform joint) points of every leg in world coordinates (3-D; z = 0
-    for planar machines), for visualisation markers."""
-    q = machine.inverse_kinematics(x, check_limits=False)
-    if isinstance(machine, PlanarMachine):
-        c, s = math.cos(x[2]), math.sin(x[2])
-        out = []
-        for o, u, b, qi in zip(machine._o, machine._u, machine._b, q):
-            a = o + qi * u
-            out.append(([a[0], a[1], 0.0], [x[0] + c * b[0] - s * b[1], x[1] + s * b[0] + c * b[1], 0.0]))
-        return out
-    return [((o + qi * e).tolist(), (np.asarray(x) + c).tolist())
-            for o, e, c, qi in zip(machine._o, machine._e, machine._c, q)]
+    for planar machines), for visualisation markers and the operator panel."""
+    carriages, joints = machine.leg_joints(x)
+    return [(a.tolist(), b.tolist()) for a, b in zip(carriages, joints)]
 
 
 def command_efforts(msg, names) -> tuple[list | None, str]:

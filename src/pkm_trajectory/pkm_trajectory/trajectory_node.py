@@ -56,7 +56,7 @@ class TrajectoryNode(Node):
         self.max_points = declare_int(self, "max_points", 200_000, 2, 10_000_000,
                                       "longer trajectories are refused (message size and memory)")
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
-        home = self.model.home_pose if self.planar else self.model.home_position
+        home = self.model.home
         self.pose = [float(v) for v in home]
         self.accepted = self.rejected = 0
         self.pub = self.create_publisher(MultiDOFJointTrajectory, "trajectory", LATCHED_QOS)

@@ -1,0 +1,65 @@
+"""The one public interface of a machine model (``ParallelMachine``): what the plant,
+the controller, the metrology, the analyses and the panel may use of a
+``PlanarMachine`` or a ``TranslationalMachine``, and nothing else (no private
+attribute is read across modules). A machine is a platform joined to the base by
+bars (../shared/MACHINE_MODEL.md): ``leg_joints`` gives each bar's two joints,
+``rail_origins`` / ``rail_directions`` the actuated rails the carriages ride on.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class ParallelMachine(Protocol):
+    name: str
+    n_legs: int
+    leg_names: list
+    joint_lower: np.ndarray
+    joint_upper: np.ndarray
+    workspace: dict
+
+    @property
+    def home(self) -> np.ndarray:
+        """The machine's home in task coordinates (a pose or a position)."""
+
+    @property
+    def rail_origins(self) -> np.ndarray: ...
+
+    @property
+    def rail_directions(self) -> np.ndarray: ...
+
+    @property
+    def leg_kernel_data(self) -> np.ndarray: ...
+
+    def leg_joints(self, x, q=None) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def inverse_kinematics(self, x, check_limits: bool = True) -> np.ndarray: ...
+
+    def inverse_kinematics_batch(self, xs) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def within_joint_limits(self, q) -> np.ndarray: ...
+
+    def forward_kinematics_floats(self, q, guess=None) -> tuple[float, float, float]: ...
+
+    def forward_kinematics_batch(self, q, *args, **kwargs): ...
+
+    def jacobian(self, x, q=None) -> np.ndarray: ...
+
+    def jacobian_batch(self, xs) -> np.ndarray: ...
+
+    def jacobian_derivative(self, x, xdot, q=None) -> np.ndarray: ...
+
+    def velocity_terms(self, x, xdot) -> tuple: ...
+
+    def velocity_terms_arrays(self, x, xdot) -> tuple: ...
+
+    def raise_velocity_terms_error(self, code: int, leg: int, x) -> None: ...
+
+    def condition_number(self, x) -> float: ...
+
+
+__all__ = ["ParallelMachine"]
