@@ -1,7 +1,8 @@
 """The panel's web side (pkm_bringup.panel_app on a real uvicorn server, no ROS): the
 page is served; snapshots are pushed at the configured rate; with a token set, a page
 without it is view only while the E-stop (WebSocket or its own HTTP route) still gets
-through; what an action publishes reaches the node's publish function."""
+through; what an action publishes reaches the node's publish function; the E-stop's
+own server answers while the main server's loop is stuck."""
 
 import json
 import socket
@@ -14,8 +15,21 @@ import uvicorn
 from websockets.sync.client import connect
 
 from pkm_bringup.panel import Panel, PanelModel
-from pkm_bringup.panel_app import create_app
+from pkm_bringup.panel_app import create_app, create_estop_app
 from pkm_kinematics import load_machine
+
+
+def serve(app) -> tuple[str, uvicorn.Server, threading.Thread]:
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(16)
+    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
+    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 10
+    while not srv.started and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return f"http://127.0.0.1:{sock.getsockname()[1]}/", srv, thread
 
 
 @pytest.fixture
@@ -23,17 +37,7 @@ def server():
     """A panel app with token 'secret' on a free port; yields (url, published)."""
     published = []
     panel = Panel(PanelModel(load_machine("archi")))
-    app = create_app(panel, published.extend, token="secret", rate_hz=25.0)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
-    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    url = f"http://127.0.0.1:{sock.getsockname()[1]}/"
-    deadline = time.monotonic() + 10
-    while not srv.started and time.monotonic() < deadline:
-        time.sleep(0.02)
+    url, srv, thread = serve(create_app(panel, published.extend, token="secret", rate_hz=25.0))
     yield url, published
     srv.should_exit = True
     thread.join(10)
@@ -85,3 +89,40 @@ def test_with_the_token_a_page_controls(server):
     assert published == [("controller/feed_override", 0.5)]
     with connect(url.replace("http", "ws") + "ws?token=wrong") as ws:
         assert json.loads(ws.recv(timeout=5))["authorized"] is False
+
+
+class StuckPanel(Panel):
+    """A panel whose snapshot blocks its caller (the main server's loop) when told to."""
+
+    stuck = threading.Event()
+
+    def snapshot(self):
+        if self.stuck.is_set():
+            time.sleep(3.0)
+        return super().snapshot()
+
+
+def test_the_estop_server_answers_while_the_main_loop_is_stuck():
+    published = []
+    panel = StuckPanel(PanelModel(load_machine("archi")))
+    estop_url, estop_srv, estop_thread = serve(create_estop_app(panel, published.extend))
+    url, srv, thread = serve(create_app(panel, published.extend, estop_url=estop_url + "estop"))
+    try:
+        with connect(url.replace("http", "ws") + "ws") as ws:
+            assert json.loads(ws.recv(timeout=5))["estop_url"] == estop_url + "estop"
+            panel.stuck.set()                       # the next snapshot blocks the main loop
+            time.sleep(0.2)
+            with pytest.raises(OSError):            # the main server's own route does not answer
+                urllib.request.urlopen(urllib.request.Request(url + "api/estop", method="POST"), timeout=1)
+            start = time.monotonic()
+            with urllib.request.urlopen(urllib.request.Request(estop_url + "estop", method="POST"),
+                                        timeout=5) as response:
+                assert json.load(response)["ok"]
+            assert time.monotonic() - start < 1.0
+            assert ("estop", True) in published and panel.estop_latched
+            panel.stuck.clear()
+    finally:
+        panel.stuck.clear()
+        for s, t in ((srv, thread), (estop_srv, estop_thread)):
+            s.should_exit = True
+            t.join(10)

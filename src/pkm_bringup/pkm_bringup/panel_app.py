@@ -2,9 +2,12 @@
 
 ``/`` the page (``panel_static/``); ``/ws`` a WebSocket per page: the server pushes a
 ``snapshot`` (panel.Panel.snapshot) ``rate_hz`` times a second and answers each
-action with a ``result``; ``POST /api/estop`` the E-stop on its own route (the page
-sends it both ways, so it arrives even when the socket is stuck); ``GET
+action with a ``result``; ``POST /api/estop`` the E-stop on its own route; ``GET
 /api/snapshot`` and ``/api/machine`` the same data as JSON.
+
+The E-stop also has a server of its own (``create_estop_app``: one route, served by a
+second uvicorn in its own thread and event loop, on another port): the page sends it
+three ways, so it reaches the machine even when the panel's main loop is stuck.
 
 Control needs the panel's token when one is set (``pkm-panel`` sets one whenever it is
 bound to anything but the loopback interface): ``?token=`` on the socket's URL or an
@@ -29,9 +32,24 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 STATIC = Path(__file__).with_name("panel_static")
 
 
-def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, on_restart=None) -> Starlette:
+def create_estop_app(panel, publish) -> Starlette:
+    """``POST /estop``: publish the E-stop first, then tell the panel (which logs it).
+    A page on the main server posts here cross-origin (``no-cors``: the request goes,
+    its answer is not read)."""
+    async def estop(request: Request):
+        publish([("estop", True)])
+        client = f"estop server {request.client.host}:{request.client.port}" if request.client else "estop server"
+        result = panel.handle({"type": "estop"}, client, True)
+        return JSONResponse({"type": "result", "action": "estop", "ok": result.ok, "message": result.message})
+
+    return Starlette(routes=[Route("/estop", estop, methods=["POST"])])
+
+
+def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, on_restart=None,
+               estop_url: str = "") -> Starlette:
     """The app for ``panel`` (panel.Panel); ``publish``: [(topic, payload)] -> None (the
-    node's); ``on_restart``: called (in a thread) when a reset restarts the graph."""
+    node's); ``on_restart``: called (in a thread) when a reset restarts the graph;
+    ``estop_url``: the E-stop server's (create_estop_app), given to the pages."""
     if not 1.0 <= rate_hz <= 100.0:
         raise ValueError(f"rate_hz: must be in [1, 100] Hz, got {rate_hz}")
 
@@ -65,7 +83,7 @@ def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, 
         client = f"{ws.client.host}:{ws.client.port}" if ws.client else "page"
         allowed = authorized(ws.query_params.get("token") or ws.headers.get("x-panel-token"))
         await ws.send_json({"type": "hello", "machine": panel.model.describe(), "authorized": allowed,
-                            "rate_hz": rate_hz})
+                            "rate_hz": rate_hz, "estop_url": estop_url})
         panel.heartbeat(client)
 
         async def push():

@@ -58,6 +58,15 @@ class Graph:
         self.start()
 
 
+def listening_socket(host: str, port: int) -> socket.socket:
+    """Bound and listening (connections wait in the backlog until uvicorn serves)."""
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((host, port))
+    sock.listen(64)
+    return sock
+
+
 def _loopback(host: str) -> bool:
     try:
         return ipaddress.ip_address(host).is_loopback
@@ -78,14 +87,17 @@ def main(argv=None) -> int:
     parser.add_argument("--namespace", help="the graph's namespace (default: the scenario's, or /pkm)")
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8080, help="port (0: any free one; default 8080)")
+    parser.add_argument("--estop-port", type=int, default=0,
+                        help="port of the E-stop's own server (default 0: any free one; the page is told)")
     parser.add_argument("--token", help="token required for control (made and printed when bound beyond localhost)")
     parser.add_argument("--rate-hz", type=float, default=25.0, help="snapshots per second to each page (1-100)")
     parser.add_argument("--log", help="append every action (JSON lines) to this file")
     parser.add_argument("--url-file", help="write the panel's URL here once it serves (scripts, tests)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s pkm-panel: %(message)s")
-    if not 0 <= args.port <= 65535:
-        parser.error(f"--port: must be in [0, 65535], got {args.port}")
+    for name in ("port", "estop_port"):
+        if not 0 <= getattr(args, name) <= 65535:
+            parser.error(f"--{name.replace('_', '-')}: must be in [0, 65535], got {getattr(args, name)}")
     if not 1.0 <= args.rate_hz <= 100.0:
         parser.error(f"--rate-hz: must be in [1, 100], got {args.rate_hz}")
 
@@ -94,7 +106,7 @@ def main(argv=None) -> int:
     import uvicorn
 
     from pkm_bringup.panel import Panel, PanelModel
-    from pkm_bringup.panel_app import create_app
+    from pkm_bringup.panel_app import create_app, create_estop_app
     from pkm_bringup.panel_node import PanelNode
     from pkm_bringup.scenario import ScenarioError, load_scenario
     from pkm_kinematics import load_machine
@@ -139,13 +151,17 @@ def main(argv=None) -> int:
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, name="panel-ros", daemon=True)
     spinner.start()
-    app = create_app(panel, node.publish, token, args.rate_hz, on_restart=graph.restart if graph else None)
-    sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind((args.host, args.port))
-    sock.listen(64)                     # connections wait in the backlog until uvicorn serves
+    sock = listening_socket(args.host, args.port)
+    estop_sock = listening_socket(args.host, args.estop_port)
     host, port = sock.getsockname()[:2]
-    url = f"http://{host if ':' not in host else f'[{host}]'}:{port}/" + (f"?token={token}" if token else "")
+    base = f"http://{host if ':' not in host else f'[{host}]'}"
+    url = f"{base}:{port}/" + (f"?token={token}" if token else "")
+    # the E-stop's own server: a second uvicorn in its own thread and event loop
+    estop_server = uvicorn.Server(uvicorn.Config(create_estop_app(panel, node.publish), log_level="warning"))
+    threading.Thread(target=estop_server.run, kwargs={"sockets": [estop_sock]}, name="panel-estop",
+                     daemon=True).start()
+    app = create_app(panel, node.publish, token, args.rate_hz, on_restart=graph.restart if graph else None,
+                     estop_url=f"{base}:{estop_sock.getsockname()[1]}/estop")
     if graph is not None:
         graph.start()
     print(f"pkm-panel: {machine} in {namespace}: {url}", flush=True)
@@ -156,6 +172,7 @@ def main(argv=None) -> int:
     try:
         server.run(sockets=[sock])
     finally:
+        estop_server.should_exit = True
         if graph is not None:
             graph.stop()
         rclpy.try_shutdown(context=context)      # ends executor.spin

@@ -4,7 +4,7 @@
 
 const $ = (id) => document.getElementById(id);
 const token = new URLSearchParams(location.search).get("token");
-let ws = null, machine = null, last = null, received = 0, perSecond = 0;
+let ws = null, machine = null, last = null, received = 0, perSecond = 0, estopUrl = "";
 
 function connect() {
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws` +
@@ -34,6 +34,7 @@ function show(result) {
 
 function hello(m) {
   machine = m.machine;
+  estopUrl = m.estop_url || "";
   $("machine").textContent = `${machine.machine} (${machine.kind})` + (m.authorized ? "" : " · view only");
   const jog = $("jog");
   jog.innerHTML = "";
@@ -151,8 +152,11 @@ function drawScene(s) {
 }
 
 function estop() {
+  // three ways: the socket, the main server's route, and the E-stop's own server (its
+  // own thread and loop: it answers when the main server is stuck)
+  if (estopUrl) fetch(estopUrl, { method: "POST", mode: "no-cors" }).catch(() => {});
+  fetch("/api/estop", { method: "POST" }).catch(() => {});
   send({ type: "estop" });
-  fetch("/api/estop", { method: "POST" }).catch(() => {});   // a second way, if the socket is stuck
 }
 
 $("estop").onclick = estop;
