@@ -241,6 +241,22 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
     return x, y, th, FK_CONVERGED, iteration, residual, 0, 0, 0.0
 
 
+@kernel("(float64[:, :], int64[:, :], float64[:], float64[:, :], float64[:, :], float64, int64)")
+def _forward_kinematics_batch_kernel(legs, pairs, sides, q, guesses, tol, max_iterations):
+    """_forward_kinematics_kernel on every row of ``q`` (N, n) from the row of
+    ``guesses``: the poses (N, 3), NaN where the solve failed, and the codes (N,)."""
+    rows = q.shape[0]
+    poses = np.full((rows, 3), np.nan)
+    codes = np.empty(rows, dtype=np.int64)
+    for r in range(rows):
+        x, y, th, code, _, _, _, _, _ = _forward_kinematics_kernel(
+            legs, pairs, sides, q[r], guesses[r, 0], guesses[r, 1], guesses[r, 2], tol, max_iterations)
+        codes[r] = code
+        if code == FK_CONVERGED:
+            poses[r, 0], poses[r, 1], poses[r, 2] = x, y, th
+    return poses, codes
+
+
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = range(3)
 
 
@@ -679,89 +695,17 @@ class PlanarMachine:
 
     def forward_kinematics_batch(self, q, guesses=None, tol: float = FK_TOL,
                                  max_iterations: int = FK_MAX_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorized forward kinematics for q of shape (N, n), with the semantics of
-        :meth:`forward_kinematics` (step criterion, working-mode checks).
-
-        Closed-form start where available, else ``guesses`` (N, 3) or the home pose;
-        then batched Gauss-Newton. Returns (poses (N, 3), converged mask (N,));
-        failed rows are NaN.
-        """
+        """:meth:`forward_kinematics` for q of shape (N, n): the same compiled solver on
+        every row (closed-form start where there is one, else the row of ``guesses``
+        (N, 3) or the home pose; its step criteria, Hessian gate and working-mode
+        checks). Returns (poses (N, 3), converged mask (N,)); failed rows are NaN."""
         q = finite_array(q, "q", (-1, self.n_legs))
         n = q.shape[0]
-        guesses = None if guesses is None else finite_array(guesses, "guesses", (n, 3))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            if self._pairs:
-                pts = []
-                for (i, j), side in zip(self._pairs[:2], self._pair_side[:2]):
-                    ai = self._o[i] + q[:, i:i + 1] * self._u[i]
-                    aj = self._o[j] + q[:, j:j + 1] * self._u[j]
-                    dvec = aj - ai
-                    d2 = np.einsum("ij,ij->i", dvec, dvec)
-                    d = np.sqrt(d2)
-                    along = (self._length2[i] - self._length2[j] + d2) / (2.0 * d)
-                    h = side * np.sqrt(self._length2[i] - along**2)
-                    px = ai[:, 0] + (along * dvec[:, 0] - h * dvec[:, 1]) / d
-                    py = ai[:, 1] + (along * dvec[:, 1] + h * dvec[:, 0]) / d
-                    pts.append((px, py))
-                (i1, _), (i2, _) = self._pairs[:2]
-                b1, b2 = self._b[i1], self._b[i2]
-                th = (np.arctan2(pts[1][1] - pts[0][1], pts[1][0] - pts[0][0])
-                      - math.atan2(b2[1] - b1[1], b2[0] - b1[0]))
-                ref_th = self.home_pose[2] if guesses is None else guesses[:, 2]
-                th = th + 2.0 * np.pi * np.round((ref_th - th) / (2.0 * np.pi))
-                c, s = np.cos(th), np.sin(th)
-                x = np.stack([pts[0][0] - (c * b1[0] - s * b1[1]), pts[0][1] - (s * b1[0] + c * b1[1]), th], 1)
-            else:
-                x = np.tile(self.home_pose, (n, 1)) if guesses is None else guesses.copy()
-            ax = self._o[:, 0] + q * self._u[:, 0]
-            ay = self._o[:, 1] + q * self._u[:, 1]
-            active = np.isfinite(x).all(axis=1)
-            done = np.zeros(n, dtype=bool)
-            for _ in range(max_iterations):
-                c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
-                rbx = c * self._b[:, 0] - s * self._b[:, 1]
-                rby = s * self._b[:, 0] + c * self._b[:, 1]
-                ex = x[:, 0:1] + rbx - ax
-                ey = x[:, 1:2] + rby - ay
-                dist = np.sqrt(ex * ex + ey * ey)
-                f = dist - self._length
-                gx, gy = ex / dist, ey / dist
-                g = np.stack([gx, gy, (ey * rbx - ex * rby) / dist], axis=2)
-                jtj = np.einsum("nij,nik->njk", g, g)
-                jtf = np.einsum("nij,ni->nj", g, f)
-                # the exact Hessian of the scalar solver (second-order terms weighted by f)
-                h = np.stack([-gy, gx, -gy * -rby + gx * rbx], axis=2)
-                w = f / dist
-                hess = jtj + np.einsum("ni,nij,nik->njk", w, h, h)
-                hess[:, 2, 2] -= (w * (ex * rbx + ey * rby)).sum(axis=1)
-                step = np.zeros_like(x)
-                solvable = active & ~done & np.isfinite(jtj).all(axis=(1, 2))
-                solvable[solvable] &= np.abs(np.linalg.det(jtj[solvable])) > 1e-300
-                active &= solvable | done
-                if solvable.any():
-                    gn = np.linalg.solve(jtj[solvable], jtf[solvable][:, :, None])[:, :, 0]
-                    newton = np.linalg.solve(hess[solvable], jtf[solvable][:, :, None])[:, :, 0]
-                    use = (((newton * jtf[solvable]).sum(axis=1) > 0.0) & np.isfinite(newton).all(axis=1)
-                           & (np.abs(gn).sum(axis=1) < NEWTON_RADIUS))
-                    step[solvable] = np.where(use[:, None], newton, gn)
-                x -= step
-                done |= solvable & (np.abs(step).sum(axis=1) < tol)
-                if not (active & ~done).any():
-                    break
-            ref_th = self.home_pose[2] if guesses is None else guesses[:, 2]
-            x[:, 2] += 2.0 * np.pi * np.round((ref_th - x[:, 2]) / (2.0 * np.pi))
-            # working mode: assembly branch of every leg, side of every leg pair
-            c, s = np.cos(x[:, 2:3]), np.sin(x[:, 2:3])
-            px = x[:, 0:1] + c * self._b[:, 0] - s * self._b[:, 1]
-            py = x[:, 1:2] + s * self._b[:, 0] + c * self._b[:, 1]
-            ex, ey = px - ax, py - ay
-            conv = active & done
-            conv &= np.all((ex * self._u[:, 0] + ey * self._u[:, 1]) * self._sigma < 0.0, axis=1)
-            for (i, j), side in zip(self._pairs, self._pair_side):
-                cross = (ax[:, j] - ax[:, i]) * (py[:, i] - ay[:, i]) - (ay[:, j] - ay[:, i]) * (px[:, i] - ax[:, i])
-                conv &= cross * side > 0.0
-        x[~conv] = np.nan
-        return x, conv
+        guesses = np.tile(self.home_pose, (n, 1)) if guesses is None else finite_array(guesses, "guesses", (n, 3))
+        poses, codes = _forward_kinematics_batch_kernel(self._legs_a, self._pairs_a, self._sides_a,
+                                                        np.ascontiguousarray(q), np.ascontiguousarray(guesses),
+                                                        float(tol), int(max_iterations))
+        return poses, codes == FK_CONVERGED
 
     # ------------------------------------------------------ force mapping
     def pair_force_map(self, pose) -> tuple[np.ndarray, np.ndarray]:
