@@ -288,13 +288,12 @@ def leg_array(origins, directions, link_lengths, platform_points, assemblies) ->
 
 
 @kernel()
-def leg_closure(legs, k, x, y, c, s):
-    """Leg ``k`` of ``legs`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y, sigma) at the pose
-    (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: (code, q_k, e_x, e_y, e . u,
-    R b_x, R b_y) with the carriage q_k = a + sigma sqrt(L^2 - |w|^2 + a^2) (w = B - o,
-    a = u . w) and the leg vector e = B - A; ``code`` VT_UNREACHABLE (the link cannot
-    reach B) or VT_SINGULAR (e perpendicular to the rail: e . u = 0, J_m unbounded).
-    The J_m row is [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u) (ARCHI §3.2)."""
+def leg_drive_position(legs, k, x, y, c, s):
+    """The inverse kinematics of leg ``k`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y,
+    sigma) at the pose (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: the platform
+    point B = p + R b, w = B - o, a = u . w and the carriage q_k = a + sigma
+    sqrt(L^2 - |w|^2 + a^2). Returns (disc, q_k, w_x, w_y, R b_x, R b_y); disc =
+    L^2 - |w|^2 + a^2 < 0 (or NaN): the link cannot reach B (q_k is then 0)."""
     ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],
                                          legs[k, 5], legs[k, 6], legs[k, 7])
     rbx = c * bx - s * by
@@ -303,8 +302,58 @@ def leg_closure(legs, k, x, y, c, s):
     a = wx * ux + wy * uy
     disc = l2 - wx * wx - wy * wy + a * a
     if not disc >= 0.0:
+        return disc, 0.0, wx, wy, rbx, rby
+    return disc, a + sigma * math.sqrt(disc), wx, wy, rbx, rby
+
+
+IK_OK, IK_UNREACHABLE, IK_JOINT_LIMIT = range(3)
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64, float64, float64, boolean, float64[:])")
+def inverse_kinematics_kernel(legs, lower, upper, x, y, th, check_limits, q):
+    """``leg_drive_position`` of every leg into ``q`` (n,); returns (IK_OK, 0, 0.0), or
+    (IK_UNREACHABLE, leg, disc) for the first leg that cannot reach its platform point,
+    or, with ``check_limits``, (IK_JOINT_LIMIT, leg, q_leg) for the first drive outside
+    [lower, upper]."""
+    c, s = math.cos(th), math.sin(th)
+    for k in range(legs.shape[0]):
+        disc, qk, _, _, _, _ = leg_drive_position(legs, k, x, y, c, s)
+        if not disc >= 0.0:
+            return IK_UNREACHABLE, k, disc
+        if check_limits and not lower[k] <= qk <= upper[k]:
+            return IK_JOINT_LIMIT, k, qk
+        q[k] = qk
+    return IK_OK, 0, 0.0
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], boolean[:])")
+def inverse_kinematics_batch_kernel(legs, poses, q, reachable):
+    """``leg_drive_position`` for every leg of every pose (N, 3) into q (N, n): NaN for a
+    leg that cannot reach, and ``reachable`` False for its pose."""
+    for r in range(poses.shape[0]):
+        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
+        reachable[r] = True
+        for k in range(legs.shape[0]):
+            disc, qk, _, _, _, _ = leg_drive_position(legs, k, poses[r, 0], poses[r, 1], c, s)
+            if disc >= 0.0:
+                q[r, k] = qk
+            else:
+                q[r, k] = math.nan
+                reachable[r] = False
+
+
+@kernel()
+def leg_closure(legs, k, x, y, c, s):
+    """Leg ``k`` of ``legs`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y, sigma) at the pose
+    (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: (code, q_k, e_x, e_y, e . u,
+    R b_x, R b_y) with the carriage q_k = a + sigma sqrt(L^2 - |w|^2 + a^2) (w = B - o,
+    a = u . w) and the leg vector e = B - A; ``code`` VT_UNREACHABLE (the link cannot
+    reach B) or VT_SINGULAR (e perpendicular to the rail: e . u = 0, J_m unbounded).
+    The J_m row is [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u) (ARCHI §3.2)."""
+    ux, uy, l2 = legs[k, 2], legs[k, 3], legs[k, 4]
+    disc, qi, wx, wy, rbx, rby = leg_drive_position(legs, k, x, y, c, s)
+    if not disc >= 0.0:
         return VT_UNREACHABLE, 0.0, 0.0, 0.0, 0.0, rbx, rby
-    qi = a + sigma * math.sqrt(disc)
     ex, ey = wx - qi * ux, wy - qi * uy
     sv = ex * ux + ey * uy
     if sv * sv <= 1e-18 * l2:
@@ -379,6 +428,8 @@ class PlanarMachine:
                         for o, u, l2, b, sg, lo, hi, name in zip(
                             self._o, self._u, self._length2, self._b, self._sigma,
                             self.joint_lower, self.joint_upper, self.leg_names)]
+        # the legs as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
+        self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
         self._pairs = self._find_pairs()
         # Working mode: the assembly branch sigma_i of every leg (which of the two
         # carriage positions on the rail), and for paired legs which of the two circle
@@ -392,8 +443,6 @@ class PlanarMachine:
             d = a_j - a_i
             pt = self._platform_points(self.home_pose)[i] - a_i
             self._pair_side.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
-        # the same as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
-        self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
         self._pairs_a = np.array(self._pairs, dtype=np.int64).reshape(-1, 2)
         self._sides_a = np.array(self._pair_side, dtype=float)
 
@@ -467,24 +516,19 @@ class PlanarMachine:
         JointLimitError when ``check_limits`` and a drive leaves its range.
         """
         x, y, th = finite_floats(pose, 3, "pose")
-        c, s = math.cos(th), math.sin(th)
-        q = []
-        for ox, oy, ux, uy, l2, bx, by, sigma, lo, hi, name in self._legs_f:
-            wx = x + c * bx - s * by - ox
-            wy = y + s * bx + c * by - oy
-            a = wx * ux + wy * uy
-            disc = l2 - wx * wx - wy * wy + a * a
-            if not disc >= 0.0:        # also NaN from overflowing inputs
-                raise UnreachablePoseError(
-                    f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
-                    f"leg {name} platform point is {math.sqrt(l2 - disc):.6g} m from its rail, "
-                    f"link_length is {math.sqrt(l2):.6g} m")
-            qi = a + sigma * math.sqrt(disc)
-            if check_limits and not lo <= qi <= hi:
-                raise JointLimitError(f"leg {name}: position {qi:.6g} m outside joint_limits "
-                                      f"[{lo:.6g}, {hi:.6g}] m")
-            q.append(qi)
-        return np.array(q)
+        q = np.empty(self.n_legs)
+        code, leg, value = inverse_kinematics_kernel(self._legs_a, self.joint_lower, self.joint_upper, x, y, th,
+                                                     bool(check_limits), q)
+        if code == IK_UNREACHABLE:     # also NaN from overflowing inputs
+            l2 = self._length2[leg]
+            raise UnreachablePoseError(
+                f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
+                f"leg {self.leg_names[leg]} platform point is {math.sqrt(l2 - value):.6g} m from its rail, "
+                f"link_length is {math.sqrt(l2):.6g} m")
+        if code == IK_JOINT_LIMIT:
+            raise JointLimitError(f"leg {self.leg_names[leg]}: position {value:.6g} m outside joint_limits "
+                                  f"[{self.joint_lower[leg]:.6g}, {self.joint_upper[leg]:.6g}] m")
+        return q
 
     def check_joint_limits(self, q) -> None:
         """Raise JointLimitError naming the first drive outside its joint_limits."""
@@ -501,17 +545,11 @@ class PlanarMachine:
         Returns (q of shape (N, n), reachable mask of shape (N,)); q is NaN where a
         leg cannot reach. Joint limits are reported by ``within_joint_limits``.
         """
-        poses = finite_array(poses, "poses", (-1, 3))
-        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-        bx = c * self._b[:, 0] - s * self._b[:, 1]
-        by = s * self._b[:, 0] + c * self._b[:, 1]
-        wx = poses[:, 0:1] + bx - self._o[:, 0]
-        wy = poses[:, 1:2] + by - self._o[:, 1]
-        a = wx * self._u[:, 0] + wy * self._u[:, 1]
-        disc = self._length2 - (wx * wx + wy * wy) + a * a
-        ok = disc >= 0.0
-        q = a + self._sigma * np.sqrt(np.where(ok, disc, np.nan))
-        return q, ok.all(axis=1)
+        poses = np.ascontiguousarray(finite_array(poses, "poses", (-1, 3)))
+        q = np.empty((poses.shape[0], self.n_legs))
+        reachable = np.empty(poses.shape[0], dtype=bool)
+        inverse_kinematics_batch_kernel(self._legs_a, poses, q, reachable)
+        return q, reachable
 
     def within_joint_limits(self, q) -> np.ndarray:
         """Mask of rows of q (N, n) whose drives are all inside their limits."""
