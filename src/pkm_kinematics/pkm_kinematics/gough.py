@@ -27,7 +27,7 @@ import numpy as np
 
 from .gough_batch import dkm_chunk
 from .jit import kernel
-from .rotations import exp_so3_floats, mul3
+from .rotations import exp_so3_floats, exp_so3_kernel, mul3, mul3_kernel
 from .validation import finite_array, finite_floats
 
 
@@ -54,7 +54,7 @@ class GoughDKMResult:
     jacobian_evaluations: int
     residual_m: float
     reason: str = ""
-    jacobian: list | None = None   # J_h of the last linearisation, 6 rows (for warm starts)
+    jacobian: np.ndarray | None = None   # J_h of the last linearisation, (6, 6) (for warm starts)
 
 
 def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plate_rad: float,
@@ -80,39 +80,128 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
     return np.array(base), np.array(plate)
 
 
-@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
-def strut_lengths_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
-    """IKM_GP (MoM3 §5.2): l_i = |p + R b_i - A_i| for ``legs`` rows (A_i, b_i), (n, 6),
-    at the pose (p, R row-major); the per-reading form of :meth:`GoughPlatform.strut_lengths`."""
-    out = np.empty(legs.shape[0])
-    for i in range(legs.shape[0]):
-        ax, ay, az, bx, by, bz = legs[i, 0], legs[i, 1], legs[i, 2], legs[i, 3], legs[i, 4], legs[i, 5]
-        lx = px + r00 * bx + r01 * by + r02 * bz - ax
-        ly = py + r10 * bx + r11 * by + r12 * bz - ay
-        lz = pz + r20 * bx + r21 * by + r22 * bz - az
-        out[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
-    return out
+@kernel()
+def strut_vector(legs, i, px, py, pz, r):
+    """Strut i's vector l_i = p + R b_i - A_i (MoM3 eq. 1's closure) at the plate pose
+    (p, R), ``r`` the row-major 9-tuple of R; ``legs`` rows (A_i, b_i). Returns
+    (l_x, l_y, l_z, (R b_i)_x, (R b_i)_y, (R b_i)_z)."""
+    bx, by, bz = legs[i, 3], legs[i, 4], legs[i, 5]
+    rbx = r[0] * bx + r[1] * by + r[2] * bz
+    rby = r[3] * bx + r[4] * by + r[5] * bz
+    rbz = r[6] * bx + r[7] * by + r[8] * bz
+    return px + rbx - legs[i, 0], py + rby - legs[i, 1], pz + rbz - legs[i, 2], rbx, rby, rbz
 
 
-@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
-def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
-    """J_h = (J_h^-1)^-1 (MoM3 eq. 1) at the plate pose (p, R), J_h^-1 with rows
-    [u_i, (R b_i) x u_i] (eq. 2-3); ``legs`` rows (A_i, b_i). Raises
-    numpy.linalg.LinAlgError where J_h^-1 is singular."""
-    jinv = np.empty((6, 6))
+@kernel()
+def inverse_jacobian_into(legs, px, py, pz, r, jinv):
+    """J_h^-1 (MoM3 eq. 2-3) into ``jinv`` (6, 6): rows [u_i, (R b_i) x u_i], u_i the
+    unit vector of strut i, at the plate pose (p, R row-major 9-tuple)."""
     for i in range(6):
-        ax, ay, az, bx, by, bz = legs[i, 0], legs[i, 1], legs[i, 2], legs[i, 3], legs[i, 4], legs[i, 5]
-        rbx = r00 * bx + r01 * by + r02 * bz
-        rby = r10 * bx + r11 * by + r12 * bz
-        rbz = r20 * bx + r21 * by + r22 * bz
-        lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
+        lx, ly, lz, rbx, rby, rbz = strut_vector(legs, i, px, py, pz, r)
         n = math.sqrt(lx * lx + ly * ly + lz * lz)
         ux, uy, uz = lx / n, ly / n, lz / n
         jinv[i, 0], jinv[i, 1], jinv[i, 2] = ux, uy, uz
         jinv[i, 3] = rby * uz - rbz * uy
         jinv[i, 4] = rbz * ux - rbx * uz
         jinv[i, 5] = rbx * uy - rby * ux
+
+
+@kernel()
+def jacobian_into(legs, px, py, pz, r, out):
+    """J_h = (J_h^-1)^-1 (MoM3 eq. 1) into ``out`` (6, 6); False where J_h^-1 is
+    singular (``out`` then undefined)."""
+    jinv = np.empty((6, 6))
+    inverse_jacobian_into(legs, px, py, pz, r, jinv)
+    try:
+        out[:, :] = np.linalg.inv(jinv)
+    except Exception:  # noqa: BLE001 - numba raises LinAlgError on a singular matrix
+        return False
+    return True
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
+def strut_lengths_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """IKM_GP (MoM3 §5.2): l_i = |p + R b_i - A_i| for ``legs`` rows (A_i, b_i), (n, 6),
+    at the pose (p, R row-major); the per-reading form of :meth:`GoughPlatform.strut_lengths`."""
+    r = (r00, r01, r02, r10, r11, r12, r20, r21, r22)
+    out = np.empty(legs.shape[0])
+    for i in range(legs.shape[0]):
+        lx, ly, lz, _, _, _ = strut_vector(legs, i, px, py, pz, r)
+        out[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
+    return out
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
+def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """J_h = (J_h^-1)^-1 (MoM3 eq. 1) at the plate pose (p, R). Raises
+    numpy.linalg.LinAlgError where J_h^-1 is singular."""
+    jinv = np.empty((6, 6))
+    inverse_jacobian_into(legs, px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22), jinv)
     return np.linalg.inv(jinv)
+
+
+DKM_CONVERGED, DKM_NO_CONVERGENCE, DKM_DIVERGED_LIMIT, DKM_DIVERGED_GROWTH, DKM_SINGULAR = range(5)
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64, int64, float64)")
+def dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit):
+    """The DKM iteration of :meth:`GoughPlatform.direct_kinematics` (MoM3 §6.3), compiled:
+    Newton-Raphson on the strut residuals r_i = l_i - |p + R b_i - A_i|, the step
+    [dp; dw] = J_h r, p += dp, R <- exp([dw]x) R; J_h (``jh``, valid when ``have_jh``)
+    re-evaluated when an iteration gains less than three orders of magnitude.
+    ``p`` (3,), ``rot`` (9, row-major) and ``jh`` (6, 6) are updated in place. Returns
+    (code, iterations, evaluations, residual, have_jh); code DKM_CONVERGED (every
+    residual <= tol_m), DKM_NO_CONVERGENCE, DKM_DIVERGED_LIMIT (residual above
+    ``divergence_limit``), DKM_DIVERGED_GROWTH (grew twice in a row), DKM_SINGULAR."""
+    px, py, pz = p[0], p[1], p[2]
+    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
+    res = np.empty(6)
+    evaluations = 0
+    previous = math.inf
+    growth = 0
+    residual = math.inf
+    code = DKM_NO_CONVERGENCE
+    iterations = max_iterations
+    for iteration in range(max_iterations + 1):
+        residual = 0.0
+        for i in range(6):
+            lx, ly, lz, _, _, _ = strut_vector(legs, i, px, py, pz, r)
+            res[i] = target[i] - math.sqrt(lx * lx + ly * ly + lz * lz)
+            if not abs(res[i]) <= residual:       # (NaN propagates)
+                residual = abs(res[i])
+        if residual <= tol_m:
+            code, iterations = DKM_CONVERGED, iteration
+            break
+        if iteration == max_iterations:
+            break
+        if not math.isfinite(residual) or residual > divergence_limit:
+            code, iterations = DKM_DIVERGED_LIMIT, iteration
+            break
+        growth = growth + 1 if residual > previous else 0
+        if growth >= 2:
+            code, iterations = DKM_DIVERGED_GROWTH, iteration
+            break
+        if not have_jh or residual > 1e-3 * previous:
+            evaluations += 1
+            if not jacobian_into(legs, px, py, pz, r, jh):
+                code, iterations = DKM_SINGULAR, iteration
+                break
+            have_jh = True
+        previous = residual
+        dx = dy = dz = wx = wy = wz = 0.0
+        for j in range(6):
+            dx += jh[0, j] * res[j]
+            dy += jh[1, j] * res[j]
+            dz += jh[2, j] * res[j]
+            wx += jh[3, j] * res[j]
+            wy += jh[4, j] * res[j]
+            wz += jh[5, j] * res[j]
+        px, py, pz = px + dx, py + dy, pz + dz
+        r = mul3_kernel(exp_so3_kernel(wx, wy, wz), r)
+    p[0], p[1], p[2] = px, py, pz
+    for k in range(9):
+        rot[k] = r[k]
+    return code, iterations, evaluations, residual, have_jh
 
 
 @dataclass
@@ -240,57 +329,23 @@ class GoughPlatform:
 
     def _newton(self, target: list, p: list, rot: list, jh, tol_m: float,
                 max_iterations: int) -> GoughDKMResult:
-        """The DKM iteration on plain floats (numpy costs ~1-2 us per operation on 6 x 3
-        arrays; this loop needs ~10 us per Newton step). ``rot`` is row-major, ``jh`` J_h
-        as 6 lists of 6 floats or None."""
-        px, py, pz = p
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
-        legs = self._legs_f
-        evaluations = 0
-        previous = math.inf
-        growth = 0
-        residual = math.inf
-        for iteration in range(max_iterations + 1):
-            # strut lengths at the current pose: l_i = |p + R b_i - A_i|
-            res = []
-            for (ax, ay, az, bx, by, bz), li in zip(legs, target):
-                rbx = r00 * bx + r01 * by + r02 * bz
-                rby = r10 * bx + r11 * by + r12 * bz
-                rbz = r20 * bx + r21 * by + r22 * bz
-                lx, ly, lz = px + rbx - ax, py + rby - ay, pz + rbz - az
-                length = math.sqrt(lx * lx + ly * ly + lz * lz)
-                res.append(li - length)
-            residual = max(map(abs, res))
-            if residual <= tol_m:
-                return self._finish(px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22),
-                                    iteration, evaluations, residual, jh)
-            if iteration == max_iterations:
-                break
-            if not math.isfinite(residual) or residual > self._divergence_limit:
-                return self._fail(iteration, evaluations, residual,
-                                  f"diverged: residual {residual:.3g} m above the limit {self._divergence_limit:.3g} m")
-            growth = growth + 1 if residual > previous else 0
-            if growth >= 2:
-                return self._fail(iteration, evaluations, residual, "diverged: residual grew twice in a row")
-            if jh is None or residual > 1e-3 * previous:
-                # (re)linearise at the current pose: J_h = (J_h^-1)^-1 (eq. 1-3)
-                try:
-                    jh = _jacobian_kernel(self._legs_a, px, py, pz, r00, r01, r02, r10, r11, r12,
-                                          r20, r21, r22).tolist()
-                except np.linalg.LinAlgError:
-                    return self._fail(iteration, evaluations + 1, residual,
-                                      "singular configuration (J_h^-1 not invertible)")
-                evaluations += 1
-            previous = residual
-            # Newton step [dp; dw] = J_h r, then p += dp, R <- exp([dw]x) R
-            q0, q1, q2, q3, q4, q5 = res
-            dx, dy, dz, wx, wy, wz = [a * q0 + b * q1 + c * q2 + d * q3 + e * q4 + f * q5
-                                      for a, b, c, d, e, f in jh]
-            px, py, pz = px + dx, py + dy, pz + dz
-            r00, r01, r02, r10, r11, r12, r20, r21, r22 = mul3(
-                exp_so3_floats(wx, wy, wz), (r00, r01, r02, r10, r11, r12, r20, r21, r22))
-        return self._fail(max_iterations, evaluations, residual,
-                          f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
+        """dkm_newton_kernel from (p, rot) (floats; ``rot`` row-major) and ``jh`` (J_h
+        near the guess, 6 x 6, or None), then the branch checks of ``_finish``."""
+        p_a, rot_a = np.array(p, dtype=float), np.array(rot, dtype=float)
+        have = jh is not None
+        jh_a = np.array(jh, dtype=float) if have else np.empty((6, 6))
+        code, iterations, evaluations, residual, have = dkm_newton_kernel(
+            self._legs_a, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, float(tol_m),
+            int(max_iterations), self._divergence_limit)
+        if code == DKM_CONVERGED:
+            return self._finish(p_a[0], p_a[1], p_a[2], tuple(rot_a.tolist()), iterations, evaluations, residual,
+                                jh_a if have else None)
+        reason = {DKM_DIVERGED_LIMIT: f"diverged: residual {residual:.3g} m above the limit "
+                                      f"{self._divergence_limit:.3g} m",
+                  DKM_DIVERGED_GROWTH: "diverged: residual grew twice in a row",
+                  DKM_SINGULAR: "singular configuration (J_h^-1 not invertible)"}.get(
+            code, f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
+        return self._fail(iterations, evaluations, residual, reason)
 
     def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
         if pz <= 0.0 or rot[8] <= 0.0:
