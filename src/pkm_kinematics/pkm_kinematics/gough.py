@@ -204,6 +204,35 @@ def dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, 
     return code, iterations, evaluations, residual, have_jh
 
 
+DKM_BAD_LENGTHS = 5
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], boolean, "
+        "float64, int64, float64, float64[:], float64[:])")
+def dkm_warm_step_kernel(legs, target, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
+                         divergence_limit, p, rot):
+    """One solve of a warm-starting solver (GoughDKMSolver.solve), compiled: the guess
+    extrapolated from the last two solutions (p1, R1) and (p0, R0) when
+    ``has_previous`` (p = 2 p1 - p0; R = exp(w) R1 with w the rotation vector of
+    R1 R0^T, exact to O(w^3)), else (p1, R1); then dkm_newton_kernel into ``p`` and
+    ``rot``. DKM_BAD_LENGTHS (nothing solved) when a length is not finite and > 0."""
+    for i in range(6):
+        if not (0.0 < target[i] < math.inf):
+            return DKM_BAD_LENGTHS, 0, 0, math.inf, have_jh
+    if has_previous:
+        for k in range(3):
+            p[k] = 2.0 * p1[k] - p0[k]
+        b = (r1[0], r1[1], r1[2], r1[3], r1[4], r1[5], r1[6], r1[7], r1[8])
+        d = mul3_kernel(b, (r0[0], r0[3], r0[6], r0[1], r0[4], r0[7], r0[2], r0[5], r0[8]))
+        g = mul3_kernel(exp_so3_kernel(0.5 * (d[7] - d[5]), 0.5 * (d[2] - d[6]), 0.5 * (d[3] - d[1])), b)
+        for k in range(9):
+            rot[k] = g[k]
+    else:
+        p[:] = p1
+        rot[:] = r1
+    return dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit)
+
+
 @dataclass
 class GoughPlatform:
     """A 6-strut Gough platform; geometry in its base frame (see module docstring)."""
@@ -337,9 +366,13 @@ class GoughPlatform:
         code, iterations, evaluations, residual, have = dkm_newton_kernel(
             self._legs_a, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, float(tol_m),
             int(max_iterations), self._divergence_limit)
+        return self._result(code, p_a, rot_a, iterations, evaluations, residual, jh_a if have else None,
+                            max_iterations)
+
+    def _result(self, code, p, rot, iterations, evaluations, residual, jh, max_iterations) -> GoughDKMResult:
+        """The GoughDKMResult of a kernel's solve (``p`` (3,), ``rot`` (9,) its last iterate)."""
         if code == DKM_CONVERGED:
-            return self._finish(p_a[0], p_a[1], p_a[2], tuple(rot_a.tolist()), iterations, evaluations, residual,
-                                jh_a if have else None)
+            return self._finish(p[0], p[1], p[2], rot, iterations, evaluations, residual, jh)
         reason = {DKM_DIVERGED_LIMIT: f"diverged: residual {residual:.3g} m above the limit "
                                       f"{self._divergence_limit:.3g} m",
                   DKM_DIVERGED_GROWTH: "diverged: residual grew twice in a row",
@@ -419,42 +452,45 @@ class GoughDKMSolver:
         self.reset()
 
     def reset(self, position=None, rotation=None) -> None:
-        self._p = (self.platform.home_position.tolist() if position is None
-                   else finite_floats(position, 3, "position"))
-        self._r = tuple(np.eye(3).ravel().tolist() if rotation is None else validate_rotation(rotation, "rotation"))
-        self._previous = None        # (position, rotation) one solve earlier, as floats; None
-        #                              after a reset or a failure (_p/_r then a guess, no velocity)
-        self._jh = None
+        self._p = np.array(self.platform.home_position if position is None
+                           else finite_floats(position, 3, "position"), dtype=float)
+        self._r = np.array(np.eye(3).ravel() if rotation is None else validate_rotation(rotation, "rotation"),
+                           dtype=float)
+        # the solution one solve earlier: none after a reset or a failure (_p/_r then a
+        # guess, no velocity to extrapolate)
+        self._p0, self._r0, self._has_previous = self._p.copy(), self._r.copy(), False
+        self._jh, self._has_jh = np.empty((6, 6)), False
 
     @property
     def position(self) -> np.ndarray:
         """The last good plate position (m)."""
-        return np.array(self._p)
+        return self._p.copy()
 
     @property
     def rotation(self) -> np.ndarray:
         """The last good plate rotation."""
-        return np.array(self._r).reshape(3, 3)
+        return self._r.reshape(3, 3).copy()
 
     def solve(self, lengths) -> GoughDKMResult:
-        target = self.platform._validate_lengths(lengths)
-        p1, r1 = self._p, self._r
-        if self._previous is None:
-            guess_p, guess_r = p1, r1
-        else:
-            p0, r0 = self._previous
-            guess_p = [2.0 * a - b for a, b in zip(p1, p0)]
-            # d = R1 R0^T is a small rotation: w = vee(skew part), exact to O(w^3)
-            d = mul3(r1, (r0[0], r0[3], r0[6], r0[1], r0[4], r0[7], r0[2], r0[5], r0[8]))
-            guess_r = mul3(exp_so3_floats(0.5 * (d[7] - d[5]), 0.5 * (d[2] - d[6]), 0.5 * (d[3] - d[1])), r1)
-        result = self.platform._newton(target, guess_p, guess_r, self._jh, self.tol_m, self.max_iterations)
+        """One measurement: dkm_warm_step_kernel (guess and Newton, compiled), then the
+        branch checks; the state moves on only when it converged."""
+        platform = self.platform
+        target = np.asarray(lengths, dtype=float)
+        if target.shape != (6,):
+            platform._validate_lengths(lengths)            # raises, naming what is wrong
+        p, rot = np.empty(3), np.empty(9)
+        code, iterations, evaluations, residual, have_jh = dkm_warm_step_kernel(
+            platform._legs_a, target, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
+            self._has_jh, self.tol_m, self.max_iterations, platform._divergence_limit, p, rot)
+        if code == DKM_BAD_LENGTHS:
+            platform._validate_lengths(lengths)            # raises, naming what is wrong
+        result = platform._result(code, p, rot, iterations, evaluations, residual,
+                                  self._jh.copy() if have_jh else None, self.max_iterations)
         if result.converged:
-            self._jh = result.jacobian
-            p2, r2 = result.position.tolist(), tuple(result.rotation.ravel().tolist())
+            self._has_jh = have_jh
             # after a reset the guess is not a pose of the motion: no velocity to extrapolate
-            self._previous = (p1, r1) if self._previous is not None else (p2, r2)
-            self._p, self._r = p2, r2
+            self._p0, self._r0 = (self._p, self._r) if self._has_previous else (p, rot)
+            self._p, self._r, self._has_previous = p, rot, True
         else:
-            self._jh = None
-            self._previous = None
+            self._has_jh = self._has_previous = False
         return result
