@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .gough_batch import dkm_chunk
 from .jit import kernel
 from .rotations import exp_so3_floats, exp_so3_kernel, mul3, mul3_kernel
 from .validation import finite_array, finite_floats
@@ -107,16 +106,50 @@ def inverse_jacobian_into(legs, px, py, pz, r, jinv):
 
 
 @kernel()
+def invert6_into(a, out) -> bool:
+    """out = a^-1 for a 6 x 6 matrix by Gauss-Jordan elimination with partial pivoting
+    (``a`` is overwritten); False when a pivot vanishes (singular to machine precision).
+    Inline: a LAPACK call per solve costs more than the elimination itself."""
+    n = 6
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale = max(scale, abs(a[i, j]))
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if not abs(a[pivot, col]) > 1e-14 * scale:
+            return False
+        if pivot != col:
+            for j in range(n):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+                out[col, j], out[pivot, j] = out[pivot, j], out[col, j]
+        inv_p = 1.0 / a[col, col]
+        for j in range(n):
+            a[col, j] *= inv_p
+            out[col, j] *= inv_p
+        for row in range(n):
+            if row != col:
+                f = a[row, col]
+                if f != 0.0:
+                    for j in range(n):
+                        a[row, j] -= f * a[col, j]
+                        out[row, j] -= f * out[col, j]
+    return True
+
+
+@kernel()
 def jacobian_into(legs, px, py, pz, r, out):
     """J_h = (J_h^-1)^-1 (MoM3 eq. 1) into ``out`` (6, 6); False where J_h^-1 is
     singular (``out`` then undefined)."""
     jinv = np.empty((6, 6))
     inverse_jacobian_into(legs, px, py, pz, r, jinv)
-    try:
-        out[:, :] = np.linalg.inv(jinv)
-    except Exception:  # noqa: BLE001 - numba raises LinAlgError on a singular matrix
-        return False
-    return True
+    return invert6_into(jinv, out)
 
 
 @kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
@@ -231,6 +264,34 @@ def dkm_warm_step_kernel(legs, target, p1, r1, p0, r0, has_previous, jh, have_jh
         p[:] = p1
         rot[:] = r1
     return dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit)
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64, int64, float64, float64, "
+        "float64[:, :], float64[:, :], boolean[:], int64[:])")
+def dkm_batch_kernel(legs, lengths, guess_p, guess_r, tol_m, max_iterations, divergence_limit, home_det_sign,
+                     p_out, r_out, ok, iterations):
+    """dkm_newton_kernel on every row of ``lengths`` (N, 6) from its guess (``guess_r``
+    rows row-major), with the branch checks of GoughPlatform._finish: the plate above
+    the base plane and not flipped, and for a solve that travelled (re-linearised, or
+    more than two steps) the sign of det(J_h^-1) at home. Rows that failed are NaN."""
+    jh = np.empty((6, 6))
+    jinv = np.empty((6, 6))
+    for n in range(lengths.shape[0]):
+        p, rot = p_out[n], r_out[n]
+        p[:] = guess_p[n]
+        rot[:] = guess_r[n]
+        code, its, evaluations, _, _ = dkm_newton_kernel(legs, lengths[n], p, rot, jh, False, tol_m,
+                                                         max_iterations, divergence_limit)
+        good = code == DKM_CONVERGED and p[2] > 0.0 and rot[8] > 0.0
+        if good and (evaluations > 0 or its > 2):
+            inverse_jacobian_into(legs, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5],
+                                                             rot[6], rot[7], rot[8]), jinv)
+            good = np.linalg.det(jinv) * home_det_sign > 0.0
+        ok[n] = good
+        iterations[n] = its
+        if not good:
+            p[:] = math.nan
+            rot[:] = math.nan
 
 
 @dataclass
@@ -404,11 +465,11 @@ class GoughPlatform:
                                 tol_m: float = 1e-10, max_iterations: int = 12, chunk: int = 16384):
         """Vectorized DKM for (N, 6) strut lengths, warm-started per row.
 
-        The same Newton-Raphson iteration as :meth:`direct_kinematics` (chord steps,
-        J_h re-evaluated for rows that gain less than three orders of magnitude,
-        divergence, mirror and assembly-mode checks), in structure-of-arrays form over chunks of
-        ``chunk`` poses (see gough_batch). Returns (positions (N, 3), rotations
-        (N, 3, 3), converged (N,), iterations (N,)); rows that failed are NaN.
+        The compiled iteration of :meth:`direct_kinematics` on every row
+        (dkm_batch_kernel: chord steps, J_h re-evaluated when a step gains less than
+        three orders of magnitude, divergence, mirror and assembly-mode checks).
+        Returns (positions (N, 3), rotations (N, 3, 3), converged (N,), iterations
+        (N,)); rows that failed are NaN. (``chunk``: unused, kept for callers.)
         """
         lengths = finite_array(lengths, "strut lengths", (-1, 6))
         n = lengths.shape[0]
@@ -419,17 +480,12 @@ class GoughPlatform:
         if bad.any():
             raise ValueError(f"guess_rotations[{int(np.argmax(bad))}]: not a rotation matrix "
                              "(R^T R != I or det(R) <= 0)")
-        p_out = np.empty((n, 3))
-        r_out = np.empty((n, 3, 3))
-        iters = np.empty(n, dtype=int)
-        ok = np.empty(n, dtype=bool)
-        for start in range(0, n, chunk):
-            sl = slice(start, min(n, start + chunk))
-            p_out[sl], r_out[sl], ok[sl], iters[sl] = dkm_chunk(
-                self.base_points, self.plate_points, lengths[sl], guess_positions[sl],
-                guess_rotations[sl], tol_m, max_iterations, self._divergence_limit, self._home_det_sign)
-        p_out[~ok] = np.nan
-        r_out[~ok] = np.nan
+        p_out, r_out = np.empty((n, 3)), np.empty((n, 9))
+        iters, ok = np.empty(n, dtype=np.int64), np.empty(n, dtype=bool)
+        dkm_batch_kernel(self._legs_a, np.ascontiguousarray(lengths), np.ascontiguousarray(guess_positions),
+                         np.ascontiguousarray(guess_rotations.reshape(n, 9)), float(tol_m), int(max_iterations),
+                         self._divergence_limit, self._home_det_sign, p_out, r_out, ok, iters)
+        r_out = r_out.reshape(n, 3, 3)
         return p_out, r_out, ok, iters
 
 
