@@ -8,6 +8,8 @@ planner only (``estop``, ``program``, ``goal``, ``controller/feed_override``,
 
 from __future__ import annotations
 
+import math
+
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
@@ -58,11 +60,12 @@ class PanelNode(Node):
         for status in msg.status:          # level is a byte in rclpy's messages
             level = status.level[0] if isinstance(status.level, bytes) else int(status.level)
             values = {}
-            for kv in status.values:
+            for kv in status.values:        # numbers as numbers; "nan"/"inf" stay text (not JSON)
                 try:
-                    values[kv.key] = float(kv.value)
+                    number = float(kv.value)
                 except ValueError:
-                    values[kv.key] = kv.value
+                    number = math.nan
+                values[kv.key] = number if math.isfinite(number) else kv.value
             self.panel.on_status(status.name, level, status.message, values)
 
     def on_watchdog(self) -> None:
