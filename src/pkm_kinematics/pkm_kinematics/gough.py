@@ -173,6 +173,26 @@ def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r
     return np.linalg.inv(jinv)
 
 
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :])")
+def strut_lengths_batch_kernel(legs, positions, rotations, out):
+    """strut lengths (MoM3 §5.2) of N poses (``rotations`` rows row-major) into ``out`` (N, n)."""
+    for n in range(positions.shape[0]):
+        r = (rotations[n, 0], rotations[n, 1], rotations[n, 2], rotations[n, 3], rotations[n, 4],
+             rotations[n, 5], rotations[n, 6], rotations[n, 7], rotations[n, 8])
+        for i in range(legs.shape[0]):
+            lx, ly, lz, _, _, _ = strut_vector(legs, i, positions[n, 0], positions[n, 1], positions[n, 2], r)
+            out[n, i] = math.sqrt(lx * lx + ly * ly + lz * lz)
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :, :])")
+def inverse_jacobian_batch_kernel(legs, positions, rotations, out):
+    """J_h^-1 (MoM3 eq. 2-3) of N poses (``rotations`` rows row-major) into ``out`` (N, 6, 6)."""
+    for n in range(positions.shape[0]):
+        r = (rotations[n, 0], rotations[n, 1], rotations[n, 2], rotations[n, 3], rotations[n, 4],
+             rotations[n, 5], rotations[n, 6], rotations[n, 7], rotations[n, 8])
+        inverse_jacobian_into(legs, positions[n, 0], positions[n, 1], positions[n, 2], r, out[n])
+
+
 DKM_CONVERGED, DKM_NO_CONVERGENCE, DKM_DIVERGED_LIMIT, DKM_DIVERGED_GROWTH, DKM_SINGULAR = range(5)
 
 
@@ -313,23 +333,30 @@ class GoughPlatform:
                              f"got z = {self.home_position[2]}")
         self._lo, self._hi = float(self.strut_limits[0]), float(self.strut_limits[1])
         self._divergence_limit = 10.0 * max(1.0, self._hi - self._lo if math.isfinite(self._hi) else 1.0)
+        # the struts as rows (A_i, b_i) for the compiled kernels
+        self._legs_a = np.ascontiguousarray(np.hstack([self.base_points, self.plate_points]))
         self._home_det_sign = math.copysign(
             1.0, float(np.linalg.det(self.inverse_jacobian(self.home_position, np.eye(3)))))
-        # per-strut float tuples (A_i, b_i) for the per-cycle DKM
-        self._legs_f = [tuple(a) + tuple(b) for a, b in zip(self.base_points.tolist(), self.plate_points.tolist())]
-        self._legs_a = np.array(self._legs_f)      # the same for the compiled kernels
 
     # ------------------------------------------------------------ inverse model
     def strut_lengths(self, position, rotation) -> np.ndarray:
-        """l_i = |p + R b_i - A_i| (m)."""
-        legs = np.asarray(position) + self.plate_points @ np.asarray(rotation).T - self.base_points
-        return np.sqrt(np.einsum("ij,ij->i", legs, legs))
+        """l_i = |p + R b_i - A_i| (m); strut_lengths_kernel."""
+        p, r = np.asarray(position, dtype=float), np.asarray(rotation, dtype=float)
+        return strut_lengths_kernel(self._legs_a, p[0], p[1], p[2], *r.ravel().tolist())
 
     def strut_lengths_batch(self, positions, rotations) -> np.ndarray:
         """Strut lengths for (N, 3) positions and (N, 3, 3) rotations: (N, 6)."""
-        rb = np.einsum("nij,kj->nki", rotations, self.plate_points)
-        legs = positions[:, None, :] + rb - self.base_points
-        return np.sqrt(np.einsum("nki,nki->nk", legs, legs))
+        positions, rotations = self._pose_rows(positions, rotations)
+        out = np.empty((positions.shape[0], 6))
+        strut_lengths_batch_kernel(self._legs_a, positions, rotations, out)
+        return out
+
+    @staticmethod
+    def _pose_rows(positions, rotations) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) positions and (N, 9) row-major rotations, contiguous writable float64
+        (the kernels' signature; a read-only input is copied)."""
+        positions = np.require(np.reshape(positions, (-1, 3)), float, ["C", "W"])
+        return positions, np.require(np.reshape(rotations, (positions.shape[0], 9)), float, ["C", "W"])
 
     def within_strut_limits(self, lengths) -> np.ndarray:
         lengths = np.asarray(lengths)
@@ -338,15 +365,8 @@ class GoughPlatform:
     # ---------------------------------------------------------------- jacobians
     def inverse_jacobian(self, position, rotation) -> np.ndarray:
         """J_h^-1 (6 x 6), MoM3 eq. 2-3: rows [u_i^T, ((R b_i) x u_i)^T]."""
-        rb = self.plate_points @ np.asarray(rotation).T
-        legs = np.asarray(position) + rb - self.base_points
-        u = legs / np.sqrt(np.einsum("ij,ij->i", legs, legs))[:, None]
-        out = np.empty((6, 6))
-        out[:, :3] = u
-        out[:, 3] = rb[:, 1] * u[:, 2] - rb[:, 2] * u[:, 1]
-        out[:, 4] = rb[:, 2] * u[:, 0] - rb[:, 0] * u[:, 2]
-        out[:, 5] = rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]
-        return out
+        return self.inverse_jacobian_batch(np.asarray(position, dtype=float)[None],
+                                           np.asarray(rotation, dtype=float)[None])[0]
 
     def jacobian_rows(self, p, r) -> list[list]:
         """:meth:`jacobian` for the per-cycle path: J_h (MoM3 eq. 1) as 6 rows of 6
@@ -356,15 +376,10 @@ class GoughPlatform:
         return _jacobian_kernel(self._legs_a, p[0], p[1], p[2], *r).tolist()
 
     def inverse_jacobian_batch(self, positions, rotations) -> np.ndarray:
-        """J_h^-1 for N poses: (N, 6, 6)."""
-        rb = np.einsum("nij,kj->nki", rotations, self.plate_points)
-        legs = positions[:, None, :] + rb - self.base_points
-        u = legs / np.sqrt(np.einsum("nki,nki->nk", legs, legs))[:, :, None]
-        out = np.empty(rb.shape[:2] + (6,))
-        out[:, :, :3] = u
-        out[:, :, 3] = rb[:, :, 1] * u[:, :, 2] - rb[:, :, 2] * u[:, :, 1]
-        out[:, :, 4] = rb[:, :, 2] * u[:, :, 0] - rb[:, :, 0] * u[:, :, 2]
-        out[:, :, 5] = rb[:, :, 0] * u[:, :, 1] - rb[:, :, 1] * u[:, :, 0]
+        """J_h^-1 for N poses: (N, 6, 6); inverse_jacobian_batch_kernel."""
+        positions, rotations = self._pose_rows(positions, rotations)
+        out = np.empty((positions.shape[0], 6, 6))
+        inverse_jacobian_batch_kernel(self._legs_a, positions, rotations, out)
         return out
 
     def jacobian(self, position, rotation) -> np.ndarray:
