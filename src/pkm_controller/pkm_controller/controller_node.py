@@ -42,7 +42,7 @@ from pkm_common.timing import DurationHistogram
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary, warm_up
 from pkm_controller.lockstep import StampPairing
-from pkm_controller.operator import Action, apply_action, event_json
+from pkm_controller.operator import Action, OperatorInbox, apply_action, event_json, event_summary
 from pkm_controller.strategies import Feedback
 from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
 
@@ -67,7 +67,7 @@ class ControllerNode(LifecycleNode):
         self.answers_published = 0     # drives/command and controller/reference, one each per answer
         self.last_answer = (None, b"")  # (stamp, command bytes): sent again when the sim repeats the state
         self.commands_resent = 0
-        self.pending_actions = []      # (Action, payload) from an operator, applied after the next answer
+        self.inbox = OperatorInbox()   # an operator's actions, applied after the next answer
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
                                               "to a recorder in batches (pkm_common.tap)"))
         if declare_bool(self, "autostart", True, "configure and activate at start"):
@@ -205,36 +205,26 @@ class ControllerNode(LifecycleNode):
         try:
             ref = reference_from_msg(msg, self.core.planar)
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
-            self.pub_events.publish(String(data=event_json(apply_action(self.core, Action.TRAJECTORY, exc))))
-            self.get_logger().error(str(exc))
-            self.publish_status(extra=f"trajectory refused: {exc}")
+            self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return
         self.operator(Action.TRAJECTORY, ref)
 
     def operator(self, action: Action, payload) -> None:
         """A trajectory, feed override or settings change (operator.py): applied at once
         before the first cycle, else right after the next answer (between two cycles)."""
-        if self.core is None:
-            return
-        self.pending_actions.append((action, payload))
-        if self.core.last_time_s is None:
-            self.apply_pending()
+        if self.core is not None:
+            self.report(self.inbox.add(self.core, action, payload))
 
-    def apply_pending(self) -> None:
-        actions, self.pending_actions = self.pending_actions, []
-        for action, payload in actions:
-            event = apply_action(self.core, action, payload)
+    def report(self, events: list) -> None:
+        """Each applied or refused action: recorded on controller/events and logged."""
+        for event in events:
             self.pub_events.publish(String(data=event_json(event)))
-            if not event["ok"]:
-                self.get_logger().error(event["message"])
-                self.publish_status(extra=f"{action.value} refused: {event['message']}")
-                continue
-            if action == Action.TRAJECTORY:
-                self.trajectory_accepted = True
-                self.get_logger().info(f"trajectory accepted: {event['duration_s']:.3f} s, {event['points']} points")
+            if event["ok"]:
+                self.trajectory_accepted |= event["kind"] == Action.TRAJECTORY.value
+                self.get_logger().info(event_summary(event))
             else:
-                self.get_logger().info(f"{action.value} applied: " + ", ".join(
-                    f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message")))
+                self.get_logger().error(event["message"])
+                self.publish_status(extra=event_summary(event))
 
     def on_start(self, msg: Bool) -> None:
         self.start_received = self.start_received or bool(msg.data)
@@ -289,8 +279,8 @@ class ControllerNode(LifecycleNode):
         self.publish_reference(stamp)
         if core.cycles % self.values["status_decimation"] == 0:
             self.publish_status()
-        if self.pending_actions:
-            self.apply_pending()
+        if self.inbox.pending:
+            self.report(self.inbox.drain(core))
 
     def publish_reference(self, stamp_ns: int) -> None:
         position, orientation = machine_pose_components(self.core.planar, self.core.record.reference)

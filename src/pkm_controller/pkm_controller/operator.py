@@ -54,3 +54,30 @@ def apply_action(core, action: Action, payload) -> dict:
 
 def event_json(event: dict) -> str:
     return json.dumps(event, sort_keys=True)
+
+
+def event_summary(event: dict) -> str:
+    """One log line for an applied or refused action."""
+    if not event["ok"]:
+        return f"{event['kind']} refused: {event['message']}"
+    if event["kind"] == Action.TRAJECTORY.value:
+        return f"trajectory accepted: {event['duration_s']:.3f} s, {event['points']} points"
+    return f"{event['kind']} applied: " + ", ".join(
+        f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message"))
+
+
+class OperatorInbox:
+    """The actions that arrived since the last answer: ``add`` applies one at once
+    when the controller has not cycled yet, else keeps it; ``drain`` applies the kept
+    ones (right after an answer). Both return the events made."""
+
+    def __init__(self):
+        self.pending: list = []
+
+    def add(self, core, action: Action, payload) -> list[dict]:
+        self.pending.append((action, payload))
+        return self.drain(core) if core.last_time_s is None else []
+
+    def drain(self, core) -> list[dict]:
+        actions, self.pending = self.pending, []
+        return [apply_action(core, action, payload) for action, payload in actions]
