@@ -146,3 +146,73 @@ def test_in_order_reorders_every_array_of_a_permuted_message():
     assert in_order(unnamed, ["q1", "q2", "q3"]) is unnamed
     with pytest.raises(ValueError, match=r"drives/state: names \['q2', 'q1', 'q3'\] are not \['q1', 'q2', 'q4'\]"):
         in_order(msg, ["q1", "q2", "q4"], "drives/state")
+
+
+# ------------------------------------------------------- MultiDOFJointTrajectory
+@st.composite
+def trajectories(draw):
+    """Any joint count and frame (so every alignment of the points), points with or
+    without velocities and accelerations: the fast path and the field-by-field one."""
+    from geometry_msgs.msg import Transform, Twist
+    from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+    joints = draw(st.lists(texts, min_size=0, max_size=3))
+    msg = MultiDOFJointTrajectory(joint_names=joints)
+    msg.header.frame_id = draw(texts)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(draw(stamps), 10**9)
+    for _ in range(draw(st.integers(0, 6))):
+        values = iter(draw(st.lists(doubles, min_size=19 * len(joints), max_size=19 * len(joints))))
+        tfs, vels, accs = [], [], []
+        for _ in joints:
+            tf = Transform()
+            tf.translation.x, tf.translation.y, tf.translation.z = next(values), next(values), next(values)
+            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = (next(values) for _ in range(4))
+            tfs.append(tf)
+            for out in (vels, accs):
+                tw = Twist()
+                tw.linear.x, tw.linear.y, tw.linear.z = next(values), next(values), next(values)
+                tw.angular.x, tw.angular.y, tw.angular.z = next(values), next(values), next(values)
+                out.append(tw)
+        point = MultiDOFJointTrajectoryPoint(transforms=tfs, velocities=vels if draw(st.booleans()) else [],
+                                             accelerations=accs if draw(st.booleans()) else [])
+        point.time_from_start.sec = draw(st.integers(-2**31, 2**31 - 1))
+        point.time_from_start.nanosec = draw(st.integers(0, 999_999_999))
+        msg.points.append(point)
+    return msg
+
+
+@settings(max_examples=300, deadline=None)
+@given(trajectories())
+def test_a_trajectory_reads_as_rclpy_reads_it(msg):
+    from pkm_common.cdr import decode_multidof_trajectory
+    data = decode_multidof_trajectory(serialize_message(msg))
+    stamp = msg.header.stamp
+    assert (data.stamp_ns, data.frame_id, data.joint_names) == \
+        (stamp.sec * 10**9 + stamp.nanosec, msg.header.frame_id, tuple(msg.joint_names))
+    assert data.transform.shape == (len(msg.points), len(msg.joint_names), 7)
+    for k, p in enumerate(msg.points):
+        assert data.time_s[k] == p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+        for j, tf in enumerate(p.transforms):
+            r, t = tf.rotation, tf.translation
+            assert data.transform[k, j].tolist() == [t.x, t.y, t.z, r.x, r.y, r.z, r.w]
+        for out, twists in ((data.velocity, p.velocities), (data.acceleration, p.accelerations)):
+            expected = [[w.linear.x, w.linear.y, w.linear.z, w.angular.x, w.angular.y, w.angular.z]
+                        for w in twists] or [[0.0] * 6] * len(msg.joint_names)
+            assert out[k].tolist() == expected
+
+
+def test_a_malformed_trajectory_is_refused_naming_the_point_and_field():
+    from geometry_msgs.msg import Transform, Twist
+    from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+    from pkm_common.cdr import decode_multidof_trajectory
+    point = MultiDOFJointTrajectoryPoint(transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()])
+    good = MultiDOFJointTrajectory(joint_names=["tool"], points=[point] * 5)
+    buf = serialize_message(good)
+    with pytest.raises(ValueError, match=r"trajectory: points\[4\].time_from_start runs past the end"):
+        decode_multidof_trajectory(buf[:-4])
+    two = MultiDOFJointTrajectoryPoint(transforms=[Transform()] * 2)
+    bad = MultiDOFJointTrajectory(joint_names=["tool"], points=[point] * 3 + [two])
+    with pytest.raises(ValueError, match=r"points\[3\].transforms: expected 1 \(one per joint\), got 2"):
+        decode_multidof_trajectory(serialize_message(bad))
+    with pytest.raises(ValueError, match="not a little-endian CDR message"):
+        decode_multidof_trajectory(b"\x00\x00\x00\x00" + buf[4:])

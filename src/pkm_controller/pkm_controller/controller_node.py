@@ -32,7 +32,8 @@ from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
-from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_pose_stamped, in_order
+from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
+                            decode_pose_stamped, in_order)
 from pkm_common.conversions import diagnostic_array, diagnostic_status, machine_pose_components, ns_to_stamp
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
@@ -44,7 +45,7 @@ from pkm_controller.configuration import core_from_parameters, metrology_inputs,
 from pkm_controller.lockstep import StampPairing
 from pkm_controller.operator import Action, OperatorInbox, apply_action, event_json, event_summary
 from pkm_controller.strategies import Feedback
-from pkm_controller.reference import reference_from_msg  # noqa: F401 - re-exported (tests)
+from pkm_controller.reference import reference_from_trajectory
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
                    "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
@@ -118,7 +119,7 @@ class ControllerNode(LifecycleNode):
                          self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS,
                                                   raw=True),
                          self.create_subscription(MultiDOFJointTrajectory, "trajectory", self.on_trajectory,
-                                                  LATCHED_QOS),
+                                                  LATCHED_QOS, raw=True),
                          self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS),
                          self.create_subscription(Bool, "run/start", self.on_start, LATCHED_QOS),
                          self.create_timer(0.01, self.on_watchdog)]
@@ -201,9 +202,11 @@ class ControllerNode(LifecycleNode):
         if state is not None and self.active:
             self.answer(state.stamp_ns, time.perf_counter())
 
-    def on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
+    def on_trajectory(self, buf: bytes) -> None:
+        """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
+        trajectory would hold the loop for tens of milliseconds."""
         try:
-            ref = reference_from_msg(msg, self.core.planar)
+            ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.planar)
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
             self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return

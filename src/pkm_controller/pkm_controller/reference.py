@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from pkm_common.cdr import TrajectoryData
+
 
 class Reference:
     """x_d(t), v_d(t), a_d(t) of a sampled trajectory, t relative to its start (s)."""
@@ -90,30 +92,40 @@ def unwrap_angles(angles) -> list:
     return out
 
 
-def reference_from_msg(msg, planar: bool) -> "Reference":
-    """MultiDOFJointTrajectory (joint "tool", as trajectory_node publishes) -> Reference;
-    the yaw of a planar machine unwrapped (unlimited rotation). Duck-typed: an rclpy
-    message or one deserialized from a recording (rosbags) alike."""
-    if len(msg.joint_names) != 1 or not msg.points:
+def reference_from_trajectory(data, planar: bool) -> "Reference":
+    """A MultiDOFJointTrajectory's arrays (``pkm_common.cdr.TrajectoryData``, joint
+    "tool", as trajectory_node publishes) -> Reference; the yaw of a planar machine
+    unwrapped (unlimited rotation)."""
+    if len(data.joint_names) != 1 or not len(data.time_s):
         raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
-                         f"{list(msg.joint_names)} with {len(msg.points)} points")
-    t, x, v, a = [], [], [], []
-    for p in msg.points:
-        t.append(p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
-        tf = p.transforms[0]
-        vel = p.velocities[0] if p.velocities else None
-        acc = p.accelerations[0] if p.accelerations else None
-        if planar:
-            r = tf.rotation
-            x.append([tf.translation.x, tf.translation.y,
-                      math.atan2(2.0 * (r.w * r.z + r.x * r.y), 1.0 - 2.0 * (r.y * r.y + r.z * r.z))])
-            v.append([vel.linear.x, vel.linear.y, vel.angular.z] if vel else [0.0] * 3)
-            a.append([acc.linear.x, acc.linear.y, acc.angular.z] if acc else [0.0] * 3)
-        else:
-            x.append([tf.translation.x, tf.translation.y, tf.translation.z])
-            v.append([vel.linear.x, vel.linear.y, vel.linear.z] if vel else [0.0] * 3)
-            a.append([acc.linear.x, acc.linear.y, acc.linear.z] if acc else [0.0] * 3)
-    if planar:
-        for row, theta in zip(x, unwrap_angles([row[2] for row in x])):
-            row[2] = theta
-    return Reference(t, x, v, a)
+                         f"{list(data.joint_names)} with {len(data.time_s)} points")
+    tf, vel, acc = data.transform[:, 0], data.velocity[:, 0], data.acceleration[:, 0]
+    if planar:       # (x, y, yaw about z); the yaw per point in Python floats, as the recorded runs had it
+        yaw = unwrap_angles([math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+                             for x, y, z, w in tf[:, 3:7].tolist()])
+        return Reference(data.time_s, np.column_stack((tf[:, 0], tf[:, 1], yaw)), vel[:, [0, 1, 5]],
+                         acc[:, [0, 1, 5]])
+    return Reference(data.time_s, tf[:, :3], vel[:, :3], acc[:, :3])
+
+
+def trajectory_data_from_msg(msg):
+    """A MultiDOFJointTrajectory message object (rclpy, or deserialized from a
+    recording by rosbags) as the arrays of ``pkm_common.cdr.decode_multidof_trajectory``."""
+    n, j = len(msg.points), len(msg.joint_names)
+    t, tf, vel, acc = np.zeros(n), np.zeros((n, j, 7)), np.zeros((n, j, 6)), np.zeros((n, j, 6))
+    for k, p in enumerate(msg.points):
+        t[k] = p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+        for i, f in enumerate(p.transforms[:j]):
+            tf[k, i] = (f.translation.x, f.translation.y, f.translation.z,
+                        f.rotation.x, f.rotation.y, f.rotation.z, f.rotation.w)
+        for out, twists in ((vel, p.velocities), (acc, p.accelerations)):
+            for i, w in enumerate(twists[:j]):
+                out[k, i] = (w.linear.x, w.linear.y, w.linear.z, w.angular.x, w.angular.y, w.angular.z)
+    stamp = msg.header.stamp
+    return TrajectoryData(stamp.sec * 1_000_000_000 + stamp.nanosec, msg.header.frame_id, tuple(msg.joint_names),
+                          t, tf, vel, acc)
+
+
+def reference_from_msg(msg, planar: bool) -> "Reference":
+    """``reference_from_trajectory`` of a message object (duck-typed: rclpy or rosbags)."""
+    return reference_from_trajectory(trajectory_data_from_msg(msg), planar)
