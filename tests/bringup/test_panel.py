@@ -198,5 +198,11 @@ def test_latencies_from_the_action_to_the_controller_and_to_the_drives():
     panel.on_state(3_000_000, ["q1"], [0.0], [0.0], [0.0], "")                 # still running
     clock.t += 0.001
     panel.on_state(4_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:estop")   # braked
+    # the page presses on three paths: the later presses of the latch (here after the
+    # drives braked, whose states may then stop) keep the first press's measurement
+    clock.t += 0.002
+    again = panel.handle({"type": "estop"}, "http 127.0.0.1:1")
     latency = panel.snapshot()["latency_ms"]
+    assert again.ok and again.publish == [("estop", True)]
     assert latency["feed_override"] == pytest.approx(12.0) and latency["estop"] == pytest.approx(8.0)
+    assert panel.snapshot()["estop"]["why"] == "E-stop pressed on the panel (page)"

@@ -6,6 +6,7 @@ stops the machine and says why. The run it drove then replays bit for bit (the
 operator's actions are in the recording). A screenshot is saved (PKM_PANEL_SCREENSHOT
 names where; docs/figures/panel.png comes from it)."""
 
+import contextlib
 import json
 import os
 import shutil
@@ -51,6 +52,23 @@ def realtime_profile_permitted() -> bool:
     return True
 
 
+@contextlib.contextmanager
+def diagnosed(url: str):
+    """On a failure, print what the panel knew (the controller's status, faults, events
+    and the actions log): the page's last value alone does not say why it stalled."""
+    try:
+        yield
+    except BaseException:
+        try:
+            state = snapshot(url)
+            state.pop("plot", None)
+            state.pop("drawing", None)
+            print(json.dumps(state, indent=1, default=str)[:20000])
+        except Exception as error:                                      # noqa: BLE001 - diagnostics only
+            print(f"no snapshot: {error}")
+        raise
+
+
 def close_during_a_jog(url: str) -> None:
     """A second page (a WebSocket client) starts a jog and drops its connection."""
     from websockets.sync.client import connect
@@ -83,7 +101,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path):
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text())
         wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
                  timeout_s=90)
-        with sync_playwright() as p:
+        with sync_playwright() as p, diagnosed(url):
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             page = browser.new_page(viewport={"width": 1560, "height": 980})
             page.goto(url)
@@ -163,6 +181,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path):
     finally:
         panel.send_signal(signal.SIGTERM)
         out, _ = panel.communicate(timeout=120)
+        print(out[-20000:])
     assert panel.returncode == 0, out
     actions = [json.loads(line) for line in (tmp_path / "actions.jsonl").read_text().splitlines()]
     assert {a["type"] for a in actions if not a["ok"]} >= {"program", "start", "jog", "settings"}

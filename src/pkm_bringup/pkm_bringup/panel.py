@@ -278,9 +278,13 @@ class Panel:
             return Result(True, "")
         if kind == "estop":
             with self.lock:
-                self.estop_latched, self.estop_why = True, f"E-stop pressed on the panel ({client})"
-                self.sent["estop"] = self.clock()
-                self.latency_ms.pop("estop", None)
+                # the page presses on three paths at once (module doc): the first press of
+                # a latch starts the latency's clock and names the cause; the others repeat it
+                if not (self.estop_latched and "estop" in self.sent):
+                    self.estop_why = f"E-stop pressed on the panel ({client})"
+                    self.sent["estop"] = self.clock()
+                    self.latency_ms.pop("estop", None)
+                self.estop_latched = True
             return self._done(client, kind, True, "E-stop sent: the controller and the drives latch it",
                               [("estop", True)])
         handler = {"reset": self._reset, "program": self._program, "start": self._start, "feed": self._feed,
@@ -309,6 +313,7 @@ class Panel:
             self.pose = self.reference = self.state = self.state_clock = None
             self.plot.clear()
             self.latency_ms.clear()
+            self.sent.clear()
         # the panel's latched estop is taken back first: the new run's nodes would get it
         return "reset: a new run starts", [("estop", False)], True
 
