@@ -38,8 +38,12 @@ def test_machines_sensor_sets():
 def test_pkm_analyze_dosr_lists_every_machine(capsys):
     assert main(["--json", "dosr"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert set(data) == {"archi", "mom3", "orthoglide", "sliding_star"}
+    assert set(data) == {"archi", "mom3", "orthoglide", "sliding_star", "genhexkins", "hexapod8"}
     mom3 = {row["sensors"]: row for row in data["mom3"]}
     assert mom3["encoders"]["dosr_perfect"] == 0 and mom3["gough struts"]["dosr_imperfect"] == 0
+    # the hexapods: D = O = M = 6; six struts iso-measure the platform, eight over-measure it
+    assert [(r["sensors"], r["dosr_perfect"], r["dosr_imperfect"]) for r in data["genhexkins"]] == \
+        [("encoders", 0, 0)]
+    assert [(r["dosr_perfect"], r["dosr_imperfect"]) for r in data["hexapod8"]] == [(2, 2)]
     assert main(["dosr", "--machine", "nosuch"]) == 2
     assert "unknown machine 'nosuch'" in capsys.readouterr().err

@@ -474,7 +474,8 @@ def mom3_dosr(bench: Bench) -> Outcome:
     rows = {}
     for name in machine_names():
         cfg = load_machine(name)
-        for r in sensor_redundancy(cfg.model.n_legs, cfg.metrology is not None):
+        for r in sensor_redundancy(cfg.model.n_legs, cfg.metrology is not None, cfg.model.task_dof,
+                                    cfg.model.spatiality):
             rows[(name, r.sensors)] = r
     o = Outcome()
     o.check("Fig. 5: one measure of a prismatic joint is iso-measured (dosr 0) in the perfect case, "

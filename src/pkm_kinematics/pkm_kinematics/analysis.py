@@ -13,25 +13,12 @@ import numpy as np
 from scipy.optimize import brentq
 
 from .gough import GoughPlatform, mom3_points
+from .measures import condition_numbers
 from .planar import PlanarMachine
 from .translational import TranslationalLeg, TranslationalMachine
 
 
 # ------------------------------------------------------------ conditioning maps
-def condition_numbers(jacobians: np.ndarray) -> np.ndarray:
-    """2-norm condition numbers of a stack of Jacobians (N, n, m): NaN for rows with NaN
-    (unreachable), inf for singular rows and for rows with infinite entries (a leg
-    perpendicular to its rail makes J_m unbounded)."""
-    out = np.full(jacobians.shape[0], np.nan)
-    ok = np.isfinite(jacobians).all(axis=(1, 2))
-    out[~ok & ~np.isnan(jacobians).any(axis=(1, 2))] = np.inf
-    if ok.any():
-        s = np.linalg.svd(jacobians[ok], compute_uv=False)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out[ok] = np.where(s[:, -1] > 0.0, s[:, 0] / s[:, -1], np.inf)
-    return out
-
-
 def singularity_margin(jacobians: np.ndarray) -> np.ndarray:
     """Inverse condition number sigma_min / sigma_max in [0, 1]: 0 at a singularity,
     1 at an isotropic configuration (Orthoglide §4.1)."""
@@ -47,7 +34,7 @@ def reachability(machine, poses) -> np.ndarray:
 
 def condition_map(machine, poses) -> np.ndarray:
     """Condition number of J_m at each pose; NaN where unreachable or out of limits."""
-    cond = condition_numbers(machine.jacobian_batch(poses))
+    cond = machine.condition_number_batch(poses)
     cond[~reachability(machine, poses)] = np.nan
     return cond
 
@@ -63,15 +50,9 @@ def workspace_box(machine, margin_m: float = 0.0) -> list[tuple[float, float]]:
 
 
 def workspace_grid(machine, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
-    """A regular grid over the machine's configured workspace: (N, 3) poses/positions."""
-    ws = machine.workspace
-    if isinstance(machine, PlanarMachine):
-        axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
-                np.radians(np.linspace(*ws["theta_deg"], theta_points))]
-    else:
-        half = ws["size"] / 2.0
-        axes = [np.linspace(c - half, c + half, points_per_axis) for c in ws["center"]]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    """A regular grid over the machine's configured workspace (the machine's own
+    ``workspace_grid``: (N, 3) poses/positions of a 3-DOF machine, (N, 6) of a hexapod)."""
+    return machine.workspace_grid(points_per_axis, theta_points)
 
 
 @dataclass
@@ -390,8 +371,9 @@ GOUGH_STRUTS = 6           # the passive Gough platform's measures (MoM3 §4.2: 
 def sensor_redundancy(n_drives: int, has_metrology: bool, dof: int = 3, spatiality: int = 3) -> list[SensorRedundancy]:
     """The dosr of a machine's sensor sets (MoM3 §3): its drive encoders alone (one
     measure per drive), and where it has the Gough metrology, the six struts alone
-    (the loop closed on them, as on MoM3) and both together. Every machine here has
-    D = O = 3 (three-DOF platforms; actuation redundancy adds drives, not DOF)."""
+    (the loop closed on them, as on MoM3) and both together. D and O are the
+    machine's (3 for the planar and translational machines: actuation redundancy adds
+    drives, not DOF; 6 for a hexapod, whose struts are its encoders)."""
     sets = [("encoders", n_drives)]
     if has_metrology:
         sets += [("gough struts", GOUGH_STRUTS), ("encoders + gough struts", n_drives + GOUGH_STRUTS)]

@@ -244,13 +244,14 @@ def cmd_dosr(args) -> tuple[dict, str]:
     data, rows = {}, []
     for name in names:
         cfg = _load(name)
-        entries = analysis.sensor_redundancy(cfg.model.n_legs, cfg.metrology is not None)
+        entries = analysis.sensor_redundancy(cfg.model.n_legs, cfg.metrology is not None,
+                                             cfg.model.task_dof, cfg.model.spatiality)
         data[cfg.name] = [asdict(e) for e in entries]
         for e in entries:
             rows.append((f"{cfg.name}: {e.sensors} (C = {e.c})",
                          f"perfect (M = O = {e.o}): {e.dosr_perfect:+d} {analysis.measurement_verdict(e.dosr_perfect)}; "
                          f"imperfect (M = 6): {e.dosr_imperfect:+d} {analysis.measurement_verdict(e.dosr_imperfect)}"))
-    return data, _table("Degree of sensor redundancy, dosr = C - (M - O + D), D = O = 3 (MoM3 §3)", rows)
+    return data, _table("Degree of sensor redundancy, dosr = C - (M - O + D), D = O = 3 (6 for the hexapods) (MoM3 §3)", rows)
 
 
 def cmd_report(args) -> tuple[dict, str]:
@@ -258,10 +259,7 @@ def cmd_report(args) -> tuple[dict, str]:
     model = cfg.model
     home = model.home
     q = model.inverse_kinematics(home)
-    if isinstance(model, PlanarMachine):
-        fk = model.forward_kinematics(q).pose
-    else:
-        fk = model.forward_kinematics(q)
+    fk = np.asarray(model.forward_kinematics_floats(q))
     sections = [_table(f"Machine {cfg.name} ({cfg.kind}, {model.n_legs} drives): {model.description}", [
         ("home pose", str(np.round(home, 6).tolist())),
         ("drive positions at home (m)", str(np.round(q, 6).tolist())),

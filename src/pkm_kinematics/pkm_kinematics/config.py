@@ -19,11 +19,13 @@ import yaml
 from .errors import ConfigError, JointLimitError, KinematicsError, UnreachablePoseError
 from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
+from .hexapod import StrutMachine
 from .planar import PlanarLeg, PlanarMachine
 from .rotations import rotation_from_rpy
 from .translational import TranslationalLeg, TranslationalMachine
 
-MACHINE_KINDS = ("planar", "translational")
+MACHINE_KINDS = ("planar", "translational", "struts")
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "inch": 0.0254}
 
 
 def config_dir() -> Path:
@@ -141,7 +143,7 @@ class MachineConfig:
 
     name: str
     kind: str
-    model: PlanarMachine | TranslationalMachine
+    model: PlanarMachine | TranslationalMachine | StrutMachine
     metrology: "GoughMetrologyConfig | None"
     data: dict
     dynamics: "DynamicsParameters | None" = None
@@ -235,6 +237,47 @@ def _translational(r: _Reader, name: str, description: str) -> TranslationalMach
     return model
 
 
+def _struts(r: _Reader, name: str, description: str) -> StrutMachine:
+    """A machine on actuated struts (the hexapods): ``struts`` (at least 6, each with
+    its base and platform joint and its length limits), ``home`` (position and the
+    A, B, C rotations in degrees), ``workspace`` (a box about a centre, half-ranges of
+    the rotations); every length in ``length_unit`` (m, mm or inch, converted to m)."""
+    unit_name = r.choice("length_unit", tuple(LENGTH_UNITS), "m")
+    scale = LENGTH_UNITS[unit_name]
+    names, base, platform, limits = [], [], [], []
+    for sr in r.items("struts", min_len=6):
+        names.append(sr.string("name"))
+        base.append(sr.vector("base", 3, unit=unit_name) * scale)
+        platform.append(sr.vector("platform", 3, unit=unit_name) * scale)
+        lo, hi = sr.interval("limits", unit=unit_name)
+        if lo <= 0.0:
+            raise ConfigError(sr._name("limits"), f"strut lengths must be > 0, got [{lo:g}, {hi:g}] {unit_name}")
+        limits.append((lo * scale, hi * scale))
+    if len(set(names)) != len(names):
+        raise ConfigError(r._name("struts"), f"strut names must be unique, got {names}")
+    h, w = r.sub("home"), r.sub("workspace")
+    home = np.concatenate((h.vector("position", 3, unit=unit_name) * scale,
+                           np.radians(h.vector("abc_deg", 3, [0.0, 0.0, 0.0], unit="deg"))))
+    half = w.vector("half_size", 3, unit=unit_name) * scale
+    if not (half > 0.0).all():
+        raise ConfigError(w._name("half_size"), f"must be > 0 on every axis, got {half / scale}")
+    abc = w.vector("abc_half_range_deg", 3, [0.0, 0.0, 0.0], unit="deg")
+    if not ((abc >= 0.0) & (abc < 90.0)).all():
+        raise ConfigError(w._name("abc_half_range_deg"), f"must be in [0, 90) deg, got {abc}")
+    workspace = {"center": w.vector("center", 3, unit=unit_name) * scale, "half_size": half,
+                 "abc_half_range_deg": abc}
+    model = StrutMachine(name, names, base, platform, limits, home, workspace, description)
+    try:
+        model.inverse_kinematics(home)
+        cond = model.condition_number(home)
+    except KinematicsError as exc:
+        raise ConfigError(r._name("home"), str(exc)) from None
+    if not cond < 1e6:
+        raise ConfigError(r._name("struts"), f"the struts do not hold the platform at home: J_m is singular "
+                                             f"(condition number {cond:.3g})")
+    return model
+
+
 def _gough(r: _Reader) -> GoughMetrologyConfig:
     g = r.sub("geometry")
     geometry = {"r_base": g.number("r_base", lo=0.0, lo_open=True, unit="m"),
@@ -289,7 +332,7 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
         name = r.string("name")
         kind = r.choice("kind", MACHINE_KINDS)
         description = str(r.raw("description", ""))
-        model = _planar(r, name, description) if kind == "planar" else _translational(r, name, description)
+        model = {"planar": _planar, "translational": _translational, "struts": _struts}[kind](r, name, description)
         metrology = _gough(r.sub("metrology")) if r.has("metrology") else None
         dynamics = _dynamics(r.sub("dynamics"), model.n_legs, kind == "planar") if r.has("dynamics") else None
     except ConfigError as exc:

@@ -17,6 +17,8 @@ import numpy as np
 class ParallelMachine(Protocol):
     name: str
     n_legs: int
+    task_dof: int            # D of MoM3 §3: the coordinates the machine controls
+    spatiality: int          # O of MoM3 §3: the dimension of the space its platform moves in
     leg_names: list
     joint_lower: np.ndarray
     joint_upper: np.ndarray

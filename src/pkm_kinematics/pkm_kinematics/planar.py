@@ -31,6 +31,7 @@ import numpy as np
 
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .jit import kernel
+from .measures import condition_numbers
 from .validation import finite_array, finite_floats
 
 
@@ -411,6 +412,7 @@ class PlanarMachine:
             raise ValueError(f"legs: a planar machine needs at least 3 legs, got {len(self.legs)}")
         self.home_pose = finite_array(self.home_pose, "home_pose", (3,))
         self.n_legs = len(self.legs)
+        self.task_dof = self.spatiality = 3     # x, y, theta: the platform moves in SE(2)
         self.leg_names = [leg.name for leg in self.legs]
         self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
         u = np.array([leg.rail_direction for leg in self.legs], dtype=float)
@@ -632,6 +634,17 @@ class PlanarMachine:
     def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
         """Raise the exception for a failure ``code`` of :func:`velocity_terms_kernel`."""
         raise velocity_terms_error(code, self.leg_names[leg], "pose", pose)
+
+    def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
+        """A regular grid over the configured workspace: (N, 3) poses (x, y, theta)."""
+        ws = self.workspace
+        axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
+                np.radians(np.linspace(*ws["theta_deg"], theta_points))]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+    def condition_number_batch(self, poses) -> np.ndarray:
+        """Condition numbers of J_m at poses (N, 3): NaN where unreachable."""
+        return condition_numbers(self.jacobian_batch(poses))
 
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""

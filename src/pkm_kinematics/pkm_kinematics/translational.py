@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .jit import kernel
+from .measures import condition_numbers
 from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms, velocity_terms_error
 from .validation import finite_array, finite_floats
 
@@ -142,6 +143,7 @@ class TranslationalMachine:
             raise ValueError(f"legs: a translational machine has exactly 3 legs, got {len(self.legs)}")
         self.home_position = finite_array(self.home_position, "home_position", (3,))
         self.n_legs = 3
+        self.task_dof = self.spatiality = 3     # three translations
         self.leg_names = [leg.name for leg in self.legs]
         self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
         e = np.array([leg.rail_direction for leg in self.legs], dtype=float)
@@ -354,6 +356,17 @@ class TranslationalMachine:
             raise SingularityError(f"leg {self.leg_names[i]} is perpendicular to its rail (serial "
                                    "singularity, Orthoglide §3.3): J_m is unbounded")
         return a / b[:, None]
+
+    def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
+        """A regular grid over the configured workspace cube: (N, 3) positions
+        (``theta_points``: the planar machines' signature, unused)."""
+        half = self.workspace["size"] / 2.0
+        axes = [np.linspace(c - half, c + half, points_per_axis) for c in self.workspace["center"]]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+    def condition_number_batch(self, positions) -> np.ndarray:
+        """Condition numbers of J_m at positions (N, 3): NaN where unreachable."""
+        return condition_numbers(self.jacobian_batch(positions))
 
     def jacobian_batch(self, positions) -> np.ndarray:
         """J_m for positions (N, 3): (N, 3, 3), NaN where unreachable."""

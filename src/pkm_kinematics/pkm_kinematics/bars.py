@@ -1,0 +1,229 @@
+"""The general machine model's equations: a platform joined to the base by bars
+(../shared/MACHINE_MODEL.md), each written once as a compiled kernel.
+
+Bar k runs from a base joint A_k to a platform joint B_k:
+
+- A_k = a_k + q_j u_k on a rail driven by actuator j (u_k a unit vector), or a_k fixed;
+- B_k = p + R b_k, b_k in the platform frame;
+- its length is fixed, L_k, or is actuator j itself (a strut: l_k = q_j).
+
+A model is one float array, ``bars`` (n, BAR_COLUMNS), a row per bar:
+a (3), u (3), b (3), L (NaN for a strut), the actuator index (-1: none), STRUT or
+RAIL, and the assembly branch sigma (+-1) of a rail bar. A pose is p (3 floats) and
+R as a row-major 9-tuple; twists are t = (v, w) with w in the base frame.
+
+The kernels:
+
+- ``bar_vector``: e_k = B_k - A_k (the closure of MoM3 eq. 1 for a strut), and R b_k;
+- ``bar_length``: l_k (L_k, or q_j of a strut);
+- ``unit_pose_jacobian_into``: the rows [e_k, (R b_k) x e_k] / |e_k| of the pose
+  Jacobian of the bar lengths |e_k| (d|e_k|/dt = row . t + (A_k's own motion));
+  for a strut they are MoM3 eq. 2's J_h^-1 rows, and genhexkins' InverseJacobian;
+- ``inverse_kinematics_into``: per actuator, its first bar's closed form: a strut
+  q = |B - a|; a rail q = u.w + sigma sqrt(L^2 - |w|^2 + (u.w)^2), w = B - a;
+- ``forward_kinematics_kernel``: Newton (as many bars as pose unknowns) or
+  Gauss-Newton (more bars: least squares) on the length misfits
+  r_k = |e_k| - l_k over (p, R), R <- exp([dw]x) R, warm-started; the misfit left at
+  the solution is what shows inconsistent actuators (a frozen or slipping encoder,
+  a model error).
+
+The machine classes (``hexapod.StrutMachine``) wrap them; ``gough`` keeps its own
+6-strut kernels for the metrology (the same equations for 6 passive struts, tuned
+for that stream) until the per-kind classes are replaced by this model.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .gough import invert6_into
+from .jit import kernel
+from .rotations import exp_so3_kernel, mul3_kernel
+
+BAR_COLUMNS = 13
+COL_A, COL_U, COL_B, COL_LENGTH, COL_ACTUATOR, COL_TYPE, COL_BRANCH = 0, 3, 6, 9, 10, 11, 12
+RAIL, STRUT = 0.0, 1.0
+
+# forward_kinematics_kernel's codes (hexapod.FKCode names them)
+FK_CONVERGED, FK_NO_CONVERGENCE, FK_DIVERGED, FK_SINGULAR, FK_STALLED = range(5)
+# inverse_kinematics_into's codes
+IK_OK, IK_UNREACHABLE = 0, 1
+
+
+def bar_rows(base, platform, actuator, kind, rail=None, length=None, branch=None) -> np.ndarray:
+    """The ``bars`` array of a model from per-bar lists (one row per bar)."""
+    base = np.asarray(base, dtype=float).reshape(-1, 3)
+    n = base.shape[0]
+    out = np.zeros((n, BAR_COLUMNS))
+    out[:, COL_A:COL_A + 3] = base
+    out[:, COL_U:COL_U + 3] = 0.0 if rail is None else np.asarray(rail, dtype=float).reshape(n, 3)
+    out[:, COL_B:COL_B + 3] = np.asarray(platform, dtype=float).reshape(n, 3)
+    out[:, COL_LENGTH] = np.nan if length is None else np.asarray(length, dtype=float)
+    out[:, COL_ACTUATOR] = np.asarray(actuator, dtype=float)
+    out[:, COL_TYPE] = np.asarray(kind, dtype=float)
+    out[:, COL_BRANCH] = 1.0 if branch is None else np.asarray(branch, dtype=float)
+    return out
+
+
+@kernel()
+def bar_vector(bars, k, px, py, pz, r, q):
+    """e_k = B_k - A_k = p + R b_k - a_k - q_j u_k (no rail term for a strut or a
+    fixed base joint) at the pose (p, R row-major 9-tuple) and actuators ``q``.
+    Returns (e_x, e_y, e_z, (R b_k)_x, (R b_k)_y, (R b_k)_z)."""
+    bx, by, bz = bars[k, 6], bars[k, 7], bars[k, 8]
+    rbx = r[0] * bx + r[1] * by + r[2] * bz
+    rby = r[3] * bx + r[4] * by + r[5] * bz
+    rbz = r[6] * bx + r[7] * by + r[8] * bz
+    ex, ey, ez = px + rbx - bars[k, 0], py + rby - bars[k, 1], pz + rbz - bars[k, 2]
+    j = int(bars[k, 10])
+    if j >= 0 and bars[k, 11] == 0.0:            # on a rail: A_k = a_k + q_j u_k
+        ex, ey, ez = ex - q[j] * bars[k, 3], ey - q[j] * bars[k, 4], ez - q[j] * bars[k, 5]
+    return ex, ey, ez, rbx, rby, rbz
+
+
+@kernel()
+def bar_length(bars, k, q):
+    """l_k: the bar's fixed length, or its actuator's value for a strut."""
+    if bars[k, 11] == 1.0:
+        return q[int(bars[k, 10])]
+    return bars[k, 9]
+
+
+@kernel()
+def unit_pose_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
+    """Rows [e_k, (R b_k) x e_k] / |e_k| into ``out`` (n, 6): d|e_k|/dt for the
+    platform twist, actuators held. False where a bar has zero length."""
+    for k in range(bars.shape[0]):
+        ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
+        n = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if not n > 0.0:
+            return False
+        ux, uy, uz = ex / n, ey / n, ez / n
+        out[k, 0], out[k, 1], out[k, 2] = ux, uy, uz
+        out[k, 3] = rby * uz - rbz * uy
+        out[k, 4] = rbz * ux - rbx * uz
+        out[k, 5] = rbx * uy - rby * ux
+    return True
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:])")
+def inverse_kinematics_into(bars, p, rot, q):
+    """Actuator values of the pose (p, R row-major) into ``q``: each actuator from
+    the first bar it drives (module doc). Returns (code, bar): IK_UNREACHABLE with the
+    bar whose rail cannot reach its platform joint."""
+    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
+    done = np.zeros(q.shape[0], dtype=np.bool_)
+    zero = np.zeros(q.shape[0])
+    for k in range(bars.shape[0]):
+        j = int(bars[k, 10])
+        if j < 0 or done[j]:
+            continue
+        # w = B_k - a_k: the bar vector with the actuator at zero
+        wx, wy, wz, _, _, _ = bar_vector(bars, k, p[0], p[1], p[2], r, zero)
+        if bars[k, 11] == 1.0:
+            q[j] = math.sqrt(wx * wx + wy * wy + wz * wz)
+        else:
+            uw = bars[k, 3] * wx + bars[k, 4] * wy + bars[k, 5] * wz
+            disc = bars[k, 9] * bars[k, 9] - (wx * wx + wy * wy + wz * wz) + uw * uw
+            if not disc >= 0.0:
+                return IK_UNREACHABLE, k
+            q[j] = uw + bars[k, 12] * math.sqrt(disc)
+        done[j] = True
+    return IK_OK, -1
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64, int64, float64)")
+def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence_limit):
+    """The platform pose of the actuator values ``q``, from the pose in ``p`` (3,)
+    and ``rot`` (9, row-major), both updated in place. Newton with 6 bars,
+    Gauss-Newton (J^T J dx = -J^T r) with more, on r_k = |e_k| - l_k.
+
+    Returns (code, iterations, misfit): FK_CONVERGED when every misfit is <= tol_m
+    (exactly determined) or the step fell below tol_m (least squares: the misfit left
+    is the actuators' inconsistency, the root sum of squares in metres);
+    FK_NO_CONVERGENCE after ``max_iterations``; FK_DIVERGED when a misfit passed
+    ``divergence_limit``; FK_SINGULAR when J (J^T J) has no inverse; FK_STALLED when
+    the misfit grew twice in a row."""
+    n = bars.shape[0]
+    px, py, pz = p[0], p[1], p[2]
+    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
+    jac = np.empty((n, 6))
+    res = np.empty(n)
+    normal = np.empty((6, 6))
+    inverse = np.empty((6, 6))
+    g = np.empty(6)
+    previous, growth, misfit = math.inf, 0, math.inf
+    code, iterations = FK_NO_CONVERGENCE, max_iterations
+    for iteration in range(max_iterations + 1):
+        worst, squares = 0.0, 0.0
+        for k in range(n):
+            ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+            res[k] = math.sqrt(ex * ex + ey * ey + ez * ez) - bar_length(bars, k, q)
+            squares += res[k] * res[k]
+            if not abs(res[k]) <= worst:           # (NaN propagates)
+                worst = abs(res[k])
+        misfit = math.sqrt(squares)
+        if worst <= tol_m:
+            code, iterations = FK_CONVERGED, iteration
+            break
+        if iteration == max_iterations:
+            break
+        if not math.isfinite(worst) or worst > divergence_limit:
+            code, iterations = FK_DIVERGED, iteration
+            break
+        growth = growth + 1 if misfit > previous * (1.0 + 1e-9) else 0
+        if growth >= 2:
+            code, iterations = FK_STALLED, iteration
+            break
+        previous = misfit
+        if not unit_pose_jacobian_into(bars, px, py, pz, r, q, jac):
+            code, iterations = FK_SINGULAR, iteration
+            break
+        if n == 6:                                  # Newton: dx = -J^-1 r
+            for i in range(6):
+                for j in range(6):
+                    normal[i, j] = jac[i, j]
+                g[i] = res[i]
+        else:                                       # Gauss-Newton: dx = -(J^T J)^-1 J^T r
+            for i in range(6):
+                g[i] = 0.0
+                for k in range(n):
+                    g[i] += jac[k, i] * res[k]
+                for j in range(6):
+                    s = 0.0
+                    for k in range(n):
+                        s += jac[k, i] * jac[k, j]
+                    normal[i, j] = s
+        if not invert6_into(normal, inverse):
+            code, iterations = FK_SINGULAR, iteration
+            break
+        step = np.zeros(6)
+        for i in range(6):
+            for j in range(6):
+                step[i] -= inverse[i, j] * g[j]
+        px, py, pz = px + step[0], py + step[1], pz + step[2]
+        r = mul3_kernel(exp_so3_kernel(step[3], step[4], step[5]), r)
+        if n > 6:
+            size = 0.0
+            for i in range(6):
+                size = max(size, abs(step[i]))
+            if size <= tol_m:                       # least squares: the minimum of the misfit
+                worst, squares = 0.0, 0.0
+                for k in range(n):
+                    ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+                    rk = math.sqrt(ex * ex + ey * ey + ez * ez) - bar_length(bars, k, q)
+                    squares += rk * rk
+                misfit = math.sqrt(squares)
+                code, iterations = FK_CONVERGED, iteration + 1
+                break
+    p[0], p[1], p[2] = px, py, pz
+    for k in range(9):
+        rot[k] = r[k]
+    return code, iterations, misfit
+
+
+__all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
+           "IK_OK", "IK_UNREACHABLE", "RAIL", "STRUT", "bar_length", "bar_rows", "bar_vector",
+           "forward_kinematics_kernel", "inverse_kinematics_into", "unit_pose_jacobian_into"]

@@ -1,0 +1,277 @@
+"""Strut machines: the Gough-Stewart hexapod (6 actuated struts, 6 DOF; LinuxCNC's
+genhexkins) and the redundantly actuated hexapods (more struts than 6) as
+configurations of the bar model (``bars``; ../shared/MACHINE_MODEL.md).
+
+Task coordinates x = (x, y, z, a, b, c): the platform point in the base frame (m)
+and the rotations about the base x, y, z axes (rad), R = Rz(c) Ry(b) Rx(a), the
+convention of genhexkins (pmRpyMatConvert) and of G-code's A, B, C words. Velocities
+are twists t = (v, w), w in the base frame; ``rate_matrix`` maps (a', b', c') to w.
+
+Per pose (Pinocchio's constant model, per-stream data): ``StrutMachine`` is the
+constant model; ``StrutFK`` keeps the warm start of one stream of readings.
+Everything calls the compiled kernels of ``bars``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from . import bars as B
+from .errors import JointLimitError, KinematicsError, SingularityError
+from .rotations import rotation_from_rpy, rpy_from_rotation
+
+
+class FKCode(IntEnum):
+    """How a forward kinematics solve ended (``bars.forward_kinematics_kernel``)."""
+    CONVERGED = B.FK_CONVERGED
+    NO_CONVERGENCE = B.FK_NO_CONVERGENCE
+    DIVERGED = B.FK_DIVERGED
+    SINGULAR = B.FK_SINGULAR
+    STALLED = B.FK_STALLED
+
+
+@dataclass(frozen=True)
+class StrutFKResult:
+    """A forward kinematics solve: the pose (task coordinates and (p, R)), how it
+    ended, its iterations, and the misfit left (m, root sum of squares of
+    |e_k| - q_k: zero for consistent struts; with more struts than 6 it measures how
+    far the strut readings are from any pose)."""
+    code: FKCode
+    x: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    iterations: int
+    misfit_m: float
+
+    @property
+    def ok(self) -> bool:
+        return self.code == FKCode.CONVERGED
+
+
+def rate_matrix(a: float, b: float, c: float) -> np.ndarray:
+    """E with w = E (a', b', c') for R = Rz(c) Ry(b) Rx(a): the angular velocity in
+    the base frame of the rotation angles' rates (c about z, b about the once-turned
+    y, a about the twice-turned x)."""
+    del a                                   # the last rotation applied: no effect on the axes
+    cb, sb = math.cos(b), math.sin(b)
+    cc, sc = math.cos(c), math.sin(c)
+    return np.array([[cc * cb, -sc, 0.0], [sc * cb, cc, 0.0], [-sb, 0.0, 1.0]])
+
+
+class StrutMachine:
+    """A platform on n >= 6 actuated struts between base joints a_k and platform
+    joints b_k (strut k = actuator k). Constant after construction."""
+
+    def __init__(self, name: str, strut_names, base, platform, joint_limits, home, workspace: dict,
+                 description: str = "", characteristic_length_m: float | None = None):
+        self.name, self.description = name, description
+        self.leg_names = [str(s) for s in strut_names]
+        self.n_legs = len(self.leg_names)
+        base, platform = np.asarray(base, dtype=float), np.asarray(platform, dtype=float)
+        self.bars = B.bar_rows(base, platform, actuator=np.arange(self.n_legs), kind=B.STRUT)
+        limits = np.asarray(joint_limits, dtype=float).reshape(self.n_legs, 2)
+        self.joint_lower, self.joint_upper = limits[:, 0].copy(), limits[:, 1].copy()
+        self._home = np.asarray(home, dtype=float)
+        self.workspace = workspace
+        # for the condition number: rotations weighted by the platform's size, so that
+        # J is dimensionless (the rotation columns are metres per radian)
+        # (1 m where every platform joint is at the centre: nothing holds the rotation then)
+        self.characteristic_length_m = float(characteristic_length_m or
+                                              np.max(np.linalg.norm(platform, axis=1)) or 1.0)
+        self.task_dof = self.spatiality = 6     # x, y, z, a, b, c: SE(3)
+
+    # ------------------------------------------------------------------ poses
+    @property
+    def home(self) -> np.ndarray:
+        return self._home.copy()
+
+    @property
+    def base_joints(self) -> np.ndarray:
+        return self.bars[:, B.COL_A:B.COL_A + 3].copy()
+
+    @property
+    def platform_joints(self) -> np.ndarray:
+        return self.bars[:, B.COL_B:B.COL_B + 3].copy()
+
+    @staticmethod
+    def pose(x) -> tuple[np.ndarray, np.ndarray]:
+        """(p, R) of task coordinates x = (x, y, z, a, b, c)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (6,):
+            raise ValueError(f"x: expected 6 task coordinates (x, y, z, a, b, c), got shape {x.shape}")
+        return x[:3].copy(), rotation_from_rpy(x[3], x[4], x[5])
+
+    @staticmethod
+    def task_coordinates(position, rotation) -> np.ndarray:
+        """x = (x, y, z, a, b, c) of the pose (p, R); |b| < pi/2."""
+        return np.concatenate((np.asarray(position, dtype=float), rpy_from_rotation(np.asarray(rotation))))
+
+    def leg_joints(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Each strut's base and platform joint (n, 3) each, for drawing."""
+        p, rot = self.pose(x)
+        return self.base_joints, p + self.platform_joints @ rot.T
+
+    # -------------------------------------------------------------- inverse
+    def strut_lengths(self, position, rotation) -> np.ndarray:
+        """IK of the pose (p, R): q_k = |p + R b_k - a_k|."""
+        q = np.empty(self.n_legs)
+        B.inverse_kinematics_into(self.bars, np.asarray(position, dtype=float),
+                                  np.ascontiguousarray(rotation, dtype=float).reshape(9), q)
+        return q
+
+    def inverse_kinematics(self, x, check_limits: bool = True) -> np.ndarray:
+        """Strut lengths of task coordinates x; JointLimitError naming the strut
+        outside its limits."""
+        q = self.strut_lengths(*self.pose(x))
+        if check_limits:
+            for k in np.flatnonzero(~((q >= self.joint_lower) & (q <= self.joint_upper))):
+                raise JointLimitError(f"{self.leg_names[k]}: {q[k]:.6f} m outside its limits "
+                                      f"[{self.joint_lower[k]:.6f}, {self.joint_upper[k]:.6f}] m at x = "
+                                      f"{np.array2string(np.asarray(x, dtype=float), precision=6)}")
+        return q
+
+    def inverse_kinematics_batch(self, xs) -> tuple[np.ndarray, np.ndarray]:
+        """Strut lengths of poses (N, 6) and whether each is within the limits."""
+        xs = np.asarray(xs, dtype=float).reshape(-1, 6)
+        q = np.array([self.strut_lengths(*self.pose(x)) for x in xs]).reshape(len(xs), self.n_legs)
+        return q, self.within_joint_limits(q)
+
+    def within_joint_limits(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        return np.all((q >= self.joint_lower) & (q <= self.joint_upper), axis=-1)
+
+    # -------------------------------------------------------------- forward
+    def forward_kinematics(self, q, guess=None, tol_m: float = 1e-12, max_iterations: int = 30,
+                           divergence_limit_m: float = 1.0) -> StrutFKResult:
+        """The pose of strut lengths ``q`` nearest ``guess`` (task coordinates;
+        default: home), Newton / Gauss-Newton (``bars.forward_kinematics_kernel``)."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_legs,) or not np.isfinite(q).all() or not (q > 0.0).all():
+            raise ValueError(f"q: expected {self.n_legs} finite positive strut lengths, got {q}")
+        p, rot = self.pose(self._home if guess is None else guess)
+        return self.solve_from(q, p, rot.reshape(9).copy(), tol_m, max_iterations, divergence_limit_m)
+
+    def solve_from(self, q, p, rot, tol_m, max_iterations, divergence_limit_m) -> StrutFKResult:
+        """The kernel's solve from the pose (p (3,), rot (9,) row-major), both updated
+        in place (``StrutFK`` keeps them as its warm start)."""
+        code, iterations, misfit = B.forward_kinematics_kernel(self.bars, q, p, rot, tol_m, max_iterations,
+                                                               divergence_limit_m)
+        rotation = rot.reshape(3, 3)
+        return StrutFKResult(FKCode(code), self.task_coordinates(p, rotation), p.copy(), rotation.copy(),
+                             int(iterations), float(misfit))
+
+    def forward_kinematics_floats(self, q, guess=None) -> tuple:
+        """:meth:`forward_kinematics`'s task coordinates as a tuple; KinematicsError
+        naming how the solve ended when it fails."""
+        result = self.forward_kinematics(q, guess)
+        if not result.ok:
+            raise KinematicsError(f"forward kinematics of q = {np.asarray(q).tolist()}: {result.code.name.lower()} "
+                                  f"after {result.iterations} iterations (misfit {result.misfit_m:.3g} m)")
+        return tuple(result.x.tolist())
+
+    # ------------------------------------------------------------- workspace
+    def workspace_grid(self, points_per_axis: int = 11, angle_points: int = 3) -> np.ndarray:
+        """(N, 6) poses: a regular grid over the workspace box, each point at every
+        combination of the rotations' extremes and zero (``angle_points`` values per
+        rotation, at most 3: a full grid in six dimensions is too large to sweep)."""
+        ws = self.workspace
+        lo, hi = ws["center"] - ws["half_size"], ws["center"] + ws["half_size"]
+        k = max(1, min(int(angle_points), 3))
+        axes = [np.linspace(a, b, points_per_axis) for a, b in zip(lo, hi)]
+        axes += [np.radians(np.linspace(-r, r, k) if k > 1 else np.zeros(1)) + h
+                 for r, h in zip(ws["abc_half_range_deg"], self._home[3:])]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 6)
+
+    def jacobian_batch(self, poses) -> np.ndarray:
+        """J_m at poses (N, 6): (N, n, 6)."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        return np.array([self.jacobian(x) for x in poses]).reshape(len(poses), self.n_legs, 6)
+
+    def condition_number_batch(self, poses) -> np.ndarray:
+        """:meth:`condition_number` at poses (N, 6)."""
+        return np.array([self.condition_number(x) for x in np.asarray(poses, dtype=float).reshape(-1, 6)])
+
+    # ------------------------------------------------------------ Jacobians
+    def jacobian(self, x) -> np.ndarray:
+        """J_m (n, 6): q' = J_m t for the platform twist t = (v, w) (MoM3 eq. 2:
+        rows [u_k, (R b_k) x u_k], u_k the unit vector of strut k)."""
+        p, rot = self.pose(x)
+        jac = np.empty((self.n_legs, 6))
+        if not B.unit_pose_jacobian_into(self.bars, p[0], p[1], p[2], tuple(rot.reshape(9)),
+                                         np.zeros(self.n_legs), jac):
+            raise SingularityError(f"a strut has zero length at x = {x}")
+        return jac
+
+    def task_jacobian(self, x) -> np.ndarray:
+        """q' = J x' for the task coordinates' rates (rotation rates through
+        ``rate_matrix``)."""
+        x = np.asarray(x, dtype=float)
+        jac = self.jacobian(x)
+        return np.hstack((jac[:, :3], jac[:, 3:] @ rate_matrix(*x[3:])))
+
+    def jacobian_derivative(self, x, twist) -> np.ndarray:
+        """dJ_m/dt along the twist t = (v, w): row k = [u', (R b)' x u + (R b) x u'],
+        u' = (e' - u (u . e')) / |e|, e' = v + w x R b, (R b)' = w x R b."""
+        p, rot = self.pose(x)
+        t = np.asarray(twist, dtype=float)
+        v, w = t[:3], t[3:]
+        rb = self.platform_joints @ rot.T
+        e = p + rb - self.base_joints
+        length = np.linalg.norm(e, axis=1)[:, None]
+        u = e / length
+        rb_dot = np.cross(w, rb)
+        e_dot = v + rb_dot
+        u_dot = (e_dot - u * np.sum(u * e_dot, axis=1)[:, None]) / length
+        return np.hstack((u_dot, np.cross(rb_dot, u) + np.cross(rb, u_dot)))
+
+    def wrench_map(self, x) -> np.ndarray:
+        """J_m^T (6, n): the platform wrench (force, moment about p, base frame) of
+        strut forces f, F = J_m^T f (virtual work: f . q' = F . t)."""
+        return self.jacobian(x).T
+
+    def internal_force_basis(self, x) -> np.ndarray:
+        """An orthonormal basis (n, n - 6) of the strut forces that leave the platform's
+        wrench unchanged (null space of J_m^T): empty for the 6-strut hexapod."""
+        _, s, vt = np.linalg.svd(self.wrench_map(x))
+        if s[-1] <= 1e-12 * s[0]:
+            raise SingularityError(f"J_m loses rank at x = {x}: singular values {s}")
+        return vt[6:].T.copy()
+
+    def condition_number(self, x) -> float:
+        """The condition number of J_m with its rotation columns divided by the
+        characteristic length (the platform radius by default): a dimensionless J."""
+        jac = self.jacobian(x)
+        jac[:, 3:] /= self.characteristic_length_m
+        s = np.linalg.svd(jac, compute_uv=False)
+        return float(s[0] / s[-1]) if s[-1] > 0.0 else math.inf
+
+
+class StrutFK:
+    """Forward kinematics of one stream of strut readings, warm-started from the last
+    pose found (the per-stream data beside a constant ``StrutMachine``)."""
+
+    def __init__(self, machine: StrutMachine, tol_m: float = 1e-12, max_iterations: int = 30,
+                 divergence_limit_m: float = 1.0):
+        self.machine = machine
+        self.tol_m, self.max_iterations, self.divergence_limit_m = tol_m, max_iterations, divergence_limit_m
+        self.reset()
+
+    def reset(self, x=None) -> None:
+        p, rot = self.machine.pose(self.machine.home if x is None else x)
+        self._p, self._rot = p, rot.reshape(9).copy()
+
+    def solve(self, q) -> StrutFKResult:
+        """The pose of ``q`` from the last pose; on a failure the warm start is kept."""
+        p, rot = self._p.copy(), self._rot.copy()
+        result = self.machine.solve_from(np.asarray(q, dtype=float), p, rot, self.tol_m, self.max_iterations,
+                                     self.divergence_limit_m)
+        if result.ok:
+            self._p, self._rot = p, rot
+        return result
+
+
+__all__ = ["FKCode", "StrutFK", "StrutFKResult", "StrutMachine", "rate_matrix"]
