@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # benchmark -> (arguments that make it small, a line its output must have)
 SMALL = {
     "kinematics.py": (["--repeat", "1"], "benchmark"),
+    "hexapod.py": (["--repeat", "1", "--readings", "200"], "| genhexkins hexapod | ours, compiled stream"),
     "gough_sensor.py": (["--repeat", "1", "--cycles", "50"], "node callback"),
     "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),
     "controller.py": (["--cycles", "40", "--graph-duration", "0.3"], "| mom3 | measured_space"),

@@ -239,3 +239,22 @@ def test_limits_and_bad_configurations_are_named():
     short = {**data, "home": {"position": [0.0, 0.0, 0.2]}}
     with pytest.raises(ConfigError, match=r"home: s1: .* outside its limits"):
         load_machine_data(short)
+
+
+def test_the_compiled_stream_gives_the_per_call_solves():
+    machine = hexapod8()
+    t = np.linspace(0.0, 0.5, 120)
+    path = np.column_stack((0.05 * np.sin(4 * t), 0.02 * t, 0.6 + 0.03 * t, 0.05 * t, -0.04 * t, 0.1 * np.sin(t)))
+    lengths = np.array([machine.inverse_kinematics(x) for x in path])
+    lengths[60] = 3.0                                                 # one impossible reading in the stream
+    per_call, stream = StrutFK(machine), StrutFK(machine)
+    poses, codes, iterations, misfits = stream.solve_stream(lengths)
+    for k, q in enumerate(lengths):
+        one = per_call.solve(q)
+        assert codes[k] == one.code and iterations[k] == one.iterations, k
+        if one.ok:
+            np.testing.assert_array_equal(poses[k, :3], one.position)
+            np.testing.assert_array_equal(poses[k, 3:].reshape(3, 3), one.rotation)
+            np.testing.assert_allclose(machine.task_coordinates(poses[k, :3], poses[k, 3:].reshape(3, 3)), path[k],
+                                       rtol=0, atol=1e-10)
+    assert codes[60] != FKCode.CONVERGED and (np.delete(codes, 60) == FKCode.CONVERGED).all()

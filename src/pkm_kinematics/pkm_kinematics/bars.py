@@ -154,6 +154,7 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     normal = np.empty((6, 6))
     inverse = np.empty((6, 6))
     g = np.empty(6)
+    step = np.empty(6)
     previous, growth, misfit = math.inf, 0, math.inf
     code, iterations = FK_NO_CONVERGENCE, max_iterations
     for iteration in range(max_iterations + 1):
@@ -199,8 +200,8 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
         if not invert6_into(normal, inverse):
             code, iterations = FK_SINGULAR, iteration
             break
-        step = np.zeros(6)
         for i in range(6):
+            step[i] = 0.0
             for j in range(6):
                 step[i] -= inverse[i, j] * g[j]
         px, py, pz = px + step[0], py + step[1], pz + step[2]
@@ -224,6 +225,40 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     return code, iterations, misfit
 
 
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, int64, float64)")
+def forward_kinematics_warm_kernel(bars, q, state_p, state_r, out_p, out_r, tol_m, max_iterations,
+                                   divergence_limit):
+    """One reading of a stream: ``forward_kinematics_kernel`` from the warm start
+    (``state_p``, ``state_r``) into ``out_p``, ``out_r``; the warm start moves to the
+    solution when it converged, else it stays. Returns (code, iterations, misfit)."""
+    out_p[:] = state_p
+    out_r[:] = state_r
+    code, iterations, misfit = forward_kinematics_kernel(bars, q, out_p, out_r, tol_m, max_iterations,
+                                                         divergence_limit)
+    if code == FK_CONVERGED:
+        state_p[:] = out_p
+        state_r[:] = out_r
+    return code, iterations, misfit
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:], float64[:], float64, int64, float64, float64[:, :], "
+        "int64[:], int64[:], float64[:])")
+def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iterations, divergence_limit, poses, codes,
+                                     iterations, misfits):
+    """``forward_kinematics_kernel`` over a stream of readings (N, n), each solve
+    warm-started from the last converged pose (``p``, ``rot`` hold it, updated):
+    ``poses`` (N, 12) = p and R row-major, with each reading's code, iterations and
+    misfit. A failed reading leaves the warm start as it was."""
+    trial_p = np.empty(3)
+    trial_r = np.empty(9)
+    for k in range(lengths.shape[0]):
+        code, its, misfit = forward_kinematics_warm_kernel(bars, lengths[k], p, rot, trial_p, trial_r, tol_m,
+                                                           max_iterations, divergence_limit)
+        codes[k], iterations[k], misfits[k] = code, its, misfit
+        poses[k, 0:3] = trial_p
+        poses[k, 3:12] = trial_r
+
+
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
            "IK_OK", "IK_UNREACHABLE", "RAIL", "STRUT", "bar_length", "bar_rows", "bar_vector",
-           "forward_kinematics_kernel", "inverse_kinematics_into", "unit_pose_jacobian_into"]
+           "forward_kinematics_kernel", "forward_kinematics_stream_kernel", "forward_kinematics_warm_kernel", "inverse_kinematics_into", "unit_pose_jacobian_into"]

@@ -15,8 +15,8 @@ Everything calls the compiled kernels of ``bars``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -34,14 +34,12 @@ class FKCode(IntEnum):
     STALLED = B.FK_STALLED
 
 
-@dataclass(frozen=True)
-class StrutFKResult:
+class StrutFKResult(NamedTuple):
     """A forward kinematics solve: the pose (task coordinates and (p, R)), how it
     ended, its iterations, and the misfit left (m, root sum of squares of
     |e_k| - q_k: zero for consistent struts; with more struts than 6 it measures how
     far the strut readings are from any pose)."""
     code: FKCode
-    x: np.ndarray
     position: np.ndarray
     rotation: np.ndarray
     iterations: int
@@ -50,6 +48,15 @@ class StrutFKResult:
     @property
     def ok(self) -> bool:
         return self.code == FKCode.CONVERGED
+
+    @property
+    def x(self) -> np.ndarray:
+        """The task coordinates (x, y, z, a, b, c) of the pose (computed on demand: a
+        per-cycle caller that uses (p, R) does not pay for the angles)."""
+        return StrutMachine.task_coordinates(self.position, self.rotation)
+
+
+_CODES = {int(c): c for c in FKCode}
 
 
 def rate_matrix(a: float, b: float, c: float) -> np.ndarray:
@@ -160,9 +167,7 @@ class StrutMachine:
         in place (``StrutFK`` keeps them as its warm start)."""
         code, iterations, misfit = B.forward_kinematics_kernel(self.bars, q, p, rot, tol_m, max_iterations,
                                                                divergence_limit_m)
-        rotation = rot.reshape(3, 3)
-        return StrutFKResult(FKCode(code), self.task_coordinates(p, rotation), p.copy(), rotation.copy(),
-                             int(iterations), float(misfit))
+        return StrutFKResult(_CODES[code], p.copy(), rot.reshape(3, 3).copy(), iterations, misfit)
 
     def forward_kinematics_floats(self, q, guess=None) -> tuple:
         """:meth:`forward_kinematics`'s task coordinates as a tuple; KinematicsError
@@ -266,12 +271,25 @@ class StrutFK:
 
     def solve(self, q) -> StrutFKResult:
         """The pose of ``q`` from the last pose; on a failure the warm start is kept."""
-        p, rot = self._p.copy(), self._rot.copy()
-        result = self.machine.solve_from(np.asarray(q, dtype=float), p, rot, self.tol_m, self.max_iterations,
-                                     self.divergence_limit_m)
-        if result.ok:
-            self._p, self._rot = p, rot
-        return result
+        if type(q) is not np.ndarray or q.dtype != np.float64:
+            q = np.asarray(q, dtype=float)
+        p, rot = np.empty(3), np.empty(9)
+        code, iterations, misfit = B.forward_kinematics_warm_kernel(
+            self.machine.bars, q, self._p, self._rot, p, rot, self.tol_m, self.max_iterations,
+            self.divergence_limit_m)
+        return StrutFKResult(_CODES[code], p, rot.reshape(3, 3), iterations, misfit)
+
+    def solve_stream(self, lengths) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`solve` over readings (N, n) in one compiled loop: (poses (N, 12) as
+        p and R row-major, codes (N,), iterations (N,), misfits (N,) in m)."""
+        lengths = np.ascontiguousarray(lengths, dtype=float).reshape(-1, self.machine.n_legs)
+        n = lengths.shape[0]
+        poses, codes = np.empty((n, 12)), np.empty(n, dtype=np.int64)
+        iterations, misfits = np.empty(n, dtype=np.int64), np.empty(n)
+        B.forward_kinematics_stream_kernel(self.machine.bars, lengths, self._p, self._rot, self.tol_m,
+                                           self.max_iterations, self.divergence_limit_m, poses, codes, iterations,
+                                           misfits)
+        return poses, codes, iterations, misfits
 
 
 __all__ = ["FKCode", "StrutFK", "StrutFKResult", "StrutMachine", "rate_matrix"]

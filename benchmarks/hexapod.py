@@ -1,0 +1,155 @@
+"""Strut machines' forward kinematics against a compiled C Newton solve of the same
+stream (issue 23's target: every warm FK within 5x of C).
+
+    .venv/bin/python benchmarks/hexapod.py [--repeat N] [--readings N]
+
+The stream: a 2 kHz motion (100 um and a few hundred microradians per reading) of
+LinuxCNC's genhexkins hexapod and of MoM3's Gough metrology platform, each solve
+warm-started from the previous pose. The C reference (benchmarks/c/strut_newton.c:
+genhexkins' Newton iteration, the rotation updated on SO(3)) is built here with
+``cc -O2`` and called once per stream through ctypes, so its per-reading time is the
+solve's own. Ours: the same stream in one compiled loop (``StrutFK.solve_stream``,
+the batched form), and one Python call per reading (``StrutFK.solve``,
+``GoughDKMSolver.solve``: what a node pays per cycle). Printed: microseconds per
+reading, the ratio to C, iterations per reading. Without a C compiler the C rows say
+so and the others still print.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import math
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pkm_kinematics import GoughDKMSolver, load_machine
+from pkm_kinematics.hexapod import StrutFK, StrutMachine
+from pkm_kinematics.rotations import rotation_from_rpy
+
+HERE = Path(__file__).resolve().parent
+
+
+def build_c() -> ctypes.CDLL | None:
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    out = Path(tempfile.mkdtemp(prefix="pkm-bench-")) / "strut_newton.so"
+    subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(out), str(HERE / "c" / "strut_newton.c"), "-lm"],
+                   check=True)
+    lib = ctypes.CDLL(str(out))
+    dbl = ctypes.POINTER(ctypes.c_double)
+    lib.solve_stream.argtypes = [dbl, dbl, ctypes.c_int, dbl, dbl, ctypes.c_double, ctypes.c_int, dbl]
+    lib.solve_stream.restype = ctypes.c_int
+    return lib
+
+
+def c_stream(lib, legs, lengths, p0, r0, tol):
+    """(seconds per reading, iterations per reading, poses) of the C solve."""
+    ptr = lambda a: a.ctypes.data_as(ctypes.POINTER(ctypes.c_double))   # noqa: E731
+    legs, lengths = np.ascontiguousarray(legs), np.ascontiguousarray(lengths)
+    p, r, poses = p0.copy(), r0.reshape(9).copy(), np.empty((len(lengths), 12))
+    t0 = time.perf_counter()
+    total = lib.solve_stream(ptr(legs), ptr(lengths), len(lengths), ptr(p), ptr(r), tol, 30, ptr(poses))
+    elapsed = time.perf_counter() - t0
+    if total < 0:
+        raise RuntimeError(f"C solve: reading {-1 - total} did not converge")
+    return elapsed / len(lengths), total / len(lengths), poses
+
+
+def stream(positions_and_rotations, lengths_of) -> np.ndarray:
+    return np.array([lengths_of(p, r) for p, r in positions_and_rotations])
+
+
+def motion(home, n: int, scale_m: float):
+    """n poses of a 2 kHz motion about ``home``: ~100 um per reading at scale 0.1 m."""
+    out = []
+    for k in range(n):
+        t = k / 2000.0
+        p = home + [scale_m * math.sin(2 * t), scale_m * math.cos(2 * t) - scale_m, 0.02 * t]
+        out.append((p, rotation_from_rpy(0.05 * math.sin(3 * t), 0.002 * k / 20, 0.04 * t)))
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeat", type=int, default=7)
+    parser.add_argument("--readings", type=int, default=4000)
+    args = parser.parse_args(argv)
+    tol = 1e-10
+    lib = build_c()
+
+    hexapod: StrutMachine = load_machine("genhexkins").model
+    gough = load_machine("mom3").metrology.platform
+    cases = [("genhexkins hexapod", hexapod.base_joints, hexapod.platform_joints, hexapod.home[:3],
+              lambda p, r: hexapod.strut_lengths(p, r)),
+             ("MoM3 Gough metrology", gough.base_points, gough.plate_points, gough.home_position,
+              lambda p, r: gough.strut_lengths(p, r))]
+    rows = []
+    for name, base, plate, home, lengths_of in cases:
+        poses = motion(np.asarray(home, dtype=float), args.readings, 0.1)
+        lengths = stream(poses, lengths_of)
+        legs = np.hstack((base, plate))
+        p0, r0 = poses[0][0].copy(), poses[0][1].copy()
+        c_us = math.nan
+        if lib is not None:
+            runs = [c_stream(lib, legs, lengths, p0, r0, tol) for _ in range(args.repeat)]
+            c_us = 1e6 * statistics.median(r[0] for r in runs)
+            rows.append((name, "C Newton (cc -O2), stream", c_us, runs[0][1], 1.0))
+        else:
+            rows.append((name, "C Newton: no C compiler (cc) here", math.nan, math.nan, math.nan))
+        machine = StrutMachine(name, [f"s{k}" for k in range(6)], base, plate, [(1e-3, 10.0)] * 6,
+                               hexapod.task_coordinates(p0, r0), {})
+        times, its = [], None
+        for _ in range(args.repeat):
+            fk = StrutFK(machine, tol_m=tol)
+            fk.reset(machine.task_coordinates(p0, r0))
+            t0 = time.perf_counter()
+            out, codes, iterations, _ = fk.solve_stream(lengths)
+            times.append((time.perf_counter() - t0) / len(lengths))
+            assert (codes == 0).all(), "a reading of the stream did not converge"
+            its = iterations.mean()
+        us = 1e6 * statistics.median(times)
+        rows.append((name, "ours, compiled stream (StrutFK.solve_stream)", us, its, us / c_us))
+        times = []
+        for _ in range(args.repeat):
+            fk = StrutFK(machine, tol_m=tol)
+            fk.reset(machine.task_coordinates(p0, r0))
+            t0 = time.perf_counter()
+            for q in lengths:
+                fk.solve(q)
+            times.append((time.perf_counter() - t0) / len(lengths))
+        us = 1e6 * statistics.median(times)
+        rows.append((name, "ours, a Python call per reading (StrutFK.solve)", us, math.nan, us / c_us))
+        if name.startswith("MoM3"):
+            times = []
+            for _ in range(args.repeat):
+                solver = GoughDKMSolver(gough, tol_m=tol)
+                solver.reset(p0, r0)
+                t0 = time.perf_counter()
+                for q in lengths:
+                    solver.solve(q)
+                times.append((time.perf_counter() - t0) / len(lengths))
+            us = 1e6 * statistics.median(times)
+            rows.append((name, "ours, the metrology's GoughDKMSolver.solve per reading", us, math.nan, us / c_us))
+
+    print(f"hexapod benchmark: warm-started FK over a {args.readings}-reading 2 kHz stream, "
+          f"tol {tol:g} m, median of {args.repeat}")
+    print(f"| machine | solver | us/reading | iterations/reading | x C |")
+    print("|---|---|---|---|---|")
+    for name, solver, us, its, ratio in rows:
+        its_text = "-" if math.isnan(its) else f"{its:.2f}"
+        ratio_text = "-" if math.isnan(ratio) else f"{ratio:.1f}"
+        print(f"| {name} | {solver} | {us:.2f} | {its_text} | {ratio_text} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
