@@ -32,7 +32,7 @@ def test_all_machines_load():
     (lambda d: d["legs"][3].update(joint_limits=[2.0, 1.0]), "legs[3].joint_limits", "min < max"),
     (lambda d: d["legs"][0].update(rail_direction=[0.0, 0.0]), "legs[0].rail_direction", "non-zero"),
     (lambda d: d["legs"][0].update(platform_point=[0.1, "a"]), r"legs[0].platform_point[1]", "finite number"),
-    (lambda d: d.update(kind="hexapod"), "kind", r"must be one of \['planar', 'translational', 'struts'\]"),
+    (lambda d: d.update(kind="hexapod"), "kind", r"must be one of \['planar', 'translational', 'struts', 'parallelograms'\]"),
     (lambda d: d.update(home_pose=[1.0, -3.0, 0.0]), "home_pose", "unreachable"),
     (lambda d: d.update(home_pose=[3.3, -0.4, 0.0]), "home_pose", "outside joint_limits"),
     (lambda d: d.pop("workspace"), "workspace", "missing section"),

@@ -38,7 +38,8 @@ def test_machines_sensor_sets():
 def test_pkm_analyze_dosr_lists_every_machine(capsys):
     assert main(["--json", "dosr"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert set(data) == {"archi", "mom3", "orthoglide", "sliding_star", "genhexkins", "hexapod8"}
+    assert set(data) == {"archi", "mom3", "mom3_imperfect", "orthoglide", "sliding_star", "genhexkins",
+                         "hexapod8"}
     mom3 = {row["sensors"]: row for row in data["mom3"]}
     assert mom3["encoders"]["dosr_perfect"] == 0 and mom3["gough struts"]["dosr_imperfect"] == 0
     # the hexapods: D = O = M = 6; six struts iso-measure the platform, eight over-measure it

@@ -225,6 +225,88 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     return code, iterations, misfit
 
 
+@kernel()
+def rail_closure_rows_into(bars, px, py, pz, r, q, out) -> bool:
+    """The closure Jacobian of the bars for the unknowns (w, q) at a given platform
+    position: row k = [(R b_k) x e_k / |e_k|, -(e_k . u_k) / |e_k| in the column of
+    bar k's actuator] (d|e_k|/dt with p held; MACHINE_MODEL.md's J_x, J_q). ``out``
+    (n, 3 + m). False where a bar has zero length."""
+    m = out.shape[1] - 3
+    for k in range(bars.shape[0]):
+        ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
+        n = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if not n > 0.0:
+            return False
+        ux, uy, uz = ex / n, ey / n, ez / n
+        out[k, 0] = rby * uz - rbz * uy
+        out[k, 1] = rbz * ux - rbx * uz
+        out[k, 2] = rbx * uy - rby * ux
+        for j in range(m):
+            out[k, 3 + j] = 0.0
+        j = int(bars[k, 10])
+        if j >= 0 and bars[k, 11] == 0.0:
+            out[k, 3 + j] = -(ux * bars[k, 3] + uy * bars[k, 4] + uz * bars[k, 5])
+    return True
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64, int64)")
+def inverse_kinematics_parasitic_kernel(bars, p, rot, q, tol_m, max_iterations):
+    """Inverse kinematics of a machine whose task is the platform position only and
+    whose rotation follows from the bars (the Delta's parallelograms; with unequal
+    bars, MoM3 §4.1's imperfect case, the parasitic rotation): Newton on the bar
+    misfits r_k = |e_k| - L_k over (w, q) with p held, from ``rot`` and the first
+    bars' closed form; needs as many bars as 3 + actuators (6 for a Delta).
+    ``rot`` (9) and ``q`` are updated in place. Returns (code, iterations, misfit):
+    FK_* codes (FK_CONVERGED, FK_NO_CONVERGENCE, FK_SINGULAR, FK_DIVERGED), and
+    IK_UNREACHABLE + 10 when a rail cannot reach its joint at the start."""
+    n = bars.shape[0]
+    m = q.shape[0]
+    if n != 3 + m or n != 6:
+        return FK_SINGULAR, 0, math.inf
+    code, _ = inverse_kinematics_into(bars, p, rot, q)
+    if code != IK_OK:
+        return IK_UNREACHABLE + 10, 0, math.inf
+    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
+    jac = np.empty((6, 6))
+    inverse = np.empty((6, 6))
+    res = np.empty(6)
+    misfit = math.inf
+    result, iterations = FK_NO_CONVERGENCE, max_iterations
+    for iteration in range(max_iterations + 1):
+        worst = 0.0
+        for k in range(6):
+            ex, ey, ez, _, _, _ = bar_vector(bars, k, p[0], p[1], p[2], r, q)
+            res[k] = math.sqrt(ex * ex + ey * ey + ez * ez) - bar_length(bars, k, q)
+            if not abs(res[k]) <= worst:
+                worst = abs(res[k])
+        misfit = worst
+        if worst <= tol_m:
+            result, iterations = FK_CONVERGED, iteration
+            break
+        if iteration == max_iterations:
+            break
+        if not math.isfinite(worst) or worst > 1.0:
+            result, iterations = FK_DIVERGED, iteration
+            break
+        if not rail_closure_rows_into(bars, p[0], p[1], p[2], r, q, jac) or not invert6_into(jac, inverse):
+            result, iterations = FK_SINGULAR, iteration
+            break
+        dw0 = dw1 = dw2 = 0.0
+        for j in range(6):
+            dw0 -= inverse[0, j] * res[j]
+            dw1 -= inverse[1, j] * res[j]
+            dw2 -= inverse[2, j] * res[j]
+        for a in range(m):
+            d = 0.0
+            for j in range(6):
+                d -= inverse[3 + a, j] * res[j]
+            q[a] += d
+        r = mul3_kernel(exp_so3_kernel(dw0, dw1, dw2), r)
+    for k in range(9):
+        rot[k] = r[k]
+    return result, iterations, misfit
+
+
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, int64, float64)")
 def forward_kinematics_warm_kernel(bars, q, state_p, state_r, out_p, out_r, tol_m, max_iterations,
                                    divergence_limit):
@@ -261,4 +343,5 @@ def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iteration
 
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
            "IK_OK", "IK_UNREACHABLE", "RAIL", "STRUT", "bar_length", "bar_rows", "bar_vector",
-           "forward_kinematics_kernel", "forward_kinematics_stream_kernel", "forward_kinematics_warm_kernel", "inverse_kinematics_into", "unit_pose_jacobian_into"]
+           "forward_kinematics_kernel", "forward_kinematics_stream_kernel", "forward_kinematics_warm_kernel",
+           "inverse_kinematics_parasitic_kernel", "rail_closure_rows_into", "inverse_kinematics_into", "unit_pose_jacobian_into"]

@@ -28,6 +28,7 @@ import numpy as np
 from . import analysis
 from .config import MachineConfig, load_machine, machine_names
 from .errors import KinematicsError, UnreachablePoseError
+from .parallelogram import ParallelogramMachine, tilt_urad
 from .planar import PlanarMachine
 
 
@@ -277,6 +278,12 @@ def cmd_report(args) -> tuple[dict, str]:
             theta_range=list(model.workspace["theta_deg"]), samples=4001))
         sections.append(c_text)
         data["condition"] = c_data
+    if isinstance(model, ParallelogramMachine):          # MoM3 §4.1: the imperfect case's tilt
+        grid = model.workspace_grid(args.points)
+        tilts = np.array([tilt_urad(model.parasitic_rotation(p)) for p in grid])
+        data["parasitic_rotation_urad"] = [float(tilts.min()), float(tilts.max())]
+        sections.append(_table(f"Parasitic rotation of {cfg.name} (MoM3 §4.1, unequal parallelogram bars)", [
+            ("over the workspace", f"{tilts.min():.1f} .. {tilts.max():.1f} urad ({len(grid)} positions)")]))
     if cfg.metrology is not None:
         r_data, r_text = cmd_resolution(argparse.Namespace(machine=args.machine, points=args.resolution_points))
         sections.append(r_text)

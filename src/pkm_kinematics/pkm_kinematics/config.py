@@ -20,11 +20,12 @@ from .errors import ConfigError, JointLimitError, KinematicsError, UnreachablePo
 from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
 from .hexapod import StrutMachine
+from .parallelogram import ParallelogramMachine
 from .planar import PlanarLeg, PlanarMachine
 from .rotations import rotation_from_rpy
 from .translational import TranslationalLeg, TranslationalMachine
 
-MACHINE_KINDS = ("planar", "translational", "struts")
+MACHINE_KINDS = ("planar", "translational", "struts", "parallelograms")
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "inch": 0.0254}
 
 
@@ -143,7 +144,7 @@ class MachineConfig:
 
     name: str
     kind: str
-    model: PlanarMachine | TranslationalMachine | StrutMachine
+    model: PlanarMachine | TranslationalMachine | StrutMachine | ParallelogramMachine
     metrology: "GoughMetrologyConfig | None"
     data: dict
     dynamics: "DynamicsParameters | None" = None
@@ -278,6 +279,34 @@ def _struts(r: _Reader, name: str, description: str) -> StrutMachine:
     return model
 
 
+def _parallelograms(r: _Reader, name: str, description: str) -> ParallelogramMachine:
+    """A Delta whose legs are parallelograms of two bars each (``parallelogram.py``):
+    the translational machine's ``legs``, and ``parallelogram``: its ``half_width``
+    (m) and each bar's length error (``bar_length_errors``, m, two per leg: MoM3
+    §4.1's imperfect case; zeros make a translating platform)."""
+    legs = _legs(r, 3, "platform_offset", TranslationalLeg)
+    if len(legs) != 3:
+        raise ConfigError(r._name("legs"), f"a parallelogram Delta has exactly 3 legs, got {len(legs)}")
+    pr = r.sub("parallelogram")
+    half_width = pr.number("half_width", lo=0.0, lo_open=True, unit="m")
+    errors = pr.raw("bar_length_errors", [[0.0, 0.0]] * 3)
+    if not isinstance(errors, list) or len(errors) != 3:
+        raise ConfigError(pr._name("bar_length_errors"), f"expected 3 pairs (two bars per leg), got {errors!r}")
+    pairs = [_Reader({"pair": e}, pr._name(f"bar_length_errors[{i}]")).vector("pair", 2, unit="m")
+             for i, e in enumerate(errors)]
+    for i, (pair, leg) in enumerate(zip(pairs, legs)):
+        if not (np.abs(pair) < 0.1 * leg.link_length).all():
+            raise ConfigError(pr._name(f"bar_length_errors[{i}]"),
+                              f"must be below a tenth of the link length ({0.1 * leg.link_length:g} m), got {pair}")
+    home = r.vector("home_position", 3, unit="m")
+    try:
+        model = ParallelogramMachine(name, legs, half_width, pairs, home, _workspace(r, planar=False), description)
+        model.inverse_kinematics(home)
+    except KinematicsError as exc:
+        raise ConfigError(r._name("home_position"), str(exc)) from None
+    return model
+
+
 def _gough(r: _Reader) -> GoughMetrologyConfig:
     g = r.sub("geometry")
     geometry = {"r_base": g.number("r_base", lo=0.0, lo_open=True, unit="m"),
@@ -332,7 +361,8 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
         name = r.string("name")
         kind = r.choice("kind", MACHINE_KINDS)
         description = str(r.raw("description", ""))
-        model = {"planar": _planar, "translational": _translational, "struts": _struts}[kind](r, name, description)
+        model = {"planar": _planar, "translational": _translational, "struts": _struts,
+                 "parallelograms": _parallelograms}[kind](r, name, description)
         metrology = _gough(r.sub("metrology")) if r.has("metrology") else None
         dynamics = _dynamics(r.sub("dynamics"), model.n_legs, kind == "planar") if r.has("dynamics") else None
     except ConfigError as exc:

@@ -19,4 +19,11 @@ def condition_numbers(jacobians: np.ndarray) -> np.ndarray:
     return out
 
 
-__all__ = ["condition_numbers"]
+def cube_grid(center, size: float, points_per_axis: int) -> np.ndarray:
+    """A regular grid over a cube of edge ``size`` about ``center``: (N, 3) points."""
+    half = size / 2.0
+    axes = [np.linspace(c - half, c + half, points_per_axis) for c in center]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+__all__ = ["condition_numbers", "cube_grid"]

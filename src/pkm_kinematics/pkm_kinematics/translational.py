@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .jit import kernel
-from .measures import condition_numbers
+from .measures import condition_numbers, cube_grid
 from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms, velocity_terms_error
 from .validation import finite_array, finite_floats
 
@@ -360,9 +360,7 @@ class TranslationalMachine:
     def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
         """A regular grid over the configured workspace cube: (N, 3) positions
         (``theta_points``: the planar machines' signature, unused)."""
-        half = self.workspace["size"] / 2.0
-        axes = [np.linspace(c - half, c + half, points_per_axis) for c in self.workspace["center"]]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return cube_grid(self.workspace["center"], self.workspace["size"], points_per_axis)
 
     def condition_number_batch(self, positions) -> np.ndarray:
         """Condition numbers of J_m at positions (N, 3): NaN where unreachable."""
