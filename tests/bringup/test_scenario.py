@@ -90,6 +90,13 @@ def test_metrology_needs_a_machine_with_one(tmp_path):
         load_scenario(path)
 
 
+@pytest.mark.parametrize("machine", ["genhexkins", "hexapod8", "mom3_imperfect"])
+def test_a_machine_the_graph_does_not_run_yet_is_refused_by_name(machine):
+    with pytest.raises(ScenarioError, match=f"^machine: {machine} is a (struts|parallelograms) machine; the graph "
+                                            f"\\(plant, controller, planner\\) runs planar and translational"):
+        load_scenario("mom3_square", {"machine": machine})
+
+
 def test_a_ramp_may_end_exactly_where_the_next_entry_starts():
     s = load_scenario("mom3_square", {"dt_s": 0.001, "load": [
         {"t_s": 0.1, "wrench": [10.0, 0.0, 0.0], "ramp_s": 0.2}, {"t_s": 0.3, "wrench": [0.0, 0.0, 0.0]}]})

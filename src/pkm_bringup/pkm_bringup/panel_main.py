@@ -109,6 +109,7 @@ def main(argv=None) -> int:
     from pkm_bringup.panel_app import create_app, create_estop_app
     from pkm_bringup.panel_node import PanelNode
     from pkm_bringup.scenario import ScenarioError, load_scenario
+    from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
     from pkm_kinematics import load_machine
 
     machine, namespace = args.machine or "archi", args.namespace or "/pkm"
@@ -133,6 +134,15 @@ def main(argv=None) -> int:
     token = args.token
     if token is None and not _loopback(args.host):
         token = secrets.token_urlsafe(16)
+    try:
+        config = load_machine(machine)
+    except ValueError as exc:
+        print(f"pkm-panel: --machine: {exc}", file=sys.stderr)
+        return 2
+    if config.kind not in GRAPH_KINDS:
+        print(f"pkm-panel: --machine: {config.name} is a {config.kind} machine; the graph runs "
+              f"{' and '.join(GRAPH_KINDS)} machines so far", file=sys.stderr)
+        return 2
     log_file = open(args.log, "a", encoding="utf-8") if args.log else None   # noqa: SIM115 - until exit
 
     def log_line(entry: dict) -> None:
@@ -143,7 +153,7 @@ def main(argv=None) -> int:
             log_file.flush()
 
     graph = Graph(args.start, args.runs, args.rt_profile) if args.start else None
-    panel = Panel(PanelModel(load_machine(machine)), can_reset=graph is not None, log=log_line)
+    panel = Panel(PanelModel(config), can_reset=graph is not None, log=log_line)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = PanelNode(panel, namespace, context=context)

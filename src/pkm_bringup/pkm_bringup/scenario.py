@@ -51,6 +51,7 @@ from pathlib import Path
 import yaml
 
 from pkm_controller.controller import ControllerConfig
+from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
@@ -263,6 +264,10 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"machine: {exc}") from None
     if config is None:
         raise ScenarioError(f"machine: required, the name of a file in config/machines, got {machine!r}")
+    if config.kind not in GRAPH_KINDS:
+        raise ScenarioError(f"machine: {config.name} is a {config.kind} machine; the graph (plant, controller, "
+                            f"planner) runs {' and '.join(GRAPH_KINDS)} machines so far: analyse it with "
+                            f"pkm-analyze and pkm_kinematics")
     given_as_file = machine not in machine_names()
     if given_as_file:       # every node loads the same file, whatever its working directory
         machine = str(Path(machine).resolve())
