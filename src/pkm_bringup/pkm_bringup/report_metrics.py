@@ -218,8 +218,11 @@ def internal_force_setup(info: RunInfo, cfg, series: str, rows: int) -> dict:
 
 # ------------------------------------------------------------ machine
 def resolve_machine(names: list, machine_name: str | None):
-    """(MachineConfig or None, how it was found: "given", "drive names" or "unknown")."""
+    """(MachineConfig or None, how it was found: "given", "drive names" or "unknown").
+    By drive names only among the machines a graph runs (a recording comes from one):
+    mom3_imperfect has mom3's drives but is not run yet."""
     import pkm_kinematics
+    from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
 
     if machine_name:
         return pkm_kinematics.load_machine(machine_name), "given"
@@ -231,7 +234,7 @@ def resolve_machine(names: list, machine_name: str | None):
             cfg = pkm_kinematics.load_machine(name)
         except Exception:                         # noqa: BLE001 - a broken config is not this run's
             continue
-        if list(cfg.model.leg_names) == list(names):
+        if cfg.kind in GRAPH_KINDS and list(cfg.model.leg_names) == list(names):
             matches.append(cfg)
     if len(matches) == 1:
         return matches[0], "drive names"
