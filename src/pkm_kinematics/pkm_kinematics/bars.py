@@ -27,7 +27,8 @@ The kernels:
   the solution is what shows inconsistent actuators (a frozen or slipping encoder,
   a model error).
 
-The machine classes (``hexapod.StrutMachine``) wrap them; ``gough`` keeps its own
+The machine classes (``hexapod.StrutMachine``, ``parallelogram.ParallelogramMachine``)
+wrap them; ``gough`` keeps its own
 6-strut kernels for the metrology (the same equations for 6 passive struts, tuned
 for that stream) until the per-kind classes are replaced by this model.
 """
