@@ -422,10 +422,35 @@ def min_p_norm(jac, wrench, p: float = 4.0, check: bool = True, tol: float = 1e-
     return forces
 
 
-def add_prestress(jac, forces, prestress_n: float, reference=None) -> np.ndarray:
-    """f + prestress * n, n the unit vector of ker(J^T) (4 x 3 J): an internal force of
-    ``prestress_n`` newtons that leaves the wrench unchanged (e.g. to preload joints
-    against backlash). ``reference`` fixes the sign of n (see null_direction)."""
+def prestress_direction(jac, direction) -> np.ndarray:
+    """The unit internal force nearest ``direction`` (n drive forces): its projection
+    on ker(J^T), normalised. For a null space of any dimension (an n x 6 J of a
+    redundant hexapod has n - 6): the user says which drives to preload against which.
+    DistributionError when the null space is empty or ``direction`` is orthogonal to it."""
+    jac = np.asarray(jac, dtype=float)
+    d = np.asarray(finite_floats(direction, jac.shape[0], "direction"))
+    basis = null_space(jac)
+    if basis.shape[1] == 0:
+        raise DistributionError(f"prestress: no internal force exists with {jac.shape[0]} drives for "
+                                f"{jac.shape[1]} DOF (ker(J^T) is empty)")
+    n = basis @ (basis.T @ d)
+    norm = float(np.linalg.norm(n))
+    if not norm > 1e-9 * max(float(np.linalg.norm(d)), 1e-300):
+        raise DistributionError("prestress: direction has no internal part (it is orthogonal to ker(J^T))")
+    return n / norm
+
+
+def add_prestress(jac, forces, prestress_n: float, reference=None, direction=None) -> np.ndarray:
+    """f + prestress * n: an internal force of ``prestress_n`` newtons that leaves the
+    wrench unchanged (e.g. to preload joints against backlash). n is the unit vector of
+    ker(J^T) of a 4 x 3 J (``reference`` fixes its sign, see null_direction), or, for a
+    null space of any dimension, the one nearest ``direction`` (prestress_direction)."""
+    if direction is not None:
+        return np.asarray(forces, dtype=float) + prestress_n * prestress_direction(jac, direction)
+    shape = np.shape(jac)
+    if shape != (4, 3):
+        raise ValueError(f"prestress: the {shape[0]} x {shape[1]} Jacobian's internal forces are not one line: "
+                         f"give direction (the {shape[0]} drive forces to preload along)")
     return np.asarray(forces, dtype=float) + prestress_n * null_direction(jac, reference)
 
 
@@ -515,8 +540,10 @@ def _distribute_kernel(rows, w0, w1, w2, inf_norm, check):
 
 
 def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 4.0,
-               internal_force_n: float = 0.0, prestress_n: float = 0.0, reference=None) -> np.ndarray:
-    """Dispatch by name (``METHODS``); adds ``prestress_n`` along the null space if non-zero."""
+               internal_force_n: float = 0.0, prestress_n: float = 0.0, reference=None,
+               prestress_direction=None) -> np.ndarray:
+    """Dispatch by name (``METHODS``); adds ``prestress_n`` along the null space if non-zero
+    (along ``prestress_direction`` projected on it, for a null space of any dimension)."""
     if method == "pseudo_inverse":
         forces = min_two_norm(jac, wrench)
     elif method == "inf_norm":
@@ -530,5 +557,5 @@ def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 
     else:
         raise ValueError(f"distribution: must be one of {list(METHODS)}, got {method!r}")
     if prestress_n:
-        forces = add_prestress(jac, forces, prestress_n, reference)
+        forces = add_prestress(jac, forces, prestress_n, reference, prestress_direction)
     return forces
