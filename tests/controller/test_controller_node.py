@@ -163,6 +163,26 @@ def test_the_watchdog_stops_when_the_plant_goes_silent(ros_graph):
 
 
 @pytest.mark.ros
+@pytest.mark.parametrize("end_time_s", [0.1, 0.0])
+def test_the_end_of_the_run_is_not_a_silent_plant(ros_graph, end_time_s):
+    """sim_hw stops after its last step; told the run's end (end_time_s, the scenario's
+    duration), the controller takes the silence after that state for the end of the run.
+    Without it, its watchdog trips: under load the graph's shutdown came later than
+    state_timeout_s, and a complete run ended "tripped" (a flaky full test run)."""
+    ctx = ros_graph.context
+    sim = ros_graph.add_node(SimHwNode(context=ctx, parameter_overrides=overrides(
+        publish_markers=False, duration_s=0.1, shutdown_on_finish=False)))
+    ctrl = ros_graph.add_node(ControllerNode(context=ctx, parameter_overrides=overrides(
+        state_timeout_s=0.2, end_time_s=end_time_s)))
+    assert ros_graph.spin_until(lambda: sim.finished, timeout_sec=30.0)
+    ros_graph.spin_until(lambda: ctrl.core.stopped, timeout_sec=0.8)
+    if end_time_s:
+        assert not ctrl.core.stopped and ctrl.run_ended, ctrl.core.stop_reason
+    else:
+        assert ctrl.core.stopped and ctrl.core.stop_reason == "drives/state: none for 0.2 s"
+
+
+@pytest.mark.ros
 @pytest.mark.parametrize("lost", ["command", "state", "struts"])
 def test_a_message_lost_in_transport_does_not_stop_the_lockstep(ros_graph, lost):
     """A reliable sample lost in transport waits for DDS's next heartbeat (seconds): a

@@ -484,7 +484,8 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                    "command_source": controller_node_name(s),
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
-                       "dt_s": s.dt_s, "autostart": True, "wait_for_trajectory": s.program is not None,
+                       "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
+                       "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
                        "summary_path": str(summaries / "controller.json")},
     }

@@ -11,7 +11,8 @@ trajectory / a latched ``run/start`` (an orchestrator's start signal); ``estop``
 trip of the supervisor put the controller in its safe state (zero forces) and latch
 ``estop`` so the drives brake. A wall-clock watchdog trips when ``drives/state`` or
 the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``, from the
-first state answered. (DDS deadline
+first state answered, until the state of ``end_time_s`` (the run's last step, after
+which the plant is silent by design; 0: no known end). (DDS deadline
 QoS would need the publisher to offer a deadline too; sim_hw in lockstep publishes
 only when answered, so a timer on the controller's side is the same test.)
 With ``autostart`` (default) the node configures and activates itself.
@@ -49,7 +50,7 @@ from pkm_controller.reference import reference_from_trajectory
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
                    "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
-                   "wait_for_start": False}
+                   "wait_for_start": False, "end_time_s": 0.0}
 
 
 class ControllerNode(LifecycleNode):
@@ -92,6 +93,11 @@ class ControllerNode(LifecycleNode):
             self.get_logger().error(f"configure refused: {exc}")
             return TransitionCallbackReturn.FAILURE
         self.values = values
+        # the run's last step (the plant stops publishing after it): once its state is
+        # here, silence is the end of the run, not a fault (0: no known end)
+        end_s = float(values["end_time_s"])
+        self.end_ns = round((end_s - 0.5 * config.dt_s) * 1e9) if end_s > 0.0 else 0
+        self.run_ended = False
         self.names = self.core.names
         strategy = self.core.strategy
         self.wait_for = strategy.reading          # "struts", "pose", or "" for the encoder strategies
@@ -173,6 +179,7 @@ class ControllerNode(LifecycleNode):
             if not self.core.stopped:
                 self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
             return
+        self.run_ended = self.run_ended or 0 < self.end_ns <= msg.stamp_ns
         plant_cause = plant_stop_cause(msg.frame_id)
         if plant_cause is not None and not self.core.stopped:
             self.safe_stop_plant(plant_cause)      # the drives' status word: the plant braked
@@ -237,7 +244,7 @@ class ControllerNode(LifecycleNode):
             self.safe_stop("estop", TripCause.ESTOP)
 
     def on_watchdog(self) -> None:
-        if not self.active or self.core is None or self.core.stopped:
+        if not self.active or self.core is None or self.core.stopped or self.run_ended:
             return
         fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
                                            self.values["metrology_timeout_s"])
