@@ -33,17 +33,23 @@ class TrajectoryRejected(ValueError):
 
 @dataclass(frozen=True)
 class Limits:
-    """Per-axis limits in task coordinates (m or rad, per s, s^2, s^3)."""
+    """Per-axis limits in task coordinates (m or rad, per s, s^2, s^3): one value per
+    task coordinate (3 for the planar and translational machines, 6 for a hexapod's
+    x, y, z, a, b, c)."""
 
     velocity: tuple
     acceleration: tuple
     jerk: tuple
 
     def __post_init__(self):
+        axes = len(self.velocity)
         for name in ("velocity", "acceleration", "jerk"):
             values = getattr(self, name)
-            if len(values) != 3 or not all(v > 0.0 and math.isfinite(v) for v in values):
-                raise ValueError(f"limits.{name}: expected 3 positive finite numbers, got {values!r}")
+            if len(values) not in (3, 6) or len(values) != axes or \
+                    not all(v > 0.0 and math.isfinite(v) for v in values):
+                raise ValueError(f"limits.{name}: expected {axes if axes in (3, 6) else 3} positive finite numbers "
+                                 f"(3 or 6 task coordinates, the same for velocity, acceleration and jerk), "
+                                 f"got {values!r}")
 
 
 # ------------------------------------------------------------------ segments
@@ -66,7 +72,7 @@ class Line:
         return [b - a for a, b in zip(self.start, self.end)]
 
     def second(self, _u):
-        return [0.0, 0.0, 0.0]
+        return [0.0] * len(self.start)
 
     def radius(self):
         return math.inf
@@ -188,9 +194,10 @@ def sample_segment(timed: TimedSegment, t: float):
     seg = timed.segment
     if timed.profile is None:
         x = list(seg.end) if isinstance(seg, Dwell) else seg.point(1.0)
-        return x, [0.0] * 3, [0.0] * 3
+        return x, [0.0] * len(x), [0.0] * len(x)
     if t >= timed.duration_s:                  # at rest exactly on the target
-        return seg.point(1.0), [0.0] * 3, [0.0] * 3
+        x = seg.point(1.0)
+        return x, [0.0] * len(x), [0.0] * len(x)
     u, ud, udd = (v[0] for v in timed.profile.at_time(max(t, 0.0)))
     x1, x2 = seg.first(u), seg.second(u)
     return (seg.point(u), [a * ud for a in x1], [a * udd + b * ud * ud for a, b in zip(x1, x2)])
@@ -351,8 +358,8 @@ def _superposed(timed: list, starts: list, t: float, origin=None):
     the first profile plus every profile's displacement so far (``origin`` given: the
     profiles listed are the only ones not yet finished, and it is their start)."""
     x = list(timed[0].segment.start if origin is None else origin)
-    v = [0.0, 0.0, 0.0]
-    a = [0.0, 0.0, 0.0]
+    v = [0.0] * len(x)
+    a = [0.0] * len(x)
     for ts, t0 in zip(timed, starts):
         if ts.profile is None:
             continue
@@ -363,7 +370,7 @@ def _superposed(timed: list, starts: list, t: float, origin=None):
             continue
         else:
             u, ud, udd = (w[0] for w in ts.profile.at_time(t - t0))
-        for i in range(3):
+        for i in range(len(x)):
             x[i] += d[i] * u
             v[i] += d[i] * ud
             a[i] += d[i] * udd
