@@ -215,7 +215,8 @@ class Panel:
         with self.lock:
             self.events.append(event)
             kind = event.get("kind")
-            sent = self.sent.pop(kind, None)
+            # the E-stop's latency runs to the drives braking (on_state), not to the event
+            sent = None if kind == "estop" else self.sent.pop(kind, None)
             if sent is not None:
                 self.latency_ms[kind] = 1e3 * (self.clock() - sent)   # published -> applied by the controller
 

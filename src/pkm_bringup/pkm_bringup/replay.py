@@ -17,9 +17,10 @@ feed override, a strategy or gain change — is replayed from ``controller/event
 controller applied each right after answering a state and recorded which
 (pkm_controller.operator), and the replay applies it after the same state.
 
-Stops from outside the sensor data (``estop`` from another node, wall-clock
-watchdogs) cannot be replayed: with an ``estop`` in the recording only the commands
-before it are compared; a missing state or metrology message ends the comparison
+An ``estop`` the controller obeyed is in ``controller/events`` too, after the state
+it followed, and is replayed there. Other stops from outside the sensor data
+(wall-clock watchdogs, an estop of a recording without that event) cannot be
+replayed: with an ``estop`` in the recording only the commands before it are compared; a missing state or metrology message ends the comparison
 there. Either is said in the result's note.
 
 A bag its recorder did not finish (killed, cut) is refused with one line saying so;
@@ -103,6 +104,7 @@ class _Replay:
         self.commands = self.compared = self.identical = 0
         self.max_diff, self.first, self.note = 0.0, None, ""
         self.stopped = False             # an estop, or an input missing: nothing compared after it
+        self.estop_event = False         # the controller recorded the estop it obeyed: replayed, not a cut
         self.trajectory_seen = False
         self.actions: dict[int, list] = collections.defaultdict(list)   # after_ns -> [(Action, payload, event)]
 
@@ -113,6 +115,7 @@ class _Replay:
         for event in events:
             action = Action(event["kind"])
             payload = event.get("value", event.get("changes"))
+            self.estop_event |= action == Action.ESTOP
             if action == Action.TRAJECTORY:
                 msg = next(trajectories, None)
                 if msg is None:
@@ -140,7 +143,7 @@ class _Replay:
                 self.trajectory_seen = True
                 self.core.set_trajectory(reference_from_msg(msg, self.core.planar), None)
         elif topic == "estop":
-            if msg.data and not self.stopped:     # a stop from outside the sensor data: not replayable
+            if msg.data and not self.stopped and not self.estop_event:   # not replayable: the cut
                 self.stopped = True
                 self.note = f"estop recorded: the {self.commands} commands before it are compared"
         elif topic == "drives/command":

@@ -240,7 +240,11 @@ class ControllerNode(LifecycleNode):
         self.start_received = self.start_received or bool(msg.data)
 
     def on_estop(self, msg: Bool) -> None:
+        """Stop at once, and record after which answered state (controller/events): the
+        replay stops the controller at the same point, whatever order the recorder got
+        the estop and the commands in."""
         if msg.data and self.core is not None and not self.core.stopped:
+            self.report([apply_action(self.core, Action.ESTOP, None, after_ns=self.last_answer[0])])
             self.safe_stop("estop", TripCause.ESTOP)
 
     def on_watchdog(self) -> None:

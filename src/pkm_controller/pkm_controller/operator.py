@@ -14,6 +14,8 @@ from __future__ import annotations
 import json
 from enum import Enum
 
+from pkm_common.causes import TripCause
+
 from .feed import check_override
 
 
@@ -21,14 +23,17 @@ class Action(str, Enum):
     TRAJECTORY = "trajectory"        # payload: a reference.Reference
     FEED_OVERRIDE = "feed_override"  # payload: s in [0, 1]
     SETTINGS = "settings"            # payload: {name: value} (JSON text or a dict)
+    ESTOP = "estop"                  # payload: None; applied at once (never deferred), recorded
 
 
-def apply_action(core, action: Action, payload) -> dict:
+def apply_action(core, action: Action, payload, after_ns: int | None = None) -> dict:
     """Apply one action to ``core`` (a ControllerCore) now; the event that records it:
-    kind, after_ns (the stamp of the last state answered, None before the first),
-    ok, message (why it was refused) and what was applied. A ValueError as the
+    kind, after_ns (the stamp of the last state answered, None before the first;
+    ``after_ns`` given: that one, for an action applied between a state and its
+    answer), ok, message (why it was refused) and what was applied. A ValueError as the
     payload: the message could not be read; refused with its message."""
-    after = None if core.last_time_s is None else round(core.last_time_s * 1e9)
+    after = after_ns if after_ns is not None else None if core.last_time_s is None else \
+        round(core.last_time_s * 1e9)
     event = {"kind": action.value, "after_ns": after, "ok": True, "message": ""}
     if isinstance(payload, ValueError):          # the message itself could not be read
         event.update(ok=False, message=str(payload))
@@ -38,6 +43,8 @@ def apply_action(core, action: Action, payload) -> dict:
             now = None if core.last_time_s is None else core.last_time_s + core.config.dt_s
             event.update(duration_s=payload.duration_s, points=len(payload.time_s))
             core.set_trajectory(payload, now)
+        elif action == Action.ESTOP:
+            core.trip("estop", TripCause.ESTOP)
         elif action == Action.FEED_OVERRIDE:
             event["value"] = check_override(payload)
             core.feed.set_target(event["value"])
