@@ -161,3 +161,14 @@ def test_new_gains_scale_like_a_start_with_them():
     fresh = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", bandwidth_hz=10.0, damping_ratio=0.8))
     assert core.task_kp == fresh.task_kp and core.joint_kd == fresh.joint_kd
     assert math.isclose(core.gains.kp, (2 * math.pi * 10.0) ** 2)
+
+
+def test_an_estop_is_applied_at_once_and_recorded_after_the_state_given():
+    """The estop as an operator action (pkm_controller.operator): the core stops now,
+    and the event names the last answered state, which the replay stops after."""
+    from pkm_controller.operator import Action, apply_action
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
+    event = apply_action(core, Action.ESTOP, None, after_ns=4_000_000)
+    assert core.stopped and core.stop_reason == "estop" and str(core.stop_cause) == "estop"
+    assert event == {"kind": "estop", "after_ns": 4_000_000, "ok": True, "message": ""}
+    assert apply_action(core, Action.ESTOP, None)["after_ns"] is None        # before any state
