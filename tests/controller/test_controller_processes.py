@@ -48,7 +48,10 @@ def test_four_processes_run_a_program_in_lockstep(tmp_path):
         "sensor": _start("pkm_gough_sensor.gough_sensor_node", {"machine": "mom3"}),
         "controller": _start("pkm_controller.controller_node", {
             "machine": "mom3", "strategy": "sensor_space", "summary_path": ctrl_summary,
-            "state_timeout_s": 10.0, "metrology_timeout_s": 10.0}),
+            "state_timeout_s": 10.0, "metrology_timeout_s": 10.0,
+            # no state answered before the trajectory: on a loaded machine the planner's
+            # start took longer than the 2 s below and the square ran late (14 um at the end)
+            "wait_for_trajectory": True}),
         "trajectory": _start("pkm_trajectory.trajectory_node", {
             "machine": "mom3", "program_file": ROOT / "config" / "programs" / "mom3_square.nc"}),
     }
