@@ -93,19 +93,26 @@ def bar_length(bars, k, q):
 
 
 @kernel()
+def unit_row(bars, k, px, py, pz, r, q):
+    """|e_k|, the unit vector u_k = e_k / |e_k| and its moment (R b_k) x u_k: the row of
+    bar k in the unit pose Jacobian (zeros when the bar has zero length)."""
+    ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
+    n = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if not n > 0.0:
+        return n, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    ux, uy, uz = ex / n, ey / n, ez / n
+    return n, ux, uy, uz, rby * uz - rbz * uy, rbz * ux - rbx * uz, rbx * uy - rby * ux
+
+
+@kernel()
 def unit_pose_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
     """Rows [e_k, (R b_k) x e_k] / |e_k| into ``out`` (n, 6): d|e_k|/dt for the
     platform twist, actuators held. False where a bar has zero length."""
     for k in range(bars.shape[0]):
-        ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
-        n = math.sqrt(ex * ex + ey * ey + ez * ez)
+        n, ux, uy, uz, mx, my, mz = unit_row(bars, k, px, py, pz, r, q)
         if not n > 0.0:
             return False
-        ux, uy, uz = ex / n, ey / n, ez / n
-        out[k, 0], out[k, 1], out[k, 2] = ux, uy, uz
-        out[k, 3] = rby * uz - rbz * uy
-        out[k, 4] = rbz * ux - rbx * uz
-        out[k, 5] = rbx * uy - rby * ux
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = ux, uy, uz, mx, my, mz
     return True
 
 
@@ -234,14 +241,9 @@ def rail_closure_rows_into(bars, px, py, pz, r, q, out) -> bool:
     (n, 3 + m). False where a bar has zero length."""
     m = out.shape[1] - 3
     for k in range(bars.shape[0]):
-        ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
-        n = math.sqrt(ex * ex + ey * ey + ez * ez)
+        n, ux, uy, uz, out[k, 0], out[k, 1], out[k, 2] = unit_row(bars, k, px, py, pz, r, q)
         if not n > 0.0:
             return False
-        ux, uy, uz = ex / n, ey / n, ez / n
-        out[k, 0] = rby * uz - rbz * uy
-        out[k, 1] = rbz * ux - rbx * uz
-        out[k, 2] = rbx * uy - rby * ux
         for j in range(m):
             out[k, 3 + j] = 0.0
         j = int(bars[k, 10])
