@@ -10,8 +10,9 @@ PIP := $(VPY) -m pip
 PIP_FLAGS ?= -q --disable-pip-version-check
 # -n auto --maxprocesses 4: one worker per core, at most 4 (each worker claims its own DDS
 # domain in tests/conftest.py); worksteal keeps both cores busy to the end, when only the
-# slow multi-process tests are left. `make test PYTEST_ARGS=-q` runs it in one process.
-PYTEST_ARGS ?= -q -rs -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
+# slow multi-process tests are left. -rfEs: the short summary at the end names every failed
+# test (CI shows only part of a long log). `make test PYTEST_ARGS=-q` runs it in one process.
+PYTEST_ARGS ?= -q -rfEs -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
 
 # The ament_python packages, installed editable (their console scripts land in
 # $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new

@@ -15,7 +15,7 @@ import uvicorn
 from websockets.sync.client import connect
 
 from pkm_bringup.panel import Panel, PanelModel
-from pkm_bringup.panel_app import create_app, create_estop_app
+from pkm_bringup.panel_app import AHEAD, create_app, create_estop_app
 from pkm_kinematics import load_machine
 
 
@@ -61,7 +61,24 @@ def test_the_page_and_the_snapshots_at_their_rate(server):
         start, count = time.monotonic(), 0
         while time.monotonic() - start < 2.0:
             count += json.loads(ws.recv(timeout=5))["type"] == "snapshot"
+            ws.send(json.dumps({"type": "heartbeat", "seen": count}))     # drawn
     assert 40 <= count <= 55, count                # 25 per second, paced from one clock
+
+
+def test_a_page_that_draws_nothing_is_sent_only_a_few_snapshots_ahead(server):
+    url, _ = server
+    with connect(url.replace("http", "ws") + "ws") as ws:
+        assert json.loads(ws.recv(timeout=5))["type"] == "hello"
+        count = 0
+        with pytest.raises(TimeoutError):
+            for _ in range(4 * AHEAD):              # 25/s would never leave the socket silent 0.5 s
+                count += json.loads(ws.recv(timeout=0.5))["type"] == "snapshot"
+        assert count == AHEAD
+        ws.send(json.dumps({"type": "heartbeat", "seen": 3}))
+        more = [json.loads(ws.recv(timeout=5))["type"] for _ in range(3)]
+        assert more == ["snapshot"] * 3
+        with pytest.raises(TimeoutError):
+            ws.recv(timeout=0.5)
 
 
 def test_without_the_token_a_page_is_view_only_but_can_stop_the_machine(server):

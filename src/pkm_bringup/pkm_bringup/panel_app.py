@@ -2,7 +2,11 @@
 
 ``/`` the page (``panel_static/``); ``/ws`` a WebSocket per page: the server pushes a
 ``snapshot`` (panel.Panel.snapshot) ``rate_hz`` times a second and answers each
-action with a ``result``; ``POST /api/estop`` the E-stop on its own route; ``GET
+action with a ``result``. A page acknowledges what it has drawn: its heartbeat
+(``{"type": "heartbeat", "seen": N}``, N snapshots of this connection) lets the server
+run at most ``AHEAD`` snapshots ahead, so a page slower than ``rate_hz`` is sent fewer
+snapshots, never a growing backlog (which also delayed the socket's keepalive pongs
+until the server closed it); ``POST /api/estop`` the E-stop on its own route; ``GET
 /api/snapshot`` and ``/api/machine`` the same data as JSON.
 
 The E-stop also has a server of its own (``create_estop_app``: one route, served by a
@@ -30,6 +34,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 STATIC = Path(__file__).with_name("panel_static")
+AHEAD = 8          # snapshots a page may have in flight, not yet drawn (module doc)
 
 
 def create_estop_app(panel, publish) -> Starlette:
@@ -86,12 +91,16 @@ def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, 
                             "rate_hz": rate_hz, "estop_url": estop_url})
         panel.heartbeat(client)
 
+        seen = [0]                                 # the page's last acknowledgement
+
         async def push():
             period = 1.0 / rate_hz
             loop = asyncio.get_running_loop()
-            next_t = loop.time()
+            next_t, sent = loop.time(), 0
             while True:
-                await ws.send_text(json.dumps({"type": "snapshot", **panel.snapshot()}))
+                if sent - seen[0] < AHEAD:
+                    await ws.send_text(json.dumps({"type": "snapshot", **panel.snapshot()}))
+                    sent += 1
                 next_t += period
                 await asyncio.sleep(max(0.0, next_t - loop.time()))
 
@@ -103,6 +112,8 @@ def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, 
                     action = json.loads(text)
                 except ValueError:
                     action = None
+                if isinstance(action, dict) and action.get("type") == "heartbeat" and isinstance(action.get("seen"), int):
+                    seen[0] = max(seen[0], action["seen"])
                 reply = await execute(action, client, allowed)
                 if action is None or action.get("type") != "heartbeat":
                     await ws.send_json(reply)

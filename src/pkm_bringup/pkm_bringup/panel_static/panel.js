@@ -5,6 +5,9 @@
 const $ = (id) => document.getElementById(id);
 const token = new URLSearchParams(location.search).get("token");
 let ws = null, machine = null, last = null, received = 0, perSecond = 0, estopUrl = "";
+// snapshots drawn on this connection, told to the server with each heartbeat: it sends
+// only a few ahead of them, so a slow page skips snapshots instead of lagging behind
+let seen = 0;
 
 function connect() {
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws` +
@@ -14,8 +17,8 @@ function connect() {
   ws.onclose = () => { $("link").textContent = "disconnected: reconnecting"; setTimeout(connect, 1000); };
   ws.onmessage = (e) => {
     const m = JSON.parse(e.data);
-    if (m.type === "hello") { hello(m); }
-    else if (m.type === "snapshot") { received += 1; last = m; render(m); }
+    if (m.type === "hello") { seen = 0; hello(m); }
+    else if (m.type === "snapshot") { received += 1; last = m; render(m); seen += 1; }
     else if (m.type === "result") { show(m); }
   };
 }
@@ -193,6 +196,6 @@ $("projection").onclick = () => {
 };
 $("view").onchange = () => last && drawScene(last);
 setInterval(() => { perSecond = received; received = 0; $("rate").textContent = perSecond; }, 1000);
-setInterval(() => { if (ws && ws.readyState === WebSocket.OPEN) ws.send('{"type":"heartbeat"}'); }, 100);
+setInterval(() => { if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({ type: "heartbeat", seen: seen })); }, 100);
 window.panelRate = () => perSecond;
 connect();
