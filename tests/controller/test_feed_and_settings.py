@@ -172,3 +172,24 @@ def test_an_estop_is_applied_at_once_and_recorded_after_the_state_given():
     assert core.stopped and core.stop_reason == "estop" and str(core.stop_cause) == "estop"
     assert event == {"kind": "estop", "after_ns": 4_000_000, "ok": True, "message": ""}
     assert apply_action(core, Action.ESTOP, None)["after_ns"] is None        # before any state
+
+
+def test_a_safe_stop_is_recorded_with_its_cause_and_replays_from_the_record():
+    """The controller's own stop as an event (Action.SAFE_STOP): the first cause is kept;
+    the payload read back from the event stops a fresh core the same way; after_ns=None
+    given means before the first answer, whatever the core has prepared."""
+    from pkm_common.causes import TripCause
+    from pkm_controller.operator import Action, apply_action, recorded_payload
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
+    q = ARCHI.model.inverse_kinematics(ARCHI.model.home).tolist()
+    core.prepare(0.004, q, [0.0] * 4, [0.0] * 4)
+    assert not core.stopped and core.last_time_s == 0.004
+    event = apply_action(core, Action.SAFE_STOP, {"reason": "drives/state: none for 0.5 s",
+                                                  "cause": TripCause.WATCHDOG}, after_ns=None)
+    assert event == {"kind": "safe_stop", "after_ns": None, "ok": True, "message": "",
+                     "reason": "drives/state: none for 0.5 s", "cause": "watchdog"}
+    apply_action(core, Action.SAFE_STOP, {"reason": "estop", "cause": "estop"})
+    assert core.stop_cause == TripCause.WATCHDOG and core.stop_reason == "drives/state: none for 0.5 s"
+    fresh = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
+    apply_action(fresh, Action(event["kind"]), recorded_payload(event))
+    assert (fresh.stopped, fresh.stop_cause, fresh.stop_reason) == (True, TripCause.WATCHDOG, core.stop_reason)

@@ -18,10 +18,11 @@ controller applied each right after answering a state and recorded which
 (pkm_controller.operator), and the replay applies it after the same state.
 
 An ``estop`` the controller obeyed is in ``controller/events`` too, after the state
-it followed, and is replayed there. Other stops from outside the sensor data
-(wall-clock watchdogs, an estop of a recording without that event) cannot be
-replayed: with an ``estop`` in the recording only the commands before it are compared; a missing state or metrology message ends the comparison
-there. Either is said in the result's note.
+it followed, and so is every safe stop of the controller (``safe_stop``: the only
+record of a wall-clock watchdog's); both are replayed there. A recording made before
+those events cannot replay a stop from outside the sensor data: with an ``estop`` in
+it only the commands before it are compared. A missing state or metrology message
+ends the comparison there. Either is said in the result's note.
 
 A bag its recorder did not finish (killed, cut) is refused with one line saying so;
 ``--recover`` first makes it readable up to its last complete chunk
@@ -45,7 +46,7 @@ from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_mes
 from pkm_common.causes import plant_stop_cause, setpoint_held
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
-from pkm_controller.operator import Action, apply_action
+from pkm_controller.operator import Action, apply_action, recorded_payload
 from pkm_controller.reference import reference_from_msg
 from pkm_kinematics import load_machine
 
@@ -104,7 +105,7 @@ class _Replay:
         self.commands = self.compared = self.identical = 0
         self.max_diff, self.first, self.note = 0.0, None, ""
         self.stopped = False             # an estop, or an input missing: nothing compared after it
-        self.estop_event = False         # the controller recorded the estop it obeyed: replayed, not a cut
+        self.stops_recorded = False      # the controller recorded its stops: replayed, an estop is no cut
         self.trajectory_seen = False
         self.actions: dict[int, list] = collections.defaultdict(list)   # after_ns -> [(Action, payload, event)]
 
@@ -114,8 +115,8 @@ class _Replay:
         are applied now, the others after the answer of their state."""
         for event in events:
             action = Action(event["kind"])
-            payload = event.get("value", event.get("changes"))
-            self.estop_event |= action == Action.ESTOP
+            payload = recorded_payload(event)
+            self.stops_recorded |= action in (Action.ESTOP, Action.SAFE_STOP)
             if action == Action.TRAJECTORY:
                 msg = next(trajectories, None)
                 if msg is None:
@@ -143,7 +144,7 @@ class _Replay:
                 self.trajectory_seen = True
                 self.core.set_trajectory(reference_from_msg(msg, self.core.planar), None)
         elif topic == "estop":
-            if msg.data and not self.stopped and not self.estop_event:   # not replayable: the cut
+            if msg.data and not self.stopped and not self.stops_recorded:   # not replayable: the cut
                 self.stopped = True
                 self.note = f"estop recorded: the {self.commands} commands before it are compared"
         elif topic == "drives/command":

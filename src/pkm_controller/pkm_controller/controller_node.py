@@ -314,10 +314,12 @@ class ControllerNode(LifecycleNode):
         self.safe_stop(self.core.stop_reason, self.core.stop_cause)
 
     def safe_stop(self, reason: str, cause: TripCause) -> None:
-        """Zero forces, brakes requested (estop latched), reported."""
+        """Zero forces, brakes requested (estop latched), reported, and recorded after the
+        last answered state (controller/events: the replay stops there too)."""
         if self.core is None:
             return
-        self.core.trip(reason, cause)
+        self.report([apply_action(self.core, Action.SAFE_STOP, {"reason": reason, "cause": cause},
+                                  after_ns=self.last_answer[0])])
         self.get_logger().error(f"safe stop: {self.core.stop_reason}")
         self.pub_estop.publish(Bool(data=True))
         self.publish_status()

@@ -1,7 +1,7 @@
 """An operator's actions on a running controller, applied between two cycles (pure core).
 
-A trajectory (a program, a jog), the feed override (feed hold at 0) and the settings
-an operator may change while running (ControllerCore.change_settings: strategy,
+A trajectory (a program, a jog), the feed override (feed hold at 0), an E-stop, and the
+settings an operator may change while running (ControllerCore.change_settings: strategy,
 distribution, gains) reach the controller node as messages at any moment. The node
 applies them right after answering a state, never between the two halves of a cycle,
 and records each as an event (JSON on ``controller/events``) that says after which
@@ -24,16 +24,25 @@ class Action(str, Enum):
     FEED_OVERRIDE = "feed_override"  # payload: s in [0, 1]
     SETTINGS = "settings"            # payload: {name: value} (JSON text or a dict)
     ESTOP = "estop"                  # payload: None; applied at once (never deferred), recorded
+    # the controller's own safe stop, whatever started it: payload {"reason", "cause"}. Its
+    # data reproduce most (a trip of the law, the plant's status word); a wall-clock
+    # watchdog's only this record does, and with it every stop of a run is replayable
+    SAFE_STOP = "safe_stop"
 
 
-def apply_action(core, action: Action, payload, after_ns: int | None = None) -> dict:
+LAST_CYCLE = object()      # apply_action's default after_ns: the core's last cycle
+
+
+def apply_action(core, action: Action, payload, after_ns=LAST_CYCLE) -> dict:
     """Apply one action to ``core`` (a ControllerCore) now; the event that records it:
     kind, after_ns (the stamp of the last state answered, None before the first;
-    ``after_ns`` given: that one, for an action applied between a state and its
-    answer), ok, message (why it was refused) and what was applied. A ValueError as the
-    payload: the message could not be read; refused with its message."""
-    after = after_ns if after_ns is not None else None if core.last_time_s is None else \
-        round(core.last_time_s * 1e9)
+    ``after_ns`` given: that one (None: before the first answer), for an action applied
+    between a state and its answer), ok, message (why it was refused) and what was
+    applied. A ValueError as the payload: the message could not be read; refused with
+    its message."""
+    if after_ns is LAST_CYCLE:
+        after_ns = None if core.last_time_s is None else round(core.last_time_s * 1e9)
+    after = after_ns
     event = {"kind": action.value, "after_ns": after, "ok": True, "message": ""}
     if isinstance(payload, ValueError):          # the message itself could not be read
         event.update(ok=False, message=str(payload))
@@ -45,6 +54,9 @@ def apply_action(core, action: Action, payload, after_ns: int | None = None) -> 
             core.set_trajectory(payload, now)
         elif action == Action.ESTOP:
             core.trip("estop", TripCause.ESTOP)
+        elif action == Action.SAFE_STOP:
+            event.update(reason=str(payload["reason"]), cause=TripCause(payload["cause"]).value)
+            core.trip(event["reason"], TripCause(event["cause"]))      # the first stop's cause is kept
         elif action == Action.FEED_OVERRIDE:
             event["value"] = check_override(payload)
             core.feed.set_target(event["value"])
@@ -57,6 +69,14 @@ def apply_action(core, action: Action, payload, after_ns: int | None = None) -> 
     except ValueError as exc:
         event.update(ok=False, message=str(exc))
     return event
+
+
+def recorded_payload(event: dict):
+    """The payload to apply a recorded event again (pkm-replay); a trajectory's is its
+    recorded message, which the caller reads."""
+    if event["kind"] == Action.SAFE_STOP.value:
+        return {"reason": event["reason"], "cause": event["cause"]}
+    return event.get("value", event.get("changes"))
 
 
 def event_json(event: dict) -> str:
