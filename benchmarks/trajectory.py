@@ -18,6 +18,7 @@ import sys
 import time
 
 from pkm_kinematics import load_machine
+from pkm_kinematics.task_space import PLANAR
 from pkm_trajectory.gcode import parse_gcode
 from pkm_trajectory.planner import Limits, Line, plan, plan_blended, validate
 from pkm_trajectory.program import gcode_segments
@@ -59,16 +60,16 @@ def main(argv=None) -> int:
     text = program(max(20, args.lines))
     start = archi.home_pose.tolist()
     rows = []
-    t, moves = timed(lambda: parse_gcode(text, start=(start[0], start[1], 0.0), start_rotation=start[2]),
+    t, moves = timed(lambda: parse_gcode(text, start=(start[0], start[1], 0.0), start_angles=(0.0, 0.0, start[2])),
                      args.repeat)
     rows.append((f"parse {args.lines:,}-line G-code ({len(moves)} moves)", t * 1e3, "ms"))
-    t, samples = timed(lambda: plan(gcode_segments(text, True, start), LIMITS, 1000.0, translation_axes=2),
+    t, samples = timed(lambda: plan(gcode_segments(text, PLANAR, start), LIMITS, 1000.0, translation_axes=2),
                        args.repeat)
     rows.append((f"  + time law + 1 kHz sampling ({len(samples.time_s):,} samples, "
                  f"{samples.duration_s:.1f} s)", t * 1e3, "ms"))
     t, _ = timed(lambda: validate(samples, archi, 2.0, 50.0, 50.0), repeat=1)
     rows.append(("  validation of every sample (ARCHI model)", t * 1e3, "ms"))
-    lines = [s for s in gcode_segments(text, True, start) if isinstance(s, Line)][:200]
+    lines = [s for s in gcode_segments(text, PLANAR, start) if isinstance(s, Line)][:200]
     t, blended = timed(lambda: plan_blended(lines, LIMITS, 1e-4, 1000.0, translation_axes=2), repeat=1)
     rows.append(("blend 200 line moves at 0.1 mm", t * 1e3, "ms"))
     motion = [Line((1.0, -0.4, math.pi / 4), (1.1, -0.35, math.pi / 2))]

@@ -13,6 +13,7 @@ import pytest
 
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
+from pkm_kinematics.task_space import PLANAR
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, plan_with_blending
 from pkm_trajectory.program import gcode_segments
@@ -37,7 +38,7 @@ def motion():
     """config/programs/archi_test_motion.nc planned as in test_controller.py (1 kHz):
     x 1.0 -> 1.1 m, y -0.4 -> -0.35 m, theta 45 -> 90 deg and back, 4.66 s."""
     program = (ROOT / "config" / "programs" / "archi_test_motion.nc").read_text()
-    return plan_with_blending(gcode_segments(program, True, HOME), LIMITS, 0.0, 1000.0, translation_axes=2)
+    return plan_with_blending(gcode_segments(program, PLANAR, HOME), LIMITS, 0.0, 1000.0, translation_axes=2)
 
 
 def _rotation(pose) -> np.ndarray:

@@ -13,6 +13,7 @@ import pytest
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.errors import SingularityError
+from pkm_kinematics.task_space import PLANAR
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan, plan_with_blending
 from pkm_trajectory.program import gcode_segments
@@ -135,7 +136,7 @@ def test_the_fig9_variant_stops_the_windup_but_not_the_proportional_fight():
 @pytest.fixture(scope="module")
 def archi_test_motion():
     program = (ROOT / "config" / "programs" / "archi_test_motion.nc").read_text()
-    segments = gcode_segments(program, True, ARCHI_HOME)
+    segments = gcode_segments(program, PLANAR, ARCHI_HOME)
     return reference_of(plan_with_blending(segments, LIMITS, 0.0, 1000.0, translation_axes=2))
 
 

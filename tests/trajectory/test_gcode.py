@@ -48,7 +48,7 @@ def test_representative_program():
 
     # G21 G90: X10 Y5 Z2 mm
     same_point(rapid.target, (0.010, 0.005, 0.002))
-    assert rapid.feed is None and rapid.rotation is None
+    assert rapid.feed is None and rapid.angles == (None, None, None)
     assert rapid.center is None and rapid.clockwise is None and rapid.dwell_s == 0.0
 
     # F600 mm/min = 0.6 m / 60 s = 0.01 m/s; only Z changes
@@ -61,7 +61,7 @@ def test_representative_program():
     # G2 from (20, 5) with I5 J0: centre (25, 5), radius 5 at both ends
     same_point(cw.target, (0.030, 0.005, -0.001))
     same_point(cw.center, (0.025, 0.005, -0.001))
-    assert cw.clockwise is True and cw.feed == approx(0.01) and cw.rotation is None
+    assert cw.clockwise is True and cw.feed == approx(0.01) and cw.angles == (None, None, None)
     # G3 from (30, 5) with I-5 (J omitted = 0): centre (25, 5)
     same_point(ccw.target, (0.020, 0.005, -0.001))
     same_point(ccw.center, (0.025, 0.005, -0.001))
@@ -69,14 +69,14 @@ def test_representative_program():
 
     # G91: X-5 from x = 20 -> 15; C90 incremental from 0 -> pi/2
     same_point(inc1.target, (0.015, 0.005, -0.001))
-    assert inc1.rotation == approx(math.pi / 2)
+    assert inc1.angles[:2] == (None, None) and inc1.angles[2] == approx(math.pi / 2)
     # modal G1 and G91: Y 5 + 2.5 = 7.5; C 90 - 45 = 45 deg
     same_point(inc2.target, (0.015, 0.0075, -0.001))
-    assert inc2.rotation == approx(math.pi / 4)
+    assert inc2.angles[2] == approx(math.pi / 4)
 
     # dwell at the current point, P in seconds
     same_point(dwell.target, (0.015, 0.0075, -0.001))
-    assert dwell.dwell_s == 0.5 and dwell.feed is None and dwell.rotation is None
+    assert dwell.dwell_s == 0.5 and dwell.feed is None and dwell.angles == (None, None, None)
     assert dwell.center is None and dwell.clockwise is None
 
     # G20: X1 Y1 in = 0.0254 m; Z unchanged
@@ -92,22 +92,31 @@ def test_representative_program():
 
 def test_move_is_frozen_and_plain():
     move = parse_gcode('G0 X1')[0]
-    assert move == Move('rapid', 1, approx((0.001, 0.0, 0.0)), None, None, None, None)
+    assert move == Move('rapid', 1, approx((0.001, 0.0, 0.0)), (None, None, None), None, None, None)
     with pytest.raises(dataclasses.FrozenInstanceError):
         move.kind = 'linear'
 
 
+def test_a_b_c_angles_in_degrees_absolute_and_incremental():
+    moves = parse_gcode('G90 G0 A10 B-20 C30\nG91 G0 A5\nG90 G1 F60 X1 B2', start_angles=(0.1, 0.2, 0.3))
+    assert moves[0].angles == approx((math.radians(10), math.radians(-20), math.radians(30)))
+    assert moves[1].angles[0] == approx(math.radians(15)) and moves[1].angles[1:] == (None, None)
+    assert moves[2].angles[0] is None and moves[2].angles[1] == approx(math.radians(2))
+    with pytest.raises(GcodeError, match='line 1: A2: A given twice'):
+        parse_gcode('G0 A1 A2')
+
+
 def test_start_point_and_rotation():
-    moves = parse_gcode('G91 G0 X1 C10\nG90 G1 Y2 F60\nC-30', start=(0.1, 0.2, 0.3), start_rotation=0.5)
+    moves = parse_gcode('G91 G0 X1 C10\nG90 G1 Y2 F60\nC-30', start=(0.1, 0.2, 0.3), start_angles=(0.0, 0.0, 0.5))
     # incremental from the start point and start angle
     same_point(moves[0].target, (0.101, 0.2, 0.3))
-    assert moves[0].rotation == approx(0.5 + math.radians(10))
+    assert moves[0].angles[2] == approx(0.5 + math.radians(10))
     # absolute Y2 mm; X, Z kept; C absent -> None (unchanged)
     same_point(moves[1].target, (0.101, 0.002, 0.3))
-    assert moves[1].rotation is None and moves[1].feed == approx(0.001)
+    assert moves[1].angles == (None, None, None) and moves[1].feed == approx(0.001)
     # a C-only line under G1 rotates in place; absolute -30 deg
     same_point(moves[2].target, (0.101, 0.002, 0.3))
-    assert moves[2].kind == 'linear' and moves[2].rotation == approx(math.radians(-30))
+    assert moves[2].kind == 'linear' and moves[2].angles[2] == approx(math.radians(-30))
 
 
 def test_modal_motion_and_mode_only_lines():
@@ -279,8 +288,8 @@ def test_argument_checks():
         parse_gcode('G0 X1', start=(0.0, 0.0))
     with pytest.raises(ValueError, match='start'):
         parse_gcode('G0 X1', start=(0.0, math.nan, 0.0))
-    with pytest.raises(ValueError, match='start_rotation'):
-        parse_gcode('G0 X1', start_rotation=math.inf)
+    with pytest.raises(ValueError, match='start_angles'):
+        parse_gcode('G0 X1', start_angles=(0.0, math.inf, 0.0))
     with pytest.raises(TypeError, match='text'):
         parse_gcode(b'G0 X1')
 

@@ -49,7 +49,7 @@ def test_one_axis_duration_is_ruckig_time_optimal():
 
 
 def test_arc_stays_on_its_circle():
-    arc = Arc(start=(0.1, 0.0, 0.0), center=(0.0, 0.0), sweep=math.pi, end_third=0.0)
+    arc = Arc(start=(0.1, 0.0, 0.0), center=(0.0, 0.0), sweep=math.pi, end_rest=(0.0,))
     s = plan([arc], LIMITS, rate_hz=2000.0)
     r = np.hypot(s.position[:, 0], s.position[:, 1])
     assert np.abs(r - 0.1).max() < 1e-6                     # within 1 um
@@ -129,7 +129,7 @@ def test_small_and_anisotropic_arcs_respect_per_axis_limits(radius):
     """An arc's x and y rates peak somewhere on the sweep and its centripetal jerk grows
     like v^3/R^2: both are budgeted, per axis, also with very different x/y limits."""
     limits = Limits(velocity=(0.05, 0.5, 2.0), acceleration=(5.0, 5.0, 20.0), jerk=(200.0, 200.0, 800.0))
-    arc = Arc(start=(radius, 0.0, 0.0), center=(0.0, 0.0), sweep=2 * math.pi, end_third=0.0)
+    arc = Arc(start=(radius, 0.0, 0.0), center=(0.0, 0.0), sweep=2 * math.pi, end_rest=(0.0,))
     s = plan([arc], limits, rate_hz=20000.0)
     check_limits(s, limits)
 

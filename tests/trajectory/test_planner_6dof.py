@@ -43,3 +43,35 @@ def test_limits_of_another_length_are_refused_by_name():
         Limits(velocity=(1.0,) * 6, acceleration=(1.0,) * 3, jerk=(1.0,) * 6)
     with pytest.raises(ValueError, match=r"limits.velocity: expected 3 positive finite numbers"):
         Limits(velocity=(1.0,) * 4, acceleration=(1.0,) * 4, jerk=(1.0,) * 4)
+
+
+PROGRAM = """G21 G90 G64 P0.2
+G1 F1200 X20 Y-10 Z520 A3 B-2
+C5
+G3 X-20 Y10 I-20 J10 B1
+G1 X0 Y0 Z508 A0 B0 C0
+M2
+"""
+
+
+def test_a_six_axis_program_is_planned_and_validated_on_the_hexapod_strut_rates_checked():
+    """The path trajectory_node and the scenarios take (G-code with A B C -> segments ->
+    plan_validated): the strut rates it checks are J(x) x' with the hexapod's task
+    Jacobian, so a strut velocity limit just below the peak rate of finite differences
+    of the strut lengths is refused naming a strut, and just above it is accepted."""
+    from pkm_trajectory.planner import TrajectoryRejected, plan_validated
+    from pkm_trajectory.program import gcode_segments
+    hexapod = load_machine("genhexkins").model
+    segments = gcode_segments(PROGRAM, hexapod.task_space, hexapod.home)
+    samples = plan_validated(segments, hexapod, LIMITS, 1000.0, max_condition=50.0)
+    np.testing.assert_array_equal(samples.position[-1], hexapod.home)
+    assert np.ptp(samples.position, axis=0)[3:] == pytest.approx(np.radians([3.0, 3.0, 5.0]), rel=1e-9)
+    q, _ = hexapod.inverse_kinematics_batch(samples.position)
+    peak = np.abs(np.gradient(q, samples.time_s, axis=0)).max()
+    plan_validated(segments, hexapod, LIMITS, 1000.0, joint_velocity_limit=peak * 1.01)
+    with pytest.raises(TrajectoryRejected, match=r"leg j\d velocity .* m/s exceeds"):
+        plan_validated(segments, hexapod, LIMITS, 1000.0, joint_velocity_limit=peak * 0.99)
+    # the hexapod's own conditioning measure (rotations weighted by its size) bounds it
+    worst = hexapod.condition_number_batch(samples.position).max()
+    with pytest.raises(TrajectoryRejected, match="machine condition number"):
+        plan_validated(segments, hexapod, LIMITS, 1000.0, max_condition=worst * 0.999)

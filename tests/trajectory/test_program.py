@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pkm_kinematics import load_machine
+from pkm_kinematics.task_space import PLANAR, POSITION, SPATIAL
 from pkm_trajectory.planner import Arc, Dwell, Limits, Line, plan, validate
 from pkm_trajectory.program import gcode_segments
 
@@ -25,7 +26,7 @@ M2
 
 
 def test_program_to_segments_and_a_valid_trajectory():
-    segs = gcode_segments(SQUARE, planar=True, start_pose=START)
+    segs = gcode_segments(SQUARE, space=PLANAR, start_pose=START)
     assert [type(s) for s in segs] == [Line, Arc, Line, Dwell, Line]
     assert segs[0].end == (1.05, -0.4, math.pi / 4) and segs[0].speed == pytest.approx(0.01)
     arc = segs[1]
@@ -37,31 +38,36 @@ def test_program_to_segments_and_a_valid_trajectory():
 
 
 def test_feed_override_scaling_and_repetition():
-    base = gcode_segments(SQUARE, planar=True, start_pose=START)
-    fast = gcode_segments(SQUARE, planar=True, start_pose=START, feed_override=2.0)
+    base = gcode_segments(SQUARE, space=PLANAR, start_pose=START)
+    fast = gcode_segments(SQUARE, space=PLANAR, start_pose=START, feed_override=2.0)
     assert fast[0].speed == pytest.approx(2 * base[0].speed)
-    big = gcode_segments(SQUARE, planar=True, start_pose=START, scale=2.0)
+    big = gcode_segments(SQUARE, space=PLANAR, start_pose=START, scale=2.0)
     assert big[0].end[0] == pytest.approx(1.1) and big[1].r == pytest.approx(0.05)
-    three = gcode_segments(SQUARE, planar=True, start_pose=START, repeat=3)
+    three = gcode_segments(SQUARE, space=PLANAR, start_pose=START, repeat=3)
     assert len(three) == 3 * len(base)
     with pytest.raises(ValueError, match="feed_override: must be in"):
-        gcode_segments(SQUARE, planar=True, start_pose=START, feed_override=2.5)
+        gcode_segments(SQUARE, space=PLANAR, start_pose=START, feed_override=2.5)
     with pytest.raises(ValueError, match="repeat: the program ends at"):
-        gcode_segments("G1 F60 X1010\nM2", planar=True, start_pose=START, repeat=2)
+        gcode_segments("G1 F60 X1010\nM2", space=PLANAR, start_pose=START, repeat=2)
 
 
 def test_axes_per_machine_kind():
-    with pytest.raises(ValueError, match="line 1: a planar machine has no Z axis"):
-        gcode_segments("G1 F60 Z5", planar=True, start_pose=START)
-    with pytest.raises(ValueError, match="line 1: a translational machine has no C axis"):
-        gcode_segments("G1 F60 C5", planar=False, start_pose=(0.0, 0.0, 0.8))
-    segs = gcode_segments("G91 G1 F60 Z-10", planar=False, start_pose=(0.0, 0.0, 0.8))
+    with pytest.raises(ValueError, match=r"line 1: this machine has no Z axis \(Z5 mm\): its task coordinates are "
+                                         r"x, y, theta \(G-code X Y C\)"):
+        gcode_segments("G1 F60 Z5", space=PLANAR, start_pose=START)
+    with pytest.raises(ValueError, match="line 1: this machine has no C axis: its task coordinates are x, y, z"):
+        gcode_segments("G1 F60 C5", space=POSITION, start_pose=(0.0, 0.0, 0.8))
+    with pytest.raises(ValueError, match="line 2: this machine has no A axis"):
+        gcode_segments("G1 F60 X1\nG1 A5", space=PLANAR, start_pose=START)
+    with pytest.raises(ValueError, match=r"start_pose: expected 6 task coordinates \(x, y, z, a, b, c\)"):
+        gcode_segments("G1 F60 X1", space=SPATIAL, start_pose=(0.0, 0.0, 0.8))
+    segs = gcode_segments("G91 G1 F60 Z-10", space=POSITION, start_pose=(0.0, 0.0, 0.8))
     assert segs[0].end == pytest.approx((0.0, 0.0, 0.79))
 
 
 def test_program_with_blending_joins_at_rest_and_stays_valid():
     from pkm_trajectory.planner import plan_with_blending
-    segs = gcode_segments(SQUARE, planar=True, start_pose=START)
+    segs = gcode_segments(SQUARE, space=PLANAR, start_pose=START)
     exact = plan(segs, LIMITS, translation_axes=2)
     blended = plan_with_blending(segs, LIMITS, 1e-4, translation_axes=2)
     assert np.all(np.diff(blended.time_s) > 0)
@@ -78,13 +84,13 @@ def test_full_circle_after_an_arc_is_a_full_circle():
         r1, r2 = rng.uniform(5, 30, 2)
         text = (f"G21 G90 G1 F600 X1000 Y-400\nG2 X{1000 + 2 * r1:.4f} Y-400 I{r1:.4f} J0\n"
                 f"G3 X{1000 + 2 * r1:.4f} Y-400 I{-r2:.4f} J0\nM2")
-        segs = gcode_segments(text, planar=True, start_pose=START)
+        segs = gcode_segments(text, space=PLANAR, start_pose=START)
         assert segs[-1].sweep == pytest.approx(2 * math.pi)
         assert abs(segs[-2].sweep) == pytest.approx(math.pi)
 
 
 def test_zero_moves_and_zero_dwells_are_dropped():
-    segs = gcode_segments("G21 G90 G1 F600 X1000 Y-400\nG4 P0\nG1 X1010\nM2", planar=True, start_pose=START)
+    segs = gcode_segments("G21 G90 G1 F600 X1000 Y-400\nG4 P0\nG1 X1010\nM2", space=PLANAR, start_pose=START)
     s = plan(segs, LIMITS, translation_axes=2)
     assert np.all(np.diff(s.time_s) > 0)
 
@@ -97,7 +103,7 @@ def test_g64_blends_its_corners_within_p_and_g61_stops_at_its_own():
     from pkm_trajectory.planner import _deviation, plan_with_blending
     square = "X50 Y0\nX50 Y50\nX0 Y50\nX0 Y0\n"
     limits = Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))
-    segments = gcode_segments(f"G21 G90 G1 F3000\nG64 P0.5\n{square}G61\n{square}M2", planar=False,
+    segments = gcode_segments(f"G21 G90 G1 F3000\nG64 P0.5\n{square}G61\n{square}M2", space=POSITION,
                               start_pose=(0.0, 0.0, 0.0))
     s = plan_with_blending(segments, limits, 0.0, rate_hz=2000.0)
     speed = np.linalg.norm(s.velocity[:, :2], axis=1)
@@ -114,6 +120,25 @@ def test_g64_blends_its_corners_within_p_and_g61_stops_at_its_own():
         assert 1e-5 < d.min() and deviation <= 5e-4 * (1 + 1e-6) and speed[g64][d.argmin()] > 0.05
         d = np.linalg.norm(s.position[g61, :2] - corner, axis=1)
         assert d.min() < 1e-9 and speed[g61][d.argmin()] < 1e-9
-    exact = plan_with_blending(gcode_segments(f"G21 G90 G1 F3000\nG61\n{square}{square}M2", planar=False,
+    exact = plan_with_blending(gcode_segments(f"G21 G90 G1 F3000\nG61\n{square}{square}M2", space=POSITION,
                                               start_pose=(0.0, 0.0, 0.0)), limits, 0.0, rate_hz=2000.0)
     assert s.duration_s < exact.duration_s - 0.1
+
+
+def test_a_six_axis_program_moves_every_task_coordinate_its_words_name():
+    """X Y Z in mm and A B C in degrees onto (x, y, z, a, b, c); an angle not given
+    keeps its value; G91 adds; an arc carries z and the angles linearly to its end;
+    the size adjustment scales the translation only."""
+    start = (0.0, 0.0, 0.5, 0.0, 0.0, 0.1)
+    text = "G21 G90 G1 F600 X10 A5\nB-3 C20\nG91 Z-2 A1\nG90 G3 X0 Y10 I-10 J0 B0\nM2"
+    segs = gcode_segments(text, space=SPATIAL, start_pose=start)
+    deg = math.radians
+    assert segs[0].end == pytest.approx((0.010, 0.0, 0.5, deg(5), 0.0, 0.1))
+    assert segs[1].end == pytest.approx((0.010, 0.0, 0.5, deg(5), deg(-3), deg(20)))
+    assert segs[2].end == pytest.approx((0.010, 0.0, 0.498, deg(6), deg(-3), deg(20)))
+    arc = segs[3]
+    assert arc.end == pytest.approx((0.0, 0.010, 0.498, deg(6), 0.0, deg(20)), abs=1e-15)
+    assert arc.point(0.5) == pytest.approx([0.010 * math.cos(math.pi / 4), 0.010 * math.sin(math.pi / 4), 0.498,
+                                            deg(6), deg(-1.5), deg(20)])
+    big = gcode_segments(text, space=SPATIAL, start_pose=start, scale=2.0)
+    assert big[2].end == pytest.approx((0.020, 0.0, 0.496, deg(6), deg(-3), deg(20)))

@@ -53,3 +53,8 @@ def test_accepts_a_program_and_refuses_bad_ones(ros_graph):
     goal.publish(pose_msg([1.1, -0.35, 0.0], rotation_about_z(2.0), 0, "world"))
     assert ros_graph.spin_until(lambda: len(trajectories) == 2)
     assert node.accepted == 2 and node.pose == pytest.approx([1.1, -0.35, 2.0])
+
+
+def test_a_hexapod_is_refused_by_name_until_its_trajectory_messages_exist(ros_graph):
+    with pytest.raises(ValueError, match=r"machine: genhexkins has task coordinates x, y, z, a, b, c"):
+        TrajectoryNode(context=ros_graph.context, parameter_overrides=[Parameter("machine", value="genhexkins")])

@@ -50,7 +50,6 @@ from pkm_controller.controller import RUNTIME_SETTINGS, ControllerConfig, Contro
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.distribution import METHODS
-from pkm_kinematics.planar import PlanarMachine
 from pkm_sim_hw.plant import leg_segments
 from pkm_trajectory.program import gcode_segments
 
@@ -71,9 +70,10 @@ class PanelModel:
     def __init__(self, machine):
         self.machine = machine
         self.model = machine.model
-        self.planar = isinstance(self.model, PlanarMachine)
-        self.kind = "planar" if self.planar else "translational"
-        self.axes = ("x", "y", "theta") if self.planar else ("x", "y", "z")
+        self.space = self.model.task_space
+        self.planar = self.space.translation_axes == 2      # (x, y, theta): its angle is a yaw
+        self.kind = machine.kind
+        self.axes = self.space.axes
         self.box = workspace_box(self.model)
         self.home = [float(v) for v in self.model.home]
         self.gough = None
@@ -326,7 +326,7 @@ class Panel:
             raise ValueError(f"program: at most {PROGRAM_MAX_BYTES} bytes, got {len(text.encode())}")
         with self.lock:
             start = self.reference or self.model.home
-        segments = gcode_segments(text, self.model.planar, start)   # ValueError: the line and the word
+        segments = gcode_segments(text, self.model.space, start)   # ValueError: the line and the word
         if not segments:
             raise ValueError("program: no motion in it")
         with self.lock:

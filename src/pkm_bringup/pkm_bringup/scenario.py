@@ -430,10 +430,9 @@ def program_duration(s: Scenario, model) -> float:
     from pkm_trajectory.planner import Limits, plan_validated
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
-    planar = hasattr(model, "home_pose")
     home = model.home
     try:
-        segments = gcode_segments(s.program.read_text(encoding="utf-8"), planar=planar,
+        segments = gcode_segments(s.program.read_text(encoding="utf-8"), model.task_space,
                                   start_pose=[float(v) for v in home],
                                   feed_override=float(p.get("feed_override", 1.0)),
                                   scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))

@@ -23,6 +23,7 @@ import numpy as np
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
 from .rotations import rotation_from_rpy, rpy_from_rotation
+from .task_space import SPATIAL
 
 
 class FKCode(IntEnum):
@@ -90,6 +91,7 @@ class StrutMachine:
         self.characteristic_length_m = float(characteristic_length_m or
                                               np.max(np.linalg.norm(platform, axis=1)) or 1.0)
         self.task_dof = self.spatiality = 6     # x, y, z, a, b, c: SE(3)
+        self.task_space = SPATIAL
 
     # ------------------------------------------------------------------ poses
     @property
@@ -195,6 +197,11 @@ class StrutMachine:
         """J_m at poses (N, 6): (N, n, 6)."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 6)
         return np.array([self.jacobian(x) for x in poses]).reshape(len(poses), self.n_legs, 6)
+
+    def task_jacobian_batch(self, poses) -> np.ndarray:
+        """:meth:`task_jacobian` at poses (N, 6): (N, n, 6)."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        return np.array([self.task_jacobian(x) for x in poses]).reshape(len(poses), self.n_legs, 6)
 
     def condition_number_batch(self, poses) -> np.ndarray:
         """:meth:`condition_number` at poses (N, 6)."""

@@ -1,6 +1,7 @@
 """The one public interface of a machine model (``ParallelMachine``): what the plant,
 the controller, the metrology, the analyses and the panel may use of a
-``PlanarMachine`` or a ``TranslationalMachine``, and nothing else (no private
+``PlanarMachine``, a ``TranslationalMachine``, a ``ParallelogramMachine`` or a
+``StrutMachine``, and nothing else (no private
 attribute is read across modules). A machine is a platform joined to the base by
 bars (../shared/MACHINE_MODEL.md): ``leg_joints`` gives each bar's two joints,
 ``rail_origins`` / ``rail_directions`` the actuated rails the carriages ride on.
@@ -12,6 +13,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from .task_space import TaskSpace
+
 
 @runtime_checkable
 class ParallelMachine(Protocol):
@@ -19,6 +22,7 @@ class ParallelMachine(Protocol):
     n_legs: int
     task_dof: int            # D of MoM3 §3: the coordinates the machine controls
     spatiality: int          # O of MoM3 §3: the dimension of the space its platform moves in
+    task_space: TaskSpace    # the task coordinates' names and G-code words (task_space.py)
     leg_names: list
     joint_lower: np.ndarray
     joint_upper: np.ndarray
@@ -52,6 +56,12 @@ class ParallelMachine(Protocol):
     def jacobian(self, x, q=None) -> np.ndarray: ...
 
     def jacobian_batch(self, xs) -> np.ndarray: ...
+
+    def task_jacobian_batch(self, xs) -> np.ndarray:
+        """q' = J x' for the task coordinates' rates (the twist's, but for a hexapod's
+        roll-pitch-yaw angles)."""
+
+    def condition_number_batch(self, xs) -> np.ndarray: ...
 
     def jacobian_derivative(self, x, xdot, q=None) -> np.ndarray: ...
 

@@ -28,6 +28,7 @@ from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .measures import condition_numbers, cube_grid
 from .rotations import log_so3
+from .task_space import POSITION
 
 
 class ParasiticPose(NamedTuple):
@@ -53,6 +54,7 @@ class ParallelogramMachine:
         self.legs = list(legs)
         self.leg_names = [leg.name for leg in legs]
         self.n_legs, self.task_dof, self.spatiality = 3, 3, 3
+        self.task_space = POSITION
         self.half_width_m, self.bar_length_errors_m = float(half_width_m), errors
         self.joint_lower = np.array([leg.joint_limits[0] for leg in legs], dtype=float)
         self.joint_upper = np.array([leg.joint_limits[1] for leg in legs], dtype=float)
@@ -162,6 +164,9 @@ class ParallelogramMachine:
             except KinematicsError:
                 pass
         return out
+
+    # the task coordinates' rates are the twist here: q' = J_m x'
+    task_jacobian_batch = jacobian_batch
 
     def condition_number(self, position) -> float:
         return float(np.linalg.cond(self.jacobian(position)))

@@ -32,6 +32,7 @@ import numpy as np
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .jit import kernel
 from .measures import condition_numbers
+from .task_space import PLANAR
 from .validation import finite_array, finite_floats
 
 
@@ -413,6 +414,7 @@ class PlanarMachine:
         self.home_pose = finite_array(self.home_pose, "home_pose", (3,))
         self.n_legs = len(self.legs)
         self.task_dof = self.spatiality = 3     # x, y, theta: the platform moves in SE(2)
+        self.task_space = PLANAR
         self.leg_names = [leg.name for leg in self.legs]
         self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
         u = np.array([leg.rail_direction for leg in self.legs], dtype=float)
@@ -660,6 +662,9 @@ class PlanarMachine:
             jac = np.stack([ex / denom, ey / denom, (ey * rbx - ex * rby) / denom], axis=2)
         jac[(denom * denom <= 1e-18 * self._length2) & np.isfinite(denom)] = np.inf   # serial singularity
         return jac
+
+    # the task coordinates' rates are the twist here: q' = J_m x'
+    task_jacobian_batch = jacobian_batch
 
     def condition_number(self, pose) -> float:
         """2-norm condition number of J_m (ARCHI §3.3, Figure 10)."""

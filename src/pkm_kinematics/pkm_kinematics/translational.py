@@ -26,6 +26,7 @@ from .errors import JointLimitError, SingularityError, UnreachablePoseError
 from .jit import kernel
 from .measures import condition_numbers, cube_grid
 from .planar import VT_OK, VT_SINGULAR, VT_UNREACHABLE, empty_velocity_terms, velocity_terms_error
+from .task_space import POSITION
 from .validation import finite_array, finite_floats
 
 
@@ -144,6 +145,7 @@ class TranslationalMachine:
         self.home_position = finite_array(self.home_position, "home_position", (3,))
         self.n_legs = 3
         self.task_dof = self.spatiality = 3     # three translations
+        self.task_space = POSITION
         self.leg_names = [leg.name for leg in self.legs]
         self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
         e = np.array([leg.rail_direction for leg in self.legs], dtype=float)
@@ -372,6 +374,9 @@ class TranslationalMachine:
         rho, _ = self.inverse_kinematics_batch(p)
         a = p[:, None, :] + self._c - self._o - rho[:, :, None] * self._e
         return a / np.einsum("nij,ij->ni", a, self._e)[:, :, None]
+
+    # the task coordinates' rates are the twist here: q' = J_m x'
+    task_jacobian_batch = jacobian_batch
 
     def jacobian_derivative(self, position, velocity, rho=None) -> np.ndarray:
         """dJ_m/dt along pdot. With a_i the leg vector and s_i = a_i . e_i:

@@ -11,8 +11,9 @@ Supported subset
   ``J`` relative to the start point, in the current length unit, whatever G90/G91),
   ``G4 P<seconds>`` dwell, ``G17`` (XY plane, the only one), ``G20`` inch, ``G21`` mm
   (default), ``G90`` absolute (default), ``G91`` incremental, ``F`` feed in units per
-  minute (modal, > 0), ``X Y Z`` coordinates, ``C`` rotation about z in degrees
-  (absolute under G90, incremental under G91), ``M2``/``M30`` program end, ``N`` line
+  minute (modal, > 0), ``X Y Z`` coordinates, ``A B C`` rotations about x, y, z in
+  degrees (absolute under G90, incremental under G91; which of them a machine has is
+  its task space's business, ``pkm_trajectory.program``), ``M2``/``M30`` program end, ``N`` line
   numbers (first word only, ignored), comments ``( ... )`` and after ``;``, ``%``
   delimiter lines, blank lines.
 - Path control (LinuxCNC): ``G64 P<tolerance>`` blends the corners between line moves
@@ -22,7 +23,7 @@ Supported subset
   the node's setting, also before any G61/G64). ``G40`` (cutter compensation off, the
   only state here) is accepted and does nothing; ``G64 Q`` (naive CAM tolerance),
   ``G61.1`` and cutter compensation (``G41``/``G42``) are refused.
-- Motion is modal: a line with axis words (X Y Z C, or I J under G2/G3) and no motion
+- Motion is modal: a line with axis words (X Y Z A B C, or I J under G2/G3) and no motion
   code repeats the last of G0/G1/G2/G3. A motion code without axis words only sets
   the mode (``G1 F600``).
 
@@ -73,7 +74,8 @@ _LINE_SPLIT = re.compile(r'\r\n|\n|\r')
 _SUPPORTED_G = 'G0 G1 G2 G3 G4 G17 G20 G21 G40 G61 G64 G90 G91'
 _MOTION = {0.0: 0, 1.0: 1, 2.0: 2, 3.0: 3}
 _KIND = {0: 'rapid', 1: 'linear', 2: 'arc', 3: 'arc'}
-_VALUE_LETTERS = frozenset('XYZCIJFP')
+_VALUE_LETTERS = frozenset('XYZABCIJFP')
+_ANGLES = 'ABC'
 _CHAR_HINTS = {
     '#': 'parameters (#) are not supported',
     '[': 'expressions ([ ]) are not supported',
@@ -92,7 +94,7 @@ class Move:
     kind: str                      # "rapid" (G0), "linear" (G1), "arc" (G2/G3), "dwell" (G4)
     line: int                      # 1-based source line number
     target: tuple                  # absolute end point (x, y, z), m; dwell: the current point
-    rotation: float | None         # absolute C angle, rad, if the line gave C; else None
+    angles: tuple                  # absolute (A, B, C) angles, rad, each None unless the line gave it
     feed: float | None             # m/s for linear/arc; None for rapid/dwell
     center: tuple | None           # arc centre (x, y, z) absolute, m; arcs only
     clockwise: bool | None         # True for G2, False for G3, None otherwise
@@ -180,19 +182,19 @@ def _check_point(start, name: str) -> tuple:
     return values
 
 
-def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -> list[Move]:
+def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0)) -> list[Move]:
     """Parse a G-code program into moves in SI units.
 
-    ``start`` is the machine point (m) and ``start_rotation`` the C angle (rad) before
-    the first line; incremental words and arcs start from them. Raises ``GcodeError``
+    ``start`` is the machine point (m) and ``start_angles`` the A, B, C angles (rad)
+    before the first line; incremental words and arcs start from them. Raises ``GcodeError``
     (``line N: <word>: <reason>``) for anything outside the supported subset.
     """
     if not isinstance(text, str):
         raise TypeError(f'text: expected str, got {type(text).__name__}')
     pos = list(_check_point(start, 'start'))
-    rotation = float(start_rotation)
-    if not math.isfinite(rotation):
-        raise ValueError(f'start_rotation: expected a finite angle in rad, got {start_rotation!r}')
+    angles = [float(a) for a in start_angles]
+    if len(angles) != 3 or not all(math.isfinite(a) for a in angles):
+        raise ValueError(f'start_angles: expected 3 finite angles (A, B, C) in rad, got {start_angles!r}')
 
     unit = MM            # G21
     absolute = True      # G90
@@ -278,7 +280,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                                     'supported; give the centre with I J')
             else:
                 raise GcodeError(n, f'{w.text}: unsupported word {L} (supported: '
-                                    'G M N F X Y Z C I J P)')
+                                    'G M N F X Y Z A B C I J P)')
 
         # --- modal settings first: they apply to every number of the line ---------
         if units_word is not None:
@@ -291,7 +293,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                 raise GcodeError(n, f'{w.text}: feed rate must be > 0')
             feed = w.value * unit / 60.0
 
-        axes = [values[a] for a in 'XYZC' if a in values]
+        axes = [values[a] for a in 'XYZABC' if a in values]
         offsets = [values[a] for a in 'IJ' if a in values]
 
         # --- path control (G61 / G64 P) -------------------------------------------
@@ -325,7 +327,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
             p = values['P']
             if p.value < 0.0:
                 raise GcodeError(n, f'{p.text}: dwell time must be >= 0 s')
-            moves.append(Move('dwell', n, tuple(pos), None, None, None, None, p.value))
+            moves.append(Move('dwell', n, tuple(pos), (None, None, None), None, None, None, p.value))
         elif 'P' in values and (path_word is None or path_word.value != 64.0):
             raise GcodeError(n, f"{values['P'].text}: P is only allowed with G4 (dwell) or G64 (blending tolerance)")
 
@@ -349,14 +351,15 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                 if a in values:
                     d = values[a].value * unit
                     target[i] = d if absolute else pos[i] + d
-            new_rotation = None
-            if 'C' in values:
-                d = math.radians(values['C'].value)
-                rotation = d if absolute else rotation + d
-                new_rotation = rotation
+            new_angles = [None, None, None]
+            for i, a in enumerate(_ANGLES):
+                if a in values:
+                    d = math.radians(values[a].value)
+                    angles[i] = d if absolute else angles[i] + d
+                    new_angles[i] = angles[i]
 
             if motion in (0, 1):
-                moves.append(Move(_KIND[motion], n, tuple(target), new_rotation,
+                moves.append(Move(_KIND[motion], n, tuple(target), tuple(new_angles),
                                   feed if motion == 1 else None, None, None, blend_tolerance=blend))
             else:
                 if not offsets:
@@ -380,7 +383,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_rotation: float = 0.0) -
                                         f'{r0:.9g} m at the start, {r1:.9g} m at the end '
                                         f'(differ by {abs(r1 - r0):.3g} m > {tol:.3g} m; '
                                         'I J inconsistent with the end point)')
-                moves.append(Move('arc', n, tuple(target), new_rotation, feed, center, motion == 2,
+                moves.append(Move('arc', n, tuple(target), tuple(new_angles), feed, center, motion == 2,
                                   blend_tolerance=blend))
             pos = target
 

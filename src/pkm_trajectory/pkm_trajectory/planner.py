@@ -1,7 +1,8 @@
 """Trajectory core (no rclpy): geometric segments, a jerk-limited time law per segment,
 sampling, and validation against the machine model before anything moves.
 
-Task coordinates are the machine's: planar (x, y, theta) or translational (x, y, z).
+Task coordinates are the machine's (``pkm_kinematics.task_space``): planar (x, y, theta),
+a position (x, y, z), or a spatial pose (x, y, z, a, b, c).
 Every segment is a path x(u), u in [0, 1], with dx/du and d2x/du2. Its time law u(t)
 is Ruckig's time-optimal jerk-limited 1-D profile from rest to rest (exact stop at
 every corner) with the path limits derived from the per-axis limits:
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
-from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
 
 
@@ -80,14 +81,14 @@ class Line:
 
 @dataclass(frozen=True)
 class Arc:
-    """Circular arc in the x-y plane about ``center`` (x, y); the third coordinate
-    (theta or z) is interpolated linearly. ``sweep`` is the signed angle (rad,
-    positive counter-clockwise)."""
+    """Circular arc in the x-y plane about ``center`` (x, y); the coordinates after x
+    and y (theta; or z; or z, a, b, c) go linearly from the start's to ``end_rest``.
+    ``sweep`` is the signed angle (rad, positive counter-clockwise)."""
 
     start: tuple
     center: tuple
     sweep: float
-    end_third: float
+    end_rest: tuple
     speed: float | None = None
 
     @property
@@ -101,16 +102,17 @@ class Arc:
     def point(self, u):
         a = self.phi0 + u * self.sweep
         return [self.center[0] + self.r * math.cos(a), self.center[1] + self.r * math.sin(a),
-                self.start[2] + u * (self.end_third - self.start[2])]
+                *(s + u * (e - s) for s, e in zip(self.start[2:], self.end_rest))]
 
     def first(self, u):
         a = self.phi0 + u * self.sweep
         return [-self.r * self.sweep * math.sin(a), self.r * self.sweep * math.cos(a),
-                self.end_third - self.start[2]]
+                *(e - s for s, e in zip(self.start[2:], self.end_rest))]
 
     def second(self, u):
         a = self.phi0 + u * self.sweep
-        return [-self.r * self.sweep**2 * math.cos(a), -self.r * self.sweep**2 * math.sin(a), 0.0]
+        return [-self.r * self.sweep**2 * math.cos(a), -self.r * self.sweep**2 * math.sin(a),
+                *(0.0 for _ in self.end_rest)]
 
     def radius(self):
         return self.r
@@ -280,15 +282,13 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
     first(~reachable, 0, scalar_error(lambda k: machine.inverse_kinematics(x[k], check_limits=False)))
     first(reachable & ~machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0)), 1,
           scalar_error(lambda k: machine.check_joint_limits(q[k])))
-    jac = machine.jacobian_batch(x)
+    jac = machine.task_jacobian_batch(x)                  # qdot = J xdot
     ok = np.isfinite(jac).all(axis=(1, 2))
-    idx = list(range(machine.n_legs)) if legs is None else list(legs)
     if max_condition is not None:
-        cond = np.full(len(x), np.inf)
-        sv = np.linalg.svd(jac[ok][:, idx, :], compute_uv=False)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cond[ok] = np.where(sv[:, -1] > 0, sv[:, 0] / sv[:, -1], np.inf)
-        name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in idx)
+        # the machine's own measure (a hexapod's weighs its rotations by its size)
+        cond = machine.condition_number_batch(x) if legs is None else condition_numbers(jac[:, list(legs), :])
+        cond = np.where(np.isnan(cond), np.inf, cond)
+        name = "machine" if legs is None else "sub-machine J_" + "".join(str(i + 1) for i in legs)
         first(reachable & ~(cond <= max_condition), 2,
               lambda k: f"{name} condition number {cond[k]:.4g} exceeds the bound {max_condition:g} "
                         f"by {cond[k] - max_condition:.4g}")
@@ -311,7 +311,7 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
     # qddot = J xddot + Jdot xdot, Jdot xdot by a central difference of J along xdot
     h = 1e-6
     with np.errstate(invalid="ignore"):
-        jdot = (machine.jacobian_batch(x + h * v) - machine.jacobian_batch(x - h * v)) / (2.0 * h)
+        jdot = (machine.task_jacobian_batch(x + h * v) - machine.task_jacobian_batch(x - h * v)) / (2.0 * h)
     qddot = np.einsum("nij,nj->ni", jac0, samples.acceleration) + np.einsum(
         "nij,nj->ni", np.where(np.isfinite(jdot), jdot, 0.0), v)
     if task_limits is not None:
@@ -345,11 +345,9 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
 
 def point_to_point(start, end) -> Line:
     """A move to a pose (or an incremental jog when ``end`` is start + delta)."""
-    return Line(tuple(finite_floats(start, 3, "start")), tuple(finite_floats(end, 3, "end")))
-
-
-def is_planar(machine) -> bool:
-    return isinstance(machine, PlanarMachine)
+    dof = 6 if len(start) == 6 else 3                # task coordinates: 3, or a spatial pose's 6
+    start = finite_floats(start, dof, "start")
+    return Line(tuple(start), tuple(finite_floats(end, dof, "end")))
 
 
 # ------------------------------------------------------------------- blending
@@ -509,8 +507,8 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
     """What trajectory_node publishes: the segments planned (with corner blending) and
     sampled, then every sample checked against ``machine`` (:func:`validate`).
     Raises TrajectoryRejected (or ValueError) naming the sample and the limit."""
-    planar = hasattr(machine, "home_pose")
-    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz, translation_axes=2 if planar else 3)
+    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz,
+                                 translation_axes=machine.task_space.translation_axes)
     if max_points is not None and len(samples.time_s) > max_points:
         raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {max_points} "
                                  f"({samples.duration_s:.1f} s at {rate_hz:g} Hz)")

@@ -5,24 +5,30 @@ feed override 0-200 %, size scaling about the program start, repetition.
 The feed override scales programmed feeds (G1/G2/G3) only, as on LinuxCNC: rapids
 (G0) and rotation-only moves run at the axis limits whatever the override.
 
-Axes: a planar machine (ARCHI, Sliding Star) takes X, Y and the C angle as
-(x, y, theta) and refuses Z; a translational machine takes X, Y, Z and refuses C.
-The program's coordinates are machine coordinates (the work offset is the caller's).
+Axes: the machine's task space (``pkm_kinematics.task_space``) names the G-code word of
+each task coordinate: X Y C (x, y, theta) for a planar machine (ARCHI, Sliding Star),
+X Y Z for a machine that positions a point (the Delta, the Orthoglide), X Y Z A B C for
+a hexapod. A word the machine has no coordinate for is refused with its line. The
+program's coordinates are machine coordinates (the work offset is the caller's).
 """
 
 from __future__ import annotations
 
 import math
 
+from pkm_kinematics.task_space import TaskSpace
+
 from .gcode import Move, parse_gcode
 from .planner import Arc, Dwell, Line
 
 FEED_OVERRIDE_RANGE = (0.0, 2.0)     # (exclusive, inclusive): 0-200 %, 0 does not plan
+_POINT = {"X": 0, "Y": 1, "Z": 2}    # a move's target (x, y, z)
+_ANGLE = {"A": 0, "B": 1, "C": 2}    # a move's angles (A, B, C)
 
 
-def program_segments(moves: list[Move], planar: bool, start_pose, feed_override: float = 1.0,
+def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_override: float = 1.0,
                      scale: float = 1.0, repeat: int = 1) -> list:
-    """Segments of a parsed program starting at ``start_pose`` (x, y, theta | z)."""
+    """Segments of a parsed program starting at ``start_pose`` (task coordinates of ``space``)."""
     lo, hi = FEED_OVERRIDE_RANGE
     if not lo < feed_override <= hi:
         raise ValueError(f"feed_override: must be in (0, 2] (0-200 %), got {feed_override}")
@@ -31,20 +37,32 @@ def program_segments(moves: list[Move], planar: bool, start_pose, feed_override:
     if not (isinstance(repeat, int) and repeat >= 1):
         raise ValueError(f"repeat: must be an integer >= 1, got {repeat}")
     origin = [float(v) for v in start_pose]
+    if len(origin) != space.dof:
+        raise ValueError(f"start_pose: expected {space.dof} task coordinates ({space.describe()}), got {origin}")
+    missing = "".join(w for w in "XYZABC" if w not in space.words)
+
+    def refuse_missing(move: Move) -> None:
+        for word in missing:
+            if word == "Z":
+                given = abs(move.target[2]) > 1e-12            # a machine without Z starts at z = 0
+            else:
+                given = move.angles[_ANGLE[word]] is not None
+            if given:
+                value = f" (Z{move.target[2] / 1e-3:g} mm)" if word == "Z" else ""
+                raise ValueError(f"line {move.line}: this machine has no {word} axis{value}: its task "
+                                 f"coordinates are {space.describe()} (G-code {' '.join(space.words)})")
 
     def to_task(move: Move, previous):
-        x, y, z = move.target
-        if planar:
-            if abs(z) > 1e-12:
-                raise ValueError(f"line {move.line}: a planar machine has no Z axis (Z{z / 1e-3:g} mm)")
-            third = previous[2] if move.rotation is None else move.rotation
-        else:
-            if move.rotation is not None:
-                raise ValueError(f"line {move.line}: a translational machine has no C axis")
-            third = z
-        point = [x, y, third]
+        refuse_missing(move)
+        point = []
+        for i, word in enumerate(space.words):
+            if word in _POINT:
+                point.append(move.target[_POINT[word]])
+            else:
+                angle = move.angles[_ANGLE[word]]
+                point.append(previous[i] if angle is None else angle)
         # size adjustment about the program start (translation only)
-        for i in range(2 if planar else 3):
+        for i in range(space.translation_axes):
             point[i] = origin[i] + scale * (point[i] - origin[i])
         return point
 
@@ -72,7 +90,7 @@ def program_segments(moves: list[Move], planar: bool, start_pose, feed_override:
                     sweep = -((a0 - a1) % (2.0 * math.pi))
                 else:
                     sweep = (a1 - a0) % (2.0 * math.pi)
-            segments.append(Arc(tuple(pose), (cx, cy), sweep, target[2], speed))
+            segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed))
         pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
     if repeat > 1:
         if max(abs(a - b) for a, b in zip(pose, origin)) > 1e-9:
@@ -82,11 +100,10 @@ def program_segments(moves: list[Move], planar: bool, start_pose, feed_override:
     return segments
 
 
-def gcode_segments(text: str, planar: bool, start_pose, **kwargs) -> list:
-    """Parse ``text`` from ``start_pose`` and return its segments (see program_segments)."""
-    start = [float(v) for v in start_pose]
-    if planar:
-        moves = parse_gcode(text, start=(start[0], start[1], 0.0), start_rotation=start[2])
-    else:
-        moves = parse_gcode(text, start=tuple(start))
-    return program_segments(moves, planar, start, **kwargs)
+def gcode_segments(text: str, space: TaskSpace, start_pose, **kwargs) -> list:
+    """Parse ``text`` from ``start_pose`` (task coordinates of ``space``) and return its
+    segments (see program_segments)."""
+    start = dict(zip(space.words, (float(v) for v in start_pose)))
+    moves = parse_gcode(text, start=tuple(start.get(w, 0.0) for w in "XYZ"),
+                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"))
+    return program_segments(moves, space, start_pose, **kwargs)

@@ -28,7 +28,6 @@ from pkm_common.params import declare_float, declare_float_list, declare_int, de
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_kinematics.planar import PlanarMachine
 from pkm_trajectory.planner import Limits, plan_validated, point_to_point
 from pkm_trajectory.program import gcode_segments
 
@@ -38,7 +37,12 @@ class TrajectoryNode(Node):
         super().__init__("trajectory", context=context, **kwargs)
         self.config = load_machine(declare_str(self, "machine", "archi"))
         self.model = self.config.model
-        self.planar = isinstance(self.model, PlanarMachine)
+        self.space = self.model.task_space
+        if self.space.dof != 3:
+            # the trajectory message of a spatial pose (its angular rates as a twist) is not written yet
+            raise ValueError(f"machine: {self.config.name} has task coordinates {self.space.describe()}; the "
+                             f"trajectory node publishes three (x, y, theta or x, y, z) so far")
+        self.planar = self.space.translation_axes == 2      # (x, y, theta): its angle is a yaw
         self.limits = Limits(
             tuple(declare_float_list(self, "max_velocity", [0.5, 0.5, 2.0], length=3, lo=0.0)),
             tuple(declare_float_list(self, "max_acceleration", [5.0, 5.0, 20.0], length=3, lo=0.0)),
@@ -67,7 +71,7 @@ class TrajectoryNode(Node):
             self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
 
     def _options(self):
-        return {"planar": self.planar, "start_pose": self.pose, "feed_override": self.feed_override,
+        return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
                 "scale": self.scale, "repeat": self.repeat}
 
     def on_goal(self, msg: PoseStamped) -> None:
