@@ -191,6 +191,23 @@ def test_sensor_space_sees_the_tool_through_a_parasitic_orientation(tilt):
     assert np.abs(at_real).max() < 0.1 * tilt * tilt       # second order: (0.1 m lever) x tilt^2
 
 
+def test_sensor_space_at_the_desired_pose_keeps_its_first_cycle_error():
+    """``at_estimate=False`` (controller sensor_jacobian: desired): J_t stays at the
+    desired pose, so every cycle reports the first cycle's residual, which the estimate
+    (at_estimate=True) reduces (the test above); the scenario mom3_imperfect measures
+    the static error either leaves on the closed loop."""
+    sensor = GoughSensorModel(MOM3.metrology)
+    desired, tilt = [0.0, 0.02, 0.85], 2e-3
+    lengths = sensor.true_lengths(np.array(desired), exp_so3(np.array([tilt, -0.5 * tilt, 0.0]))).tolist()
+    p, r = tool_pose_floats(desired, False)
+    estimated, at_desired = SensorSpaceFeedback(sensor, planar=False), SensorSpaceFeedback(sensor, False, False)
+    first = estimated.task_error(p, r, lengths)
+    assert at_desired.task_error(p, r, lengths) == first
+    for _ in range(3):
+        assert at_desired.task_error(p, r, lengths) == first
+    assert np.abs(estimated.task_error(p, r, lengths)).max() < 0.7 * np.abs(first).max()
+
+
 def test_reference_interpolates_and_holds_the_end():
     t = [0.0, 0.5, 1.0]
     x = [[0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [2.0, 2.0, 2.0]]

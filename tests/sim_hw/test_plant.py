@@ -280,3 +280,31 @@ def test_external_loads_are_bounded_and_a_refused_one_is_not_applied():
         mom3.set_load([0.0, 0.0, 2000.0])
     with pytest.raises(ValueError, match="max_load_n: must be"):
         PlantParameters(max_load_n=math.nan).validate(4)
+
+
+BARS = (5.0e-5, -5.0e-5, 0.0, 3.0e-5, -2.0e-5, 0.0)       # config/machines/mom3_imperfect.yaml
+
+
+def test_the_imperfect_delta_turns_its_tool_and_its_drives_read_the_bars():
+    """MoM3 §4.1's imperfect case in the plant: with the bars of mom3_imperfect the tool
+    carries the parasitic rotation of that machine at the plant's position (a second
+    reader: pkm_kinematics' ParallelogramMachine loaded from its own config file), the
+    drives read its actuator values, and the platform moves as the perfect Delta's under
+    the same forces (the dynamics keep its J_m). Without bars: no rotation, as before."""
+    imperfect = load_machine("mom3_imperfect").model
+    params = dict(encoder_resolution_m=0.0)
+    perfect = Plant(MOM3, PlantParameters(**params))
+    plant = Plant(MOM3, PlantParameters(parallelogram_bar_errors_m=BARS, **params))
+    forces = [150.0, -60.0, 20.0]
+    for _ in range(50):
+        out, ref = plant.step(forces), perfect.step(forces)
+    assert out.rigid_pose == ref.rigid_pose and ref.tool_rotation is None
+    p = np.array(out.rigid_pose)
+    expected = imperfect.inverse_kinematics_full(p)
+    np.testing.assert_allclose(np.array(out.tool_rotation).reshape(3, 3), expected.rotation, atol=1e-12)
+    tilt = np.linalg.norm(imperfect.parasitic_rotation(p))
+    assert 1e-4 < tilt < 5e-3                                   # mrad, what the encoders cannot see
+    np.testing.assert_allclose(out.encoder_positions, expected.q, atol=1e-12)
+    assert np.abs(np.array(out.encoder_positions) - ref.encoder_positions).max() > 1e-6
+    with pytest.raises(ValueError, match=r"parallelogram_bar_errors_m: must be empty, or 6 values"):
+        Plant(ARCHI, PlantParameters(parallelogram_bar_errors_m=BARS[:4] + (0.0, 0.0)))

@@ -121,13 +121,14 @@ class RunOutput:
 def step_arrays(run_dir: Path) -> dict:
     """The per-step streams of a recorded run as arrays over the drive-state stamps:
     ``t_s`` (from the first state), ``q``, ``applied`` (N, n); ``command`` (N, n);
-    ``position`` (N, 3) and ``yaw`` (N,) of the true pose, ``ref_position`` and
-    ``ref_yaw`` of the controller's reference, ``gough_position`` and ``gough_yaw`` of
+    ``position`` (N, 3), ``yaw`` (N,) and ``orientation`` (N, 4: x, y, z, w) of the true
+    pose, ``ref_position`` ... of the controller's reference, ``gough_position`` ... of
     the Gough metrology's DKM pose (NaN where a stream has no message of the stamp).
     A gallery run is a few thousand steps: held whole."""
     from pkm_bringup.report_data import RunReader, yaw_of
-    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "ref_position",
-                                   "ref_yaw", "gough_position", "gough_yaw")}
+    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "orientation",
+                                   "ref_position", "ref_yaw", "ref_orientation", "gough_position", "gough_yaw",
+                                   "gough_orientation")}
     with RunReader(run_dir) as reader:
         for block in reader.blocks():
             state = block.rows.get("state")
@@ -143,12 +144,13 @@ def step_arrays(run_dir: Path) -> dict:
             for key, prefix in (("true_pose", ""), ("reference", "ref_"), ("metrology_pose", "gough_")):
                 pose = block.rows.get(key)
                 if pose is not None:
-                    position, yaw = pose.position[keep], yaw_of(pose.orientation[keep])
-                    yaw[~pose.present[keep]] = np.nan
+                    position, orientation = pose.position[keep], pose.orientation[keep].copy()
+                    orientation[~pose.present[keep]] = np.nan
                 else:
-                    position, yaw = np.full((int(keep.sum()), 3), np.nan), np.full(int(keep.sum()), np.nan)
+                    position, orientation = np.full((int(keep.sum()), 3), np.nan), np.full((int(keep.sum()), 4), np.nan)
                 parts[prefix + "position"].append(position)
-                parts[prefix + "yaw"].append(yaw)
+                parts[prefix + "yaw"].append(yaw_of(orientation))
+                parts[prefix + "orientation"].append(orientation)
     out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     stamp = out.pop("stamp")
     out["t_s"] = (stamp - stamp[0]) * 1e-9 if len(stamp) else np.zeros(0)

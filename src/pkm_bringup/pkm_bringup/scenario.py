@@ -342,7 +342,7 @@ def _check_plant(p: dict, config) -> None:
     if "faults" in values:          # one string to ROS; split as sim_hw_node does
         values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
     params = PlantParameters(**values)
-    params.validate(config.model.n_legs)
+    params.validate(config.model.n_legs, config.kind)
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
     for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):

@@ -71,6 +71,7 @@ STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), 
 # the drive increments (Sliding Star §3.1, pkm_kinematics.online_fk), by the midpoint
 # rule or by explicit Euler: name -> integration order (0: solved)
 FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
+SENSOR_JACOBIAN_POSES = ("estimated", "desired")
 # what an operator may change in a running controller (ControllerCore.change_settings)
 RUNTIME_SETTINGS = ("strategy", "distribution", "p_norm", "prestress_n", "bandwidth_hz", "damping_ratio",
                     "integral_time_s")
@@ -105,6 +106,7 @@ class ControllerConfig:
     encoder_gough_m: float = 1e-4         # metrology strategies: a reading this far off the Gough's (0: off)
     forward_kinematics: str = "newton"    # the encoder pose: newton | integrated | integrated_euler (§3.1)
     fk_resync_cycles: int = 0             # integrated: a Newton solution every N cycles (0: never)
+    sensor_jacobian: str = "estimated"    # sensor_space: J_t at the estimated real pose, or the desired (MoM3 §6.4)
 
     def validate(self, n_drives: int, planar: bool) -> None:
         checks = [
@@ -133,6 +135,7 @@ class ControllerConfig:
             ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_gough_m", 0.0 <= self.encoder_gough_m < math.inf, "in [0, inf) m (0: off)"),
             ("forward_kinematics", self.forward_kinematics in FORWARD_KINEMATICS, f"one of {list(FORWARD_KINEMATICS)}"),
+            ("sensor_jacobian", self.sensor_jacobian in SENSOR_JACOBIAN_POSES, f"one of {list(SENSOR_JACOBIAN_POSES)}"),
             ("fk_resync_cycles", 0 <= self.fk_resync_cycles <= 10**9, "in [0, 1e9] (0: never)"),
         ]
         if self.integral_time_s != 0.0:
@@ -212,7 +215,8 @@ class ControllerCore:
                 raise ValueError(f"strategy: {self.strategy.name} needs a machine with a 'metrology' section, "
                                  f"{machine.name!r} has none")
             from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
-            self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar)
+            self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar,
+                                                 at_estimate=self.config.sensor_jacobian == "estimated")
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
         self._workspace_box = self._task_box()

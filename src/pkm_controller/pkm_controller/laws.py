@@ -282,12 +282,15 @@ class SensorSpaceFeedback:
     previous estimate (one cycle old: um apart at 1 kHz). J_t here is J_h (6 x 6,
     MoM3 eq. 1-3) followed by the mounting transform of the tool (the lever arm of the
     plate to the tool, MoM3 eq. 10-11) and the selection of the machine's task axes.
+    ``at_estimate=False``: J_h at the desired plate pose instead (the paper's first
+    variant, kept to show its static error: scenario mom3_imperfect).
     """
 
-    def __init__(self, sensor, planar: bool):
+    def __init__(self, sensor, planar: bool, at_estimate: bool = True):
         self.sensor = sensor                       # GoughSensorModel (nominal geometry used)
         self.platform = sensor.nominal
         self.planar = planar
+        self.at_estimate = at_estimate
         self._legs_a = self.platform._legs_a
         self._r_wb = sensor._r_wb
         self._p_tp = sensor._p_tp
@@ -308,7 +311,7 @@ class SensorSpaceFeedback:
         pose of the desired tool pose, l_des = IKM_GP (nominal geometry) and J_h at
         the estimated real pose (the estimate of the previous cycle)."""
         p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
-        at = self.estimate or (p_bp, r_bp)
+        at = self.estimate if self.at_estimate and self.estimate is not None else (p_bp, r_bp)
         l_des, j_h = _desired_lengths_and_jacobian(self._legs_a, p_bp, r_bp, at[0], at[1])
         self._desired = (p_bp, r_bp, l_des, j_h, tuple(tool_rotation))
 

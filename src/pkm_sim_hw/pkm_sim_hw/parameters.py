@@ -54,7 +54,13 @@ def declare_settings(node) -> SimHwSettings:
         max_load_n=declare_float(node, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
                                  "component", lo_open=True, unit="N"),
         max_load_nm=declare_float(node, "max_load_nm", 500.0, 0.0, 1e9, "bound of an external load moment "
-                                  "component", lo_open=True, unit="N m"))
+                                  "component", lo_open=True, unit="N m"),
+        parallelogram_bar_errors_m=tuple(declare_float_list(
+            node, "parallelogram_bar_errors_m", [], "a Delta's parallelogram bars: 6 length errors, two per leg "
+            "(MoM3 §4.1's imperfect case; empty: perfect)", lo=-0.01, hi=0.01, unit="m")),
+        parallelogram_half_width_m=declare_float(node, "parallelogram_half_width_m", 0.03, 0.0, 1.0,
+                                                 "half the distance between a parallelogram's bars",
+                                                 lo_open=True, unit="m"))
     initial = declare_float_list(node, "initial_pose", [], "empty: the machine's home pose")
     plant = Plant(machine, params, initial_pose=initial or None)
     lockstep = declare_str(node, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"

@@ -9,6 +9,13 @@ structural compliance, external load and faults.
   "fighting" is); it is computed and reported every step.
 * Dynamics: ARCHI §3.4, A(x) xddot + H(x, xdot) = J^T f_d + f_n (pkm_kinematics.dynamics),
   fixed step with substeps, semi-implicit Euler (default, one model evaluation) or RK4.
+* The imperfect Delta (MoM3 §4.1, ``parallelogram_bar_errors_m``): each leg of a
+  Delta a parallelogram of two bars of their own lengths (pkm_kinematics.parallelogram).
+  The platform then turns with its position (a parasitic rotation of a few mrad): the
+  drives read the imperfect machine's actuator values and the tool pose carries its
+  rotation (``PlantOutput.tool_rotation``), which a Gough metrology measures and the
+  encoders cannot. The dynamics keep the perfect Delta's J_m (the bars change it by
+  their relative error, ~1e-4).
 * Drives: force saturation; faults ``no_force`` (the drive applies nothing) and
   ``locked`` (a brake holds it: a constraint J_i xdot = 0 with its reaction force).
 * Encoders: quantised at the resolution, optional Gaussian noise, velocity by backward
@@ -39,6 +46,7 @@ from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force_rows
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
+from pkm_kinematics.parallelogram import ParallelogramMachine
 from pkm_kinematics.planar import PlanarMachine
 from pkm_kinematics.translational import TranslationalMachine
 from pkm_kinematics.validation import finite_floats
@@ -99,8 +107,10 @@ class PlantParameters:
     faults: tuple = ()
     max_load_n: float = 5000.0            # bound of each force component of the external load
     max_load_nm: float = 500.0            # bound of a moment component (planar machines: m_z)
+    parallelogram_bar_errors_m: tuple = ()     # a Delta's bars: 6 length errors (m), two per leg (MoM3 §4.1)
+    parallelogram_half_width_m: float = 0.03   # half the distance between a parallelogram's two bars
 
-    def validate(self, n_drives: int) -> None:
+    def validate(self, n_drives: int, kind: str | None = None) -> None:
         checks = [("dt_s", self.dt_s > 0.0 and self.dt_s <= 0.1, "(0, 0.1] s"),
                   ("substeps", 1 <= self.substeps <= 1000, "[1, 1000]"),
                   ("integrator", self.integrator in ("semi_implicit", "rk4"), "semi_implicit or rk4"),
@@ -115,7 +125,12 @@ class PlantParameters:
                   ("frame_compliance", len(self.frame_compliance) == 3
                    and all(c >= 0.0 for c in self.frame_compliance), "3 values >= 0"),
                   ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
-                  ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m")]
+                  ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m"),
+                  ("parallelogram_bar_errors_m", not self.parallelogram_bar_errors_m
+                   or (len(self.parallelogram_bar_errors_m) == 6 and n_drives == 3 and kind in (None, "translational")
+                       and all(abs(e) <= 0.01 for e in self.parallelogram_bar_errors_m)),
+                   "empty, or 6 values in [-0.01, 0.01] m (two bars per leg) on a Delta (3 rails)"),
+                  ("parallelogram_half_width_m", 0.0 < self.parallelogram_half_width_m <= 1.0, "(0, 1] m")]
         for name, ok, allowed in checks:
             if not ok:
                 raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
@@ -137,6 +152,7 @@ class PlantOutput:
     internal_force_norm: float
     faults_active: list = field(default_factory=list)
     stopped: bool = False
+    tool_rotation: tuple | None = None     # row-major 9: the tool's rotation where it is not the task's
 
 
 def true_machine(nominal, link_length_errors=(), rail_offset_errors_m=()):
@@ -163,7 +179,7 @@ class Plant:
             raise ValueError(f"machine {config.name!r}: the plant needs a 'dynamics' section")
         self.params = params or PlantParameters()
         n = config.model.n_legs
-        self.params.validate(n)
+        self.params.validate(n, config.kind)
         self.config = config
         self.n = n
         self.names = list(config.model.leg_names)
@@ -172,6 +188,11 @@ class Plant:
         home = config.model.home
         self.x = finite_floats(home if initial_pose is None else initial_pose, 3, "initial_pose")
         self.machine.inverse_kinematics(self.x)          # reachable with the true geometry
+        self.bars = None                                 # the imperfect Delta's bars (module doc)
+        if self.params.parallelogram_bar_errors_m:
+            self.bars = ParallelogramMachine(self.machine.name + "_bars", self.machine.legs,
+                                             self.params.parallelogram_half_width_m,
+                                             self.params.parallelogram_bar_errors_m, self.x, self.machine.workspace)
         self.v = [0.0, 0.0, 0.0]
         self.t = 0.0
         self.k = 0
@@ -188,7 +209,8 @@ class Plant:
         self._upper = self.machine.joint_upper.tolist()
         self._locked: list[int] = []
         self._lock_positions: dict[int, float] = {}
-        self._encoders = self._read_encoders(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())
+        self._encoders = self._read_encoders(self._drive_positions(
+            self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
 
     # ------------------------------------------------------------------ inputs
@@ -358,8 +380,17 @@ class Plant:
             q = [round(qi / res) * res for qi in q]
         return q
 
+    def _drive_positions(self, q_rigid) -> tuple[list, tuple | None]:
+        """The drives' true positions and the tool's rotation: the imperfect Delta's
+        when its bars are given, else the rigid model's q and None."""
+        if self.bars is None:
+            return q_rigid, None
+        pose = self.bars.inverse_kinematics_full(self.x)
+        return pose.q.tolist(), tuple(pose.rotation.ravel().tolist())
+
     def _output(self, applied, saturated, faults, terms=None) -> PlantOutput:
-        q_true, rows, _, _ = terms or self.machine.velocity_terms(self.x, self.v)
+        q_rigid, rows, _, _ = terms or self.machine.velocity_terms(self.x, self.v)
+        q_true, rotation = self._drive_positions(q_rigid)
         reading = self._read_encoders(q_true)
         frozen = {f.drive for f in faults if f.kind == "encoder_freeze"}
         for f in faults:
@@ -373,7 +404,7 @@ class Plant:
         tool = [xi + ci * li + cfi * fi for xi, ci, li, cfi, fi in zip(self.x, c, self.load, cf, self.frame_load)]
         return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(self.x),
                            fint, math.sqrt(sum(f * f for f in fint)),
-                           [f"{f.drive}:{f.kind}" for f in faults], self.stopped)
+                           [f"{f.drive}:{f.kind}" for f in faults], self.stopped, rotation)
 
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""

@@ -47,7 +47,7 @@ from pkm_common.causes import TripCause, plant_status_word, setpoint_held_word
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
-                                    ns_to_stamp, publisher_names)
+                                    ns_to_stamp, pose_components, publisher_names)
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -127,7 +127,12 @@ class SimHwNode(Node):
         # the true pose first: the sensor's work is on the critical path of the step
         # (state -> sensor -> controller), the drive state and the clock are not
         # planar: tool = (x, y, 0), yaw theta; translational: tool = p, orientation fixed
-        position, orientation = machine_pose_components(self.planar, out.tool_pose)
+        # (the imperfect Delta's: its parasitic rotation)
+        if out.tool_rotation is None:
+            position, orientation = machine_pose_components(self.planar, out.tool_pose)
+        else:
+            r = out.tool_rotation
+            position, orientation = pose_components(out.tool_pose, (r[0:3], r[3:6], r[6:9]))
         self.pub_pose.publish(self.pose_encoder.encode(ns, position, orientation))
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
