@@ -55,6 +55,41 @@ def test_accepts_a_program_and_refuses_bad_ones(ros_graph):
     assert node.accepted == 2 and node.pose == pytest.approx([1.1, -0.35, 2.0])
 
 
-def test_a_hexapod_is_refused_by_name_until_its_trajectory_messages_exist(ros_graph):
-    with pytest.raises(ValueError, match=r"machine: genhexkins has task coordinates x, y, z, a, b, c"):
-        TrajectoryNode(context=ros_graph.context, parameter_overrides=[Parameter("machine", value="genhexkins")])
+def test_a_hexapod_program_is_published_as_poses_and_twists(ros_graph):
+    """genhexkins (6 task DOF): a program with A B C is published with each point's
+    rotation as a quaternion and its angular velocity and acceleration as twists in the
+    base frame. References: the quaternion of the program's end angles; the angular
+    velocity from finite differences of the published rotations (R_k+1 R_k-1^T =
+    exp(2 dt [w])); the angle rates recovered by task_space.angle_rates."""
+    import numpy as np
+    from pkm_kinematics import load_machine
+    from pkm_kinematics.rotations import log_so3, quaternion_from_rotation, rotation_from_quaternion, \
+        rotation_from_rpy
+    from pkm_kinematics.task_space import angle_rates
+    node = ros_graph.add_node(TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+        Parameter("machine", value="genhexkins"), Parameter("rate_hz", value=500.0)]))
+    client = ros_graph.create_node("client")
+    trajectories = []
+    client.create_subscription(MultiDOFJointTrajectory, "trajectory", trajectories.append, LATCHED_QOS)
+    program = client.create_publisher(String, "program", STREAM_QOS)
+    assert ros_graph.spin_until(lambda: program.get_subscription_count() > 0)
+    program.publish(String(data="G21 G90 G1 F1200 X10 Y-5 Z515 A4 B-3 C10\nM2\n"))
+    assert ros_graph.spin_until(lambda: len(trajectories) == 1)
+    points = trajectories[0].points
+    end = points[-1].transforms[0]
+    q_end = [end.rotation.x, end.rotation.y, end.rotation.z, end.rotation.w]
+    expected = quaternion_from_rotation(rotation_from_rpy(*np.radians([4.0, -3.0, 10.0])))
+    np.testing.assert_allclose(q_end, expected, atol=1e-12)
+    assert (end.translation.x, end.translation.y, end.translation.z) == pytest.approx((0.010, -0.005, 0.515))
+    rotations = [rotation_from_quaternion([p.transforms[0].rotation.x, p.transforms[0].rotation.y,
+                                           p.transforms[0].rotation.z, p.transforms[0].rotation.w]) for p in points]
+    k, dt = len(points) // 3, 1.0 / 500.0
+    omega = log_so3(rotations[k + 1] @ rotations[k - 1].T) / (2.0 * dt)
+    w = points[k].velocities[0].angular
+    np.testing.assert_allclose([w.x, w.y, w.z], omega, rtol=1e-3, atol=1e-6)
+    assert np.linalg.norm(omega) > 0.01
+    angles = np.array(node.model.task_coordinates(np.zeros(3), rotations[k])[3:])
+    rates, _ = angle_rates(angles, [w.x, w.y, w.z], [0.0, 0.0, 0.0])
+    ratio = rates / np.radians([4.0, -3.0, 10.0])         # a straight line: every angle at the same pace
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)
+    assert load_machine("genhexkins").model.task_space.dof == 6

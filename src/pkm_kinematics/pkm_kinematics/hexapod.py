@@ -22,7 +22,7 @@ import numpy as np
 
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
-from .rotations import rotation_from_rpy, rpy_from_rotation
+from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation
 from .task_space import SPATIAL
 
 
@@ -58,16 +58,6 @@ class StrutFKResult(NamedTuple):
 
 
 _CODES = {int(c): c for c in FKCode}
-
-
-def rate_matrix(a: float, b: float, c: float) -> np.ndarray:
-    """E with w = E (a', b', c') for R = Rz(c) Ry(b) Rx(a): the angular velocity in
-    the base frame of the rotation angles' rates (c about z, b about the once-turned
-    y, a about the twice-turned x)."""
-    del a                                   # the last rotation applied: no effect on the axes
-    cb, sb = math.cos(b), math.sin(b)
-    cc, sc = math.cos(c), math.sin(c)
-    return np.array([[cc * cb, -sc, 0.0], [sc * cb, cc, 0.0], [-sb, 0.0, 1.0]])
 
 
 class StrutMachine:

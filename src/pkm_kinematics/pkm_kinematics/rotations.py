@@ -98,6 +98,26 @@ def rpy_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
+def rate_matrix(a: float, b: float, c: float) -> np.ndarray:
+    """E with w = E (a', b', c') for R = Rz(c) Ry(b) Rx(a): the angular velocity in
+    the base frame of the rotation angles' rates (c about z, b about the once-turned
+    y, a about the twice-turned x)."""
+    del a                                   # the last rotation applied: no effect on the axes
+    cb, sb = math.cos(b), math.sin(b)
+    cc, sc = math.cos(c), math.sin(c)
+    return np.array([[cc * cb, -sc, 0.0], [sc * cb, cc, 0.0], [-sb, 0.0, 1.0]])
+
+
+def rate_matrix_derivative(b: float, c: float, b_rate: float, c_rate: float) -> np.ndarray:
+    """dE/dt of :func:`rate_matrix` (it depends on b and c only): the angular
+    acceleration is w' = E (a'', b'', c'') + E' (a', b', c')."""
+    cb, sb = math.cos(b), math.sin(b)
+    cc, sc = math.cos(c), math.sin(c)
+    return np.array([[-sc * c_rate * cb - cc * sb * b_rate, -cc * c_rate, 0.0],
+                     [cc * c_rate * cb - sc * sb * b_rate, -sc * c_rate, 0.0],
+                     [-cb * b_rate, 0.0, 0.0]])
+
+
 def rotation_about_z(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -18,7 +18,12 @@ G-code program gives angles in degrees (``pkm_trajectory.gcode``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+import numpy as np
+
+from .rotations import quaternion_from_rotation, rate_matrix, rate_matrix_derivative, rotation_from_rpy
 
 
 @dataclass(frozen=True)
@@ -42,4 +47,40 @@ POSITION = TaskSpace("position", ("x", "y", "z"), 3, ("X", "Y", "Z"))
 SPATIAL = TaskSpace("spatial", ("x", "y", "z", "a", "b", "c"), 3, ("X", "Y", "Z", "A", "B", "C"))
 TASK_SPACES = {space.name: space for space in (PLANAR, POSITION, SPATIAL)}
 
-__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace"]
+
+
+def motion_fields(space: TaskSpace, x, v, a) -> tuple:
+    """A task-space sample (pose x, rates v, accelerations a) as the fields of a
+    trajectory point in the base frame: (translation (3), quaternion (x, y, z, w),
+    linear velocity, angular velocity, linear acceleration, angular acceleration).
+    planar: the yaw theta about z; position: no rotation; spatial: R = Rz(c) Ry(b)
+    Rx(a), w = E (a', b', c'), w' = E (a'', b'', c'') + E' (a', b', c')
+    (rotations.rate_matrix)."""
+    if space is PLANAR:
+        return ((x[0], x[1], 0.0), (0.0, 0.0, math.sin(0.5 * x[2]), math.cos(0.5 * x[2])),
+                (v[0], v[1], 0.0), (0.0, 0.0, v[2]), (a[0], a[1], 0.0), (0.0, 0.0, a[2]))
+    if space is POSITION:
+        return ((x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0), (v[0], v[1], v[2]), (0.0, 0.0, 0.0),
+                (a[0], a[1], a[2]), (0.0, 0.0, 0.0))
+    rate = rate_matrix(x[3], x[4], x[5])
+    omega = rate @ np.asarray(v[3:6], dtype=float)
+    alpha = rate @ np.asarray(a[3:6], dtype=float) + rate_matrix_derivative(x[4], x[5], v[4], v[5]) @ \
+        np.asarray(v[3:6], dtype=float)
+    q = quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5]))
+    return (tuple(x[:3]), tuple(q.tolist()), tuple(v[:3]), tuple(omega.tolist()), tuple(a[:3]),
+            tuple(alpha.tolist()))
+
+
+def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`motion_fields`' rotation part: (a', b', c') and
+    (a'', b'', c'') of the angular velocity ``omega`` and acceleration ``alpha`` at
+    the angles (a, b, c) (|b| < pi/2)."""
+    _, b, c = angles
+    rate = rate_matrix(*angles)
+    rates = np.linalg.solve(rate, np.asarray(omega, dtype=float))
+    accelerations = np.linalg.solve(rate, np.asarray(alpha, dtype=float)
+                                    - rate_matrix_derivative(b, c, rates[1], rates[2]) @ rates)
+    return rates, accelerations
+
+
+__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "motion_fields"]

@@ -13,7 +13,6 @@ much on ``diagnostics`` (ERROR). An accepted one goes out on ``trajectory``
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from builtin_interfaces.msg import Duration
@@ -28,6 +27,7 @@ from pkm_common.params import declare_float, declare_float_list, declare_int, de
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
+from pkm_kinematics.task_space import motion_fields
 from pkm_trajectory.planner import Limits, plan_validated, point_to_point
 from pkm_trajectory.program import gcode_segments
 
@@ -38,15 +38,13 @@ class TrajectoryNode(Node):
         self.config = load_machine(declare_str(self, "machine", "archi"))
         self.model = self.config.model
         self.space = self.model.task_space
-        if self.space.dof != 3:
-            # the trajectory message of a spatial pose (its angular rates as a twist) is not written yet
-            raise ValueError(f"machine: {self.config.name} has task coordinates {self.space.describe()}; the "
-                             f"trajectory node publishes three (x, y, theta or x, y, z) so far")
-        self.planar = self.space.translation_axes == 2      # (x, y, theta): its angle is a yaw
-        self.limits = Limits(
-            tuple(declare_float_list(self, "max_velocity", [0.5, 0.5, 2.0], length=3, lo=0.0)),
-            tuple(declare_float_list(self, "max_acceleration", [5.0, 5.0, 20.0], length=3, lo=0.0)),
-            tuple(declare_float_list(self, "max_jerk", [200.0, 200.0, 800.0], length=3, lo=0.0)))
+        # per task axis: m/s (m/s^2, m/s^3) for a translation, rad/s ... for an angle
+        defaults = {name: [per_axis[0]] * self.space.translation_axes
+                    + [per_axis[1]] * (self.space.dof - self.space.translation_axes)
+                    for name, per_axis in (("max_velocity", (0.5, 2.0)), ("max_acceleration", (5.0, 20.0)),
+                                           ("max_jerk", (200.0, 800.0)))}
+        self.limits = Limits(*(tuple(declare_float_list(self, name, default, length=self.space.dof, lo=0.0))
+                               for name, default in defaults.items()))
         self.rate_hz = declare_float(self, "rate_hz", 1000.0, 1.0, 20000.0, unit="Hz")
         self.joint_velocity = declare_float(self, "max_joint_velocity", 2.0, 0.0, 100.0, lo_open=True, unit="m/s")
         self.joint_acceleration = declare_float(self, "max_joint_acceleration", 50.0, 0.0, 1e4, lo_open=True,
@@ -77,8 +75,11 @@ class TrajectoryNode(Node):
     def on_goal(self, msg: PoseStamped) -> None:
         def segments():
             position, rotation = pose_from_msg(msg)
-            kind = "planar" if self.planar else "translational"
-            return [point_to_point(self.pose, tool_pose_to_machine(kind, position, rotation, self.pose[2]))]
+            if self.space.dof == 6:                 # a pose: its roll, pitch, yaw
+                target = self.model.task_coordinates(position, rotation)
+            else:
+                target = tool_pose_to_machine(self.config.kind, position, rotation, self.pose[2])
+            return [point_to_point(self.pose, target)]
         self.submit("goal", segments)
 
     def on_program(self, msg: String) -> None:
@@ -105,17 +106,16 @@ class TrajectoryNode(Node):
         msg = MultiDOFJointTrajectory(joint_names=["tool"])
         msg.header.frame_id = "world"
         msg.header.stamp = self.get_clock().now().to_msg()
-        for t, x, v, a in zip(samples.time_s, samples.position, samples.velocity, samples.acceleration):
+        for t, x, v, a in zip(samples.time_s, samples.position.tolist(), samples.velocity.tolist(),
+                              samples.acceleration.tolist()):
             tf, vel, acc = Transform(), Twist(), Twist()
-            tf.translation.x, tf.translation.y = float(x[0]), float(x[1])
-            vel.linear.x, vel.linear.y = float(v[0]), float(v[1])
-            acc.linear.x, acc.linear.y = float(a[0]), float(a[1])
-            if self.planar:                         # (x, y, theta): yaw about z
-                tf.rotation.z, tf.rotation.w = math.sin(0.5 * x[2]), math.cos(0.5 * x[2])
-                vel.angular.z, acc.angular.z = float(v[2]), float(a[2])
-            else:
-                tf.translation.z, vel.linear.z, acc.linear.z = float(x[2]), float(v[2]), float(a[2])
-                tf.rotation.w = 1.0
+            p, q, lin, ang, lin_acc, ang_acc = motion_fields(self.space, x, v, a)
+            tf.translation.x, tf.translation.y, tf.translation.z = p
+            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
+            vel.linear.x, vel.linear.y, vel.linear.z = lin
+            vel.angular.x, vel.angular.y, vel.angular.z = ang
+            acc.linear.x, acc.linear.y, acc.linear.z = lin_acc
+            acc.angular.x, acc.angular.y, acc.angular.z = ang_acc
             sec, nsec = divmod(round(float(t) * 1e9), 1_000_000_000)
             msg.points.append(MultiDOFJointTrajectoryPoint(
                 transforms=[tf], velocities=[vel], accelerations=[acc],
