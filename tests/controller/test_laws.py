@@ -225,7 +225,7 @@ def test_reference_interpolates_and_holds_the_end():
 @pytest.mark.parametrize("times, positions, message", [
     ([0.0, 0.0], [[0, 0, 0], [1, 1, 1]], "increase strictly"),
     ([0.0, 1.0], [[0, 0, 0], [1, math.nan, 1]], "positions contain NaN"),
-    ([0.0, 1.0], [[0, 0], [1, 1]], "N x 3 positions"),
+    ([0.0, 1.0], [[0, 0], [1, 1]], r"N x 3 \(or N x 6\) positions, got shapes \(2,\), \(2, 2\)"),
     ([-1.0], [[0, 0, 0]], ">= 0"),
 ])
 def test_reference_refuses_malformed_trajectories(times, positions, message):

@@ -124,7 +124,7 @@ class _Replay:
                     continue
                 if "points" not in event:          # the node could not read it: nothing was applied
                     continue
-                payload = reference_from_msg(msg, self.core.planar)
+                payload = reference_from_msg(msg, self.core.model.task_space)
                 self.trajectory_seen = True
             if event["after_ns"] is None:
                 self._apply(action, payload, event)
@@ -142,7 +142,7 @@ class _Replay:
         if topic == "trajectory":
             if not self.trajectory_seen:
                 self.trajectory_seen = True
-                self.core.set_trajectory(reference_from_msg(msg, self.core.planar), None)
+                self.core.set_trajectory(reference_from_msg(msg, self.core.model.task_space), None)
         elif topic == "estop":
             if msg.data and not self.stopped and not self.stops_recorded:   # not replayable: the cut
                 self.stopped = True

@@ -213,7 +213,7 @@ class ControllerNode(LifecycleNode):
         """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
         trajectory would hold the loop for tens of milliseconds."""
         try:
-            ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.planar)
+            ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.model.task_space)
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
             self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return

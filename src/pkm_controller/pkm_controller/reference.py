@@ -2,7 +2,8 @@
 
 A trajectory is what ``pkm_trajectory`` plans and ``trajectory_node`` publishes:
 times, positions, velocities and accelerations in task coordinates (planar
-(x, y, theta), translational (x, y, z)). Between samples the reference is linearly
+(x, y, theta), a position (x, y, z), or a spatial pose (x, y, z, a, b, c):
+pkm_kinematics.task_space). Between samples the reference is linearly
 interpolated; before the start it is the first sample, after the end the last one at
 rest (the machine holds the end pose). Sampling runs every control cycle, so it is
 a bisection plus a few float operations (~2 us).
@@ -16,6 +17,8 @@ import math
 import numpy as np
 
 from pkm_common.cdr import TrajectoryData
+from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation
+from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates
 
 
 class Reference:
@@ -24,13 +27,14 @@ class Reference:
     def __init__(self, time_s, position, velocity=None, acceleration=None):
         t = np.asarray(time_s, dtype=float)
         x = np.asarray(position, dtype=float)
-        if t.ndim != 1 or t.size < 1 or x.shape != (t.size, 3):
-            raise ValueError(f"trajectory: expected N times and N x 3 positions, got shapes {t.shape}, {x.shape}")
+        if t.ndim != 1 or t.size < 1 or x.ndim != 2 or x.shape[0] != t.size or x.shape[1] not in (3, 6):
+            raise ValueError(f"trajectory: expected N times and N x 3 (or N x 6) positions, got shapes "
+                             f"{t.shape}, {x.shape}")
         v = np.zeros_like(x) if velocity is None else np.asarray(velocity, dtype=float)
         a = np.zeros_like(x) if acceleration is None else np.asarray(acceleration, dtype=float)
         if v.shape != x.shape or a.shape != x.shape:
-            raise ValueError(f"trajectory: velocities and accelerations must be N x 3 like the positions, "
-                             f"got {v.shape}, {a.shape}")
+            raise ValueError(f"trajectory: velocities and accelerations must be N x {x.shape[1]} like the "
+                             f"positions, got {v.shape}, {a.shape}")
         for name, arr in (("time_from_start", t), ("positions", x), ("velocities", v), ("accelerations", a)):
             if not np.isfinite(arr).all():
                 raise ValueError(f"trajectory: {name} contain NaN or infinite values")
@@ -68,7 +72,8 @@ class Reference:
         if t <= ts[0]:
             return list(self.position[0]), list(self.velocity[0]), list(self.acceleration[0])
         if t >= ts[-1]:
-            return list(self.position[-1]), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+            rest = [0.0] * len(self.position[-1])
+            return list(self.position[-1]), rest, list(rest)
         k = bisect.bisect_right(ts, t)
         t0, t1 = ts[k - 1], ts[k]
         w = (t - t0) / (t1 - t0)
@@ -92,19 +97,28 @@ def unwrap_angles(angles) -> list:
     return out
 
 
-def reference_from_trajectory(data, planar: bool) -> "Reference":
+def reference_from_trajectory(data, space: TaskSpace) -> "Reference":
     """A MultiDOFJointTrajectory's arrays (``pkm_common.cdr.TrajectoryData``, joint
-    "tool", as trajectory_node publishes) -> Reference; the yaw of a planar machine
-    unwrapped (unlimited rotation)."""
+    "tool", as trajectory_node publishes) -> Reference in the task coordinates of
+    ``space``: the yaw of a planar machine unwrapped (unlimited rotation); a spatial
+    pose's roll, pitch and yaw, roll and yaw unwrapped, and their rates from the
+    twists (``task_space.angle_rates``, the inverse of what trajectory_node wrote)."""
     if len(data.joint_names) != 1 or not len(data.time_s):
         raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
                          f"{list(data.joint_names)} with {len(data.time_s)} points")
     tf, vel, acc = data.transform[:, 0], data.velocity[:, 0], data.acceleration[:, 0]
-    if planar:       # (x, y, yaw about z); the yaw per point in Python floats, as the recorded runs had it
+    if space is PLANAR:  # (x, y, yaw about z); the yaw per point in Python floats, as the recorded runs had it
         yaw = unwrap_angles([math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
                              for x, y, z, w in tf[:, 3:7].tolist()])
         return Reference(data.time_s, np.column_stack((tf[:, 0], tf[:, 1], yaw)), vel[:, [0, 1, 5]],
                          acc[:, [0, 1, 5]])
+    if space is SPATIAL:
+        angles = np.array([rpy_from_rotation(rotation_from_quaternion(q)) for q in tf[:, 3:7]]).reshape(-1, 3)
+        angles[:, 0], angles[:, 2] = unwrap_angles(angles[:, 0]), unwrap_angles(angles[:, 2])
+        rates = [angle_rates(x, w, dw) for x, w, dw in zip(angles, vel[:, 3:6], acc[:, 3:6])]
+        return Reference(data.time_s, np.column_stack((tf[:, :3], angles)),
+                         np.column_stack((vel[:, :3], [r[0] for r in rates])).reshape(-1, 6),
+                         np.column_stack((acc[:, :3], [r[1] for r in rates])).reshape(-1, 6))
     return Reference(data.time_s, tf[:, :3], vel[:, :3], acc[:, :3])
 
 
@@ -126,6 +140,6 @@ def trajectory_data_from_msg(msg):
                           t, tf, vel, acc)
 
 
-def reference_from_msg(msg, planar: bool) -> "Reference":
+def reference_from_msg(msg, space: TaskSpace) -> "Reference":
     """``reference_from_trajectory`` of a message object (duck-typed: rclpy or rosbags)."""
-    return reference_from_trajectory(trajectory_data_from_msg(msg), planar)
+    return reference_from_trajectory(trajectory_data_from_msg(msg), space)
