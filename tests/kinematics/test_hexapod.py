@@ -258,3 +258,17 @@ def test_the_compiled_stream_gives_the_per_call_solves():
             np.testing.assert_allclose(machine.task_coordinates(poses[k, :3], poses[k, 3:].reshape(3, 3)), path[k],
                                        rtol=0, atol=1e-10)
     assert codes[60] != FKCode.CONVERGED and (np.delete(codes, 60) == FKCode.CONVERGED).all()
+
+
+def test_a_strut_machines_dynamics_section_is_read_as_rigid_body_parameters_and_checked():
+    import yaml
+
+    from pkm_kinematics import config_dir
+    from pkm_kinematics.rigid_body import RigidBodyParameters
+    data = yaml.safe_load((config_dir() / "machines" / "genhexkins.yaml").read_text())
+    params = load_machine_data(data).dynamics
+    assert isinstance(params, RigidBodyParameters) and params.drive_mass_kg == (2.0,) * 6
+    assert np.diag(np.reshape(params.platform_inertia_kgm2, (3, 3))).tolist() == [0.4, 0.4, 0.7]
+    data["dynamics"]["platform_inertia_kgm2"] = [0.4, -1.0, 0.7]
+    with pytest.raises(ConfigError, match=r"dynamics.platform_inertia_kgm2: must be 3 positive numbers"):
+        load_machine_data(data)

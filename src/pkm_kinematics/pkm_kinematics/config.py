@@ -22,6 +22,7 @@ from .gough import GoughPlatform, mom3_points
 from .hexapod import StrutMachine
 from .parallelogram import ParallelogramMachine
 from .planar import PlanarLeg, PlanarMachine
+from .rigid_body import RigidBodyParameters
 from .rotations import rotation_from_rpy
 from .translational import TranslationalLeg, TranslationalMachine
 
@@ -147,7 +148,7 @@ class MachineConfig:
     model: PlanarMachine | TranslationalMachine | StrutMachine | ParallelogramMachine
     metrology: "GoughMetrologyConfig | None"
     data: dict
-    dynamics: "DynamicsParameters | None" = None
+    dynamics: "DynamicsParameters | RigidBodyParameters | None" = None
 
 
 @dataclass
@@ -364,29 +365,52 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
         model = {"planar": _planar, "translational": _translational, "struts": _struts,
                  "parallelograms": _parallelograms}[kind](r, name, description)
         metrology = _gough(r.sub("metrology")) if r.has("metrology") else None
-        dynamics = _dynamics(r.sub("dynamics"), model.n_legs, kind == "planar") if r.has("dynamics") else None
+        dynamics = (DYNAMICS.get(kind, _dynamics)(r.sub("dynamics"), model.n_legs, kind)
+                    if r.has("dynamics") else None)
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc.field}", str(exc).split(": ", 1)[1]) from None
     return MachineConfig(name, kind, model, metrology, data, dynamics)
 
 
-def _dynamics(r: _Reader, n_legs: int, planar: bool) -> DynamicsParameters:
+def _per_drive(r: _Reader, key: str, n_legs: int, lo_open: bool) -> list:
+    """A value per drive, or one number for all of them (>= 0; > 0 with ``lo_open``)."""
+    value = r.raw(key)
+    if isinstance(value, list):
+        if len(value) != n_legs:
+            raise ConfigError(r._name(key), f"expected one number or a list of {n_legs}, got {value!r}")
+        return [_Reader({key: v}, r.path).number(key, lo=0.0, lo_open=lo_open) for v in value]
+    return [r.number(key, lo=0.0, lo_open=lo_open)] * n_legs
+
+
+def _rigid_body(r: _Reader, n_legs: int, kind: str) -> RigidBodyParameters:
+    """A strut machine's platform in SE(3) and its drives (rigid_body.py): the inertia
+    about the platform point as its diagonal in the platform's frame."""
+    inertia = r.vector("platform_inertia_kgm2", 3, unit="kg m^2 (Ixx, Iyy, Izz)")
+    if not (inertia > 0.0).all():
+        raise ConfigError(r._name("platform_inertia_kgm2"), f"must be 3 positive numbers, got {inertia.tolist()}")
+    return RigidBodyParameters(
+        platform_mass_kg=r.number("platform_mass_kg", lo=0.0, lo_open=True, unit="kg"),
+        platform_inertia_kgm2=tuple(np.diag(inertia).ravel().tolist()),
+        drive_mass_kg=tuple(_per_drive(r, "drive_mass_kg", n_legs, True)),
+        friction_ns_per_m=tuple(_per_drive(r, "friction_ns_per_m", n_legs, False)),
+        gravity_m_s2=tuple(r.vector("gravity_m_s2", 3, unit="m/s^2").tolist()))
+
+
+def _dynamics(r: _Reader, n_legs: int, kind: str) -> DynamicsParameters:
     """ARCHI §3.4 parameters; per-drive values may be one number for all drives."""
-    def per_drive(key, lo_open):
-        value = r.raw(key)
-        if isinstance(value, list):
-            if len(value) != n_legs:
-                raise ConfigError(r._name(key), f"expected one number or a list of {n_legs}, got {value!r}")
-            return [_Reader({key: v}, r.path).number(key, lo=0.0, lo_open=lo_open) for v in value]
-        return [r.number(key, lo=0.0, lo_open=lo_open)] * n_legs
+    planar = kind == "planar"
     return DynamicsParameters(
-        drive_mass_kg=tuple(per_drive("drive_mass_kg", True)),
+        drive_mass_kg=tuple(_per_drive(r, "drive_mass_kg", n_legs, True)),
         platform_mass_kg=r.number("platform_mass_kg", lo=0.0, lo_open=True, unit="kg"),
         platform_inertia_kgm2=(r.number("platform_inertia_kgm2", lo=0.0, lo_open=True, unit="kg m^2")
                                if planar else math.nan),
-        friction_ns_per_m=tuple(per_drive("friction_ns_per_m", False)),
+        friction_ns_per_m=tuple(_per_drive(r, "friction_ns_per_m", n_legs, False)),
         gravity_m_s2=tuple(r.vector("gravity_m_s2", 2 if planar else 3, unit="m/s^2")),
     )
+
+
+# how a kind's 'dynamics' section is read (the others: _dynamics, ARCHI §3.4's form)
+DYNAMICS = {"struts": _rigid_body}
 
 
 def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:

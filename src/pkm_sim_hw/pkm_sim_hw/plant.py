@@ -51,6 +51,8 @@ from pkm_kinematics.planar import PlanarMachine
 from pkm_kinematics.translational import TranslationalMachine
 from pkm_kinematics.validation import finite_floats
 
+from .drives import Encoders, applied_forces
+
 FAULT_KINDS = ("no_force", "locked", "encoder_freeze", "encoder_slip")
 DEFAULT_SLIP_M = 1e-4
 
@@ -203,14 +205,14 @@ class Plant:
         self.stopped = False
         self.stop_reason = ""
         self.stop_cause = TripCause.NONE
-        self._rng = np.random.default_rng(self.params.seed)
         self._faults = [Fault.parse(f, n) if isinstance(f, str) else f for f in self.params.faults]
         self._lower = self.machine.joint_lower.tolist()
         self._upper = self.machine.joint_upper.tolist()
         self._locked: list[int] = []
         self._lock_positions: dict[int, float] = {}
-        self._encoders = self._read_encoders(self._drive_positions(
-            self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
+        self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
+                                 self.params.dt_s)
+        self.encoders.start(self._drive_positions(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
 
     # ------------------------------------------------------------------ inputs
@@ -260,13 +262,8 @@ class Plant:
             self.load = self._schedule.pop(0)[1]
         while self._frame_schedule and self.k >= self._frame_schedule[0][0]:
             self.frame_load = self._frame_schedule.pop(0)[1]
-        limit = self.params.force_limit_n
-        saturated = [abs(f) > limit for f in cmd]
-        applied = [max(-limit, min(limit, f)) for f in cmd]
         faults = self.active_faults()
-        for f in faults:
-            if f.kind == "no_force":
-                applied[f.drive] = 0.0
+        applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
         locked = sorted({f.drive for f in faults if f.kind == "locked"})
         if len(locked) >= 3 and not self.stopped:
             # three or more brakes fix the platform (3 DOF): hold it, the reactions are
@@ -372,14 +369,6 @@ class Plant:
         self.v = (v - ainv_jt @ np.linalg.solve(jl @ ainv_jt, jl @ v)).tolist()
 
     # ----------------------------------------------------------------- outputs
-    def _read_encoders(self, q) -> list:
-        res, noise = self.params.encoder_resolution_m, self.params.encoder_noise_m
-        if noise > 0.0:
-            q = [qi + noise * self._rng.standard_normal() for qi in q]
-        if res > 0.0:
-            q = [round(qi / res) * res for qi in q]
-        return q
-
     def _drive_positions(self, q_rigid) -> tuple[list, tuple | None]:
         """The drives' true positions and the tool's rotation: the imperfect Delta's
         when its bars are given, else the rigid model's q and None."""
@@ -391,14 +380,7 @@ class Plant:
     def _output(self, applied, saturated, faults, terms=None) -> PlantOutput:
         q_rigid, rows, _, _ = terms or self.machine.velocity_terms(self.x, self.v)
         q_true, rotation = self._drive_positions(q_rigid)
-        reading = self._read_encoders(q_true)
-        frozen = {f.drive for f in faults if f.kind == "encoder_freeze"}
-        for f in faults:
-            if f.kind == "encoder_slip":
-                reading[f.drive] += f.size
-        reading = [self._encoders[i] if i in frozen else r for i, r in enumerate(reading)]
-        velocity = [(r - p) / self.params.dt_s for r, p in zip(reading, self._encoders)]
-        self._encoders = reading
+        reading, velocity = self.encoders.read(q_true, faults)
         fint = internal_force_rows(rows, applied) if self.n > 3 else [0.0] * self.n
         c, cf = self.params.compliance, self.params.frame_compliance
         tool = [xi + ci * li + cfi * fi for xi, ci, li, cfi, fi in zip(self.x, c, self.load, cf, self.frame_load)]

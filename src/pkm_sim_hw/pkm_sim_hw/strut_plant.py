@@ -1,0 +1,149 @@
+"""The simulated hexapod (no rclpy): a platform on actuated struts in SE(3), the plant
+of the strut machines (``kind: struts``: genhexkins, hexapod8).
+
+* State: the pose (p, R) and the twist t = (v, w), w in the base frame.
+* Dynamics: Newton-Euler, ``A t' + H = J_m^T f_d + f_n`` (pkm_kinematics.rigid_body,
+  the machine's ``dynamics`` section), integrated semi-implicitly like the rail
+  machines' plant: t += h t'(x, t); p += h v; R = exp(h [w]x) R (the rotation stays
+  orthonormal: no angles are integrated).
+* Drives and encoders as every plant's (``drives``): saturation, ``no_force``,
+  quantised encoders, ``encoder_freeze`` and ``encoder_slip``. A strut at its end
+  stop, a singular pose or a fault the model cannot take (``locked``: a brake on a
+  strut) brakes the machine: the platform stops where it is.
+* External load: a wrench (force, moment about p, base frame), bounded by
+  ``max_load_n`` / ``max_load_nm`` per component.
+Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
+coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
+Not yet: the rail plant's machine errors, compliance and frame load (refused when
+set), and the node (sim_hw runs the rail machines).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pkm_common.causes import TripCause
+from pkm_kinematics.config import MachineConfig
+from pkm_kinematics.distribution import internal_force
+from pkm_kinematics.errors import KinematicsError, SingularityError
+from pkm_kinematics.rigid_body import StrutDynamics
+from pkm_kinematics.rotations import exp_so3
+from pkm_kinematics.validation import finite_floats
+
+from .drives import Encoders, applied_forces
+from .plant import Fault, PlantOutput, PlantParameters
+
+_NOT_YET = ("link_length_errors", "rail_offset_errors_m", "compliance", "frame_compliance",
+            "parallelogram_bar_errors_m")
+
+
+class StrutPlant:
+    """One simulated strut machine; ``step(forces)`` advances by ``dt_s``."""
+
+    def __init__(self, config: MachineConfig, params: PlantParameters | None = None, initial_pose=None):
+        if config.dynamics is None:
+            raise ValueError(f"machine {config.name!r}: the plant needs a 'dynamics' section")
+        self.params = params or PlantParameters()
+        self.machine = config.model
+        self.n = self.machine.n_legs
+        self.params.validate(self.n, config.kind)
+        for name in _NOT_YET:
+            if any(getattr(self.params, name)):
+                raise ValueError(f"{name}: not simulated on a strut machine yet (leave it empty or zero)")
+        if self.params.integrator != "semi_implicit":
+            raise ValueError(f"integrator: a strut machine integrates semi_implicit only, got "
+                             f"{self.params.integrator!r}")
+        self.names = list(self.machine.leg_names)
+        self.dynamics = StrutDynamics(self.machine, config.dynamics)
+        x0 = finite_floats(self.machine.home if initial_pose is None else initial_pose, 6, "initial_pose")
+        self.p, self.rotation = self.machine.pose(x0)
+        self.twist = np.zeros(6)
+        self.load = np.zeros(6)
+        self.t, self.k = 0.0, 0
+        self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
+        self._faults = [Fault.parse(f, self.n) if isinstance(f, str) else f for f in self.params.faults]
+        q = self.machine.strut_lengths(self.p, self.rotation)
+        if not self.machine.within_joint_limits(q):
+            raise ValueError(f"initial_pose: struts outside their limits: {np.round(q, 6).tolist()} m")
+        self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
+                                 self.params.dt_s)
+        self.encoders.start(q.tolist())
+        self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
+
+    @property
+    def x(self) -> list:
+        """The task coordinates (x, y, z, a, b, c) of the platform."""
+        return self.machine.task_coordinates(self.p, self.rotation).tolist()
+
+    # ------------------------------------------------------------------ inputs
+    def set_load(self, wrench) -> None:
+        """External load on the platform (fx, fy, fz in N, mx, my, mz in N m, base
+        frame); ValueError naming the component over its bound (nothing applied)."""
+        values = finite_floats(wrench, 6, "load")
+        for i, value in enumerate(values):
+            bound, unit, name = ((self.params.max_load_n, "N", "max_load_n") if i < 3 else
+                                 (self.params.max_load_nm, "N m", "max_load_nm"))
+            if abs(value) > bound:
+                label = ("fx", "fy", "fz", "mx", "my", "mz")[i]
+                raise ValueError(f"load: {label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
+        self.load = np.array(values)
+
+    def safe_stop(self, reason: str, cause: TripCause = TripCause.PLANT_SAFE_STOP) -> None:
+        """Brakes on: the platform stops where it is; the first stop's cause is kept."""
+        if not self.stopped:
+            self.stopped, self.stop_reason, self.stop_cause = True, reason, TripCause(cause)
+        self.twist = np.zeros(6)
+
+    def active_faults(self) -> list[Fault]:
+        return [f for f in self._faults if f.at_s <= self.t + 1e-12]
+
+    # ------------------------------------------------------------------- step
+    def step(self, forces) -> PlantOutput:
+        """Apply the commanded strut forces for one period and advance the state."""
+        cmd = finite_floats(forces, self.n, "drive forces")
+        faults = self.active_faults()
+        applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
+        locked = [f for f in faults if f.kind == "locked"]
+        if locked and not self.stopped:
+            self.safe_stop(f"drive {self.names[locked[0].drive]} locked (a brake on a strut: the machine holds)")
+        if not self.stopped:
+            saved = (self.p, self.rotation, self.twist)
+            h = self.params.dt_s / self.params.substeps
+            try:
+                for _ in range(self.params.substeps):
+                    self._integrate(applied, h)
+                q = self.machine.strut_lengths(self.p, self.rotation)
+                for i in np.flatnonzero((q < self.machine.joint_lower) | (q > self.machine.joint_upper)):
+                    raise KinematicsError(f"drive {self.names[i]} reached its end stop ({q[i]:.6g} m)")
+            except (KinematicsError, SingularityError, np.linalg.LinAlgError) as exc:
+                self.p, self.rotation, self.twist = saved
+                self.safe_stop(f"left the workspace: {exc}")
+        self.t += self.params.dt_s
+        self.k += 1
+        if self.stopped:
+            applied = [0.0] * self.n
+        self._last = self._output(applied, saturated, faults)
+        return self._last
+
+    def _integrate(self, forces, h: float) -> None:
+        """Semi-implicit Euler on SE(3): t += h t'; p += h v; R = exp(h w) R."""
+        x = self.machine.task_coordinates(self.p, self.rotation)
+        self.twist = self.twist + h * self.dynamics.forward_dynamics(x, self.twist, forces, self.load)
+        self.p = self.p + h * self.twist[:3]
+        self.rotation = exp_so3(h * self.twist[3:]) @ self.rotation
+
+    # ----------------------------------------------------------------- outputs
+    def _output(self, applied, saturated, faults) -> PlantOutput:
+        q = self.machine.strut_lengths(self.p, self.rotation).tolist()
+        reading, velocity = self.encoders.read(q, faults)
+        x = self.x
+        fint = internal_force(self.machine.jacobian(x), applied).tolist() if self.n > 6 else [0.0] * self.n
+        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, list(x), list(x),
+                           fint, math.sqrt(sum(f * f for f in fint)), [f"{f.drive}:{f.kind}" for f in faults],
+                           self.stopped, tuple(self.rotation.ravel().tolist()))
+
+    def output(self) -> PlantOutput:
+        """The outputs of the last step (or of the initial state)."""
+        return self._last

@@ -1,0 +1,97 @@
+"""The hexapods' plant (pkm_sim_hw.strut_plant): a platform on struts in SE(3).
+References: the static strut forces of the dynamic model hold the platform still;
+scipy's RK45 of the same model in task coordinates (the SE(3) integrator against an
+independent one); the strut readings are the quantised inverse kinematics; faults, end stops and loads as the rail plant's."""
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from pkm_kinematics import load_machine
+from pkm_kinematics.rotations import rate_matrix, rotation_from_rpy
+from pkm_sim_hw.plant import PlantParameters
+from pkm_sim_hw.strut_plant import StrutPlant
+
+HEXAPOD = load_machine("genhexkins")
+HEXAPOD8 = load_machine("hexapod8")
+
+
+def static_forces(plant, x):
+    """Strut forces holding the platform at x: J_m^T f = H(x, 0) (least norm)."""
+    wrench = plant.dynamics.static_forces(x)
+    return np.linalg.lstsq(plant.machine.jacobian(x).T, wrench, rcond=None)[0]
+
+
+@pytest.mark.parametrize("config", [HEXAPOD, HEXAPOD8], ids=["genhexkins", "hexapod8"])
+def test_the_static_forces_hold_the_platform_and_the_readings_are_its_strut_lengths(config):
+    plant = StrutPlant(config, PlantParameters(encoder_resolution_m=1e-6))
+    x0 = np.array(plant.x)
+    forces = static_forces(plant, x0)
+    for _ in range(200):
+        out = plant.step(forces.tolist())
+    np.testing.assert_allclose(out.tool_pose, x0, atol=1e-9)
+    q = config.model.inverse_kinematics(np.array(out.tool_pose))
+    np.testing.assert_allclose(out.encoder_positions, np.round(q / 1e-6) * 1e-6, atol=1e-15)
+    assert np.abs(out.encoder_velocities).max() < 1e-9
+    # the redundant hexapod's least-norm forces fight nothing: no internal force
+    assert out.internal_force_norm < 1e-6 * np.abs(forces).max()
+    # without them the platform falls
+    plant = StrutPlant(config)
+    for _ in range(50):
+        out = plant.step([0.0] * config.model.n_legs)
+    assert out.tool_pose[2] < x0[2] - 1e-4
+
+
+def test_the_plant_integrates_its_dynamics_on_se3_to_first_order():
+    """Constant strut forces (the static ones plus a push) for 0.2 s: the plant's pose
+    against scipy's RK45 of the same Newton-Euler model written in the task
+    coordinates (x' = (v, E^-1 w), t' = forward dynamics) to 1e-10; the semi-implicit
+    Euler step on SE(3) is first order: ten substeps divide the error by ~10."""
+    model = HEXAPOD.model
+    probe = StrutPlant(HEXAPOD)
+    x0 = np.array(probe.x)
+    forces = static_forces(probe, x0) + [40.0, -25.0, 10.0, 30.0, -35.0, 5.0]
+
+    def rhs(_t, y):
+        x, twist = y[:6], y[6:]
+        rates = np.linalg.solve(rate_matrix(*x[3:]), twist[3:])
+        return np.concatenate((twist[:3], rates, probe.dynamics.forward_dynamics(x, twist, forces)))
+
+    exact = solve_ivp(rhs, (0.0, 0.2), np.concatenate((x0, np.zeros(6))), rtol=1e-11, atol=1e-12).y[:6, -1]
+    error = {}
+    for substeps in (1, 10):
+        plant = StrutPlant(HEXAPOD, PlantParameters(encoder_resolution_m=0.0, substeps=substeps))
+        for _ in range(200):
+            out = plant.step(forces.tolist())
+        error[substeps] = float(np.abs(np.array(out.tool_pose) - exact).max())
+    moved = float(np.abs(exact - x0).max())
+    assert moved > 1e-3 and error[1] < 0.05 * moved and 7.0 < error[1] / error[10] < 13.0, (error, moved)
+    np.testing.assert_allclose(np.array(out.tool_rotation).reshape(3, 3), rotation_from_rpy(*out.tool_pose[3:]),
+                               atol=1e-12)
+    np.testing.assert_allclose(out.encoder_positions, model.inverse_kinematics(np.array(out.tool_pose)), atol=1e-12)
+
+
+def test_saturation_faults_end_stops_and_loads():
+    plant = StrutPlant(HEXAPOD, PlantParameters(force_limit_n=300.0, faults=("2:no_force", "4:encoder_freeze:0.005")))
+    x0 = np.array(plant.x)
+    forces = static_forces(plant, x0)
+    out = plant.step([1000.0] + forces[1:].tolist())
+    assert out.saturated[0] and out.applied_forces[0] == 300.0 and out.applied_forces[2] == 0.0
+    frozen = None
+    for _ in range(20):
+        out = plant.step(forces.tolist())
+        frozen = frozen if plant.t < 0.006 else (frozen or out.encoder_positions[4])
+    assert out.encoder_positions[4] == frozen and out.encoder_velocities[4] == 0.0
+    with pytest.raises(ValueError, match=r"load: mz must be in \[-500, 500\] N m \(max_load_nm\), got 600"):
+        plant.set_load([0.0, 0.0, 0.0, 0.0, 0.0, 600.0])
+    # pushed up at full force, the struts reach their upper end stop: the machine brakes
+    plant = StrutPlant(HEXAPOD, PlantParameters(force_limit_n=5000.0))
+    for _ in range(3000):
+        out = plant.step([5000.0] * 6)
+        if out.stopped:
+            break
+    assert out.stopped and "end stop" in plant.stop_reason and out.applied_forces == [0.0] * 6
+    held = plant.step([5000.0] * 6)
+    assert held.tool_pose == out.tool_pose
+    with pytest.raises(ValueError, match="compliance: not simulated on a strut machine yet"):
+        StrutPlant(HEXAPOD, PlantParameters(compliance=(1e-6, 0.0, 0.0)))
