@@ -127,6 +127,19 @@ class DynamicModel:
         return self.inverse_dynamics(x, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), wrench)
 
 
+def dynamic_model(config):
+    """The dynamic model of a machine configuration (its ``dynamics`` section):
+    ``rigid_body.StrutDynamics`` for a platform on struts in SE(3), ``DynamicModel``
+    (ARCHI §3.4) for the rail machines. Both give ``static_forces(x)``, the platform
+    wrench that holds x still."""
+    if config.dynamics is None:
+        raise ValueError(f"machine {config.name!r}: no 'dynamics' section")
+    from .rigid_body import RigidBodyParameters, StrutDynamics     # it imports the strut model
+    if isinstance(config.dynamics, RigidBodyParameters):
+        return StrutDynamics(config.model, config.dynamics)
+    return DynamicModel(config.model, config.dynamics)
+
+
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64, float64, "
         "float64, float64, float64)")
 def _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
-from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation
+from .rotations import cross_rows, rate_matrix, rotation_from_rpy, rpy_from_rotation
 from .task_space import SPATIAL
 
 
@@ -225,10 +225,10 @@ class StrutMachine:
         e = p + rb - self.base_joints
         length = np.linalg.norm(e, axis=1)[:, None]
         u = e / length
-        rb_dot = np.cross(w, rb)
+        rb_dot = cross_rows(w, rb)
         e_dot = v + rb_dot
         u_dot = (e_dot - u * np.sum(u * e_dot, axis=1)[:, None]) / length
-        return np.hstack((u_dot, np.cross(rb_dot, u) + np.cross(rb, u_dot)))
+        return np.hstack((u_dot, cross_rows(rb_dot, u) + cross_rows(rb, u_dot)))
 
     def wrench_map(self, x) -> np.ndarray:
         """J_m^T (6, n): the platform wrench (force, moment about p, base frame) of

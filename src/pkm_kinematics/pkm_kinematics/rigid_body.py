@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .hexapod import StrutMachine
+from .rotations import cross_rows
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ class StrutDynamics:
         a[3:, 3:] += inertia
         w = t[3:]
         h = jac.T @ (self._md * jdot_t + self._k * (jac @ t))
-        h[3:] += np.cross(w, inertia @ w)
+        h[3:] += cross_rows(w, inertia @ w)
         h[:3] -= self.params.platform_mass_kg * self._g
         return a, h, jac
 

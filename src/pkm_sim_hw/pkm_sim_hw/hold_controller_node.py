@@ -3,8 +3,8 @@ benchmarks and smoke runs without the real controller.
 
 It answers every ``drives/state`` with the drive forces that hold the platform
 against gravity (nominal model: pseudo-inverse of the static wrench, ARCHI §3.4 and
-§4.4.1), plus a joint-space PD towards the first state it saw, stamped with the state
-it answers. With ``wait_for_metrology`` it answers only once ``metrology/pose`` of the
+§4.4.1; a hexapod's from its rigid-body model), plus a joint-space PD towards the first
+state it saw, stamped with the state it answers. With ``wait_for_metrology`` it answers only once ``metrology/pose`` of the
 same stamp has arrived too (the sensor in the loop, as the real controller does).
 """
 
@@ -23,9 +23,8 @@ from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.timing import DurationHistogram, percentiles_us
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_kinematics.distribution import _min_two_norm_rows
-from pkm_kinematics.dynamics import DynamicModel
-from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.distribution import min_two_norm
+from pkm_kinematics.dynamics import dynamic_model
 
 
 class HoldControllerNode(Node):
@@ -33,7 +32,7 @@ class HoldControllerNode(Node):
         super().__init__("hold_controller", context=context, **kwargs)
         config = load_machine(declare_str(self, "machine", "archi"))
         self.model = config.model
-        self.dynamics = DynamicModel(config.model, config.dynamics)
+        self.dynamics = dynamic_model(config)
         self.kp = declare_float(self, "kp_n_per_m", 2e4, 0.0, 1e9)
         self.kd = declare_float(self, "kd_ns_per_m", 500.0, 0.0, 1e7)
         self.wait_for_metrology = declare_bool(self, "wait_for_metrology", False)
@@ -71,21 +70,13 @@ class HoldControllerNode(Node):
         q = list(msg.position)
         if self.target is None:
             self.target = q
-        try:
-            if isinstance(self.model, PlanarMachine):
-                result = self.model.forward_kinematics(q, self.pose)
-                self.pose = result.pose if result.converged else self.pose
-            else:
-                self.pose = self.model.forward_kinematics(q)
+        try:                               # warm-started at the last pose (home at first)
+            self.pose = list(self.model.forward_kinematics_floats(q, self.pose))
         except ValueError as exc:          # unassemblable readings: no answer, sim times out safely
             self.get_logger().error(f"drives/state not usable: {exc}")
             return
-        if self.pose is None:
-            self.get_logger().error("forward kinematics failed on the first state: no answer")
-            return
-        a, h, rows, _, _ = self.dynamics.terms(self.pose.tolist(), (0.0, 0.0, 0.0))
-        # static wrench H(x, 0) distributed by the pseudo-inverse (floats, ARCHI §4.4.1)
-        forces = _min_two_norm_rows(rows, h)
+        # static wrench H(x, 0) distributed by the pseudo-inverse (ARCHI §4.4.1)
+        forces = min_two_norm(self.model.jacobian(self.pose), self.dynamics.static_forces(self.pose)).tolist()
         forces = [f + self.kp * (t - qi) - self.kd * v for f, t, qi, v in zip(forces, self.target, q, msg.velocity)]
         self.msg_command.header.stamp = msg.header.stamp
         self.msg_command.name = msg.name

@@ -10,6 +10,10 @@ from pkm_common.params import ParameterError, declare_bool, declare_float, decla
 from pkm_kinematics import MachineConfig, load_machine
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.plant import Plant, PlantParameters
+from pkm_sim_hw.strut_plant import StrutPlant
+
+# the plant of a machine kind (the rail machines': plant.Plant)
+PLANTS = {"struts": StrutPlant}
 
 
 @dataclass
@@ -62,7 +66,7 @@ def declare_settings(node) -> SimHwSettings:
                                                  "half the distance between a parallelogram's bars",
                                                  lo_open=True, unit="m"))
     initial = declare_float_list(node, "initial_pose", [], "empty: the machine's home pose")
-    plant = Plant(machine, params, initial_pose=initial or None)
+    plant = PLANTS.get(machine.kind, Plant)(machine, params, initial_pose=initial or None)
     lockstep = declare_str(node, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
     timeout_s = declare_float(node, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
     sync_error_limit = declare_int(node, "sync_error_limit", 12, 0, 1_000_000, "realtime: brake when the "

@@ -221,6 +221,11 @@ class Plant:
         (``max_load_n`` per force component, ``max_load_nm`` per moment component)."""
         return check_load(wrench, self.config.kind == "planar", self.params, what)
 
+    def load_components(self, force, moment) -> list:
+        """The load of a wrench (force, moment: 3 each, world frame) in this machine's
+        task coordinates: fx, fy, mz on a planar machine, fx, fy, fz otherwise."""
+        return [force[0], force[1], moment[2]] if self.config.kind == "planar" else list(force)
+
     def set_load(self, wrench) -> None:
         """External (cutting) load on the tool, task coordinates (N, N, N m | N);
         ValueError (nothing applied) over its bound."""

@@ -127,12 +127,12 @@ class SimHwNode(Node):
         # the true pose first: the sensor's work is on the critical path of the step
         # (state -> sensor -> controller), the drive state and the clock are not
         # planar: tool = (x, y, 0), yaw theta; translational: tool = p, orientation fixed
-        # (the imperfect Delta's: its parasitic rotation)
+        # (the imperfect Delta's: its parasitic rotation); a hexapod's: its rotation
         if out.tool_rotation is None:
             position, orientation = machine_pose_components(self.planar, out.tool_pose)
         else:
             r = out.tool_rotation
-            position, orientation = pose_components(out.tool_pose, (r[0:3], r[3:6], r[6:9]))
+            position, orientation = pose_components(out.tool_pose[:3], (r[0:3], r[3:6], r[6:9]))
         self.pub_pose.publish(self.pose_encoder.encode(ns, position, orientation))
         if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
             self.last_published_ns = ns
@@ -310,9 +310,8 @@ class SimHwNode(Node):
 
     def on_load(self, msg: WrenchStamped) -> None:
         f, m = msg.wrench.force, msg.wrench.torque
-        wrench = [f.x, f.y, m.z] if self.config.kind == "planar" else [f.x, f.y, f.z]
         try:
-            self.plant.set_load(wrench)
+            self.plant.set_load(self.plant.load_components((f.x, f.y, f.z), (m.x, m.y, m.z)))
         except ValueError as exc:                  # nothing applied; the experiment cannot go on
             self._refuse(Refusal(str(exc), TripCause.LOAD_REFUSED), topic="load")
 

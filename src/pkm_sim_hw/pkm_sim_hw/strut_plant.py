@@ -14,8 +14,8 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   ``max_load_n`` / ``max_load_nm`` per component.
 Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
 coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
-Not yet: the rail plant's machine errors, compliance and frame load (refused when
-set), and the node (sim_hw runs the rail machines).
+Not yet: the rail plant's machine errors, compliance, frame load and load schedules
+(refused when set). sim_hw runs it for a strut machine (``parameters.PLANTS``).
 """
 
 from __future__ import annotations
@@ -78,6 +78,17 @@ class StrutPlant:
         return self.machine.task_coordinates(self.p, self.rotation).tolist()
 
     # ------------------------------------------------------------------ inputs
+    def load_components(self, force, moment) -> list:
+        """The load of a wrench (force, moment about p: 3 each, base frame): all six."""
+        return [*force, *moment]
+
+    def schedule_load(self, rows) -> None:
+        """Loads in simulated time: not on a strut machine yet (an empty schedule only)."""
+        if rows:
+            raise ValueError("load_schedule: not on a strut machine yet (use the load topic)")
+
+    schedule_frame_load = schedule_load
+
     def set_load(self, wrench) -> None:
         """External load on the platform (fx, fy, fz in N, mx, my, mz in N m, base
         frame); ValueError naming the component over its bound (nothing applied)."""
