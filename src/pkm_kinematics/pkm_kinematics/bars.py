@@ -116,6 +116,36 @@ def unit_pose_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
     return True
 
 
+@kernel()
+def unit_row_rate(bars, k, px, py, pz, r, q, v0, v1, v2, w0, w1, w2):
+    """The time derivative of bar k's row [u, (R b) x u] along the twist (v, w), the
+    actuators held: [u', (R b)' x u + R b x u'] with (R b)' = w x R b, e' = v + (R b)',
+    u' = (e' - u (u . e')) / |e| (zeros when the bar has zero length)."""
+    ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
+    n = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if not n > 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    ux, uy, uz = ex / n, ey / n, ez / n
+    rdx, rdy, rdz = w1 * rbz - w2 * rby, w2 * rbx - w0 * rbz, w0 * rby - w1 * rbx
+    edx, edy, edz = v0 + rdx, v1 + rdy, v2 + rdz
+    ue = ux * edx + uy * edy + uz * edz
+    udx, udy, udz = (edx - ux * ue) / n, (edy - uy * ue) / n, (edz - uz * ue) / n
+    return (udx, udy, udz, (rdy * uz - rdz * uy) + (rby * udz - rbz * udy),
+            (rdz * ux - rdx * uz) + (rbz * udx - rbx * udz), (rdx * uy - rdy * ux) + (rbx * udy - rby * udx))
+
+
+@kernel()
+def unit_pose_jacobian_derivative_into(bars, px, py, pz, r, q, t, out) -> bool:
+    """The rows' time derivatives (``unit_row_rate``) along the twist t into ``out``
+    (n, 6). False where a bar has zero length."""
+    for k in range(bars.shape[0]):
+        if not unit_row(bars, k, px, py, pz, r, q)[0] > 0.0:
+            return False
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = unit_row_rate(
+            bars, k, px, py, pz, r, q, t[0], t[1], t[2], t[3], t[4], t[5])
+    return True
+
+
 @kernel("(float64[:, :], float64[:], float64[:], float64[:])")
 def inverse_kinematics_into(bars, p, rot, q):
     """Actuator values of the pose (p, R row-major) into ``q``: each actuator from

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
-from .rotations import cross_rows, rate_matrix, rotation_from_rpy, rpy_from_rotation
+from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation
 from .task_space import SPATIAL
 
 
@@ -216,19 +216,14 @@ class StrutMachine:
         return np.hstack((jac[:, :3], jac[:, 3:] @ rate_matrix(*x[3:])))
 
     def jacobian_derivative(self, x, twist) -> np.ndarray:
-        """dJ_m/dt along the twist t = (v, w): row k = [u', (R b)' x u + (R b) x u'],
-        u' = (e' - u (u . e')) / |e|, e' = v + w x R b, (R b)' = w x R b."""
+        """dJ_m/dt along the twist t = (v, w): row k = [u', (R b)' x u + (R b) x u']
+        (``bars.unit_row_rate``)."""
         p, rot = self.pose(x)
-        t = np.asarray(twist, dtype=float)
-        v, w = t[:3], t[3:]
-        rb = self.platform_joints @ rot.T
-        e = p + rb - self.base_joints
-        length = np.linalg.norm(e, axis=1)[:, None]
-        u = e / length
-        rb_dot = cross_rows(w, rb)
-        e_dot = v + rb_dot
-        u_dot = (e_dot - u * np.sum(u * e_dot, axis=1)[:, None]) / length
-        return np.hstack((u_dot, cross_rows(rb_dot, u) + cross_rows(rb, u_dot)))
+        out = np.empty((self.n_legs, 6))
+        if not B.unit_pose_jacobian_derivative_into(self.bars, p[0], p[1], p[2], tuple(rot.reshape(9)),
+                                                    np.zeros(self.n_legs), np.asarray(twist, dtype=float), out):
+            raise SingularityError(f"a strut has zero length at x = {x}")
+        return out
 
     def wrench_map(self, x) -> np.ndarray:
         """J_m^T (6, n): the platform wrench (force, moment about p, base frame) of

@@ -22,12 +22,15 @@ DynamicModel (dynamics.py), whose drives on rails also carry their weight.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import bars as B
+from .errors import SingularityError
 from .hexapod import StrutMachine
-from .rotations import cross_rows
+from .jit import kernel
 
 
 @dataclass(frozen=True)
@@ -67,22 +70,27 @@ class StrutDynamics:
 
     def terms(self, x, twist) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(A (6, 6), H (6,), J_m (n, 6)) at the state (x, t) (module doc)."""
-        t = np.asarray(twist, dtype=float).reshape(6)
-        jac = self.machine.jacobian(x)
-        jdot_t = self.machine.jacobian_derivative(x, t) @ t
-        inertia = self.inertia_world(x)
-        a = jac.T @ (self._md[:, None] * jac)
-        a[:3, :3] += self.params.platform_mass_kg * np.eye(3)
-        a[3:, 3:] += inertia
-        w = t[3:]
-        h = jac.T @ (self._md * jdot_t + self._k * (jac @ t))
-        h[3:] += cross_rows(w, inertia @ w)
-        h[:3] -= self.params.platform_mass_kg * self._g
+        p, rot = self.machine.pose(x)
+        return self.terms_at(p, rot, twist)
+
+    def terms_at(self, position, rotation, twist) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`terms` at the pose (p, R) (``strut_dynamics_terms_kernel``)."""
+        ok, a, h, jac = strut_dynamics_terms_kernel(
+            self.machine.bars, np.ascontiguousarray(position, dtype=float), np.ascontiguousarray(rotation).ravel(),
+            np.ascontiguousarray(twist, dtype=float).ravel(), self._md, self._k, self._inertia.ravel(),
+            float(self.params.platform_mass_kg), self._g)
+        if not ok:
+            raise SingularityError(f"a strut has zero length at p = {np.asarray(position).tolist()}")
         return a, h, jac
 
     def forward_dynamics(self, x, twist, drive_forces, wrench=np.zeros(6)) -> np.ndarray:
         """t' from A t' = J_m^T f_d + f_n - H."""
-        a, h, jac = self.terms(x, twist)
+        p, rot = self.machine.pose(x)
+        return self.forward_dynamics_at(p, rot, twist, drive_forces, wrench)
+
+    def forward_dynamics_at(self, position, rotation, twist, drive_forces, wrench=np.zeros(6)) -> np.ndarray:
+        """:meth:`forward_dynamics` at the pose (p, R)."""
+        a, h, jac = self.terms_at(position, rotation, twist)
         return np.linalg.solve(a, jac.T @ np.asarray(drive_forces, dtype=float) + np.asarray(wrench, float) - h)
 
     def inverse_dynamics(self, x, twist, twist_dot, wrench=np.zeros(6)) -> np.ndarray:
@@ -105,3 +113,54 @@ class StrutDynamics:
 
 
 __all__ = ["RigidBodyParameters", "StrutDynamics"]
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64[:])")
+def strut_dynamics_terms_kernel(bars, p, r, t, md, kf, inertia_p, mass, g):
+    """(ok, A, H, J_m) of the module doc's equations at the pose (p, R: r row-major) and
+    twist t: each strut's row of J_m and its rate along t (``bars.unit_row``,
+    ``bars.unit_row_rate``, MoM3 eq. 2 and its derivative); A = J^T M_d J +
+    blockdiag(m 1, R I_p R^T), H = J^T (M_d J' t + k J t) + (0, w x I_w w) - (m g, 0).
+    ``bars``: the strut machine's (one bar a strut); ok False when a strut has zero length."""
+    n = bars.shape[0]
+    a = np.zeros((6, 6))
+    h = np.zeros(6)
+    jac = np.empty((n, 6))
+    rt = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+    held = np.zeros(n)
+    for k in range(n):
+        length, u0, u1, u2, m0, m1, m2 = B.unit_row(bars, k, p[0], p[1], p[2], rt, held)
+        if not length > 0.0:
+            return False, a, h, jac
+        d0, d1, d2, d3, d4, d5 = B.unit_row_rate(bars, k, p[0], p[1], p[2], rt, held, t[0], t[1], t[2], t[3],
+                                                 t[4], t[5])
+        jac[k, 0], jac[k, 1], jac[k, 2], jac[k, 3], jac[k, 4], jac[k, 5] = u0, u1, u2, m0, m1, m2
+        qdot = u0 * t[0] + u1 * t[1] + u2 * t[2] + m0 * t[3] + m1 * t[4] + m2 * t[5]
+        jdot_t = d0 * t[0] + d1 * t[1] + d2 * t[2] + d3 * t[3] + d4 * t[4] + d5 * t[5]
+        coefficient = md[k] * jdot_t + kf[k] * qdot
+        for i in range(6):
+            h[i] += jac[k, i] * coefficient
+            for j in range(6):
+                a[i, j] += md[k] * jac[k, i] * jac[k, j]
+    w0, w1, w2 = t[3], t[4], t[5]
+    inertia_w = np.zeros((3, 3))                       # R I_p R^T
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for m in range(3):
+                for l in range(3):
+                    s += r[3 * i + m] * inertia_p[3 * m + l] * r[3 * j + l]
+            inertia_w[i, j] = s
+    for i in range(3):
+        a[i, i] += mass
+        for j in range(3):
+            a[3 + i, 3 + j] += inertia_w[i, j]
+    iw0 = inertia_w[0, 0] * w0 + inertia_w[0, 1] * w1 + inertia_w[0, 2] * w2
+    iw1 = inertia_w[1, 0] * w0 + inertia_w[1, 1] * w1 + inertia_w[1, 2] * w2
+    iw2 = inertia_w[2, 0] * w0 + inertia_w[2, 1] * w1 + inertia_w[2, 2] * w2
+    h[3] += w1 * iw2 - w2 * iw1
+    h[4] += w2 * iw0 - w0 * iw2
+    h[5] += w0 * iw1 - w1 * iw0
+    for i in range(3):
+        h[i] -= mass * g[i]
+    return True, a, h, jac

@@ -19,14 +19,6 @@ def skew(v) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def cross_rows(a, b) -> np.ndarray:
-    """a x b row by row for (n, 3) arrays (either may be one 3-vector): np.cross's
-    result without its axis handling, which costs ~35 us a call on the per-step paths."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    return np.stack((a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]), axis=-1)
-
-
 @kernel()
 def exp_so3_kernel(wx: float, wy: float, wz: float) -> tuple:
     """Rodrigues' formula on floats: the row-major 9-tuple of exp([w]x)."""

@@ -140,8 +140,8 @@ class StrutPlant:
 
     def _integrate(self, forces, h: float) -> None:
         """Semi-implicit Euler on SE(3): t += h t'; p += h v; R = exp(h w) R."""
-        x = self.machine.task_coordinates(self.p, self.rotation)
-        self.twist = self.twist + h * self.dynamics.forward_dynamics(x, self.twist, forces, self.load)
+        self.twist = self.twist + h * self.dynamics.forward_dynamics_at(self.p, self.rotation, self.twist, forces,
+                                                                       self.load)
         self.p = self.p + h * self.twist[:3]
         self.rotation = exp_so3(h * self.twist[3:]) @ self.rotation
 
