@@ -11,8 +11,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from pkm_common.cdr import decode_multidof_trajectory
+from pkm_common.conversions import trajectory_msg
 from pkm_controller.reference import reference_from_msg, reference_from_trajectory
-from pkm_kinematics.task_space import PLANAR, POSITION, SPATIAL, motion_fields
+from pkm_kinematics.task_space import PLANAR, POSITION, SPATIAL
 
 
 def samples(planar: bool, n: int = 700):
@@ -64,26 +65,14 @@ def test_a_trajectory_of_another_shape_is_refused_by_name():
 
 
 def test_a_spatial_trajectory_reads_back_as_the_angles_and_rates_it_was_made_of():
-    """A hexapod's samples written as trajectory_node writes them (task_space.motion_fields:
+    """A hexapod's samples written as trajectory_node writes them (conversions.trajectory_msg:
     quaternions and base-frame twists) read back as (x, y, z, a, b, c) with their rates
     and accelerations; the yaw c runs past pi and comes back unwrapped."""
     t = np.arange(400) * 0.005
     x = np.column_stack((0.01 * np.sin(t), 0.02 * t, 0.5 + 0 * t, 0.1 * np.sin(3 * t), -0.2 + 0.05 * t, 2.8 + 0.4 * t))
     v = np.column_stack((0.01 * np.cos(t), 0.02 + 0 * t, 0 * t, 0.3 * np.cos(3 * t), 0.05 + 0 * t, 0.4 + 0 * t))
     a = np.column_stack((-0.01 * np.sin(t), 0 * t, 0 * t, -0.9 * np.sin(3 * t), 0 * t, 0 * t))
-    msg = MultiDOFJointTrajectory(joint_names=["tool"])
-    for tk, xk, vk, ak in zip(t, x.tolist(), v.tolist(), a.tolist()):
-        p, q, lin, ang, lin_acc, ang_acc = motion_fields(SPATIAL, xk, vk, ak)
-        tf, vel, acc = Transform(), Twist(), Twist()
-        tf.translation.x, tf.translation.y, tf.translation.z = p
-        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
-        vel.linear.x, vel.linear.y, vel.linear.z = lin
-        vel.angular.x, vel.angular.y, vel.angular.z = ang
-        acc.linear.x, acc.linear.y, acc.linear.z = lin_acc
-        acc.angular.x, acc.angular.y, acc.angular.z = ang_acc
-        point = MultiDOFJointTrajectoryPoint(transforms=[tf], velocities=[vel], accelerations=[acc])
-        point.time_from_start.sec, point.time_from_start.nanosec = divmod(round(float(tk) * 1e9), 10**9)
-        msg.points.append(point)
+    msg = trajectory_msg(SPATIAL, t, x, v, a)
     ref = reference_from_trajectory(decode_multidof_trajectory(serialize_message(msg)), SPATIAL)
     assert x[:, 5].max() > math.pi
     np.testing.assert_allclose(ref.position, x, rtol=0, atol=1e-12)

@@ -11,13 +11,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from builtin_interfaces.msg import Time
+from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, PoseStamped
+from geometry_msgs.msg import Point, PoseStamped, Transform, Twist
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
 from pkm_kinematics.rotations import rotation_about_z
+from pkm_kinematics.task_space import motion_fields
 
 NS_PER_S = 1_000_000_000
 QUATERNION_NORM_TOL = 1e-6
@@ -166,6 +168,30 @@ def joint_state_msg(names, stamp, position=None, velocity=None, effort=None,
         if len(values) != len(names):
             raise ValueError(f'{field}: expected {len(names)} values (one per name), got {len(values)}')
         setattr(msg, field, values)
+    return msg
+
+
+# ------------------------------------------------------------- trajectories
+def trajectory_msg(space, time_s, position, velocity, acceleration) -> MultiDOFJointTrajectory:
+    """A sampled task-space trajectory (times (N,), poses, rates, accelerations (N, dof)
+    in the coordinates of ``space``, pkm_kinematics.task_space) as the one-joint "tool"
+    MultiDOFJointTrajectory that trajectory_node publishes: each point's pose, twist and
+    twist rate in the base frame (task_space.motion_fields); header left to the caller."""
+    msg = MultiDOFJointTrajectory(joint_names=["tool"])
+    for t, x, v, a in zip(np.asarray(time_s, dtype=float).tolist(), np.asarray(position).tolist(),
+                          np.asarray(velocity).tolist(), np.asarray(acceleration).tolist()):
+        tf, vel, acc = Transform(), Twist(), Twist()
+        p, q, lin, ang, lin_acc, ang_acc = motion_fields(space, x, v, a)
+        tf.translation.x, tf.translation.y, tf.translation.z = p
+        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
+        vel.linear.x, vel.linear.y, vel.linear.z = lin
+        vel.angular.x, vel.angular.y, vel.angular.z = ang
+        acc.linear.x, acc.linear.y, acc.linear.z = lin_acc
+        acc.angular.x, acc.angular.y, acc.angular.z = ang_acc
+        sec, nsec = divmod(round(t * 1e9), 1_000_000_000)
+        msg.points.append(MultiDOFJointTrajectoryPoint(
+            transforms=[tf], velocities=[vel], accelerations=[acc],
+            time_from_start=Duration(sec=int(sec), nanosec=int(nsec))))
     return msg
 
 

@@ -15,19 +15,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Transform, Twist
+from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from std_msgs.msg import String
-from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine,
+                                    trajectory_msg)
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_kinematics.task_space import motion_fields
 from pkm_trajectory.planner import Limits, plan_validated, point_to_point
 from pkm_trajectory.program import gcode_segments
 
@@ -103,23 +102,9 @@ class TrajectoryNode(Node):
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
 
     def to_msg(self, samples) -> MultiDOFJointTrajectory:
-        msg = MultiDOFJointTrajectory(joint_names=["tool"])
+        msg = trajectory_msg(self.space, samples.time_s, samples.position, samples.velocity, samples.acceleration)
         msg.header.frame_id = "world"
         msg.header.stamp = self.get_clock().now().to_msg()
-        for t, x, v, a in zip(samples.time_s, samples.position.tolist(), samples.velocity.tolist(),
-                              samples.acceleration.tolist()):
-            tf, vel, acc = Transform(), Twist(), Twist()
-            p, q, lin, ang, lin_acc, ang_acc = motion_fields(self.space, x, v, a)
-            tf.translation.x, tf.translation.y, tf.translation.z = p
-            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
-            vel.linear.x, vel.linear.y, vel.linear.z = lin
-            vel.angular.x, vel.angular.y, vel.angular.z = ang
-            acc.linear.x, acc.linear.y, acc.linear.z = lin_acc
-            acc.angular.x, acc.angular.y, acc.angular.z = ang_acc
-            sec, nsec = divmod(round(float(t) * 1e9), 1_000_000_000)
-            msg.points.append(MultiDOFJointTrajectoryPoint(
-                transforms=[tf], velocities=[vel], accelerations=[acc],
-                time_from_start=Duration(sec=int(sec), nanosec=int(nsec))))
         return msg
 
     def report(self, level: int, message: str, values: dict) -> None:
