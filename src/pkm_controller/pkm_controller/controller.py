@@ -49,18 +49,20 @@ import numpy as np
 from pkm_common.causes import TripCause
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force_rows,
+from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force, internal_force_rows,
                                         raise_distribution_error, two_arm_gravity_internal_force)
-from pkm_kinematics.dynamics import DynamicModel
+from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
-from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
                    FORCES_NOT_FINITE, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
-                   SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel, gram_condition, joint_pid,
-                   limits_kernel, pose_error, project_to_range, tool_pose_floats)
+                   SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, cartesian_pid_wrench, clamp_forces_kernel,
+                   computed_torque_acceleration, error_norms, gram_condition, joint_pid, limits_kernel,
+                   project_to_range, spatial_limits, task_pose_error, tool_pose_floats,
+                   velocity_cascade_acceleration)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
@@ -96,6 +98,7 @@ class ControllerConfig:
     following_error_rad: float = 0.05     # rotation error that trips (planar)
     max_condition: float = 100.0          # singularity margin: cond(J of the active drives)
     workspace_margin_m: float = 0.02      # the measured pose may leave the workspace box by this much
+    workspace_margin_rad: float = 0.02    # ... and a spatial machine's a, b, c their ranges by this much
     start_tolerance_m: float = 0.02       # a trajectory must start this close to the current reference
     start_tolerance_rad: float = 0.05
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
@@ -127,6 +130,7 @@ class ControllerConfig:
             ("following_error_rad", 0.0 < self.following_error_rad < math.inf, "in (0, inf) rad"),
             ("max_condition", 1.0 <= self.max_condition < math.inf, "in [1, inf)"),
             ("workspace_margin_m", 0.0 <= self.workspace_margin_m < math.inf, "in [0, inf) m"),
+            ("workspace_margin_rad", 0.0 <= self.workspace_margin_rad < math.inf, "in [0, inf) rad"),
             ("start_tolerance_m", 0.0 <= self.start_tolerance_m < math.inf, "in [0, inf) m"),
             ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < math.inf, "in [0, inf) rad"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
@@ -172,9 +176,12 @@ class CycleRecord:
     def internal_force_norm_n(self) -> float:
         """|null-space part of the commands| (nominal model); computed when asked (status,
         every status_decimation cycles), not in the 1-2 kHz loop."""
-        if len(self.rows) <= 3 or len(self.forces) != len(self.rows):
+        rows = self.rows
+        if not len(rows) or len(rows) <= len(rows[0]) or len(self.forces) != len(rows):   # not run, no redundancy
             return 0.0
-        return math.sqrt(sum(f * f for f in internal_force_rows(self.rows, self.forces)))
+        if len(rows[0]) != 3:              # a spatial machine's n x 6
+            return float(np.linalg.norm(internal_force(rows, self.forces)))
+        return math.sqrt(sum(f * f for f in internal_force_rows(rows, self.forces)))
 
 
 class _Cycle:
@@ -200,13 +207,21 @@ class ControllerCore:
         self.machine = machine
         self.config = config or ControllerConfig()
         self.model = machine.model
-        self.planar = isinstance(self.model, PlanarMachine)
+        # the task coordinates (pkm_kinematics.task_space): planar and position machines
+        # run the compiled 3-DOF kernels of laws.py; a spatial one (x, y, z, a, b, c)
+        # feeds back twists and the rotation vector, its Cartesian cycle in numpy
+        self.space = self.model.task_space
+        self.dof = self.space.dof
+        self.planar, self.spatial = self.space is PLANAR, self.space is SPATIAL
         self.n = self.model.n_legs
         self.names = list(self.model.leg_names)
         if machine.dynamics is None:
             raise ValueError(f"machine {machine.name!r}: the controller needs a 'dynamics' section "
                              f"(model terms and gain scaling)")
-        self.dynamics = DynamicModel(self.model, machine.dynamics)
+        self.dynamics = dynamic_model(machine)
+        # cond(J_m) of the active drives: the 3-DOF closed form, or the machine's own
+        # (a spatial J_m's rotation columns weighted by the platform's size)
+        self._condition = self.model.rows_condition if self.spatial else gram_condition
         self._check_config(self.config)
         self.strategy = strategy(self.config.strategy)
         self.metrology = None
@@ -227,6 +242,10 @@ class ControllerCore:
     def _check_config(self, config: ControllerConfig) -> None:
         """ControllerConfig.validate, and what only this machine can say (ValueError)."""
         config.validate(self.n, self.planar)
+        if self.spatial and config.forward_kinematics != "newton":
+            raise ValueError(f"forward_kinematics: must be newton on a {self.dof}-DOF machine "
+                             f"(the integrated forms are written for 3 task coordinates), got "
+                             f"{config.forward_kinematics!r}")
         if config.distribution in TWO_ARM:
             try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
                 self.model.pair_force_map(self.model.home_pose)
@@ -243,7 +262,7 @@ class ControllerCore:
         self._law, self._law_gains = self._cartesian_law()
         # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
         self._distribution = NUMPY_DISTRIBUTION
-        if c.prestress_n == 0.0 and (c.distribution == "pseudo_inverse" or (
+        if c.prestress_n == 0.0 and not self.spatial and (c.distribution == "pseudo_inverse" or (
                 c.distribution == "inf_norm" and self.n == 4)):
             self._distribution = DIST_PSEUDO_INVERSE if c.distribution == "pseudo_inverse" else DIST_INF_NORM
 
@@ -278,25 +297,34 @@ class ControllerCore:
         self.config = new
         self._apply_config()
         if not same_integral:
-            self.integral = [0.0] * self.n if self.strategy.joint_space else (0.0, 0.0, 0.0)
+            self.integral = self._zero_integral()
         return dict(changes)
 
     def _home(self) -> list:
         return self.model.home.tolist()
 
+    def _zero_integral(self):
+        return [0.0] * self.n if self.strategy.joint_space else (0.0,) * self.dof
+
     def _scale_gains(self) -> None:
         """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint
-        diag(J^+T A J^+) (the mass each drive sees)."""
-        a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
+        the mass each drive sees: diag(J^+T A J^+) on the 3-DOF machines, the apparent
+        mass 1 / (J A^-1 J^T)_ii on a spatial one (laws.apparent_drive_mass)."""
+        if self.spatial:
+            a, _, rows, _ = self.dynamics.measured_state(self._home(), [0.0] * self.n)
+            m_joint = apparent_drive_mass(rows, a).tolist()
+            a = a.tolist()
+        else:
+            a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
+            jac = np.array(rows)
+            pinv = np.linalg.pinv(jac)                           # 3 x n
+            m_joint = np.diag(pinv.T @ np.array(a) @ pinv).tolist()
         g = self.gains
-        m_task = [a[i][i] for i in range(3)]
+        m_task = [a[i][i] for i in range(self.dof)]
         self.task_mass = m_task
         self.task_kp = [g.kp * m for m in m_task]
         self.task_kd = [g.kd * m for m in m_task]
         self.task_ki = [g.ki * m for m in m_task]
-        jac = np.array(rows)
-        pinv = np.linalg.pinv(jac)                           # 3 x n
-        m_joint = np.diag(pinv.T @ np.array(a) @ pinv).tolist()
         self.joint_mass = m_joint
         self.joint_kp = [g.kp * m for m in m_joint]
         self.joint_kd = [g.kd * m for m in m_joint]
@@ -310,12 +338,20 @@ class ControllerCore:
         g, law = self.gains, self.strategy.law
         if law == Law.CARTESIAN_PID:
             return LAW_CARTESIAN_PID, np.array([self.task_kp, self.task_kd, self.task_ki, self.task_mass])
+        d = self.dof
         if law == Law.COMPUTED_TORQUE:
-            return LAW_COMPUTED_TORQUE, np.array([[g.kp] * 3, [g.kd] * 3, [g.ki] * 3, [0.0] * 3])
-        return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * 3, [g.kd] * 3, [g.outer_ki] * 3, [0.0] * 3])
+            return LAW_COMPUTED_TORQUE, np.array([[g.kp] * d, [g.kd] * d, [g.ki] * d, [0.0] * d])
+        return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * d, [g.kd] * d, [g.outer_ki] * d, [0.0] * d])
 
     def _task_box(self) -> np.ndarray:
-        return np.array(workspace_box(self.model, self.config.workspace_margin_m), dtype=float)
+        """(lower, upper) per task axis the measured pose must stay in: the translation
+        box, and a spatial machine's angles within their ranges about home."""
+        box = workspace_box(self.model, self.config.workspace_margin_m)
+        if self.spatial:
+            margin = self.config.workspace_margin_rad
+            box += [(h - math.radians(r) - margin, h + math.radians(r) + margin)
+                    for h, r in zip(self._home()[3:], self.model.workspace["abc_half_range_deg"])]
+        return np.array(box, dtype=float)
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
@@ -327,7 +363,7 @@ class ControllerCore:
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
         self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
-        self.integral = [0.0] * self.n if self.strategy.joint_space else (0.0, 0.0, 0.0)
+        self.integral = self._zero_integral()
         self.active = list(range(self.n))
         self.failed: dict[int, str] = {}
         self.stopped = False
@@ -383,11 +419,13 @@ class ControllerCore:
         self.feed.restart(now)
 
     def _check_start(self, reference: Reference, current) -> None:
-        e = pose_error(reference.start, current, self.planar)
-        dist = math.hypot(e[0], e[1]) if self.planar else math.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
-        if dist > self.config.start_tolerance_m or (self.planar and abs(e[2]) > self.config.start_tolerance_rad):
+        if len(reference.start) != self.dof:
+            raise ValueError(f"trajectory refused: {len(reference.start)} task coordinates, this machine has "
+                             f"{self.dof} ({self.space.describe()})")
+        dist, angle = error_norms(task_pose_error(reference.start, current, self.space), self.space)
+        if dist > self.config.start_tolerance_m or angle > self.config.start_tolerance_rad:
             raise ValueError(f"trajectory refused: it starts at {[round(v, 6) for v in reference.start]}, "
-                             f"{dist * 1e3:.3f} mm / {abs(e[2]) if self.planar else 0.0:.4f} rad from the "
+                             f"{dist * 1e3:.3f} mm / {angle:.4f} rad from the "
                              f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
                              f"{self.config.start_tolerance_m:g}, start_tolerance_rad "
                              f"{self.config.start_tolerance_rad:g})")
@@ -450,10 +488,10 @@ class ControllerCore:
                 f"reports {applied[i]:.1f} N for {commanded[i]:.1f} N commanded"
             what = f"drive {self.names[i]} failed ({kind})"
             remaining = [k for k in self.active if k != i]
-            if kind != "no force" or not c.continue_on_drive_failure or len(remaining) < 3:
+            if kind != "no force" or not c.continue_on_drive_failure or len(remaining) < self.dof:
                 return what
-            rows = self.model.velocity_terms(self.pose, (0.0, 0.0, 0.0))[1]
-            cond = gram_condition([rows[k] for k in remaining])
+            rows = self.model.velocity_terms(self.pose, (0.0,) * self.dof)[1]
+            cond = self._condition([rows[k] for k in remaining])
             name = "J_" + "".join(str(k + 1) for k in remaining)
             if cond > c.max_condition:
                 return f"{what}; sub-machine {name} too close to singular (condition {cond:.3g} > {c.max_condition:g})"
@@ -463,11 +501,17 @@ class ControllerCore:
         return ""
 
     def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
-        """((what tripped, its cause) or None, the translation error): laws.limits_kernel."""
+        """((what tripped, its cause) or None, the translation error): laws.limits_kernel
+        (laws.spatial_limits on a spatial machine)."""
         c = self.config
-        code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
-                                           self._workspace_box, active_rows, tuple(error), self.planar,
-                                           c.max_condition, c.following_error_m, c.following_error_rad)
+        if self.spatial:
+            code, index, value = spatial_limits(q, self._joint_box, measured, self._workspace_box,
+                                                self._condition(active_rows), c.max_condition, error,
+                                                c.following_error_m, c.following_error_rad)
+        else:
+            code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
+                                               self._workspace_box, active_rows, tuple(error), self.planar,
+                                               c.max_condition, c.following_error_m, c.following_error_rad)
         return (None, value) if code == LIMITS_OK else (self._limit_trip(code, index, value), value)
 
     def _limit_trip(self, code: int, index: int, value: float) -> tuple[str, TripCause]:
@@ -479,8 +523,10 @@ class ControllerCore:
                     TripCause.JOINT_LIMIT)
         if code == WORKSPACE_LIMIT:
             lo, hi = self._workspace_box[index].tolist()
-            return (f"workspace: {'xyz'[index]} = {value:.6g} m outside [{lo:.6g}, {hi:.6g}] m "
-                    f"(workspace_margin_m {c.workspace_margin_m:g})", TripCause.WORKSPACE)
+            unit, margin = ("m", "workspace_margin_m") if index < self.space.translation_axes else \
+                ("rad", "workspace_margin_rad")
+            return (f"workspace: {self.space.axes[index]} = {value:.6g} {unit} outside [{lo:.6g}, {hi:.6g}] {unit} "
+                    f"({margin} {getattr(c, margin):g})", TripCause.WORKSPACE)
         if code == SINGULARITY_MARGIN:
             return (f"singularity margin: condition number {value:.6g} > max_condition {c.max_condition:g}",
                     TripCause.SINGULARITY)
@@ -558,6 +604,8 @@ class ControllerCore:
         metrology arrives (sensor_space: l_des and J_h)."""
         tau, s, sdot = self.feed.advance(c.t_s)           # feed.py: the trajectory's time under the override
         c.x_d, c.v_d, c.a_d = scaled_reference(self.reference.sample(tau), s, sdot)
+        if self.spatial:       # the rates of a, b, c -> the twist and its rate (w in the base frame)
+            c.v_d, c.a_d = task_twists(self.space, c.x_d, c.v_d, c.a_d)
         if self.encoders is not None and not self._check_encoders(c):
             self._cycle = None
             return False
@@ -707,8 +755,8 @@ class ControllerCore:
             return [a - b for a, b in zip(x_d, error)], error
         if feedback == Feedback.GOUGH_POSE:
             measured = self._metrology_task_pose(metrology_pose, x_d)
-            return measured, pose_error(x_d, measured, self.planar)
-        return pose, pose_error(x_d, pose, self.planar)
+            return measured, task_pose_error(x_d, measured, self.space)
+        return pose, task_pose_error(x_d, pose, self.space)
 
     def _joint_strategy(self, c: "_Cycle") -> list:
         """joint_pid (ARCHI §4.1), decentralized_projected (Sliding Star eq. 6-8) and
@@ -717,8 +765,11 @@ class ControllerCore:
         q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
         # acceleration feed-forward with the mass each drive sees, as industrial
         # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
-        feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
-                       for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
+        if self.spatial:
+            feedforward = (np.asarray(self.joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
+        else:
+            feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
+                           for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
         e = [a - b for a, b in zip(q_d, q)]
         edot = [a - b for a, b in zip(qdot_d, qdot)]
         limit = self.config.force_limit_n
@@ -745,6 +796,8 @@ class ControllerCore:
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
         call (laws.cartesian_command_kernel); p_norm, two_arm and a prestress
         distribute the wrench it returns with numpy."""
+        if self.spatial:
+            return self._spatial_command(c, measured, error)
         cfg = self.config
         full = len(self.active) == self.n
         code, index, value, self.integral, wrench, forces, saturated, peak = cartesian_command_kernel(
@@ -765,6 +818,40 @@ class ControllerCore:
             return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}",
                              TripCause.KINEMATICS)
         return self.trip(*self._limit_trip(code, index, value))
+
+    def _spatial_command(self, c: "_Cycle", measured, error) -> list:
+        """``_cartesian_command`` of a spatial machine, in numpy: the same limits
+        (laws.spatial_limits), the conditional integral, the laws of the 3-DOF kernel
+        on each of the six axes (the twist's error and rate, F = A u + H for the
+        model-based ones) and the distribution on the n x 6 J_m of the active drives."""
+        problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
+        if problem:
+            return self.trip(*problem)
+        code, (kp, kd, ki, mass) = self._law, self._law_gains.tolist()
+        integral = self.integral
+        if self.record.saturated == 0:
+            integral = tuple(i + k * e * c.dt for i, k, e in zip(integral, ki, error))
+        self.integral = integral
+        v, v_d, a_d = c.v, c.v_d, c.a_d
+        if code == LAW_CARTESIAN_PID:
+            wrench = [cartesian_pid_wrench(kp[k], kd[k], mass[k], error[k], v_d[k] - v[k], integral[k], a_d[k])
+                      for k in range(6)]
+        else:
+            if code == LAW_COMPUTED_TORQUE:
+                u = [computed_torque_acceleration(kp[k], kd[k], error[k], v_d[k] - v[k], integral[k], a_d[k])
+                     for k in range(6)]
+            else:
+                u = [velocity_cascade_acceleration(kp[k], kd[k], error[k], v_d[k], v[k], integral[k], a_d[k])
+                     for k in range(6)]
+            wrench = (c.a_model @ np.asarray(u) + c.h_model).tolist()
+        if not math.isfinite(sum(wrench)):
+            return self.trip(f"{self.config.strategy}: wrench: contains NaN or infinite values: {wrench}",
+                             TripCause.KINEMATICS)
+        if len(self.active) == self.n:
+            forces = self._distribute(wrench, c.active_rows, c.pose)
+        else:                   # a degraded machine: the pseudo-inverse on the drives left
+            forces = self._expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
+        return self._finish(c, forces, trans, measured, error)
 
     def _distribute(self, wrench, active_rows, pose) -> list:
         """The distributions that are not compiled (p_norm, two_arm, a prestress); all
@@ -826,7 +913,7 @@ class ControllerCore:
     def status(self) -> tuple[int, str, dict]:
         """(level 0 OK / 1 WARN / 2 ERROR, message, values) for controller/status."""
         r = self.record
-        trans = math.hypot(r.error[0], r.error[1]) if self.planar else math.sqrt(sum(e * e for e in r.error))
+        trans, angle = error_norms(r.error, self.space)
         values = {"mode": self.mode, "strategy": self.config.strategy, "distribution": self.config.distribution,
                   "active_drives": ",".join(self.names[k] for k in self.active),
                   "tracking_error_m": trans, "max_tracking_error_m": self.max_error_m,
@@ -835,8 +922,8 @@ class ControllerCore:
                   "faults": "; ".join(self.faults) or "none", "cause": str(self.stop_cause),
                   "feed_override": self.feed.target, "feed_scale": self.feed.scale, "dt_s": self.config.dt_s,
                   **{name: getattr(self.config, name) for name in RUNTIME_SETTINGS}}
-        if self.planar:
-            values["tracking_error_rad"] = abs(r.error[2])
+        if self.space.translation_axes < self.dof:
+            values["tracking_error_rad"] = angle
         if self.stopped:
             return 2, f"stopped: {self.stop_reason}", values
         if self.failed:

@@ -71,9 +71,9 @@ def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, 
     place. ``second``: last_dq holds the previous period's, of the same length.
     Returns (outcome, drive, value): ENC_FROZEN_SLOW with the displacement asked for,
     ENC_FROZEN / ENC_SLIPPED with the jump; (ENC_OK, -1, 0) if none."""
-    n = q.shape[0]
-    rhs = np.empty(3)
-    for j in range(3):                      # A acc = J^T f - H (ARCHI §3.4)
+    n, dof = q.shape[0], a.shape[0]
+    rhs = np.empty(dof)
+    for j in range(dof):                    # A acc = J^T f - H (ARCHI §3.4)
         total = -h[j]
         for i in range(n):
             total += rows[i, j] * applied[i]
@@ -87,7 +87,10 @@ def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, 
     last_dq[:] = dq
     dt2 = dt * dt
     for i in range(n):
-        expected_dq = (rows[i, 0] * v_d[0] + rows[i, 1] * v_d[1] + rows[i, 2] * v_d[2]) * dt
+        expected_dq = 0.0
+        for j in range(dof):
+            expected_dq += rows[i, j] * v_d[j]
+        expected_dq *= dt
         if skip[i]:
             held[i] = 0.0
             candidate[i] = np.nan
@@ -98,7 +101,10 @@ def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, 
         if not second:
             candidate[i] = np.nan
             continue
-        expected_ddq = (rows[i, 0] * acc[0] + rows[i, 1] * acc[1] + rows[i, 2] * acc[2]) * dt2
+        expected_ddq = 0.0
+        for j in range(dof):
+            expected_ddq += rows[i, j] * acc[j]
+        expected_ddq *= dt2
         r = dq[i] - previous[i] - expected_ddq - bias[i]
         jump = candidate[i]
         candidate[i] = np.nan
@@ -147,8 +153,8 @@ class EncoderMonitor:
 
     def check(self, q, a, h, rows, applied, v_d, dt: float, skip=(), setpoint_held: bool = False) -> tuple[int, str]:
         """(drive, what) of this cycle's encoder fault, (-1, "") if none: ``q`` the
-        readings; the dynamic model at the measured pose, ``a`` = A (3 x 3), ``h`` = H,
-        ``rows`` = J_m (n x 3); ``applied`` the forces the drives report for the last
+        readings; the dynamic model at the measured pose, ``a`` = A (d x d, d the task
+        DOF), ``h`` = H, ``rows`` = J_m (n x d); ``applied`` the forces the drives report for the last
         period ``dt``; ``v_d`` the reference velocity; ``skip`` drives not to judge
         (dropped ones). A period unlike the previous one (states skipped in real
         time) gives no second difference. A jump is confirmed in the next cycle,
@@ -162,7 +168,7 @@ class EncoderMonitor:
         q = np.asarray(q, dtype=float)
         if setpoint_held:
             self.held[:] = 0.0
-            v_d = np.zeros(3)
+            v_d = np.zeros(len(h))
         if not self.started:
             self.started, self.last_dt = True, dt
             self.last_q[:] = q
@@ -176,7 +182,7 @@ class EncoderMonitor:
             q, self.last_q, self.last_dq, second, np.asarray(a, dtype=float), np.asarray(h, dtype=float),
             np.asarray(rows, dtype=float), np.asarray(applied, dtype=float), np.asarray(v_d, dtype=float),
             float(dt), self.bias, self.mean_square, self.held, self.candidate, self.skip, self.jump_m,
-            self.freeze_m, self.n > 3)
+            self.freeze_m, self.n > len(h))
         if code == ENC_OK:
             return -1, ""
         self.fault_size = abs(value)

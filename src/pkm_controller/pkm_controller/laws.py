@@ -20,10 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _distribute_kernel, _rows_array, gram_rows, project_rows
+from pkm_kinematics.distribution import _distribute_kernel, _rows_array, gram_rows, project_forces, project_rows
 from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.jit import kernel
-from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
+from pkm_kinematics.rotations import exp_so3_kernel, log_so3, mul3_kernel, rotation_from_rpy
+from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,40 @@ def pose_error(x_d, x, planar: bool) -> list:
     return e
 
 
+def spatial_pose_error(x_d, x) -> list:
+    """x_d - x of two spatial poses (x, y, z, a, b, c) as the controller feeds it back:
+    the translation and the rotation vector of R_d R^T (base frame, the same frame as
+    the twist's w), not the difference of the angles (which is not a rotation)."""
+    r_d, r = rotation_from_rpy(*x_d[3:6]), rotation_from_rpy(*x[3:6])
+    return [x_d[0] - x[0], x_d[1] - x[1], x_d[2] - x[2], *log_so3(r_d @ r.T).tolist()]
+
+
+def task_pose_error(x_d, x, space: TaskSpace) -> list:
+    """x_d - x in the task space of the machine: ``pose_error`` for planar (angle
+    wrapped) and position machines, ``spatial_pose_error`` for a spatial pose."""
+    if space is SPATIAL:
+        return spatial_pose_error(x_d, x)
+    return pose_error(x_d, x, space is PLANAR)
+
+
+def error_norms(error, space: TaskSpace) -> tuple[float, float]:
+    """(|translation error| (m), |rotation error| (rad)) of a task error: planar
+    (hypot(e_x, e_y), |e_theta|), position (|e|, 0), spatial (|e_p|, |e_w|)."""
+    if space is PLANAR:
+        return math.hypot(error[0], error[1]), abs(error[2])
+    trans = math.sqrt(error[0] * error[0] + error[1] * error[1] + error[2] * error[2])
+    if space is SPATIAL:
+        return trans, math.sqrt(error[3] * error[3] + error[4] * error[4] + error[5] * error[5])
+    return trans, 0.0
+
+
 def project_to_range(rows, forces) -> list:
     """n = J (J^T J)^-1 J^T n_d (Sliding Star eq. 8): the least-norm forces producing the
-    same wrench F_d = J^T n_d (eq. 6-7); the fighting (null-space) part is removed."""
-    return project_rows(rows, forces)
+    same wrench F_d = J^T n_d (eq. 6-7); the fighting (null-space) part is removed.
+    Rows of 3 (the 3-DOF machines: compiled closed form), or of any width."""
+    if np.shape(rows)[1] == 3:
+        return project_rows(rows, forces)
+    return project_forces(rows, forces).tolist()
 
 
 def gram_condition(rows) -> float:
@@ -145,6 +176,29 @@ def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, pla
         return FOLLOWING_ERROR_M, -1, trans
     if planar and abs(error[2]) > following_error_rad:
         return FOLLOWING_ERROR_RAD, 2, abs(error[2])
+    return LIMITS_OK, -1, trans
+
+
+def spatial_limits(q, joint_box, measured, workspace_box, condition, max_condition, error, following_error_m,
+                   following_error_rad) -> tuple[int, int, float]:
+    """:func:`limits_kernel` for a spatial machine (6 task coordinates, numpy): the same
+    limits in the same order, the same codes; ``condition`` the condition number of the
+    active drives' J_m (the machine's own measure: rotations weighted by its size);
+    the rotation error is |e_w|, the angle of the rotation vector."""
+    outside = np.flatnonzero(~((joint_box[:, 0] <= q) & (q <= joint_box[:, 1])))
+    if outside.size:
+        return JOINT_LIMIT, int(outside[0]), float(q[outside[0]])
+    m = np.asarray(measured, dtype=float)
+    outside = np.flatnonzero(~((workspace_box[:, 0] <= m) & (m <= workspace_box[:, 1])))
+    if outside.size:
+        return WORKSPACE_LIMIT, int(outside[0]), float(m[outside[0]])
+    if not condition <= max_condition:
+        return SINGULARITY_MARGIN, -1, condition
+    trans, rot = error_norms(error, SPATIAL)
+    if trans > following_error_m:
+        return FOLLOWING_ERROR_M, -1, trans
+    if rot > following_error_rad:
+        return FOLLOWING_ERROR_RAD, 3, rot
     return LIMITS_OK, -1, trans
 
 
@@ -263,6 +317,16 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
 
 
 # --------------------------------------------------------------- joint space
+def apparent_drive_mass(rows, a) -> np.ndarray:
+    """m_i = 1 / (J A^-1 J^T)_ii: the mass drive i moves when it pushes alone (its
+    acceleration per newton is J_i A^-1 J_i^T), the gain scale of the joint PIDs of a
+    spatial machine. diag(J^+T A J^+) (the 3-DOF machines') overstates it where J_m
+    transmits poorly: on hexapod8 it gave 101 kg a strut against 19 kg, and joint
+    PIDs 13-15 times too stiff in the vertical, unstable at 1 kHz."""
+    j = np.asarray(rows, dtype=float)
+    return 1.0 / np.einsum("ij,ji->i", j, np.linalg.solve(np.asarray(a, dtype=float), j.T))
+
+
 def joint_pid(e, edot, integral, kp, kd) -> list:
     """f_i = kp_i e_i + kd_i edot_i + I_i: independent PID per drive on the
     inverse-kinematics setpoints (ARCHI §4.1, the industrial baseline; I_i is the

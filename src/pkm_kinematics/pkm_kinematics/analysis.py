@@ -41,10 +41,14 @@ def condition_map(machine, poses) -> np.ndarray:
 
 def workspace_box(machine, margin_m: float = 0.0) -> list[tuple[float, float]]:
     """(lower, upper) per translation axis of the configured workspace, widened by
-    ``margin_m``: planar (x, y), translational (x, y, z) of the cube."""
+    ``margin_m``: planar (x, y), translational (x, y, z) of the cube, a strut
+    machine's (x, y, z) of its box."""
     ws = machine.workspace
     if isinstance(machine, PlanarMachine):
         return [(ws["x"][0] - margin_m, ws["x"][1] + margin_m), (ws["y"][0] - margin_m, ws["y"][1] + margin_m)]
+    if "half_size" in ws:
+        return [(float(c) - float(h) - margin_m, float(c) + float(h) + margin_m)
+                for c, h in zip(ws["center"], ws["half_size"])]
     half = 0.5 * float(ws["size"]) + margin_m
     return [(float(c) - half, float(c) + half) for c in ws["center"]]
 

@@ -225,6 +225,16 @@ class StrutMachine:
             raise SingularityError(f"a strut has zero length at x = {x}")
         return out
 
+    def velocity_terms(self, x, twist) -> tuple[list, np.ndarray, list, list]:
+        """(q, J_m, q' = J_m t, J_m' t) at the pose x moving with the twist t: what a
+        joint-space controller needs of a task-space reference (the drive positions,
+        velocities and the velocity-product part of their accelerations,
+        q'' = J_m t' + J_m' t)."""
+        p, rot = self.pose(x)
+        t = np.asarray(twist, dtype=float).reshape(6)
+        jac, jdot = self.jacobian(x), self.jacobian_derivative(x, t)
+        return self.strut_lengths(p, rot).tolist(), jac, (jac @ t).tolist(), (jdot @ t).tolist()
+
     def wrench_map(self, x) -> np.ndarray:
         """J_m^T (6, n): the platform wrench (force, moment about p, base frame) of
         strut forces f, F = J_m^T f (virtual work: f . q' = F . t)."""
@@ -241,7 +251,14 @@ class StrutMachine:
     def condition_number(self, x) -> float:
         """The condition number of J_m with its rotation columns divided by the
         characteristic length (the platform radius by default): a dimensionless J."""
-        jac = self.jacobian(x)
+        return self.rows_condition(self.jacobian(x))
+
+    def rows_condition(self, jac) -> float:
+        """:meth:`condition_number` of given rows of J_m (n' x 6: a sub-machine's, the
+        drives still active); inf when they do not span the six DOF."""
+        jac = np.array(jac, dtype=float)
+        if jac.shape[0] < 6:
+            return math.inf
         jac[:, 3:] /= self.characteristic_length_m
         s = np.linalg.svd(jac, compute_uv=False)
         return float(s[0] / s[-1]) if s[-1] > 0.0 else math.inf

@@ -83,6 +83,22 @@ class StrutDynamics:
             raise SingularityError(f"a strut has zero length at p = {np.asarray(position).tolist()}")
         return a, h, jac
 
+    def measured_state(self, x, drive_velocities) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, H, J_m, t) at the pose x with the twist t = J_m^+ q' that best explains
+        the drive velocities (least squares: the exact twist when they agree), what a
+        controller derives from its encoders every cycle (``DynamicModel.measured_state``
+        of the rail machines). SingularityError when J_m has rank < 6."""
+        qdot = np.asarray(drive_velocities, dtype=float)
+        if qdot.shape != (self.machine.n_legs,):
+            raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
+        p, rot = self.machine.pose(x)
+        _, _, jac = self.terms_at(p, rot, np.zeros(6))
+        twist, _, rank, _ = np.linalg.lstsq(jac, qdot, rcond=None)
+        if rank < 6:
+            raise SingularityError(f"J_m has rank {rank} < 6 at x = {np.asarray(x).tolist()}")
+        a, h, _ = self.terms_at(p, rot, twist)
+        return a, h, jac, twist
+
     def forward_dynamics(self, x, twist, drive_forces, wrench=np.zeros(6)) -> np.ndarray:
         """t' from A t' = J_m^T f_d + f_n - H."""
         p, rot = self.machine.pose(x)

@@ -62,13 +62,33 @@ def motion_fields(space: TaskSpace, x, v, a) -> tuple:
     if space is POSITION:
         return ((x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0), (v[0], v[1], v[2]), (0.0, 0.0, 0.0),
                 (a[0], a[1], a[2]), (0.0, 0.0, 0.0))
-    rate = rate_matrix(x[3], x[4], x[5])
-    omega = rate @ np.asarray(v[3:6], dtype=float)
-    alpha = rate @ np.asarray(a[3:6], dtype=float) + rate_matrix_derivative(x[4], x[5], v[4], v[5]) @ \
-        np.asarray(v[3:6], dtype=float)
+    omega, alpha = angular_motion(x[3:6], v[3:6], a[3:6])
     q = quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5]))
     return (tuple(x[:3]), tuple(q.tolist()), tuple(v[:3]), tuple(omega.tolist()), tuple(a[:3]),
             tuple(alpha.tolist()))
+
+
+def angular_motion(angles, rates, accelerations) -> tuple[np.ndarray, np.ndarray]:
+    """The angular velocity and acceleration (base frame) of roll-pitch-yaw angles
+    moving at ``rates`` with ``accelerations``: w = E (a', b', c'),
+    w' = E (a'', b'', c'') + E' (a', b', c') (``rotations.rate_matrix``)."""
+    rate = rate_matrix(*angles)
+    rates = np.asarray(rates, dtype=float)
+    omega = rate @ rates
+    alpha = rate @ np.asarray(accelerations, dtype=float) + \
+        rate_matrix_derivative(angles[1], angles[2], rates[1], rates[2]) @ rates
+    return omega, alpha
+
+
+def task_twists(space: TaskSpace, x, v, a) -> tuple[list, list]:
+    """The velocity and acceleration of a task-space sample as the controller and the
+    dynamic models take them: the rates themselves for planar and position machines
+    (their dynamics are written in those coordinates); for a spatial pose the twist
+    (v, w) and its rate (v', w'), w in the base frame (``angular_motion``)."""
+    if space is not SPATIAL:
+        return list(v), list(a)
+    omega, alpha = angular_motion(x[3:6], v[3:6], a[3:6])
+    return [*v[:3], *omega.tolist()], [*a[:3], *alpha.tolist()]
 
 
 def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
@@ -83,4 +103,5 @@ def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
     return rates, accelerations
 
 
-__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "motion_fields"]
+__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "angular_motion", "motion_fields",
+           "task_twists"]

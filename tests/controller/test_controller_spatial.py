@@ -1,0 +1,149 @@
+"""The controller on 6 task DOF (issue 23): the hexapods (LinuxCNC's genhexkins, the
+redundant hexapod8) against the SE(3) plant, in closed loop without ROS, and the
+spatial pieces the cycle is built of, each against an independent reference
+(scipy's rotations, finite differences, the forward dynamics)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pkm_common.causes import TripCause
+from pkm_controller.closed_loop import run
+from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.laws import apparent_drive_mass, spatial_pose_error
+from pkm_controller.reference import Reference
+from pkm_kinematics import load_machine
+from pkm_kinematics.rigid_body import StrutDynamics
+from pkm_kinematics.rotations import rotation_from_rpy
+from pkm_kinematics.task_space import SPATIAL, task_twists
+from pkm_sim_hw.plant import PlantParameters
+from pkm_sim_hw.strut_plant import StrutPlant
+
+GENHEXKINS = load_machine("genhexkins")
+HEXAPOD8 = load_machine("hexapod8")
+
+
+def _move(home, delta, duration_s=0.6, points=121) -> Reference:
+    """home -> home + delta on a cosine profile, with its exact rates."""
+    t = np.linspace(0.0, duration_s, points)
+    w = math.pi / duration_s
+    s, ds, dds = 0.5 - 0.5 * np.cos(w * t), 0.5 * w * np.sin(w * t), 0.5 * w * w * np.cos(w * t)
+    d = np.asarray(delta, dtype=float)
+    return Reference(t, home + np.outer(s, d), np.outer(ds, d), np.outer(dds, d))
+
+
+def test_the_spatial_pose_error_is_the_rotation_vector_of_rd_rt():
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        x_d, x = rng.uniform(-0.5, 0.5, 6), rng.uniform(-0.5, 0.5, 6)
+        e = spatial_pose_error(x_d.tolist(), x.tolist())
+        r_d = Rotation.from_euler("ZYX", x_d[[5, 4, 3]])       # R = Rz(c) Ry(b) Rx(a)
+        r = Rotation.from_euler("ZYX", x[[5, 4, 3]])
+        np.testing.assert_allclose(e[:3], x_d[:3] - x[:3], atol=1e-15)
+        np.testing.assert_allclose(e[3:], (r_d * r.inv()).as_rotvec(), atol=1e-12)
+
+
+def test_the_reference_twist_is_the_rotations_angular_velocity():
+    """task_twists against finite differences of R(t) = R(angles(t)): w = vee(R' R^T)."""
+    x0, v, a = np.array([0.1, 0.2, 0.5, 0.2, -0.3, 0.4]), np.array([0.1, 0, 0, 0.5, -0.7, 0.3]), \
+        np.array([0, 0, 0, 1.0, 2.0, -1.5])
+    h = 1e-6
+
+    def rotation(t):
+        return rotation_from_rpy(*(x0[3:] + v[3:] * t + 0.5 * a[3:] * t * t))
+
+    def omega(t):
+        d = (rotation(t + h) - rotation(t - h)) / (2 * h) @ rotation(t).T
+        return np.array([d[2, 1], d[0, 2], d[1, 0]])
+    twist, twist_rate = task_twists(SPATIAL, x0.tolist(), v.tolist(), a.tolist())
+    np.testing.assert_allclose(twist[3:], omega(0.0), atol=1e-8)
+    np.testing.assert_allclose(twist_rate[3:], (omega(1e-4) - omega(-1e-4)) / 2e-4, atol=1e-5)
+    np.testing.assert_allclose(twist[:3], v[:3]) and np.testing.assert_allclose(twist_rate[:3], a[:3])
+
+
+def test_strut_velocity_terms_against_finite_differences():
+    """q' = J_m t and q'' = J_m t' + J_m' t along a screw motion of the platform."""
+    model = GENHEXKINS.model
+    x0 = model.home + np.array([0.01, -0.02, 0.01, 0.05, -0.03, 0.08])
+    twist = np.array([0.02, -0.01, 0.03, 0.2, -0.1, 0.3])
+    p0, r0 = model.pose(x0)
+    h = 1e-5
+
+    def lengths(t):      # constant twist in the base frame: p' = v, R' = [w]x R
+        return model.strut_lengths(p0 + twist[:3] * t, Rotation.from_rotvec(twist[3:] * t).as_matrix() @ r0)
+    q, jac, qdot, bias = model.velocity_terms(x0, twist)
+    np.testing.assert_allclose(q, lengths(0.0), atol=1e-15)
+    np.testing.assert_allclose(qdot, (lengths(h) - lengths(-h)) / (2 * h), atol=1e-8)
+    np.testing.assert_allclose(bias, (lengths(h) - 2 * lengths(0.0) + lengths(-h)) / (h * h), atol=1e-4)
+
+
+def test_the_measured_twist_explains_the_drive_velocities():
+    dyn = StrutDynamics(HEXAPOD8.model, HEXAPOD8.dynamics)
+    x = HEXAPOD8.model.home + np.array([0.02, 0.0, -0.03, 0.05, 0.02, -0.1])
+    twist = np.array([0.1, -0.2, 0.05, 0.3, 0.1, -0.4])
+    qdot = HEXAPOD8.model.jacobian(x) @ twist
+    a, h, jac, measured = dyn.measured_state(x, qdot)
+    np.testing.assert_allclose(measured, twist, atol=1e-12)
+    a_ref, h_ref, _ = dyn.terms(x, twist)
+    np.testing.assert_allclose(a, a_ref, atol=1e-12) and np.testing.assert_allclose(h, h_ref, atol=1e-9)
+
+
+def test_the_apparent_drive_mass_is_what_a_strut_pushing_alone_accelerates():
+    dyn = StrutDynamics(HEXAPOD8.model, HEXAPOD8.dynamics)
+    x = HEXAPOD8.model.home
+    a, _, jac, _ = dyn.measured_state(x, np.zeros(8))
+    masses = apparent_drive_mass(jac, a)
+    for i in range(8):
+        push = np.zeros(8)
+        push[i] = 10.0
+        acc = dyn.forward_dynamics(x, np.zeros(6), push) - dyn.forward_dynamics(x, np.zeros(6), np.zeros(8))
+        assert masses[i] == pytest.approx(10.0 / (jac[i] @ acc), rel=1e-9)
+
+
+@pytest.mark.parametrize("strategy", ["computed_torque", "cartesian_pid", "joint_pid", "decentralized_projected"])
+def test_every_encoder_strategy_tracks_a_six_dof_move_of_genhexkins(strategy):
+    """x, y, z and all three angles at once, through the SE(3) plant."""
+    home = GENHEXKINS.model.home
+    ref = _move(home, [0.01, -0.01, 0.005, 0.02, -0.02, 0.03])
+    core, log = run(GENHEXKINS, ControllerConfig(strategy=strategy), StrutPlant(GENHEXKINS), 900, reference=ref)
+    assert core.mode == "holding" and not core.stopped
+    tool, reference = np.array(log.tool), np.array(log.reference)
+    error = np.linalg.norm(tool[:, :3] - reference[:, :3], axis=1)
+    bound = 5e-6 if strategy == "computed_torque" else 1e-3        # the model-based law tracks tightest
+    assert error.max() < bound
+    assert error[-1] < 2e-6                                       # at rest at the end: the integral's work
+    np.testing.assert_allclose(tool[-1, 3:], home[3:] + [0.02, -0.02, 0.03], atol=1e-5)
+
+
+def test_joint_pids_fight_over_an_inconsistent_strut_and_the_projection_does_not():
+    """Sliding Star eq. 6-8 on 8 struts: 1 % error on s1."""
+    params = PlantParameters(link_length_errors=(0.01, 0, 0, 0, 0, 0, 0, 0))
+    pid, pid_log = run(HEXAPOD8, ControllerConfig(strategy="joint_pid"), StrutPlant(HEXAPOD8, params), 1000)
+    assert pid.stopped and pid.stop_cause == TripCause.SATURATION
+    assert max(pid_log.internal_force_norm_n) > 1000.0
+    proj, proj_log = run(HEXAPOD8, ControllerConfig(strategy="decentralized_projected"),
+                         StrutPlant(HEXAPOD8, params), 1000)
+    assert not proj.stopped and max(proj_log.internal_force_norm_n) < 10.0
+
+
+def test_a_frozen_strut_encoder_is_named():
+    home = GENHEXKINS.model.home
+    plant = StrutPlant(GENHEXKINS, PlantParameters(faults=("3:encoder_freeze:0.2",)))
+    core, _ = run(GENHEXKINS, ControllerConfig(strategy="computed_torque"), plant, 600,
+                  reference=_move(home, [0.02, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    assert core.stopped and core.stop_cause == TripCause.ENCODER_FAULT and "drive j3" in core.stop_reason
+
+
+def test_what_a_spatial_machine_cannot_take_is_refused_by_name():
+    core = ControllerCore(GENHEXKINS, ControllerConfig())
+    core.update(0.0, GENHEXKINS.model.inverse_kinematics(GENHEXKINS.model.home).tolist(), [0.0] * 6)
+    with pytest.raises(ValueError, match=r"3 task coordinates, this machine has 6 \(x, y, z, a, b, c\)"):
+        core.set_trajectory(Reference.hold([0.0, 0.0, 0.5]))
+    with pytest.raises(ValueError, match="forward_kinematics: must be newton on a 6-DOF machine"):
+        ControllerCore(GENHEXKINS, ControllerConfig(forward_kinematics="integrated"))
+    with pytest.raises(ValueError, match=r"prestress_n: must be 0, or finite on a machine with one redundant drive"):
+        ControllerCore(HEXAPOD8, ControllerConfig(prestress_n=100.0))
