@@ -95,3 +95,12 @@ def test_saturation_faults_end_stops_and_loads():
     assert held.tool_pose == out.tool_pose
     with pytest.raises(ValueError, match="compliance: not simulated on a strut machine yet"):
         StrutPlant(HEXAPOD, PlantParameters(compliance=(1e-6, 0.0, 0.0)))
+
+
+def test_a_strut_error_makes_its_reading_short_of_the_true_length():
+    """link_length_errors on a strut machine: strut k is (1 + e_k) times its reading."""
+    params = PlantParameters(link_length_errors=(0.01, 0, 0, -0.02, 0, 0, 0, 0), encoder_resolution_m=0.0)
+    plant = StrutPlant(HEXAPOD8, params)
+    out = plant.step(static_forces(plant, plant.x))
+    true = HEXAPOD8.model.strut_lengths(plant.p, plant.rotation)
+    np.testing.assert_allclose(out.encoder_positions, true / [1.01, 1, 1, 0.98, 1, 1, 1, 1], rtol=1e-15)

@@ -7,14 +7,17 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   machines' plant: t += h t'(x, t); p += h v; R = exp(h [w]x) R (the rotation stays
   orthonormal: no angles are integrated).
 * Drives and encoders as every plant's (``drives``): saturation, ``no_force``,
-  quantised encoders, ``encoder_freeze`` and ``encoder_slip``. A strut at its end
+  quantised encoders, ``encoder_freeze`` and ``encoder_slip``. ``link_length_errors``
+  (relative, per strut) is a strut's measuring error: strut k is (1 + e_k) times as
+  long as its encoder reads (a screw's pitch error), so the controller's nominal model
+  sees an inconsistent set of lengths (a redundant machine's drives fight over it). A strut at its end
   stop, a singular pose or a fault the model cannot take (``locked``: a brake on a
   strut) brakes the machine: the platform stops where it is.
 * External load: a wrench (force, moment about p, base frame), bounded by
   ``max_load_n`` / ``max_load_nm`` per component.
 Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
 coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
-Not yet: the rail plant's machine errors, compliance, frame load and load schedules
+Not yet: the rail plant's other machine errors, compliance, frame load and load schedules
 (refused when set). sim_hw runs it for a strut machine (``parameters.PLANTS``).
 """
 
@@ -35,8 +38,7 @@ from pkm_kinematics.validation import finite_floats
 from .drives import Encoders, applied_forces
 from .plant import Fault, PlantOutput, PlantParameters
 
-_NOT_YET = ("link_length_errors", "rail_offset_errors_m", "compliance", "frame_compliance",
-            "parallelogram_bar_errors_m")
+_NOT_YET = ("rail_offset_errors_m", "compliance", "frame_compliance", "parallelogram_bar_errors_m")
 
 
 class StrutPlant:
@@ -69,7 +71,8 @@ class StrutPlant:
             raise ValueError(f"initial_pose: struts outside their limits: {np.round(q, 6).tolist()} m")
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
                                  self.params.dt_s)
-        self.encoders.start(q.tolist())
+        self._reading_scale = 1.0 / (1.0 + np.asarray(self.params.link_length_errors or [0.0] * self.n, dtype=float))
+        self.encoders.start((q * self._reading_scale).tolist())
         self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
 
     @property
@@ -147,7 +150,7 @@ class StrutPlant:
 
     # ----------------------------------------------------------------- outputs
     def _output(self, applied, saturated, faults) -> PlantOutput:
-        q = self.machine.strut_lengths(self.p, self.rotation).tolist()
+        q = (self.machine.strut_lengths(self.p, self.rotation) * self._reading_scale).tolist()
         reading, velocity = self.encoders.read(q, faults)
         x = self.x
         fint = internal_force(self.machine.jacobian(x), applied).tolist() if self.n > 6 else [0.0] * self.n
