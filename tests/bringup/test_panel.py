@@ -208,8 +208,8 @@ def test_latencies_from_the_action_to_the_controller_and_to_the_drives():
     assert panel.snapshot()["estop"]["why"] == "E-stop pressed on the panel (page)"
 
 
-def test_the_panel_refuses_a_machine_the_graph_does_not_run(capsys):
+def test_the_panel_refuses_a_machine_it_does_not_draw(capsys):
     from pkm_bringup.panel_main import main
     assert main(["--machine", "hexapod8", "--port", "0"]) == 2
-    assert "--machine: hexapod8 is a struts machine; the graph runs planar and translational" \
+    assert "--machine: hexapod8 is a struts machine; the panel draws and jogs planar and translational" \
         in capsys.readouterr().err

@@ -532,3 +532,13 @@ def test_null_space_part_matches_distribution():
         else:
             np.testing.assert_allclose(got[k], internal_force_rows(jac[k].tolist(), forces[k].tolist()),
                                        rtol=1e-9, atol=1e-9)
+
+
+def test_rpy_of_quaternions_is_the_models_roll_pitch_yaw():
+    from scipy.spatial.transform import Rotation
+
+    from pkm_bringup.report_data import rpy_of
+    from pkm_kinematics.rotations import rpy_from_rotation
+    rotations = Rotation.random(50, random_state=3)
+    expected = [rpy_from_rotation(m) for m in rotations.as_matrix()]
+    np.testing.assert_allclose(rpy_of(rotations.as_quat()), expected, atol=1e-12)

@@ -90,11 +90,10 @@ def test_metrology_needs_a_machine_with_one(tmp_path):
         load_scenario(path)
 
 
-@pytest.mark.parametrize("machine", ["genhexkins", "hexapod8", "mom3_imperfect"])
-def test_a_machine_the_graph_does_not_run_yet_is_refused_by_name(machine):
-    with pytest.raises(ScenarioError, match=f"^machine: {machine} is a (struts|parallelograms) machine; the graph "
-                                            f"\\(plant, controller, planner\\) runs planar and translational"):
-        load_scenario("mom3_square", {"machine": machine})
+def test_a_machine_the_graph_does_not_run_yet_is_refused_by_name():
+    with pytest.raises(ScenarioError, match="^machine: mom3_imperfect is a parallelograms machine; the graph "
+                                            "\\(plant, controller, planner\\) runs planar, translational, struts"):
+        load_scenario("mom3_square", {"machine": "mom3_imperfect"})
 
 
 def test_a_ramp_may_end_exactly_where_the_next_entry_starts():

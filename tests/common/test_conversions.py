@@ -183,3 +183,16 @@ def test_line_list_markers_hold_each_segment_as_a_pair_of_points():
     assert (marker.header.stamp.sec, marker.header.stamp.nanosec) == (1, 500_000_000)
     assert [(p.x, p.y, p.z) for p in marker.points] == [(0.0, 1.0, 2.0), (3.0, 4.0, 5.0), (6.0, 7.0, 8.0),
                                                         (9.0, 10.0, 11.0)]
+
+
+def test_a_spatial_pose_is_published_with_its_roll_pitch_yaw_rotation():
+    from scipy.spatial.transform import Rotation
+
+    from pkm_common.conversions import machine_pose_components, machine_to_tool_pose, tool_pose_to_machine
+    x = [0.1, -0.2, 0.5, 0.3, -0.2, 1.1]
+    position, quaternion = machine_pose_components(False, x)
+    expected = Rotation.from_euler("ZYX", [1.1, -0.2, 0.3]).as_quat()      # R = Rz(c) Ry(b) Rx(a)
+    assert position == (0.1, -0.2, 0.5)
+    np.testing.assert_allclose(np.abs(np.dot(quaternion, expected)), 1.0, atol=1e-15)
+    p, r = machine_to_tool_pose("struts", x)
+    np.testing.assert_allclose(tool_pose_to_machine("struts", p, r), x, atol=1e-15)

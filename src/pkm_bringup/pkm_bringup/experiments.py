@@ -140,12 +140,17 @@ def archi_unlimited_rotation(bench: Bench) -> Outcome:
 # ------------------------------------------------------------------ ARCHI §4.1
 def _internal_force(out: RunOutput, machine: str = "archi") -> np.ndarray:
     """||f_int|| per step of the applied forces, f_int = f - J (J^T J)^-1 J^T f at the
-    true pose of a planar machine (the report's definition, pkm_bringup.report_metrics)."""
+    true pose of a planar machine (x, y, yaw) or a spatial one (x, y, z, a, b, c) (the
+    report's definition, pkm_bringup.report_metrics)."""
+    from pkm_bringup.report_data import rpy_of
     from pkm_bringup.report_metrics import internal_force_rows
     from pkm_kinematics import load_machine
-    s = out.steps
-    poses = np.column_stack([s["position"][:, 0], s["position"][:, 1], s["yaw"]])
-    return internal_force_rows(load_machine(machine), s["applied"], poses)
+    s, cfg = out.steps, load_machine(machine)
+    if cfg.model.task_space.dof == 6:
+        poses = np.column_stack([s["position"], rpy_of(s["orientation"])])
+    else:
+        poses = np.column_stack([s["position"][:, 0], s["position"][:, 1], s["yaw"]])
+    return internal_force_rows(cfg, s["applied"], poses)
 
 
 FIG12_STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid")
@@ -687,6 +692,100 @@ def sliding_star_fighting(bench: Bench) -> Outcome:
     return o
 
 
+# ------------------------------------------------------------------ the hexapods
+HEXAPOD_STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid")
+
+
+def hexapod_redundant_fighting(bench: Bench) -> Outcome:
+    """Sliding Star §3 on a 6-DOF machine: hexapod8 (8 struts) with strut s1 1 % longer
+    than its encoder reads; independent joint PIDs fight up to saturation; the eq. 8
+    projection and centralized Cartesian control (eq. 9) hold without fighting."""
+    runs = {st: bench.run("hexapod_redundant_fighting", label=st, controller={"strategy": st})
+            for st in HEXAPOD_STRATEGIES}
+    internal = {st: _internal_force(r, "hexapod8") for st, r in runs.items()}
+    peak_force = {st: float(np.nanmax(np.abs(r.steps["applied"]))) for st, r in runs.items()}
+    o = Outcome()
+    pid, pid_peak = runs["joint_pid"], float(np.nanmax(internal["joint_pid"]))
+    o.check("independent joint PIDs on the 8 struts: the drives fight over the inconsistent lengths, their "
+            "forces grow up to saturation and the machine is stopped",
+            f"{pid.status} ({pid.cause}); peak strut force {peak_force['joint_pid']:.0f} N, internal force up "
+            f"to {pid_peak:.0f} N", pid.status == "tripped" and peak_force["joint_pid"] >= FORCE_LIMIT_N - 1e-6)
+    for st, what in (("decentralized_projected", "the eq. 8 projection of the joint controllers' forces on the "
+                      "range of the 8 x 6 J_m"), ("cartesian_pid", "centralized Cartesian control on the six task "
+                                                  "coordinates (eq. 9)")):
+        r, fi = runs[st], internal[st]
+        o.check(f"{what}: no fighting (completed; internal force below 1 % of the joint PIDs' peak)",
+                f"{r.status}; internal force up to {np.nanmax(fi):.1f} N", r.status == "completed" and
+                np.nanmax(fi) < 0.01 * pid_peak)
+    o.table = [["strategy", "status", "cause", "peak strut force (N)", "internal force, max (N)",
+                "internal force at the end (N)"]]
+    o.table += [[st, r.status, r.cause, f"{peak_force[st]:.0f}", f"{np.nanmax(internal[st]):.1f}",
+                 f"{internal[st][-1]:.1f}"] for st, r in runs.items()]
+    o.notes = ("The internal force is the part of the eight applied strut forces in ker(J_m^T), two-dimensional "
+               "here, at the true pose. The joint PIDs' gains are scaled by the apparent mass of each strut, "
+               "1 / (J A^-1 J^T)_ii (pkm_controller.laws.apparent_drive_mass).")
+
+    def draw(fig):
+        ax = fig.add_subplot(1, 1, 1)
+        for st, r in runs.items():
+            ax.plot(r.steps["t_s"], internal[st], lw=1.0, label=st)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("internal force ||f_int|| (N)")
+        ax.set_title("hexapod8 (8 struts, 6 DOF), 1 % error on strut s1")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    o.figures.append(_plot(bench, "hexapod_redundant_fighting.png", draw))
+    return o
+
+
+def _rotation_error(orientation: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The angle (rad) of the rotation between two quaternion rows (x, y, z, w)."""
+    dot = np.abs(np.sum(orientation * reference, axis=1))
+    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+def hexapod_demo(bench: Bench) -> Outcome:
+    """LinuxCNC's genhexkins hexapod through the graph: a 6-DOF G-code program (X Y Z
+    A B C) planned, tracked under computed torque in SE(3) on the strut encoders."""
+    out = bench.run("hexapod_demo")
+    s = out.steps
+    both = np.isfinite(s["ref_position"]).all(axis=1) & np.isfinite(s["position"]).all(axis=1)
+    e = np.linalg.norm(s["position"][both] - s["ref_position"][both], axis=1)
+    r = _rotation_error(s["orientation"][both], s["ref_orientation"][both])
+    from pkm_bringup.report_data import rpy_of
+    angles = np.degrees(rpy_of(s["ref_orientation"][both]))
+    span = [(float(np.nanmin(angles[:, k])), float(np.nanmax(angles[:, k]))) for k in range(3)]
+    o = Outcome()
+    o.check("the program's six coordinates are followed (the reference turns about all three axes: A, B and C "
+            "each span at least 3 deg)", ", ".join(f"{w} {lo:+.1f} to {hi:+.1f} deg"
+                                                    for w, (lo, hi) in zip("ABC", span)),
+            all(hi - lo >= 3.0 - 1e-9 for lo, hi in span))
+    o.check("the run completes, nothing tripped", f"{out.status} ({out.cause})", out.status == "completed")
+    o.check("computed torque in SE(3): the tool within 20 um and 50 urad of the reference throughout",
+            f"position max {1e6 * e.max():.1f} um (RMS {1e6 * np.sqrt(np.mean(e * e)):.1f} um); rotation max "
+            f"{1e6 * r.max():.1f} urad", e.max() < 20e-6 and r.max() < 50e-6)
+    o.table = [["tool error", "RMS", "max"],
+               ["position (um)", f"{1e6 * np.sqrt(np.mean(e * e)):.2f}", f"{1e6 * e.max():.2f}"],
+               ["rotation (urad)", f"{1e6 * np.sqrt(np.mean(r * r)):.2f}", f"{1e6 * r.max():.2f}"]]
+
+    def draw(fig):
+        t = s["t_s"][both]
+        ax = fig.add_subplot(1, 2, 1)
+        ax.plot(t, 1e6 * e, lw=1.0)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("position error (um)")
+        ax.grid(True, alpha=0.3)
+        ax = fig.add_subplot(1, 2, 2)
+        for k, w in enumerate("ABC"):
+            ax.plot(t, angles[:, k], lw=1.0, label=w)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("reference rotation (deg)")
+        ax.legend(fontsize=8)
+        ax.grid(True, alpha=0.3)
+    o.figures.append(_plot(bench, "hexapod_demo.png", draw, size=(11, 4.0)))
+    return o
+
+
 ONLINE_FK_RUNS = {"newton": "newton", "integrated_euler": "integrated_euler", "integrated (midpoint)": "integrated"}
 RESYNC_CYCLES = 50
 
@@ -891,6 +990,11 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                "Sliding Star", "§3, eq. 6-9, Fig. 7-9", ("sliding_star_fighting",), sliding_star_fighting),
     Experiment("sliding_star_online_fk", "On-line forward kinematics by integrating the differential kinematics",
                "Sliding Star", "§3.1", ("sliding_star_online_fk",), sliding_star_online_fk),
+    Experiment("hexapod_demo", "The Gough-Stewart hexapod follows a 6-DOF program (X Y Z A B C) under computed "
+               "torque in SE(3)", "LinuxCNC", "genhexkins", ("hexapod_demo",), hexapod_demo),
+    Experiment("hexapod_redundant_fighting", "Drive fighting on an 8-strut hexapod under a 1 % strut error, and "
+               "its cures", "Sliding Star", "§3, eq. 6-9 (on 6 DOF)", ("hexapod_redundant_fighting",),
+               hexapod_redundant_fighting),
     Experiment("orthoglide_cube", "The prescribed cube at 1.2 m/s and 14 m/s^2: transmission factors and "
                "parallel singularities", "Orthoglide", "§3.3, §4.3-4.4, eq. 17", ("orthoglide_cube",), orthoglide_cube),
 )}

@@ -35,6 +35,8 @@ PAPERS = {   # the references of README.md (References), by their short names
     "Orthoglide": 'P. Wenger, D. Chablat, "Design of a three-axis isotropic parallel manipulator for '
                   'machining applications: the Orthoglide", Workshop on Fundamental Issues and Future '
                   'Research Directions for Parallel Mechanisms and Manipulators, Quebec, 2002.',
+    "LinuxCNC": 'LinuxCNC, genhexkins: kinematics of the Gough-Stewart platform (src/emc/kinematics/'
+                'genhexkins.c, genhexkins.h), its default geometry (config/machines/genhexkins.yaml).',
 }
 
 

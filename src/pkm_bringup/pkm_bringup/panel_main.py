@@ -58,6 +58,10 @@ class Graph:
         self.start()
 
 
+# the machines the panel draws and jogs (its pose and jog steps are 3-DOF; a hexapod runs
+# in the graph, not yet on the panel)
+PANEL_KINDS = ("planar", "translational")
+
 def listening_socket(host: str, port: int) -> socket.socket:
     """Bound and listening (connections wait in the backlog until uvicorn serves)."""
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
@@ -109,7 +113,6 @@ def main(argv=None) -> int:
     from pkm_bringup.panel_app import create_app, create_estop_app
     from pkm_bringup.panel_node import PanelNode
     from pkm_bringup.scenario import ScenarioError, load_scenario
-    from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
     from pkm_kinematics import load_machine
 
     machine, namespace = args.machine or "archi", args.namespace or "/pkm"
@@ -139,9 +142,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"pkm-panel: --machine: {exc}", file=sys.stderr)
         return 2
-    if config.kind not in GRAPH_KINDS:
-        print(f"pkm-panel: --machine: {config.name} is a {config.kind} machine; the graph runs "
-              f"{' and '.join(GRAPH_KINDS)} machines so far", file=sys.stderr)
+    if config.kind not in PANEL_KINDS:
+        print(f"pkm-panel: --machine: {config.name} is a {config.kind} machine; the panel draws and jogs "
+              f"{' and '.join(PANEL_KINDS)} machines so far", file=sys.stderr)
         return 2
     log_file = open(args.log, "a", encoding="utf-8") if args.log else None   # noqa: SIM115 - until exit
 

@@ -203,6 +203,15 @@ def yaw_of(orientation: np.ndarray) -> np.ndarray:
     return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
+def rpy_of(orientation: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (N, 3) of quaternions (x, y, z, w), shape (N, 4): R = Rz(c) Ry(b)
+    Rx(a), ``pkm_kinematics.rotations.rpy_from_rotation`` on the rotation's entries."""
+    x, y, z, w = orientation.T
+    r00, r10, r20 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)
+    r21, r22 = 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+    return np.column_stack([np.arctan2(r21, r22), np.arctan2(-r20, np.hypot(r00, r10)), np.arctan2(r10, r00)])
+
+
 # ------------------------------------------------------------------ reading
 def find_bag(path) -> Path:
     """The rosbag2 directory (or lone .mcap file) of a run directory or a bag path."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pkm_bringup.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, yaw_of
+from pkm_bringup.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, rpy_of, yaw_of
 from pkm_bringup.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
 from pkm_common.causes import TripCause
 
@@ -145,28 +145,34 @@ def internal_force_rows(cfg, forces: np.ndarray, poses: np.ndarray) -> np.ndarra
     """||f_int|| per row: f_int = f - J (J^T J)^-1 J^T f, the part of the drive forces f
     (M, n, in the model's leg order) in ker(J^T) (the formula of
     ``pkm_kinematics.distribution.internal_force_rows``, vectorised), J = J_m of the
-    nominal model of ``cfg`` at ``poses`` (M, 3): (x, y, yaw) planar, (x, y, z) else.
+    nominal model of ``cfg`` at ``poses`` (M, d) in its task coordinates ((x, y, yaw)
+    planar, (x, y, z) translational, (x, y, z, a, b, c) spatial).
     NaN where J is singular or the pose unknown; zero without redundancy."""
     model = cfg.model
-    if model.n_legs <= 3:
+    dof = model.task_space.dof
+    if model.n_legs <= dof:
         return np.zeros(len(forces))
     with np.errstate(all="ignore"):
-        jac = model.jacobian_batch(poses) if len(poses) else np.zeros((0, model.n_legs, 3))
+        jac = model.jacobian_batch(poses) if len(poses) else np.zeros((0, model.n_legs, dof))
     return np.linalg.norm(null_space_part(jac, forces), axis=1)
 
 
 def _pose_rows(block: StepBlock, info: RunInfo, cfg, idx: np.ndarray, rows: JointRows):
-    """(which of the rows ``idx`` have a pose, their poses (M, 3)): the true pose of the
-    stamp if the run has a true pose, else forward kinematics of the encoder positions."""
-    planar = cfg.kind == "planar"
-    none = np.zeros(len(idx), bool), np.zeros((0, 3))
+    """(which of the rows ``idx`` have a pose, their poses (M, d) in the machine's task
+    coordinates): the true pose of the stamp if the run has a true pose, else forward
+    kinematics of the encoder positions."""
+    space = cfg.model.task_space
+    planar, dof = space.translation_axes == 2, space.dof
+    none = np.zeros(len(idx), bool), np.zeros((0, dof))
     if info.has_messages("true_pose"):
         tp = block.rows.get("true_pose")
         if tp is None:
             return none
         ok = tp.present[idx]
         pos = tp.position[idx[ok]]
-        return ok, (np.column_stack([pos[:, 0], pos[:, 1], yaw_of(tp.orientation[idx[ok]])]) if planar else pos)
+        if planar:
+            return ok, np.column_stack([pos[:, 0], pos[:, 1], yaw_of(tp.orientation[idx[ok]])])
+        return ok, (np.column_stack([pos, rpy_of(tp.orientation[idx[ok]])]) if dof == 6 else pos)
     src, stream = (block.rows.get("state"), info.streams["state"]) if "state" in info.streams else (rows, None)
     order = drive_order(stream.names, stream.n, cfg.model) if stream is not None and stream.n is not None else None
     if src is None or order is None:
@@ -190,7 +196,7 @@ def block_internal_forces(block: StepBlock, info: RunInfo, cfg, series: str = "s
     if order is None:
         return None
     idx = np.flatnonzero(rows.present)
-    if cfg.model.n_legs <= 3:
+    if cfg.model.n_legs <= cfg.model.task_space.dof:
         return block.stamp_ns[idx], np.zeros(len(idx))
     ok, poses = _pose_rows(block, info, cfg, idx, rows)
     return block.stamp_ns[idx[ok]], internal_force_rows(cfg, rows.effort[idx[ok]][:, order], poses)
@@ -206,7 +212,7 @@ def internal_force_setup(info: RunInfo, cfg, series: str, rows: int) -> dict:
     stream = info.streams[series]
     if drive_order(stream.names, stream.n, cfg.model) is None:
         return {"error": f"drives {stream.names} are not the {cfg.name} drives {list(cfg.model.leg_names)}"}
-    n, dof = cfg.model.n_legs, 3
+    n, dof = cfg.model.n_legs, cfg.model.task_space.dof
     if n <= dof:
         source = "none (no redundancy)"
     elif info.has_messages("true_pose"):

@@ -266,7 +266,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"machine: required, the name of a file in config/machines, got {machine!r}")
     if config.kind not in GRAPH_KINDS:
         raise ScenarioError(f"machine: {config.name} is a {config.kind} machine; the graph (plant, controller, "
-                            f"planner) runs {' and '.join(GRAPH_KINDS)} machines so far: analyse it with "
+                            f"planner) runs {', '.join(GRAPH_KINDS)} machines so far: analyse it with "
                             f"pkm-analyze and pkm_kinematics")
     given_as_file = machine not in machine_names()
     if given_as_file:       # every node loads the same file, whatever its working directory

@@ -18,12 +18,12 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
-from pkm_kinematics.rotations import rotation_about_z
+from pkm_kinematics.rotations import quaternion_from_rotation, rotation_about_z, rotation_from_rpy, rpy_from_rotation
 from pkm_kinematics.task_space import motion_fields
 
 NS_PER_S = 1_000_000_000
 QUATERNION_NORM_TOL = 1e-6
-MACHINE_KINDS = ('planar', 'translational')
+MACHINE_KINDS = ('planar', 'translational', 'struts')
 _LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR,
            3: DiagnosticStatus.STALE}
 
@@ -204,14 +204,17 @@ def _check_kind(kind: str) -> None:
 def machine_to_tool_pose(kind: str, x) -> tuple[np.ndarray, np.ndarray]:
     """Machine pose -> tool pose in world (docs/architecture.md, mounting).
 
-    planar (x, y, theta) -> ((x, y, 0), Rz(theta)); translational p -> (p, I).
+    planar (x, y, theta) -> ((x, y, 0), Rz(theta)); translational p -> (p, I); struts
+    (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a)).
     """
     _check_kind(kind)
-    size = 3
+    size = 6 if kind == 'struts' else 3
     x = np.asarray(x, dtype=float)
     if x.shape != (size,) or not np.isfinite(x).all():
-        what = '(x, y, theta)' if kind == 'planar' else '(x, y, z)'
-        raise ValueError(f'x: expected 3 finite numbers {what}, got {x.tolist()}')
+        what = {'planar': '(x, y, theta)', 'struts': '(x, y, z, a, b, c)'}.get(kind, '(x, y, z)')
+        raise ValueError(f'x: expected {size} finite numbers {what}, got {x.tolist()}')
+    if kind == 'struts':
+        return x[:3].copy(), rotation_from_rpy(*x[3:])
     if kind == 'planar':
         return np.array([x[0], x[1], 0.0]), rotation_about_z(float(x[2]))
     return x.copy(), np.eye(3)
@@ -221,7 +224,9 @@ def machine_pose_components(planar: bool, x) -> tuple[tuple, tuple]:
     """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as numbers
     for a PoseStamped (floats, or the input's numpy scalars): the per-step form of
     :func:`machine_to_tool_pose`, without its checks. planar (x, y, theta) -> ((x, y, 0), yaw theta about z); translational p ->
-    (p, identity)."""
+    (p, identity); a spatial pose (x, y, z, a, b, c) -> (p, R = Rz(c) Ry(b) Rx(a))."""
+    if len(x) == 6:
+        return (x[0], x[1], x[2]), tuple(quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5])).tolist())
     if planar:
         half = 0.5 * x[2]
         return (x[0], x[1], 0.0), (0.0, 0.0, math.sin(half), math.cos(half))
@@ -233,7 +238,8 @@ def tool_pose_to_machine(kind: str, position, rotation, reference_theta: float |
 
     planar: (x, y, yaw), the yaw put on the revolution of ``reference_theta`` (the
     rotation of a planar machine is unlimited, ARCHI: the nacelle turns any number of
-    times); height, roll and pitch are dropped. translational: the position.
+    times); height, roll and pitch are dropped. translational: the position. struts:
+    the position and the roll, pitch and yaw (R = Rz(c) Ry(b) Rx(a)).
     """
     _check_kind(kind)
     p = np.asarray(position, dtype=float)
@@ -243,6 +249,8 @@ def tool_pose_to_machine(kind: str, position, rotation, reference_theta: float |
                          f'got {p.tolist()}, {rot.tolist()}')
     if kind == 'translational':
         return p.copy()
+    if kind == 'struts':
+        return np.concatenate((p, rpy_from_rotation(rot)))
     theta = math.atan2(rot[1, 0], rot[0, 0])
     if reference_theta is not None:
         ref = float(reference_theta)
