@@ -133,6 +133,60 @@ def _least_squares_kernel(rows, values):
     return _gram_solve_kernel(rows, b0, b1, b2)
 
 
+@kernel("(float64[:, :], float64[:])")
+def gram_solve_n_kernel(rows, b):
+    """(y, solvable): (J^T J) y = b for J of any width m (the n x 6 J_m of a hexapod),
+    by a Cholesky factorisation of the m x m Gram matrix; not solvable when a pivot
+    falls below 1e-13 of the largest diagonal entry (the relative test of the 3-DOF
+    closed form, ``_gram_solve_kernel``: J has rank < m)."""
+    n, m = rows.shape
+    gram = np.zeros((m, m))
+    for i in range(n):
+        for j in range(m):
+            rj = rows[i, j]
+            for k in range(j + 1):
+                gram[j, k] += rj * rows[i, k]
+    scale = 0.0
+    for j in range(m):
+        scale = max(scale, gram[j, j])
+    low = np.zeros((m, m))
+    y = np.zeros(m)
+    for j in range(m):                         # G = L L^T
+        d = gram[j, j]
+        for k in range(j):
+            d -= low[j, k] * low[j, k]
+        if not d > 1e-13 * scale:
+            return y, False
+        low[j, j] = math.sqrt(d)
+        for i in range(j + 1, m):
+            v = gram[i, j]
+            for k in range(j):
+                v -= low[i, k] * low[j, k]
+            low[i, j] = v / low[j, j]
+    z = np.zeros(m)
+    for i in range(m):                         # L z = b, L^T y = z
+        v = b[i]
+        for k in range(i):
+            v -= low[i, k] * z[k]
+        z[i] = v / low[i, i]
+    for i in range(m - 1, -1, -1):
+        v = z[i]
+        for k in range(i + 1, m):
+            v -= low[k, i] * y[k]
+        y[i] = v / low[i, i]
+    return y, True
+
+
+@kernel("(float64[:, :], float64[:])")
+def least_squares_n_kernel(rows, values):
+    """(y, solvable): y = (J^T J)^-1 J^T v for J of any width (``gram_solve_n_kernel``)."""
+    b = np.zeros(rows.shape[1])
+    for i in range(rows.shape[0]):
+        for j in range(rows.shape[1]):
+            b[j] += rows[i, j] * values[i]
+    return gram_solve_n_kernel(rows, b)
+
+
 def _rows_and_values(rows, values) -> tuple[np.ndarray, np.ndarray]:
     """(J as an (n, 3) array, v as n floats) for the kernels; ValueError naming a
     mismatch."""
@@ -185,9 +239,11 @@ def min_two_norm(jac, wrench, check: bool = True) -> np.ndarray:
     jac, wrench = _validate(jac, wrench)
     if jac.shape[1] == 3:
         return np.array(_distribute_floats(jac, wrench, False, check))
-    if np.linalg.matrix_rank(jac) < jac.shape[1]:
+    jac = np.ascontiguousarray(jac)
+    y, ok = gram_solve_n_kernel(jac, np.array(wrench))
+    if not ok:
         raise DistributionError(f"singular configuration: J has rank < {jac.shape[1]}")
-    forces = np.linalg.pinv(jac.T) @ np.asarray(wrench)
+    forces = jac @ y
     if check:
         check_wrench(jac, forces, wrench)
     return forces

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bars as B
+from .distribution import least_squares_n_kernel
 from .errors import SingularityError
 from .hexapod import StrutMachine
 from .jit import kernel
@@ -93,9 +94,9 @@ class StrutDynamics:
             raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
         p, rot = self.machine.pose(x)
         _, _, jac = self.terms_at(p, rot, np.zeros(6))
-        twist, _, rank, _ = np.linalg.lstsq(jac, qdot, rcond=None)
-        if rank < 6:
-            raise SingularityError(f"J_m has rank {rank} < 6 at x = {np.asarray(x).tolist()}")
+        twist, ok = least_squares_n_kernel(jac, qdot)
+        if not ok:
+            raise SingularityError(f"J_m has rank < 6 at x = {np.asarray(x).tolist()}")
         a, h, _ = self.terms_at(p, rot, twist)
         return a, h, jac, twist
 
