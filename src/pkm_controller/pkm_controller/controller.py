@@ -59,10 +59,9 @@ from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
                    FORCES_NOT_FINITE, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
-                   SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, cartesian_pid_wrench, clamp_forces_kernel,
-                   computed_torque_acceleration, error_norms, gram_condition, joint_pid, limits_kernel,
-                   project_to_range, spatial_limits, task_pose_error, tool_pose_floats,
-                   velocity_cascade_acceleration)
+                   SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, clamp_forces_kernel,
+                   error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
+                   spatial_limits_kernel, task_pose_error, tool_pose_floats)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
@@ -505,9 +504,10 @@ class ControllerCore:
         (laws.spatial_limits on a spatial machine)."""
         c = self.config
         if self.spatial:
-            code, index, value = spatial_limits(q, self._joint_box, measured, self._workspace_box,
-                                                self._condition(active_rows), c.max_condition, error,
-                                                c.following_error_m, c.following_error_rad)
+            code, index, value = spatial_limits_kernel(q, self._joint_box, tuple(measured), self._workspace_box,
+                                                       active_rows, self.model.characteristic_length_m,
+                                                       c.max_condition, tuple(error), c.following_error_m,
+                                                       c.following_error_rad)
         else:
             code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
                                                self._workspace_box, active_rows, tuple(error), self.planar,
@@ -820,38 +820,34 @@ class ControllerCore:
         return self.trip(*self._limit_trip(code, index, value))
 
     def _spatial_command(self, c: "_Cycle", measured, error) -> list:
-        """``_cartesian_command`` of a spatial machine, in numpy: the same limits
-        (laws.spatial_limits), the conditional integral, the laws of the 3-DOF kernel
-        on each of the six axes (the twist's error and rate, F = A u + H for the
-        model-based ones) and the distribution on the n x 6 J_m of the active drives."""
-        problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
-        if problem:
-            return self.trip(*problem)
-        code, (kp, kd, ki, mass) = self._law, self._law_gains.tolist()
-        integral = self.integral
-        if self.record.saturated == 0:
-            integral = tuple(i + k * e * c.dt for i, k, e in zip(integral, ki, error))
-        self.integral = integral
-        v, v_d, a_d = c.v, c.v_d, c.a_d
-        if code == LAW_CARTESIAN_PID:
-            wrench = [cartesian_pid_wrench(kp[k], kd[k], mass[k], error[k], v_d[k] - v[k], integral[k], a_d[k])
-                      for k in range(6)]
-        else:
-            if code == LAW_COMPUTED_TORQUE:
-                u = [computed_torque_acceleration(kp[k], kd[k], error[k], v_d[k] - v[k], integral[k], a_d[k])
-                     for k in range(6)]
-            else:
-                u = [velocity_cascade_acceleration(kp[k], kd[k], error[k], v_d[k], v[k], integral[k], a_d[k])
-                     for k in range(6)]
-            wrench = (c.a_model @ np.asarray(u) + c.h_model).tolist()
-        if not math.isfinite(sum(wrench)):
-            return self.trip(f"{self.config.strategy}: wrench: contains NaN or infinite values: {wrench}",
+        """``_cartesian_command`` of a spatial machine: the limits, the integral, the laws
+        on the six axes and the pseudo-inverse in one compiled call
+        (laws.spatial_command_kernel); the other distributions (inf-norm LP, p-norm)
+        and a degraded machine's distribute the wrench it returns with numpy."""
+        cfg = self.config
+        full = len(self.active) == self.n
+        compiled = full and cfg.distribution == "pseudo_inverse"
+        code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
+            c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
+            self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
+            cfg.following_error_rad, self._law, self._law_gains, self.record.saturated == 0,
+            np.asarray(self.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
+            c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
+        self.integral = tuple(integral.tolist())
+        if code == LIMITS_OK and compiled:
+            return self._accept(c, forces.tolist(), saturated, peak, value, measured, error)
+        if code == LIMITS_OK:
+            forces = self._distribute(wrench.tolist(), c.active_rows, c.pose) if full else \
+                self._expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
+            return self._finish(c, forces, value, measured, error)
+        if code > DISTRIBUTION_FAILED:
+            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench.tolist())
+        if code == FORCES_NOT_FINITE:
+            return self.trip(f"{cfg.strategy}: non-finite drive forces {forces.tolist()}", TripCause.KINEMATICS)
+        if code == WRENCH_NOT_FINITE:
+            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {wrench.tolist()}",
                              TripCause.KINEMATICS)
-        if len(self.active) == self.n:
-            forces = self._distribute(wrench, c.active_rows, c.pose)
-        else:                   # a degraded machine: the pseudo-inverse on the drives left
-            forces = self._expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
-        return self._finish(c, forces, trans, measured, error)
+        return self.trip(*self._limit_trip(code, index, value))
 
     def _distribute(self, wrench, active_rows, pose) -> list:
         """The distributions that are not compiled (p_norm, two_arm, a prestress); all

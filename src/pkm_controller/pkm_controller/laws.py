@@ -20,10 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import _distribute_kernel, _rows_array, gram_rows, project_forces, project_rows
+from pkm_kinematics.distribution import (_check_wrench_kernel, _distribute_kernel, _rows_array, gram_rows,
+                                        gram_solve_n_kernel, project_forces, project_rows)
 from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
+from pkm_kinematics.hexapod import weighted_condition_kernel
 from pkm_kinematics.jit import kernel
-from pkm_kinematics.rotations import exp_so3_kernel, log_so3, mul3_kernel, rotation_from_rpy
+from pkm_kinematics.rotations import exp_so3_kernel, log_so3_kernel, mul3_kernel, rpy_rotation_kernel
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace
 
 
@@ -81,8 +83,20 @@ def spatial_pose_error(x_d, x) -> list:
     """x_d - x of two spatial poses (x, y, z, a, b, c) as the controller feeds it back:
     the translation and the rotation vector of R_d R^T (base frame, the same frame as
     the twist's w), not the difference of the angles (which is not a rotation)."""
-    r_d, r = rotation_from_rpy(*x_d[3:6]), rotation_from_rpy(*x[3:6])
-    return [x_d[0] - x[0], x_d[1] - x[1], x_d[2] - x[2], *log_so3(r_d @ r.T).tolist()]
+    return list(spatial_pose_error_kernel(tuple(float(v) for v in x_d[:6]), tuple(float(v) for v in x[:6])))
+
+
+_SEXTUPLE = "UniTuple(float64, 6)"
+
+
+@kernel(f"({_SEXTUPLE}, {_SEXTUPLE})")
+def spatial_pose_error_kernel(x_d, x):
+    """:func:`spatial_pose_error` compiled: (e_x, e_y, e_z, w_x, w_y, w_z)."""
+    r_d = rpy_rotation_kernel(x_d[3], x_d[4], x_d[5])
+    r = rpy_rotation_kernel(x[3], x[4], x[5])
+    r_t = (r[0], r[3], r[6], r[1], r[4], r[7], r[2], r[5], r[8])
+    w0, w1, w2 = log_so3_kernel(mul3_kernel(r_d, r_t))
+    return x_d[0] - x[0], x_d[1] - x[1], x_d[2] - x[2], w0, w1, w2
 
 
 def task_pose_error(x_d, x, space: TaskSpace) -> list:
@@ -179,22 +193,26 @@ def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, pla
     return LIMITS_OK, -1, trans
 
 
-def spatial_limits(q, joint_box, measured, workspace_box, condition, max_condition, error, following_error_m,
-                   following_error_rad) -> tuple[int, int, float]:
-    """:func:`limits_kernel` for a spatial machine (6 task coordinates, numpy): the same
-    limits in the same order, the same codes; ``condition`` the condition number of the
-    active drives' J_m (the machine's own measure: rotations weighted by its size);
-    the rotation error is |e_w|, the angle of the rotation vector."""
-    outside = np.flatnonzero(~((joint_box[:, 0] <= q) & (q <= joint_box[:, 1])))
-    if outside.size:
-        return JOINT_LIMIT, int(outside[0]), float(q[outside[0]])
-    m = np.asarray(measured, dtype=float)
-    outside = np.flatnonzero(~((workspace_box[:, 0] <= m) & (m <= workspace_box[:, 1])))
-    if outside.size:
-        return WORKSPACE_LIMIT, int(outside[0]), float(m[outside[0]])
-    if not condition <= max_condition:
-        return SINGULARITY_MARGIN, -1, condition
-    trans, rot = error_norms(error, SPATIAL)
+@kernel(f"(float64[:], float64[:, :], {_SEXTUPLE}, float64[:, :], float64[:, :], float64, float64, {_SEXTUPLE}, "
+        "float64, float64)")
+def spatial_limits_kernel(q, joint_box, measured, workspace_box, active_rows, length, max_condition, error,
+                          following_error_m, following_error_rad):
+    """:func:`limits_kernel` for a spatial machine (6 task coordinates): the same limits
+    in the same order, the same codes; the condition number of the active drives' J_m
+    the machine's own (rotation columns divided by its characteristic ``length``,
+    ``hexapod.weighted_condition_kernel``); the rotation error is |e_w|, the angle of
+    the rotation vector."""
+    for i in range(q.shape[0]):
+        if not joint_box[i, 0] <= q[i] <= joint_box[i, 1]:
+            return JOINT_LIMIT, i, q[i]
+    for k in range(workspace_box.shape[0]):
+        if not workspace_box[k, 0] <= measured[k] <= workspace_box[k, 1]:
+            return WORKSPACE_LIMIT, k, measured[k]
+    cond = weighted_condition_kernel(active_rows, length) if active_rows.shape[0] >= 6 else math.inf
+    if not cond <= max_condition:
+        return SINGULARITY_MARGIN, -1, cond
+    trans = math.sqrt(error[0] * error[0] + error[1] * error[1] + error[2] * error[2])
+    rot = math.sqrt(error[3] * error[3] + error[4] * error[4] + error[5] * error[5])
     if trans > following_error_m:
         return FOLLOWING_ERROR_M, -1, trans
     if rot > following_error_rad:
@@ -310,6 +328,62 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
                                                     True)
     if dcode != 0:
         return DISTRIBUTION_FAILED + dcode, k, achieved, i_new, wrench, empty, 0, 0.0
+    clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)
+    if not finite:
+        return FORCES_NOT_FINITE, -1, value, i_new, wrench, forces, 0, 0.0
+    return LIMITS_OK, -1, value, i_new, wrench, clamped, saturated, peak
+
+
+@kernel(f"(float64[:], float64[:, :], {_SEXTUPLE}, float64[:, :], float64[:, :], float64, float64, {_SEXTUPLE}, "
+        "float64, float64, int64, float64[:, :], boolean, float64[:], float64, float64[:, :], float64[:], float64[:], "
+        "float64[:], float64[:], boolean, float64)")
+def spatial_command_kernel(q, joint_box, measured, workspace_box, active_rows, length, max_condition, error,
+                           following_error_m, following_error_rad, law, gains, integrate, integral, dt, a_model,
+                           h_model, v_d, v, a_d, distribute, force_limit):
+    """:func:`cartesian_command_kernel` of a spatial machine: the limits
+    (:func:`spatial_limits_kernel`), the integral, the law of each of the six axes (the
+    twist's error and rate; the same named laws), F = A(x) u + H(x, t) for the
+    model-based ones, and, with ``distribute``, f = J (J^T J)^-1 F on the n x 6 J_m of
+    the active drives (``gram_solve_n_kernel``), checked and clamped; without, the
+    caller distributes ``wrench`` (inf-norm LP, p-norm). Returns (code, index, value,
+    integral, wrench, forces, saturated, peak) with the codes of the 3-DOF kernel."""
+    empty = np.zeros(0)
+    wrench = np.zeros(6)
+    code, index, value = spatial_limits_kernel(q, joint_box, measured, workspace_box, active_rows, length,
+                                               max_condition, error, following_error_m, following_error_rad)
+    if code != LIMITS_OK:
+        return code, index, value, integral, wrench, empty, 0, 0.0
+    i_new = integral.copy()
+    if integrate:
+        for k in range(6):
+            i_new[k] = integral[k] + gains[2, k] * error[k] * dt
+    u = np.empty(6)
+    for k in range(6):
+        edot = v_d[k] - v[k]
+        if law == LAW_CARTESIAN_PID:
+            wrench[k] = cartesian_pid_wrench(gains[0, k], gains[1, k], gains[3, k], error[k], edot, i_new[k], a_d[k])
+        elif law == LAW_COMPUTED_TORQUE:
+            u[k] = computed_torque_acceleration(gains[0, k], gains[1, k], error[k], edot, i_new[k], a_d[k])
+        else:
+            u[k] = velocity_cascade_acceleration(gains[0, k], gains[1, k], error[k], v_d[k], v[k], i_new[k], a_d[k])
+    if law != LAW_CARTESIAN_PID:
+        for k in range(6):
+            total = h_model[k]
+            for j in range(6):
+                total += a_model[k, j] * u[j]
+            wrench[k] = total
+    for k in range(6):
+        if not math.isfinite(wrench[k]):
+            return WRENCH_NOT_FINITE, -1, 0.0, i_new, wrench, empty, 0, 0.0
+    if not distribute:
+        return LIMITS_OK, -1, value, i_new, wrench, empty, 0, 0.0
+    y, ok = gram_solve_n_kernel(active_rows, wrench)
+    if not ok:
+        return DISTRIBUTION_FAILED + 1, -1, 0.0, i_new, wrench, empty, 0, 0.0
+    forces = np.ascontiguousarray(active_rows) @ y
+    k, achieved = _check_wrench_kernel(active_rows, forces, wrench, 1e-9)
+    if k >= 0:
+        return DISTRIBUTION_FAILED + 3, k, achieved, i_new, wrench, empty, 0, 0.0
     clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)
     if not finite:
         return FORCES_NOT_FINITE, -1, value, i_new, wrench, forces, 0, 0.0

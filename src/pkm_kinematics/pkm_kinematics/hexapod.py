@@ -260,11 +260,11 @@ class StrutMachine:
         jac = np.array(jac, dtype=float)
         if jac.shape[0] < 6:
             return math.inf
-        return _weighted_condition_kernel(jac, self.characteristic_length_m)
+        return weighted_condition_kernel(jac, self.characteristic_length_m)
 
 
 @kernel("(float64[:, :], float64)")
-def _weighted_condition_kernel(jac, length):
+def weighted_condition_kernel(jac, length):
     """cond(J W), W = diag(1, 1, 1, 1/L, 1/L, 1/L): sqrt of the extreme eigenvalues of
     W J^T J W (compiled: an SVD from Python costs ~80 us a cycle)."""
     j = jac.copy()

@@ -61,32 +61,54 @@ def mul3_kernel(a, b) -> tuple:
 mul3 = mul3_kernel.py_func         # interpreted, for Python callers (see exp_so3_floats)
 
 
+@kernel()
+def log_so3_kernel(r) -> tuple:
+    """The rotation vector (3 floats) of a rotation given as a row-major 9-tuple
+    (angle < pi): the inverse of :func:`exp_so3_kernel`."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    cos_t = max(-1.0, min(1.0, 0.5 * (r00 + r11 + r22 - 1.0)))
+    theta = math.acos(cos_t)
+    v0, v1, v2 = r21 - r12, r02 - r20, r10 - r01
+    if theta < 1e-8:
+        return 0.5 * v0, 0.5 * v1, 0.5 * v2
+    if math.pi - theta < 1e-6:
+        # near pi: the axis from the symmetric part, its signs from v
+        a0 = math.sqrt(max(r00 - cos_t, 0.0) / (1.0 - cos_t))
+        a1 = math.sqrt(max(r11 - cos_t, 0.0) / (1.0 - cos_t))
+        a2 = math.sqrt(max(r22 - cos_t, 0.0) / (1.0 - cos_t))
+        if v0 != 0.0 or v1 != 0.0 or v2 != 0.0:
+            a0, a1, a2 = math.copysign(a0, v0), math.copysign(a1, v1), math.copysign(a2, v2)
+        k = theta / math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        return k * a0, k * a1, k * a2
+    k = theta / (2.0 * math.sin(theta))
+    return k * v0, k * v1, k * v2
+
+
+log_so3_floats = log_so3_kernel.py_func     # interpreted, for Python callers
+
+
 def log_so3(rotation: np.ndarray) -> np.ndarray:
     """Inverse of :func:`exp_so3`: the rotation vector of ``rotation`` (angle < pi)."""
-    r = np.asarray(rotation, dtype=float)
-    cos_t = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
-    theta = math.acos(cos_t)
-    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if theta < 1e-8:
-        return 0.5 * v
-    if math.pi - theta < 1e-6:
-        # near pi: axis from the symmetric part
-        axis = np.sqrt(np.maximum(np.diag(r) - cos_t, 0.0) / (1.0 - cos_t))
-        axis = np.copysign(axis, v) if np.any(v) else axis
-        return theta * axis / np.linalg.norm(axis)
-    return theta / (2.0 * math.sin(theta)) * v
+    return np.array(log_so3_floats(tuple(np.asarray(rotation, dtype=float).ravel().tolist())))
+
+
+@kernel()
+def rpy_rotation_kernel(roll: float, pitch: float, yaw: float) -> tuple:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) as a row-major 9-tuple."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
+            sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+            -sp, cp * sr, cp * cr)
+
+
+rpy_rotation_floats = rpy_rotation_kernel.py_func
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    return np.array(rpy_rotation_floats(roll, pitch, yaw)).reshape(3, 3)
 
 
 def rpy_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
