@@ -23,7 +23,7 @@ import numpy as np
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
 from .jit import kernel
-from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation
+from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation, rpy_kernel, rpy_rotation_kernel
 from .task_space import SPATIAL
 
 
@@ -165,11 +165,16 @@ class StrutMachine:
     def forward_kinematics_floats(self, q, guess=None) -> tuple:
         """:meth:`forward_kinematics`'s task coordinates as a tuple; KinematicsError
         naming how the solve ended when it fails."""
-        result = self.forward_kinematics(q, guess)
-        if not result.ok:
-            raise KinematicsError(f"forward kinematics of q = {np.asarray(q).tolist()}: {result.code.name.lower()} "
-                                  f"after {result.iterations} iterations (misfit {result.misfit_m:.3g} m)")
-        return tuple(result.x.tolist())
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_legs,) or not np.isfinite(q).all() or not (q > 0.0).all():
+            raise ValueError(f"q: expected {self.n_legs} finite positive strut lengths, got {q}")
+        g = self._home if guess is None else guess
+        code, iterations, misfit, x = task_forward_kinematics_kernel(self.bars, q, tuple(float(v) for v in g[:6]),
+                                                                     1e-12, 30, 1.0)
+        if code != B.FK_CONVERGED:
+            raise KinematicsError(f"forward kinematics of q = {q.tolist()}: {_CODES[code].name.lower()} "
+                                  f"after {iterations} iterations (misfit {misfit:.3g} m)")
+        return x
 
     # ------------------------------------------------------------- workspace
     def workspace_grid(self, points_per_axis: int = 11, angle_points: int = 3) -> np.ndarray:
@@ -261,6 +266,17 @@ class StrutMachine:
         if jac.shape[0] < 6:
             return math.inf
         return weighted_condition_kernel(jac, self.characteristic_length_m)
+
+
+@kernel("(float64[:, :], float64[:], UniTuple(float64, 6), float64, int64, float64)")
+def task_forward_kinematics_kernel(bars, q, guess, tol_m, max_iterations, divergence_limit):
+    """(code, iterations, misfit, x) of ``bars.forward_kinematics_kernel`` from and to
+    task coordinates (x, y, z, a, b, c): one compiled call per cycle for a controller."""
+    p = np.array([guess[0], guess[1], guess[2]])
+    rot = np.array(rpy_rotation_kernel(guess[3], guess[4], guess[5]))
+    code, iterations, misfit = B.forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence_limit)
+    a, b, c = rpy_kernel(rot[0], rot[3], rot[6], rot[7], rot[8])
+    return code, iterations, misfit, (p[0], p[1], p[2], a, b, c)
 
 
 @kernel("(float64[:, :], float64)")

@@ -32,6 +32,7 @@ from .distribution import least_squares_n_kernel
 from .errors import SingularityError
 from .hexapod import StrutMachine
 from .jit import kernel
+from .rotations import exp_so3_kernel, mul3_kernel, rpy_rotation_kernel
 
 
 @dataclass(frozen=True)
@@ -92,13 +93,25 @@ class StrutDynamics:
         qdot = np.asarray(drive_velocities, dtype=float)
         if qdot.shape != (self.machine.n_legs,):
             raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
-        p, rot = self.machine.pose(x)
-        _, _, jac = self.terms_at(p, rot, np.zeros(6))
-        twist, ok = least_squares_n_kernel(jac, qdot)
-        if not ok:
-            raise SingularityError(f"J_m has rank < 6 at x = {np.asarray(x).tolist()}")
-        a, h, _ = self.terms_at(p, rot, twist)
+        code, a, h, jac, twist = strut_measured_state_kernel(
+            self.machine.bars, np.asarray(x, dtype=float), qdot, self._md, self._k, self._inertia.ravel(),
+            float(self.params.platform_mass_kg), self._g)
+        if code:
+            raise SingularityError(f"{'a strut has zero length' if code == 1 else 'J_m has rank < 6'} at x = "
+                                   f"{np.asarray(x).tolist()}")
         return a, h, jac, twist
+
+    def step(self, position, rotation, twist, drive_forces, wrench, h: float, substeps: int = 1):
+        """(p, R, t) after ``substeps`` semi-implicit Euler steps of h (``strut_step_kernel``);
+        SingularityError when a strut reaches zero length."""
+        ok, p, r, t = strut_step_kernel(self.machine.bars, np.asarray(position, dtype=float),
+                                        np.ascontiguousarray(rotation, dtype=float).ravel(),
+                                        np.asarray(twist, dtype=float), np.asarray(drive_forces, dtype=float),
+                                        np.asarray(wrench, dtype=float), self._md, self._k, self._inertia.ravel(),
+                                        float(self.params.platform_mass_kg), self._g, float(h), int(substeps))
+        if not ok:
+            raise SingularityError(f"a strut has zero length at p = {p.tolist()}")
+        return p, r.reshape(3, 3), t
 
     def forward_dynamics(self, x, twist, drive_forces, wrench=np.zeros(6)) -> np.ndarray:
         """t' from A t' = J_m^T f_d + f_n - H."""
@@ -181,3 +194,47 @@ def strut_dynamics_terms_kernel(bars, p, r, t, md, kf, inertia_p, mass, g):
     for i in range(3):
         h[i] -= mass * g[i]
     return True, a, h, jac
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], "
+        "float64[:], float64, float64[:], float64, int64)")
+def strut_step_kernel(bars, p, r, t, forces, load, md, kf, inertia_p, mass, g, h, substeps):
+    """(ok, p, r, t) after ``substeps`` steps of h of the semi-implicit Euler rule on
+    SE(3) (the hexapods' plant, ``pkm_sim_hw.strut_plant``): t += h A^-1 (J_m^T f + f_n
+    - H); p += h v; R = exp(h [w]x) R, so R stays a rotation. ok False (and the state
+    of the last good substep) when a strut has zero length."""
+    p, r, t = p.copy(), r.copy(), t.copy()
+    for _ in range(substeps):
+        ok, a, hv, jac = strut_dynamics_terms_kernel(bars, p, r, t, md, kf, inertia_p, mass, g)
+        if not ok:
+            return False, p, r, t
+        rhs = load - hv
+        for i in range(6):
+            for k in range(jac.shape[0]):
+                rhs[i] += jac[k, i] * forces[k]
+        t = t + h * np.linalg.solve(a, rhs)
+        for i in range(3):
+            p[i] += h * t[i]
+        e = exp_so3_kernel(h * t[3], h * t[4], h * t[5])
+        rt = mul3_kernel(e, (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]))
+        for i in range(9):
+            r[i] = rt[i]
+    return True, p, r, t
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64[:])")
+def strut_measured_state_kernel(bars, x, qdot, md, kf, inertia_p, mass, g):
+    """(code, A, H, J_m, t) of ``StrutDynamics.measured_state`` at the task coordinates
+    x: J_m, the least-squares twist t of the drive velocities, A and H at (x, t). code
+    1: a strut of zero length; 2: J_m of rank < 6."""
+    r = np.array(rpy_rotation_kernel(x[3], x[4], x[5]))
+    p = x[:3].copy()
+    ok, a, h, jac = strut_dynamics_terms_kernel(bars, p, r, np.zeros(6), md, kf, inertia_p, mass, g)
+    twist = np.zeros(6)
+    if not ok:
+        return 1, a, h, jac, twist
+    twist, solvable = least_squares_n_kernel(jac, qdot)
+    if not solvable:
+        return 2, a, h, jac, twist
+    ok, a, h, jac = strut_dynamics_terms_kernel(bars, p, r, twist, md, kf, inertia_p, mass, g)
+    return 0, a, h, jac, twist

@@ -111,33 +111,63 @@ def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return np.array(rpy_rotation_floats(roll, pitch, yaw)).reshape(3, 3)
 
 
+@kernel()
+def rpy_kernel(r00: float, r10: float, r20: float, r21: float, r22: float) -> tuple:
+    """Roll, pitch, yaw of a rotation from its entries r00, r10, r20, r21, r22
+    (the inverse of :func:`rpy_rotation_kernel`, |pitch| < pi/2)."""
+    return math.atan2(r21, r22), math.atan2(-r20, math.hypot(r00, r10)), math.atan2(r10, r00)
+
+
 def rpy_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
     """Roll, pitch, yaw of ``rotation`` (inverse of :func:`rotation_from_rpy`)."""
     r = rotation
-    pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
-    roll = math.atan2(r[2, 1], r[2, 2])
-    yaw = math.atan2(r[1, 0], r[0, 0])
-    return roll, pitch, yaw
+    return rpy_kernel.py_func(r[0, 0], r[1, 0], r[2, 0], r[2, 1], r[2, 2])
+
+
+@kernel()
+def rate_matrix_kernel(b: float, c: float) -> tuple:
+    """:func:`rate_matrix` as a row-major 9-tuple (it does not depend on a)."""
+    cb, sb = math.cos(b), math.sin(b)
+    cc, sc = math.cos(c), math.sin(c)
+    return (cc * cb, -sc, 0.0, sc * cb, cc, 0.0, -sb, 0.0, 1.0)
+
+
+@kernel()
+def rate_matrix_derivative_kernel(b: float, c: float, b_rate: float, c_rate: float) -> tuple:
+    """:func:`rate_matrix_derivative` as a row-major 9-tuple."""
+    cb, sb = math.cos(b), math.sin(b)
+    cc, sc = math.cos(c), math.sin(c)
+    return (-sc * c_rate * cb - cc * sb * b_rate, -cc * c_rate, 0.0,
+            cc * c_rate * cb - sc * sb * b_rate, -sc * c_rate, 0.0,
+            -cb * b_rate, 0.0, 0.0)
 
 
 def rate_matrix(a: float, b: float, c: float) -> np.ndarray:
     """E with w = E (a', b', c') for R = Rz(c) Ry(b) Rx(a): the angular velocity in
     the base frame of the rotation angles' rates (c about z, b about the once-turned
-    y, a about the twice-turned x)."""
-    del a                                   # the last rotation applied: no effect on the axes
-    cb, sb = math.cos(b), math.sin(b)
-    cc, sc = math.cos(c), math.sin(c)
-    return np.array([[cc * cb, -sc, 0.0], [sc * cb, cc, 0.0], [-sb, 0.0, 1.0]])
+    y, a about the twice-turned x; a, the last rotation applied, does not move the axes)."""
+    return np.array(rate_matrix_kernel.py_func(b, c)).reshape(3, 3)
 
 
 def rate_matrix_derivative(b: float, c: float, b_rate: float, c_rate: float) -> np.ndarray:
     """dE/dt of :func:`rate_matrix` (it depends on b and c only): the angular
     acceleration is w' = E (a'', b'', c'') + E' (a', b', c')."""
-    cb, sb = math.cos(b), math.sin(b)
-    cc, sc = math.cos(c), math.sin(c)
-    return np.array([[-sc * c_rate * cb - cc * sb * b_rate, -cc * c_rate, 0.0],
-                     [cc * c_rate * cb - sc * sb * b_rate, -sc * c_rate, 0.0],
-                     [-cb * b_rate, 0.0, 0.0]])
+    return np.array(rate_matrix_derivative_kernel.py_func(b, c, b_rate, c_rate)).reshape(3, 3)
+
+
+@kernel()
+def angular_motion_kernel(b, c, ra, rb, rc, aa, ab, ac) -> tuple:
+    """(w, w') of roll-pitch-yaw angles (a, b, c) moving at rates (ra, rb, rc) with
+    accelerations (aa, ab, ac): w = E r, w' = E acc + E' r (6 floats)."""
+    e = rate_matrix_kernel(b, c)
+    d = rate_matrix_derivative_kernel(b, c, rb, rc)
+    return (e[0] * ra + e[1] * rb + e[2] * rc, e[3] * ra + e[4] * rb + e[5] * rc, e[6] * ra + e[7] * rb + e[8] * rc,
+            e[0] * aa + e[1] * ab + e[2] * ac + (d[0] * ra + d[1] * rb + d[2] * rc),
+            e[3] * aa + e[4] * ab + e[5] * ac + (d[3] * ra + d[4] * rb + d[5] * rc),
+            e[6] * aa + e[7] * ab + e[8] * ac + (d[6] * ra + d[7] * rb + d[8] * rc))
+
+
+angular_motion_floats = angular_motion_kernel.py_func
 
 
 def rotation_about_z(angle: float) -> np.ndarray:

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rotations import quaternion_from_rotation, rate_matrix, rate_matrix_derivative, rotation_from_rpy
+from .rotations import (angular_motion_floats, quaternion_from_rotation, rate_matrix, rate_matrix_derivative,
+                        rotation_from_rpy)
 
 
 @dataclass(frozen=True)
@@ -72,12 +73,9 @@ def angular_motion(angles, rates, accelerations) -> tuple[np.ndarray, np.ndarray
     """The angular velocity and acceleration (base frame) of roll-pitch-yaw angles
     moving at ``rates`` with ``accelerations``: w = E (a', b', c'),
     w' = E (a'', b'', c'') + E' (a', b', c') (``rotations.rate_matrix``)."""
-    rate = rate_matrix(*angles)
-    rates = np.asarray(rates, dtype=float)
-    omega = rate @ rates
-    alpha = rate @ np.asarray(accelerations, dtype=float) + \
-        rate_matrix_derivative(angles[1], angles[2], rates[1], rates[2]) @ rates
-    return omega, alpha
+    motion = angular_motion_floats(float(angles[1]), float(angles[2]), *(float(v) for v in rates),
+                                   *(float(v) for v in accelerations))
+    return np.array(motion[:3]), np.array(motion[3:])
 
 
 def task_twists(space: TaskSpace, x, v, a) -> tuple[list, list]:
@@ -87,8 +85,8 @@ def task_twists(space: TaskSpace, x, v, a) -> tuple[list, list]:
     (v, w) and its rate (v', w'), w in the base frame (``angular_motion``)."""
     if space is not SPATIAL:
         return list(v), list(a)
-    omega, alpha = angular_motion(x[3:6], v[3:6], a[3:6])
-    return [*v[:3], *omega.tolist()], [*a[:3], *alpha.tolist()]
+    w = angular_motion_floats(x[4], x[5], v[3], v[4], v[5], a[3], a[4], a[5])
+    return [v[0], v[1], v[2], w[0], w[1], w[2]], [a[0], a[1], a[2], w[3], w[4], w[5]]
 
 
 def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:

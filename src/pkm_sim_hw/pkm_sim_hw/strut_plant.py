@@ -32,7 +32,6 @@ from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force
 from pkm_kinematics.errors import KinematicsError, SingularityError
 from pkm_kinematics.rigid_body import StrutDynamics
-from pkm_kinematics.rotations import exp_so3
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
@@ -122,35 +121,31 @@ class StrutPlant:
         locked = [f for f in faults if f.kind == "locked"]
         if locked and not self.stopped:
             self.safe_stop(f"drive {self.names[locked[0].drive]} locked (a brake on a strut: the machine holds)")
+        q = None
         if not self.stopped:
-            saved = (self.p, self.rotation, self.twist)
-            h = self.params.dt_s / self.params.substeps
-            try:
-                for _ in range(self.params.substeps):
-                    self._integrate(applied, h)
-                q = self.machine.strut_lengths(self.p, self.rotation)
+            try:        # semi-implicit Euler on SE(3): t += h t'; p += h v; R = exp(h w) R (compiled)
+                p, rotation, twist = self.dynamics.step(self.p, self.rotation, self.twist, applied, self.load,
+                                                        self.params.dt_s / self.params.substeps,
+                                                        self.params.substeps)
+                q = self.machine.strut_lengths(p, rotation)
                 for i in np.flatnonzero((q < self.machine.joint_lower) | (q > self.machine.joint_upper)):
                     raise KinematicsError(f"drive {self.names[i]} reached its end stop ({q[i]:.6g} m)")
+                self.p, self.rotation, self.twist = p, rotation, twist
             except (KinematicsError, SingularityError, np.linalg.LinAlgError) as exc:
-                self.p, self.rotation, self.twist = saved
+                q = None
                 self.safe_stop(f"left the workspace: {exc}")
         self.t += self.params.dt_s
         self.k += 1
         if self.stopped:
             applied = [0.0] * self.n
-        self._last = self._output(applied, saturated, faults)
+        self._last = self._output(applied, saturated, faults, q)
         return self._last
 
-    def _integrate(self, forces, h: float) -> None:
-        """Semi-implicit Euler on SE(3): t += h t'; p += h v; R = exp(h w) R."""
-        self.twist = self.twist + h * self.dynamics.forward_dynamics_at(self.p, self.rotation, self.twist, forces,
-                                                                       self.load)
-        self.p = self.p + h * self.twist[:3]
-        self.rotation = exp_so3(h * self.twist[3:]) @ self.rotation
-
     # ----------------------------------------------------------------- outputs
-    def _output(self, applied, saturated, faults) -> PlantOutput:
-        q = (self.machine.strut_lengths(self.p, self.rotation) * self._reading_scale).tolist()
+    def _output(self, applied, saturated, faults, lengths=None) -> PlantOutput:
+        """The outputs of the current state (``lengths``: its strut lengths, if known)."""
+        lengths = self.machine.strut_lengths(self.p, self.rotation) if lengths is None else lengths
+        q = (lengths * self._reading_scale).tolist()
         reading, velocity = self.encoders.read(q, faults)
         x = self.x
         fint = internal_force(self.machine.jacobian(x), applied).tolist() if self.n > 6 else [0.0] * self.n
