@@ -193,6 +193,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path):
         out, _ = panel.communicate(timeout=120)
         print(out[-20000:])
     assert panel.returncode == 0, out
+    assert "Traceback" not in out, out[-5000:]           # it ends cleanly, its ROS thread too
     actions = [json.loads(line) for line in (tmp_path / "actions.jsonl").read_text().splitlines()]
     assert {a["type"] for a in actions if not a["ok"]} >= {"program", "start", "jog", "settings"}
     # the run the panel drove replays bit for bit up to the E-stop, its operator actions included

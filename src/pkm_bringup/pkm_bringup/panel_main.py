@@ -106,7 +106,7 @@ def main(argv=None) -> int:
         parser.error(f"--rate-hz: must be in [1, 100], got {args.rate_hz}")
 
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     import uvicorn
 
     from pkm_bringup.panel import Panel, PanelModel
@@ -162,7 +162,12 @@ def main(argv=None) -> int:
     node = PanelNode(panel, namespace, context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, name="panel-ros", daemon=True)
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:        # rclpy.try_shutdown at exit ends the spin this way
+            pass
+    spinner = threading.Thread(target=spin, name="panel-ros", daemon=True)
     spinner.start()
     sock = listening_socket(args.host, args.port)
     estop_sock = listening_socket(args.host, args.estop_port)
