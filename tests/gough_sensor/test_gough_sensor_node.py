@@ -248,7 +248,7 @@ def test_node_process_exchanges_poses_and_exits_cleanly_on_a_signal(ros_graph, t
 @pytest.mark.parametrize('override,message', [
     ('noise_std_m:=-1.0', "parameter 'noise_std_m': must be a number in [0, 0.001] m, got -1.0"),
     ('machine:=sliding_star', "parameter 'machine': must name a machine with a metrology section, one of "
-     "['archi', 'mom3', 'mom3_imperfect']"),
+     "['archi', 'hexapod8', 'mom3', 'mom3_imperfect']"),
 ])
 def test_node_process_refuses_a_bad_parameter_with_status_2(tmp_path, override, message):
     proc, log = _start(tmp_path, '-p', override)

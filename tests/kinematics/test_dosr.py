@@ -45,6 +45,9 @@ def test_pkm_analyze_dosr_lists_every_machine(capsys):
     # the hexapods: D = O = M = 6; six struts iso-measure the platform, eight over-measure it
     assert [(r["sensors"], r["dosr_perfect"], r["dosr_imperfect"]) for r in data["genhexkins"]] == \
         [("encoders", 0, 0)]
-    assert [(r["dosr_perfect"], r["dosr_imperfect"]) for r in data["hexapod8"]] == [(2, 2)]
+    # hexapod8's eight struts over-measure by 2; its Gough metrology's six iso-measure;
+    # both together: 14 sensors for 6 DOF
+    assert [(r["sensors"], r["dosr_perfect"], r["dosr_imperfect"]) for r in data["hexapod8"]] == \
+        [("encoders", 2, 2), ("gough struts", 0, 0), ("encoders + gough struts", 8, 8)]
     assert main(["dosr", "--machine", "nosuch"]) == 2
     assert "unknown machine 'nosuch'" in capsys.readouterr().err

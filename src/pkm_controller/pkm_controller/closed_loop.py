@@ -60,7 +60,8 @@ def run(machine: MachineConfig, controller: ControllerConfig | ControllerCore, p
             plant.set_load(load(out.time_s))
         struts = pose = None
         if sensor is not None:
-            p, r = tool_pose_floats(out.tool_pose, planar)
+            p, r = tool_pose_floats(out.tool_pose, planar) if out.tool_rotation is None else \
+                (tuple(out.tool_pose[:3]), out.tool_rotation)
             rot = np.array(r).reshape(3, 3)
             struts = sensor.measure(p, rot)
             if core.strategy.feedback == Feedback.GOUGH_POSE:

@@ -54,6 +54,7 @@ from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
+from pkm_kinematics.rotations import exp_so3, rpy_from_rotation
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
@@ -230,7 +231,8 @@ class ControllerCore:
                                  f"{machine.name!r} has none")
             from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
             self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar,
-                                                 at_estimate=self.config.sensor_jacobian == "estimated")
+                                                 at_estimate=self.config.sensor_jacobian == "estimated",
+                                                 spatial=self.spatial)
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
         self._workspace_box = self._task_box()
@@ -729,7 +731,7 @@ class ControllerCore:
             p, r = tool_pose_floats(pose, self.planar)
             e = self.metrology.task_error(p, r, list(struts))
             self.metrology.reset()
-            self.reference = Reference.hold([a - b for a, b in zip(pose, e)])
+            self.reference = Reference.hold(self._pose_minus(pose, e))
         if self.pending is not None:
             pending, self.pending = self.pending, None
             try:
@@ -740,6 +742,8 @@ class ControllerCore:
     def _metrology_task_pose(self, metrology_pose, reference_pose) -> list:
         p, r = metrology_pose
         p = [float(v) for v in p]
+        if self.spatial:             # the Gough's rotation as roll, pitch, yaw (the error is rotation-based)
+            return p + list(rpy_from_rotation(np.asarray(r, dtype=float).reshape(3, 3)))
         if not self.planar:
             return p
         r = np.asarray(r, dtype=float)
@@ -747,12 +751,21 @@ class ControllerCore:
         theta += 2.0 * math.pi * round((reference_pose[2] - theta) / (2.0 * math.pi))
         return [p[0], p[1], theta]
 
+    def _pose_minus(self, x, e) -> list:
+        """The pose x - e: the coordinates' difference; on a spatial machine the rotation
+        exp(-e_w) R(x) as roll, pitch, yaw (e_w a rotation vector, not angle rates)."""
+        if not self.spatial:
+            return [a - b for a, b in zip(x, e)]
+        _, r = tool_pose_floats(x, False)
+        rot = exp_so3(np.array([-e[3], -e[4], -e[5]])) @ np.array(r).reshape(3, 3)
+        return [x[0] - e[0], x[1] - e[1], x[2] - e[2], *rpy_from_rotation(rot)]
+
     def _feedback(self, pose, x_d, struts, metrology_pose) -> tuple[list, list]:
         """(measured task pose, error x_d - measured) as the strategy sees them."""
         feedback = self.strategy.feedback
         if feedback == Feedback.STRUTS:
             error = self.metrology.error_from(list(struts))          # prepared at x_d
-            return [a - b for a, b in zip(x_d, error)], error
+            return self._pose_minus(x_d, error), error
         if feedback == Feedback.GOUGH_POSE:
             measured = self._metrology_task_pose(metrology_pose, x_d)
             return measured, task_pose_error(x_d, measured, self.space)

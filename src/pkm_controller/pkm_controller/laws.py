@@ -424,10 +424,11 @@ class SensorSpaceFeedback:
     variant, kept to show its static error: scenario mom3_imperfect).
     """
 
-    def __init__(self, sensor, planar: bool, at_estimate: bool = True):
+    def __init__(self, sensor, planar: bool, at_estimate: bool = True, spatial: bool = False):
         self.sensor = sensor                       # GoughSensorModel (nominal geometry used)
         self.platform = sensor.nominal
         self.planar = planar
+        self.spatial = spatial                     # 6 task DOF: the whole error (e_p, e_w)
         self.at_estimate = at_estimate
         self._legs_a = self.platform._legs_a
         self._r_wb = sensor._r_wb
@@ -454,14 +455,18 @@ class SensorSpaceFeedback:
         self._desired = (p_bp, r_bp, l_des, j_h, tuple(tool_rotation))
 
     def error_from(self, lengths) -> list:
-        """The task-space error x_des - x_real (3) for the readings ``lengths`` (6, m),
-        at the desired pose of the last ``prepare``."""
+        """The task-space error x_des - x_real for the readings ``lengths`` (6, m), at
+        the desired pose of the last ``prepare``: (e_x, e_y, e_theta) planar, (e_x, e_y,
+        e_z) translational, (e_x, e_y, e_z, w_x, w_y, w_z) spatial (the rotation vector
+        of R_des R_real^T, base frame)."""
         if self._desired is None:
             raise RuntimeError("SensorSpaceFeedback.error_from: call prepare() first")
         p_bp, r_bp, l_des, j_h, t = self._desired
-        ex, ey, ez, wz, real_p, real_r = _sensor_space_error(j_h, l_des, np.asarray(lengths, dtype=float),
-                                                             p_bp, r_bp, self._r_wb, self._p_tp, t)
+        ex, ey, ez, wx, wy, wz, real_p, real_r = _sensor_space_error(j_h, l_des, np.asarray(lengths, dtype=float),
+                                                                     p_bp, r_bp, self._r_wb, self._p_tp, t)
         self.estimate = (real_p, real_r)
+        if self.spatial:
+            return [ex, ey, ez, wx, wy, wz]
         return [ex, ey, wz] if self.planar else [ex, ey, ez]
 
 
@@ -479,8 +484,8 @@ def _desired_lengths_and_jacobian(legs, p_des, r_des, p_at, r_at):
 
 @kernel(f"(float64[:, :], float64[:], float64[:], {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")
 def _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t):
-    """(e_x, e_y, e_z, w_z, real plate position, real plate rotation): the tool error
-    x_des - x_real in the world frame from the strut errors e_l = l_des - l."""
+    """(e_x, e_y, e_z, w_x, w_y, w_z, real plate position, real plate rotation): the
+    tool error x_des - x_real in the world frame from the strut errors e_l = l_des - l."""
     e = l_des - lengths
     d = np.zeros(6)
     for k in range(6):                          # [dp; dw] = J_h e_l (MoM3 eq. 1)
@@ -500,13 +505,16 @@ def _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t):
     ax = t[0] * lx + t[1] * ly + t[2] * lz
     ay = t[3] * lx + t[4] * ly + t[5] * lz
     az = t[6] * lx + t[7] * ly + t[8] * lz
-    return (pwx + ay * wwz - az * wwy, pwy + az * wwx - ax * wwz, pwz + ax * wwy - ay * wwx, wwz,
+    return (pwx + ay * wwz - az * wwy, pwy + az * wwx - ax * wwz, pwz + ax * wwy - ay * wwx, wwx, wwy, wwz,
             real_p, real_r)
 
 
 def tool_pose_floats(x, planar: bool) -> tuple[tuple, tuple]:
     """Task pose -> tool position (3 floats) and row-major rotation (9 floats): planar
-    (x, y, 0) with yaw theta, translational p with the identity."""
+    (x, y, 0) with yaw theta, translational p with the identity, spatial (x, y, z, a,
+    b, c) p with R = Rz(c) Ry(b) Rx(a)."""
+    if len(x) == 6:
+        return (x[0], x[1], x[2]), rpy_rotation_kernel.py_func(x[3], x[4], x[5])
     if planar:
         c, s = math.cos(x[2]), math.sin(x[2])
         return (x[0], x[1], 0.0), (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
