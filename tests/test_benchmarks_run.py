@@ -20,6 +20,7 @@ SMALL = {
     "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),
     "controller.py": (["--cycles", "40", "--graph-duration", "0.3"], "| mom3 | measured_space"),
     "plant.py": (["--duration", "0.05"], "steps/s"),
+    "hexapod_graph.py": (["--pairs", "1", "--duration-s", "0.3", "--in-process"], "median ratio hexapod / ARCHI"),
     "lockstep_echo.py": ([], "steps/s"),
     "report_memory.py": (["--seconds", "0.5"], "MiB"),
     "realtime.py": (["--pairs", "1", "--rates", "1000", "--duration-s", "0.3", "--in-process"], "ratio"),

@@ -250,3 +250,17 @@ def test_pkm_run_starts_nothing_on_a_bad_section(tmp_path, monkeypatch, capsys):
     assert orchestrator.main([str(path), "--runs", str(tmp_path / "runs"), "--no-progress"]) == 2
     assert not (tmp_path / "runs").exists()
     assert "pkm-run: controller.bandwidth_hz: must be a number, got the string 'high'" in capsys.readouterr().err
+
+
+def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
+    s = load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [10.0, 0.0, -20.0, 1.0, 0.0, 2.0]}],
+                                            "plant": {"compliance": [1e-6] * 3 + [1e-5] * 3}})
+    assert s.load == [(0.1, (10.0, 0.0, -20.0, 1.0, 0.0, 2.0))]
+    flat = node_parameters(s, tmp_path)["sim_hw"]["load_schedule"]
+    assert flat == [0.1, 10.0, 0.0, -20.0, 1.0, 0.0, 2.0]
+    with pytest.raises(ScenarioError, match=r"load\[0\]: must be \{t_s: >= 0, wrench: \[6 finite numbers\]"):
+        load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [10.0, 0.0, 0.0]}]})
+    with pytest.raises(ScenarioError, match=r"mz must be in \[-500, 500\] N m \(max_load_nm\), got 600 at t_s = 0.1 s"):
+        load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [0.0, 0.0, 0.0, 0.0, 0.0, 600.0]}]})
+    with pytest.raises(ScenarioError, match=r"compliance: must be 6 values on hexapod8"):
+        load_scenario("hexapod_metrology", {"plant": {"compliance": [1e-6, 0.0, 0.0]}})

@@ -93,8 +93,8 @@ def test_saturation_faults_end_stops_and_loads():
     assert out.stopped and "end stop" in plant.stop_reason and out.applied_forces == [0.0] * 6
     held = plant.step([5000.0] * 6)
     assert held.tool_pose == out.tool_pose
-    with pytest.raises(ValueError, match="compliance: not simulated on a strut machine yet"):
-        StrutPlant(HEXAPOD, PlantParameters(compliance=(1e-6, 0.0, 0.0)))
+    with pytest.raises(ValueError, match="frame_compliance: not simulated on a strut machine yet"):
+        StrutPlant(HEXAPOD, PlantParameters(frame_compliance=(1e-6, 0.0, 0.0)))
 
 
 def test_a_strut_error_makes_its_reading_short_of_the_true_length():
@@ -104,3 +104,27 @@ def test_a_strut_error_makes_its_reading_short_of_the_true_length():
     out = plant.step(static_forces(plant, plant.x))
     true = HEXAPOD8.model.strut_lengths(plant.p, plant.rotation)
     np.testing.assert_allclose(out.encoder_positions, true / [1.01, 1, 1, 0.98, 1, 1, 1, 1], rtol=1e-15)
+
+
+def test_a_scheduled_load_deflects_the_tool_by_its_compliance_unseen_by_the_struts():
+    """A load from t_s on (counted in steps), and C f_load on the tool only."""
+    c = (1e-6, 2e-6, 3e-6, 1e-5, 2e-5, 3e-5)
+    params = PlantParameters(compliance=c, encoder_resolution_m=0.0)
+    plant = StrutPlant(HEXAPOD8, params)
+    load = [100.0, -50.0, 20.0, 5.0, -4.0, 3.0]
+    plant.schedule_load([(0.003, load)])
+    hold = static_forces(plant, plant.x)
+    outs = [plant.step(hold) for _ in range(4)]
+    assert outs[2].tool_pose == outs[2].rigid_pose                      # steps 0-2 (t < 3 ms): no load yet
+    np.testing.assert_allclose(np.subtract(outs[3].tool_pose, outs[3].rigid_pose), np.multiply(c, load),
+                               rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(np.reshape(outs[3].tool_rotation, (3, 3)), rotation_from_rpy(*outs[3].tool_pose[3:]))
+    rigid = StrutPlant(HEXAPOD8, PlantParameters(encoder_resolution_m=0.0))   # the same motion, no compliance
+    for _ in range(3):
+        rigid.step(hold)
+    rigid.set_load(load)
+    np.testing.assert_allclose(rigid.step(hold).encoder_positions, outs[3].encoder_positions, atol=1e-15)
+    with pytest.raises(ValueError, match=r"load_schedule: mx must be in \[-500, 500\] N m"):
+        plant.schedule_load([(0.0, [0, 0, 0, 600.0, 0, 0])])
+    with pytest.raises(ValueError, match="compliance: must be 6 values on a 6-DOF machine"):
+        StrutPlant(HEXAPOD8, PlantParameters(compliance=(1e-6, 0.0, 0.0)))

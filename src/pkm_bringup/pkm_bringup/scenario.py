@@ -21,6 +21,7 @@ node runs by default. Keys (all optional but ``machine``)::
     plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
     recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...; config/recorder.yaml)
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
+                                      # (a 6-DOF machine: [fx, fy, fz, mx, my, mz])
     frame_load: [...]                 # the same on the machine's frame (plant frame_compliance)
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
@@ -203,12 +204,14 @@ def _mapping(data: dict, key: str, node: str) -> dict:
     return dict(value)
 
 
-def _load_profile(value, dt_s: float, key: str = "load") -> list:
+def _load_profile(value, dt_s: float, key: str = "load", size: int = 3) -> list:
     """[(t_s, wrench)] steps; an entry with ``ramp_s`` reaches its wrench linearly from
-    the previous one over that time (a tool entering the material), one step per dt."""
+    the previous one over that time (a tool entering the material), one step per dt.
+    A wrench has ``size`` components (the machine's task space: 3, or 6 on a 6-DOF
+    machine)."""
     if not isinstance(value, list):
-        raise ScenarioError(f"{key}: must be a list of {{t_s, wrench: [3 numbers], ramp_s}}, got {value!r}")
-    rows, previous, last_t = [], (0.0, 0.0, 0.0), 0.0
+        raise ScenarioError(f"{key}: must be a list of {{t_s, wrench: [{size} numbers], ramp_s}}, got {value!r}")
+    rows, previous, last_t = [], (0.0,) * size, 0.0
     for i, row in enumerate(value):
         unknown = sorted(set(row) - {"t_s", "wrench", "ramp_s"}) if isinstance(row, dict) else []
         if unknown:
@@ -216,10 +219,10 @@ def _load_profile(value, dt_s: float, key: str = "load") -> list:
         wrench = row.get("wrench") if isinstance(row, dict) else None
         t = row.get("t_s") if isinstance(row, dict) else None
         ramp = row.get("ramp_s", 0.0) if isinstance(row, dict) else None
-        if not isinstance(t, (int, float)) or not 0 <= t < 1e6 or not isinstance(wrench, list) or len(wrench) != 3 \
+        if not isinstance(t, (int, float)) or not 0 <= t < 1e6 or not isinstance(wrench, list) or len(wrench) != size \
                 or not all(isinstance(w, (int, float)) and math.isfinite(w) for w in wrench) \
                 or not isinstance(ramp, (int, float)) or not 0.0 <= ramp <= 10.0:
-            raise ScenarioError(f"{key}[{i}]: must be {{t_s: >= 0, wrench: [3 finite numbers], ramp_s: [0, 10] "
+            raise ScenarioError(f"{key}[{i}]: must be {{t_s: >= 0, wrench: [{size} finite numbers], ramp_s: [0, 10] "
                                 f"(optional)}}, got {row!r}")
         if t < last_t - 1e-9:
             raise ScenarioError(f"{key}[{i}]: starts at t_s = {t:g} s, before the previous entry ends "
@@ -299,8 +302,9 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.metrology = _boolean(data, "metrology", False)
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
-    s.load = _load_profile(data.get("load") or [], s.dt_s)
-    s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load")
+    size = len(config.model.task_space.loads)
+    s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
+    s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
     if s.frame_load and not any(s.plant.get("frame_compliance") or []):
         raise ScenarioError("frame_load: needs plant.frame_compliance (m/N, 3 values): without it the frame "
                             "does not deflect and the load would do nothing")
@@ -343,13 +347,19 @@ def _check_plant(p: dict, config) -> None:
         values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
     params = PlantParameters(**values)
     params.validate(config.model.n_legs, config.kind)
+    loads = config.model.task_space.loads
+    if any(params.compliance) and len(params.compliance) != len(loads):
+        raise ValueError(f"compliance: must be {len(loads)} values on {config.name} (one per load component "
+                         f"{', '.join(loads)}), got {list(params.compliance)}")
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
     for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
         schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
-        for i in range(0, len(schedule), 4):
+        space = config.model.task_space
+        size = len(space.loads)
+        for i in range(0, len(schedule), size + 1):
             try:
-                check_load(schedule[i + 1:i + 4], config.kind == "planar", params, key)
+                check_load(schedule[i + 1:i + 1 + size], space, params, key)
             except ValueError as exc:
                 raise ValueError(f"{exc} at t_s = {schedule[i]:g} s") from None
 

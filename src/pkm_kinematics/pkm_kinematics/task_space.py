@@ -33,6 +33,7 @@ class TaskSpace:
     axes: tuple            # the coordinates' names, in order
     translation_axes: int  # how many leading coordinates are a translation (m); the rest are angles (rad)
     words: tuple           # the G-code word of each coordinate
+    loads: tuple           # the components of an external load in these coordinates (f: N, m: N m)
 
     @property
     def dof(self) -> int:
@@ -43,9 +44,10 @@ class TaskSpace:
         return ", ".join(self.axes)
 
 
-PLANAR = TaskSpace("planar", ("x", "y", "theta"), 2, ("X", "Y", "C"))
-POSITION = TaskSpace("position", ("x", "y", "z"), 3, ("X", "Y", "Z"))
-SPATIAL = TaskSpace("spatial", ("x", "y", "z", "a", "b", "c"), 3, ("X", "Y", "Z", "A", "B", "C"))
+PLANAR = TaskSpace("planar", ("x", "y", "theta"), 2, ("X", "Y", "C"), ("fx", "fy", "mz"))
+POSITION = TaskSpace("position", ("x", "y", "z"), 3, ("X", "Y", "Z"), ("fx", "fy", "fz"))
+SPATIAL = TaskSpace("spatial", ("x", "y", "z", "a", "b", "c"), 3, ("X", "Y", "Z", "A", "B", "C"),
+                    ("fx", "fy", "fz", "mx", "my", "mz"))
 TASK_SPACES = {space.name: space for space in (PLANAR, POSITION, SPATIAL)}
 
 

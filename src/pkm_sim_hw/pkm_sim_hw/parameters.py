@@ -51,7 +51,8 @@ def declare_settings(node) -> SimHwSettings:
                                                     "drive (empty: none)", lo=-0.49, hi=0.49)),
         rail_offset_errors_m=tuple(declare_float_list(node, "rail_offset_errors_m", [], "one per drive "
                                                       "(empty: none)", unit="m")),
-        compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], length=3, lo=0.0)),
+        compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], "the tool's deflection per unit "
+                                            "load, one per load component (3, or 6 on a 6-DOF machine)", lo=0.0)),
         frame_compliance=tuple(declare_float_list(node, "frame_compliance", [0.0, 0.0, 0.0], "the actuation "
                                                   "frame's deflection per unit frame load", length=3, lo=0.0)),
         faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
@@ -85,13 +86,16 @@ def declare_settings(node) -> SimHwSettings:
                                       "reached (in-process runs: False)")
     schedules = (("load_schedule", plant.schedule_load, "the load on the tool"),
                  ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame"))
+    size = len(machine.model.task_space.loads)        # a load's components: 3, or 6 on a 6-DOF machine
     for name, schedule_into, what in schedules:
         schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
                                       "from t_s on, in simulated time (deterministic, unlike the load topic)")
-        if len(schedule) % 4:
-            raise ParameterError(name, f"must hold groups of 4 numbers [t_s, f1, f2, f3], got {len(schedule)} numbers")
+        if len(schedule) % (size + 1):
+            raise ParameterError(name, f"must hold groups of {size + 1} numbers [t_s, "
+                                       f"{', '.join(machine.model.task_space.loads)}], got {len(schedule)} numbers")
         try:
-            schedule_into([(schedule[i], schedule[i + 1:i + 4]) for i in range(0, len(schedule), 4)])
+            schedule_into([(schedule[i], schedule[i + 1:i + 1 + size])
+                           for i in range(0, len(schedule), size + 1)])
         except ValueError as exc:
             raise ParameterError(name, str(exc).partition(": ")[2]) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)

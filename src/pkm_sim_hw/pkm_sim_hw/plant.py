@@ -48,6 +48,7 @@ from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.parallelogram import ParallelogramMachine
 from pkm_kinematics.planar import PlanarMachine
+from pkm_kinematics.task_space import TaskSpace
 from pkm_kinematics.translational import TranslationalMachine
 from pkm_kinematics.validation import finite_floats
 
@@ -122,8 +123,8 @@ class PlantParameters:
                   ("link_length_errors", len(self.link_length_errors) in (0, n_drives)
                    and all(abs(e) < 0.5 for e in self.link_length_errors), f"{n_drives} values in (-0.5, 0.5)"),
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
-                  ("compliance", len(self.compliance) == 3 and all(c >= 0.0 for c in self.compliance),
-                   "3 values >= 0"),
+                  ("compliance", len(self.compliance) in (3, 6) and all(c >= 0.0 for c in self.compliance),
+                   "3 values >= 0 (6 on a 6-DOF machine)"),
                   ("frame_compliance", len(self.frame_compliance) == 3
                    and all(c >= 0.0 for c in self.frame_compliance), "3 values >= 0"),
                   ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
@@ -182,6 +183,8 @@ class Plant:
         self.params = params or PlantParameters()
         n = config.model.n_legs
         self.params.validate(n, config.kind)
+        if len(self.params.compliance) != 3:
+            raise ValueError(f"compliance: must be 3 values on a 3-DOF machine, got {list(self.params.compliance)}")
         self.config = config
         self.n = n
         self.names = list(config.model.leg_names)
@@ -219,7 +222,7 @@ class Plant:
     def check_load(self, wrench, what: str = "load") -> list:
         """The external load as 3 floats, or ValueError naming the bound it exceeds
         (``max_load_n`` per force component, ``max_load_nm`` per moment component)."""
-        return check_load(wrench, self.config.kind == "planar", self.params, what)
+        return check_load(wrench, self.config.model.task_space, self.params, what)
 
     def load_components(self, force, moment) -> list:
         """The load of a wrench (force, moment: 3 each, world frame) in this machine's
@@ -241,13 +244,7 @@ class Plant:
         self._frame_schedule = self._steps(rows, "frame_load_schedule")
 
     def _steps(self, rows, what: str) -> list:
-        schedule, last_t = [], 0.0
-        for t, wrench in rows:
-            if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
-                raise ValueError(f"{what}: times must be finite, >= 0 and non-decreasing, got {t}")
-            schedule.append((math.ceil(t / self.params.dt_s - 1e-6), self.check_load(wrench, what)))
-            last_t = t
-        return schedule
+        return load_steps(rows, self.params.dt_s, self.check_load, what)
 
     def safe_stop(self, reason: str, cause: TripCause = TripCause.PLANT_SAFE_STOP) -> None:
         """Brakes on: the platform stops where it is and holds; commands are ignored.
@@ -398,18 +395,30 @@ class Plant:
         return self._last
 
 
-def check_load(wrench, planar: bool, params: PlantParameters, what: str = "load") -> list:
-    """An external load (task coordinates: fx, fy, mz on a planar machine, fx, fy, fz
-    otherwise) as 3 floats, or ValueError naming the component and its bound."""
-    values = finite_floats(wrench, 3, what)
-    for i, value in enumerate(values):
-        moment = planar and i == 2
-        bound, unit, name = (params.max_load_nm, "N m", "max_load_nm") if moment else \
+def check_load(wrench, space: TaskSpace, params: PlantParameters, what: str = "load") -> list:
+    """An external load in the components of the task space ``space.loads`` (fx, fy,
+    mz on a planar machine, fx, fy, fz on a translational one, fx ... mz on a spatial
+    one) as floats, or ValueError naming the component and its bound."""
+    values = finite_floats(wrench, len(space.loads), what)
+    for label, value in zip(space.loads, values):
+        bound, unit, name = (params.max_load_nm, "N m", "max_load_nm") if label[0] == "m" else \
             (params.max_load_n, "N", "max_load_n")
         if abs(value) > bound:
-            label = ("fx", "fy", "mz" if planar else "fz")[i]
             raise ValueError(f"{what}: {label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
     return values
+
+
+def load_steps(rows, dt_s: float, check, what: str) -> list:
+    """[(step, load)] of loads in simulated time [(t_s, wrench)]: each from the first
+    step at or after t_s (counted in steps: no float drift), times non-decreasing,
+    each load through ``check(wrench, what)``."""
+    schedule, last_t = [], 0.0
+    for t, wrench in rows:
+        if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
+            raise ValueError(f"{what}: times must be finite, >= 0 and non-decreasing, got {t}")
+        schedule.append((math.ceil(t / dt_s - 1e-6), check(wrench, what)))
+        last_t = t
+    return schedule
 
 
 def leg_segments(machine, x) -> list[tuple[list, list]]:

@@ -14,11 +14,13 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   stop, a singular pose or a fault the model cannot take (``locked``: a brake on a
   strut) brakes the machine: the platform stops where it is.
 * External load: a wrench (force, moment about p, base frame), bounded by
-  ``max_load_n`` / ``max_load_nm`` per component.
+  ``max_load_n`` / ``max_load_nm`` per component, set now (the load topic) or
+  scheduled in simulated time (a scenario's load). ``compliance`` (6 values: m/N for
+  the forces, rad/(N m) for the moments) deflects the tool by C f_load in task
+  coordinates, invisible to the strut encoders (the rigid platform does not move).
 Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
 coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
-Not yet: the rail plant's other machine errors, compliance, frame load and load schedules
-(refused when set). sim_hw runs it for a strut machine (``parameters.PLANTS``).
+Not yet: the rail plant's other machine errors and the frame load (refused when set). sim_hw runs it for a strut machine (``parameters.PLANTS``).
 """
 
 from __future__ import annotations
@@ -32,12 +34,13 @@ from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force
 from pkm_kinematics.errors import KinematicsError, SingularityError
 from pkm_kinematics.rigid_body import StrutDynamics
+from pkm_kinematics.rotations import rotation_from_rpy
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
-from .plant import Fault, PlantOutput, PlantParameters
+from .plant import Fault, PlantOutput, PlantParameters, check_load, load_steps
 
-_NOT_YET = ("rail_offset_errors_m", "compliance", "frame_compliance", "parallelogram_bar_errors_m")
+_NOT_YET = ("rail_offset_errors_m", "frame_compliance", "parallelogram_bar_errors_m")
 
 
 class StrutPlant:
@@ -53,6 +56,10 @@ class StrutPlant:
         for name in _NOT_YET:
             if any(getattr(self.params, name)):
                 raise ValueError(f"{name}: not simulated on a strut machine yet (leave it empty or zero)")
+        if any(self.params.compliance) and len(self.params.compliance) != 6:
+            raise ValueError(f"compliance: must be 6 values on a 6-DOF machine (m/N for fx fy fz, rad/(N m) for "
+                             f"mx my mz), got {list(self.params.compliance)}")
+        self._compliance = np.array(self.params.compliance if any(self.params.compliance) else [0.0] * 6)
         if self.params.integrator != "semi_implicit":
             raise ValueError(f"integrator: a strut machine integrates semi_implicit only, got "
                              f"{self.params.integrator!r}")
@@ -62,6 +69,7 @@ class StrutPlant:
         self.p, self.rotation = self.machine.pose(x0)
         self.twist = np.zeros(6)
         self.load = np.zeros(6)
+        self._schedule: list = []          # [(step, load)] (schedule_load)
         self.t, self.k = 0.0, 0
         self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
         self._faults = [Fault.parse(f, self.n) if isinstance(f, str) else f for f in self.params.faults]
@@ -84,24 +92,24 @@ class StrutPlant:
         """The load of a wrench (force, moment about p: 3 each, base frame): all six."""
         return [*force, *moment]
 
-    def schedule_load(self, rows) -> None:
-        """Loads in simulated time: not on a strut machine yet (an empty schedule only)."""
-        if rows:
-            raise ValueError("load_schedule: not on a strut machine yet (use the load topic)")
+    def check_load(self, wrench, what: str = "load") -> list:
+        """The load as 6 floats (fx, fy, fz in N, mx, my, mz in N m), or ValueError
+        naming the component over its bound."""
+        return check_load(wrench, self.machine.task_space, self.params, what)
 
-    schedule_frame_load = schedule_load
+    def schedule_load(self, rows) -> None:
+        """Loads on the platform in simulated time: [(t_s, wrench)], as the rail plant's."""
+        self._schedule = load_steps(rows, self.params.dt_s, self.check_load, "load_schedule")
+
+    def schedule_frame_load(self, rows) -> None:
+        """Loads on the frame: not on a strut machine yet (an empty schedule only)."""
+        if rows:
+            raise ValueError("frame_load_schedule: not on a strut machine yet")
 
     def set_load(self, wrench) -> None:
         """External load on the platform (fx, fy, fz in N, mx, my, mz in N m, base
         frame); ValueError naming the component over its bound (nothing applied)."""
-        values = finite_floats(wrench, 6, "load")
-        for i, value in enumerate(values):
-            bound, unit, name = ((self.params.max_load_n, "N", "max_load_n") if i < 3 else
-                                 (self.params.max_load_nm, "N m", "max_load_nm"))
-            if abs(value) > bound:
-                label = ("fx", "fy", "fz", "mx", "my", "mz")[i]
-                raise ValueError(f"load: {label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
-        self.load = np.array(values)
+        self.load = np.array(self.check_load(wrench))
 
     def safe_stop(self, reason: str, cause: TripCause = TripCause.PLANT_SAFE_STOP) -> None:
         """Brakes on: the platform stops where it is; the first stop's cause is kept."""
@@ -116,6 +124,8 @@ class StrutPlant:
     def step(self, forces) -> PlantOutput:
         """Apply the commanded strut forces for one period and advance the state."""
         cmd = finite_floats(forces, self.n, "drive forces")
+        while self._schedule and self.k >= self._schedule[0][0]:
+            self.load = np.array(self._schedule.pop(0)[1])
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
         locked = [f for f in faults if f.kind == "locked"]
@@ -149,9 +159,13 @@ class StrutPlant:
         reading, velocity = self.encoders.read(q, faults)
         x = self.x
         fint = internal_force(self.machine.jacobian(x), applied).tolist() if self.n > 6 else [0.0] * self.n
-        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, list(x), list(x),
+        tool, rotation = list(x), self.rotation
+        if self._compliance.any():          # the tool deflected by C f_load: unseen by the struts
+            tool = (np.asarray(x) + self._compliance * self.load).tolist()
+            rotation = rotation_from_rpy(*tool[3:])
+        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(x),
                            fint, math.sqrt(sum(f * f for f in fint)), [f"{f.drive}:{f.kind}" for f in faults],
-                           self.stopped, tuple(self.rotation.ravel().tolist()))
+                           self.stopped, tuple(rotation.ravel().tolist()))
 
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""
