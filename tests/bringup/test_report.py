@@ -542,3 +542,14 @@ def test_rpy_of_quaternions_is_the_models_roll_pitch_yaw():
     rotations = Rotation.random(50, random_state=3)
     expected = [rpy_from_rotation(m) for m in rotations.as_matrix()]
     np.testing.assert_allclose(rpy_of(rotations.as_quat()), expected, atol=1e-12)
+
+
+def test_a_non_planar_tool_reports_the_angle_of_its_rotation_error():
+    from scipy.spatial.transform import Rotation
+
+    from pkm_bringup.report_metrics import tracking_error_rows
+    true, ref = Rotation.random(20, random_state=5), Rotation.random(20, random_state=6)
+    e = tracking_error_rows(np.zeros((20, 3)), true.as_quat(), np.zeros((20, 3)), ref.as_quat(), planar=False)
+    np.testing.assert_allclose(e["rotation"], (true * ref.inv()).magnitude(), atol=1e-7)
+    assert "rotation" not in tracking_error_rows(np.zeros((20, 3)), true.as_quat(), np.zeros((20, 3)),
+                                                 ref.as_quat(), planar=True)

@@ -167,6 +167,9 @@ def summary(m: dict) -> str:
     if m["kind"] == "planar":
         rows.append(("yaw error", f"RMS {_fmt(te.get('yaw_rms_rad'), 1e6, unit='µrad')}, "
                                   f"max {_fmt(te.get('yaw_max_rad'), 1e6, unit='µrad')}"))
+    elif te.get("rotation_max_rad"):           # a tool that turns (a hexapod), or tilts (the imperfect Delta)
+        rows.append(("rotation error", f"RMS {_fmt(te.get('rotation_rms_rad'), 1e6, unit='µrad')}, "
+                                       f"max {_fmt(te.get('rotation_max_rad'), 1e6, unit='µrad')}"))
     rows += [("peak drive force", f"commanded {_fmt(df['peak_commanded_n'], unit='N')}, "
                                   f"applied {_fmt(df['peak_applied_n'], unit='N')}"),
              ("internal force", f"max {_fmt(fi['max_n'], unit='N')}, RMS {_fmt(fi['rms_n'], unit='N')}"

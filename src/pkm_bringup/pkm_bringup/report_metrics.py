@@ -79,11 +79,13 @@ class Span:
 
 @dataclass
 class TrackingStats:
-    """Tracking errors of one kind of machine (planar: x, y and yaw; else x, y, z)."""
+    """Tracking errors of one kind of machine (planar: x, y and yaw; else x, y, z and the
+    rotation's angle: a hexapod's, the imperfect Delta's tilt)."""
     planar: bool
     samples: int = 0
     translation: PeakRms = field(default_factory=PeakRms)
     yaw: PeakRms = field(default_factory=PeakRms)
+    rotation: PeakRms = field(default_factory=PeakRms)
     axes: list = field(init=False)                  # PeakRms per axis
 
     def __post_init__(self):
@@ -99,11 +101,15 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
 def tracking_error_rows(true_position, true_orientation, ref_position, ref_orientation,
                         planar: bool) -> dict:
     """Errors true pose - reference row by row: {"axes" (N, 2|3) m, "translation" (N,)
-    m (norm of the axes), "yaw" (N,) rad wrapped to [-pi, pi) (planar only)}."""
+    m (norm of the axes), "yaw" (N,) rad wrapped to [-pi, pi) (planar), "rotation" (N,)
+    rad, the angle of the rotation between the two orientations (otherwise)}."""
     axes = (np.asarray(true_position) - np.asarray(ref_position))[:, : 2 if planar else 3]
     out = {"axes": axes, "translation": np.linalg.norm(axes, axis=1)}
     if planar:
         out["yaw"] = wrap_angle(yaw_of(true_orientation) - yaw_of(ref_orientation))
+    else:
+        dot = np.abs(np.sum(np.asarray(true_orientation) * np.asarray(ref_orientation), axis=1))
+        out["rotation"] = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
     return out
 
 
@@ -401,6 +407,7 @@ class RunAnalysis:
                 acc.yaw.add(e["yaw"], s)
                 curves["yaw"] = e["yaw"]
             else:
+                acc.rotation.add(e["rotation"], s)
                 curves.update({f"e_{axis}": e["axes"][:, k] for k, axis in enumerate("xyz")})
             self.figures.add_tracking(s, curves)
 
@@ -511,7 +518,9 @@ def metrics_dict(a: Analysis, published: dict | None = None) -> dict:
       (deduplicated). Translation |e_xy| (planar) or |e_xyz| (translational) in m:
       ``rms_m`` = sqrt(mean |e|^2), ``max_m`` = max |e|, ``max_time_s`` its time from the
       first state; ``rms_axis_m`` per axis. Planar: yaw error wrap(yaw_true - yaw_ref)
-      in rad, ``yaw_rms_rad``, ``yaw_max_rad`` (max |.|), ``yaw_max_time_s``.
+      in rad, ``yaw_rms_rad``, ``yaw_max_rad`` (max |.|), ``yaw_max_time_s``. Otherwise
+      the angle of the rotation from the reference to the true orientation,
+      ``rotation_rms_rad``, ``rotation_max_rad``.
     * ``drive_force``: ``peak_commanded_n`` = max |drives/command effort|,
       ``peak_applied_n`` = max |drives/state effort|, over all drives and steps, plus per drive.
     * ``internal_force``: per step ||f_int||, f_int = f - J (J^T J)^-1 J^T f, f the applied
@@ -568,6 +577,8 @@ def metrics_dict(a: Analysis, published: dict | None = None) -> dict:
         if te.planar:
             track.update(yaw_rms_rad=te.yaw.rms, yaw_max_rad=te.yaw.peak,
                          yaw_max_time_s=_since(te.yaw.peak_stamp_ns, t0))
+        else:
+            track.update(rotation_rms_rad=te.rotation.rms, rotation_max_rad=te.rotation.peak)
     elif kind == "planar":
         track.update(yaw_rms_rad=None, yaw_max_rad=None)
     out["tracking_error"] = track

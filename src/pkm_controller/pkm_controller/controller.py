@@ -95,7 +95,7 @@ class ControllerConfig:
     force_limit_n: float = 2000.0         # commands are clamped here (saturation counted)
     saturation_trip_s: float = 0.5        # continuous saturation for this long trips (0: never)
     following_error_m: float = 0.01       # |x_d - x| translation that trips
-    following_error_rad: float = 0.05     # rotation error that trips (planar)
+    following_error_rad: float = 0.05     # rotation error that trips (planar, spatial)
     max_condition: float = 100.0          # singularity margin: cond(J of the active drives)
     workspace_margin_m: float = 0.02      # the measured pose may leave the workspace box by this much
     workspace_margin_rad: float = 0.02    # ... and a spatial machine's a, b, c their ranges by this much
@@ -209,7 +209,7 @@ class ControllerCore:
         self.model = machine.model
         # the task coordinates (pkm_kinematics.task_space): planar and position machines
         # run the compiled 3-DOF kernels of laws.py; a spatial one (x, y, z, a, b, c)
-        # feeds back twists and the rotation vector, its Cartesian cycle in numpy
+        # feeds back twists and the rotation vector (laws.spatial_command_kernel)
         self.space = self.model.task_space
         self.dof = self.space.dof
         self.planar, self.spatial = self.space is PLANAR, self.space is SPATIAL
@@ -503,7 +503,7 @@ class ControllerCore:
 
     def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
         """((what tripped, its cause) or None, the translation error): laws.limits_kernel
-        (laws.spatial_limits on a spatial machine)."""
+        (laws.spatial_limits_kernel on a spatial machine)."""
         c = self.config
         if self.spatial:
             code, index, value = spatial_limits_kernel(q, self._joint_box, tuple(measured), self._workspace_box,
