@@ -145,8 +145,36 @@ def test_what_a_spatial_machine_cannot_take_is_refused_by_name():
         core.set_trajectory(Reference.hold([0.0, 0.0, 0.5]))
     with pytest.raises(ValueError, match="forward_kinematics: must be newton on a 6-DOF machine"):
         ControllerCore(GENHEXKINS, ControllerConfig(forward_kinematics="integrated"))
-    with pytest.raises(ValueError, match=r"prestress_n: must be 0, or finite on a machine with one redundant drive"):
+    with pytest.raises(ValueError, match=r"prestress_n: must be 0, or finite on a machine with one redundant drive "
+                                         r"\(4 drives\) or with a prestress_direction"):
         ControllerCore(HEXAPOD8, ControllerConfig(prestress_n=100.0))
+    with pytest.raises(ValueError, match=r"prestress_n: must be 0 on a machine without redundant drives \(6 drives"):
+        ControllerCore(GENHEXKINS, ControllerConfig(prestress_n=100.0, prestress_direction=(1.0,) * 6))
+    with pytest.raises(ValueError, match=r"prestress_direction: must be empty, or 8 finite drive forces"):
+        ControllerCore(HEXAPOD8, ControllerConfig(prestress_n=100.0, prestress_direction=(1.0,) * 6))
+    with pytest.raises(ValueError, match=r"prestress_direction: prestress: direction has no internal part .* at home"):
+        ControllerCore(HEXAPOD8, ControllerConfig(prestress_n=100.0, prestress_direction=(1.0, -1.0) * 4))
+
+
+@pytest.mark.parametrize("distribution", ["pseudo_inverse", "inf_norm"])
+def test_a_redundant_hexapod_is_prestressed_along_the_chosen_internal_force(distribution):
+    """hexapod8's internal forces span 2 dimensions: prestress_direction picks the one
+    nearest a pattern of the eight struts; the commands carry prestress_n of it (on
+    the pseudo-inverse) and the platform still holds."""
+    from pkm_kinematics.distribution import internal_force, prestress_direction
+    pattern = (1.0, 1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0)     # pairs s1-s2, s5-s6 against s3-s4, s7-s8
+    config = ControllerConfig(strategy="computed_torque", distribution=distribution, prestress_n=300.0,
+                              prestress_direction=pattern)
+    core, log = run(HEXAPOD8, config, StrutPlant(HEXAPOD8), 300)
+    assert not core.stopped
+    tool = np.array(log.tool[-1])
+    assert np.linalg.norm(tool[:3] - HEXAPOD8.model.home[:3]) < 2e-6
+    jac = HEXAPOD8.model.jacobian(HEXAPOD8.model.home)
+    internal = internal_force(jac, log.forces[-1])
+    if distribution == "pseudo_inverse":              # f = J (J^T J)^-1 F + 300 n: n exactly
+        np.testing.assert_allclose(internal, 300.0 * prestress_direction(jac, pattern), atol=0.5)
+    else:                                             # the least peak moved by 300 n
+        assert np.linalg.norm(internal) > 250.0
 
 
 def test_the_sensor_space_error_of_a_spatial_tool_is_its_pose_offset():

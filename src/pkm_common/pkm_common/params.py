@@ -178,10 +178,13 @@ __all__ = ['ParameterError', 'declare_bool', 'declare_float', 'declare_float_lis
 
 
 def declare_like(node, name: str, default):
-    """Declare ``name`` typed like ``default`` (bool, int >= 0, float, or str, empty
-    allowed) and return its value; the value only if it is already declared."""
+    """Declare ``name`` typed like ``default`` (bool, int >= 0, float, str (empty
+    allowed), or a tuple of floats (a list, empty allowed)) and return its value; the
+    value only if it is already declared."""
     if node.has_parameter(name):
         return node.get_parameter(name).value
+    if isinstance(default, tuple):
+        return tuple(declare_float_list(node, name, list(default)))
     if isinstance(default, bool):
         return declare_bool(node, name, default)
     if isinstance(default, int):

@@ -50,9 +50,10 @@ from pkm_common.causes import TripCause
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force, internal_force_rows,
-                                        raise_distribution_error, two_arm_gravity_internal_force)
+                                        prestress_direction, raise_distribution_error,
+                                        two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import dynamic_model
-from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.errors import DistributionError, KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.rotations import exp_so3, rpy_from_rotation
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
@@ -88,6 +89,8 @@ class ControllerConfig:
     distribution: str = "pseudo_inverse"
     p_norm: float = 4.0                   # p of the p_norm distribution
     prestress_n: float = 0.0              # internal force added along ker(J^T) (redundant machines)
+    prestress_direction: tuple = ()       # n drive forces: the pattern of that internal force where ker(J^T)
+                                          # has more than one dimension (projected on it; a redundant hexapod)
     bandwidth_hz: float = 20.0            # closed-loop bandwidth omega / 2 pi
     damping_ratio: float = 1.0
     integral_time_s: float = 0.05         # T_i; 0 disables the integral action
@@ -118,8 +121,13 @@ class ControllerConfig:
             ("distribution", self.distribution not in TWO_ARM or (planar and n_drives == 4),
              f"{self.distribution} only on a planar machine of two leg pairs (4 drives)"),
             ("p_norm", 2.0 <= self.p_norm <= 64.0, "in [2, 64]"),
-            ("prestress_n", math.isfinite(self.prestress_n) and (self.prestress_n == 0.0 or n_drives == 4),
-             "0, or finite on a machine with one redundant drive (4 drives)"),
+            ("prestress_direction", len(self.prestress_direction) in (0, n_drives) and all(
+                math.isfinite(v) for v in self.prestress_direction) and (
+                not self.prestress_direction or any(self.prestress_direction)),
+             f"empty, or {n_drives} finite drive forces, not all zero"),
+            ("prestress_n", math.isfinite(self.prestress_n) and (
+                self.prestress_n == 0.0 or n_drives == 4 or len(self.prestress_direction) == n_drives),
+             "0, or finite on a machine with one redundant drive (4 drives) or with a prestress_direction"),
             ("bandwidth_hz", 0.0 < self.bandwidth_hz <= 0.1 / self.dt_s if self.dt_s > 0 else False,
              f"in (0, {0.1 / self.dt_s if self.dt_s > 0 else 0:g}] Hz (a tenth of the control rate)"),
             ("damping_ratio", 0.1 <= self.damping_ratio <= 10.0, "in [0.1, 10]"),
@@ -243,6 +251,14 @@ class ControllerCore:
     def _check_config(self, config: ControllerConfig) -> None:
         """ControllerConfig.validate, and what only this machine can say (ValueError)."""
         config.validate(self.n, self.planar)
+        if config.prestress_n != 0.0 and self.n <= self.dof:
+            raise ValueError(f"prestress_n: must be 0 on a machine without redundant drives ({self.n} drives for "
+                             f"{self.dof} DOF: no internal force exists)")
+        if config.prestress_direction:
+            try:                       # at home: a pattern with no internal part would trip the first cycle
+                prestress_direction(self.model.jacobian(self.model.home), config.prestress_direction)
+            except DistributionError as exc:
+                raise ValueError(f"prestress_direction: {exc} at home") from None
         if self.spatial and config.forward_kinematics != "newton":
             raise ValueError(f"forward_kinematics: must be newton on a {self.dof}-DOF machine "
                              f"(the integrated forms are written for 3 task coordinates), got "
@@ -839,7 +855,7 @@ class ControllerCore:
         and a degraded machine's distribute the wrench it returns with numpy."""
         cfg = self.config
         full = len(self.active) == self.n
-        compiled = full and cfg.distribution == "pseudo_inverse"
+        compiled = full and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
         code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
             c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
             self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
@@ -872,7 +888,8 @@ class ControllerCore:
             internal = two_arm_gravity_internal_force(p.platform_mass_kg, float(pose[2]), p.gravity_m_s2)
         return distribute(c.distribution, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
                           internal_force_n=internal, prestress_n=c.prestress_n,
-                          reference=[1.0] * len(active_rows)).tolist()
+                          reference=[1.0] * len(active_rows),
+                          prestress_direction=c.prestress_direction or None).tolist()
 
     def _expand(self, sub) -> list:
         if len(self.active) == self.n:
