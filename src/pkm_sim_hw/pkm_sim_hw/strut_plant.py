@@ -10,9 +10,9 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   quantised encoders, ``encoder_freeze`` and ``encoder_slip``. ``link_length_errors``
   (relative, per strut) is a strut's measuring error: strut k is (1 + e_k) times as
   long as its encoder reads (a screw's pitch error), so the controller's nominal model
-  sees an inconsistent set of lengths (a redundant machine's drives fight over it). A strut at its end
-  stop, a singular pose or a fault the model cannot take (``locked``: a brake on a
-  strut) brakes the machine: the platform stops where it is.
+  sees an inconsistent set of lengths (a redundant machine's drives fight over it). A
+  strut at its end stop, a singular pose or a fault the model cannot take
+  (``locked``: a brake on a strut) brakes the machine: the platform stops where it is.
 * External load: a wrench (force, moment about p, base frame), bounded by
   ``max_load_n`` / ``max_load_nm`` per component, set now (the load topic) or
   scheduled in simulated time (a scenario's load). ``compliance`` (6 values: m/N for
@@ -20,7 +20,8 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   coordinates, invisible to the strut encoders (the rigid platform does not move).
 Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
 coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
-Not yet: the rail plant's other machine errors and the frame load (refused when set). sim_hw runs it for a strut machine (``parameters.PLANTS``).
+Not yet: the rail plant's other machine errors and the frame load (refused when set).
+sim_hw runs it for a strut machine (``parameters.PLANTS``).
 """
 
 from __future__ import annotations
