@@ -9,6 +9,7 @@ names where; docs/figures/panel.png comes from it)."""
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -166,7 +167,10 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path):
             expect(page.locator("#feedstate")).to_have_text("feed 0 %", timeout=UI_MS)
             held = snapshot(url)
             assert any(e["kind"] == "feed_override" and e["value"] == 0.0 for e in held["events"]), held["events"]
-            assert any("jog held: its panel connection closed" in a["message"] for a in held["actions"])
+            # held for its close, or, when the close comes late on a loaded machine, for the
+            # silence before it (this client sends no heartbeat): either way the jog stops
+            assert any(re.search(r"jog held: its panel connection (closed|silent for more than 0.5 s)", a["message"])
+                       for a in held["actions"]), held["actions"]
             page.click("#resume")
             expect(page.locator("#feedstate")).to_have_text("feed 100 %", timeout=UI_MS)
             expect(page.locator("#ref-x")).to_have_text("989.000", timeout=UI_MS)
