@@ -264,3 +264,9 @@ def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
         load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [0.0, 0.0, 0.0, 0.0, 0.0, 600.0]}]})
     with pytest.raises(ScenarioError, match=r"compliance: must be 6 values on hexapod8"):
         load_scenario("hexapod_metrology", {"plant": {"compliance": [1e-6, 0.0, 0.0]}})
+    framed = load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
+                                                 "plant": {"frame_compliance": [7e-8] * 6}})
+    assert node_parameters(framed, tmp_path)["sim_hw"]["frame_load_schedule"] == [0.2, 0.0, 850.0, 0, 0, 0, 0]
+    with pytest.raises(ScenarioError, match=r"frame_compliance: must be 6 values on hexapod8"):
+        load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
+                                            "plant": {"frame_compliance": [7e-8] * 3}})

@@ -123,6 +123,8 @@ def test_a_frame_load_moves_the_tool_with_the_actuation_chain_unseen_by_the_enco
         loaded.schedule_frame_load([(0.2, (0.0, 1.0, 0.0)), (0.1, (0.0, 0.0, 0.0))])
     with pytest.raises(ValueError, match="frame_compliance: must be 3 values >= 0"):
         Plant(MOM3, PlantParameters(frame_compliance=(-1.0, 0.0, 0.0)))
+    with pytest.raises(ValueError, match="frame_compliance: must be 3 values on a 3-DOF machine"):
+        Plant(MOM3, PlantParameters(frame_compliance=(1e-8,) * 6))
 
 
 def test_internal_force_from_the_nominal_pseudo_inverse():

@@ -93,8 +93,8 @@ def test_saturation_faults_end_stops_and_loads():
     assert out.stopped and "end stop" in plant.stop_reason and out.applied_forces == [0.0] * 6
     held = plant.step([5000.0] * 6)
     assert held.tool_pose == out.tool_pose
-    with pytest.raises(ValueError, match="frame_compliance: not simulated on a strut machine yet"):
-        StrutPlant(HEXAPOD, PlantParameters(frame_compliance=(1e-6, 0.0, 0.0)))
+    with pytest.raises(ValueError, match="rail_offset_errors_m: not simulated on a strut machine yet"):
+        StrutPlant(HEXAPOD, PlantParameters(rail_offset_errors_m=(1e-6,) + (0.0,) * 5))
 
 
 def test_a_strut_error_makes_its_reading_short_of_the_true_length():
@@ -128,3 +128,30 @@ def test_a_scheduled_load_deflects_the_tool_by_its_compliance_unseen_by_the_stru
         plant.schedule_load([(0.0, [0, 0, 0, 600.0, 0, 0])])
     with pytest.raises(ValueError, match="compliance: must be 6 values on a 6-DOF machine"):
         StrutPlant(HEXAPOD8, PlantParameters(compliance=(1e-6, 0.0, 0.0)))
+
+
+def test_a_frame_load_carries_the_tool_with_the_whole_strut_chain_unseen_by_the_encoders():
+    """frame_load on a strut machine (MoM3 §7.1.2 on 6 DOF): the frame carrying the
+    base joints deflects by C_frame f_frame, the platform and tool with it; the struts
+    keep their lengths (the same readings as a twin without it, bit for bit), the
+    platform load and the frame load add on the tool."""
+    cf = (7e-8, 7e-8, 5e-8, 1e-7, 1e-7, 2e-7)
+    c = (1e-6, 0.0, 0.0, 0.0, 0.0, 0.0)
+    params = PlantParameters(frame_compliance=cf, compliance=c, encoder_resolution_m=0.0)
+    loaded, plain = StrutPlant(HEXAPOD8, params), StrutPlant(HEXAPOD8, PlantParameters(encoder_resolution_m=0.0))
+    frame = [0.0, 850.0, -300.0, 20.0, 0.0, -10.0]
+    loaded.schedule_frame_load([(0.002, frame)])
+    loaded.set_load([10.0, 0, 0, 0, 0, 0])
+    plain.set_load([10.0, 0, 0, 0, 0, 0])              # the same platform load: only the frame's differs
+    hold = static_forces(plain, plain.x)
+    for k in range(4):
+        out, ref = loaded.step(hold), plain.step(hold)
+        assert out.encoder_positions == ref.encoder_positions and out.rigid_pose == ref.rigid_pose
+        expected = np.multiply(c, [10.0, 0, 0, 0, 0, 0]) + (np.multiply(cf, frame) if k >= 2 else 0.0)
+        np.testing.assert_allclose(np.subtract(out.tool_pose, out.rigid_pose), expected, rtol=1e-9, atol=1e-15)
+    assert out.tool_pose[1] - out.rigid_pose[1] == pytest.approx(59.5e-6, rel=1e-9)
+    np.testing.assert_allclose(np.reshape(out.tool_rotation, (3, 3)), rotation_from_rpy(*out.tool_pose[3:]))
+    with pytest.raises(ValueError, match="frame_compliance: must be 6 values on a 6-DOF machine"):
+        StrutPlant(HEXAPOD8, PlantParameters(frame_compliance=(1e-6, 0.0, 0.0)))
+    with pytest.raises(ValueError, match=r"frame_load_schedule: fy must be in \[-5000, 5000\] N"):
+        loaded.schedule_frame_load([(0.0, [0, 6000.0, 0, 0, 0, 0])])

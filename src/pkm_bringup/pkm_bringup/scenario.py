@@ -306,7 +306,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
     if s.frame_load and not any(s.plant.get("frame_compliance") or []):
-        raise ScenarioError("frame_load: needs plant.frame_compliance (m/N, 3 values): without it the frame "
+        raise ScenarioError("frame_load: needs plant.frame_compliance (one per load component): without it the frame "
                             "does not deflect and the load would do nothing")
     if s.strategy in STRATEGIES and STRATEGIES[s.strategy].uses_metrology and not s.metrology:
         raise ScenarioError(f"metrology: strategy {s.strategy} closes its loop on the Gough sensor; "
@@ -348,9 +348,11 @@ def _check_plant(p: dict, config) -> None:
     params = PlantParameters(**values)
     params.validate(config.model.n_legs, config.kind)
     loads = config.model.task_space.loads
-    if any(params.compliance) and len(params.compliance) != len(loads):
-        raise ValueError(f"compliance: must be {len(loads)} values on {config.name} (one per load component "
-                         f"{', '.join(loads)}), got {list(params.compliance)}")
+    for name in ("compliance", "frame_compliance"):
+        values = getattr(params, name)
+        if any(values) and len(values) != len(loads):
+            raise ValueError(f"{name}: must be {len(loads)} values on {config.name} (one per load component "
+                             f"{', '.join(loads)}), got {list(values)}")
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
     for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):

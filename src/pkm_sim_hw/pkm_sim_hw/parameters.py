@@ -54,7 +54,8 @@ def declare_settings(node) -> SimHwSettings:
         compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], "the tool's deflection per unit "
                                             "load, one per load component (3, or 6 on a 6-DOF machine)", lo=0.0)),
         frame_compliance=tuple(declare_float_list(node, "frame_compliance", [0.0, 0.0, 0.0], "the actuation "
-                                                  "frame's deflection per unit frame load", length=3, lo=0.0)),
+                                                  "frame's deflection per unit frame load, one per load component "
+                                                  "(3, or 6 on a 6-DOF machine)", lo=0.0)),
         faults=tuple(f.strip() for f in faults.split(",") if f.strip()),
         max_load_n=declare_float(node, "max_load_n", 5000.0, 0.0, 1e9, "bound of each external load force "
                                  "component", lo_open=True, unit="N"),

@@ -125,8 +125,8 @@ class PlantParameters:
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
                   ("compliance", len(self.compliance) in (3, 6) and all(c >= 0.0 for c in self.compliance),
                    "3 values >= 0 (6 on a 6-DOF machine)"),
-                  ("frame_compliance", len(self.frame_compliance) == 3
-                   and all(c >= 0.0 for c in self.frame_compliance), "3 values >= 0"),
+                  ("frame_compliance", len(self.frame_compliance) in (3, 6)
+                   and all(c >= 0.0 for c in self.frame_compliance), "3 values >= 0 (6 on a 6-DOF machine)"),
                   ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
                   ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m"),
                   ("parallelogram_bar_errors_m", not self.parallelogram_bar_errors_m
@@ -183,8 +183,9 @@ class Plant:
         self.params = params or PlantParameters()
         n = config.model.n_legs
         self.params.validate(n, config.kind)
-        if len(self.params.compliance) != 3:
-            raise ValueError(f"compliance: must be 3 values on a 3-DOF machine, got {list(self.params.compliance)}")
+        for name in ("compliance", "frame_compliance"):
+            if len(getattr(self.params, name)) != 3:
+                raise ValueError(f"{name}: must be 3 values on a 3-DOF machine, got {list(getattr(self.params, name))}")
         self.config = config
         self.n = n
         self.names = list(config.model.leg_names)

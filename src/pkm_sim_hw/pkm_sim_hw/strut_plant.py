@@ -18,9 +18,13 @@ of the strut machines (``kind: struts``: genhexkins, hexapod8).
   scheduled in simulated time (a scenario's load). ``compliance`` (6 values: m/N for
   the forces, rad/(N m) for the moments) deflects the tool by C f_load in task
   coordinates, invisible to the strut encoders (the rigid platform does not move).
+  A load on the machine's frame (``frame_load``, MoM3 §7.1.2) moves the whole
+  actuation chain, base joints and platform, by C_frame f_frame (``frame_compliance``,
+  6 values): the tool with it, unseen by the struts, seen by a metrology whose base
+  is not on that frame (the Gough's).
 Outputs are the rail machines' ``PlantOutput``: the tool pose as the six task
 coordinates (x, y, z, a, b, c), its rotation row-major in ``tool_rotation``.
-Not yet: the rail plant's other machine errors and the frame load (refused when set).
+Not yet: the rail plant's rail offsets (refused when set).
 sim_hw runs it for a strut machine (``parameters.PLANTS``).
 """
 
@@ -41,7 +45,7 @@ from pkm_kinematics.validation import finite_floats
 from .drives import Encoders, applied_forces
 from .plant import Fault, PlantOutput, PlantParameters, check_load, load_steps
 
-_NOT_YET = ("rail_offset_errors_m", "frame_compliance", "parallelogram_bar_errors_m")
+_NOT_YET = ("rail_offset_errors_m", "parallelogram_bar_errors_m")
 
 
 class StrutPlant:
@@ -57,10 +61,14 @@ class StrutPlant:
         for name in _NOT_YET:
             if any(getattr(self.params, name)):
                 raise ValueError(f"{name}: not simulated on a strut machine yet (leave it empty or zero)")
-        if any(self.params.compliance) and len(self.params.compliance) != 6:
-            raise ValueError(f"compliance: must be 6 values on a 6-DOF machine (m/N for fx fy fz, rad/(N m) for "
-                             f"mx my mz), got {list(self.params.compliance)}")
+        for name in ("compliance", "frame_compliance"):
+            values = getattr(self.params, name)
+            if any(values) and len(values) != 6:
+                raise ValueError(f"{name}: must be 6 values on a 6-DOF machine (m/N for fx fy fz, rad/(N m) for "
+                                 f"mx my mz), got {list(values)}")
         self._compliance = np.array(self.params.compliance if any(self.params.compliance) else [0.0] * 6)
+        self._frame_compliance = np.array(self.params.frame_compliance if any(self.params.frame_compliance)
+                                          else [0.0] * 6)
         if self.params.integrator != "semi_implicit":
             raise ValueError(f"integrator: a strut machine integrates semi_implicit only, got "
                              f"{self.params.integrator!r}")
@@ -70,7 +78,9 @@ class StrutPlant:
         self.p, self.rotation = self.machine.pose(x0)
         self.twist = np.zeros(6)
         self.load = np.zeros(6)
+        self.frame_load = np.zeros(6)
         self._schedule: list = []          # [(step, load)] (schedule_load)
+        self._frame_schedule: list = []    # [(step, load)] (schedule_frame_load)
         self.t, self.k = 0.0, 0
         self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
         self._faults = [Fault.parse(f, self.n) if isinstance(f, str) else f for f in self.params.faults]
@@ -103,9 +113,8 @@ class StrutPlant:
         self._schedule = load_steps(rows, self.params.dt_s, self.check_load, "load_schedule")
 
     def schedule_frame_load(self, rows) -> None:
-        """Loads on the frame: not on a strut machine yet (an empty schedule only)."""
-        if rows:
-            raise ValueError("frame_load_schedule: not on a strut machine yet")
+        """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
+        self._frame_schedule = load_steps(rows, self.params.dt_s, self.check_load, "frame_load_schedule")
 
     def set_load(self, wrench) -> None:
         """External load on the platform (fx, fy, fz in N, mx, my, mz in N m, base
@@ -127,6 +136,8 @@ class StrutPlant:
         cmd = finite_floats(forces, self.n, "drive forces")
         while self._schedule and self.k >= self._schedule[0][0]:
             self.load = np.array(self._schedule.pop(0)[1])
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0]:
+            self.frame_load = np.array(self._frame_schedule.pop(0)[1])
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
         locked = [f for f in faults if f.kind == "locked"]
@@ -161,8 +172,9 @@ class StrutPlant:
         x = self.x
         fint = internal_force(self.machine.jacobian(x), applied).tolist() if self.n > 6 else [0.0] * self.n
         tool, rotation = list(x), self.rotation
-        if self._compliance.any():          # the tool deflected by C f_load: unseen by the struts
-            tool = (np.asarray(x) + self._compliance * self.load).tolist()
+        if self._compliance.any() or self._frame_compliance.any():
+            # the tool deflected by C f_load and carried by the frame's C_frame f_frame: unseen by the struts
+            tool = (np.asarray(x) + self._compliance * self.load + self._frame_compliance * self.frame_load).tolist()
             rotation = rotation_from_rpy(*tool[3:])
         return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(x),
                            fint, math.sqrt(sum(f * f for f in fint)), [f"{f.drive}:{f.kind}" for f in faults],
