@@ -190,18 +190,22 @@ def test_wrench_map_and_internal_forces(which):
 
 def test_the_general_bar_kernels_reproduce_the_gough_metrology_and_the_delta_rails():
     """The bar model on the other machines' data: the MoM3 Gough platform as 6
-    struts (its strut lengths and J_h^-1), and the MoM3 Delta's rails (its IK: one bar
-    per carriage, the platform translating)."""
+    struts (its strut lengths and J_h^-1 against numpy's formulas: |p + R b - a| and
+    the rows [u, (R b) x u]), and the MoM3 Delta's rails (its IK: one bar per
+    carriage, the platform translating)."""
     cfg = load_machine("mom3")
     gough = cfg.metrology.platform
     bars = B.bar_rows(gough.base_points, gough.plate_points, actuator=np.arange(6), kind=B.STRUT)
+    np.testing.assert_array_equal(gough.bars, bars)
     p, rot = np.array([0.02, -0.03, 0.80]), rotation_from_rpy(0.05, -0.04, 0.1)
     q = np.empty(6)
     assert B.inverse_kinematics_into(bars, p, rot.reshape(9).copy(), q) == (B.IK_OK, -1)
-    np.testing.assert_allclose(q, gough.strut_lengths(p, rot), rtol=0, atol=1e-15)
-    jac = np.empty((6, 6))
-    assert B.unit_pose_jacobian_into(bars, *p, tuple(rot.reshape(9)), np.zeros(6), jac)
-    np.testing.assert_allclose(jac, gough.inverse_jacobian(p, rot), rtol=0, atol=1e-15)
+    rb = gough.plate_points @ rot.T
+    struts = p + rb - gough.base_points
+    np.testing.assert_allclose(q, np.linalg.norm(struts, axis=1), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(gough.strut_lengths(p, rot), q, rtol=0, atol=1e-15)
+    u = struts / np.linalg.norm(struts, axis=1)[:, None]
+    np.testing.assert_allclose(gough.inverse_jacobian(p, rot), np.hstack([u, np.cross(rb, u)]), rtol=0, atol=1e-14)
 
     delta = cfg.model
     legs = delta.legs

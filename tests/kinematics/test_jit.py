@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from pkm_kinematics import jit, load_machine
 from pkm_kinematics import distribution as dist
-from pkm_kinematics import gough as gough_module
+from pkm_kinematics import bars as bars_module
 from pkm_kinematics import planar as planar_module
 from pkm_kinematics.rotations import exp_so3
 
@@ -96,8 +96,8 @@ def test_gough_jacobian_rows_is_the_inverse_of_the_inverse_jacobian(archi, p, w)
     rows = platform.jacobian_rows(position.tolist(), tuple(rotation.ravel().tolist()))
     np.testing.assert_allclose(np.array(rows) @ platform.inverse_jacobian(position, rotation), np.eye(6),
                                atol=1e-9)
-    interpreted = gough_module._jacobian_kernel.py_func(platform._legs_a, *position.tolist(),
-                                                        *rotation.ravel().tolist())
+    interpreted = bars_module.pose_from_lengths_jacobian_kernel.py_func(platform.bars, *position.tolist(),
+                                                                        *rotation.ravel().tolist())
     np.testing.assert_allclose(rows, interpreted, rtol=1e-9, atol=1e-12)
     assert math.isfinite(sum(map(sum, rows)))
 

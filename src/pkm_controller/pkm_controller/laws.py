@@ -22,7 +22,7 @@ import numpy as np
 
 from pkm_kinematics.distribution import (_check_wrench_kernel, _distribute_kernel, _rows_array, gram_rows,
                                         gram_solve_n_kernel, project_forces, project_rows)
-from pkm_kinematics.gough import _jacobian_kernel, strut_lengths_kernel
+from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.hexapod import weighted_condition_kernel
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, log_so3_kernel, mul3_kernel, rpy_rotation_kernel
@@ -430,9 +430,9 @@ class SensorSpaceFeedback:
         self.planar = planar
         self.spatial = spatial                     # 6 task DOF: the whole error (e_p, e_w)
         self.at_estimate = at_estimate
-        self._legs_a = self.platform._legs_a
-        self._r_wb = sensor._r_wb
-        self._p_tp = sensor._p_tp
+        self._bars = self.platform.bars
+        self._r_wb = sensor.base_rotation_floats
+        self._p_tp = sensor.plate_position_in_tool
         self.estimate = None                       # (p_bp, R_bp) of the real plate, or None
         self._desired = None                       # what prepare() computed for the cycle
 
@@ -451,7 +451,7 @@ class SensorSpaceFeedback:
         the estimated real pose (the estimate of the previous cycle)."""
         p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
         at = self.estimate if self.at_estimate and self.estimate is not None else (p_bp, r_bp)
-        l_des, j_h = _desired_lengths_and_jacobian(self._legs_a, p_bp, r_bp, at[0], at[1])
+        l_des, j_h = _desired_lengths_and_jacobian(self._bars, p_bp, r_bp, at[0], at[1])
         self._desired = (p_bp, r_bp, l_des, j_h, tuple(tool_rotation))
 
     def error_from(self, lengths) -> list:
@@ -472,13 +472,14 @@ class SensorSpaceFeedback:
 
 
 @kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")
-def _desired_lengths_and_jacobian(legs, p_des, r_des, p_at, r_at):
+def _desired_lengths_and_jacobian(bars, p_des, r_des, p_at, r_at):
     """l_des = IKM_GP at the desired plate pose (MoM3 §5.2: l_i = |p + R b_i - A_i|,
-    nominal geometry) and J_h at the estimated one (eq. 1-3). ``legs`` rows (A_i, b_i)."""
-    l_des = strut_lengths_kernel(legs, p_des[0], p_des[1], p_des[2], r_des[0], r_des[1], r_des[2], r_des[3],
+    nominal geometry) and J_h at the estimated one (eq. 1-3). ``bars``: the Gough's
+    struts (``GoughPlatform.bars``)."""
+    l_des = strut_lengths_kernel(bars, p_des[0], p_des[1], p_des[2], r_des[0], r_des[1], r_des[2], r_des[3],
                                  r_des[4], r_des[5], r_des[6], r_des[7], r_des[8])
-    j_h = _jacobian_kernel(legs, p_at[0], p_at[1], p_at[2], r_at[0], r_at[1], r_at[2], r_at[3], r_at[4],
-                           r_at[5], r_at[6], r_at[7], r_at[8])
+    j_h = pose_from_lengths_jacobian_kernel(bars, p_at[0], p_at[1], p_at[2], r_at[0], r_at[1], r_at[2], r_at[3],
+                                            r_at[4], r_at[5], r_at[6], r_at[7], r_at[8])
     return l_des, j_h
 
 

@@ -29,7 +29,8 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
-from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, strut_lengths_kernel
+from pkm_kinematics.bars import STRUT, bar_rows, strut_lengths_kernel
+from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
 from pkm_kinematics.rotations import mul3
 from pkm_kinematics.validation import finite_floats
 
@@ -139,7 +140,7 @@ class GoughSensorModel:
             metrology.base_rotation).T
         plate_t = np.asarray(metrology.plate_position_in_tool) + self.true_platform.plate_points @ np.asarray(
             metrology.plate_rotation_in_tool).T
-        self._true_legs = np.hstack([base_w, plate_t])
+        self._true_bars = bar_rows(base_w, plate_t, actuator=np.arange(6), kind=STRUT)
 
         # DKM tolerance: 1/1000 of the resolution. The strut residual then adds at most
         # 0.1 % to the quantisation error (|dl_i| <= res/2 + tol), and a warm-started
@@ -149,6 +150,16 @@ class GoughSensorModel:
         self._travel = (float(self.nominal.strut_limits[0]), float(self.nominal.strut_limits[1]))
 
     # ------------------------------------------------------------- frames
+    @property
+    def base_rotation_floats(self) -> tuple:
+        """R_wb, the Gough base's rotation in the world, row-major (9 floats)."""
+        return self._r_wb
+
+    @property
+    def plate_position_in_tool(self) -> tuple:
+        """p_tp, the plate centre in the tool frame (3 floats, m)."""
+        return self._p_tp
+
     def plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
         """:meth:`plate_pose` on floats, unchecked (per-cycle use): tool position (3
         floats) and row-major rotation (9 floats) -> plate position and rotation."""
@@ -184,15 +195,15 @@ class GoughSensorModel:
 
     def _true_lengths(self, p_t, r_t) -> list:
         # A_i in world, b_i in the tool frame: no mounting transform per reading
-        return strut_lengths_kernel(self._true_legs, p_t[0], p_t[1], p_t[2], *r_t).tolist()
+        return strut_lengths_kernel(self._true_bars, p_t[0], p_t[1], p_t[2], *r_t).tolist()
 
     def strut_segments(self, tool_position, tool_rotation) -> list[tuple[list, list]]:
         """(base joint, plate joint) of every strut in world coordinates for a tool pose
         (the true geometry): what a drawing of the sensor needs."""
         p = np.asarray(finite_floats(tool_position, 3, 'tool_position'))
         r = np.asarray(rotation_floats(tool_rotation, 'tool_rotation')).reshape(3, 3)
-        legs = self._true_legs
-        return [(a.tolist(), (p + r @ b).tolist()) for a, b in zip(legs[:, :3], legs[:, 3:])]
+        bars = self._true_bars
+        return [(a.tolist(), (p + r @ b).tolist()) for a, b in zip(bars[:, 0:3], bars[:, 6:9])]
 
     def measure(self, tool_position, tool_rotation) -> np.ndarray:
         """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),

@@ -27,10 +27,16 @@ The kernels:
   the solution is what shows inconsistent actuators (a frozen or slipping encoder,
   a model error).
 
+- ``chord_forward_kinematics_kernel``: the same for six bars with chord steps (J_h
+  kept across steps and solves, re-evaluated when a step gains less than three orders
+  of magnitude): the Gough metrology's stream of small moves (MoM3 §6.3);
+- ``pose_from_lengths_jacobian_into``: J_h = (J_h^-1)^-1 of six bars (MoM3 eq. 1);
+- ``strut_lengths_into``: |B_k - A_k| of every bar, a strut machine's IK (IKM_GP).
+
 The machine classes (``hexapod.StrutMachine``, ``parallelogram.ParallelogramMachine``)
-wrap them; ``gough`` keeps its own
-6-strut kernels for the metrology (the same equations for 6 passive struts, tuned
-for that stream) until the per-kind classes are replaced by this model.
+and the Gough metrology (``gough.GoughPlatform``: six passive struts) wrap them;
+the planar and translational rail machines still have their own kernels
+(``planar``, ``translational``).
 """
 
 from __future__ import annotations
@@ -39,7 +45,6 @@ import math
 
 import numpy as np
 
-from .gough import invert6_into
 from .jit import kernel
 from .rotations import exp_so3_kernel, mul3_kernel
 
@@ -51,6 +56,44 @@ RAIL, STRUT = 0.0, 1.0
 FK_CONVERGED, FK_NO_CONVERGENCE, FK_DIVERGED, FK_SINGULAR, FK_STALLED = range(5)
 # inverse_kinematics_into's codes
 IK_OK, IK_UNREACHABLE = 0, 1
+
+
+@kernel()
+def invert6_into(a, out) -> bool:
+    """out = a^-1 for a 6 x 6 matrix by Gauss-Jordan elimination with partial pivoting
+    (``a`` is overwritten); False when a pivot vanishes (singular to machine precision).
+    Inline: a LAPACK call per solve costs more than the elimination itself."""
+    n = 6
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale = max(scale, abs(a[i, j]))
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if not abs(a[pivot, col]) > 1e-14 * scale:
+            return False
+        if pivot != col:
+            for j in range(n):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+                out[col, j], out[pivot, j] = out[pivot, j], out[col, j]
+        inv_p = 1.0 / a[col, col]
+        for j in range(n):
+            a[col, j] *= inv_p
+            out[col, j] *= inv_p
+        for row in range(n):
+            if row != col:
+                f = a[row, col]
+                if f != 0.0:
+                    for j in range(n):
+                        a[row, j] -= f * a[col, j]
+                        out[row, j] -= f * out[col, j]
+    return True
 
 
 def bar_rows(base, platform, actuator, kind, rail=None, length=None, branch=None) -> np.ndarray:
@@ -114,6 +157,70 @@ def unit_pose_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
             return False
         out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = ux, uy, uz, mx, my, mz
     return True
+
+
+@kernel()
+def pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
+    """The inverse of the 6 x 6 unit pose Jacobian into ``out``: the platform's twist
+    per unit rate of six bar lengths, t = J_h l' (MoM3 eq. 1, J_h = (J_h^-1)^-1 with
+    J_h^-1 the rows of ``unit_pose_jacobian_into``, eq. 2-3), by Gauss-Jordan
+    (``invert6_into``). False where a bar has zero length or the rows are singular."""
+    rows = np.empty((6, 6))
+    if not unit_pose_jacobian_into(bars, px, py, pz, r, q, rows):
+        return False
+    return invert6_into(rows, out)
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, "
+        "float64, float64, float64)")
+def pose_from_lengths_jacobian_kernel(bars, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """``pose_from_lengths_jacobian_into`` of six struts at the pose (p, R row-major)
+    as a new array, by LAPACK; raises numpy.linalg.LinAlgError at a singular pose."""
+    rows = np.empty((6, 6))
+    unit_pose_jacobian_into(bars, px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22), np.zeros(6), rows)
+    return np.linalg.inv(rows)
+
+
+@kernel()
+def strut_lengths_into(bars, px, py, pz, r, q, out):
+    """|B_k - A_k| of every bar into ``out`` at the pose (p, R) and actuators ``q``:
+    a strut machine's inverse kinematics (MoM3 §5.2's IKM_GP, l_k = |p + R b_k - a_k|;
+    ``q`` is not read there)."""
+    for k in range(bars.shape[0]):
+        ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+        out[k] = math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, "
+        "float64, float64, float64)")
+def strut_lengths_kernel(bars, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """``strut_lengths_into`` at the pose (p, R row-major) as a new array: the
+    per-reading form."""
+    out = np.empty(bars.shape[0])
+    strut_lengths_into(bars, px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22), np.zeros(bars.shape[0]),
+                       out)
+    return out
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :])")
+def strut_lengths_batch_kernel(bars, positions, rotations, out):
+    """``strut_lengths_into`` of N poses (``rotations`` rows row-major) into ``out`` (N, n)."""
+    zero = np.zeros(bars.shape[0])
+    for i in range(positions.shape[0]):
+        r = (rotations[i, 0], rotations[i, 1], rotations[i, 2], rotations[i, 3], rotations[i, 4],
+             rotations[i, 5], rotations[i, 6], rotations[i, 7], rotations[i, 8])
+        strut_lengths_into(bars, positions[i, 0], positions[i, 1], positions[i, 2], r, zero, out[i])
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :, :])")
+def unit_pose_jacobian_batch_kernel(bars, positions, rotations, out):
+    """``unit_pose_jacobian_into`` of N poses of a strut machine (``rotations`` rows
+    row-major) into ``out`` (N, n, 6)."""
+    zero = np.zeros(bars.shape[0])
+    for i in range(positions.shape[0]):
+        r = (rotations[i, 0], rotations[i, 1], rotations[i, 2], rotations[i, 3], rotations[i, 4],
+             rotations[i, 5], rotations[i, 6], rotations[i, 7], rotations[i, 8])
+        unit_pose_jacobian_into(bars, positions[i, 0], positions[i, 1], positions[i, 2], r, zero, out[i])
 
 
 @kernel()
@@ -263,6 +370,71 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     return code, iterations, misfit
 
 
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64, int64, float64)")
+def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit):
+    """``forward_kinematics_kernel`` for six bars with chord steps, the solver of a
+    stream of small moves (the Gough metrology's DKM, MoM3 §6.3): Newton on
+    r_k = l_k - |e_k|, the step [dp; dw] = J_h r, p += dp, R <- exp([dw]x) R, with
+    J_h (``jh``, valid when ``have_jh``; ``pose_from_lengths_jacobian_into``) kept
+    from earlier steps and solves and re-evaluated only when an iteration gains less
+    than three orders of magnitude. ``p`` (3,), ``rot`` (9, row-major) and ``jh``
+    (6, 6) are updated in place. Returns (code, iterations, evaluations, residual,
+    have_jh): FK_CONVERGED (every |r_k| <= tol_m), FK_NO_CONVERGENCE, FK_DIVERGED
+    (a residual above ``divergence_limit``), FK_STALLED (it grew twice in a row),
+    FK_SINGULAR (J_h has no inverse, or there are not six bars)."""
+    if bars.shape[0] != 6:
+        return FK_SINGULAR, 0, 0, math.inf, have_jh
+    px, py, pz = p[0], p[1], p[2]
+    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
+    res = np.empty(6)
+    evaluations = 0
+    previous = math.inf
+    growth = 0
+    residual = math.inf
+    code = FK_NO_CONVERGENCE
+    iterations = max_iterations
+    for iteration in range(max_iterations + 1):
+        residual = 0.0
+        for k in range(6):
+            ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+            res[k] = bar_length(bars, k, q) - math.sqrt(ex * ex + ey * ey + ez * ez)
+            if not abs(res[k]) <= residual:       # (NaN propagates)
+                residual = abs(res[k])
+        if residual <= tol_m:
+            code, iterations = FK_CONVERGED, iteration
+            break
+        if iteration == max_iterations:
+            break
+        if not math.isfinite(residual) or residual > divergence_limit:
+            code, iterations = FK_DIVERGED, iteration
+            break
+        growth = growth + 1 if residual > previous else 0
+        if growth >= 2:
+            code, iterations = FK_STALLED, iteration
+            break
+        if not have_jh or residual > 1e-3 * previous:
+            evaluations += 1
+            if not pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, jh):
+                code, iterations = FK_SINGULAR, iteration
+                break
+            have_jh = True
+        previous = residual
+        dx = dy = dz = wx = wy = wz = 0.0
+        for j in range(6):
+            dx += jh[0, j] * res[j]
+            dy += jh[1, j] * res[j]
+            dz += jh[2, j] * res[j]
+            wx += jh[3, j] * res[j]
+            wy += jh[4, j] * res[j]
+            wz += jh[5, j] * res[j]
+        px, py, pz = px + dx, py + dy, pz + dz
+        r = mul3_kernel(exp_so3_kernel(wx, wy, wz), r)
+    p[0], p[1], p[2] = px, py, pz
+    for k in range(9):
+        rot[k] = r[k]
+    return code, iterations, evaluations, residual, have_jh
+
+
 @kernel()
 def rail_closure_rows_into(bars, px, py, pz, r, q, out) -> bool:
     """The closure Jacobian of the bars for the unknowns (w, q) at a given platform
@@ -376,5 +548,8 @@ def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iteration
 
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
            "IK_OK", "IK_UNREACHABLE", "RAIL", "STRUT", "bar_length", "bar_rows", "bar_vector",
-           "forward_kinematics_kernel", "forward_kinematics_stream_kernel", "forward_kinematics_warm_kernel",
-           "inverse_kinematics_parasitic_kernel", "rail_closure_rows_into", "inverse_kinematics_into", "unit_pose_jacobian_into"]
+           "chord_forward_kinematics_kernel", "forward_kinematics_kernel", "forward_kinematics_stream_kernel",
+           "forward_kinematics_warm_kernel", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
+           "invert6_into", "pose_from_lengths_jacobian_into", "pose_from_lengths_jacobian_kernel",
+           "rail_closure_rows_into", "strut_lengths_batch_kernel", "strut_lengths_into", "strut_lengths_kernel",
+           "unit_pose_jacobian_batch_kernel", "unit_pose_jacobian_into"]

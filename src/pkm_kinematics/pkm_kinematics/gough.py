@@ -16,6 +16,11 @@ points b_i (plate frame). The pose of the travelling plate is its centre E_h
   a check of the assembly branch (the mirror pose below the base plane has the same
   strut lengths). The result reports iterations, Jacobian evaluations and residual;
   on failure its pose is NaN and ``reason`` says why - never a wrong pose.
+
+The platform is six passive struts of the bar model (``GoughPlatform.bars``; strut
+i is measurement i): every equation above is a kernel of ``bars``, written once for
+all strut machines (the hexapods' too). This module adds the metrology's own: the
+warm-started stream with its extrapolated guess, and the assembly-branch checks.
 """
 
 from __future__ import annotations
@@ -25,8 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import bars as B
 from .jit import kernel
-from .rotations import exp_so3_floats, exp_so3_kernel, mul3, mul3_kernel
+from .rotations import exp_so3_kernel, mul3_kernel
 from .validation import finite_array, finite_floats
 
 
@@ -79,196 +85,20 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
     return np.array(base), np.array(plate)
 
 
-@kernel()
-def strut_vector(legs, i, px, py, pz, r):
-    """Strut i's vector l_i = p + R b_i - A_i (MoM3 eq. 1's closure) at the plate pose
-    (p, R), ``r`` the row-major 9-tuple of R; ``legs`` rows (A_i, b_i). Returns
-    (l_x, l_y, l_z, (R b_i)_x, (R b_i)_y, (R b_i)_z)."""
-    bx, by, bz = legs[i, 3], legs[i, 4], legs[i, 5]
-    rbx = r[0] * bx + r[1] * by + r[2] * bz
-    rby = r[3] * bx + r[4] * by + r[5] * bz
-    rbz = r[6] * bx + r[7] * by + r[8] * bz
-    return px + rbx - legs[i, 0], py + rby - legs[i, 1], pz + rbz - legs[i, 2], rbx, rby, rbz
-
-
-@kernel()
-def inverse_jacobian_into(legs, px, py, pz, r, jinv):
-    """J_h^-1 (MoM3 eq. 2-3) into ``jinv`` (6, 6): rows [u_i, (R b_i) x u_i], u_i the
-    unit vector of strut i, at the plate pose (p, R row-major 9-tuple)."""
-    for i in range(6):
-        lx, ly, lz, rbx, rby, rbz = strut_vector(legs, i, px, py, pz, r)
-        n = math.sqrt(lx * lx + ly * ly + lz * lz)
-        ux, uy, uz = lx / n, ly / n, lz / n
-        jinv[i, 0], jinv[i, 1], jinv[i, 2] = ux, uy, uz
-        jinv[i, 3] = rby * uz - rbz * uy
-        jinv[i, 4] = rbz * ux - rbx * uz
-        jinv[i, 5] = rbx * uy - rby * ux
-
-
-@kernel()
-def invert6_into(a, out) -> bool:
-    """out = a^-1 for a 6 x 6 matrix by Gauss-Jordan elimination with partial pivoting
-    (``a`` is overwritten); False when a pivot vanishes (singular to machine precision).
-    Inline: a LAPACK call per solve costs more than the elimination itself."""
-    n = 6
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = 1.0 if i == j else 0.0
-    scale = 0.0
-    for i in range(n):
-        for j in range(n):
-            scale = max(scale, abs(a[i, j]))
-    for col in range(n):
-        pivot = col
-        for row in range(col + 1, n):
-            if abs(a[row, col]) > abs(a[pivot, col]):
-                pivot = row
-        if not abs(a[pivot, col]) > 1e-14 * scale:
-            return False
-        if pivot != col:
-            for j in range(n):
-                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
-                out[col, j], out[pivot, j] = out[pivot, j], out[col, j]
-        inv_p = 1.0 / a[col, col]
-        for j in range(n):
-            a[col, j] *= inv_p
-            out[col, j] *= inv_p
-        for row in range(n):
-            if row != col:
-                f = a[row, col]
-                if f != 0.0:
-                    for j in range(n):
-                        a[row, j] -= f * a[col, j]
-                        out[row, j] -= f * out[col, j]
-    return True
-
-
-@kernel()
-def jacobian_into(legs, px, py, pz, r, out):
-    """J_h = (J_h^-1)^-1 (MoM3 eq. 1) into ``out`` (6, 6); False where J_h^-1 is
-    singular (``out`` then undefined)."""
-    jinv = np.empty((6, 6))
-    inverse_jacobian_into(legs, px, py, pz, r, jinv)
-    return invert6_into(jinv, out)
-
-
-@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
-def strut_lengths_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
-    """IKM_GP (MoM3 §5.2): l_i = |p + R b_i - A_i| for ``legs`` rows (A_i, b_i), (n, 6),
-    at the pose (p, R row-major); the per-reading form of :meth:`GoughPlatform.strut_lengths`."""
-    r = (r00, r01, r02, r10, r11, r12, r20, r21, r22)
-    out = np.empty(legs.shape[0])
-    for i in range(legs.shape[0]):
-        lx, ly, lz, _, _, _ = strut_vector(legs, i, px, py, pz, r)
-        out[i] = math.sqrt(lx * lx + ly * ly + lz * lz)
-    return out
-
-
-@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)")
-def _jacobian_kernel(legs, px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22):
-    """J_h = (J_h^-1)^-1 (MoM3 eq. 1) at the plate pose (p, R). Raises
-    numpy.linalg.LinAlgError where J_h^-1 is singular."""
-    jinv = np.empty((6, 6))
-    inverse_jacobian_into(legs, px, py, pz, (r00, r01, r02, r10, r11, r12, r20, r21, r22), jinv)
-    return np.linalg.inv(jinv)
-
-
-@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :])")
-def strut_lengths_batch_kernel(legs, positions, rotations, out):
-    """strut lengths (MoM3 §5.2) of N poses (``rotations`` rows row-major) into ``out`` (N, n)."""
-    for n in range(positions.shape[0]):
-        r = (rotations[n, 0], rotations[n, 1], rotations[n, 2], rotations[n, 3], rotations[n, 4],
-             rotations[n, 5], rotations[n, 6], rotations[n, 7], rotations[n, 8])
-        for i in range(legs.shape[0]):
-            lx, ly, lz, _, _, _ = strut_vector(legs, i, positions[n, 0], positions[n, 1], positions[n, 2], r)
-            out[n, i] = math.sqrt(lx * lx + ly * ly + lz * lz)
-
-
-@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :, :])")
-def inverse_jacobian_batch_kernel(legs, positions, rotations, out):
-    """J_h^-1 (MoM3 eq. 2-3) of N poses (``rotations`` rows row-major) into ``out`` (N, 6, 6)."""
-    for n in range(positions.shape[0]):
-        r = (rotations[n, 0], rotations[n, 1], rotations[n, 2], rotations[n, 3], rotations[n, 4],
-             rotations[n, 5], rotations[n, 6], rotations[n, 7], rotations[n, 8])
-        inverse_jacobian_into(legs, positions[n, 0], positions[n, 1], positions[n, 2], r, out[n])
-
-
-DKM_CONVERGED, DKM_NO_CONVERGENCE, DKM_DIVERGED_LIMIT, DKM_DIVERGED_GROWTH, DKM_SINGULAR = range(5)
-
-
-@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64, int64, float64)")
-def dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit):
-    """The DKM iteration of :meth:`GoughPlatform.direct_kinematics` (MoM3 §6.3), compiled:
-    Newton-Raphson on the strut residuals r_i = l_i - |p + R b_i - A_i|, the step
-    [dp; dw] = J_h r, p += dp, R <- exp([dw]x) R; J_h (``jh``, valid when ``have_jh``)
-    re-evaluated when an iteration gains less than three orders of magnitude.
-    ``p`` (3,), ``rot`` (9, row-major) and ``jh`` (6, 6) are updated in place. Returns
-    (code, iterations, evaluations, residual, have_jh); code DKM_CONVERGED (every
-    residual <= tol_m), DKM_NO_CONVERGENCE, DKM_DIVERGED_LIMIT (residual above
-    ``divergence_limit``), DKM_DIVERGED_GROWTH (grew twice in a row), DKM_SINGULAR."""
-    px, py, pz = p[0], p[1], p[2]
-    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
-    res = np.empty(6)
-    evaluations = 0
-    previous = math.inf
-    growth = 0
-    residual = math.inf
-    code = DKM_NO_CONVERGENCE
-    iterations = max_iterations
-    for iteration in range(max_iterations + 1):
-        residual = 0.0
-        for i in range(6):
-            lx, ly, lz, _, _, _ = strut_vector(legs, i, px, py, pz, r)
-            res[i] = target[i] - math.sqrt(lx * lx + ly * ly + lz * lz)
-            if not abs(res[i]) <= residual:       # (NaN propagates)
-                residual = abs(res[i])
-        if residual <= tol_m:
-            code, iterations = DKM_CONVERGED, iteration
-            break
-        if iteration == max_iterations:
-            break
-        if not math.isfinite(residual) or residual > divergence_limit:
-            code, iterations = DKM_DIVERGED_LIMIT, iteration
-            break
-        growth = growth + 1 if residual > previous else 0
-        if growth >= 2:
-            code, iterations = DKM_DIVERGED_GROWTH, iteration
-            break
-        if not have_jh or residual > 1e-3 * previous:
-            evaluations += 1
-            if not jacobian_into(legs, px, py, pz, r, jh):
-                code, iterations = DKM_SINGULAR, iteration
-                break
-            have_jh = True
-        previous = residual
-        dx = dy = dz = wx = wy = wz = 0.0
-        for j in range(6):
-            dx += jh[0, j] * res[j]
-            dy += jh[1, j] * res[j]
-            dz += jh[2, j] * res[j]
-            wx += jh[3, j] * res[j]
-            wy += jh[4, j] * res[j]
-            wz += jh[5, j] * res[j]
-        px, py, pz = px + dx, py + dy, pz + dz
-        r = mul3_kernel(exp_so3_kernel(wx, wy, wz), r)
-    p[0], p[1], p[2] = px, py, pz
-    for k in range(9):
-        rot[k] = r[k]
-    return code, iterations, evaluations, residual, have_jh
-
-
+# dkm_warm_step_kernel: the readings are not lengths (the FK_* codes of bars otherwise)
 DKM_BAD_LENGTHS = 5
 
 
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], boolean, "
         "float64, int64, float64, float64[:], float64[:])")
-def dkm_warm_step_kernel(legs, target, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
+def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
                          divergence_limit, p, rot):
     """One solve of a warm-starting solver (GoughDKMSolver.solve), compiled: the guess
     extrapolated from the last two solutions (p1, R1) and (p0, R0) when
     ``has_previous`` (p = 2 p1 - p0; R = exp(w) R1 with w the rotation vector of
-    R1 R0^T, exact to O(w^3)), else (p1, R1); then dkm_newton_kernel into ``p`` and
-    ``rot``. DKM_BAD_LENGTHS (nothing solved) when a length is not finite and > 0."""
+    R1 R0^T, exact to O(w^3)), else (p1, R1); then ``bars.chord_forward_kinematics_kernel``
+    into ``p`` and ``rot``. DKM_BAD_LENGTHS (nothing solved) when a length is not
+    finite and > 0."""
     for i in range(6):
         if not (0.0 < target[i] < math.inf):
             return DKM_BAD_LENGTHS, 0, 0, math.inf, have_jh
@@ -283,14 +113,15 @@ def dkm_warm_step_kernel(legs, target, p1, r1, p0, r0, has_previous, jh, have_jh
     else:
         p[:] = p1
         rot[:] = r1
-    return dkm_newton_kernel(legs, target, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit)
+    return B.chord_forward_kinematics_kernel(bars, target, p, rot, jh, have_jh, tol_m, max_iterations,
+                                             divergence_limit)
 
 
 @kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64, int64, float64, float64, "
         "float64[:, :], float64[:, :], boolean[:], int64[:])")
-def dkm_batch_kernel(legs, lengths, guess_p, guess_r, tol_m, max_iterations, divergence_limit, home_det_sign,
+def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, divergence_limit, home_det_sign,
                      p_out, r_out, ok, iterations):
-    """dkm_newton_kernel on every row of ``lengths`` (N, 6) from its guess (``guess_r``
+    """``bars.chord_forward_kinematics_kernel`` on every row of ``lengths`` (N, 6) from its guess (``guess_r``
     rows row-major), with the branch checks of GoughPlatform._finish: the plate above
     the base plane and not flipped, and for a solve that travelled (re-linearised, or
     more than two steps) the sign of det(J_h^-1) at home. Rows that failed are NaN."""
@@ -300,12 +131,12 @@ def dkm_batch_kernel(legs, lengths, guess_p, guess_r, tol_m, max_iterations, div
         p, rot = p_out[n], r_out[n]
         p[:] = guess_p[n]
         rot[:] = guess_r[n]
-        code, its, evaluations, _, _ = dkm_newton_kernel(legs, lengths[n], p, rot, jh, False, tol_m,
-                                                         max_iterations, divergence_limit)
-        good = code == DKM_CONVERGED and p[2] > 0.0 and rot[8] > 0.0
+        code, its, evaluations, _, _ = B.chord_forward_kinematics_kernel(bars, lengths[n], p, rot, jh, False, tol_m,
+                                                                         max_iterations, divergence_limit)
+        good = code == B.FK_CONVERGED and p[2] > 0.0 and rot[8] > 0.0
         if good and (evaluations > 0 or its > 2):
-            inverse_jacobian_into(legs, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5],
-                                                             rot[6], rot[7], rot[8]), jinv)
+            B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5],
+                                                               rot[6], rot[7], rot[8]), lengths[n], jinv)
             good = np.linalg.det(jinv) * home_det_sign > 0.0
         ok[n] = good
         iterations[n] = its
@@ -333,22 +164,22 @@ class GoughPlatform:
                              f"got z = {self.home_position[2]}")
         self._lo, self._hi = float(self.strut_limits[0]), float(self.strut_limits[1])
         self._divergence_limit = 10.0 * max(1.0, self._hi - self._lo if math.isfinite(self._hi) else 1.0)
-        # the struts as rows (A_i, b_i) for the compiled kernels
-        self._legs_a = np.ascontiguousarray(np.hstack([self.base_points, self.plate_points]))
+        # the six passive struts as a bar model (``bars``): strut i is measurement i
+        self.bars = B.bar_rows(self.base_points, self.plate_points, actuator=np.arange(6), kind=B.STRUT)
         self._home_det_sign = math.copysign(
             1.0, float(np.linalg.det(self.inverse_jacobian(self.home_position, np.eye(3)))))
 
     # ------------------------------------------------------------ inverse model
     def strut_lengths(self, position, rotation) -> np.ndarray:
-        """l_i = |p + R b_i - A_i| (m); strut_lengths_kernel."""
+        """l_i = |p + R b_i - A_i| (m); ``bars.strut_lengths_kernel``."""
         p, r = np.asarray(position, dtype=float), np.asarray(rotation, dtype=float)
-        return strut_lengths_kernel(self._legs_a, p[0], p[1], p[2], *r.ravel().tolist())
+        return B.strut_lengths_kernel(self.bars, p[0], p[1], p[2], *r.ravel().tolist())
 
     def strut_lengths_batch(self, positions, rotations) -> np.ndarray:
         """Strut lengths for (N, 3) positions and (N, 3, 3) rotations: (N, 6)."""
         positions, rotations = self._pose_rows(positions, rotations)
         out = np.empty((positions.shape[0], 6))
-        strut_lengths_batch_kernel(self._legs_a, positions, rotations, out)
+        B.strut_lengths_batch_kernel(self.bars, positions, rotations, out)
         return out
 
     @staticmethod
@@ -371,15 +202,15 @@ class GoughPlatform:
     def jacobian_rows(self, p, r) -> list[list]:
         """:meth:`jacobian` for the per-cycle path: J_h (MoM3 eq. 1) as 6 rows of 6
         floats, ``p`` 3 floats, ``r`` a row-major 9-tuple; unchecked. Compiled
-        (:func:`_jacobian_kernel`): ~3 us against ~20 us with numpy.
+        (``bars.pose_from_lengths_jacobian_kernel``): ~3 us against ~20 us with numpy.
         Raises numpy.linalg.LinAlgError at a singular pose."""
-        return _jacobian_kernel(self._legs_a, p[0], p[1], p[2], *r).tolist()
+        return B.pose_from_lengths_jacobian_kernel(self.bars, p[0], p[1], p[2], *r).tolist()
 
     def inverse_jacobian_batch(self, positions, rotations) -> np.ndarray:
-        """J_h^-1 for N poses: (N, 6, 6); inverse_jacobian_batch_kernel."""
+        """J_h^-1 for N poses: (N, 6, 6); ``bars.unit_pose_jacobian_batch_kernel``."""
         positions, rotations = self._pose_rows(positions, rotations)
         out = np.empty((positions.shape[0], 6, 6))
-        inverse_jacobian_batch_kernel(self._legs_a, positions, rotations, out)
+        B.unit_pose_jacobian_batch_kernel(self.bars, positions, rotations, out)
         return out
 
     def jacobian(self, position, rotation) -> np.ndarray:
@@ -434,25 +265,25 @@ class GoughPlatform:
 
     def _newton(self, target: list, p: list, rot: list, jh, tol_m: float,
                 max_iterations: int) -> GoughDKMResult:
-        """dkm_newton_kernel from (p, rot) (floats; ``rot`` row-major) and ``jh`` (J_h
+        """``bars.chord_forward_kinematics_kernel`` from (p, rot) (floats; ``rot`` row-major) and ``jh`` (J_h
         near the guess, 6 x 6, or None), then the branch checks of ``_finish``."""
         p_a, rot_a = np.array(p, dtype=float), np.array(rot, dtype=float)
         have = jh is not None
         jh_a = np.array(jh, dtype=float) if have else np.empty((6, 6))
-        code, iterations, evaluations, residual, have = dkm_newton_kernel(
-            self._legs_a, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, float(tol_m),
+        code, iterations, evaluations, residual, have = B.chord_forward_kinematics_kernel(
+            self.bars, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, float(tol_m),
             int(max_iterations), self._divergence_limit)
         return self._result(code, p_a, rot_a, iterations, evaluations, residual, jh_a if have else None,
                             max_iterations)
 
     def _result(self, code, p, rot, iterations, evaluations, residual, jh, max_iterations) -> GoughDKMResult:
         """The GoughDKMResult of a kernel's solve (``p`` (3,), ``rot`` (9,) its last iterate)."""
-        if code == DKM_CONVERGED:
+        if code == B.FK_CONVERGED:
             return self._finish(p[0], p[1], p[2], rot, iterations, evaluations, residual, jh)
-        reason = {DKM_DIVERGED_LIMIT: f"diverged: residual {residual:.3g} m above the limit "
+        reason = {B.FK_DIVERGED: f"diverged: residual {residual:.3g} m above the limit "
                                       f"{self._divergence_limit:.3g} m",
-                  DKM_DIVERGED_GROWTH: "diverged: residual grew twice in a row",
-                  DKM_SINGULAR: "singular configuration (J_h^-1 not invertible)"}.get(
+                  B.FK_STALLED: "diverged: residual grew twice in a row",
+                  B.FK_SINGULAR: "singular configuration (J_h^-1 not invertible)"}.get(
             code, f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
         return self._fail(iterations, evaluations, residual, reason)
 
@@ -497,7 +328,7 @@ class GoughPlatform:
                              "(R^T R != I or det(R) <= 0)")
         p_out, r_out = np.empty((n, 3)), np.empty((n, 9))
         iters, ok = np.empty(n, dtype=np.int64), np.empty(n, dtype=bool)
-        dkm_batch_kernel(self._legs_a, np.ascontiguousarray(lengths), np.ascontiguousarray(guess_positions),
+        dkm_batch_kernel(self.bars, np.ascontiguousarray(lengths), np.ascontiguousarray(guess_positions),
                          np.ascontiguousarray(guess_rotations.reshape(n, 9)), float(tol_m), int(max_iterations),
                          self._divergence_limit, self._home_det_sign, p_out, r_out, ok, iters)
         r_out = r_out.reshape(n, 3, 3)
@@ -551,7 +382,7 @@ class GoughDKMSolver:
             platform._validate_lengths(lengths)            # raises, naming what is wrong
         p, rot = np.empty(3), np.empty(9)
         code, iterations, evaluations, residual, have_jh = dkm_warm_step_kernel(
-            platform._legs_a, target, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
+            platform.bars, target, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
             self._has_jh, self.tol_m, self.max_iterations, platform._divergence_limit, p, rot)
         if code == DKM_BAD_LENGTHS:
             platform._validate_lengths(lengths)            # raises, naming what is wrong
