@@ -253,30 +253,286 @@ def unit_pose_jacobian_derivative_into(bars, px, py, pz, r, q, t, out) -> bool:
     return True
 
 
-@kernel("(float64[:, :], float64[:], float64[:], float64[:])")
-def inverse_kinematics_into(bars, p, rot, q):
-    """Actuator values of the pose (p, R row-major) into ``q``: each actuator from
-    the first bar it drives (module doc). Returns (code, bar): IK_UNREACHABLE with the
-    bar whose rail cannot reach its platform joint."""
-    r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
-    done = np.zeros(q.shape[0], dtype=np.bool_)
-    zero = np.zeros(q.shape[0])
+@kernel()
+def actuator_of_bar(bars, k, px, py, pz, r, zero):
+    """(disc, q_j): the value of bar k's actuator that closes the bar at the pose, in
+    closed form (MACHINE_MODEL.md): a strut q = |B - a|; a rail, the sphere/line
+    intersection q = u.w + sigma sqrt(disc), disc = L^2 - |w|^2 + (u.w)^2, w = B - a
+    (ARCHI §3.1, Orthoglide §3.1); disc < 0 (q NaN) where the rail cannot reach the
+    joint (a strut's disc is 0). ``zero``: actuator values of 0 (n,)."""
+    # w = B_k - a_k: the bar vector with the actuator at zero
+    wx, wy, wz, _, _, _ = bar_vector(bars, k, px, py, pz, r, zero)
+    if bars[k, 11] == 1.0:
+        return 0.0, math.sqrt(wx * wx + wy * wy + wz * wz)
+    uw = bars[k, 3] * wx + bars[k, 4] * wy + bars[k, 5] * wz
+    # summed in this order so that a planar machine's (wz = 0) is bit for bit the
+    # per-pose and batched planar IK's: at the edge of reach disc is exactly 0 there
+    disc = bars[k, 9] * bars[k, 9] - wx * wx - wy * wy - wz * wz + uw * uw
+    if not disc >= 0.0:
+        return disc, math.nan
+    return disc, uw + bars[k, 12] * math.sqrt(disc)
+
+
+@kernel()
+def actuators_into(bars, px, py, pz, r, q):
+    """Actuator values of the pose (p, R row-major tuple) into ``q``: each actuator
+    from the first bar it drives (``actuator_of_bar``). Returns (code, bar):
+    IK_UNREACHABLE with the bar whose rail cannot reach its platform joint."""
+    q[:] = math.nan                        # NaN: the actuator's first bar not met yet
     for k in range(bars.shape[0]):
         j = int(bars[k, 10])
-        if j < 0 or done[j]:
+        if j < 0 or not math.isnan(q[j]):
             continue
-        # w = B_k - a_k: the bar vector with the actuator at zero
-        wx, wy, wz, _, _, _ = bar_vector(bars, k, p[0], p[1], p[2], r, zero)
-        if bars[k, 11] == 1.0:
-            q[j] = math.sqrt(wx * wx + wy * wy + wz * wz)
-        else:
-            uw = bars[k, 3] * wx + bars[k, 4] * wy + bars[k, 5] * wz
-            disc = bars[k, 9] * bars[k, 9] - (wx * wx + wy * wy + wz * wz) + uw * uw
-            if not disc >= 0.0:
-                return IK_UNREACHABLE, k
-            q[j] = uw + bars[k, 12] * math.sqrt(disc)
-        done[j] = True
+        q[j] = 0.0                         # bar k reads only its own actuator: w = B - a
+        disc, q[j] = actuator_of_bar(bars, k, px, py, pz, r, q)
+        if not disc >= 0.0:
+            return IK_UNREACHABLE, k
     return IK_OK, -1
+
+
+@kernel("(float64[:, :], float64[:], float64[:], float64[:])")
+def inverse_kinematics_into(bars, p, rot, q):
+    """``actuators_into`` at the pose (p (3,), R (9,) row-major arrays)."""
+    return actuators_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7],
+                                                   rot[8]), q)
+
+
+# rail_velocity_terms_kernel's codes (planar.VT_* are the same values)
+VT_OK, VT_UNREACHABLE, VT_SINGULAR = 0, 1, 2
+
+
+@kernel()
+def rail_row_terms(bars, k, px, py, pz, r, q, t, with_rate):
+    """Bar k on a rail, its actuator j at q[j] (closed): (code, s, row, qdot, bias,
+    row rate), MACHINE_MODEL.md's J_x t = J_q q' for one bar per actuator (ARCHI §3.2,
+    §3.4; Orthoglide eq. 3-8): with e = B - A, g = [e, (R b) x e] and s = e . u, the
+    J_m row g / s, q'_j = g . t / s, and along the twist t = (v, w), with
+    (R b)' = w x R b and e' = v + (R b)' - q'_j u, g' = [e', (R b)' x e + (R b) x e'],
+    the row's rate g' / s - g s' / s^2 (s' = e' . u) and the bias J_m' t of
+    q'' = J_m t' + J_m' t. Rows and rates are 6-tuples (the rate only ``with_rate``,
+    else the row again); code VT_SINGULAR (e perpendicular to the rail: s = 0, J_m
+    unbounded)."""
+    ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
+    ux, uy, uz, length = bars[k, 3], bars[k, 4], bars[k, 5], bars[k, 9]
+    sv = ex * ux + ey * uy + ez * uz
+    g = (ex, ey, ez, rby * ez - rbz * ey, rbz * ex - rbx * ez, rbx * ey - rby * ex)
+    if sv * sv <= 1e-18 * length * length:
+        return VT_SINGULAR, sv, g, 0.0, 0.0, g
+    gv = g[0] * t[0] + g[1] * t[1] + g[2] * t[2] + g[3] * t[3] + g[4] * t[4] + g[5] * t[5]
+    qdot = gv / sv
+    rdx, rdy, rdz = t[4] * rbz - t[5] * rby, t[5] * rbx - t[3] * rbz, t[3] * rby - t[4] * rbx
+    edx, edy, edz = t[0] + rdx - qdot * ux, t[1] + rdy - qdot * uy, t[2] + rdz - qdot * uz
+    gd = (edx, edy, edz, (rdy * ez - rdz * ey) + (rby * edz - rbz * edy),
+          (rdz * ex - rdx * ez) + (rbz * edx - rbx * edz), (rdx * ey - rdy * ex) + (rbx * edy - rby * edx))
+    gdv = gd[0] * t[0] + gd[1] * t[1] + gd[2] * t[2] + gd[3] * t[3] + gd[4] * t[4] + gd[5] * t[5]
+    sdot = edx * ux + edy * uy + edz * uz
+    bias = gdv / sv - gv * sdot / (sv * sv)
+    if not with_rate:
+        return VT_OK, sv, g, qdot, bias, g
+    inv, k2 = 1.0 / sv, sdot / (sv * sv)
+    rate = (gd[0] * inv - g[0] * k2, gd[1] * inv - g[1] * k2, gd[2] * inv - g[2] * k2,
+            gd[3] * inv - g[3] * k2, gd[4] * inv - g[4] * k2, gd[5] * inv - g[5] * k2)
+    return VT_OK, sv, g, qdot, bias, rate
+
+
+@kernel()
+def task_pose_twist(columns, x0, x1, x2, v0, v1, v2):
+    """The platform pose (p, R row-major) and twist t (6) of the task coordinates x
+    and rates v of a machine whose platform moves in the twist components
+    ``columns`` (three of vx vy vz wx wy wz: a translating platform's vx vy vz, a
+    planar one's vx vy wz): a translation column's coordinate is that component of p,
+    a rotation column's the angle about that base axis (at most one), the rates the
+    twist's components."""
+    p0 = p1 = p2 = t0 = t1 = t2 = t3 = t4 = t5 = 0.0          # floats: no allocation per cycle
+    r = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    for i in range(3):
+        c = columns[i]
+        xi = x0 if i == 0 else (x1 if i == 1 else x2)
+        vi = v0 if i == 0 else (v1 if i == 1 else v2)
+        if c == 0:
+            p0, t0 = xi, vi
+        elif c == 1:
+            p1, t1 = xi, vi
+        elif c == 2:
+            p2, t2 = xi, vi
+        else:
+            co, si = math.cos(xi), math.sin(xi)
+            if c == 3:
+                r, t3 = (1.0, 0.0, 0.0, 0.0, co, -si, 0.0, si, co), vi
+            elif c == 4:
+                r, t4 = (co, 0.0, si, 0.0, 1.0, 0.0, -si, 0.0, co), vi
+            else:
+                r, t5 = (co, -si, 0.0, si, co, 0.0, 0.0, 0.0, 1.0), vi
+    return p0, p1, p2, r, (t0, t1, t2, t3, t4, t5)
+
+
+@kernel()
+def rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qdot, bias, rates):
+    """The velocity terms of a machine with one bar per actuator on rails (ARCHI,
+    Sliding Star, the Orthoglide, the Delta; MACHINE_MODEL.md): per actuator, its
+    first bar closed (``actuator_of_bar``), its J_m row, q', J_m' t and the row's
+    rate (``rail_row_terms``), the rows restricted to the task's twist ``columns``
+    (vx, vy, vz for a translating platform; vx, vy, wz for a planar one). Into
+    ``q``, ``rows`` (m, d), ``qdot``, ``bias`` and, unless it has no rows,
+    ``rates`` (m, d). Returns (code, bar): VT_UNREACHABLE or VT_SINGULAR with the
+    first bar that fails, in bar order."""
+    q[:] = math.nan                        # NaN: the actuator's first bar not met yet
+    for k in range(bars.shape[0]):
+        j = int(bars[k, 10])
+        if j < 0 or not math.isnan(q[j]):
+            continue
+        q[j] = 0.0                         # bar k reads only its own actuator: w = B - a
+        disc, q[j] = actuator_of_bar(bars, k, px, py, pz, r, q)
+        if not disc >= 0.0:
+            return VT_UNREACHABLE, k
+        code, sv, g, qdot[j], bias[j], rate = rail_row_terms(bars, k, px, py, pz, r, q, t, rates.shape[0] > 0)
+        if code != VT_OK:
+            return code, k
+        for c in range(columns.shape[0]):
+            rows[j, c] = g[columns[c]] / sv
+        if rates.shape[0]:
+            for c in range(columns.shape[0]):
+                rates[j, c] = rate[columns[c]]
+    return VT_OK, -1
+
+
+_RAIL_POSE = "(float64[:, :], int64, float64, float64, float64, UniTuple(float64, 9), UniTuple(float64, 6), int64[:])"
+_RAIL_TASK = "(float64[:, :], int64, int64[:], float64, float64, float64, float64, float64, float64)"
+
+
+@kernel(_RAIL_POSE)
+def rail_velocity_terms_kernel(bars, m, px, py, pz, r, t, columns):
+    """``rail_velocity_terms_into`` at one pose, new arrays: (q (m,), J_m (m, d), q',
+    J_m' t, code, bar); the per-cycle form (every array returned costs a few hundred
+    ns: the rows' rates have their own kernel)."""
+    d = columns.shape[0]
+    q, rows, qdot, bias = np.empty(m), np.empty((m, d)), np.empty(m), np.empty(m)
+    code, bar = rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qdot, bias, np.empty((0, d)))
+    return q, rows, qdot, bias, code, bar
+
+
+@kernel(_RAIL_POSE)
+def rail_jacobian_derivative_kernel(bars, m, px, py, pz, r, t, columns):
+    """J_m' (m, d) along the twist t (``rail_velocity_terms_into``'s rates): (J_m',
+    code, bar)."""
+    d = columns.shape[0]
+    q, rows, qdot, bias, rates = np.empty(m), np.empty((m, d)), np.empty(m), np.empty(m), np.empty((m, d))
+    code, bar = rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qdot, bias, rates)
+    return rates, code, bar
+
+
+@kernel(_RAIL_TASK)
+def rail_task_velocity_terms_kernel(bars, m, columns, x0, x1, x2, v0, v1, v2):
+    """``rail_velocity_terms_kernel`` (``m`` actuators) in task coordinates
+    (``task_pose_twist``): the per-cycle form for a machine and its dynamic model."""
+    px, py, pz, r, t = task_pose_twist(columns, x0, x1, x2, v0, v1, v2)
+    return rail_velocity_terms_kernel(bars, m, px, py, pz, r, t, columns)
+
+
+@kernel(_RAIL_TASK)
+def rail_task_jacobian_derivative_kernel(bars, m, columns, x0, x1, x2, v0, v1, v2):
+    """``rail_jacobian_derivative_kernel`` in task coordinates."""
+    px, py, pz, r, t = task_pose_twist(columns, x0, x1, x2, v0, v1, v2)
+    return rail_jacobian_derivative_kernel(bars, m, px, py, pz, r, t, columns)
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:, :], int64[:], float64[:, :], float64[:, :, :], boolean[:])")
+def rail_jacobian_batch_kernel(bars, positions, rotations, columns, q, rows, ok):
+    """``rail_velocity_terms_into`` at N poses at rest (``rotations`` rows
+    row-major): actuators ``q`` (N, m) and J_m ``rows`` (N, m, d); ``ok`` False and
+    the rows NaN where a bar cannot close (q NaN too), inf at a serial singularity
+    (a bar perpendicular to its rail: J_m unbounded)."""
+    m, d = q.shape[1], columns.shape[0]
+    qdot, bias, rates = np.empty(m), np.empty(m), np.empty((0, d))
+    rest = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    for i in range(positions.shape[0]):
+        r = (rotations[i, 0], rotations[i, 1], rotations[i, 2], rotations[i, 3], rotations[i, 4],
+             rotations[i, 5], rotations[i, 6], rotations[i, 7], rotations[i, 8])
+        code, _ = rail_velocity_terms_into(bars, positions[i, 0], positions[i, 1], positions[i, 2], r, rest,
+                                           columns, q[i], rows[i], qdot, bias, rates)
+        ok[i] = code == VT_OK
+        if code == VT_UNREACHABLE:
+            rows[i] = math.nan
+            q[i] = math.nan
+        elif code == VT_SINGULAR:
+            rows[i] = math.inf
+
+
+# three_rail_forward_kinematics_kernel's codes
+TRI_OK, TRI_COLLINEAR, TRI_NOT_MEETING, TRI_OTHER_BRANCH = range(4)
+
+
+@kernel("(float64[:, :], float64, float64, float64, float64)")
+def three_rail_forward_kinematics_kernel(bars, q0, q1, q2, side):
+    """The forward kinematics of a translating platform on three rail bars in closed
+    form (Orthoglide §3.1; MoM3's Delta): p is where the three spheres of centres
+    S_i = a_i + q_i u_i - b_i and radii L_i meet, on the working-mode ``side`` of the
+    centres' plane (that side changes only through a parallel singularity, Orthoglide
+    §3.3), each bar then checked on its assembly branch ((B_i - A_i) . u_i has the
+    sign of -sigma_i). Returns (px, py, pz, code, bar): TRI_COLLINEAR (the centres
+    on a line), TRI_NOT_MEETING, TRI_OTHER_BRANCH with the bar."""
+    qs = (q0, q1, q2)
+    s = np.empty((3, 3))
+    for i in range(3):
+        for k in range(3):
+            s[i, k] = bars[i, COL_A + k] + qs[i] * bars[i, COL_U + k] - bars[i, COL_B + k]
+    sq1, sq2, sq3 = bars[0, 9] * bars[0, 9], bars[1, 9] * bars[1, 9], bars[2, 9] * bars[2, 9]
+    ux, uy, uz = s[1, 0] - s[0, 0], s[1, 1] - s[0, 1], s[1, 2] - s[0, 2]
+    vx, vy, vz = s[2, 0] - s[0, 0], s[2, 1] - s[0, 1], s[2, 2] - s[0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    n2 = nx * nx + ny * ny + nz * nz
+    if not n2 > 1e-18 * (ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz):
+        return 0.0, 0.0, 0.0, TRI_COLLINEAR, -1
+    k2 = 0.5 * (sq1 - sq2 + ux * ux + uy * uy + uz * uz)
+    k3 = 0.5 * (sq1 - sq3 + vx * vx + vy * vy + vz * vz)
+    # foot of the intersection line: (k2 (v x n) + k3 (n x u)) / |n|^2
+    fx = (k2 * (vy * nz - vz * ny) + k3 * (ny * uz - nz * uy)) / n2
+    fy = (k2 * (vz * nx - vx * nz) + k3 * (nz * ux - nx * uz)) / n2
+    fz = (k2 * (vx * ny - vy * nx) + k3 * (nx * uy - ny * ux)) / n2
+    rest = sq1 - (fx * fx + fy * fy + fz * fz)
+    if not rest >= 0.0:
+        return 0.0, 0.0, 0.0, TRI_NOT_MEETING, -1
+    h = side * math.sqrt(rest / n2)
+    px, py, pz = s[0, 0] + fx + h * nx, s[0, 1] + fy + h * ny, s[0, 2] + fz + h * nz
+    identity = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    q = np.array([q0, q1, q2])
+    for i in range(3):
+        ex, ey, ez, _, _, _ = bar_vector(bars, i, px, py, pz, identity, q)
+        if (ex * bars[i, 3] + ey * bars[i, 4] + ez * bars[i, 5]) * bars[i, 12] > 0.0:
+            return px, py, pz, TRI_OTHER_BRANCH, i
+    return px, py, pz, TRI_OK, -1
+
+
+@kernel("(float64[:, :], float64[:, :], float64, float64[:, :], boolean[:])")
+def three_rail_forward_kinematics_batch_kernel(bars, q, side, positions, ok):
+    """``three_rail_forward_kinematics_kernel`` on every row of ``q`` (N, 3) into
+    ``positions`` (N, 3), NaN where it failed (``ok`` False)."""
+    for i in range(q.shape[0]):
+        px, py, pz, code, _ = three_rail_forward_kinematics_kernel(bars, q[i, 0], q[i, 1], q[i, 2], side)
+        ok[i] = code == TRI_OK
+        if ok[i]:
+            positions[i, 0], positions[i, 1], positions[i, 2] = px, py, pz
+        else:
+            positions[i, 0] = positions[i, 1] = positions[i, 2] = math.nan
+
+
+@kernel("(float64[:, :], int64, float64, float64, float64, UniTuple(float64, 9))")
+def inverse_kinematics_kernel(bars, m, px, py, pz, r):
+    """``actuators_into`` at one pose (floats; R row-major), a new array: (q (m,),
+    code, bar); the per-cycle form."""
+    q = np.empty(m)
+    code, bar = actuators_into(bars, px, py, pz, r, q)
+    return q, code, bar
+
+
+@kernel("(float64[:, :], float64, float64, float64, UniTuple(float64, 9), float64[:])")
+def bar_vectors_kernel(bars, px, py, pz, r, q):
+    """e_k = B_k - A_k of every bar (n, 3) at the pose and actuators ``q``: the rows
+    of the parallel Jacobian A of a translating machine (Orthoglide eq. 4)."""
+    out = np.empty((bars.shape[0], 3))
+    for k in range(bars.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2], _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+    return out
 
 
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64, int64, float64)")
@@ -547,7 +803,13 @@ def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iteration
 
 
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
-           "IK_OK", "IK_UNREACHABLE", "RAIL", "STRUT", "bar_length", "bar_rows", "bar_vector",
+           "IK_OK", "IK_UNREACHABLE", "actuators_into", "RAIL", "STRUT", "VT_OK", "VT_SINGULAR", "VT_UNREACHABLE", "actuator_of_bar",
+           "TRI_COLLINEAR", "TRI_NOT_MEETING", "TRI_OK", "TRI_OTHER_BRANCH", "inverse_kinematics_kernel",
+           "three_rail_forward_kinematics_batch_kernel", "three_rail_forward_kinematics_kernel",
+           "bar_length", "bar_rows", "bar_vector", "bar_vectors_kernel", "rail_jacobian_batch_kernel",
+           "rail_jacobian_derivative_kernel", "rail_row_terms", "rail_task_jacobian_derivative_kernel",
+           "rail_task_velocity_terms_kernel", "rail_velocity_terms_into", "rail_velocity_terms_kernel",
+           "task_pose_twist",
            "chord_forward_kinematics_kernel", "forward_kinematics_kernel", "forward_kinematics_stream_kernel",
            "forward_kinematics_warm_kernel", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
            "invert6_into", "pose_from_lengths_jacobian_into", "pose_from_lengths_jacobian_kernel",

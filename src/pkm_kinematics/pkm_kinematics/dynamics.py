@@ -26,11 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import planar, translational
+from . import bars as B
 from .distribution import SINGULAR_GRAM, _least_squares_kernel
 from .errors import DistributionError
 from .jit import kernel
-from .planar import PlanarMachine, _solve3
+from .planar import _solve3
+from .task_space import PLANAR
 
 VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after planar.VT_*)
 
@@ -57,7 +58,7 @@ class DynamicModel:
         n = machine.n_legs
         if len(params.drive_mass_kg) != n or len(params.friction_ns_per_m) != n:
             raise ValueError(f"dynamics: drive_mass_kg and friction_ns_per_m need {n} entries")
-        self.planar = isinstance(machine, PlanarMachine)
+        self.planar = machine.task_space is PLANAR       # the platform turns: M_n has an inertia
         m = params.platform_mass_kg
         g = tuple(float(v) for v in params.gravity_m_s2)
         rails = machine.rail_directions
@@ -91,10 +92,10 @@ class DynamicModel:
         if qdot.shape != (self.machine.n_legs,):
             raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
         rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg = _measured_state_kernel(
-            self.planar, self.machine.leg_kernel_data, x[0], x[1], x[2], qdot, *self._mass_args)
+            self.machine.bars, self.machine.twist_columns, x[0], x[1], x[2], qdot, *self._mass_args)
         if code == VT_LEAST_SQUARES_SINGULAR:
             raise DistributionError(SINGULAR_GRAM)
-        if code != planar.VT_OK:
+        if code != B.VT_OK:
             self.machine.raise_velocity_terms_error(code, leg, x)
         return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
 
@@ -164,28 +165,23 @@ def _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
     return a00, a01, a02, a11, a12, a22, h0, h1, h2
 
 
-@kernel()
-def _machine_velocity_terms(planar_machine, legs, x0, x1, x2, v0, v1, v2):
-    """The velocity terms of either machine kind (planar: pose x, y, theta and twist;
-    translational: position and velocity)."""
-    if planar_machine:
-        return planar.velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
-    return translational.velocity_terms_kernel(legs, x0, x1, x2, v0, v1, v2)
-
-
-@kernel("(boolean, float64[:, :], float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "
+@kernel("(float64[:, :], int64[:], float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "
         "float64, float64, float64, float64, float64, float64)")
-def _measured_state_kernel(planar_machine, legs, x0, x1, x2, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+def _measured_state_kernel(bars, columns, x0, x1, x2, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
     """DynamicModel.measured_state: J_m at x (velocity terms at zero velocity), v by least
     squares from qdot, then the velocity terms at (x, v) and A, H there. Returns (J_m,
     v0, v1, v2, A's 6 entries, H, code, leg)."""
-    _, rows, _, _, code, leg = _machine_velocity_terms(planar_machine, legs, x0, x1, x2, 0.0, 0.0, 0.0)
-    if code != planar.VT_OK:
+    m = qdot.shape[0]
+    q, rows, qd, jdv, no_rates = np.empty(m), np.empty((m, 3)), np.empty(m), np.empty(m), np.empty((0, 3))
+    px, py, pz, r, t = B.task_pose_twist(columns, x0, x1, x2, 0.0, 0.0, 0.0)
+    code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
+    if code != B.VT_OK:
         return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, code, leg
     v0, v1, v2, ok = _least_squares_kernel(rows, qdot)
     if not ok:
         return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, VT_LEAST_SQUARES_SINGULAR, -1
-    _, rows, qd, jdv, code, leg = _machine_velocity_terms(planar_machine, legs, x0, x1, x2, v0, v1, v2)
+    px, py, pz, r, t = B.task_pose_twist(columns, x0, x1, x2, v0, v1, v2)       # the same pose, the twist found
+    code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
     a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
                                                                   pg0, pg1, pg2)
     return rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg

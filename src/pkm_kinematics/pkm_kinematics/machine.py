@@ -3,7 +3,8 @@ the controller, the metrology, the analyses and the panel may use of a
 ``PlanarMachine``, a ``TranslationalMachine``, a ``ParallelogramMachine`` or a
 ``StrutMachine``, and nothing else (no private
 attribute is read across modules). A machine is a platform joined to the base by
-bars (../shared/MACHINE_MODEL.md): ``leg_joints`` gives each bar's two joints,
+bars (../shared/MACHINE_MODEL.md): ``bars`` holds them as the kernels of ``bars``
+take them (a row per bar), ``leg_joints`` gives each bar's two joints,
 ``rail_origins`` / ``rail_directions`` the actuated rails the carriages ride on.
 """
 
@@ -38,8 +39,7 @@ class ParallelMachine(Protocol):
     @property
     def rail_directions(self) -> np.ndarray: ...
 
-    @property
-    def leg_kernel_data(self) -> np.ndarray: ...
+    bars: np.ndarray          # the model: a row per bar (``bars.bar_rows``)
 
     def leg_joints(self, x, q=None) -> tuple[np.ndarray, np.ndarray]: ...
 

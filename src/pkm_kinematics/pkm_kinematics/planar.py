@@ -19,6 +19,13 @@ Velocity (ARCHI §3.2, J_v G xdot = J_q qdot): for every leg, with e_i = B_i - A
 
 Unlimited rotation: theta is any real number; forward kinematics returns the angle
 on the revolution of the guess.
+
+Each leg is one rail bar of the bar model in the plane z = 0 (``bars``,
+MACHINE_MODEL.md), the platform moving in the twist components vx, vy, wz: the
+velocity terms, J_m, its derivative and their batches are ``bars`` kernels
+(``rail_task_velocity_terms_kernel``, ``rail_jacobian_batch_kernel``), written once
+for every rail machine. The inverse and forward kinematics kernels below are still
+the planar ones.
 """
 
 from __future__ import annotations
@@ -29,12 +36,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .jit import kernel
 from .measures import condition_numbers
 from .task_space import PLANAR
 from .validation import finite_array, finite_floats
 
+
+PLANAR_COLUMNS = np.array([0, 1, 5], dtype=np.int64)    # the task's twist components: vx, vy, wz
 
 # Forward kinematics switches from Gauss-Newton to Newton steps (exact Hessian) once a
 # Gauss-Newton step is shorter than this (m + rad): inside the quadratic basin.
@@ -259,7 +269,7 @@ def _forward_kinematics_batch_kernel(legs, pairs, sides, q, guesses, tol, max_it
     return poses, codes
 
 
-VT_OK, VT_UNREACHABLE, VT_SINGULAR = range(3)
+VT_OK, VT_UNREACHABLE, VT_SINGULAR = B.VT_OK, B.VT_UNREACHABLE, B.VT_SINGULAR
 
 
 def velocity_terms_error(code: int, leg_name: str, label: str, values) -> KinematicsError:
@@ -268,12 +278,6 @@ def velocity_terms_error(code: int, leg_name: str, label: str, values) -> Kinema
     if code == VT_UNREACHABLE:
         return UnreachablePoseError(f"{label} {[float(v) for v in values]} is unreachable for leg {leg_name}")
     return SingularityError(f"leg {leg_name} is perpendicular to its rail (serial singularity)")
-
-
-@kernel()
-def empty_velocity_terms(n):
-    """The outputs of a velocity-terms kernel for n legs: q (n,), J_m (n, 3), qdot, Jdot_m xdot."""
-    return np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n)
 
 
 def leg_array(origins, directions, link_lengths, platform_points, assemblies) -> np.ndarray:
@@ -370,34 +374,6 @@ def jm_row(ex, ey, sv, rbx, rby):
     return ex / sv, ey / sv, (ey * rbx - ex * rby) / sv
 
 
-@kernel("(float64[:, :], float64, float64, float64, float64, float64, float64)")
-def velocity_terms_kernel(legs, x, y, th, vx, vy, w):
-    """(q, J_m (n, 3), qdot = J_m xdot, Jdot_m xdot, code, leg) at the pose (x, y, th)
-    and twist (vx, vy, w), ARCHI §3.2, §3.4: per leg the carriage q_i closing
-    |B_i - A_i| = L_i on its assembly branch, the row g_i / s_i with g_i = [e_i,
-    e_i x R b_i] and s_i = e_i . u_i, and the derivative of the row along the twist.
-    ``code`` VT_UNREACHABLE or VT_SINGULAR names ``leg``."""
-    n = legs.shape[0]
-    q, rows, qdots, biases = empty_velocity_terms(n)
-    c, s = math.cos(th), math.sin(th)
-    for k in range(n):
-        code, qi, ex, ey, sv, rbx, rby = leg_closure(legs, k, x, y, c, s)
-        if code != VT_OK:
-            return q, rows, qdots, biases, code, k
-        ux, uy = legs[k, 2], legs[k, 3]
-        g3 = ey * rbx - ex * rby
-        gv = ex * vx + ey * vy + g3 * w
-        qdot = gv / sv
-        edx, edy = vx - w * rby - qdot * ux, vy + w * rbx - qdot * uy
-        gdot_v = edx * vx + edy * vy + ((edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)) * w
-        sdot = edx * ux + edy * uy
-        q[k] = qi
-        rows[k, 0], rows[k, 1], rows[k, 2] = jm_row(ex, ey, sv, rbx, rby)
-        qdots[k] = qdot
-        biases[k] = gdot_v / sv - gv * sdot / (sv * sv)
-    return q, rows, qdots, biases, VT_OK, -1
-
-
 @dataclass
 class PlanarMachine:
     """A planar PKM with n >= 3 PRR legs; see the module docstring for the model."""
@@ -434,6 +410,11 @@ class PlanarMachine:
                             self.joint_lower, self.joint_upper, self.leg_names)]
         # the legs as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
         self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
+        # the legs as rail bars in the plane z = 0 (module doc)
+        flat = np.zeros((self.n_legs, 1))
+        self.bars = B.bar_rows(np.hstack([self._o, flat]), np.hstack([self._b, flat]), actuator=np.arange(self.n_legs),
+                               kind=B.RAIL, rail=np.hstack([self._u, flat]), length=self._length, branch=self._sigma)
+        self.twist_columns = PLANAR_COLUMNS
         self._pairs = self._find_pairs()
         # Working mode: the assembly branch sigma_i of every leg (which of the two
         # carriage positions on the rail), and for paired legs which of the two circle
@@ -483,11 +464,6 @@ class PlanarMachine:
     def rail_directions(self) -> np.ndarray:
         """u_i, each rail's unit direction (n, 2): a carriage is at o_i + q_i u_i."""
         return self._u.copy()
-
-    @property
-    def leg_kernel_data(self) -> np.ndarray:
-        """The per-leg rows the compiled kernels take (leg_array); read only."""
-        return self._legs_a
 
     def leg_joints(self, pose, q=None) -> tuple[np.ndarray, np.ndarray]:
         """Each leg's two joints at ``pose`` in world coordinates, (n, 3) each with
@@ -562,26 +538,11 @@ class PlanarMachine:
 
     # -------------------------------------------------------------- jacobian
     def jacobian(self, pose, q=None) -> np.ndarray:
-        """J_m (n x 3) with qdot = J_m xdot (ARCHI §3.2), xdot = (xdot, ydot, thetadot).
-
-        ``q`` may be given when already known (saves an IK)."""
-        x, y, th = finite_floats(pose, 3, "pose")
-        qs = (self.inverse_kinematics(pose, check_limits=False).tolist() if q is None
-              else finite_floats(q, self.n_legs, "q"))
-        c, s = math.cos(th), math.sin(th)
-        rows = []
-        for (ox, oy, ux, uy, l2, bx, by, *_rest, name), qi in zip(self._legs_f, qs):
-            rbx = c * bx - s * by
-            rby = s * bx + c * by
-            ex = x + rbx - ox - qi * ux
-            ey = y + rby - oy - qi * uy
-            denom = ex * ux + ey * uy
-            if denom * denom <= 1e-18 * l2:      # |e . u| <= 1e-9 L
-                raise SingularityError(f"leg {name} is perpendicular to its rail (serial singularity): "
-                                       f"J_m is unbounded at pose {[x, y, th]}")
-            # row = [e^T, e . (E R b)] / (e . u), E R b = (-rby, rbx)
-            rows.append((ex / denom, ey / denom, (ey * rbx - ex * rby) / denom))
-        return np.array(rows)
+        """J_m (n x 3) with qdot = J_m xdot (ARCHI §3.2), xdot = (xdot, ydot, thetadot):
+        rows [e_i^T, e_i^T E R b_i] / (e_i . u_i). Raises SingularityError at a serial
+        singularity (a link perpendicular to its rail). (``q``: unused, the kernel
+        closes the legs itself.)"""
+        return self.velocity_terms_arrays(finite_floats(pose, 3, "pose"), (0.0, 0.0, 0.0))[1]
 
     def jacobian_derivative(self, pose, twist, q=None) -> np.ndarray:
         """dJ_m/dt along the twist xdot = (xdot, ydot, thetadot) (ARCHI §3.4 uses it in
@@ -589,37 +550,20 @@ class PlanarMachine:
 
         With g_i = [e_i^T, e_i^T E R b_i] and s_i = e_i . u_i (J_m[i] = g_i / s_i):
         edot = pdot + thetadot E R b - qdot u,  d(E R b)/dt = -thetadot R b,
-        Jdot[i] = gdot_i / s_i - g_i sdot_i / s_i^2.
+        Jdot[i] = gdot_i / s_i - g_i sdot_i / s_i^2 (``bars.rail_row_terms``).
         """
-        pose = np.array(finite_floats(pose, 3, "pose"))
-        twist = np.array(finite_floats(twist, 3, "twist"))
-        q = (self.inverse_kinematics(pose, check_limits=False) if q is None
-             else np.array(finite_floats(q, self.n_legs, "q")))
-        jac = self.jacobian(pose, q)
-        qdot = jac @ twist
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        b = self._b
-        rbx = c * b[:, 0] - s * b[:, 1]
-        rby = s * b[:, 0] + c * b[:, 1]
-        ex = pose[0] + rbx - self._o[:, 0] - q * self._u[:, 0]
-        ey = pose[1] + rby - self._o[:, 1] - q * self._u[:, 1]
-        w = twist[2]
-        edx = twist[0] - w * rby - qdot * self._u[:, 0]
-        edy = twist[1] + w * rbx - qdot * self._u[:, 1]
-        sv = ex * self._u[:, 0] + ey * self._u[:, 1]
-        sd = edx * self._u[:, 0] + edy * self._u[:, 1]
-        g = np.stack([ex, ey, ey * rbx - ex * rby], axis=1)
-        # d/dt (e . E R b) = edot . E R b + e . (-w R b)
-        g3dot = (edy * rbx - edx * rby) - w * (ex * rbx + ey * rby)
-        gdot = np.stack([edx, edy, g3dot], axis=1)
-        return gdot / sv[:, None] - g * (sd / sv**2)[:, None]
+        x, v = finite_floats(pose, 3, "pose"), finite_floats(twist, 3, "twist")
+        rates, code, leg = B.rail_task_jacobian_derivative_kernel(self.bars, self.n_legs, self.twist_columns, *x, *v)
+        if code != B.VT_OK:
+            self.raise_velocity_terms_error(code, leg, x)
+        return rates
 
     def velocity_terms(self, pose, twist) -> tuple[list, list, list, list]:
         """Per-cycle kinematics of the dynamic model (ARCHI §3.2, §3.4), lists of floats:
         (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
         Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
         Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
-        (:func:`velocity_terms_kernel`)."""
+        (``bars.rail_task_velocity_terms_kernel``)."""
         q, rows, qdot, bias = self.velocity_terms_arrays(pose, twist)
         return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
 
@@ -627,14 +571,14 @@ class PlanarMachine:
         """:meth:`velocity_terms` as arrays (q (n,), J_m (n, 3), qdot, Jdot_m xdot)."""
         if len(pose) != 3 or len(twist) != 3:
             raise ValueError(f"velocity terms: pose and twist need 3 values each, got {len(pose)} and {len(twist)}")
-        q, rows, qdot, bias, code, leg = velocity_terms_kernel(self._legs_a, pose[0], pose[1], pose[2],
-                                                                twist[0], twist[1], twist[2])
-        if code != VT_OK:
+        q, rows, qdot, bias, code, leg = B.rail_task_velocity_terms_kernel(
+            self.bars, self.n_legs, self.twist_columns, pose[0], pose[1], pose[2], twist[0], twist[1], twist[2])
+        if code != B.VT_OK:
             self.raise_velocity_terms_error(code, leg, pose)
         return q, rows, qdot, bias
 
     def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
-        """Raise the exception for a failure ``code`` of :func:`velocity_terms_kernel`."""
+        """Raise the exception for a failure ``code`` of the velocity-terms kernel."""
         raise velocity_terms_error(code, self.leg_names[leg], "pose", pose)
 
     def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
@@ -649,19 +593,17 @@ class PlanarMachine:
         return condition_numbers(self.jacobian_batch(poses))
 
     def jacobian_batch(self, poses) -> np.ndarray:
-        """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable."""
-        poses = np.asarray(poses, dtype=float)
-        q, _ = self.inverse_kinematics_batch(poses)
-        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-        rbx = c * self._b[:, 0] - s * self._b[:, 1]
-        rby = s * self._b[:, 0] + c * self._b[:, 1]
-        ex = poses[:, 0:1] + rbx - self._o[:, 0] - q * self._u[:, 0]
-        ey = poses[:, 1:2] + rby - self._o[:, 1] - q * self._u[:, 1]
-        denom = ex * self._u[:, 0] + ey * self._u[:, 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            jac = np.stack([ex / denom, ey / denom, (ey * rbx - ex * rby) / denom], axis=2)
-        jac[(denom * denom <= 1e-18 * self._length2) & np.isfinite(denom)] = np.inf   # serial singularity
-        return jac
+        """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable, inf at a
+        serial singularity (``bars.rail_jacobian_batch_kernel``)."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        rotations = np.ascontiguousarray(np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=1))
+        positions = np.ascontiguousarray(np.column_stack([poses[:, 0], poses[:, 1], zero]))
+        n = poses.shape[0]
+        q, rows, ok = np.empty((n, self.n_legs)), np.empty((n, self.n_legs, 3)), np.empty(n, dtype=bool)
+        B.rail_jacobian_batch_kernel(self.bars, positions, rotations, self.twist_columns, q, rows, ok)
+        return rows
 
     # the task coordinates' rates are the twist here: q' = J_m x'
     task_jacobian_batch = jacobian_batch
