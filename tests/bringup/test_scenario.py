@@ -253,8 +253,9 @@ def test_pkm_run_starts_nothing_on_a_bad_section(tmp_path, monkeypatch, capsys):
 
 
 def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
+    # (the shipped scenario's frame load goes with its plant section)
     s = load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [10.0, 0.0, -20.0, 1.0, 0.0, 2.0]}],
-                                            "plant": {"compliance": [1e-6] * 3 + [1e-5] * 3}})
+                                            "plant": {"compliance": [1e-6] * 3 + [1e-5] * 3}, "frame_load": []})
     assert s.load == [(0.1, (10.0, 0.0, -20.0, 1.0, 0.0, 2.0))]
     flat = node_parameters(s, tmp_path)["sim_hw"]["load_schedule"]
     assert flat == [0.1, 10.0, 0.0, -20.0, 1.0, 0.0, 2.0]
@@ -263,7 +264,7 @@ def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
     with pytest.raises(ScenarioError, match=r"mz must be in \[-500, 500\] N m \(max_load_nm\), got 600 at t_s = 0.1 s"):
         load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [0.0, 0.0, 0.0, 0.0, 0.0, 600.0]}]})
     with pytest.raises(ScenarioError, match=r"compliance: must be 6 values on hexapod8"):
-        load_scenario("hexapod_metrology", {"plant": {"compliance": [1e-6, 0.0, 0.0]}})
+        load_scenario("hexapod_metrology", {"plant": {"compliance": [1e-6, 0.0, 0.0]}, "frame_load": []})
     framed = load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
                                                  "plant": {"frame_compliance": [7e-8] * 6}})
     assert node_parameters(framed, tmp_path)["sim_hw"]["frame_load_schedule"] == [0.2, 0.0, 850.0, 0, 0, 0, 0]

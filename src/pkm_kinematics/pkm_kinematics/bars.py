@@ -297,6 +297,29 @@ def inverse_kinematics_into(bars, p, rot, q):
                                                    rot[8]), q)
 
 
+@kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :], boolean[:])")
+def inverse_kinematics_batch_kernel(bars, positions, rotations, q, reachable):
+    """Every actuator of every pose (N; ``rotations`` rows row-major) from its first
+    bar (``actuator_of_bar``) into ``q`` (N, m): NaN for an actuator whose bar cannot
+    reach (the others are still solved), ``reachable`` False for its pose."""
+    m = q.shape[1]
+    done = np.empty(m, dtype=np.bool_)
+    for i in range(positions.shape[0]):
+        r = (rotations[i, 0], rotations[i, 1], rotations[i, 2], rotations[i, 3], rotations[i, 4],
+             rotations[i, 5], rotations[i, 6], rotations[i, 7], rotations[i, 8])
+        done[:] = False
+        reachable[i] = True
+        for k in range(bars.shape[0]):
+            j = int(bars[k, 10])
+            if j < 0 or done[j]:
+                continue
+            done[j] = True
+            q[i, j] = 0.0                  # bar k reads only its own actuator: w = B - a
+            disc, q[i, j] = actuator_of_bar(bars, k, positions[i, 0], positions[i, 1], positions[i, 2], r, q[i])
+            if not disc >= 0.0:
+                reachable[i] = False
+
+
 # rail_velocity_terms_kernel's codes (planar.VT_* are the same values)
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = 0, 1, 2
 
@@ -322,8 +345,11 @@ def rail_row_terms(bars, k, px, py, pz, r, q, t, with_rate):
     qdot = gv / sv
     rdx, rdy, rdz = t[4] * rbz - t[5] * rby, t[5] * rbx - t[3] * rbz, t[3] * rby - t[4] * rbx
     edx, edy, edz = t[0] + rdx - qdot * ux, t[1] + rdy - qdot * uy, t[2] + rdz - qdot * uz
-    gd = (edx, edy, edz, (rdy * ez - rdz * ey) + (rby * edz - rbz * edy),
-          (rdz * ex - rdx * ez) + (rbz * edx - rbx * edz), (rdx * ey - rdy * ex) + (rbx * edy - rby * edx))
+    # ((R b)' x e = (w x R b) x e = R b (w . e) - w (R b . e): summed in this form, a
+    # planar machine's terms are bit for bit those of its own former kernel)
+    we, be = t[3] * ex + t[4] * ey + t[5] * ez, rbx * ex + rby * ey + rbz * ez
+    gd = (edx, edy, edz, (rby * edz - rbz * edy) + (rbx * we - t[3] * be),
+          (rbz * edx - rbx * edz) + (rby * we - t[4] * be), (rbx * edy - rby * edx) + (rbz * we - t[5] * be))
     gdv = gd[0] * t[0] + gd[1] * t[1] + gd[2] * t[2] + gd[3] * t[3] + gd[4] * t[4] + gd[5] * t[5]
     sdot = edx * ux + edy * uy + edz * uz
     bias = gdv / sv - gv * sdot / (sv * sv)
@@ -803,7 +829,7 @@ def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iteration
 
 
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
-           "IK_OK", "IK_UNREACHABLE", "actuators_into", "RAIL", "STRUT", "VT_OK", "VT_SINGULAR", "VT_UNREACHABLE", "actuator_of_bar",
+           "IK_OK", "IK_UNREACHABLE", "actuators_into", "inverse_kinematics_batch_kernel", "RAIL", "STRUT", "VT_OK", "VT_SINGULAR", "VT_UNREACHABLE", "actuator_of_bar",
            "TRI_COLLINEAR", "TRI_NOT_MEETING", "TRI_OK", "TRI_OTHER_BRANCH", "inverse_kinematics_kernel",
            "three_rail_forward_kinematics_batch_kernel", "three_rail_forward_kinematics_kernel",
            "bar_length", "bar_rows", "bar_vector", "bar_vectors_kernel", "rail_jacobian_batch_kernel",

@@ -312,42 +312,6 @@ def leg_drive_position(legs, k, x, y, c, s):
     return disc, a + sigma * math.sqrt(disc), wx, wy, rbx, rby
 
 
-IK_OK, IK_UNREACHABLE, IK_JOINT_LIMIT = range(3)
-
-
-@kernel("(float64[:, :], float64[:], float64[:], float64, float64, float64, boolean, float64[:])")
-def inverse_kinematics_kernel(legs, lower, upper, x, y, th, check_limits, q):
-    """``leg_drive_position`` of every leg into ``q`` (n,); returns (IK_OK, 0, 0.0), or
-    (IK_UNREACHABLE, leg, disc) for the first leg that cannot reach its platform point,
-    or, with ``check_limits``, (IK_JOINT_LIMIT, leg, q_leg) for the first drive outside
-    [lower, upper]."""
-    c, s = math.cos(th), math.sin(th)
-    for k in range(legs.shape[0]):
-        disc, qk, _, _, _, _ = leg_drive_position(legs, k, x, y, c, s)
-        if not disc >= 0.0:
-            return IK_UNREACHABLE, k, disc
-        if check_limits and not lower[k] <= qk <= upper[k]:
-            return IK_JOINT_LIMIT, k, qk
-        q[k] = qk
-    return IK_OK, 0, 0.0
-
-
-@kernel("(float64[:, :], float64[:, :], float64[:, :], boolean[:])")
-def inverse_kinematics_batch_kernel(legs, poses, q, reachable):
-    """``leg_drive_position`` for every leg of every pose (N, 3) into q (N, n): NaN for a
-    leg that cannot reach, and ``reachable`` False for its pose."""
-    for r in range(poses.shape[0]):
-        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
-        reachable[r] = True
-        for k in range(legs.shape[0]):
-            disc, qk, _, _, _, _ = leg_drive_position(legs, k, poses[r, 0], poses[r, 1], c, s)
-            if disc >= 0.0:
-                q[r, k] = qk
-            else:
-                q[r, k] = math.nan
-                reachable[r] = False
-
-
 @kernel()
 def leg_closure(legs, k, x, y, c, s):
     """Leg ``k`` of ``legs`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y, sigma) at the pose
@@ -401,6 +365,7 @@ class PlanarMachine:
         self._sigma = np.array([float(leg.assembly) for leg in self.legs])
         self.joint_lower = np.array([leg.joint_limits[0] for leg in self.legs], dtype=float)
         self.joint_upper = np.array([leg.joint_limits[1] for leg in self.legs], dtype=float)
+        self._limits_f = (self.joint_lower.tolist(), self.joint_upper.tolist())   # floats: the per-cycle check
         # per-leg float tuples for the per-cycle scalar paths (numpy costs ~1 us per
         # operation on 4-element arrays; plain floats are 5-10x faster here)
         self._legs_f = [(float(o[0]), float(o[1]), float(u[0]), float(u[1]), float(l2), float(b[0]),
@@ -496,18 +461,22 @@ class PlanarMachine:
         JointLimitError when ``check_limits`` and a drive leaves its range.
         """
         x, y, th = finite_floats(pose, 3, "pose")
-        q = np.empty(self.n_legs)
-        code, leg, value = inverse_kinematics_kernel(self._legs_a, self.joint_lower, self.joint_upper, x, y, th,
-                                                     bool(check_limits), q)
-        if code == IK_UNREACHABLE:     # also NaN from overflowing inputs
-            l2 = self._length2[leg]
+        c, s = math.cos(th), math.sin(th)
+        q, code, leg = B.inverse_kinematics_kernel(self.bars, self.n_legs, x, y, 0.0, (c, -s, 0.0, s, c, 0.0, 0.0, 0.0,
+                                                                                       1.0))
+        if code != B.IK_OK:     # also NaN from overflowing inputs
+            (bx, by), (ox, oy), (ux, uy) = self._b[leg].tolist(), self._o[leg].tolist(), self._u[leg].tolist()
+            wx, wy = x + c * bx - s * by - ox, y + s * bx + c * by - oy
+            along = wx * ux + wy * uy
             raise UnreachablePoseError(
                 f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
-                f"leg {self.leg_names[leg]} platform point is {math.sqrt(l2 - value):.6g} m from its rail, "
-                f"link_length is {math.sqrt(l2):.6g} m")
-        if code == IK_JOINT_LIMIT:
-            raise JointLimitError(f"leg {self.leg_names[leg]}: position {value:.6g} m outside joint_limits "
-                                  f"[{self.joint_lower[leg]:.6g}, {self.joint_upper[leg]:.6g}] m")
+                f"leg {self.leg_names[leg]} platform point is {math.sqrt(max(wx * wx + wy * wy - along * along, 0.0)):.6g} m "
+                f"from its rail, link_length is {self._length[leg]:.6g} m")
+        if check_limits:
+            for i, (qi, lo, hi) in enumerate(zip(q.tolist(), self._limits_f[0], self._limits_f[1])):
+                if not lo <= qi <= hi:
+                    raise JointLimitError(f"leg {self.leg_names[i]}: position {qi:.6g} m outside joint_limits "
+                                          f"[{lo:.6g}, {hi:.6g}] m")
         return q
 
     def check_joint_limits(self, q) -> None:
@@ -525,11 +494,21 @@ class PlanarMachine:
         Returns (q of shape (N, n), reachable mask of shape (N,)); q is NaN where a
         leg cannot reach. Joint limits are reported by ``within_joint_limits``.
         """
-        poses = np.ascontiguousarray(finite_array(poses, "poses", (-1, 3)))
-        q = np.empty((poses.shape[0], self.n_legs))
-        reachable = np.empty(poses.shape[0], dtype=bool)
-        inverse_kinematics_batch_kernel(self._legs_a, poses, q, reachable)
+        positions, rotations = self._poses_3d(finite_array(poses, "poses", (-1, 3)))
+        q = np.empty((positions.shape[0], self.n_legs))
+        reachable = np.empty(positions.shape[0], dtype=bool)
+        B.inverse_kinematics_batch_kernel(self.bars, positions, rotations, q, reachable)
         return q, reachable
+
+    @staticmethod
+    def _poses_3d(poses) -> tuple[np.ndarray, np.ndarray]:
+        """Planar poses (N, 3) as the bar kernels take them: positions (N, 3) at z = 0
+        and rotations about z (N, 9) row-major."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        zero, one = np.zeros_like(c), np.ones_like(c)
+        return (np.ascontiguousarray(np.column_stack([poses[:, 0], poses[:, 1], zero])),
+                np.ascontiguousarray(np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=1)))
 
     def within_joint_limits(self, q) -> np.ndarray:
         """Mask of rows of q (N, n) whose drives are all inside their limits."""
@@ -595,12 +574,8 @@ class PlanarMachine:
     def jacobian_batch(self, poses) -> np.ndarray:
         """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable, inf at a
         serial singularity (``bars.rail_jacobian_batch_kernel``)."""
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        rotations = np.ascontiguousarray(np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=1))
-        positions = np.ascontiguousarray(np.column_stack([poses[:, 0], poses[:, 1], zero]))
-        n = poses.shape[0]
+        positions, rotations = self._poses_3d(poses)
+        n = positions.shape[0]
         q, rows, ok = np.empty((n, self.n_legs)), np.empty((n, self.n_legs, 3)), np.empty(n, dtype=bool)
         B.rail_jacobian_batch_kernel(self.bars, positions, rotations, self.twist_columns, q, rows, ok)
         return rows
