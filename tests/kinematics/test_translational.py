@@ -146,7 +146,7 @@ def test_singular_and_malformed_inputs_raise_clear_errors():
     p = np.array([0.0, ORTHO.legs[0].link_length, 0.0])
     with pytest.raises(SingularityError, match="leg rho1 is perpendicular to its rail"):
         ORTHO.condition_number(p)
-    np.testing.assert_allclose(ORTHO.jacobian([0.01, 0.02, 0.03], rho=list(ORTHO.inverse_kinematics([0.01, 0.02, 0.03]))),
+    np.testing.assert_allclose(ORTHO.jacobian([0.01, 0.02, 0.03], q=list(ORTHO.inverse_kinematics([0.01, 0.02, 0.03]))),
                                ORTHO.jacobian([0.01, 0.02, 0.03]))
     with pytest.raises(ValueError, match="velocity: expected shape 3"):
         ORTHO.jacobian_derivative([0.0, 0.0, 0.0], [1.0, 2.0])

@@ -462,6 +462,16 @@ def rail_task_jacobian_derivative_kernel(bars, m, columns, x0, x1, x2, v0, v1, v
     return rail_jacobian_derivative_kernel(bars, m, px, py, pz, r, t, columns)
 
 
+@kernel("(float64[:, :], int64, int64[:], float64, float64, float64)")
+def rail_task_inverse_kinematics_kernel(bars, m, columns, x0, x1, x2):
+    """``inverse_kinematics_kernel`` in task coordinates (``task_pose_twist``):
+    (q (m,), code, bar)."""
+    px, py, pz, r, _ = task_pose_twist(columns, x0, x1, x2, 0.0, 0.0, 0.0)
+    q = np.empty(m)
+    code, bar = actuators_into(bars, px, py, pz, r, q)
+    return q, code, bar
+
+
 @kernel("(float64[:, :], float64[:, :], float64[:, :], int64[:], float64[:, :], float64[:, :, :], boolean[:])")
 def rail_jacobian_batch_kernel(bars, positions, rotations, columns, q, rows, ok):
     """``rail_velocity_terms_into`` at N poses at rest (``rotations`` rows
@@ -833,7 +843,7 @@ __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "F
            "TRI_COLLINEAR", "TRI_NOT_MEETING", "TRI_OK", "TRI_OTHER_BRANCH", "inverse_kinematics_kernel",
            "three_rail_forward_kinematics_batch_kernel", "three_rail_forward_kinematics_kernel",
            "bar_length", "bar_rows", "bar_vector", "bar_vectors_kernel", "rail_jacobian_batch_kernel",
-           "rail_jacobian_derivative_kernel", "rail_row_terms", "rail_task_jacobian_derivative_kernel",
+           "rail_jacobian_derivative_kernel", "rail_row_terms", "rail_task_inverse_kinematics_kernel", "rail_task_jacobian_derivative_kernel",
            "rail_task_velocity_terms_kernel", "rail_velocity_terms_into", "rail_velocity_terms_kernel",
            "task_pose_twist",
            "chord_forward_kinematics_kernel", "forward_kinematics_kernel", "forward_kinematics_stream_kernel",

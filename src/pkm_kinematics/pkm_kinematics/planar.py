@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import bars as B
-from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
+from .errors import KinematicsError, UnreachablePoseError
 from .jit import kernel
-from .measures import condition_numbers
+from .rails import RailMachine
 from .task_space import PLANAR
 from .validation import finite_array, finite_floats
 
@@ -272,14 +272,6 @@ def _forward_kinematics_batch_kernel(legs, pairs, sides, q, guesses, tol, max_it
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = B.VT_OK, B.VT_UNREACHABLE, B.VT_SINGULAR
 
 
-def velocity_terms_error(code: int, leg_name: str, label: str, values) -> KinematicsError:
-    """The exception for a failure ``code`` of a velocity-terms kernel (this module's
-    or translational's): ``label`` and ``values`` name the pose that failed."""
-    if code == VT_UNREACHABLE:
-        return UnreachablePoseError(f"{label} {[float(v) for v in values]} is unreachable for leg {leg_name}")
-    return SingularityError(f"leg {leg_name} is perpendicular to its rail (serial singularity)")
-
-
 def leg_array(origins, directions, link_lengths, platform_points, assemblies) -> np.ndarray:
     """Legs as the compiled kernels take them: rows (o_x, o_y, u_x, u_y, L^2, b_x, b_y,
     sigma) with u normalised, shape (..., n, 8) for inputs (..., n, 2), (..., n, 2),
@@ -339,8 +331,10 @@ def jm_row(ex, ey, sv, rbx, rby):
 
 
 @dataclass
-class PlanarMachine:
-    """A planar PKM with n >= 3 PRR legs; see the module docstring for the model."""
+class PlanarMachine(RailMachine):
+    """A planar PKM with n >= 3 PRR legs (see the module docstring): a
+    ``RailMachine`` in the plane, with ARCHI's forward kinematics (leg pairs, least
+    squares) and sub-machines."""
 
     name: str
     legs: list[PlanarLeg]
@@ -348,38 +342,27 @@ class PlanarMachine:
     workspace: dict = field(default_factory=dict)
     description: str = ""
 
+    pose_label = "pose"
+    dimension = 2
+
     def __post_init__(self):
         if len(self.legs) < 3:
             raise ValueError(f"legs: a planar machine needs at least 3 legs, got {len(self.legs)}")
         self.home_pose = finite_array(self.home_pose, "home_pose", (3,))
-        self.n_legs = len(self.legs)
         self.task_dof = self.spatiality = 3     # x, y, theta: the platform moves in SE(2)
         self.task_space = PLANAR
-        self.leg_names = [leg.name for leg in self.legs]
-        self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
-        u = np.array([leg.rail_direction for leg in self.legs], dtype=float)
-        self._u = u / np.linalg.norm(u, axis=1, keepdims=True)
-        self._length = np.array([leg.link_length for leg in self.legs], dtype=float)
+        legs = self.legs
+        self._init_rails([leg.rail_origin for leg in legs], [leg.rail_direction for leg in legs],
+                         [leg.link_length for leg in legs], [leg.platform_point for leg in legs],
+                         [float(leg.assembly) for leg in legs], [leg.joint_limits for leg in legs],
+                         [leg.name for leg in legs], PLANAR_COLUMNS)
+        self._o, self._u = self.rail_origins, self.rail_directions
+        self._length = self.bars[:, B.COL_LENGTH].copy()
         self._length2 = self._length**2
-        self._b = np.array([leg.platform_point for leg in self.legs], dtype=float)
-        self._sigma = np.array([float(leg.assembly) for leg in self.legs])
-        self.joint_lower = np.array([leg.joint_limits[0] for leg in self.legs], dtype=float)
-        self.joint_upper = np.array([leg.joint_limits[1] for leg in self.legs], dtype=float)
-        self._limits_f = (self.joint_lower.tolist(), self.joint_upper.tolist())   # floats: the per-cycle check
-        # per-leg float tuples for the per-cycle scalar paths (numpy costs ~1 us per
-        # operation on 4-element arrays; plain floats are 5-10x faster here)
-        self._legs_f = [(float(o[0]), float(o[1]), float(u[0]), float(u[1]), float(l2), float(b[0]),
-                         float(b[1]), float(sg), float(lo), float(hi), name)
-                        for o, u, l2, b, sg, lo, hi, name in zip(
-                            self._o, self._u, self._length2, self._b, self._sigma,
-                            self.joint_lower, self.joint_upper, self.leg_names)]
+        self._b = self.bars[:, B.COL_B:B.COL_B + 2].copy()
+        self._sigma = self.bars[:, B.COL_BRANCH].copy()
         # the legs as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
         self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
-        # the legs as rail bars in the plane z = 0 (module doc)
-        flat = np.zeros((self.n_legs, 1))
-        self.bars = B.bar_rows(np.hstack([self._o, flat]), np.hstack([self._b, flat]), actuator=np.arange(self.n_legs),
-                               kind=B.RAIL, rail=np.hstack([self._u, flat]), length=self._length, branch=self._sigma)
-        self.twist_columns = PLANAR_COLUMNS
         self._pairs = self._find_pairs()
         # Working mode: the assembly branch sigma_i of every leg (which of the two
         # carriage positions on the rail), and for paired legs which of the two circle
@@ -420,25 +403,8 @@ class PlanarMachine:
         """The home pose (x, y, theta)."""
         return self.home_pose
 
-    @property
-    def rail_origins(self) -> np.ndarray:
-        """o_i, the origin of each drive's rail (n, 2), world frame."""
-        return self._o.copy()
-
-    @property
-    def rail_directions(self) -> np.ndarray:
-        """u_i, each rail's unit direction (n, 2): a carriage is at o_i + q_i u_i."""
-        return self._u.copy()
-
-    def leg_joints(self, pose, q=None) -> tuple[np.ndarray, np.ndarray]:
-        """Each leg's two joints at ``pose`` in world coordinates, (n, 3) each with
-        z = 0: the carriage A_i = o_i + q_i u_i and the platform point B_i = p + R b_i
-        (ARCHI §3.1). ``q``: the drive positions (default: the inverse kinematics)."""
-        q = self.inverse_kinematics(pose, check_limits=False) if q is None else np.asarray(q, dtype=float)
-        carriages, points = np.zeros((self.n_legs, 3)), np.zeros((self.n_legs, 3))
-        carriages[:, :2] = self._o + q[:, None] * self._u
-        points[:, :2] = self._platform_points(pose)
-        return carriages, points
+    def describe_pose(self, x) -> str:
+        return f"pose (x={x[0]:.6g} m, y={x[1]:.6g} m, theta={math.degrees(x[2]):.6g} deg)"
 
     def _platform_points(self, pose) -> np.ndarray:
         """World coordinates of the platform points B_i = p + R b_i, shape (n, 2)."""
@@ -453,139 +419,12 @@ class PlanarMachine:
         """e_i = B_i - A_i (carriage to platform point), shape (n, 2)."""
         return self._platform_points(pose) - self._o - np.asarray(q)[:, None] * self._u
 
-    # --------------------------------------------------------------- inverse
-    def inverse_kinematics(self, pose, check_limits: bool = True) -> np.ndarray:
-        """Drive positions q (m) for the platform pose (x m, y m, theta rad). ARCHI §3.1.
-
-        Raises UnreachablePoseError when a link cannot reach its platform point and
-        JointLimitError when ``check_limits`` and a drive leaves its range.
-        """
-        x, y, th = finite_floats(pose, 3, "pose")
-        c, s = math.cos(th), math.sin(th)
-        q, code, leg = B.inverse_kinematics_kernel(self.bars, self.n_legs, x, y, 0.0, (c, -s, 0.0, s, c, 0.0, 0.0, 0.0,
-                                                                                       1.0))
-        if code != B.IK_OK:     # also NaN from overflowing inputs
-            (bx, by), (ox, oy), (ux, uy) = self._b[leg].tolist(), self._o[leg].tolist(), self._u[leg].tolist()
-            wx, wy = x + c * bx - s * by - ox, y + s * bx + c * by - oy
-            along = wx * ux + wy * uy
-            raise UnreachablePoseError(
-                f"pose (x={x:.6g} m, y={y:.6g} m, theta={math.degrees(th):.6g} deg) is unreachable: "
-                f"leg {self.leg_names[leg]} platform point is {math.sqrt(max(wx * wx + wy * wy - along * along, 0.0)):.6g} m "
-                f"from its rail, link_length is {self._length[leg]:.6g} m")
-        if check_limits:
-            for i, (qi, lo, hi) in enumerate(zip(q.tolist(), self._limits_f[0], self._limits_f[1])):
-                if not lo <= qi <= hi:
-                    raise JointLimitError(f"leg {self.leg_names[i]}: position {qi:.6g} m outside joint_limits "
-                                          f"[{lo:.6g}, {hi:.6g}] m")
-        return q
-
-    def check_joint_limits(self, q) -> None:
-        """Raise JointLimitError naming the first drive outside its joint_limits."""
-        bad = (q < self.joint_lower) | (q > self.joint_upper)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise JointLimitError(
-                f"leg {self.leg_names[i]}: position {q[i]:.6g} m outside joint_limits "
-                f"[{self.joint_lower[i]:.6g}, {self.joint_upper[i]:.6g}] m")
-
-    def inverse_kinematics_batch(self, poses) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorized IK for poses of shape (N, 3).
-
-        Returns (q of shape (N, n), reachable mask of shape (N,)); q is NaN where a
-        leg cannot reach. Joint limits are reported by ``within_joint_limits``.
-        """
-        positions, rotations = self._poses_3d(finite_array(poses, "poses", (-1, 3)))
-        q = np.empty((positions.shape[0], self.n_legs))
-        reachable = np.empty(positions.shape[0], dtype=bool)
-        B.inverse_kinematics_batch_kernel(self.bars, positions, rotations, q, reachable)
-        return q, reachable
-
-    @staticmethod
-    def _poses_3d(poses) -> tuple[np.ndarray, np.ndarray]:
-        """Planar poses (N, 3) as the bar kernels take them: positions (N, 3) at z = 0
-        and rotations about z (N, 9) row-major."""
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        zero, one = np.zeros_like(c), np.ones_like(c)
-        return (np.ascontiguousarray(np.column_stack([poses[:, 0], poses[:, 1], zero])),
-                np.ascontiguousarray(np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=1)))
-
-    def within_joint_limits(self, q) -> np.ndarray:
-        """Mask of rows of q (N, n) whose drives are all inside their limits."""
-        q = np.asarray(q, dtype=float)
-        return np.all((q >= self.joint_lower) & (q <= self.joint_upper), axis=-1)
-
-    # -------------------------------------------------------------- jacobian
-    def jacobian(self, pose, q=None) -> np.ndarray:
-        """J_m (n x 3) with qdot = J_m xdot (ARCHI §3.2), xdot = (xdot, ydot, thetadot):
-        rows [e_i^T, e_i^T E R b_i] / (e_i . u_i). Raises SingularityError at a serial
-        singularity (a link perpendicular to its rail). (``q``: unused, the kernel
-        closes the legs itself.)"""
-        return self.velocity_terms_arrays(finite_floats(pose, 3, "pose"), (0.0, 0.0, 0.0))[1]
-
-    def jacobian_derivative(self, pose, twist, q=None) -> np.ndarray:
-        """dJ_m/dt along the twist xdot = (xdot, ydot, thetadot) (ARCHI §3.4 uses it in
-        qddot = J_m xddot + Jdot_m xdot).
-
-        With g_i = [e_i^T, e_i^T E R b_i] and s_i = e_i . u_i (J_m[i] = g_i / s_i):
-        edot = pdot + thetadot E R b - qdot u,  d(E R b)/dt = -thetadot R b,
-        Jdot[i] = gdot_i / s_i - g_i sdot_i / s_i^2 (``bars.rail_row_terms``).
-        """
-        x, v = finite_floats(pose, 3, "pose"), finite_floats(twist, 3, "twist")
-        rates, code, leg = B.rail_task_jacobian_derivative_kernel(self.bars, self.n_legs, self.twist_columns, *x, *v)
-        if code != B.VT_OK:
-            self.raise_velocity_terms_error(code, leg, x)
-        return rates
-
-    def velocity_terms(self, pose, twist) -> tuple[list, list, list, list]:
-        """Per-cycle kinematics of the dynamic model (ARCHI §3.2, §3.4), lists of floats:
-        (q, rows of J_m, qdot = J_m xdot, Jdot_m xdot), with pose and twist as 3 floats.
-        Jdot_m xdot is the velocity-product part of qddot = J_m xddot + Jdot_m xdot.
-        Raises UnreachablePoseError / SingularityError like ``jacobian``. Compiled
-        (``bars.rail_task_velocity_terms_kernel``)."""
-        q, rows, qdot, bias = self.velocity_terms_arrays(pose, twist)
-        return q.tolist(), rows.tolist(), qdot.tolist(), bias.tolist()
-
-    def velocity_terms_arrays(self, pose, twist) -> tuple:
-        """:meth:`velocity_terms` as arrays (q (n,), J_m (n, 3), qdot, Jdot_m xdot)."""
-        if len(pose) != 3 or len(twist) != 3:
-            raise ValueError(f"velocity terms: pose and twist need 3 values each, got {len(pose)} and {len(twist)}")
-        q, rows, qdot, bias, code, leg = B.rail_task_velocity_terms_kernel(
-            self.bars, self.n_legs, self.twist_columns, pose[0], pose[1], pose[2], twist[0], twist[1], twist[2])
-        if code != B.VT_OK:
-            self.raise_velocity_terms_error(code, leg, pose)
-        return q, rows, qdot, bias
-
-    def raise_velocity_terms_error(self, code: int, leg: int, pose) -> None:
-        """Raise the exception for a failure ``code`` of the velocity-terms kernel."""
-        raise velocity_terms_error(code, self.leg_names[leg], "pose", pose)
-
     def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
         """A regular grid over the configured workspace: (N, 3) poses (x, y, theta)."""
         ws = self.workspace
         axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
                 np.radians(np.linspace(*ws["theta_deg"], theta_points))]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-    def condition_number_batch(self, poses) -> np.ndarray:
-        """Condition numbers of J_m at poses (N, 3): NaN where unreachable."""
-        return condition_numbers(self.jacobian_batch(poses))
-
-    def jacobian_batch(self, poses) -> np.ndarray:
-        """J_m for poses (N, 3): shape (N, n, 3), NaN rows where unreachable, inf at a
-        serial singularity (``bars.rail_jacobian_batch_kernel``)."""
-        positions, rotations = self._poses_3d(poses)
-        n = positions.shape[0]
-        q, rows, ok = np.empty((n, self.n_legs)), np.empty((n, self.n_legs, 3)), np.empty(n, dtype=bool)
-        B.rail_jacobian_batch_kernel(self.bars, positions, rotations, self.twist_columns, q, rows, ok)
-        return rows
-
-    # the task coordinates' rates are the twist here: q' = J_m x'
-    task_jacobian_batch = jacobian_batch
-
-    def condition_number(self, pose) -> float:
-        """2-norm condition number of J_m (ARCHI §3.3, Figure 10)."""
-        return float(np.linalg.cond(self.jacobian(pose)))
 
     def sub_machines(self) -> list[tuple[int, ...]]:
         """Every non-redundant 3-leg sub-machine (J_124, J_134, J_123, J_234 for ARCHI)."""

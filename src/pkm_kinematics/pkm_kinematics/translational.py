@@ -16,9 +16,10 @@ eigenvalues of (J J^T)^-1, i.e. the singular values of J = J_m^-1.
 
 Each leg is one bar of the bar model (``bars``, MACHINE_MODEL.md: a parallelogram
 with equal bars closes like its centre line), the platform translating (R = I,
-twist columns vx, vy, vz): the equations above are ``bars`` kernels
-(``inverse_kinematics_kernel``, ``rail_velocity_terms_kernel``,
-``three_rail_forward_kinematics_kernel``), written once for every rail machine.
+twist columns vx, vy, vz): a ``rails.RailMachine``, whose IK, J_m, velocity terms
+and batches are every rail machine's; the forward kinematics
+(``bars.three_rail_forward_kinematics_kernel``) and the Orthoglide's analyses are
+this class's.
 """
 
 from __future__ import annotations
@@ -29,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import bars as B
-from .errors import JointLimitError, SingularityError, UnreachablePoseError
-from .measures import condition_numbers, cube_grid
-from .planar import velocity_terms_error
+from .errors import SingularityError, UnreachablePoseError
+from .measures import cube_grid
+from .rails import RailMachine
 from .task_space import POSITION
 from .validation import finite_array, finite_floats
 
@@ -51,8 +52,10 @@ class TranslationalLeg:
 
 
 @dataclass
-class TranslationalMachine:
-    """A 3-DOF translational PKM with three P-Pa legs (see module docstring)."""
+class TranslationalMachine(RailMachine):
+    """A 3-DOF translational PKM with three P-Pa legs (see module docstring): a
+    ``RailMachine`` translating, with its closed-form forward kinematics and the
+    Orthoglide's analyses."""
 
     name: str
     legs: list[TranslationalLeg]
@@ -62,27 +65,24 @@ class TranslationalMachine:
     description: str = ""
     parallel_margin: float = 0.0     # poses with parallel_singularity_measure below it are refused (0: none)
 
+    pose_label = "position"
+    rate_label = "velocity"
+    dimension = 3
+
     def __post_init__(self):
         if len(self.legs) != 3:
             raise ValueError(f"legs: a translational machine has exactly 3 legs, got {len(self.legs)}")
         self.home_position = finite_array(self.home_position, "home_position", (3,))
-        self.n_legs = 3
         self.task_dof = self.spatiality = 3     # three translations
         self.task_space = POSITION
-        self.leg_names = [leg.name for leg in self.legs]
-        self._o = np.array([leg.rail_origin for leg in self.legs], dtype=float)
-        e = np.array([leg.rail_direction for leg in self.legs], dtype=float)
-        self._e = e / np.linalg.norm(e, axis=1, keepdims=True)
-        self._length = np.array([leg.link_length for leg in self.legs], dtype=float)
-        self._c = np.array([leg.platform_offset for leg in self.legs], dtype=float)
-        self._sigma = np.array([float(leg.assembly) for leg in self.legs])
-        self.joint_lower = np.array([leg.joint_limits[0] for leg in self.legs], dtype=float)
-        self.joint_upper = np.array([leg.joint_limits[1] for leg in self.legs], dtype=float)
-        self._limits_f = (self.joint_lower.tolist(), self.joint_upper.tolist())   # floats: the per-cycle check
-        # one rail bar per leg (module doc): what every kernel takes
-        self.bars = B.bar_rows(self._o, self._c, actuator=np.arange(3), kind=B.RAIL, rail=self._e,
-                               length=self._length, branch=self._sigma)
-        self.twist_columns = TRANSLATION_COLUMNS
+        legs = self.legs
+        self._init_rails([leg.rail_origin for leg in legs], [leg.rail_direction for leg in legs],
+                         [leg.link_length for leg in legs], [leg.platform_offset for leg in legs],
+                         [float(leg.assembly) for leg in legs], [leg.joint_limits for leg in legs],
+                         [leg.name for leg in legs], TRANSLATION_COLUMNS)
+        self._o, self._e = self.rail_origins, self.rail_directions
+        self._c = self.bars[:, B.COL_B:B.COL_B + 3].copy()
+        self._sigma = self.bars[:, B.COL_BRANCH].copy()
         # Forward branch: the platform lies on one side of the plane through the three
         # sphere centres; that side only changes through a parallel singularity
         # (Orthoglide §3.3), so it is the working mode.
@@ -91,76 +91,13 @@ class TranslationalMachine:
         normal = np.cross(centres[1] - centres[0], centres[2] - centres[0])
         self._fk_side = math.copysign(1.0, float(normal @ (self.home_position - centres[0])))
 
-    # ------------------------------------------------- the bars (machine.ParallelMachine)
     @property
     def home(self) -> np.ndarray:
         """The home position (x, y, z)."""
         return self.home_position
 
-    @property
-    def rail_origins(self) -> np.ndarray:
-        """o_i, the origin of each drive's rail (3, 3), world frame."""
-        return self._o.copy()
-
-    @property
-    def rail_directions(self) -> np.ndarray:
-        """e_i, each rail's unit direction (3, 3): a carriage is at o_i + rho_i e_i."""
-        return self._e.copy()
-
-    def leg_joints(self, position, q=None) -> tuple[np.ndarray, np.ndarray]:
-        """Each leg's two joints at ``position`` in world coordinates, (3, 3) each: the
-        carriage o_i + rho_i e_i and the platform joint p + c_i (Orthoglide §3.1; the
-        parallelogram drawn as one bar). ``q``: the drive positions (default: the
-        inverse kinematics)."""
-        q = self.inverse_kinematics(position, check_limits=False) if q is None else np.asarray(q, dtype=float)
-        return self._o + q[:, None] * self._e, np.asarray(position, dtype=float)[None, :] + self._c
-
-    # ----------------------------------------------------------------- inverse
-    def inverse_kinematics(self, position, check_limits: bool = True) -> np.ndarray:
-        """Actuator positions rho (m) of the tool-centre position p (m). Closed form
-        (``bars.inverse_kinematics_kernel``)."""
-        px, py, pz = finite_floats(position, 3, "position")
-        rho, code, bar = B.inverse_kinematics_kernel(self.bars, 3, px, py, pz, IDENTITY)
-        if code != B.IK_OK:
-            w = np.array([px, py, pz]) + self._c[bar] - self._o[bar]
-            away = float(np.linalg.norm(w - (w @ self._e[bar]) * self._e[bar]))
-            raise UnreachablePoseError(
-                f"position ({px:.6g}, {py:.6g}, {pz:.6g}) m is unreachable: leg {self.leg_names[bar]} joint is "
-                f"{away:.6g} m from its rail, link_length is {self._length[bar]:.6g} m")
-        if check_limits:
-            for i, (r, lo, hi) in enumerate(zip(rho.tolist(), self._limits_f[0], self._limits_f[1])):
-                if not lo <= r <= hi:
-                    raise JointLimitError(f"leg {self.leg_names[i]}: position {r:.6g} m outside joint_limits "
-                                          f"[{lo:.6g}, {hi:.6g}] m")
-        return rho
-
-    def check_joint_limits(self, rho) -> None:
-        bad = (rho < self.joint_lower) | (rho > self.joint_upper)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise JointLimitError(
-                f"leg {self.leg_names[i]}: position {rho[i]:.6g} m outside joint_limits "
-                f"[{self.joint_lower[i]:.6g}, {self.joint_upper[i]:.6g}] m")
-
-    def _at_rest(self, positions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(rho (N, 3), J_m (N, 3, 3), J_m regular (N,)) at positions (N, 3), from
-        ``bars.rail_jacobian_batch_kernel``: rho NaN where unreachable, J_m NaN where
-        unreachable, inf where singular."""
-        p = np.ascontiguousarray(finite_array(positions, "positions", (-1, 3)))
-        n = p.shape[0]
-        rho, rows, ok = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty(n, dtype=bool)
-        B.rail_jacobian_batch_kernel(self.bars, p, np.tile(np.array(IDENTITY), (n, 1)), self.twist_columns, rho,
-                                     rows, ok)
-        return rho, rows, ok
-
-    def inverse_kinematics_batch(self, positions) -> tuple[np.ndarray, np.ndarray]:
-        """IK for positions (N, 3): (rho (N, 3) NaN where unreachable, reachable mask)."""
-        rho = self._at_rest(positions)[0]
-        return rho, np.isfinite(rho).all(axis=1)
-
-    def within_joint_limits(self, rho) -> np.ndarray:
-        rho = np.asarray(rho, dtype=float)
-        return np.all((rho >= self.joint_lower) & (rho <= self.joint_upper), axis=-1)
+    def describe_pose(self, x) -> str:
+        return f"position ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}) m"
 
     # ----------------------------------------------------------------- forward
     def forward_kinematics(self, rho) -> np.ndarray:
@@ -224,7 +161,7 @@ class TranslationalMachine:
         (the rows of J_m are the leg vectors over e_i . u_i: the same unit rows up to
         sign; NaN at a serial singularity too)."""
         with np.errstate(invalid="ignore"):
-            return unit_rows_determinant(self._at_rest(positions)[1])
+            return unit_rows_determinant(self.jacobian_batch(positions))
 
     def check_parallel_singularity(self, position, margin: float | None = None) -> None:
         """Raise SingularityError when the pose is at a parallel singularity, or within
@@ -243,64 +180,10 @@ class TranslationalMachine:
         a = self.parallel_jacobian(position, rho)
         return np.diag(np.einsum("ij,ij->i", a, self._e))
 
-    def jacobian(self, position, rho=None) -> np.ndarray:
-        """J_m = B^-1 A (Orthoglide eq. 8), rhodot = J_m pdot. Raises SingularityError
-        at a serial singularity (a leg perpendicular to its rail: B singular).
-        (``rho``: unused, the kernel closes the legs itself.)"""
-        return self.velocity_terms_arrays(position, (0.0, 0.0, 0.0))[1]
-
     def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
         """A regular grid over the configured workspace cube: (N, 3) positions
         (``theta_points``: the planar machines' signature, unused)."""
         return cube_grid(self.workspace["center"], self.workspace["size"], points_per_axis)
-
-    def condition_number_batch(self, positions) -> np.ndarray:
-        """Condition numbers of J_m at positions (N, 3): NaN where unreachable."""
-        return condition_numbers(self.jacobian_batch(positions))
-
-    def jacobian_batch(self, positions) -> np.ndarray:
-        """J_m for positions (N, 3): (N, 3, 3), NaN where unreachable."""
-        return self._at_rest(positions)[1]
-
-    # the task coordinates' rates are the twist here: q' = J_m x'
-    task_jacobian_batch = jacobian_batch
-
-    def jacobian_derivative(self, position, velocity, rho=None) -> np.ndarray:
-        """dJ_m/dt along pdot (``bars.rail_row_terms``: with a_i the leg vector and
-        s_i = a_i . e_i, adot_i = pdot - rhodot_i e_i, Jdot[i] = adot_i / s_i - a_i
-        (adot_i . e_i) / s_i^2)."""
-        v = finite_floats(velocity, 3, "velocity")
-        x = finite_floats(position, 3, "position")
-        rates, code, leg = B.rail_task_jacobian_derivative_kernel(self.bars, 3, self.twist_columns, *x, *v)
-        if code != B.VT_OK:
-            self.raise_velocity_terms_error(code, leg, x)
-        return rates
-
-    def velocity_terms(self, position, velocity) -> tuple[list, list, list, list]:
-        """(rho, rows of J_m, rhodot, Jdot_m pdot) as lists of floats for the dynamic
-        model; see :meth:`velocity_terms_arrays`."""
-        rho, rows, rhodot, bias = self.velocity_terms_arrays(position, velocity)
-        return rho.tolist(), rows.tolist(), rhodot.tolist(), bias.tolist()
-
-    def velocity_terms_arrays(self, position, velocity) -> tuple:
-        """(rho (3,), J_m (3, 3), rhodot = J_m pdot, Jdot_m pdot) at the position p and
-        velocity v (Orthoglide eq. 3-8; ``bars.rail_velocity_terms_kernel``). Raises
-        UnreachablePoseError / SingularityError naming the leg. Compiled."""
-        if len(position) != 3 or len(velocity) != 3:
-            raise ValueError(f"velocity terms: position and velocity need 3 values each, got {len(position)} and {len(velocity)}")
-        rho, rows, rhodot, bias, code, leg = B.rail_task_velocity_terms_kernel(
-            self.bars, 3, self.twist_columns, position[0], position[1], position[2], velocity[0], velocity[1],
-            velocity[2])
-        if code != B.VT_OK:
-            self.raise_velocity_terms_error(code, leg, position)
-        return rho, rows, rhodot, bias
-
-    def raise_velocity_terms_error(self, code: int, leg: int, position) -> None:
-        """Raise the exception for a failure ``code`` of the velocity-terms kernel."""
-        raise velocity_terms_error(code, self.leg_names[leg], "position", position)
-
-    def condition_number(self, position) -> float:
-        return float(np.linalg.cond(self.jacobian(position)))
 
     def transmission_factors(self, position) -> np.ndarray:
         """Velocity transmission factors psi (Orthoglide §4.3), sorted ascending."""
