@@ -39,7 +39,7 @@ def test_forward_kinematics_kernel_matches_interpreted(archi, dx, dy, dth, leg_e
     pose = model.home_pose + [dx, dy, dth]
     q = model.inverse_kinematics(pose, check_limits=False)
     q[0] += leg_error                       # inconsistent drives: the Newton branch
-    args = (model._legs_a, model._pairs_a, model._sides_a, q, *model.home_pose.tolist(), 1e-12, 50)
+    args = (model.bars, model._pairs_a, model._sides_a, q, *model.home_pose.tolist(), 1e-12, 50)
     compiled = planar_module._forward_kinematics_kernel(*args)
     interpreted = planar_module._forward_kinematics_kernel.py_func(*args)
     assert [float(v) for v in compiled] == pytest.approx([float(v) for v in interpreted], rel=1e-12, abs=1e-15)

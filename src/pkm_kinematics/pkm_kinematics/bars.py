@@ -320,7 +320,7 @@ def inverse_kinematics_batch_kernel(bars, positions, rotations, q, reachable):
                 reachable[i] = False
 
 
-# rail_velocity_terms_kernel's codes (planar.VT_* are the same values)
+# rail_velocity_terms_kernel's codes
 VT_OK, VT_UNREACHABLE, VT_SINGULAR = 0, 1, 2
 
 

@@ -41,7 +41,8 @@ import numpy as np
 from .analysis import workspace_grid
 from .distribution import gram_rows
 from .jit import kernel
-from .planar import VT_OK, PlanarMachine, jm_row, leg_array, leg_closure
+from . import bars as B
+from .planar import PLANAR_COLUMNS, PlanarMachine
 
 # ------------------------------------------------------------------ parameters
 # name -> (what it changes, the open interval of its values)
@@ -159,38 +160,37 @@ def _gram_cond(rows):
 
 
 @kernel("(float64[:, :, :], float64[:, :], int64[:, :])")
-def planar_metrics_kernel(legs, poses, subsets):
-    """PLANAR_METRICS of each variant, (V, 7): ``legs`` (V, n, 8) (planar.leg_array),
-    ``poses`` (P, 3), ``subsets`` (S, m) the legs left after each single drive failure
-    (S = 0: not redundant)."""
-    n_var, n, n_pose = legs.shape[0], legs.shape[1], poses.shape[0]
+def planar_metrics_kernel(bars, poses, subsets):
+    """PLANAR_METRICS of each variant, (V, 7): ``bars`` (V, n, BAR_COLUMNS), each
+    variant's rail bars in the plane z = 0 (``planar_variants``), ``poses`` (P, 3),
+    ``subsets`` (S, m) the legs left after each single drive failure (S = 0: not
+    redundant). J_m and q per pose are ``bars.rail_velocity_terms_into``'s."""
+    n_var, n, n_pose = bars.shape[0], bars.shape[1], poses.shape[0]
     m = subsets.shape[1]
     out = np.empty((n_var, 7))
     rows = np.empty((n, 3))
     left = np.empty((m, 3))                       # the rows of the machine left after a failure
     q = np.empty(n)
+    qdot, bias, no_rates = np.empty(n), np.empty(n), np.empty((0, 3))
     qmin = np.empty(n)
     qmax = np.empty(n)
+    columns = PLANAR_COLUMNS                      # planar: vx, vy, wz
+    rest = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     cs = np.empty((n_pose, 2))
     for p in range(n_pose):
         cs[p, 0], cs[p, 1] = math.cos(poses[p, 2]), math.sin(poses[p, 2])
     for v in range(n_var):
-        leg = legs[v]
+        variant = bars[v]
         reach = 0
         cmin, cmax, sub_worst, sigma_lo, sigma_hi = math.inf, 0.0, 0.0, math.inf, 0.0
         qmin[:] = math.inf
         qmax[:] = -math.inf
         for p in range(n_pose):
-            x, y, c, s = poses[p, 0], poses[p, 1], cs[p, 0], cs[p, 1]
-            ok = True
-            for k in range(n):
-                code, qk, ex, ey, sv, rbx, rby = leg_closure(leg, k, x, y, c, s)
-                if code != VT_OK:
-                    ok = False
-                    break
-                q[k] = qk
-                rows[k, 0], rows[k, 1], rows[k, 2] = jm_row(ex, ey, sv, rbx, rby)
-            if not ok:
+            c, s = cs[p, 0], cs[p, 1]
+            code, _ = B.rail_velocity_terms_into(variant, poses[p, 0], poses[p, 1], 0.0,
+                                                 (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0), rest, columns, q, rows,
+                                                 qdot, bias, no_rates)
+            if code != B.VT_OK:
                 continue
             reach += 1
             for k in range(n):
@@ -222,7 +222,8 @@ def planar_metrics_kernel(legs, poses, subsets):
 
 # ------------------------------------------------------------------ planar variants
 def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
-    """The legs of each variant, (V, n, 8), from ``values`` (V, len(names)) of
+    """The rail bars of each variant, (V, n, BAR_COLUMNS) in the plane z = 0
+    (``bars.bar_rows``, as ``PlanarMachine.bars``), from ``values`` (V, len(names)) of
     PLANAR_PARAMETERS applied to the base machine (its public legs and home pose)."""
     check_parameters("planar", names)
     values = np.atleast_2d(np.asarray(values, dtype=float))
@@ -246,7 +247,13 @@ def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
             b_v *= f[:, :, None]
         else:                                                       # rail_spacing_scale
             o_v += ((f - 1.0) * offset)[:, :, None] * normal
-    return leg_array(o_v, np.broadcast_to(u, o_v.shape), length_v, b_v, sigma)
+    flat = np.zeros((n_var, len(legs), 1))                           # the plane z = 0
+    out = np.empty((n_var, len(legs), B.BAR_COLUMNS))
+    for v in range(n_var):
+        out[v] = B.bar_rows(np.concatenate([o_v[v], flat[v]], axis=1), np.concatenate([b_v[v], flat[v]], axis=1),
+                            actuator=np.arange(len(legs)), kind=B.RAIL, rail=np.concatenate([u, flat[v]], axis=1),
+                            length=length_v[v], branch=sigma)
+    return out
 
 
 def workspace_poses(machine: PlanarMachine, points_per_axis: int = 11, theta_points: int = 9) -> np.ndarray:
@@ -264,8 +271,8 @@ def remaining_legs(n_legs: int) -> np.ndarray:
 
 def planar_metrics(machine: PlanarMachine, names, values, poses) -> dict[str, np.ndarray]:
     """PLANAR_METRICS of the variants (module docstring), each an array (V,)."""
-    legs = np.ascontiguousarray(planar_variants(machine, names, values))
-    out = planar_metrics_kernel(legs, np.ascontiguousarray(poses, dtype=float), remaining_legs(machine.n_legs))
+    bars = np.ascontiguousarray(planar_variants(machine, names, values))
+    out = planar_metrics_kernel(bars, np.ascontiguousarray(poses, dtype=float), remaining_legs(machine.n_legs))
     return dict(zip(PLANAR_METRICS, out.T))
 
 

@@ -33,7 +33,7 @@ from .jit import kernel
 from .planar import _solve3
 from .task_space import PLANAR
 
-VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after planar.VT_*)
+VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after bars.VT_*)
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,10 @@ on the revolution of the guess.
 
 Each leg is one rail bar of the bar model in the plane z = 0 (``bars``,
 MACHINE_MODEL.md), the platform moving in the twist components vx, vy, wz: the
-velocity terms, J_m, its derivative and their batches are ``bars`` kernels
-(``rail_task_velocity_terms_kernel``, ``rail_jacobian_batch_kernel``), written once
-for every rail machine. The inverse and forward kinematics kernels below are still
-the planar ones.
+inverse kinematics, velocity terms, J_m, its derivative and their batches are
+``rails.RailMachine``'s (``bars`` kernels written once for every rail machine); the
+forward kinematics below (the leg pairs' closed form, least squares with the exact
+Hessian, the working-mode checks) reads the same bars.
 """
 
 from __future__ import annotations
@@ -115,22 +115,22 @@ def _solve3_kernel(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):
 
 
 @kernel("(float64[:, :], int64[:, :], float64[:], float64[:])")
-def _closed_form_kernel(legs, pairs, sides, q):
+def _closed_form_kernel(bars, pairs, sides, q):
     """Closed-form forward position (ARCHI §3.1): each shared platform point is the
     intersection of the circles of radius L about its two carriages, on the side of
-    the working mode; the angle from the two points. ``legs`` rows (ox, oy, ux, uy,
-    L^2, bx, by, sigma). Returns (x, y, theta, code, i, j, d): code FK_UNREACHABLE
-    with the legs i, j whose carriages, d m apart, cannot close."""
+    the working mode; the angle from the two points. ``bars``: the machine's
+    (``PlanarMachine.bars``, z = 0). Returns (x, y, theta, code, i, j, d): code
+    FK_UNREACHABLE with the legs i, j whose carriages, d m apart, cannot close."""
     px0 = py0 = px1 = py1 = 0.0
     for k in range(2):
         i, j, side = pairs[k, 0], pairs[k, 1], sides[k]
-        aix, aiy = legs[i, 0] + q[i] * legs[i, 2], legs[i, 1] + q[i] * legs[i, 3]
-        dx = legs[j, 0] + q[j] * legs[j, 2] - aix
-        dy = legs[j, 1] + q[j] * legs[j, 3] - aiy
+        aix, aiy = bars[i, 0] + q[i] * bars[i, 3], bars[i, 1] + q[i] * bars[i, 4]
+        dx = bars[j, 0] + q[j] * bars[j, 3] - aix
+        dy = bars[j, 1] + q[j] * bars[j, 4] - aiy
         d2 = dx * dx + dy * dy
         d = math.sqrt(d2)
-        along = (legs[i, 4] - legs[j, 4] + d2) / (2.0 * d) if d > 0.0 else math.inf
-        h2 = legs[i, 4] - along * along
+        along = ((bars[i, 9] * bars[i, 9]) - (bars[j, 9] * bars[j, 9]) + d2) / (2.0 * d) if d > 0.0 else math.inf
+        h2 = (bars[i, 9] * bars[i, 9]) - along * along
         if not h2 >= 0.0:
             return 0.0, 0.0, 0.0, FK_UNREACHABLE, i, j, d
         h = side * math.sqrt(h2)
@@ -140,20 +140,20 @@ def _closed_form_kernel(legs, pairs, sides, q):
         else:
             px1, py1 = px, py
     i1, i2 = pairs[0, 0], pairs[1, 0]
-    b1x, b1y, b2x, b2y = legs[i1, 5], legs[i1, 6], legs[i2, 5], legs[i2, 6]
+    b1x, b1y, b2x, b2y = bars[i1, 6], bars[i1, 7], bars[i2, 6], bars[i2, 7]
     theta = math.atan2(py1 - py0, px1 - px0) - math.atan2(b2y - b1y, b2x - b1x)
     c, s = math.cos(theta), math.sin(theta)
     return px0 - (c * b1x - s * b1y), py0 - (s * b1x + c * b1y), theta, FK_CONVERGED, 0, 0, 0.0
 
 
 @kernel("(float64[:, :], int64[:, :], float64[:], float64[:], float64, float64, float64, float64, int64)")
-def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol, max_iterations):
+def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol, max_iterations):
     """The solver of :meth:`PlanarMachine.forward_kinematics` (see there), compiled.
     Returns (x, y, theta, code, iterations, residual_m, i, j, d); (i, j, d) name the
-    legs of an unreachable closed form."""
-    n = legs.shape[0]
+    bars of an unreachable closed form."""
+    n = bars.shape[0]
     if pairs.shape[0] >= 2:
-        x, y, th, code, i, j, d = _closed_form_kernel(legs, pairs, sides, q)
+        x, y, th, code, i, j, d = _closed_form_kernel(bars, pairs, sides, q)
         if code != FK_CONVERGED:
             return 0.0, 0.0, 0.0, code, 0, math.inf, i, j, d
         th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))
@@ -163,9 +163,9 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
     ay = np.empty(n)
     length = np.empty(n)
     for k in range(n):
-        ax[k] = legs[k, 0] + q[k] * legs[k, 2]
-        ay[k] = legs[k, 1] + q[k] * legs[k, 3]
-        length[k] = math.sqrt(legs[k, 4])
+        ax[k] = bars[k, 0] + q[k] * bars[k, 3]
+        ay[k] = bars[k, 1] + q[k] * bars[k, 4]
+        length[k] = math.sqrt((bars[k, 9] * bars[k, 9]))
     use_hessian = False
     previous_size = math.inf
     converged = False
@@ -178,13 +178,13 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         # When the drives disagree (model error) Gauss-Newton alone converges only
         # linearly (~0.9 per step); the exact Hessian restores quadratic convergence.
         # It is accumulated only then, inside the basin (see NEWTON_RADIUS).
-        # J^T J, J^T f and the Hessian term in one pass over the legs, each row made
+        # J^T J, J^T f and the Hessian term in one pass over the bars, each row made
         # on the fly (distribution.gram_rows would need the rows as an array first)
         a00 = a01 = a02 = a11 = a12 = a22 = r0 = r1 = r2 = 0.0
         h00 = h01 = h02 = h11 = h12 = h22 = 0.0
         misfit = 0.0
         for k in range(n):
-            bx, by = legs[k, 5], legs[k, 6]
+            bx, by = bars[k, 6], bars[k, 7]
             rbx = c * bx - s * by
             rby = s * bx + c * by
             ex = x + rbx - ax[k]
@@ -240,11 +240,11 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
     px = np.empty(n)
     py = np.empty(n)
     for k in range(n):
-        bx, by = legs[k, 5], legs[k, 6]
+        bx, by = bars[k, 6], bars[k, 7]
         px[k], py[k] = x + c * bx - s * by, y + s * bx + c * by
         ex, ey = px[k] - ax[k], py[k] - ay[k]
         residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - length[k]))
-        if (ex * legs[k, 2] + ey * legs[k, 3]) * legs[k, 7] > 0.0:
+        if (ex * bars[k, 3] + ey * bars[k, 4]) * bars[k, 12] > 0.0:
             return 0.0, 0.0, 0.0, FK_ASSEMBLY, iteration, residual, 0, 0, 0.0
     for k in range(pairs.shape[0]):
         i, j = pairs[k, 0], pairs[k, 1]
@@ -254,7 +254,7 @@ def _forward_kinematics_kernel(legs, pairs, sides, q, ref_x, ref_y, ref_th, tol,
 
 
 @kernel("(float64[:, :], int64[:, :], float64[:], float64[:, :], float64[:, :], float64, int64)")
-def _forward_kinematics_batch_kernel(legs, pairs, sides, q, guesses, tol, max_iterations):
+def _forward_kinematics_batch_kernel(bars, pairs, sides, q, guesses, tol, max_iterations):
     """_forward_kinematics_kernel on every row of ``q`` (N, n) from the row of
     ``guesses``: the poses (N, 3), NaN where the solve failed, and the codes (N,)."""
     rows = q.shape[0]
@@ -262,72 +262,11 @@ def _forward_kinematics_batch_kernel(legs, pairs, sides, q, guesses, tol, max_it
     codes = np.empty(rows, dtype=np.int64)
     for r in range(rows):
         x, y, th, code, _, _, _, _, _ = _forward_kinematics_kernel(
-            legs, pairs, sides, q[r], guesses[r, 0], guesses[r, 1], guesses[r, 2], tol, max_iterations)
+            bars, pairs, sides, q[r], guesses[r, 0], guesses[r, 1], guesses[r, 2], tol, max_iterations)
         codes[r] = code
         if code == FK_CONVERGED:
             poses[r, 0], poses[r, 1], poses[r, 2] = x, y, th
     return poses, codes
-
-
-VT_OK, VT_UNREACHABLE, VT_SINGULAR = B.VT_OK, B.VT_UNREACHABLE, B.VT_SINGULAR
-
-
-def leg_array(origins, directions, link_lengths, platform_points, assemblies) -> np.ndarray:
-    """Legs as the compiled kernels take them: rows (o_x, o_y, u_x, u_y, L^2, b_x, b_y,
-    sigma) with u normalised, shape (..., n, 8) for inputs (..., n, 2), (..., n, 2),
-    (..., n), (..., n, 2), (..., n): one machine, or a batch of design variants."""
-    o = np.asarray(origins, dtype=float)
-    u = np.asarray(directions, dtype=float)
-    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
-    length = np.asarray(link_lengths, dtype=float)
-    b = np.asarray(platform_points, dtype=float)
-    sigma = np.broadcast_to(np.asarray(assemblies, dtype=float), length.shape)
-    return np.concatenate([o, u, (length**2)[..., None], b, sigma[..., None]], axis=-1)
-
-
-@kernel()
-def leg_drive_position(legs, k, x, y, c, s):
-    """The inverse kinematics of leg ``k`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y,
-    sigma) at the pose (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: the platform
-    point B = p + R b, w = B - o, a = u . w and the carriage q_k = a + sigma
-    sqrt(L^2 - |w|^2 + a^2). Returns (disc, q_k, w_x, w_y, R b_x, R b_y); disc =
-    L^2 - |w|^2 + a^2 < 0 (or NaN): the link cannot reach B (q_k is then 0)."""
-    ox, oy, ux, uy, l2, bx, by, sigma = (legs[k, 0], legs[k, 1], legs[k, 2], legs[k, 3], legs[k, 4],
-                                         legs[k, 5], legs[k, 6], legs[k, 7])
-    rbx = c * bx - s * by
-    rby = s * bx + c * by
-    wx, wy = x + rbx - ox, y + rby - oy
-    a = wx * ux + wy * uy
-    disc = l2 - wx * wx - wy * wy + a * a
-    if not disc >= 0.0:
-        return disc, 0.0, wx, wy, rbx, rby
-    return disc, a + sigma * math.sqrt(disc), wx, wy, rbx, rby
-
-
-@kernel()
-def leg_closure(legs, k, x, y, c, s):
-    """Leg ``k`` of ``legs`` (rows o_x, o_y, u_x, u_y, L^2, b_x, b_y, sigma) at the pose
-    (x, y) with (c, s) = (cos, sin) theta, ARCHI §3.1: (code, q_k, e_x, e_y, e . u,
-    R b_x, R b_y) with the carriage q_k = a + sigma sqrt(L^2 - |w|^2 + a^2) (w = B - o,
-    a = u . w) and the leg vector e = B - A; ``code`` VT_UNREACHABLE (the link cannot
-    reach B) or VT_SINGULAR (e perpendicular to the rail: e . u = 0, J_m unbounded).
-    The J_m row is [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u) (ARCHI §3.2)."""
-    ux, uy, l2 = legs[k, 2], legs[k, 3], legs[k, 4]
-    disc, qi, wx, wy, rbx, rby = leg_drive_position(legs, k, x, y, c, s)
-    if not disc >= 0.0:
-        return VT_UNREACHABLE, 0.0, 0.0, 0.0, 0.0, rbx, rby
-    ex, ey = wx - qi * ux, wy - qi * uy
-    sv = ex * ux + ey * uy
-    if sv * sv <= 1e-18 * l2:
-        return VT_SINGULAR, qi, ex, ey, sv, rbx, rby
-    return VT_OK, qi, ex, ey, sv, rbx, rby
-
-
-@kernel()
-def jm_row(ex, ey, sv, rbx, rby):
-    """The J_m row of a leg from its closure (``leg_closure``), ARCHI §3.2:
-    [e_x, e_y, e_y R b_x - e_x R b_y] / (e . u)."""
-    return ex / sv, ey / sv, (ey * rbx - ex * rby) / sv
 
 
 @dataclass
@@ -361,8 +300,6 @@ class PlanarMachine(RailMachine):
         self._length2 = self._length**2
         self._b = self.bars[:, B.COL_B:B.COL_B + 2].copy()
         self._sigma = self.bars[:, B.COL_BRANCH].copy()
-        # the legs as arrays for the compiled kernels: (ox, oy, ux, uy, L^2, bx, by, sigma)
-        self._legs_a = leg_array(self._o, self._u, self._length, self._b, self._sigma)
         self._pairs = self._find_pairs()
         # Working mode: the assembly branch sigma_i of every leg (which of the two
         # carriage positions on the rail), and for paired legs which of the two circle
@@ -452,7 +389,7 @@ class PlanarMachine(RailMachine):
         return np.array(self._closed_form(finite_floats(q, self.n_legs, "q")))
 
     def _closed_form(self, qs: list) -> tuple:
-        x, y, th, code, i, j, d = _closed_form_kernel(self._legs_a, self._pairs_a, self._sides_a, np.array(qs))
+        x, y, th, code, i, j, d = _closed_form_kernel(self.bars, self._pairs_a, self._sides_a, np.array(qs))
         if code:
             raise UnreachablePoseError(self._closed_form_message(i, j, d))
         return x, y, th
@@ -479,7 +416,7 @@ class PlanarMachine(RailMachine):
         qs = np.array(finite_floats(q, self.n_legs, "q"))
         ref = self.home_pose if guess is None else finite_floats(guess, 3, "guess")
         x, y, th, code, iterations, residual, i, j, d = _forward_kinematics_kernel(
-            self._legs_a, self._pairs_a, self._sides_a, qs, float(ref[0]), float(ref[1]), float(ref[2]),
+            self.bars, self._pairs_a, self._sides_a, qs, float(ref[0]), float(ref[1]), float(ref[2]),
             tol, max_iterations)
         if code == FK_CONVERGED:
             return ForwardKinematicsResult(np.array([x, y, th]), True, int(iterations), float(residual))
@@ -497,7 +434,7 @@ class PlanarMachine(RailMachine):
             raise ValueError(f"q: expected {self.n_legs} drive positions, got {len(q)}")
         ref = self.home_pose if guess is None else guess
         x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
-            self._legs_a, self._pairs_a, self._sides_a, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),
+            self.bars, self._pairs_a, self._sides_a, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),
             float(ref[2]), FK_TOL, FK_MAX_ITERATIONS)
         if code == FK_CONVERGED:
             return x, y, th
@@ -514,7 +451,7 @@ class PlanarMachine(RailMachine):
         q = finite_array(q, "q", (-1, self.n_legs))
         n = q.shape[0]
         guesses = np.tile(self.home_pose, (n, 1)) if guesses is None else finite_array(guesses, "guesses", (n, 3))
-        poses, codes = _forward_kinematics_batch_kernel(self._legs_a, self._pairs_a, self._sides_a,
+        poses, codes = _forward_kinematics_batch_kernel(self.bars, self._pairs_a, self._sides_a,
                                                         np.ascontiguousarray(q), np.ascontiguousarray(guesses),
                                                         float(tol), int(max_iterations))
         return poses, codes == FK_CONVERGED
