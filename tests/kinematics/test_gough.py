@@ -269,3 +269,24 @@ def test_jacobian_rows_for_the_loop_equal_the_numpy_jacobian(dx, dy, dz, roll, p
     p = HOME + [dx, dy, dz]
     rows = GOUGH.jacobian_rows(p.tolist(), tuple(rot.ravel().tolist()))
     np.testing.assert_allclose(np.array(rows), GOUGH.jacobian(p, rot), rtol=1e-10, atol=1e-12)
+
+
+def test_the_compiled_stream_is_the_per_reading_solver_bit_for_bit():
+    """GoughDKMSolver.solve_stream against N calls of solve on the same stream, a
+    reading that cannot be solved in the middle (the state restarts from the last good
+    pose, as solve does), and the state after both the same."""
+    from pkm_kinematics import GoughDKMSolver, load_machine
+    from pkm_kinematics.rotations import rotation_from_rpy
+    platform = load_machine("mom3").metrology.platform
+    home = platform.home_position
+    lengths = np.array([platform.strut_lengths(home + 1e-4 * k * np.array([1.0, -0.5, 0.2]),
+                                               rotation_from_rpy(2e-4 * k, -1e-4 * k, 3e-4 * k)) for k in range(60)])
+    lengths[30] += [0.3, 0.0, 0.0, 0.0, 0.0, -0.2]              # not a pose of the platform: fails
+    one, many = GoughDKMSolver(platform, tol_m=1e-10), GoughDKMSolver(platform, tol_m=1e-10)
+    results = [one.solve(q) for q in lengths]
+    positions, rotations, converged, iterations = many.solve_stream(lengths)
+    assert converged.tolist() == [r.converged for r in results] and not converged[30] and converged.sum() == 59
+    np.testing.assert_array_equal(positions, [r.position for r in results])
+    np.testing.assert_array_equal(rotations, [r.rotation for r in results])
+    assert iterations.tolist() == [r.iterations for r in results]
+    np.testing.assert_array_equal(one.solve(lengths[-1]).position, many.solve(lengths[-1]).position)

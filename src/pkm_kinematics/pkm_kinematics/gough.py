@@ -145,6 +145,60 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
             rot[:] = math.nan
 
 
+@kernel()
+def plate_branch_ok(bars, p, rot, evaluations, iterations, home_det_sign) -> bool:
+    """The branch checks of a converged solve (GoughPlatform._finish): the plate above
+    the base plane and not flipped, and for a solve that travelled (re-linearised, or
+    more than two steps) the sign of det(J_h^-1) at home."""
+    if not (p[2] > 0.0 and rot[8] > 0.0):
+        return False
+    if evaluations > 0 or iterations > 2:
+        jinv = np.empty((6, 6))
+        B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6],
+                                                           rot[7], rot[8]), p, jinv)
+        return np.linalg.det(jinv) * home_det_sign > 0.0
+    return True
+
+
+@kernel("(float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], "
+        "boolean, float64, int64, float64, float64, float64[:, :], int64[:], int64[:])")
+def dkm_stream_kernel(bars, lengths, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
+                      divergence_limit, home_det_sign, poses, codes, iterations):
+    """``GoughDKMSolver.solve`` over a stream of readings (N, 6) in one compiled loop:
+    each ``dkm_warm_step_kernel`` (the extrapolated guess, the chord iteration) and
+    the branch checks (``plate_branch_ok``), the state (p1, r1: the last good pose;
+    p0, r0: the one before; jh) moving on only after a good solve, as there. Into
+    ``poses`` (N, 12: p, R row-major; NaN where it failed), ``codes`` (FK_*; FK_SINGULAR
+    also for a wrong branch, DKM_BAD_LENGTHS) and ``iterations``. Returns the final
+    (has_previous, have_jh)."""
+    p, rot = np.empty(3), np.empty(9)
+    for k in range(lengths.shape[0]):
+        code, its, evaluations, _, have = dkm_warm_step_kernel(bars, lengths[k], p1, r1, p0, r0, has_previous, jh,
+                                                               have_jh, tol_m, max_iterations, divergence_limit, p,
+                                                               rot)
+        iterations[k] = its
+        if code == B.FK_CONVERGED and not plate_branch_ok(bars, p, rot, evaluations, its, home_det_sign):
+            code = B.FK_SINGULAR
+        codes[k] = code
+        if code == B.FK_CONVERGED:
+            poses[k, 0:3] = p
+            poses[k, 3:12] = rot
+            have_jh = have
+            if has_previous:
+                p0[:] = p1
+                r0[:] = r1
+            else:
+                p0[:] = p
+                r0[:] = rot
+            p1[:] = p
+            r1[:] = rot
+            has_previous = True
+        else:
+            poses[k, :] = math.nan
+            have_jh = has_previous = False
+    return has_previous, have_jh
+
+
 @dataclass
 class GoughPlatform:
     """A 6-strut Gough platform; geometry in its base frame (see module docstring)."""
@@ -372,6 +426,22 @@ class GoughDKMSolver:
     def rotation(self) -> np.ndarray:
         """The last good plate rotation."""
         return self._r.reshape(3, 3).copy()
+
+    def solve_stream(self, lengths) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`solve` over readings (N, 6) in one compiled loop (``dkm_stream_kernel``):
+        (positions (N, 3), rotations (N, 3, 3), converged (N,), iterations (N,)), NaN
+        where a reading failed; the state moves on as after N calls of :meth:`solve`."""
+        lengths = np.ascontiguousarray(finite_array(lengths, "strut lengths", (-1, 6)))
+        n = lengths.shape[0]
+        poses, codes, iterations = np.empty((n, 12)), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        platform = self.platform
+        # the kernel moves the state in place: own copies (solve() may leave two names on one array)
+        self._p, self._r, self._p0, self._r0 = (a.copy() for a in (self._p, self._r, self._p0, self._r0))
+        self._has_previous, self._has_jh = dkm_stream_kernel(
+            platform.bars, lengths, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
+            self._has_jh, self.tol_m, self.max_iterations, platform._divergence_limit, platform._home_det_sign, poses,
+            codes, iterations)
+        return poses[:, :3].copy(), poses[:, 3:].reshape(n, 3, 3).copy(), codes == B.FK_CONVERGED, iterations
 
     def solve(self, lengths) -> GoughDKMResult:
         """One measurement: dkm_warm_step_kernel (guess and Newton, compiled), then the
