@@ -75,3 +75,15 @@ def test_a_six_axis_program_is_planned_and_validated_on_the_hexapod_strut_rates_
     worst = hexapod.condition_number_batch(samples.position).max()
     with pytest.raises(TrajectoryRejected, match="machine condition number"):
         plan_validated(segments, hexapod, LIMITS, 1000.0, max_condition=worst * 0.999)
+
+
+def test_a_hexapod_path_past_a_strut_limit_is_refused_naming_the_strut():
+    """The planner's joint-limit check on a strut machine names the strut and its
+    limits (it said only "rejected": a strut machine had no check_joint_limits)."""
+    from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_validated, point_to_point
+    machine = load_machine("hexapod8").model
+    end = machine.home + [0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
+    with pytest.raises(TrajectoryRejected, match=r"x = \[0\.0, 0\.0, 0\.\d+.*\]\): s\d: 0\.95\d+ m outside its "
+                                                 r"limits \[\d\.\d+, 0\.950000\] m"):
+        plan_validated([point_to_point(machine.home, end)], machine,
+                       Limits(np.full(6, 0.5), np.full(6, 5.0), np.full(6, 100.0)))

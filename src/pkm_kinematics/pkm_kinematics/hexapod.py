@@ -128,17 +128,25 @@ class StrutMachine:
         outside its limits."""
         q = self.strut_lengths(*self.pose(x))
         if check_limits:
-            for k in np.flatnonzero(~((q >= self.joint_lower) & (q <= self.joint_upper))):
-                raise JointLimitError(f"{self.leg_names[k]}: {q[k]:.6f} m outside its limits "
-                                      f"[{self.joint_lower[k]:.6f}, {self.joint_upper[k]:.6f}] m at x = "
-                                      f"{np.array2string(np.asarray(x, dtype=float), precision=6)}")
+            self.check_joint_limits(q, x)
         return q
 
+    def check_joint_limits(self, q, x=None) -> None:
+        """Raise JointLimitError naming the first strut of ``q`` outside its limits
+        (and the pose ``x``, when given)."""
+        q = np.asarray(q, dtype=float)
+        for k in np.flatnonzero(~((q >= self.joint_lower) & (q <= self.joint_upper))):
+            at = "" if x is None else f" at x = {np.array2string(np.asarray(x, dtype=float), precision=6)}"
+            raise JointLimitError(f"{self.leg_names[k]}: {q[k]:.6f} m outside its limits "
+                                  f"[{self.joint_lower[k]:.6f}, {self.joint_upper[k]:.6f}] m{at}")
+
     def inverse_kinematics_batch(self, xs) -> tuple[np.ndarray, np.ndarray]:
-        """Strut lengths of poses (N, 6) and whether each is within the limits."""
+        """Strut lengths of poses (N, 6) and whether each assembles (every length
+        finite: a strut reaches any pose; the limits are ``within_joint_limits``', as
+        on the rail machines)."""
         xs = np.asarray(xs, dtype=float).reshape(-1, 6)
         q = np.array([self.strut_lengths(*self.pose(x)) for x in xs]).reshape(len(xs), self.n_legs)
-        return q, self.within_joint_limits(q)
+        return q, np.isfinite(q).all(axis=1)
 
     def within_joint_limits(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)

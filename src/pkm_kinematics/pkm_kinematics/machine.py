@@ -49,6 +49,9 @@ class ParallelMachine(Protocol):
 
     def within_joint_limits(self, q) -> np.ndarray: ...
 
+    def check_joint_limits(self, q) -> None:
+        """Raise JointLimitError naming the first drive of ``q`` outside its limits."""
+
     def forward_kinematics_floats(self, q, guess=None) -> tuple[float, float, float]: ...
 
     def forward_kinematics_batch(self, q, *args, **kwargs): ...

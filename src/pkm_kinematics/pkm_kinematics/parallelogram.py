@@ -99,10 +99,15 @@ class ParallelogramMachine:
     def inverse_kinematics(self, position, check_limits: bool = True) -> np.ndarray:
         q = self.inverse_kinematics_full(position).q
         if check_limits:
-            for k in np.flatnonzero(~((q >= self.joint_lower) & (q <= self.joint_upper))):
-                raise JointLimitError(f"{self.leg_names[k]}: {q[k]:.6f} m outside its limits "
-                                      f"[{self.joint_lower[k]:.6f}, {self.joint_upper[k]:.6f}] m")
+            self.check_joint_limits(q)
         return q
+
+    def check_joint_limits(self, q) -> None:
+        """Raise JointLimitError naming the first drive of ``q`` outside its limits."""
+        q = np.asarray(q, dtype=float)
+        for k in np.flatnonzero(~((q >= self.joint_lower) & (q <= self.joint_upper))):
+            raise JointLimitError(f"{self.leg_names[k]}: {q[k]:.6f} m outside its limits "
+                                  f"[{self.joint_lower[k]:.6f}, {self.joint_upper[k]:.6f}] m")
 
     def inverse_kinematics_batch(self, positions) -> tuple[np.ndarray, np.ndarray]:
         positions = np.asarray(positions, dtype=float).reshape(-1, 3)
