@@ -210,6 +210,38 @@ def test_latencies_from_the_action_to_the_controller_and_to_the_drives():
 
 def test_the_panel_refuses_a_machine_it_does_not_draw(capsys):
     from pkm_bringup.panel_main import main
-    assert main(["--machine", "hexapod8", "--port", "0"]) == 2
-    assert "--machine: hexapod8 is a struts machine; the panel draws and jogs planar and translational" \
-        in capsys.readouterr().err
+    assert main(["--machine", "mom3_imperfect", "--port", "0"]) == 2
+    assert "--machine: mom3_imperfect is a parallelograms machine; the panel draws and jogs planar and " \
+        "translational and struts machines" in capsys.readouterr().err
+
+
+def test_a_hexapod_on_the_panel_its_six_axes_its_angles_jogged_in_rad_its_struts_drawn():
+    """hexapod8 (kind struts): six axes, a b c bounded in rad; each strut drawn as long
+    as the model's strut length at that pose, the Gough's struts as the sensor's; a jog
+    of c turns the reference about z, one of 0.2 rad is refused naming the bound."""
+    hexapod = load_machine("hexapod8")
+    model = PanelModel(hexapod)
+    described = model.describe()
+    assert described["axes"] == ["x", "y", "z", "a", "b", "c"] and described["angular"] == ["a", "b", "c"]
+    assert described["jog_max"] == {"x": 0.01, "y": 0.01, "z": 0.01, "a": 0.1, "b": 0.1, "c": 0.1}
+    assert len(described["workspace"]) == 3 and len(described["drives"]) == 8       # the box: translations
+    pose = (hexapod.model.home + np.array([0.01, -0.02, 0.005, 0.02, -0.01, 0.05])).tolist()
+    drawing = model.drawing(pose)
+    np.testing.assert_allclose([math.dist(a, b) for a, b in drawing["legs"]],
+                               hexapod.model.inverse_kinematics(pose), atol=1e-12)
+    position, orientation = machine_pose_components(False, pose)
+    p, r = hexapod.model.pose(pose)
+    np.testing.assert_allclose([math.dist(a, b) for a, b in drawing["struts"]],
+                               GoughSensorModel(hexapod.metrology).true_lengths(p, r), atol=1e-12)
+    panel = Panel(model, clock=Clock())
+    panel.on_status("controller", 0, "holding", dict(HOLDING))
+    home = hexapod.model.home.tolist()
+    panel.on_reference(1_000_000, *machine_pose_components(False, home))
+    result = panel.handle({"type": "jog", "axis": "c", "step": 0.05}, "page")
+    assert result.ok and result.message == "jog c +0.05 rad"
+    np.testing.assert_allclose(result.publish[0][1], home[:5] + [home[5] + 0.05], atol=1e-12)
+    refused = Panel(model, clock=Clock())
+    refused.on_status("controller", 0, "holding", dict(HOLDING))
+    refused.on_reference(1_000_000, *machine_pose_components(False, home))
+    too_far = refused.handle({"type": "jog", "axis": "a", "step": 0.2}, "page")
+    assert not too_far.ok and "jog: step must be a number with 0 < |step| <= 0.1 rad" in too_far.message

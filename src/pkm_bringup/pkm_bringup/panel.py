@@ -74,6 +74,7 @@ class PanelModel:
         self.planar = self.space.translation_axes == 2      # (x, y, theta): its angle is a yaw
         self.kind = machine.kind
         self.axes = self.space.axes
+        self.angular = self.axes[self.space.translation_axes:]     # rad: theta, or a hexapod's a, b, c
         self.box = workspace_box(self.model)
         self.home = [float(v) for v in self.model.home]
         self.gough = None
@@ -85,7 +86,8 @@ class PanelModel:
         """The page's set-up: names, axes and their jog bounds, workspace, settings."""
         return {"machine": self.machine.name, "kind": self.kind, "axes": list(self.axes),
                 "drives": list(self.model.leg_names), "workspace": [list(b) for b in self.box],
-                "jog_max": {a: (JOG_MAX_RAD if a == "theta" else JOG_MAX_M) for a in self.axes},
+                "jog_max": {a: (JOG_MAX_RAD if a in self.angular else JOG_MAX_M) for a in self.axes},
+                "angular": list(self.angular),
                 "strategies": list(STRATEGIES), "distributions": list(METHODS),
                 "setting_ranges": SETTING_RANGES, "home": self.home}
 
@@ -363,8 +365,8 @@ class Panel:
         if axis not in axes:
             raise ValueError(f"jog: axis must be one of {list(axes)}, got {axis!r}")
         k = axes.index(axis)
-        bound = JOG_MAX_RAD if axis == "theta" else JOG_MAX_M
-        unit = "rad" if axis == "theta" else "m"
+        bound = JOG_MAX_RAD if axis in self.model.angular else JOG_MAX_M
+        unit = "rad" if axis in self.model.angular else "m"
         if isinstance(step, bool) or not isinstance(step, (int, float)) or not (0.0 < abs(step) <= bound):
             raise ValueError(f"jog: step must be a number with 0 < |step| <= {bound:g} {unit}, got {step!r}")
         with self.lock:

@@ -24,6 +24,8 @@ import sys
 import threading
 from pathlib import Path
 
+from pkm_common.conversions import MACHINE_KINDS
+
 LOG = logging.getLogger("pkm-panel")
 
 
@@ -58,9 +60,9 @@ class Graph:
         self.start()
 
 
-# the machines the panel draws and jogs (its pose and jog steps are 3-DOF; a hexapod runs
-# in the graph, not yet on the panel)
-PANEL_KINDS = ("planar", "translational")
+# the machines the panel draws and jogs: every kind the graph runs (a hexapod's six axes,
+# its angles jogged in rad)
+PANEL_KINDS = MACHINE_KINDS
 
 def listening_socket(host: str, port: int) -> socket.socket:
     """Bound and listening (connections wait in the backlog until uvicorn serves)."""

@@ -49,7 +49,7 @@ function hello(m) {
   }
   jog.querySelectorAll("button").forEach((b) => b.onclick = () => {
     let step = parseFloat($("jogstep").value) * parseFloat(b.dataset.sign);
-    if (b.dataset.axis === "theta") step *= 10;            // 1 mm of the step list = 10 mrad
+    if (machine.angular.includes(b.dataset.axis)) step *= 10;   // 1 mm of the step list = 10 mrad
     send({ type: "jog", axis: b.dataset.axis, step: step });
   });
   fill($("set-strategy"), machine.strategies);
@@ -91,7 +91,8 @@ function render(s) {
   }
   const axes = machine ? machine.axes : ["x", "y", "z"];
   $("pose").tBodies[0].innerHTML = axes.map((a, i) => {
-    const k = a === "theta" ? 1 : 1000, unit = a === "theta" ? "rad" : "mm";
+    const angle = machine && machine.angular.includes(a);
+    const k = angle ? 1 : 1000, unit = angle ? "rad" : "mm";
     return `<tr><td>${a} ${unit}</td><td id="pose-${a}">${s.pose ? fmt(s.pose[i], k) : "–"}</td>` +
            `<td id="ref-${a}">${s.reference ? fmt(s.reference[i], k) : "–"}</td></tr>`;
   }).join("");
