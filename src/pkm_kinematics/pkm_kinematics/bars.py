@@ -19,24 +19,31 @@ The kernels:
 - ``unit_pose_jacobian_into``: the rows [e_k, (R b_k) x e_k] / |e_k| of the pose
   Jacobian of the bar lengths |e_k| (d|e_k|/dt = row . t + (A_k's own motion));
   for a strut they are MoM3 eq. 2's J_h^-1 rows, and genhexkins' InverseJacobian;
-- ``inverse_kinematics_into``: per actuator, its first bar's closed form: a strut
-  q = |B - a|; a rail q = u.w + sigma sqrt(L^2 - |w|^2 + (u.w)^2), w = B - a;
+- ``actuator_of_bar`` / ``actuators_into``: per actuator, its first bar's closed
+  form: a strut q = |B - a|; a rail q = u.w + sigma sqrt(L^2 - |w|^2 + (u.w)^2),
+  w = B - a (ARCHI §3.1, Orthoglide §3.1); per pose, in task coordinates and batched;
 - ``forward_kinematics_kernel``: Newton (as many bars as pose unknowns) or
   Gauss-Newton (more bars: least squares) on the length misfits
   r_k = |e_k| - l_k over (p, R), R <- exp([dw]x) R, warm-started; the misfit left at
   the solution is what shows inconsistent actuators (a frozen or slipping encoder,
-  a model error).
-
+  a model error);
 - ``chord_forward_kinematics_kernel``: the same for six bars with chord steps (J_h
   kept across steps and solves, re-evaluated when a step gains less than three orders
   of magnitude): the Gough metrology's stream of small moves (MoM3 §6.3);
 - ``pose_from_lengths_jacobian_into``: J_h = (J_h^-1)^-1 of six bars (MoM3 eq. 1);
-- ``strut_lengths_into``: |B_k - A_k| of every bar, a strut machine's IK (IKM_GP).
+- ``strut_lengths_into``: |B_k - A_k| of every bar, a strut machine's IK (IKM_GP);
+- ``rail_row_terms`` / ``rail_velocity_terms_into``: one bar per actuator on rails,
+  J_x t = J_q q' per bar (MACHINE_MODEL.md; ARCHI §3.2, §3.4; Orthoglide eq. 3-8):
+  J_m's row [e, (R b) x e] / (e . u), q', J_m' t and the row's rate, on the twist
+  components the platform moves in (``task_pose_twist``: vx vy vz translating, vx vy
+  wz planar); per pose, in task coordinates and batched;
+- ``three_rail_forward_kinematics_kernel``: a translating platform on three rails in
+  closed form (the three spheres, Orthoglide §3.1).
 
-The machine classes (``hexapod.StrutMachine``, ``parallelogram.ParallelogramMachine``)
-and the Gough metrology (``gough.GoughPlatform``: six passive struts) wrap them;
-the planar and translational rail machines still have their own kernels
-(``planar``, ``translational``).
+The machine classes wrap them: ``hexapod.StrutMachine``, ``rails.RailMachine`` (with
+``planar.PlanarMachine`` and ``translational.TranslationalMachine``, which add their
+forward kinematics and analyses), ``parallelogram.ParallelogramMachine`` and the
+Gough metrology (``gough.GoughPlatform``: six passive struts).
 """
 
 from __future__ import annotations
