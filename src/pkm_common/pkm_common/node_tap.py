@@ -2,7 +2,9 @@
 
 ``NodeTap(node, enabled)``: with ``enabled`` the node's per-step publishers wrapped by
 ``wrap`` copy every message into a StreamTap, published on ``TAP_TOPIC`` every
-``period_s`` (``TAP_PERIOD_S``) and by ``flush()``; ``close()`` is the last flush (call it before the
+``period_s`` (``TAP_PERIOD_S``) and by ``flush()``: from ``after_cycle()``, which the
+node calls right after its answer in a cycle (``pkm_common.timing.Cadence``: off the
+deadline's path), and from a timer when no cycle runs; ``close()`` is the last flush (call it before the
 context goes down). Disabled,
 ``wrap`` returns the publisher itself: nothing is added to the loop.
 
@@ -23,6 +25,7 @@ from std_msgs.msg import UInt8MultiArray
 
 from pkm_common.qos import TAP_QOS
 from pkm_common.tap import TAP_TOPIC, StreamTap, TappedPublisher, message_type_name
+from pkm_common.timing import Cadence
 
 # A batch every 0.2 s: most of a batch's cost is per batch (its message, the recorder's
 # callback, topic table and calls), not per record. Measured on archi_demo (~60 kB a
@@ -39,9 +42,19 @@ class NodeTap:
         self.batches = 0
         self.dropped = 0
         self.sink = None
+        self.cadence = Cadence(period_s)
         if enabled:
             self.publisher = node.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)
-            node.create_timer(period_s, self.flush)
+            node.create_timer(period_s, self._on_timer)
+
+    def after_cycle(self) -> None:
+        """A batch if one is due (call right after the node's answer of a cycle)."""
+        if self.tap is not None and self.cadence.in_cycle():
+            self.flush()
+
+    def _on_timer(self) -> None:
+        if self.cadence.on_timer():
+            self.flush()
 
     def wrap(self, publisher, msg_class):
         """``publisher`` (of CDR bytes), tapped when enabled."""

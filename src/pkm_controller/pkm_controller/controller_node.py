@@ -295,6 +295,7 @@ class ControllerNode(LifecycleNode):
             self.publish_status()
         if self.inbox.pending:
             self.report(self.inbox.drain(core))
+        self.tap.after_cycle()
 
     def publish_reference(self, stamp_ns: int) -> None:
         position, orientation = machine_pose_components(self.core.planar, self.core.record.reference)

@@ -32,6 +32,7 @@ from sensor_msgs.msg import JointState
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
 from pkm_common.node_tap import NodeTap
+from pkm_common.timing import Cadence
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_int, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -87,8 +88,12 @@ class GoughSensorNode(Node):
         self.create_subscription(PoseStamped, 'platform/true_pose', self.on_true_pose, STREAM_QOS, raw=True)
         self._struts_encoder = JointStateEncoder(STRUT_NAMES, 'gough_base', fields=('position',))
         self._pose_encoder = PoseStampedEncoder('world')
-        # summary on the wall clock: in lockstep, simulated time may crawl or race
-        self.create_timer(period, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # the summary on the wall clock (in lockstep, simulated time may crawl or race),
+        # after a reading's work (pkm_common.timing.Cadence: off the deadline's path),
+        # on its timer only when no readings come
+        self.report_cadence = Cadence(period)
+        self.create_timer(period, lambda: self.report_cadence.on_timer() and self._report(),
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self.counts = dict(received=0, measured=0, solved=0, failed=0, refused=0)
         self.published = {'metrology/pose': 0, 'metrology/struts': 0}   # distinct stamps
@@ -146,6 +151,9 @@ class GoughSensorNode(Node):
                 'stamp_ns': ns, 'iterations': result.iterations,
                 'residual_m': result.residual_m, 'lengths_m': lengths})
         self._max_callback_s = max(self._max_callback_s, time.perf_counter() - start)
+        self.tap.after_cycle()
+        if self.report_cadence.in_cycle():
+            self._report()
 
     # ---------------------------------------------------------- diagnostics
     def _error(self, message: str, values: dict) -> None:

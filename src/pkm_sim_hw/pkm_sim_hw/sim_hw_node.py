@@ -51,6 +51,7 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_li
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
 from pkm_sim_hw.authority import APPLY, STALE, Refusal
 from pkm_sim_hw.parameters import declare_settings
@@ -109,9 +110,12 @@ class SimHwNode(Node):
         self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
         self.create_subscription(Bool, "estop", self.on_estop, LATCHED_QOS)
         self.create_timer(0.1, self.on_watchdog)
-        self.create_timer(1.0, self.publish_diagnostics)
-        if self.publish_markers:
-            self.create_timer(0.1, self.publish_marker_array)
+        # markers and diagnostics right after a step's publish (pkm_common.timing.Cadence:
+        # off the deadline's path), on their timers only when no step runs
+        self.cadences = ((Cadence(1.0), self.publish_diagnostics),) + \
+            (((Cadence(0.1), self.publish_marker_array),) if self.publish_markers else ())
+        for cadence, work in self.cadences:
+            self.create_timer(cadence.period_s, lambda c=cadence, w=work: c.on_timer() and w())
         if not self.lockstep:
             self.create_timer(dt_s, self.on_realtime_tick)
         self.publish_state()
@@ -250,6 +254,10 @@ class SimHwNode(Node):
         self.held_encoder = None if held_stamp_ns is None else \
             JointStateEncoder(self.plant.names, setpoint_held_word(held_stamp_ns))
         self.publish_state()
+        self.tap.after_cycle()
+        for cadence, work in self.cadences:
+            if cadence.in_cycle():
+                work()
         if self.duration_steps and self.plant.k >= self.duration_steps:
             self.finish()
 
