@@ -13,6 +13,7 @@ import pytest
 
 from pkm_bringup.panel import HEARTBEAT_TIMEOUT_S, Panel, PanelModel
 from pkm_common.conversions import machine_pose_components
+from pkm_kinematics.task_space import PLANAR, SPATIAL
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 
@@ -36,7 +37,7 @@ def live_panel(reference=HOME, **kwargs):
     clock = Clock()
     panel = Panel(PanelModel(ARCHI), clock=clock, **kwargs)
     panel.on_status("controller", 0, "holding", dict(HOLDING))
-    position, orientation = machine_pose_components(True, reference)
+    position, orientation = machine_pose_components(PLANAR, reference)
     panel.on_reference(1_000_000, position, orientation)
     return panel, clock
 
@@ -56,7 +57,7 @@ def test_the_drawing_has_the_legs_and_struts_of_the_machines_geometry():
     drawing = PanelModel(ARCHI).drawing(pose)
     lengths = [math.dist(a, b) for a, b in drawing["legs"]]
     np.testing.assert_allclose(lengths, [1.0] * 4, atol=1e-12)
-    position, orientation = machine_pose_components(True, pose)
+    position, orientation = machine_pose_components(PLANAR, pose)
     c, s = math.cos(pose[2]), math.sin(pose[2])
     struts = [math.dist(a, b) for a, b in drawing["struts"]]
     expected = GoughSensorModel(ARCHI.metrology).true_lengths(position, [[c, -s, 0], [s, c, 0], [0, 0, 1]])
@@ -151,7 +152,7 @@ def test_a_jog_is_held_when_its_page_falls_silent_and_ends_when_it_arrives():
     # a jog that arrives is over: a silent page afterwards holds nothing
     panel, clock = live_panel()
     target = panel.handle({"type": "jog", "axis": "x", "step": 0.002}, "page").publish[0][1]
-    position, orientation = machine_pose_components(True, target)
+    position, orientation = machine_pose_components(PLANAR, target)
     panel.on_reference(2_000_000, position, orientation)
     assert panel.watchdog() is None and panel.snapshot()["jog"] is None
     clock.t += 10.0
@@ -177,8 +178,8 @@ def test_the_plot_pairs_reference_and_pose_of_the_same_step_in_either_order():
     panel, _ = live_panel()
     for k, (first, dy) in enumerate([("pose", 5e-6), ("reference", 12e-6), ("pose", 1e-6)]):
         stamp = (k + 2) * 100_000_000
-        ref = machine_pose_components(True, HOME)
-        pose = machine_pose_components(True, [HOME[0], HOME[1] + dy, HOME[2]])
+        ref = machine_pose_components(PLANAR, HOME)
+        pose = machine_pose_components(PLANAR, [HOME[0], HOME[1] + dy, HOME[2]])
         calls = [lambda: panel.on_true_pose(stamp, *pose), lambda: panel.on_reference(stamp, *ref)]
         for call in (calls if first == "pose" else calls[::-1]):
             call()
@@ -229,19 +230,19 @@ def test_a_hexapod_on_the_panel_its_six_axes_its_angles_jogged_in_rad_its_struts
     drawing = model.drawing(pose)
     np.testing.assert_allclose([math.dist(a, b) for a, b in drawing["legs"]],
                                hexapod.model.inverse_kinematics(pose), atol=1e-12)
-    position, orientation = machine_pose_components(False, pose)
+    position, orientation = machine_pose_components(SPATIAL, pose)
     p, r = hexapod.model.pose(pose)
     np.testing.assert_allclose([math.dist(a, b) for a, b in drawing["struts"]],
                                GoughSensorModel(hexapod.metrology).true_lengths(p, r), atol=1e-12)
     panel = Panel(model, clock=Clock())
     panel.on_status("controller", 0, "holding", dict(HOLDING))
     home = hexapod.model.home.tolist()
-    panel.on_reference(1_000_000, *machine_pose_components(False, home))
+    panel.on_reference(1_000_000, *machine_pose_components(SPATIAL, home))
     result = panel.handle({"type": "jog", "axis": "c", "step": 0.05}, "page")
     assert result.ok and result.message == "jog c +0.05 rad"
     np.testing.assert_allclose(result.publish[0][1], home[:5] + [home[5] + 0.05], atol=1e-12)
     refused = Panel(model, clock=Clock())
     refused.on_status("controller", 0, "holding", dict(HOLDING))
-    refused.on_reference(1_000_000, *machine_pose_components(False, home))
+    refused.on_reference(1_000_000, *machine_pose_components(SPATIAL, home))
     too_far = refused.handle({"type": "jog", "axis": "a", "step": 0.2}, "page")
     assert not too_far.ok and "jog: step must be a number with 0 < |step| <= 0.1 rad" in too_far.message

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pkm_kinematics.task_space import POSITION
+
 from pkm_bringup.orchestrator import EXIT_CODES, run_scenario
 from pkm_bringup.replay import replay_controller
 from pkm_bringup.scenario import load_scenario
@@ -103,7 +105,7 @@ def test_in_process_run_completes_and_loses_nothing(in_process_run):
     # and the 77 um deflection stays), then the Gough struts remove the deflection
     from pkm_bringup.report import load_run, tracking_errors
     assert m["tracking_error"]["max_m"] < 600e-6
-    errors = tracking_errors(load_run(run_dir), "translational")
+    errors = tracking_errors(load_run(run_dir), POSITION)
     late = errors["translation"][errors["stamp_ns"] >= 650 * 10**6]
     assert len(late) == 151 and late.max() < 5e-6
     assert (run_dir / "report" / "metrics.json").exists() and (run_dir / "report" / "path.png").exists()

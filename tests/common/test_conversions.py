@@ -12,6 +12,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from scipy.spatial.transform import Rotation
 
+from pkm_kinematics.task_space import PLANAR, POSITION, SPATIAL
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg, line_list_markers,
                                     machine_pose_components, machine_to_tool_pose, ns_to_stamp,
                                     pose_from_msg, pose_msg, stamp_to_ns, tool_pose_to_machine)
@@ -111,49 +112,51 @@ def test_joint_state_msg():
 
 # ------------------------------------------------------- machine <-> tool pose
 def test_planar_machine_pose_to_tool_pose_and_back():
-    p, rot = machine_to_tool_pose('planar', [0.5, -0.25, 2.0])
+    p, rot = machine_to_tool_pose(PLANAR, [0.5, -0.25, 2.0])
     np.testing.assert_array_equal(p, [0.5, -0.25, 0.0])
     np.testing.assert_allclose(rot, Rotation.from_euler('z', 2.0).as_matrix(), atol=1e-15)
-    x = tool_pose_to_machine('planar', p, rot)
+    x = tool_pose_to_machine(PLANAR, p, rot)
     np.testing.assert_allclose(x, [0.5, -0.25, 2.0], atol=1e-15)
 
 
 @pytest.mark.parametrize('theta,reference', [(7.0, 6.5), (-9.0, -9.5), (100.0, 99.0), (3.1, -3.1)])
 def test_planar_yaw_is_unwrapped_to_the_reference_revolution(theta, reference):
-    p, rot = machine_to_tool_pose('planar', [0.0, 0.0, theta])
-    x = tool_pose_to_machine('planar', p, rot, reference_theta=reference)
+    p, rot = machine_to_tool_pose(PLANAR, [0.0, 0.0, theta])
+    x = tool_pose_to_machine(PLANAR, p, rot, reference_theta=reference)
     assert abs(x[2] - reference) <= math.pi
     assert math.isclose(math.remainder(x[2] - theta, 2 * math.pi), 0.0, abs_tol=1e-12)
-    without = tool_pose_to_machine('planar', p, rot)[2]
+    without = tool_pose_to_machine(PLANAR, p, rot)[2]
     assert -math.pi <= without <= math.pi
 
 
 def test_translational_machine_pose():
-    p, rot = machine_to_tool_pose('translational', [0.1, 0.2, 0.9])
+    p, rot = machine_to_tool_pose(POSITION, [0.1, 0.2, 0.9])
     np.testing.assert_array_equal(p, [0.1, 0.2, 0.9])
     np.testing.assert_array_equal(rot, np.eye(3))
-    np.testing.assert_array_equal(tool_pose_to_machine('translational', p, rot), p)
+    np.testing.assert_array_equal(tool_pose_to_machine(POSITION, p, rot), p)
 
 
-@pytest.mark.parametrize('planar, x', [(True, (0.1, -0.6, 0.25 * math.pi)), (True, (0.0, 0.2, -2.5)),
-                                       (False, (0.01, -0.02, 0.03))])
-def test_machine_pose_components_are_the_tool_pose_as_message_fields(planar, x):
-    position, orientation = machine_pose_components(planar, x)
-    p, r = machine_to_tool_pose('planar' if planar else 'translational', x)
+@pytest.mark.parametrize('space, x', [(PLANAR, (0.1, -0.6, 0.25 * math.pi)), (PLANAR, (0.0, 0.2, -2.5)),
+                                      (POSITION, (0.01, -0.02, 0.03)), (SPATIAL, (0.01, -0.02, 0.5, 0.1, 0.2, -0.3))])
+def test_machine_pose_components_are_the_tool_pose_as_message_fields(space, x):
+    position, orientation = machine_pose_components(space, x)
+    p, r = machine_to_tool_pose(space, x)
     assert tuple(position) == tuple(p)
     assert np.allclose(Rotation.from_quat(orientation).as_matrix(), r, atol=1e-12)
     assert all(type(v) is float for v in (*position, *orientation))
 
 
 def test_machine_pose_errors():
-    with pytest.raises(ValueError, match='kind'):
-        machine_to_tool_pose('delta', [0, 0, 0])
+    with pytest.raises(ValueError, match='space: must be a task space'):
+        machine_to_tool_pose('planar', [0, 0, 0])
     with pytest.raises(ValueError, match=r'x: expected 3 finite numbers \(x, y, theta\)'):
-        machine_to_tool_pose('planar', [0, 0])
+        machine_to_tool_pose(PLANAR, [0, 0])
     with pytest.raises(ValueError, match='x: expected 3 finite'):
-        machine_to_tool_pose('translational', [0, math.nan, 0])
+        machine_to_tool_pose(POSITION, [0, math.nan, 0])
+    with pytest.raises(ValueError, match=r'x: expected 6 finite numbers \(x, y, z, a, b, c\)'):
+        machine_to_tool_pose(SPATIAL, [0, 0, 0])
     with pytest.raises(ValueError, match='reference_theta'):
-        tool_pose_to_machine('planar', [0, 0, 0], np.eye(3), reference_theta=math.inf)
+        tool_pose_to_machine(PLANAR, [0, 0, 0], np.eye(3), reference_theta=math.inf)
 
 
 # -------------------------------------------------------------- diagnostics
@@ -190,9 +193,10 @@ def test_a_spatial_pose_is_published_with_its_roll_pitch_yaw_rotation():
 
     from pkm_common.conversions import machine_pose_components, machine_to_tool_pose, tool_pose_to_machine
     x = [0.1, -0.2, 0.5, 0.3, -0.2, 1.1]
-    position, quaternion = machine_pose_components(False, x)
+    position, quaternion = machine_pose_components(SPATIAL, x)
     expected = Rotation.from_euler("ZYX", [1.1, -0.2, 0.3]).as_quat()      # R = Rz(c) Ry(b) Rx(a)
     assert position == (0.1, -0.2, 0.5)
     np.testing.assert_allclose(np.abs(np.dot(quaternion, expected)), 1.0, atol=1e-15)
-    p, r = machine_to_tool_pose("struts", x)
-    np.testing.assert_allclose(tool_pose_to_machine("struts", p, r), x, atol=1e-15)
+    p, r = machine_to_tool_pose(SPATIAL, x)
+    np.testing.assert_allclose(tool_pose_to_machine(SPATIAL, p, r), x, atol=1e-15)
+    np.testing.assert_allclose(tool_pose_to_machine(SPATIAL, p, r, reference_theta=9.0), x, atol=1e-15)

@@ -94,7 +94,7 @@ class PanelModel:
     def to_machine(self, position, orientation, reference_theta=None) -> list:
         """A PoseStamped's position and quaternion -> machine coordinates."""
         p, r = pose_from_components(position, orientation)
-        return tool_pose_to_machine(self.kind, p, r, reference_theta).tolist()
+        return tool_pose_to_machine(self.space, p, r, reference_theta).tolist()
 
     def drawing(self, pose, struts: bool = True) -> dict:
         """Legs (carriage -> platform joint), the platform outline and (``struts``) the
@@ -109,7 +109,7 @@ class PanelModel:
         outline = sorted(joints, key=lambda p: math.atan2(p[1] - cy, p[0] - cx))
         strut_lines = []
         if struts and self.gough is not None:
-            position, orientation = machine_pose_components(self.planar, pose)
+            position, orientation = machine_pose_components(self.space, pose)
             p, r = pose_from_components(position, orientation)
             strut_lines = self.gough.strut_segments(p, r)
         return {"legs": legs, "platform": outline, "struts": strut_lines}
@@ -189,8 +189,7 @@ class Panel:
             return
         p, r = (value, partner) if pose is not None else (partner, value)
         if self.last_plot_ns is None or not 0 <= stamp_ns - self.last_plot_ns < PLOT_PERIOD_S * 1e9:
-            n = 2 if self.model.planar else 3
-            error = math.sqrt(sum((r[i] - p[i]) ** 2 for i in range(n)))
+            error = math.sqrt(sum((r[i] - p[i]) ** 2 for i in range(self.model.space.translation_axes)))
             self.plot.append((stamp_ns * 1e-9, error * 1e6))
             self.last_plot_ns = stamp_ns
 

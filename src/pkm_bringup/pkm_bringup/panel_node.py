@@ -84,7 +84,7 @@ class PanelNode(Node):
             elif topic == "goal":
                 msg = PoseStamped()
                 msg.header.frame_id = "world"
-                position, orientation = machine_pose_components(self.panel.model.planar, payload)
+                position, orientation = machine_pose_components(self.panel.model.space, payload)
                 p, o = msg.pose.position, msg.pose.orientation
                 p.x, p.y, p.z = (float(v) for v in position)
                 o.x, o.y, o.z, o.w = (float(v) for v in orientation)

@@ -32,6 +32,7 @@ from pkm_bringup.report_data import (BLOCK_ROWS, COMMAND, DEFAULT_NAMESPACE, DIA
 from pkm_bringup.report_metrics import (Analysis, RunAnalysis, block_internal_forces, internal_force_setup,
                                         metrics_dict, null_space_part, tracking_error_rows)
 from pkm_bringup.report_plots import MAX_PLOT_POINTS, MinMaxDecimator, draw
+from pkm_kinematics.task_space import PLANAR
 
 __all__ = ["Analysis", "BagReadError", "IncompleteBagError", "JointSeries", "MAX_PLOT_POINTS", "MinMaxDecimator",
            "NoBagError", "PoseSeries", "RunData", "RunInfo", "RunReader", "StatusRecord", "StepBlock", "analyse",
@@ -75,7 +76,7 @@ def plot(run: RunData, out_dir, machine_name: str | None = None, analysis: Analy
     return draw(a.figures, a.figure_spec(machine_name), out_dir)
 
 
-def tracking_errors(run: RunData, kind: str) -> dict | None:
+def tracking_errors(run: RunData, space) -> dict | None:
     """Errors true pose - reference at the stamps both have: {"stamp_ns", "axes" (N, 2|3)
     m, "translation" (N,) m, "yaw" (N,) rad wrapped to [-pi, pi) (planar only)}; None
     without a true pose or a reference."""
@@ -84,7 +85,7 @@ def tracking_errors(run: RunData, kind: str) -> dict | None:
         return None
     both = tp.present & ref.present
     out = tracking_error_rows(tp.position[both], tp.orientation[both], ref.position[both], ref.orientation[both],
-                              kind == "planar")
+                              space is PLANAR)
     return {"stamp_ns": run.steps.stamp_ns[both], **out}
 
 
@@ -164,7 +165,7 @@ def summary(m: dict) -> str:
                        f"time ({_fmt(tm['wall_s'], digits=2, unit='s')} wall)"),
             ("tracking error", f"RMS {_fmt(te['rms_m'], 1e6, unit='µm')}, max {_fmt(te['max_m'], 1e6, unit='µm')}"
                                + (f" at {te['max_time_s']:.3f} s" if te.get("max_time_s") is not None else ""))]
-    if m["kind"] == "planar":
+    if "yaw_rms_rad" in te:                    # a planar machine's
         rows.append(("yaw error", f"RMS {_fmt(te.get('yaw_rms_rad'), 1e6, unit='µrad')}, "
                                   f"max {_fmt(te.get('yaw_max_rad'), 1e6, unit='µrad')}"))
     elif te.get("rotation_max_rad"):           # a tool that turns (a hexapod), or tilts (the imperfect Delta)

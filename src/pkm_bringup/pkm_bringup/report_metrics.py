@@ -24,6 +24,7 @@ import numpy as np
 from pkm_bringup.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, rpy_of, yaw_of
 from pkm_bringup.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
 from pkm_common.causes import TripCause
+from pkm_kinematics.task_space import PLANAR, POSITION
 
 UNKNOWN_CAUSE = "unknown"           # a stop whose status names no cause (recorded before causes were)
 
@@ -305,7 +306,9 @@ class Analysis:
     cfg: object | None
     machine_name: str | None
     machine_source: str
-    kind: str                       # "planar", "translational" or "unknown"
+    kind: str                       # the machine file's kind, or as seen in the poses ("planar",
+                                    # "translational") or "unknown"
+    space: object | None            # the task space (pkm_kinematics.task_space), None: unknown
     t0_ns: int | None               # time origin: the first drive state stamp (else any)
     spans: dict                     # stream key -> Span
     tracking: TrackingStats | None  # None: no true pose or no reference recorded
@@ -325,7 +328,7 @@ class Analysis:
     def figure_spec(self, machine_name: str | None = None) -> FigureSpec:
         name = self.cfg.name if self.cfg is not None else (machine_name or self.machine_name or "machine")
         internal = "error" not in self.internal and self.internal["norm"].count > 0
-        return FigureSpec(label=f"{name} ({self.info.namespace or '/'})", planar=self.kind == "planar",
+        return FigureSpec(label=f"{name} ({self.info.namespace or '/'})", planar=self.space is PLANAR,
                           t0_ns=self.t0_ns or 0,
                           drive_names={k: list(self.info.streams[k].names) for k in ("command", "state")
                                        if k in self.info.streams},
@@ -432,10 +435,10 @@ class RunAnalysis:
         """The analysis of the blocks folded so far (call after the last one)."""
         self._resolve(None)
         cfg, machine_source = self._machine
-        kind = self._kind(cfg)
+        kind, space = self._kind(cfg)
         tracking = None
         if "true_pose" in self.info.streams and "reference" in self.info.streams:
-            tracking = self.tracking[kind == "planar"]
+            tracking = self.tracking[space is PLANAR]
         forces = {k: f for k, f in self.forces.items()}
         internal = self._internal_result("applied", "state", cfg)
         commanded = None
@@ -443,16 +446,18 @@ class RunAnalysis:
             commanded = self._internal_result("commanded", "command", cfg)
         if commanded is None or "error" in commanded:
             self.figures.internal.pop("commanded", None)
-        return Analysis(self.info, cfg, self.machine_name, machine_source, kind, self._t0(), self.spans, tracking,
+        return Analysis(self.info, cfg, self.machine_name, machine_source, kind, space, self._t0(), self.spans, tracking,
                         forces, internal, commanded, first_stop(self.info.statuses, self.info.estop), self.figures)
 
-    def _kind(self, cfg) -> str:
+    def _kind(self, cfg) -> tuple:
+        """(kind, task space): the machine file's, or without one as the poses show it
+        (in the plane z = 0: planar; else a position machine's)."""
         if cfg is not None:
-            return cfg.kind
+            return cfg.kind, cfg.model.task_space
         key = "true_pose" if "true_pose" in self.info.streams else "reference"
         if key not in self.info.streams or self.spans[key].rows == 0:
-            return "unknown"
-        return "planar" if self.z_zero[key] else "translational"
+            return "unknown", None
+        return ("planar", PLANAR) if self.z_zero[key] else ("translational", POSITION)
 
     def _t0(self) -> int | None:
         for key in ("state", "true_pose", "command", "reference", "clock"):
@@ -579,7 +584,7 @@ def metrics_dict(a: Analysis, published: dict | None = None) -> dict:
                          yaw_max_time_s=_since(te.yaw.peak_stamp_ns, t0))
         else:
             track.update(rotation_rms_rad=te.rotation.rms, rotation_max_rad=te.rotation.peak)
-    elif kind == "planar":
+    elif a.space is PLANAR:
         track.update(yaw_rms_rad=None, yaw_max_rad=None)
     out["tracking_error"] = track
 

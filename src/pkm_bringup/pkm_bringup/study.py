@@ -49,6 +49,7 @@ import yaml
 
 from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario, read_mapping_file
 from pkm_kinematics.config import config_dir
+from pkm_kinematics.task_space import PLANAR
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
               "design", "objectives")
@@ -361,7 +362,7 @@ def _design(data: dict) -> dict | None:
     kind = design.get("kind", "planar")
     if kind not in ("planar", "gough"):
         raise StudyError(f"design.kind: must be planar or gough, got {kind!r}")
-    if kind == "planar" and config.kind != "planar":
+    if kind == "planar" and config.model.task_space is not PLANAR:
         raise StudyError(f"design.kind: planar, but machine {config.name} is {config.kind}")
     if kind == "gough" and config.metrology is None:
         raise StudyError(f"design.kind: gough, but machine {config.name} has no metrology section")

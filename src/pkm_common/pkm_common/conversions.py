@@ -18,8 +18,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
-from pkm_kinematics.rotations import quaternion_from_rotation, rotation_about_z, rotation_from_rpy, rpy_from_rotation
-from pkm_kinematics.task_space import motion_fields
+from pkm_kinematics.task_space import TASK_SPACES, TaskSpace, motion_fields, pose_fields, task_pose, tool_pose
 
 NS_PER_S = 1_000_000_000
 QUATERNION_NORM_TOL = 1e-6
@@ -196,68 +195,44 @@ def trajectory_msg(space, time_s, position, velocity, acceleration) -> MultiDOFJ
 
 
 # ------------------------------------------------------ machine <-> tool pose
-def _check_kind(kind: str) -> None:
-    if kind not in MACHINE_KINDS:
-        raise ValueError(f'kind: must be one of {list(MACHINE_KINDS)}, got {kind!r}')
+# The task space's own formulas (pkm_kinematics.task_space), with the checks of a
+# message boundary: a machine's model names its task space (``model.task_space``).
+def _check_space(space) -> None:
+    if not isinstance(space, TaskSpace):
+        raise ValueError(f'space: must be a task space (one of {sorted(TASK_SPACES)}), got {space!r}')
 
 
-def machine_to_tool_pose(kind: str, x) -> tuple[np.ndarray, np.ndarray]:
-    """Machine pose -> tool pose in world (docs/architecture.md, mounting).
-
-    planar (x, y, theta) -> ((x, y, 0), Rz(theta)); translational p -> (p, I); struts
-    (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a)).
-    """
-    _check_kind(kind)
-    size = 6 if kind == 'struts' else 3
+def machine_to_tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
+    """Machine pose -> tool pose in world (docs/architecture.md, mounting;
+    ``task_space.tool_pose``): planar (x, y, theta) -> ((x, y, 0), Rz(theta)); position
+    p -> (p, I); spatial (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a))."""
+    _check_space(space)
     x = np.asarray(x, dtype=float)
-    if x.shape != (size,) or not np.isfinite(x).all():
-        what = {'planar': '(x, y, theta)', 'struts': '(x, y, z, a, b, c)'}.get(kind, '(x, y, z)')
-        raise ValueError(f'x: expected {size} finite numbers {what}, got {x.tolist()}')
-    if kind == 'struts':
-        return x[:3].copy(), rotation_from_rpy(*x[3:])
-    if kind == 'planar':
-        return np.array([x[0], x[1], 0.0]), rotation_about_z(float(x[2]))
-    return x.copy(), np.eye(3)
+    if x.shape != (space.dof,) or not np.isfinite(x).all():
+        raise ValueError(f'x: expected {space.dof} finite numbers ({space.describe()}), got {x.tolist()}')
+    return tool_pose(space, x)
 
 
-def machine_pose_components(planar: bool, x) -> tuple[tuple, tuple]:
+def machine_pose_components(space: TaskSpace, x) -> tuple[tuple, tuple]:
     """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as numbers
     for a PoseStamped (floats, or the input's numpy scalars): the per-step form of
-    :func:`machine_to_tool_pose`, without its checks. planar (x, y, theta) -> ((x, y, 0), yaw theta about z); translational p ->
-    (p, identity); a spatial pose (x, y, z, a, b, c) -> (p, R = Rz(c) Ry(b) Rx(a))."""
-    if len(x) == 6:
-        return (x[0], x[1], x[2]), tuple(quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5])).tolist())
-    if planar:
-        half = 0.5 * x[2]
-        return (x[0], x[1], 0.0), (0.0, 0.0, math.sin(half), math.cos(half))
-    return (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
+    :func:`machine_to_tool_pose`, without its checks (``task_space.pose_fields``)."""
+    return pose_fields(space, x)
 
 
-def tool_pose_to_machine(kind: str, position, rotation, reference_theta: float | None = None) -> np.ndarray:
-    """Tool pose in world -> machine pose; inverse of :func:`machine_to_tool_pose`.
-
-    planar: (x, y, yaw), the yaw put on the revolution of ``reference_theta`` (the
-    rotation of a planar machine is unlimited, ARCHI: the nacelle turns any number of
-    times); height, roll and pitch are dropped. translational: the position. struts:
-    the position and the roll, pitch and yaw (R = Rz(c) Ry(b) Rx(a)).
-    """
-    _check_kind(kind)
+def tool_pose_to_machine(space: TaskSpace, position, rotation, reference_theta: float | None = None) -> np.ndarray:
+    """Tool pose in world -> machine pose; inverse of :func:`machine_to_tool_pose`
+    (``task_space.task_pose``): a planar machine's yaw on the revolution of
+    ``reference_theta``, its height, roll and pitch dropped."""
+    _check_space(space)
     p = np.asarray(position, dtype=float)
     rot = np.asarray(rotation, dtype=float)
     if p.shape != (3,) or rot.shape != (3, 3) or not (np.isfinite(p).all() and np.isfinite(rot).all()):
         raise ValueError(f'tool pose: expected a finite position (3,) and rotation (3, 3), '
                          f'got {p.tolist()}, {rot.tolist()}')
-    if kind == 'translational':
-        return p.copy()
-    if kind == 'struts':
-        return np.concatenate((p, rpy_from_rotation(rot)))
-    theta = math.atan2(rot[1, 0], rot[0, 0])
-    if reference_theta is not None:
-        ref = float(reference_theta)
-        if not math.isfinite(ref):
-            raise ValueError(f'reference_theta: must be finite, got {reference_theta!r}')
-        theta += 2.0 * math.pi * round((ref - theta) / (2.0 * math.pi))
-    return np.array([p[0], p[1], theta])
+    if reference_theta is not None and not math.isfinite(float(reference_theta)):
+        raise ValueError(f'reference_theta: must be finite, got {reference_theta!r}')
+    return task_pose(space, p, rot, None if reference_theta is None else float(reference_theta))
 
 
 # -------------------------------------------------------------- diagnostics

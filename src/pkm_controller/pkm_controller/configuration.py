@@ -53,7 +53,7 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
         from pkm_common.conversions import machine_pose_components
         from pkm_gough_sensor.metrology import GoughSensorModel
         sensor = GoughSensorModel(core.machine.metrology)
-        position, orientation = machine_pose_components(core.planar, [float(v) for v in home])
+        position, orientation = machine_pose_components(core.space, [float(v) for v in home])
         p, r = pose_from_components(position, orientation)
         struts = sensor.measure(p, r).tolist()
         estimate = sensor.estimate(np.asarray(struts))

@@ -298,7 +298,7 @@ class ControllerNode(LifecycleNode):
         self.tap.after_cycle()
 
     def publish_reference(self, stamp_ns: int) -> None:
-        position, orientation = machine_pose_components(self.core.planar, self.core.record.reference)
+        position, orientation = machine_pose_components(self.core.space, self.core.record.reference)
         self.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
 
     def publish_status(self, extra: str = "") -> None:

@@ -23,8 +23,8 @@ import numpy as np
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
 from .jit import kernel
-from .rotations import rate_matrix, rotation_from_rpy, rpy_from_rotation, rpy_kernel, rpy_rotation_kernel
-from .task_space import SPATIAL
+from .rotations import rate_matrix, rotation_from_rpy, rpy_kernel, rpy_rotation_kernel
+from .task_space import SPATIAL, task_pose
 
 
 class FKCode(IntEnum):
@@ -107,8 +107,8 @@ class StrutMachine:
 
     @staticmethod
     def task_coordinates(position, rotation) -> np.ndarray:
-        """x = (x, y, z, a, b, c) of the pose (p, R); |b| < pi/2."""
-        return np.concatenate((np.asarray(position, dtype=float), rpy_from_rotation(np.asarray(rotation))))
+        """x = (x, y, z, a, b, c) of the pose (p, R); |b| < pi/2 (``task_space.task_pose``)."""
+        return task_pose(SPATIAL, position, rotation)
 
     def leg_joints(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Each strut's base and platform joint (n, 3) each, for drawing."""

@@ -14,6 +14,8 @@ squares; the Orthoglide's three spheres) and their papers' analyses.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from . import bars as B
@@ -54,6 +56,11 @@ class RailMachine:
         self.bars = B.bar_rows(origins, platform_points, actuator=np.arange(n), kind=B.RAIL, rail=u,
                                length=np.asarray(lengths, dtype=float), branch=np.asarray(assemblies, dtype=float))
         self.twist_columns = np.asarray(columns, dtype=np.int64)
+
+    def with_legs(self, name: str, legs):
+        """The same machine with other legs (the plant's true machine: link length
+        errors, rail offsets), everything else as it is here."""
+        return dataclasses.replace(self, name=name, legs=list(legs))
 
     # ------------------------------------------------- the bars (machine.ParallelMachine)
     @property

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .rotations import (angular_motion_floats, quaternion_from_rotation, rate_matrix, rate_matrix_derivative,
-                        rotation_from_rpy)
+                        rotation_about_z, rotation_from_rpy, rpy_from_rotation)
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,52 @@ TASK_SPACES = {space.name: space for space in (PLANAR, POSITION, SPATIAL)}
 
 
 
+def tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
+    """The tool's pose in the world of a task-space pose: (position (3,), rotation
+    (3, 3)). planar (x, y, theta) -> ((x, y, 0), Rz(theta)); position p -> (p, I);
+    spatial (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a))."""
+    if space is PLANAR:
+        return np.array([x[0], x[1], 0.0]), rotation_about_z(float(x[2]))
+    if space is POSITION:
+        return np.array(x[:3], dtype=float), np.eye(3)
+    return np.array(x[:3], dtype=float), rotation_from_rpy(*x[3:6])
+
+
+def pose_fields(space: TaskSpace, x) -> tuple[tuple, tuple]:
+    """:func:`tool_pose` as the fields of a pose message, per step: (position (3),
+    quaternion (x, y, z, w)), numbers as given (floats, or numpy scalars)."""
+    if space is PLANAR:
+        half = 0.5 * x[2]
+        return (x[0], x[1], 0.0), (0.0, 0.0, math.sin(half), math.cos(half))
+    if space is POSITION:
+        return (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
+    return (x[0], x[1], x[2]), tuple(quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5])).tolist())
+
+
+def task_pose(space: TaskSpace, position, rotation, reference_angle: float | None = None) -> np.ndarray:
+    """The inverse of :func:`tool_pose`. planar: (x, y, yaw), the yaw put on the
+    revolution of ``reference_angle`` (a planar machine's rotation is unlimited: ARCHI's
+    nacelle turns any number of times); height, roll and pitch are dropped. position:
+    the position. spatial: the position and the roll, pitch and yaw."""
+    p = np.asarray(position, dtype=float)
+    if space is POSITION:
+        return p.copy()
+    if space is SPATIAL:
+        return np.concatenate((p, rpy_from_rotation(np.asarray(rotation, dtype=float))))
+    theta = math.atan2(rotation[1][0], rotation[0][0])
+    if reference_angle is not None:
+        theta += 2.0 * math.pi * round((reference_angle - theta) / (2.0 * math.pi))
+    return np.array([p[0], p[1], theta])
+
+
+def load_components(space: TaskSpace, force, moment) -> list:
+    """A wrench (force, moment: 3 each, world frame) in the components of an external
+    load in this task space (``space.loads``): fx, fy, mz on a planar machine, fx, fy,
+    fz on a position one, all six on a spatial one."""
+    wrench = {"fx": force[0], "fy": force[1], "fz": force[2], "mx": moment[0], "my": moment[1], "mz": moment[2]}
+    return [wrench[label] for label in space.loads]
+
+
 def motion_fields(space: TaskSpace, x, v, a) -> tuple:
     """A task-space sample (pose x, rates v, accelerations a) as the fields of a
     trajectory point in the base frame: (translation (3), quaternion (x, y, z, w),
@@ -59,16 +105,13 @@ def motion_fields(space: TaskSpace, x, v, a) -> tuple:
     planar: the yaw theta about z; position: no rotation; spatial: R = Rz(c) Ry(b)
     Rx(a), w = E (a', b', c'), w' = E (a'', b'', c'') + E' (a', b', c')
     (rotations.rate_matrix)."""
+    position, quaternion = pose_fields(space, x)
     if space is PLANAR:
-        return ((x[0], x[1], 0.0), (0.0, 0.0, math.sin(0.5 * x[2]), math.cos(0.5 * x[2])),
-                (v[0], v[1], 0.0), (0.0, 0.0, v[2]), (a[0], a[1], 0.0), (0.0, 0.0, a[2]))
+        return (position, quaternion, (v[0], v[1], 0.0), (0.0, 0.0, v[2]), (a[0], a[1], 0.0), (0.0, 0.0, a[2]))
     if space is POSITION:
-        return ((x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0), (v[0], v[1], v[2]), (0.0, 0.0, 0.0),
-                (a[0], a[1], a[2]), (0.0, 0.0, 0.0))
+        return (position, quaternion, (v[0], v[1], v[2]), (0.0, 0.0, 0.0), (a[0], a[1], a[2]), (0.0, 0.0, 0.0))
     omega, alpha = angular_motion(x[3:6], v[3:6], a[3:6])
-    q = quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5]))
-    return (tuple(x[:3]), tuple(q.tolist()), tuple(v[:3]), tuple(omega.tolist()), tuple(a[:3]),
-            tuple(alpha.tolist()))
+    return (position, quaternion, tuple(v[:3]), tuple(omega.tolist()), tuple(a[:3]), tuple(alpha.tolist()))
 
 
 def angular_motion(angles, rates, accelerations) -> tuple[np.ndarray, np.ndarray]:
@@ -103,5 +146,5 @@ def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
     return rates, accelerations
 
 
-__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "angular_motion", "motion_fields",
-           "task_twists"]
+__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "angular_motion",
+           "load_components", "motion_fields", "pose_fields", "task_pose", "task_twists", "tool_pose"]

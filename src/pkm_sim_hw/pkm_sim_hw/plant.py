@@ -47,9 +47,7 @@ from pkm_kinematics.distribution import internal_force_rows
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.parallelogram import ParallelogramMachine
-from pkm_kinematics.planar import PlanarMachine
-from pkm_kinematics.task_space import TaskSpace
-from pkm_kinematics.translational import TranslationalMachine
+from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
@@ -113,7 +111,7 @@ class PlantParameters:
     parallelogram_bar_errors_m: tuple = ()     # a Delta's bars: 6 length errors (m), two per leg (MoM3 §4.1)
     parallelogram_half_width_m: float = 0.03   # half the distance between a parallelogram's two bars
 
-    def validate(self, n_drives: int, kind: str | None = None) -> None:
+    def validate(self, n_drives: int, space: TaskSpace | None = None) -> None:
         checks = [("dt_s", self.dt_s > 0.0 and self.dt_s <= 0.1, "(0, 0.1] s"),
                   ("substeps", 1 <= self.substeps <= 1000, "[1, 1000]"),
                   ("integrator", self.integrator in ("semi_implicit", "rk4"), "semi_implicit or rk4"),
@@ -130,7 +128,7 @@ class PlantParameters:
                   ("max_load_n", 0.0 < self.max_load_n < math.inf, "(0, inf) N"),
                   ("max_load_nm", 0.0 < self.max_load_nm < math.inf, "(0, inf) N m"),
                   ("parallelogram_bar_errors_m", not self.parallelogram_bar_errors_m
-                   or (len(self.parallelogram_bar_errors_m) == 6 and n_drives == 3 and kind in (None, "translational")
+                   or (len(self.parallelogram_bar_errors_m) == 6 and n_drives == 3 and space in (None, POSITION)
                        and all(abs(e) <= 0.01 for e in self.parallelogram_bar_errors_m)),
                    "empty, or 6 values in [-0.01, 0.01] m (two bars per leg) on a Delta (3 rails)"),
                   ("parallelogram_half_width_m", 0.0 < self.parallelogram_half_width_m <= 1.0, "(0, 1] m")]
@@ -168,10 +166,7 @@ def true_machine(nominal, link_length_errors=(), rail_offset_errors_m=()):
         origin = np.asarray(leg.rail_origin, dtype=float) + off * direction / np.linalg.norm(direction)
         legs[i] = dataclasses.replace(leg, link_length=leg.link_length * (1.0 + err),
                                       rail_origin=tuple(origin.tolist()))
-    if isinstance(nominal, PlanarMachine):
-        return PlanarMachine(nominal.name + "_true", legs, nominal.home_pose, nominal.workspace, nominal.description)
-    return TranslationalMachine(nominal.name + "_true", legs, nominal.home_position, nominal.workspace,
-                                nominal.transmission_bounds, nominal.description)
+    return nominal.with_legs(nominal.name + "_true", legs)
 
 
 class Plant:
@@ -182,7 +177,7 @@ class Plant:
             raise ValueError(f"machine {config.name!r}: the plant needs a 'dynamics' section")
         self.params = params or PlantParameters()
         n = config.model.n_legs
-        self.params.validate(n, config.kind)
+        self.params.validate(n, config.model.task_space)
         for name in ("compliance", "frame_compliance"):
             if len(getattr(self.params, name)) != 3:
                 raise ValueError(f"{name}: must be 3 values on a 3-DOF machine, got {list(getattr(self.params, name))}")
@@ -228,7 +223,7 @@ class Plant:
     def load_components(self, force, moment) -> list:
         """The load of a wrench (force, moment: 3 each, world frame) in this machine's
         task coordinates: fx, fy, mz on a planar machine, fx, fy, fz otherwise."""
-        return [force[0], force[1], moment[2]] if self.config.kind == "planar" else list(force)
+        return load_components(self.config.model.task_space, force, moment)
 
     def set_load(self, wrench) -> None:
         """External (cutting) load on the tool, task coordinates (N, N, N m | N);

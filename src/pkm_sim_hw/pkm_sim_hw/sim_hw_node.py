@@ -92,7 +92,7 @@ class SimHwNode(Node):
         self.stopped_encoder = None                # frame_id "safe_stop:<cause>", made at the stop
         self.held_encoder = None                   # frame_id "setpoint_held:<stamp>" of this step, if held
         self.pose_encoder = PoseStampedEncoder("world")
-        self.planar = self.config.kind == "planar"
+        self.space = self.config.model.task_space
         self.command_decoder = JointStateDecoder("drives/command")
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
                                               "in batches (pkm_common.tap) instead of its subscribing to them"))
@@ -130,10 +130,10 @@ class SimHwNode(Node):
         ns = self.now_ns()
         # the true pose first: the sensor's work is on the critical path of the step
         # (state -> sensor -> controller), the drive state and the clock are not
-        # planar: tool = (x, y, 0), yaw theta; translational: tool = p, orientation fixed
-        # (the imperfect Delta's: its parasitic rotation); a hexapod's: its rotation
+        # the tool of the task-space pose (task_space.pose_fields), or the plant's own
+        # rotation where it has one (the imperfect Delta's parasitic rotation, a hexapod's)
         if out.tool_rotation is None:
-            position, orientation = machine_pose_components(self.planar, out.tool_pose)
+            position, orientation = machine_pose_components(self.space, out.tool_pose)
         else:
             r = out.tool_rotation
             position, orientation = pose_components(out.tool_pose[:3], (r[0:3], r[3:6], r[6:9]))

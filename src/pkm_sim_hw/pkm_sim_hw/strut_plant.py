@@ -40,6 +40,7 @@ from pkm_kinematics.distribution import internal_force
 from pkm_kinematics.errors import KinematicsError, SingularityError
 from pkm_kinematics.rigid_body import StrutDynamics
 from pkm_kinematics.rotations import rotation_from_rpy
+from pkm_kinematics.task_space import load_components
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
@@ -57,7 +58,7 @@ class StrutPlant:
         self.params = params or PlantParameters()
         self.machine = config.model
         self.n = self.machine.n_legs
-        self.params.validate(self.n, config.kind)
+        self.params.validate(self.n, config.model.task_space)
         for name in _NOT_YET:
             if any(getattr(self.params, name)):
                 raise ValueError(f"{name}: not simulated on a strut machine yet (leave it empty or zero)")
@@ -101,7 +102,7 @@ class StrutPlant:
     # ------------------------------------------------------------------ inputs
     def load_components(self, force, moment) -> list:
         """The load of a wrench (force, moment about p: 3 each, base frame): all six."""
-        return [*force, *moment]
+        return load_components(self.machine.task_space, force, moment)
 
     def check_load(self, wrench, what: str = "load") -> list:
         """The load as 6 floats (fx, fy, fz in N, mx, my, mz in N m), or ValueError

@@ -74,10 +74,8 @@ class TrajectoryNode(Node):
     def on_goal(self, msg: PoseStamped) -> None:
         def segments():
             position, rotation = pose_from_msg(msg)
-            if self.space.dof == 6:                 # a pose: its roll, pitch, yaw
-                target = self.model.task_coordinates(position, rotation)
-            else:
-                target = tool_pose_to_machine(self.config.kind, position, rotation, self.pose[2])
+            # a planar machine's yaw on the revolution it is at (a 6-DOF pose: its roll, pitch, yaw)
+            target = tool_pose_to_machine(self.space, position, rotation, self.pose[2])
             return [point_to_point(self.pose, target)]
         self.submit("goal", segments)
 
