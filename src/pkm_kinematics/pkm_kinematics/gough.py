@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import bars as B
-from .jit import kernel
+from .jit import direct_call, kernel
 from .rotations import exp_so3_kernel, mul3_kernel
 from .validation import finite_array, finite_floats
 
@@ -59,7 +59,8 @@ class GoughDKMResult:
     jacobian_evaluations: int
     residual_m: float
     reason: str = ""
-    jacobian: np.ndarray | None = None   # J_h of the last linearisation, (6, 6) (for warm starts)
+    jacobian: np.ndarray | None = None   # J_h of the last linearisation, (6, 6), to warm-start a next
+                                         # direct_kinematics (GoughDKMSolver keeps its own: None there)
 
 
 def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plate_rad: float,
@@ -160,43 +161,70 @@ def plate_branch_ok(bars, p, rot, evaluations, iterations, home_det_sign) -> boo
     return True
 
 
-@kernel("(float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], "
-        "boolean, float64, int64, float64, float64, float64[:, :], int64[:], int64[:])")
-def dkm_stream_kernel(bars, lengths, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
-                      divergence_limit, home_det_sign, poses, codes, iterations):
-    """``GoughDKMSolver.solve`` over a stream of readings (N, 6) in one compiled loop:
-    each ``dkm_warm_step_kernel`` (the extrapolated guess, the chord iteration) and
-    the branch checks (``plate_branch_ok``), the state (p1, r1: the last good pose;
-    p0, r0: the one before; jh) moving on only after a good solve, as there. Into
-    ``poses`` (N, 12: p, R row-major; NaN where it failed), ``codes`` (FK_*; FK_SINGULAR
-    also for a wrong branch, DKM_BAD_LENGTHS) and ``iterations``. Returns the final
-    (has_previous, have_jh)."""
-    p, rot = np.empty(3), np.empty(9)
+# a converged solve on the wrong branch (plate_branch_ok): the plate mirrored below the
+# base plane or flipped; or in another assembly mode (det(J_h^-1) of the other sign)
+DKM_MIRROR, DKM_OTHER_MODE = 6, 7
+# GoughDKMSolver's state, one array: the last good pose (p1, R1), the one before (p0,
+# R0), J_h of the last linearisation; flags: (has_previous, have_jh)
+_P1, _R1, _P0, _R0, _JH, STATE_SIZE = 0, 3, 12, 15, 24, 60
+
+
+@kernel("(float64[:, :], float64[:], float64[::1], int64[:], float64, int64, float64, float64, float64[::1], "
+        "float64[:, ::1])")
+def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergence_limit, home_det_sign, p,
+                     rotation):
+    """One solve of ``GoughDKMSolver``, compiled whole: ``dkm_warm_step_kernel`` (the
+    extrapolated guess, the chord iteration) from ``state``, the branch checks
+    (``plate_branch_ok``: DKM_MIRROR, DKM_OTHER_MODE), then the state moves on only
+    after a good solve (p0, R0 <- p1, R1, or the solution itself after a reset; p1, R1
+    <- the solution), and is reset to "no previous solution" after a failure. The last
+    iterate into ``p`` (3,) and ``rotation`` (3, 3). Returns (code, iterations, J_h
+    evaluations, residual)."""
+    p1, r1, p0, r0 = state[_P1:_R1], state[_R1:_P0], state[_P0:_R0], state[_R0:_JH]
+    jh = state[_JH:STATE_SIZE].reshape((6, 6))
+    rot = rotation.reshape(9)
+    has_previous = flags[0] != 0
+    code, iterations, evaluations, residual, have = dkm_warm_step_kernel(
+        bars, target, p1, r1, p0, r0, has_previous, jh, flags[1] != 0, tol_m, max_iterations, divergence_limit, p,
+        rot)
+    if code == B.FK_CONVERGED and not plate_branch_ok(bars, p, rot, evaluations, iterations, home_det_sign):
+        code = DKM_MIRROR if not (p[2] > 0.0 and rot[8] > 0.0) else DKM_OTHER_MODE
+    if code == B.FK_CONVERGED:
+        flags[1] = 1 if have else 0
+        if has_previous:
+            p0[:] = p1
+            r0[:] = r1
+        else:
+            p0[:] = p
+            r0[:] = rot
+        p1[:] = p
+        r1[:] = rot
+        flags[0] = 1
+    else:
+        flags[0] = flags[1] = 0
+    return code, iterations, evaluations, residual
+
+
+@kernel("(float64[:, :], float64[:, :], float64[::1], int64[:], float64, int64, float64, float64, float64[:, :], "
+        "int64[:], int64[:])")
+def dkm_stream_kernel(bars, lengths, state, flags, tol_m, max_iterations, divergence_limit, home_det_sign, poses,
+                      codes, iterations):
+    """``dkm_solve_kernel`` over a stream of readings (N, 6) in one compiled loop, bit
+    for bit N calls of it: into ``poses`` (N, 12: p, R row-major; NaN where it
+    failed), ``codes`` (FK_*; FK_SINGULAR also for a wrong branch, DKM_BAD_LENGTHS) and
+    ``iterations``."""
+    p, rotation = np.empty(3), np.empty((3, 3))
+    rot = rotation.reshape(9)
     for k in range(lengths.shape[0]):
-        code, its, evaluations, _, have = dkm_warm_step_kernel(bars, lengths[k], p1, r1, p0, r0, has_previous, jh,
-                                                               have_jh, tol_m, max_iterations, divergence_limit, p,
-                                                               rot)
+        code, its, _, _ = dkm_solve_kernel(bars, lengths[k], state, flags, tol_m, max_iterations, divergence_limit,
+                                           home_det_sign, p, rotation)
         iterations[k] = its
-        if code == B.FK_CONVERGED and not plate_branch_ok(bars, p, rot, evaluations, its, home_det_sign):
-            code = B.FK_SINGULAR
-        codes[k] = code
+        codes[k] = B.FK_SINGULAR if code == DKM_MIRROR or code == DKM_OTHER_MODE else code
         if code == B.FK_CONVERGED:
             poses[k, 0:3] = p
             poses[k, 3:12] = rot
-            have_jh = have
-            if has_previous:
-                p0[:] = p1
-                r0[:] = r1
-            else:
-                p0[:] = p
-                r0[:] = rot
-            p1[:] = p
-            r1[:] = rot
-            has_previous = True
         else:
             poses[k, :] = math.nan
-            have_jh = has_previous = False
-    return has_previous, have_jh
 
 
 @dataclass
@@ -331,30 +359,34 @@ class GoughPlatform:
                             max_iterations)
 
     def _result(self, code, p, rot, iterations, evaluations, residual, jh, max_iterations) -> GoughDKMResult:
-        """The GoughDKMResult of a kernel's solve (``p`` (3,), ``rot`` (9,) its last iterate)."""
+        """The GoughDKMResult of a kernel's solve (``p`` (3,), ``rot`` (9,) its last
+        iterate; the result holds copies of them)."""
         if code == B.FK_CONVERGED:
-            return self._finish(p[0], p[1], p[2], rot, iterations, evaluations, residual, jh)
+            return self._finish(p, rot, iterations, evaluations, residual, jh)
         reason = {B.FK_DIVERGED: f"diverged: residual {residual:.3g} m above the limit "
                                       f"{self._divergence_limit:.3g} m",
                   B.FK_STALLED: "diverged: residual grew twice in a row",
-                  B.FK_SINGULAR: "singular configuration (J_h^-1 not invertible)"}.get(
+                  B.FK_SINGULAR: "singular configuration (J_h^-1 not invertible)",
+                  DKM_MIRROR: "mirror assembly: the plate is below the base plane or flipped",
+                  DKM_OTHER_MODE: "another assembly mode: det(J_h^-1) has the opposite sign to home"}.get(
             code, f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
         return self._fail(iterations, evaluations, residual, reason)
 
-    def _finish(self, px, py, pz, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
-        if pz <= 0.0 or rot[8] <= 0.0:
-            return self._fail(iterations, evaluations, residual,
-                              "mirror assembly: the plate is below the base plane or flipped")
-        if evaluations or iterations > 2:
+    def _finish(self, p, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
+        """The branch checks of a converged solve (those of ``plate_branch_ok``), then the result."""
+        position, rotation = p.copy(), rot.reshape(3, 3).copy()
+        code = B.FK_CONVERGED
+        if not (p[2] > 0.0 and rot[8] > 0.0):
+            code = DKM_MIRROR
+        elif evaluations or iterations > 2:
             # the solve travelled: it must not have crossed into another assembly mode,
             # which would flip the sign of det(J_h^-1) (a path between modes crosses a
             # singularity). Short warm-started solves cannot, and skip this 10 us check.
-            position, rotation = np.array([px, py, pz]), np.array(rot).reshape(3, 3)
             if np.linalg.det(self.inverse_jacobian(position, rotation)) * self._home_det_sign <= 0.0:
-                return self._fail(iterations, evaluations, residual,
-                                  "another assembly mode: det(J_h^-1) has the opposite sign to home")
-        return GoughDKMResult(np.array([px, py, pz]), np.array(rot).reshape(3, 3), True, iterations,
-                              evaluations, residual, "", jh)
+                code = DKM_OTHER_MODE
+        if code != B.FK_CONVERGED:
+            return self._result(code, p, rot, iterations, evaluations, residual, None, 0)
+        return GoughDKMResult(position, rotation, True, iterations, evaluations, residual, "", jh)
 
     @staticmethod
     def _fail(iterations, evaluations, residual, reason) -> GoughDKMResult:
@@ -389,6 +421,11 @@ class GoughPlatform:
         return p_out, r_out, ok, iters
 
 
+# GoughDKMSolver.solve makes every argument itself, with the declared types
+_solve = direct_call(dkm_solve_kernel)
+_FLOAT64 = np.dtype(np.float64)
+
+
 class GoughDKMSolver:
     """Warm-started DKM for a stream of measurements (one per control cycle).
 
@@ -408,24 +445,24 @@ class GoughDKMSolver:
         self.reset()
 
     def reset(self, position=None, rotation=None) -> None:
-        self._p = np.array(self.platform.home_position if position is None
-                           else finite_floats(position, 3, "position"), dtype=float)
-        self._r = np.array(np.eye(3).ravel() if rotation is None else validate_rotation(rotation, "rotation"),
-                           dtype=float)
-        # the solution one solve earlier: none after a reset or a failure (_p/_r then a
+        p = self.platform.home_position if position is None else finite_floats(position, 3, "position")
+        r = np.eye(3).ravel() if rotation is None else validate_rotation(rotation, "rotation")
+        # the solution one solve earlier: none after a reset or a failure (p1, R1 then a
         # guess, no velocity to extrapolate)
-        self._p0, self._r0, self._has_previous = self._p.copy(), self._r.copy(), False
-        self._jh, self._has_jh = np.empty((6, 6)), False
+        self._state = np.zeros(STATE_SIZE)
+        self._state[_P1:_R1] = self._state[_P0:_R0] = p
+        self._state[_R1:_P0] = self._state[_R0:_JH] = np.asarray(r, dtype=float).ravel()
+        self._flags = np.zeros(2, dtype=np.int64)
 
     @property
     def position(self) -> np.ndarray:
         """The last good plate position (m)."""
-        return self._p.copy()
+        return self._state[_P1:_R1].copy()
 
     @property
     def rotation(self) -> np.ndarray:
         """The last good plate rotation."""
-        return self._r.reshape(3, 3).copy()
+        return self._state[_R1:_P0].reshape(3, 3).copy()
 
     def solve_stream(self, lengths) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`solve` over readings (N, 6) in one compiled loop (``dkm_stream_kernel``):
@@ -435,34 +472,26 @@ class GoughDKMSolver:
         n = lengths.shape[0]
         poses, codes, iterations = np.empty((n, 12)), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
         platform = self.platform
-        # the kernel moves the state in place: own copies (solve() may leave two names on one array)
-        self._p, self._r, self._p0, self._r0 = (a.copy() for a in (self._p, self._r, self._p0, self._r0))
-        self._has_previous, self._has_jh = dkm_stream_kernel(
-            platform.bars, lengths, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
-            self._has_jh, self.tol_m, self.max_iterations, platform._divergence_limit, platform._home_det_sign, poses,
-            codes, iterations)
+        dkm_stream_kernel(platform.bars, lengths, self._state, self._flags, self.tol_m, self.max_iterations,
+                          platform._divergence_limit, platform._home_det_sign, poses, codes, iterations)
         return poses[:, :3].copy(), poses[:, 3:].reshape(n, 3, 3).copy(), codes == B.FK_CONVERGED, iterations
 
     def solve(self, lengths) -> GoughDKMResult:
-        """One measurement: dkm_warm_step_kernel (guess and Newton, compiled), then the
-        branch checks; the state moves on only when it converged."""
+        """One measurement (``dkm_solve_kernel``: guess, Newton, branch checks, the
+        state moving on only when it converged, compiled in one call)."""
         platform = self.platform
-        target = np.asarray(lengths, dtype=float)
-        if target.shape != (6,):
-            platform._validate_lengths(lengths)            # raises, naming what is wrong
-        p, rot = np.empty(3), np.empty(9)
-        code, iterations, evaluations, residual, have_jh = dkm_warm_step_kernel(
-            platform.bars, target, self._p, self._r, self._p0, self._r0, self._has_previous, self._jh,
-            self._has_jh, self.tol_m, self.max_iterations, platform._divergence_limit, p, rot)
+        target = lengths
+        if type(target) is not np.ndarray or target.dtype is not _FLOAT64 or target.shape != (6,):
+            target = np.asarray(lengths, dtype=float)
+            if target.shape != (6,):
+                platform._validate_lengths(lengths)        # raises, naming what is wrong
+        p, rotation = np.empty(3), np.empty((3, 3))
+        code, iterations, evaluations, residual = _solve(platform.bars, target, self._state, self._flags, self.tol_m,
+                                                         self.max_iterations, platform._divergence_limit,
+                                                         platform._home_det_sign, p, rotation)
+        if code == B.FK_CONVERGED:
+            return GoughDKMResult(p, rotation, True, iterations, evaluations, residual)
         if code == DKM_BAD_LENGTHS:
             platform._validate_lengths(lengths)            # raises, naming what is wrong
-        result = platform._result(code, p, rot, iterations, evaluations, residual,
-                                  self._jh.copy() if have_jh else None, self.max_iterations)
-        if result.converged:
-            self._has_jh = have_jh
-            # after a reset the guess is not a pose of the motion: no velocity to extrapolate
-            self._p0, self._r0 = (self._p, self._r) if self._has_previous else (p, rot)
-            self._p, self._r, self._has_previous = p, rot, True
-        else:
-            self._has_jh = self._has_previous = False
-        return result
+        return platform._result(code, p, rotation.ravel(), iterations, evaluations, residual, None,
+                                self.max_iterations)

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError
-from .jit import kernel
+from .jit import direct_call, kernel
 from .rotations import rate_matrix, rotation_from_rpy, rpy_kernel, rpy_rotation_kernel
 from .task_space import SPATIAL, task_pose
 
@@ -59,6 +59,9 @@ class StrutFKResult(NamedTuple):
 
 
 _CODES = {int(c): c for c in FKCode}
+_FLOAT64 = np.dtype(np.float64)
+# StrutFK.solve makes every argument itself (the readings made float64 there), with the declared types
+_warm_solve = direct_call(B.forward_kinematics_warm_kernel)
 
 
 class StrutMachine:
@@ -307,6 +310,7 @@ class StrutFK:
                  divergence_limit_m: float = 1.0):
         self.machine = machine
         self.tol_m, self.max_iterations, self.divergence_limit_m = tol_m, max_iterations, divergence_limit_m
+        self._shape = (machine.n_legs,)
         self.reset()
 
     def reset(self, x=None) -> None:
@@ -315,10 +319,12 @@ class StrutFK:
 
     def solve(self, q) -> StrutFKResult:
         """The pose of ``q`` from the last pose; on a failure the warm start is kept."""
-        if type(q) is not np.ndarray or q.dtype != np.float64:
+        if type(q) is not np.ndarray or q.dtype is not _FLOAT64:
             q = np.asarray(q, dtype=float)
+        if q.shape != self._shape:
+            raise ValueError(f"strut lengths: expected {self.machine.n_legs} values, got shape {q.shape}")
         p, rot = np.empty(3), np.empty(9)
-        code, iterations, misfit = B.forward_kinematics_warm_kernel(
+        code, iterations, misfit = _warm_solve(
             self.machine.bars, q, self._p, self._rot, p, rot, self.tol_m, self.max_iterations,
             self.divergence_limit_m)
         return StrutFKResult(_CODES[code], p, rot.reshape(3, 3), iterations, misfit)

@@ -65,3 +65,15 @@ def kernel(signature: str | None = None):
             return _njit(cache=True, nogil=True)(function)
         return _njit(signature, cache=True, nogil=True)(function)
     return decorate
+
+
+def direct_call(compiled):
+    """The machine code of a kernel compiled for its declared signature, to be called
+    without numba's dispatcher, which types every argument on each call (about half of
+    a 9-14-argument kernel's call when its work is a warm-started solve). Only for a
+    per-call path whose arguments the caller makes itself, with exactly the declared
+    types: no conversion is done. Interpreted (``PKM_NO_JIT=1``): the function itself."""
+    overloads = getattr(compiled, "overloads", None)
+    if not overloads:
+        return compiled
+    return next(iter(overloads.values())).entry_point      # the first: the declared signature
