@@ -14,14 +14,14 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 import yaml
 
 from pkm_kinematics.config import config_dir
+
+from panel_helpers import realtime_profile_permitted, snapshot, wait_for     # tests/bringup/panel_helpers.py
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # how long the page may take to show an outcome: the suite's other worker, chromium and
@@ -31,30 +31,6 @@ UI_MS = 30_000
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(CHROMIUM is None, reason="the panel's browser test needs chromium: "
                                                           "apt-get install chromium (.ci/run does)")]
-
-
-def snapshot(url: str) -> dict:
-    with urllib.request.urlopen(url + "api/snapshot", timeout=5) as response:
-        return json.load(response)
-
-
-def wait_for(what: str, predicate, timeout_s: float = 30.0, period_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(period_s)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def realtime_profile_permitted() -> bool:
-    from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
-    try:
-        check_permitted()
-    except RealtimeProfileRefused:
-        return False
-    return True
 
 
 @contextlib.contextmanager
