@@ -310,3 +310,9 @@ def test_the_imperfect_delta_turns_its_tool_and_its_drives_read_the_bars():
     assert np.abs(np.array(out.encoder_positions) - ref.encoder_positions).max() > 1e-6
     with pytest.raises(ValueError, match=r"parallelogram_bar_errors_m: must be empty, or 6 values"):
         Plant(ARCHI, PlantParameters(parallelogram_bar_errors_m=BARS[:4] + (0.0, 0.0)))
+    # the check asks the machine's task space (a Delta's: position), not a kind name
+    PlantParameters(parallelogram_bar_errors_m=BARS).validate(3, MOM3.model.task_space)
+    with pytest.raises(ValueError, match=r"parallelogram_bar_errors_m"):
+        PlantParameters(parallelogram_bar_errors_m=BARS).validate(3, ARCHI.model.task_space)
+    with pytest.raises(TypeError, match="space"):
+        PlantParameters(parallelogram_bar_errors_m=BARS).validate(3, "translational")

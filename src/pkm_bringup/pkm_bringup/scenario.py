@@ -346,7 +346,7 @@ def _check_plant(p: dict, config) -> None:
     if "faults" in values:          # one string to ROS; split as sim_hw_node does
         values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
     params = PlantParameters(**values)
-    params.validate(config.model.n_legs, config.kind)
+    params.validate(config.model.n_legs, config.model.task_space)
     loads = config.model.task_space.loads
     for name in ("compliance", "frame_compliance"):
         values = getattr(params, name)

@@ -112,6 +112,10 @@ class PlantParameters:
     parallelogram_half_width_m: float = 0.03   # half the distance between a parallelogram's two bars
 
     def validate(self, n_drives: int, space: TaskSpace | None = None) -> None:
+        """ValueError naming the first parameter out of its range, for a machine of
+        ``n_drives`` drives in the task space ``space`` (None: not known)."""
+        if space is not None and not isinstance(space, TaskSpace):
+            raise TypeError(f"space: a pkm_kinematics.task_space.TaskSpace or None, got {space!r}")
         checks = [("dt_s", self.dt_s > 0.0 and self.dt_s <= 0.1, "(0, 0.1] s"),
                   ("substeps", 1 <= self.substeps <= 1000, "[1, 1000]"),
                   ("integrator", self.integrator in ("semi_implicit", "rk4"), "semi_implicit or rk4"),
