@@ -60,7 +60,7 @@ def close_during_a_jog(url: str) -> None:
             pass
 
 
-def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path):
+def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loop_alone):
     from playwright.sync_api import expect, sync_playwright
     scenario = yaml.safe_load((config_dir() / "scenarios" / "panel_archi.yaml").read_text())
     # the loop ahead of the browser where the OS allows it: chromium drawing 25 frames a

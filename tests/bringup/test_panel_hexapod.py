@@ -28,7 +28,7 @@ def pose_c(url: str) -> float:
     return (snapshot(url).get("pose") or [float("nan")] * 6)[5]
 
 
-def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path):
+def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realtime_loop_alone):
     from websockets.sync.client import connect
     scenario = yaml.safe_load((config_dir() / "scenarios" / "panel_hexapod.yaml").read_text())
     scenario["realtime_profile"] = True

@@ -199,7 +199,7 @@ def _policies(pid: int) -> set[tuple[int, int]]:
 
 
 @pytest.mark.slow
-def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_locked(tmp_path):
+def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_locked(tmp_path, realtime_loop_alone):
     """archi_demo in real time (1 kHz, Gough in the loop, recorded) with
     ``realtime_profile: true``: while it runs, every thread of sim_hw, the controller and
     the Gough sensor is SCHED_FIFO at its priority and their memory is locked; the
