@@ -4,6 +4,7 @@
 
 const $ = (id) => document.getElementById(id);
 const token = new URLSearchParams(location.search).get("token");
+const SETTINGS = ["strategy", "distribution", "bandwidth_hz", "damping_ratio", "integral_time_s"];
 let ws = null, machine = null, last = null, received = 0, perSecond = 0, estopUrl = "";
 // snapshots drawn on this connection, told to the server with each heartbeat: it sends
 // only a few ahead of them, so a slow page skips snapshots instead of lagging behind
@@ -78,11 +79,10 @@ function render(s) {
   $("strategy").textContent = v.strategy || "–";
   $("distribution").textContent = v.distribution || "–";
   $("internal").textContent = v.internal_force_norm_n !== undefined ? Number(v.internal_force_norm_n).toFixed(1) : "–";
-  for (const name of ["bandwidth_hz", "damping_ratio", "integral_time_s"]) {
-    const input = $("set-" + name);
-    if (document.activeElement !== input && v[name] !== undefined) input.value = v[name];
-  }
-  for (const name of ["strategy", "distribution"]) {
+  // a setting the operator has edited is not overwritten until applied: a snapshot drawn
+  // between the click's mousedown (the input loses focus) and its click event would
+  // otherwise put the running value back and apply nothing
+  for (const name of SETTINGS) {
     const input = $("set-" + name);
     if (document.activeElement !== input && v[name] !== undefined && !input.dataset.touched) input.value = v[name];
   }
@@ -178,7 +178,9 @@ $("feed").oninput = () => { $("feedvalue").textContent = $("feed").value; };
 $("feed").onchange = () => send({ type: "feed", percent: Number($("feed").value) });
 $("hold").onclick = () => send({ type: "feed", percent: 0 });
 $("resume").onclick = () => send({ type: "feed", percent: 100 });
-for (const name of ["strategy", "distribution"]) $("set-" + name).onchange = (e) => { e.target.dataset.touched = "1"; };
+for (const name of SETTINGS) {
+  $("set-" + name).onchange = $("set-" + name).oninput = (e) => { e.target.dataset.touched = "1"; };
+}
 $("apply").onclick = () => {
   const v = (last && last.controller && last.controller.values) || {}, changes = {};
   for (const name of ["strategy", "distribution"]) if ($("set-" + name).value !== v[name]) changes[name] = $("set-" + name).value;
@@ -186,7 +188,7 @@ $("apply").onclick = () => {
     const x = Number($("set-" + name).value);
     if ($("set-" + name).value !== "" && x !== v[name]) changes[name] = x;
   }
-  for (const name of ["strategy", "distribution"]) delete $("set-" + name).dataset.touched;
+  for (const name of SETTINGS) delete $("set-" + name).dataset.touched;
   send({ type: "settings", changes: changes });
 };
 $("projection").onclick = () => {
