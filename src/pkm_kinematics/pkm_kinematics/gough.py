@@ -88,6 +88,9 @@ def mom3_points(r_base: float, r_plate: float, alpha_base_rad: float, alpha_plat
 
 # dkm_warm_step_kernel: the readings are not lengths (the FK_* codes of bars otherwise)
 DKM_BAD_LENGTHS = 5
+# a converged solve on the wrong branch (plate_branch_code): the plate mirrored below the
+# base plane or flipped; or in another assembly mode (det(J_h^-1) of the other sign)
+DKM_MIRROR, DKM_OTHER_MODE = 6, 7
 
 
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], boolean, "
@@ -118,27 +121,40 @@ def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh
                                              divergence_limit)
 
 
+@kernel("(float64[:, :], float64[:], float64[:], int64, int64, float64)")
+def plate_branch_code(bars, p, rot, evaluations, iterations, home_det_sign):
+    """The branch checks of a converged solve: DKM_MIRROR unless the plate is above
+    the base plane and not flipped; for a solve that travelled (re-linearised, or more
+    than two steps) DKM_OTHER_MODE unless det(J_h^-1) has the sign it has at home (a
+    path between assembly modes crosses a singularity: short warm-started solves
+    cannot, and skip this check); else FK_CONVERGED."""
+    if not (p[2] > 0.0 and rot[8] > 0.0):
+        return DKM_MIRROR
+    if evaluations > 0 or iterations > 2:
+        jinv = np.empty((6, 6))
+        B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6],
+                                                           rot[7], rot[8]), p, jinv)
+        if not np.linalg.det(jinv) * home_det_sign > 0.0:
+            return DKM_OTHER_MODE
+    return B.FK_CONVERGED
+
+
 @kernel("(float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64, int64, float64, float64, "
         "float64[:, :], float64[:, :], boolean[:], int64[:])")
 def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, divergence_limit, home_det_sign,
                      p_out, r_out, ok, iterations):
     """``bars.chord_forward_kinematics_kernel`` on every row of ``lengths`` (N, 6) from its guess (``guess_r``
-    rows row-major), with the branch checks of GoughPlatform._finish: the plate above
-    the base plane and not flipped, and for a solve that travelled (re-linearised, or
-    more than two steps) the sign of det(J_h^-1) at home. Rows that failed are NaN."""
+    rows row-major), with the branch checks (``plate_branch_code``). Rows that failed
+    are NaN."""
     jh = np.empty((6, 6))
-    jinv = np.empty((6, 6))
     for n in range(lengths.shape[0]):
         p, rot = p_out[n], r_out[n]
         p[:] = guess_p[n]
         rot[:] = guess_r[n]
         code, its, evaluations, _, _ = B.chord_forward_kinematics_kernel(bars, lengths[n], p, rot, jh, False, tol_m,
                                                                          max_iterations, divergence_limit)
-        good = code == B.FK_CONVERGED and p[2] > 0.0 and rot[8] > 0.0
-        if good and (evaluations > 0 or its > 2):
-            B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5],
-                                                               rot[6], rot[7], rot[8]), lengths[n], jinv)
-            good = np.linalg.det(jinv) * home_det_sign > 0.0
+        good = code == B.FK_CONVERGED and plate_branch_code(bars, p, rot, evaluations, its,
+                                                             home_det_sign) == B.FK_CONVERGED
         ok[n] = good
         iterations[n] = its
         if not good:
@@ -146,24 +162,6 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
             rot[:] = math.nan
 
 
-@kernel()
-def plate_branch_ok(bars, p, rot, evaluations, iterations, home_det_sign) -> bool:
-    """The branch checks of a converged solve (GoughPlatform._finish): the plate above
-    the base plane and not flipped, and for a solve that travelled (re-linearised, or
-    more than two steps) the sign of det(J_h^-1) at home."""
-    if not (p[2] > 0.0 and rot[8] > 0.0):
-        return False
-    if evaluations > 0 or iterations > 2:
-        jinv = np.empty((6, 6))
-        B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6],
-                                                           rot[7], rot[8]), p, jinv)
-        return np.linalg.det(jinv) * home_det_sign > 0.0
-    return True
-
-
-# a converged solve on the wrong branch (plate_branch_ok): the plate mirrored below the
-# base plane or flipped; or in another assembly mode (det(J_h^-1) of the other sign)
-DKM_MIRROR, DKM_OTHER_MODE = 6, 7
 # GoughDKMSolver's state, one array: the last good pose (p1, R1), the one before (p0,
 # R0), J_h of the last linearisation; flags: (has_previous, have_jh)
 _P1, _R1, _P0, _R0, _JH, STATE_SIZE = 0, 3, 12, 15, 24, 60
@@ -175,7 +173,7 @@ def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergen
                      rotation):
     """One solve of ``GoughDKMSolver``, compiled whole: ``dkm_warm_step_kernel`` (the
     extrapolated guess, the chord iteration) from ``state``, the branch checks
-    (``plate_branch_ok``: DKM_MIRROR, DKM_OTHER_MODE), then the state moves on only
+    (``plate_branch_code``: DKM_MIRROR, DKM_OTHER_MODE), then the state moves on only
     after a good solve (p0, R0 <- p1, R1, or the solution itself after a reset; p1, R1
     <- the solution), and is reset to "no previous solution" after a failure. The last
     iterate into ``p`` (3,) and ``rotation`` (3, 3). Returns (code, iterations, J_h
@@ -187,8 +185,8 @@ def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergen
     code, iterations, evaluations, residual, have = dkm_warm_step_kernel(
         bars, target, p1, r1, p0, r0, has_previous, jh, flags[1] != 0, tol_m, max_iterations, divergence_limit, p,
         rot)
-    if code == B.FK_CONVERGED and not plate_branch_ok(bars, p, rot, evaluations, iterations, home_det_sign):
-        code = DKM_MIRROR if not (p[2] > 0.0 and rot[8] > 0.0) else DKM_OTHER_MODE
+    if code == B.FK_CONVERGED:
+        code = plate_branch_code(bars, p, rot, evaluations, iterations, home_det_sign)
     if code == B.FK_CONVERGED:
         flags[1] = 1 if have else 0
         if has_previous:
@@ -373,20 +371,11 @@ class GoughPlatform:
         return self._fail(iterations, evaluations, residual, reason)
 
     def _finish(self, p, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
-        """The branch checks of a converged solve (those of ``plate_branch_ok``), then the result."""
-        position, rotation = p.copy(), rot.reshape(3, 3).copy()
-        code = B.FK_CONVERGED
-        if not (p[2] > 0.0 and rot[8] > 0.0):
-            code = DKM_MIRROR
-        elif evaluations or iterations > 2:
-            # the solve travelled: it must not have crossed into another assembly mode,
-            # which would flip the sign of det(J_h^-1) (a path between modes crosses a
-            # singularity). Short warm-started solves cannot, and skip this 10 us check.
-            if np.linalg.det(self.inverse_jacobian(position, rotation)) * self._home_det_sign <= 0.0:
-                code = DKM_OTHER_MODE
+        """The branch checks of a converged solve (``plate_branch_code``), then the result."""
+        code = plate_branch_code(self.bars, p, rot, evaluations, iterations, self._home_det_sign)
         if code != B.FK_CONVERGED:
             return self._result(code, p, rot, iterations, evaluations, residual, None, 0)
-        return GoughDKMResult(position, rotation, True, iterations, evaluations, residual, "", jh)
+        return GoughDKMResult(p.copy(), rot.reshape(3, 3).copy(), True, iterations, evaluations, residual, "", jh)
 
     @staticmethod
     def _fail(iterations, evaluations, residual, reason) -> GoughDKMResult:
