@@ -68,7 +68,7 @@ def compute_times(machine_name: str, strategy: str, distribution: str, cycles: i
     """(p50, p99) of the whole cycle and (p50, p99) of ``complete`` alone (what lies
     between the metrology readings and the command in the graph), us."""
     machine = load_machine(machine_name)
-    home = (machine.model.home_pose if machine.kind == "planar" else machine.model.home_position).tolist()
+    home = machine.model.home.tolist()
     target = list(home)
     target[0] += 0.01
     ref = Reference([0.0, 0.5], [home, target], [[0.02, 0.0, 0.0]] * 2)     # a slow ramp: work every cycle

@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     archi = load_machine("archi").model
     text = program(max(20, args.lines))
-    start = archi.home_pose.tolist()
+    start = archi.home.tolist()
     rows = []
     t, moves = timed(lambda: parse_gcode(text, start=(start[0], start[1], 0.0), start_angles=(0.0, 0.0, start[2])),
                      args.repeat)

@@ -19,7 +19,7 @@ from pkm_kinematics import load_machine
 
 ARCHI = load_machine("archi")
 MOM3 = load_machine("mom3")
-HOME = ARCHI.model.home_pose.tolist()
+HOME = ARCHI.model.home.tolist()
 HOLDING = {"mode": "holding", "strategy": "decentralized_projected", "distribution": "inf_norm", "p_norm": 4.0,
            "prestress_n": 0.0, "bandwidth_hz": 20.0, "damping_ratio": 1.0, "integral_time_s": 0.05, "dt_s": 0.004}
 

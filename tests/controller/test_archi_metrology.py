@@ -25,7 +25,7 @@ from pkm_controller.reference import Reference
 ARCHI = load_machine("archi")
 MET = ARCHI.metrology
 ROOT = Path(__file__).resolve().parents[2]
-HOME = ARCHI.model.home_pose.tolist()
+HOME = ARCHI.model.home.tolist()
 LIMITS = Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))   # as test_controller.py
 CONTROL_LIMIT_N = 2000.0
 HOLD_S = 0.3                      # hold under load before the motion: the load transient settles

@@ -13,6 +13,7 @@ import pytest
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.errors import SingularityError
+from pkm_kinematics.planar import pair_force_map
 from pkm_kinematics.task_space import PLANAR
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan, plan_with_blending
@@ -25,8 +26,8 @@ from pkm_controller.reference import Reference
 ARCHI = load_machine("archi")
 MOM3 = load_machine("mom3")
 ROOT = Path(__file__).resolve().parents[2]
-ARCHI_HOME = ARCHI.model.home_pose.tolist()
-MOM3_HOME = MOM3.model.home_position.tolist()
+ARCHI_HOME = ARCHI.model.home.tolist()
+MOM3_HOME = MOM3.model.home.tolist()
 LIMITS = Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))
 CONTROL_LIMIT_N = 2000.0                 # plant and controller force limit
 ARCHI_STRATEGIES = ("joint_pid", "decentralized_projected", "cartesian_pid", "computed_torque")
@@ -460,7 +461,7 @@ def test_two_arm_with_gravity_sets_the_nacelle_internal_force_of_archi_4_3_2():
     controller's wrench (J^T f the same)."""
     pose = [1.0, -0.4, 1.1]
     model = ARCHI.model
-    force_map, jf = model.pair_force_map(pose)
+    force_map, jf = pair_force_map(model, pose)
     out = {}
     for distribution in ("two_arm", "two_arm_gravity"):
         core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque", distribution=distribution))
@@ -527,7 +528,7 @@ def test_a_controller_stopped_in_its_first_cycle_reports_the_machine_where_it_is
     from pkm_sim_hw.plant import Plant, PlantParameters
     from pkm_trajectory.planner import Limits, Line, plan
     machine = load_machine("archi")
-    home = machine.model.home_pose
+    home = machine.model.home
     samples = plan([Line(np.array(home), np.array(home) + [0.05, 0.0, 0.0])],
                    Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), translation_axes=2)
     plant = Plant(machine, PlantParameters(link_length_errors=(-0.0063, 0.0008, -0.013, -0.0004)))

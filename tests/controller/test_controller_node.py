@@ -75,7 +75,7 @@ def test_archi_test_motion_through_the_graph(ros_graph):
     assert not core.stopped, core.stop_reason
     assert core.reference is not None and core.reference.duration_s == pytest.approx(4.656, abs=1e-3)
     assert core.mode == "holding" and core.cycles >= 4999
-    np.testing.assert_allclose(sim.plant.output().tool_pose, ARCHI.model.home_pose, atol=2e-6)
+    np.testing.assert_allclose(sim.plant.output().tool_pose, ARCHI.model.home, atol=2e-6)
     assert 1e-6 < core.max_error_m < 5e-5
     assert status and status[-1].level == b"\x00"
     values = {kv.key: kv.value for kv in status[-1].values}
@@ -119,7 +119,7 @@ def test_sensor_space_with_the_gough_node_in_the_loop(ros_graph):
     out = sim.plant.output()
     assert not ctrl.core.stopped, ctrl.core.stop_reason
     assert out.rigid_pose[2] - out.tool_pose[2] == pytest.approx(77e-6, rel=0.02)
-    home = np.array(load_machine("mom3").model.home_position)
+    home = np.array(load_machine("mom3").model.home)
     assert np.abs(np.array(out.tool_pose) - home).max() < 1.5e-6
 
 

@@ -25,7 +25,7 @@ def move(machine_name, strategy, fault, load=None, steps=None, **config):
     """A 40 mm jerk-limited line with ``fault`` on the plant; (core, log, onset step)."""
     machine = load_machine(machine_name)
     planar = machine.kind == "planar"
-    home = (machine.model.home_pose if planar else machine.model.home_position).tolist()
+    home = machine.model.home.tolist()
     end = [home[0] + 0.04, home[1] + 0.02, home[2] + (0.1 if planar else 0.0)]
     samples = plan([Line(np.array(home), np.array(end))], LIMITS, translation_axes=2 if planar else 3)
     plant = Plant(machine, PlantParameters(force_limit_n=2000.0, faults=(fault,) if fault else ()))
@@ -206,7 +206,7 @@ def test_a_hidden_brake_on_a_three_drive_machine_is_not_blamed_on_the_encoder_wh
     results = {}
     for gough_m in (0.0, 1e-4):
         machine = load_machine("mom3")
-        home = machine.model.home_position.tolist()
+        home = machine.model.home.tolist()
         samples = plan([Line(np.array(home), np.array([home[0] + 0.04, home[1] + 0.02, home[2]]))], LIMITS,
                        translation_axes=3)
         plant = _HiddenBrake(machine, PlantParameters(force_limit_n=2000.0, faults=(f"1:locked:{FAULT_AT_S}",)))
@@ -231,7 +231,7 @@ def test_a_slow_freeze_is_confirmed_by_the_gough_not_explained_away(machine_name
     0.2 mm of its reference."""
     machine = load_machine(machine_name)
     planar = machine.kind == "planar"
-    home = (machine.model.home_pose if planar else machine.model.home_position).tolist()
+    home = machine.model.home.tolist()
     end = [home[0] + 0.0004, home[1] + 0.0001, home[2]]
     slow = Limits((0.0002, 0.0002, 0.002), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))
     samples = plan([Line(np.array(home), np.array(end))], slow, translation_axes=2 if planar else 3)
@@ -256,7 +256,7 @@ def test_no_gough_false_alarm_with_a_noisy_gough():
     """5 um of noise on every strut reading: the cross-check sees it (its running RMS)
     and the healthy move is not stopped."""
     machine = load_machine("mom3")
-    home = machine.model.home_position.tolist()
+    home = machine.model.home.tolist()
     samples = plan([Line(np.array(home), np.array([home[0] + 0.04, home[1] + 0.02, home[2]]))], LIMITS,
                    translation_axes=3)
     ref = Reference(samples.time_s, samples.position, samples.velocity, samples.acceleration)

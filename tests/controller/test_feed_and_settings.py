@@ -17,7 +17,7 @@ from pkm_controller.feed import MAX_RATE_PER_S, FeedClock, check_override, scale
 from pkm_controller.reference import Reference
 
 ARCHI = load_machine("archi")
-HOME = ARCHI.model.home_pose.tolist()
+HOME = ARCHI.model.home.tolist()
 DT = 0.001
 
 

@@ -2,12 +2,13 @@
 
 import copy
 
+import numpy as np
 import pytest
 import yaml
 
 from pkm_kinematics import ConfigError, config_dir, load_machine, load_machine_data, machine_names
-from pkm_kinematics.planar import PlanarMachine
-from pkm_kinematics.translational import TranslationalMachine
+from pkm_kinematics.rails import RailMachine
+from pkm_kinematics.task_space import PLANAR, POSITION
 
 
 def raw(name):
@@ -17,12 +18,25 @@ def raw(name):
 
 def test_all_machines_load():
     assert {"archi", "sliding_star", "mom3", "orthoglide"} <= set(machine_names())
-    assert isinstance(load_machine("archi").model, PlanarMachine)
-    assert isinstance(load_machine("sliding_star").model, PlanarMachine)
-    assert isinstance(load_machine("orthoglide").model, TranslationalMachine)
+    for name, space, forward in (("archi", PLANAR, "least_squares"), ("sliding_star", PLANAR, "least_squares"),
+                                 ("orthoglide", POSITION, "three_spheres")):
+        model = load_machine(name).model
+        assert isinstance(model, RailMachine) and (model.task_space, model.forward) == (space, forward)
     mom3 = load_machine("mom3")
-    assert isinstance(mom3.model, TranslationalMachine) and mom3.metrology is not None
+    assert isinstance(mom3.model, RailMachine) and mom3.metrology is not None
     assert load_machine(config_dir() / "machines" / "archi.yaml").name == "archi"
+
+
+def test_the_forward_solver_is_chosen_by_the_configuration():
+    """ARCHI's drive positions solved by the least squares without its leg pairs'
+    closed form (Sliding Star's way) and with it: the same pose."""
+    data = copy.deepcopy(raw("archi"))
+    data["forward_solver"] = "least_squares"
+    model = load_machine_data(data, "archi.yaml").model
+    pose = np.array([1.05, -0.38, 0.8])
+    q = model.inverse_kinematics(pose)
+    assert model.fk.pairs and model.forward_kinematics(q).iterations <= 2       # from the closed form
+    np.testing.assert_allclose(model.forward_kinematics(q, guess=pose + 0.01).pose, pose, atol=1e-12)
 
 
 @pytest.mark.parametrize("mutate,field,message", [
@@ -37,6 +51,8 @@ def test_all_machines_load():
     (lambda d: d.update(home_pose=[3.3, -0.4, 0.0]), "home_pose", "outside joint_limits"),
     (lambda d: d.pop("workspace"), "workspace", "missing section"),
     (lambda d: d["workspace"].update(theta_deg=[10, 0]), "workspace.theta_deg", "min < max"),
+    (lambda d: d.update(forward_solver="magic"), "forward_solver", r"must be one of \['least_squares', 'three_spheres'\]"),
+    (lambda d: d.update(forward_solver="three_spheres"), "forward_solver", "three_spheres solves a translating machine"),
 ])
 def test_defects_name_their_field(mutate, field, message):
     data = copy.deepcopy(raw("archi"))

@@ -12,7 +12,6 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.analysis import cube_points, gough_resolution
 from pkm_kinematics.design import (GOUGH_METRICS, gough_metrics, pareto_front, planar_metrics, planar_variants,
                                    symmetric3_eigen_extremes, workspace_poses)
-from pkm_kinematics.planar import PlanarMachine
 
 
 def test_the_closed_form_eigenvalues_match_numpy():
@@ -43,7 +42,7 @@ def test_planar_metrics_match_numpy_over_the_grid(name, scale):
     and the worst machine left after a drive failure, against numpy on the same grid."""
     base = load_machine(name).model
     legs = [dataclasses.replace(leg, link_length=leg.link_length * scale) for leg in base.legs]
-    machine = PlanarMachine(base.name, legs, base.home_pose, base.workspace) if scale != 1.0 else base
+    machine = base.with_legs(base.name, legs) if scale != 1.0 else base
     poses = workspace_poses(base, 7, 5)
     m = planar_metrics(base, ["link_length_scale"], [[scale]], poses)
     q, ok = machine.inverse_kinematics_batch(poses)
@@ -71,12 +70,12 @@ def test_a_variant_is_the_machine_built_with_those_dimensions(name):
     machines' x rails) away from the home position: ARCHI's home is at y = -0.4 m,
     off its rail line at y = 0, so the home position matters there."""
     machine = load_machine(name).model
-    home_y = machine.home_pose[1]
+    home_y = machine.home[1]
     legs = [dataclasses.replace(leg, link_length=leg.link_length * 1.1,
                                 platform_point=tuple(0.8 * v for v in leg.platform_point),
                                 rail_origin=(leg.rail_origin[0], home_y + 1.2 * (leg.rail_origin[1] - home_y)))
             for leg in machine.legs]
-    edited = PlanarMachine(machine.name, legs, machine.home_pose, machine.workspace)
+    edited = machine.with_legs(machine.name, legs)
     variant = planar_variants(machine, ["link_length_scale", "platform_scale", "rail_spacing_scale"],
                               [[1.1, 0.8, 1.2]])
     poses = workspace_poses(machine, 5, 3)

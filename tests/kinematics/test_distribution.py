@@ -11,6 +11,7 @@ from scipy.optimize import linprog, minimize, minimize_scalar
 
 from pkm_kinematics import DistributionError, load_machine
 from pkm_kinematics import distribution as fd
+from pkm_kinematics.planar import pair_force_map
 
 ARCHI = load_machine("archi").model
 STAR = load_machine("sliding_star").model
@@ -135,7 +136,7 @@ def test_two_arm_matches_archi_section_4_3(theta):
     # J_f printed in ARCHI §4.3.1 with d = 0.2
     d, c, s = 0.2, math.cos(theta), math.sin(theta)
     jf_paper = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [d * s, -d * c, -d * s, d * c], [c, s, -c, -s]])
-    force_map, jf = ARCHI.pair_force_map(pose)
+    force_map, jf = pair_force_map(ARCHI, pose)
     np.testing.assert_allclose(jf, jf_paper, atol=1e-12)
     # independent statics: a link is a two-force member, so drive k pushes its platform
     # point with f_k e_k / (e_k . u_k) (rail u_k = x here); sum per shared point
@@ -185,7 +186,7 @@ def test_errors():
     with pytest.raises(ValueError, match="distribution: must be one of"):
         fd.distribute("magic", ARCHI.jacobian([1.0, -0.4, 0.5]), [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="two-arm model"):
-        STAR.pair_force_map([0.0, 0.0, 0.0])
+        pair_force_map(STAR, [0.0, 0.0, 0.0])
     with pytest.raises(DistributionError, match="does not reproduce"):
         fd.check_wrench(np.eye(3), np.array([1.0, 2.0, 3.0]), [1.0, 2.0, 4.0])
 

@@ -209,7 +209,7 @@ def test_the_general_bar_kernels_reproduce_the_gough_metrology_and_the_delta_rai
 
     delta = cfg.model
     legs = delta.legs
-    rails = B.bar_rows([leg.rail_origin for leg in legs], [leg.platform_offset for leg in legs],
+    rails = B.bar_rows([leg.rail_origin for leg in legs], [leg.platform_point for leg in legs],
                        actuator=np.arange(3), kind=B.RAIL, rail=[leg.rail_direction for leg in legs],
                        length=[leg.link_length for leg in legs], branch=[leg.assembly for leg in legs])
     for position in (delta.home, delta.home + np.array([0.1, -0.12, 0.08])):

@@ -36,10 +36,10 @@ small = st.floats(-0.05, 0.05, allow_nan=False)
 @given(dx=small, dy=small, dth=st.floats(-0.3, 0.3), leg_error=st.floats(-0.01, 0.01))
 def test_forward_kinematics_kernel_matches_interpreted(archi, dx, dy, dth, leg_error):
     model = archi.model
-    pose = model.home_pose + [dx, dy, dth]
+    pose = model.home + [dx, dy, dth]
     q = model.inverse_kinematics(pose, check_limits=False)
     q[0] += leg_error                       # inconsistent drives: the Newton branch
-    args = (model.bars, model._pairs_a, model._sides_a, q, *model.home_pose.tolist(), 1e-12, 50)
+    args = (model.bars, model.fk.pairs_array, model.fk.sides, q, *model.home.tolist(), 1e-12, 50)
     compiled = planar_module._forward_kinematics_kernel(*args)
     interpreted = planar_module._forward_kinematics_kernel.py_func(*args)
     assert [float(v) for v in compiled] == pytest.approx([float(v) for v in interpreted], rel=1e-12, abs=1e-15)
@@ -52,7 +52,7 @@ def test_forward_kinematics_reports_the_failures_by_name(archi):
     model = archi.model
     result = model.forward_kinematics([0.0, 0.0, 0.0, 0.0])
     assert not result.converged and "cannot close" in result.reason and "q1" in result.reason
-    result = model.forward_kinematics(model.inverse_kinematics(model.home_pose), max_iterations=0)
+    result = model.forward_kinematics(model.inverse_kinematics(model.home), max_iterations=0)
     assert not result.converged and result.reason == "no convergence in 0 iterations"
 
 

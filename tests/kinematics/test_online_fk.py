@@ -32,7 +32,7 @@ def final_error(machine, pose_of, steps: int, order: int) -> float:
 
 @pytest.mark.parametrize("machine, pose_of", [
     (STAR, path),
-    (MOM3, lambda s: MOM3.home_position + np.array([0.05 * math.sin(s), 0.03 * s, -0.04 * s * s])),
+    (MOM3, lambda s: MOM3.home + np.array([0.05 * math.sin(s), 0.03 * s, -0.04 * s * s])),
 ])
 def test_euler_is_first_order_and_the_midpoint_rule_second_order(machine, pose_of):
     for order, expected in ((1, 2.0), (2, 4.0)):

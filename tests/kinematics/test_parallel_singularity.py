@@ -18,7 +18,7 @@ DIAGONAL = np.linspace(0.1, 0.21, 1101)          # x = y = z = t, from inside th
 
 
 def test_the_measure_is_one_at_the_isotropic_point_and_above_the_margin_on_the_cube():
-    assert ORTHO.parallel_singularity_measure(ORTHO.home_position) == pytest.approx(1.0, abs=1e-12)
+    assert ORTHO.parallel_singularity_measure(ORTHO.home) == pytest.approx(1.0, abs=1e-12)
     center, half = ORTHO.workspace["center"], ORTHO.workspace["size"] / 2.0
     for corner in (center - half, center + half):             # Q1, Q2: the cube's closest points (§4.4)
         assert ORTHO.parallel_margin < ORTHO.parallel_singularity_measure(corner) < 0.7

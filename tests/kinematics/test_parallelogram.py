@@ -3,7 +3,7 @@ bar kernels): equal bars give the translational Delta of mom3.yaml exactly; uneq
 bars (MoM3 §4.1's imperfect case, config/machines/mom3_imperfect.yaml) tilt the
 platform, which the drive encoders cannot see and the Gough metrology measures.
 
-References: the translational model (TranslationalMachine, closed forms), the bar
+References: the translational model (the translating RailMachine, closed forms), the bar
 lengths recomputed in numpy, scipy's fsolve from another start, finite differences,
 and the Gough platform's own direct kinematics."""
 

@@ -71,7 +71,7 @@ def test_archi_forward_formula_typo():
     x12, y12, x34, y34 = consistent
     fk = np.array([(x12 + x34) / 2, (y12 + y34) / 2, math.atan2(y34 - y12, x34 - x12)])
     np.testing.assert_allclose(fk, pose, atol=1e-12)
-    np.testing.assert_allclose(ARCHI.forward_kinematics_closed_form([q1, q2, q3, q4]), pose, atol=1e-12)
+    np.testing.assert_allclose(ARCHI.fk.closed_form([q1, q2, q3, q4]), pose, atol=1e-12)
     typo_x12 = (q1 + q3) / 2
     assert abs(typo_x12 - (pose[0] - D * math.cos(pose[2]))) > 1e-2
 
@@ -141,7 +141,7 @@ def test_forward_kinematics_reports_impossible_drive_positions():
 def test_the_per_cycle_forward_kinematics_is_forward_kinematics(machine):
     """forward_kinematics_floats (the controller's path): the same pose as the checked
     method, warm-started on the revolution of the guess; a failed solve raises its reason."""
-    pose = machine.home_pose + [0.01, -0.02, 0.1]
+    pose = machine.home + [0.01, -0.02, 0.1]
     q = machine.inverse_kinematics(pose).tolist()
     guess = (pose + [0.0, 0.0, 2.0 * math.pi]).tolist()
     np.testing.assert_array_equal(machine.forward_kinematics_floats(q, guess),
@@ -158,7 +158,7 @@ def test_forward_kinematics_least_squares_with_model_error():
     true = load_machine("archi").model
     legs = list(true.legs)
     legs[2] = type(legs[2])(**{**legs[2].__dict__, "link_length": 1.02})
-    real = type(true)("archi_real", legs, true.home_pose)
+    real = true.with_legs("archi_real", legs)
     pose = np.array([1.0, -0.4, 0.9])
     res = ARCHI.forward_kinematics(real.inverse_kinematics(pose, False), guess=pose)
     assert res.converged

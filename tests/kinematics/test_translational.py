@@ -26,7 +26,7 @@ def test_round_trip_over_the_workspace(machine):
     def check(p):
         p = np.array(p)
         rho = machine.inverse_kinematics(p)
-        np.testing.assert_allclose(machine.forward_kinematics(rho), p, atol=1e-10)
+        np.testing.assert_allclose(machine.forward_kinematics(rho).pose, p, atol=1e-10)
     check()
 
 
@@ -102,7 +102,9 @@ def test_batch_and_errors():
     with pytest.raises(UnreachablePoseError, match="leg q1"):
         DELTA.inverse_kinematics([0.0, -0.9, 0.8])
     with pytest.raises(UnreachablePoseError, match="cannot be assembled"):
-        DELTA.forward_kinematics([1.2, 3.0, 1.2])
+        DELTA.forward_kinematics_floats([1.2, 3.0, 1.2])
+    failed = DELTA.forward_kinematics([1.2, 3.0, 1.2])          # the result form: no pose, the reason
+    assert not failed.converged and np.isnan(failed.pose).all() and "cannot be assembled" in failed.reason
     with pytest.raises(ValueError, match="position: contains NaN"):
         ORTHO.inverse_kinematics([0.0, np.nan, 0.0])
 
@@ -114,12 +116,12 @@ def test_forward_kinematics_keeps_every_leg_on_its_branch(machine):
     rng = np.random.default_rng(4)
     rho = rng.uniform(machine.joint_lower, machine.joint_upper, (20000, 3))
     p, ok = machine.forward_kinematics_batch(rho)
-    back, reach = machine.inverse_kinematics_batch(np.where(ok[:, None], p, machine.home_position))
+    back, reach = machine.inverse_kinematics_batch(np.where(ok[:, None], p, machine.home))
     np.testing.assert_allclose(back[ok], rho[ok], atol=1e-9)
     refused = 0
     for k in range(0, 20000, 50):
         try:
-            np.testing.assert_allclose(machine.inverse_kinematics(machine.forward_kinematics(rho[k]), False),
+            np.testing.assert_allclose(machine.inverse_kinematics(machine.forward_kinematics_floats(rho[k]), False),
                                        rho[k], atol=1e-9)
             assert ok[k]
         except UnreachablePoseError:
@@ -131,8 +133,8 @@ def test_forward_kinematics_keeps_every_leg_on_its_branch(machine):
 
 @pytest.mark.parametrize("machine", [ORTHO, DELTA], ids=["orthoglide", "mom3_delta"])
 def test_the_per_cycle_forward_kinematics_is_forward_kinematics(machine):
-    rho = machine.inverse_kinematics(machine.home_position + [0.01, -0.02, 0.015]).tolist()
-    np.testing.assert_array_equal(machine.forward_kinematics_floats(rho), machine.forward_kinematics(rho))
+    rho = machine.inverse_kinematics(machine.home + [0.01, -0.02, 0.015]).tolist()
+    np.testing.assert_array_equal(machine.forward_kinematics_floats(rho), machine.forward_kinematics(rho).pose)
     with pytest.raises(ValueError, match="rho: expected 3 actuator positions, got 2"):
         machine.forward_kinematics_floats(rho[:2])
     with pytest.raises(SingularityError, match="collinear"):
@@ -141,7 +143,7 @@ def test_the_per_cycle_forward_kinematics_is_forward_kinematics(machine):
 
 def test_singular_and_malformed_inputs_raise_clear_errors():
     with pytest.raises(SingularityError, match="collinear"):
-        ORTHO.forward_kinematics([0.0, 0.0, -0.3])
+        ORTHO.forward_kinematics_floats([0.0, 0.0, -0.3])
     # a leg perpendicular to its rail: |p_y, p_z| = L, so rho1 = p_x
     p = np.array([0.0, ORTHO.legs[0].link_length, 0.0])
     with pytest.raises(SingularityError, match="leg rho1 is perpendicular to its rail"):

@@ -48,7 +48,7 @@ def test_lockstep_with_a_hold_controller(ros_graph):
     pose_stamps = {stamp_to_ns(m.header.stamp) for m in poses.messages}
     assert set(range(0, 300 * 1_000_000, 1_000_000)) <= pose_stamps
     position, _ = pose_from_msg(poses.messages[-1])
-    np.testing.assert_allclose(position[:2], sim.config.model.home_pose[:2], atol=1e-4)
+    np.testing.assert_allclose(position[:2], sim.config.model.home[:2], atol=1e-4)
     assert not sim.plant.stopped
 
 

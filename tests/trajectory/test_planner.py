@@ -1,5 +1,6 @@
 """Trajectory core: jerk-limited time law (Ruckig), arcs, sampling, validation."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -98,8 +99,7 @@ def test_feed_caps_the_path_speed_and_orthoglide_bounds():
     validate(inside, ortho, transmission_bounds=ortho.transmission_bounds)
     # beyond Q2 on the diagonal the factors leave [1/2, 2] (Orthoglide §4.4)
     outside = plan([Line((0.0, 0.0, 0.0), (0.16, 0.16, 0.16))], LIMITS)
-    ortho_wide = type(ortho)("o", [type(l)(**{**l.__dict__, "joint_limits": (-1.0, 1.0)}) for l in ortho.legs],
-                             ortho.home_position, ortho.workspace, ortho.transmission_bounds)
+    ortho_wide = ortho.with_legs("o", [dataclasses.replace(leg, joint_limits=(-1.0, 1.0)) for leg in ortho.legs])
     with pytest.raises(TrajectoryRejected, match=r"velocity transmission factor .* outside \[0.5, 2\]"):
         validate(outside, ortho_wide, transmission_bounds=ortho.transmission_bounds)
 

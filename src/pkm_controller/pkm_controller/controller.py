@@ -55,6 +55,7 @@ from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import DistributionError, KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
+from pkm_kinematics.planar import pair_force_map
 from pkm_kinematics.rotations import exp_so3, rpy_from_rotation
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
@@ -265,7 +266,7 @@ class ControllerCore:
                              f"{config.forward_kinematics!r}")
         if config.distribution in TWO_ARM:
             try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
-                self.model.pair_force_map(self.model.home_pose)
+                pair_force_map(self.model, self.model.home)
             except ValueError as exc:
                 raise ValueError(f"distribution: {config.distribution} needs two pairs of legs sharing a "
                                  f"platform point (ARCHI §4.3): {exc}") from None

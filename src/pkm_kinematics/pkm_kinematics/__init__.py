@@ -2,9 +2,12 @@
 
 No rclpy import anywhere in this package: nodes call it, tests call it directly.
 
-Models (one class per machine family, built from ``config/machines/*.yaml``):
-  PlanarMachine         n >= 3 PRR legs (ARCHI, Sliding Star)
-  TranslationalMachine  3 prismatic + parallelogram legs (MoM3 linear Delta, Orthoglide)
+Models (bars between joints, built from ``config/machines/*.yaml``; ``machine.ParallelMachine``
+is the interface they share):
+  RailMachine           one bar per drive on a rail: planar (ARCHI, Sliding Star) or
+                        translating (MoM3 linear Delta, Orthoglide), by configuration
+  ParallelogramMachine  the Delta with two bars per parallelogram (MoM3 §4.1's imperfect case)
+  StrutMachine          actuated struts: the Gough-Stewart hexapod, redundant hexapods
   GoughPlatform         6-strut metrology platform (MoM3), GoughDKMSolver for streams
 Force distribution: ``pkm_kinematics.distribution``; analyses: ``pkm_kinematics.analysis``.
 """
@@ -13,13 +16,13 @@ from .config import MachineConfig, config_dir, load_machine, load_machine_data, 
 from .errors import (ConfigError, DistributionError, JointLimitError, KinematicsError,
                      SingularityError, UnreachablePoseError)
 from .gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, mom3_points
-from .planar import ForwardKinematicsResult, PlanarLeg, PlanarMachine
-from .translational import TranslationalLeg, TranslationalMachine
+from .planar import ForwardKinematicsResult
+from .rails import RailLeg, RailMachine
 
 __all__ = [
     "ConfigError", "DistributionError", "ForwardKinematicsResult",
     "GoughDKMResult", "GoughDKMSolver", "GoughPlatform", "JointLimitError", "KinematicsError",
-    "MachineConfig", "PlanarLeg", "SingularityError", "PlanarMachine", "TranslationalLeg", "TranslationalMachine",
+    "MachineConfig", "RailLeg", "RailMachine", "SingularityError",
     "UnreachablePoseError", "config_dir", "load_machine", "load_machine_data", "machine_names",
     "mom3_points",
 ]

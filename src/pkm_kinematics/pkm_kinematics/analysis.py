@@ -14,8 +14,8 @@ from scipy.optimize import brentq
 
 from .gough import GoughPlatform, mom3_points
 from .measures import condition_numbers
-from .planar import PlanarMachine
-from .translational import TranslationalLeg, TranslationalMachine
+from .rails import RailLeg, RailMachine
+from .task_space import PLANAR, POSITION
 
 
 # ------------------------------------------------------------ conditioning maps
@@ -44,7 +44,7 @@ def workspace_box(machine, margin_m: float = 0.0) -> list[tuple[float, float]]:
     ``margin_m``: planar (x, y), translational (x, y, z) of the cube, a strut
     machine's (x, y, z) of its box."""
     ws = machine.workspace
-    if isinstance(machine, PlanarMachine):
+    if machine.task_space is PLANAR:
         return [(ws["x"][0] - margin_m, ws["x"][1] + margin_m), (ws["y"][0] - margin_m, ws["y"][1] + margin_m)]
     if "half_size" in ws:
         return [(float(c) - float(h) - margin_m, float(c) + float(h) + margin_m)
@@ -89,7 +89,7 @@ def workspace_summary(machine, points_per_axis: int = 11, theta_points: int = 13
         worst_pose=worst,
         joint_range=[[float(qr[:, i].min()), float(qr[:, i].max())] for i in range(q.shape[1])] if len(qr) else [],
     )
-    if isinstance(machine, TranslationalMachine):
+    if isinstance(machine, RailMachine) and machine.task_space is POSITION:     # Orthoglide §4.3: all translations
         psi = machine.transmission_factors_batch(poses[reach])
         out.transmission_min = float(np.nanmin(psi)) if psi.size else math.nan
         out.transmission_max = float(np.nanmax(psi)) if psi.size else math.nan
@@ -105,14 +105,14 @@ class ConditionSweep:
     singular_angles_deg: dict                   # legs -> refined angles where det = 0
 
 
-def sub_machine_determinant(machine: PlanarMachine, legs, x: float, y: float, theta) -> np.ndarray:
+def sub_machine_determinant(machine: RailMachine, legs, x: float, y: float, theta) -> np.ndarray:
     """det of the 3 x 3 Jacobian of a 3-leg sub-machine, over an array of angles."""
     theta = np.atleast_1d(np.asarray(theta, dtype=float))
     poses = np.stack([np.full_like(theta, x), np.full_like(theta, y), theta], axis=1)
     return np.linalg.det(machine.jacobian_batch(poses)[:, list(legs), :])
 
 
-def condition_sweep(machine: PlanarMachine, x: float, y: float, theta_min_deg: float,
+def condition_sweep(machine: RailMachine, x: float, y: float, theta_min_deg: float,
                     theta_max_deg: float, samples: int = 4001, xtol_deg: float = 1e-9) -> ConditionSweep:
     """ARCHI Figure 10: condition numbers of the redundant machine and of each 3-leg
     sub-machine for a fixed position while the nacelle turns, with every singular
@@ -270,11 +270,11 @@ def optimize_gough_geometry(epsilon_m: float, tool_box, center, size: float, str
 
 
 # ------------------------------------------------ Orthoglide §4.4 sizing
-def orthoglide_model(link_length: float, joint_limits=(-math.inf, math.inf)) -> TranslationalMachine:
+def orthoglide_model(link_length: float, joint_limits=(-math.inf, math.inf)) -> RailMachine:
     """An Orthoglide of parallelogram length L in the frame of the isotropic point."""
-    legs = [TranslationalLeg(f"rho{i + 1}", (0.0, 0.0, 0.0), tuple(np.eye(3)[i]), link_length,
+    legs = [RailLeg(f"rho{i + 1}", (0.0, 0.0, 0.0), tuple(np.eye(3)[i]), link_length,
                              (0.0, 0.0, 0.0), -1, joint_limits) for i in range(3)]
-    return TranslationalMachine("orthoglide", legs, np.zeros(3))
+    return RailMachine("orthoglide", legs, np.zeros(3), POSITION, "three_spheres")
 
 
 @dataclass

@@ -40,9 +40,9 @@ The kernels:
 - ``three_rail_forward_kinematics_kernel``: a translating platform on three rails in
   closed form (the three spheres, Orthoglide §3.1).
 
-The machine classes wrap them: ``hexapod.StrutMachine``, ``rails.RailMachine`` (with
-``planar.PlanarMachine`` and ``translational.TranslationalMachine``, which add their
-forward kinematics and analyses), ``parallelogram.ParallelogramMachine`` and the
+The machine classes wrap them: ``hexapod.StrutMachine``, ``rails.RailMachine`` (its
+forward kinematics by configuration: ``planar.PlanarLeastSquaresFK``,
+``translational.ThreeSpheresFK``), ``parallelogram.ParallelogramMachine`` and the
 Gough metrology (``gough.GoughPlatform``: six passive struts).
 """
 

@@ -29,7 +29,8 @@ from . import analysis
 from .config import MachineConfig, load_machine, machine_names
 from .errors import KinematicsError, UnreachablePoseError
 from .parallelogram import ParallelogramMachine, tilt_urad
-from .planar import PlanarMachine
+from .rails import RailMachine
+from .task_space import PLANAR
 
 
 # ----------------------------------------------------------- argument checks
@@ -113,9 +114,9 @@ def _load(name: str) -> MachineConfig:
         raise KinematicsError(f"--machine: cannot read {name!r}: {reason}") from None
 
 
-def _planar_machine(name: str) -> PlanarMachine:
+def _planar_machine(name: str) -> RailMachine:
     model = _load(name).model
-    if not isinstance(model, PlanarMachine):
+    if not (isinstance(model, RailMachine) and model.task_space is PLANAR):
         raise KinematicsError(f"--machine: {name!r} is not a planar machine (condition sweeps need theta)")
     return model
 
@@ -154,7 +155,7 @@ def cmd_condition(args) -> tuple[dict, str]:
     return data, text
 
 
-def _unreachable_message(machine: PlanarMachine, x: float, y: float, theta_deg: np.ndarray) -> str:
+def _unreachable_message(machine: RailMachine, x: float, y: float, theta_deg: np.ndarray) -> str:
     """Names the pose, the angles tried and, from the IK at the middle angle, the leg
     that cannot reach."""
     message = (f"--x, --y: pose x={x:g} m, y={y:g} m of {machine.name} is unreachable at every "
@@ -272,7 +273,7 @@ def cmd_report(args) -> tuple[dict, str]:
                                                         theta_points=args.theta_points))
     sections.append(ws_text)
     data["workspace"] = ws_data
-    if isinstance(model, PlanarMachine) and model.n_legs > 3:
+    if isinstance(model, RailMachine) and model.task_space is PLANAR and model.n_legs > 3:
         c_data, c_text = cmd_condition(argparse.Namespace(
             machine=args.machine, x=float(home[0]), y=float(home[1]),
             theta_range=list(model.workspace["theta_deg"]), samples=4001))

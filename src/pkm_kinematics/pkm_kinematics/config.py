@@ -21,10 +21,10 @@ from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
 from .hexapod import StrutMachine
 from .parallelogram import ParallelogramMachine
-from .planar import PlanarLeg, PlanarMachine
+from .rails import FORWARD_SOLVERS, RailLeg, RailMachine
 from .rigid_body import RigidBodyParameters
 from .rotations import rotation_from_rpy
-from .translational import TranslationalLeg, TranslationalMachine
+from .task_space import PLANAR, POSITION
 
 MACHINE_KINDS = ("planar", "translational", "struts", "parallelograms")
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "inch": 0.0254}
@@ -145,7 +145,7 @@ class MachineConfig:
 
     name: str
     kind: str
-    model: PlanarMachine | TranslationalMachine | StrutMachine | ParallelogramMachine
+    model: RailMachine | StrutMachine | ParallelogramMachine
     metrology: "GoughMetrologyConfig | None"
     data: dict
     dynamics: "DynamicsParameters | RigidBodyParameters | None" = None
@@ -176,7 +176,7 @@ class GoughMetrologyConfig:
         return g["r_base"], g["r_plate"], g["alpha_base_deg"], g["alpha_plate_deg"]
 
 
-def _legs(r: _Reader, dim: int, attachment: str, leg_type) -> list:
+def _legs(r: _Reader, dim: int, attachment: str) -> list[RailLeg]:
     """The ``legs`` list: prismatic rail + link to a platform attachment point, in
     ``dim`` dimensions (``attachment`` is platform_point or platform_offset)."""
     legs = []
@@ -184,23 +184,32 @@ def _legs(r: _Reader, dim: int, attachment: str, leg_type) -> list:
         direction = lr.vector("rail_direction", dim)
         if np.linalg.norm(direction) < 1e-9:
             raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
-        legs.append(leg_type(
+        legs.append(RailLeg(
             lr.string("name"), tuple(lr.vector("rail_origin", dim, unit="m")), tuple(direction),
             lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
             tuple(lr.vector(attachment, dim, unit="m")), _assembly(lr), lr.interval("joint_limits", unit="m")))
     return legs
 
 
-def _planar(r: _Reader, name: str, description: str) -> PlanarMachine:
-    legs = _legs(r, 2, "platform_point", PlanarLeg)
+def _planar(r: _Reader, name: str, description: str) -> RailMachine:
+    legs = _legs(r, 2, "platform_point")
     home = r.vector("home_pose", 3, unit="x m, y m, theta rad")
     workspace = _workspace(r, planar=True)
+    solver = _forward_solver(r, "least_squares")
     try:
-        model = PlanarMachine(name, legs, home, workspace, description)
+        model = RailMachine(name, legs, home, PLANAR, solver, workspace, description)
         model.inverse_kinematics(home)          # reachable and inside the joint limits
     except (UnreachablePoseError, JointLimitError) as exc:
         raise ConfigError(r._name("home_pose"), str(exc)) from None
+    except ValueError as exc:                   # a solver for another task space
+        raise ConfigError(r._name("forward_solver"), str(exc)) from None
     return model
+
+
+def _forward_solver(r: _Reader, default: str) -> str:
+    """``forward_solver``: a rail machine's forward kinematics, a key of
+    ``rails.FORWARD_SOLVERS`` (default: its kind's)."""
+    return r.choice("forward_solver", tuple(sorted(FORWARD_SOLVERS)), default)
 
 
 def _workspace(r: _Reader, planar: bool) -> dict:
@@ -214,8 +223,8 @@ def _workspace(r: _Reader, planar: bool) -> dict:
             "size": w.number("size", lo=0.0, lo_open=True, unit="m")}
 
 
-def _translational(r: _Reader, name: str, description: str) -> TranslationalMachine:
-    legs = _legs(r, 3, "platform_offset", TranslationalLeg)
+def _translational(r: _Reader, name: str, description: str) -> RailMachine:
+    legs = _legs(r, 3, "platform_offset")
     if len(legs) != 3:
         raise ConfigError(r._name("legs"), f"a translational machine has exactly 3 legs, got {len(legs)}")
     bounds = None
@@ -227,11 +236,14 @@ def _translational(r: _Reader, name: str, description: str) -> TranslationalMach
     home = r.vector("home_position", 3, unit="m")
     workspace = _workspace(r, planar=False)
     margin = r.number("parallel_margin", 0.0, lo=0.0, hi=0.99)     # |det| of the unit leg directions
+    solver = _forward_solver(r, "three_spheres")
     try:
-        model = TranslationalMachine(name, legs, home, workspace, bounds, description, margin)
+        model = RailMachine(name, legs, home, POSITION, solver, workspace, description, bounds, margin)
         model.inverse_kinematics(home)
     except (UnreachablePoseError, JointLimitError) as exc:
         raise ConfigError(r._name("home_position"), str(exc)) from None
+    except ValueError as exc:
+        raise ConfigError(r._name("forward_solver"), str(exc)) from None
     try:
         model.check_parallel_singularity(home)
     except KinematicsError as exc:
@@ -285,7 +297,7 @@ def _parallelograms(r: _Reader, name: str, description: str) -> ParallelogramMac
     the translational machine's ``legs``, and ``parallelogram``: its ``half_width``
     (m) and each bar's length error (``bar_length_errors``, m, two per leg: MoM3
     §4.1's imperfect case; zeros make a translating platform)."""
-    legs = _legs(r, 3, "platform_offset", TranslationalLeg)
+    legs = _legs(r, 3, "platform_offset")
     if len(legs) != 3:
         raise ConfigError(r._name("legs"), f"a parallelogram Delta has exactly 3 legs, got {len(legs)}")
     pr = r.sub("parallelogram")

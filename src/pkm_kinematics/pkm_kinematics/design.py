@@ -42,7 +42,7 @@ from .analysis import workspace_grid
 from .distribution import gram_rows
 from .jit import kernel
 from . import bars as B
-from .planar import PLANAR_COLUMNS, PlanarMachine
+from .rails import PLANAR_COLUMNS, RailMachine
 
 # ------------------------------------------------------------------ parameters
 # name -> (what it changes, the open interval of its values)
@@ -221,9 +221,9 @@ def planar_metrics_kernel(bars, poses, subsets):
 
 
 # ------------------------------------------------------------------ planar variants
-def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
+def planar_variants(machine: RailMachine, names, values) -> np.ndarray:
     """The rail bars of each variant, (V, n, BAR_COLUMNS) in the plane z = 0
-    (``bars.bar_rows``, as ``PlanarMachine.bars``), from ``values`` (V, len(names)) of
+    (``bars.bar_rows``, as ``RailMachine.bars``), from ``values`` (V, len(names)) of
     PLANAR_PARAMETERS applied to the base machine (its public legs and home pose)."""
     check_parameters("planar", names)
     values = np.atleast_2d(np.asarray(values, dtype=float))
@@ -238,7 +238,7 @@ def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
     o_v, b_v = np.broadcast_to(o, (n_var, *o.shape)).copy(), np.broadcast_to(b, (n_var, *b.shape)).copy()
     length_v = np.broadcast_to(length, (n_var, len(legs))).copy()
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1)                  # each rail's normal
-    offset = ((o - machine.home_pose[:2]) * normal).sum(axis=1)     # its distance from home, signed
+    offset = ((o - machine.home[:2]) * normal).sum(axis=1)     # its distance from home, signed
     for j, name in enumerate(names):
         f = values[:, j:j + 1]
         if name == "link_length_scale":
@@ -256,7 +256,7 @@ def planar_variants(machine: PlanarMachine, names, values) -> np.ndarray:
     return out
 
 
-def workspace_poses(machine: PlanarMachine, points_per_axis: int = 11, theta_points: int = 9) -> np.ndarray:
+def workspace_poses(machine: RailMachine, points_per_axis: int = 11, theta_points: int = 9) -> np.ndarray:
     """The base machine's workspace grid (analysis.workspace_grid), contiguous."""
     return np.ascontiguousarray(workspace_grid(machine, points_per_axis, theta_points), dtype=float)
 
@@ -269,7 +269,7 @@ def remaining_legs(n_legs: int) -> np.ndarray:
     return np.array(list(itertools.combinations(range(n_legs), n_legs - 1)), dtype=np.int64)
 
 
-def planar_metrics(machine: PlanarMachine, names, values, poses) -> dict[str, np.ndarray]:
+def planar_metrics(machine: RailMachine, names, values, poses) -> dict[str, np.ndarray]:
     """PLANAR_METRICS of the variants (module docstring), each an array (V,)."""
     bars = np.ascontiguousarray(planar_variants(machine, names, values))
     out = planar_metrics_kernel(bars, np.ascontiguousarray(poses, dtype=float), remaining_legs(machine.n_legs))

@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import DistributionError
 from .jit import kernel
+from .planar import pair_force_map
 from .validation import finite_floats
 
 METHODS = ("pseudo_inverse", "inf_norm", "p_norm", "two_arm", "two_arm_gravity")
@@ -530,7 +531,7 @@ def two_arm(machine, pose, wrench, internal_force_n: float = 0.0, check: bool = 
     with gravity, §4.3.2 - see :func:`two_arm_gravity_internal_force`), then
     f_d = (J_v^-1 J_q)^T [f1; f2].
     """
-    force_map, jf = machine.pair_force_map(pose)
+    force_map, jf = pair_force_map(machine, pose)
     rhs = np.array([wrench[0], wrench[1], wrench[2], internal_force_n], dtype=float)
     try:
         pts = np.linalg.solve(jf, rhs)

@@ -1,6 +1,6 @@
 """The one public interface of a machine model (``ParallelMachine``): what the plant,
 the controller, the metrology, the analyses and the panel may use of a
-``PlanarMachine``, a ``TranslationalMachine``, a ``ParallelogramMachine`` or a
+``RailMachine`` (planar or translating), a ``ParallelogramMachine`` or a
 ``StrutMachine``, and nothing else (no private
 attribute is read across modules). A machine is a platform joined to the base by
 bars (../shared/MACHINE_MODEL.md): ``bars`` holds them as the kernels of ``bars``

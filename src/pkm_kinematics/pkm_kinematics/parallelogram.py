@@ -40,8 +40,8 @@ class ParasiticPose(NamedTuple):
 
 class ParallelogramMachine:
     """Three rails, each carrying a parallelogram of two bars (module doc). ``legs``:
-    ``TranslationalLeg``-like records (name, rail_origin, rail_direction,
-    link_length, platform_offset, assembly, joint_limits)."""
+    ``rails.RailLeg`` records (name, rail_origin, rail_direction, link_length,
+    platform_point: the platform offset, assembly, joint_limits)."""
 
     def __init__(self, name: str, legs, half_width_m: float, bar_length_errors_m, home, workspace: dict,
                  description: str = ""):
@@ -62,7 +62,7 @@ class ParallelogramMachine:
         for i, leg in enumerate(legs):
             u = np.asarray(leg.rail_direction, dtype=float)
             u = u / np.linalg.norm(u)
-            b = np.asarray(leg.platform_offset, dtype=float)
+            b = np.asarray(leg.platform_point, dtype=float)
             across = np.cross(u, b)
             if not np.linalg.norm(across) > 1e-9:
                 raise ValueError(f"legs[{i}]: the platform offset is along the rail: no direction across the leg")

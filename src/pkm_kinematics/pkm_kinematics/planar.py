@@ -1,4 +1,6 @@
-"""Planar parallel machines with n >= 3 prismatic-revolute-revolute (PRR) legs.
+"""The forward kinematics of planar rail machines: n >= 3 prismatic-revolute-revolute
+(PRR) legs (``rails.RailMachine`` with the task space PLANAR), and ARCHI's two-arm
+force map.
 
 Model (ARCHI paper, section 3; Sliding Star is the same family):
 
@@ -24,44 +26,28 @@ Each leg is one rail bar of the bar model in the plane z = 0 (``bars``,
 MACHINE_MODEL.md), the platform moving in the twist components vx, vy, wz: the
 inverse kinematics, velocity terms, J_m, its derivative and their batches are
 ``rails.RailMachine``'s (``bars`` kernels written once for every rail machine); the
-forward kinematics below (the leg pairs' closed form, least squares with the exact
+forward kinematics below (``PlanarLeastSquaresFK``, "least_squares" in
+``rails.FORWARD_SOLVERS``: the leg pairs' closed form, least squares with the exact
 Hessian, the working-mode checks) reads the same bars.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import bars as B
 from .errors import KinematicsError, UnreachablePoseError
 from .jit import kernel
-from .rails import RailMachine
 from .task_space import PLANAR
 from .validation import finite_array, finite_floats
 
 
-PLANAR_COLUMNS = np.array([0, 1, 5], dtype=np.int64)    # the task's twist components: vx, vy, wz
-
 # Forward kinematics switches from Gauss-Newton to Newton steps (exact Hessian) once a
 # Gauss-Newton step is shorter than this (m + rad): inside the quadratic basin.
 NEWTON_RADIUS = 1e-2
-
-
-@dataclass(frozen=True)
-class PlanarLeg:
-    """Geometry of one PRR leg (SI units)."""
-
-    name: str
-    rail_origin: tuple[float, float]
-    rail_direction: tuple[float, float]
-    link_length: float
-    platform_point: tuple[float, float]
-    assembly: int
-    joint_limits: tuple[float, float] = (-math.inf, math.inf)
 
 
 @dataclass
@@ -119,7 +105,7 @@ def _closed_form_kernel(bars, pairs, sides, q):
     """Closed-form forward position (ARCHI §3.1): each shared platform point is the
     intersection of the circles of radius L about its two carriages, on the side of
     the working mode; the angle from the two points. ``bars``: the machine's
-    (``PlanarMachine.bars``, z = 0). Returns (x, y, theta, code, i, j, d): code
+    (``RailMachine.bars``, z = 0). Returns (x, y, theta, code, i, j, d): code
     FK_UNREACHABLE with the legs i, j whose carriages, d m apart, cannot close."""
     px0 = py0 = px1 = py1 = 0.0
     for k in range(2):
@@ -148,7 +134,7 @@ def _closed_form_kernel(bars, pairs, sides, q):
 
 @kernel("(float64[:, :], int64[:, :], float64[:], float64[:], float64, float64, float64, float64, int64)")
 def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol, max_iterations):
-    """The solver of :meth:`PlanarMachine.forward_kinematics` (see there), compiled.
+    """The solver of :meth:`PlanarLeastSquaresFK.solve` (see there), compiled.
     Returns (x, y, theta, code, iterations, residual_m, i, j, d); (i, j, d) name the
     bars of an unreachable closed form."""
     n = bars.shape[0]
@@ -269,113 +255,36 @@ def _forward_kinematics_batch_kernel(bars, pairs, sides, q, guesses, tol, max_it
     return poses, codes
 
 
-@dataclass
-class PlanarMachine(RailMachine):
-    """A planar PKM with n >= 3 PRR legs (see the module docstring): a
-    ``RailMachine`` in the plane, with ARCHI's forward kinematics (leg pairs, least
-    squares) and sub-machines."""
+class PlanarLeastSquaresFK:
+    """The forward kinematics of a planar rail machine (``rails.FORWARD_SOLVERS``
+    "least_squares"): Gauss-Newton least squares over all n legs, started from the
+    leg pairs' closed form where the legs pair up (ARCHI), with the working-mode
+    checks. Built once per machine (constant data: the pairs and their sides at home)."""
 
-    name: str
-    legs: list[PlanarLeg]
-    home_pose: np.ndarray
-    workspace: dict = field(default_factory=dict)
-    description: str = ""
-
-    pose_label = "pose"
-    dimension = 2
-
-    def __post_init__(self):
-        if len(self.legs) < 3:
-            raise ValueError(f"legs: a planar machine needs at least 3 legs, got {len(self.legs)}")
-        self.home_pose = finite_array(self.home_pose, "home_pose", (3,))
-        self.task_dof = self.spatiality = 3     # x, y, theta: the platform moves in SE(2)
-        self.task_space = PLANAR
-        legs = self.legs
-        self._init_rails([leg.rail_origin for leg in legs], [leg.rail_direction for leg in legs],
-                         [leg.link_length for leg in legs], [leg.platform_point for leg in legs],
-                         [float(leg.assembly) for leg in legs], [leg.joint_limits for leg in legs],
-                         [leg.name for leg in legs], PLANAR_COLUMNS)
-        self._o, self._u = self.rail_origins, self.rail_directions
-        self._length = self.bars[:, B.COL_LENGTH].copy()
-        self._length2 = self._length**2
-        self._b = self.bars[:, B.COL_B:B.COL_B + 2].copy()
-        self._sigma = self.bars[:, B.COL_BRANCH].copy()
-        self._pairs = self._find_pairs()
+    def __init__(self, machine):
+        if machine.task_space is not PLANAR:
+            raise ValueError(f"forward: least_squares solves a planar machine (x, y, theta), not a "
+                             f"{machine.task_space.name} one")
+        self.machine = machine
+        self.pairs = machine.leg_pairs
+        self.bars = machine.bars
         # Working mode: the assembly branch sigma_i of every leg (which of the two
         # carriage positions on the rail), and for paired legs which of the two circle
         # intersections the shared point is, taken at home. (The side of its rail a
         # lone leg's platform point lies on is a property of the pose, not a mode.)
-        q_home = self.inverse_kinematics(self.home_pose, check_limits=False)
-        self._pair_side = []
-        for i, j in self._pairs:
-            a_i = self._o[i] + q_home[i] * self._u[i]
-            a_j = self._o[j] + q_home[j] * self._u[j]
-            d = a_j - a_i
-            pt = self._platform_points(self.home_pose)[i] - a_i
-            self._pair_side.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
-        self._pairs_a = np.array(self._pairs, dtype=np.int64).reshape(-1, 2)
-        self._sides_a = np.array(self._pair_side, dtype=float)
+        o, u = machine.rail_origins, machine.rail_directions
+        home = machine.home
+        q_home = machine.inverse_kinematics(home, check_limits=False)
+        points = platform_points(machine, home)
+        sides = []
+        for i, j in self.pairs:
+            a_i, a_j = o[i] + q_home[i] * u[i], o[j] + q_home[j] * u[j]
+            d, pt = a_j - a_i, points[i] - a_i
+            sides.append(math.copysign(1.0, d[0] * pt[1] - d[1] * pt[0]))
+        self.pairs_array = np.array(self.pairs, dtype=np.int64).reshape(-1, 2)
+        self.sides = np.array(sides, dtype=float)
 
-    # ----------------------------------------------------------------- helpers
-    def _find_pairs(self) -> list[tuple[int, int]]:
-        """Legs sharing a platform point, when all legs pair up into >= 2 points."""
-        groups: dict[tuple[float, float], list[int]] = {}
-        for i, b in enumerate(self._b):
-            groups.setdefault((round(b[0], 12), round(b[1], 12)), []).append(i)
-        pairs = [tuple(g[:2]) for g in groups.values() if len(g) >= 2]
-        return pairs if len(pairs) >= 2 else []
-
-    @property
-    def has_closed_form_forward(self) -> bool:
-        """True when two leg pairs share platform points (ARCHI), see §3.1."""
-        return bool(self._pairs)
-
-    @property
-    def pairs(self) -> list[tuple[int, int]]:
-        return list(self._pairs)
-
-    # ------------------------------------------------- the bars (machine.ParallelMachine)
-    @property
-    def home(self) -> np.ndarray:
-        """The home pose (x, y, theta)."""
-        return self.home_pose
-
-    def describe_pose(self, x) -> str:
-        return f"pose (x={x[0]:.6g} m, y={x[1]:.6g} m, theta={math.degrees(x[2]):.6g} deg)"
-
-    def _platform_points(self, pose) -> np.ndarray:
-        """World coordinates of the platform points B_i = p + R b_i, shape (n, 2)."""
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        b = self._b
-        out = np.empty_like(b)
-        out[:, 0] = pose[0] + c * b[:, 0] - s * b[:, 1]
-        out[:, 1] = pose[1] + s * b[:, 0] + c * b[:, 1]
-        return out
-
-    def _leg_vectors(self, pose, q) -> np.ndarray:
-        """e_i = B_i - A_i (carriage to platform point), shape (n, 2)."""
-        return self._platform_points(pose) - self._o - np.asarray(q)[:, None] * self._u
-
-    def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
-        """A regular grid over the configured workspace: (N, 3) poses (x, y, theta)."""
-        ws = self.workspace
-        axes = [np.linspace(*ws["x"], points_per_axis), np.linspace(*ws["y"], points_per_axis),
-                np.radians(np.linspace(*ws["theta_deg"], theta_points))]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-    def sub_machines(self) -> list[tuple[int, ...]]:
-        """Every non-redundant 3-leg sub-machine (J_124, J_134, J_123, J_234 for ARCHI)."""
-        return list(itertools.combinations(range(self.n_legs), 3))
-
-    def sub_machine_name(self, legs: tuple[int, ...]) -> str:
-        return "J_" + "".join(str(i + 1) for i in legs)
-
-    def sub_machine_condition_numbers(self, pose) -> dict[tuple[int, ...], float]:
-        jac = self.jacobian(pose)
-        return {legs: float(np.linalg.cond(jac[list(legs)])) for legs in self.sub_machines()}
-
-    # --------------------------------------------------------------- forward
-    def forward_kinematics_closed_form(self, q) -> np.ndarray:
+    def closed_form(self, q) -> np.ndarray:
         """Closed-form forward position (ARCHI §3.1) from the two leg pairs.
 
         Each shared platform point is the intersection of the two circles of radius L
@@ -383,23 +292,23 @@ class PlanarMachine(RailMachine):
         pairs q1 with q3; the consistent formula pairs q1 with q2 and q3 with q4:
         x12 = (q1 + q2)/2, y12 = -sqrt(L^2 - (q2 - q1)^2/4) for ARCHI.)
         """
-        if not self._pairs:
-            raise ValueError(f"machine {self.name!r} has no leg pairs sharing a platform point: "
+        m = self.machine
+        if not self.pairs:
+            raise ValueError(f"machine {m.name!r} has no leg pairs sharing a platform point: "
                              "no closed-form forward model; use forward_kinematics")
-        return np.array(self._closed_form(finite_floats(q, self.n_legs, "q")))
-
-    def _closed_form(self, qs: list) -> tuple:
-        x, y, th, code, i, j, d = _closed_form_kernel(self.bars, self._pairs_a, self._sides_a, np.array(qs))
+        qs = np.array(finite_floats(q, m.n_legs, "q"))
+        x, y, th, code, i, j, d = _closed_form_kernel(self.bars, self.pairs_array, self.sides, qs)
         if code:
-            raise UnreachablePoseError(self._closed_form_message(i, j, d))
-        return x, y, th
+            raise UnreachablePoseError(self._unreachable_message(i, j, d))
+        return np.array([x, y, th])
 
-    def _closed_form_message(self, i: int, j: int, d: float) -> str:
-        return (f"legs {self.leg_names[i]}, {self.leg_names[j]}: carriages {d:.6g} m apart cannot close "
-                f"with link lengths {self._length[i]:.6g} m and {self._length[j]:.6g} m")
+    def _unreachable_message(self, i: int, j: int, d: float) -> str:
+        m, length = self.machine, self.bars[:, B.COL_LENGTH]
+        return (f"legs {m.leg_names[i]}, {m.leg_names[j]}: carriages {d:.6g} m apart cannot close "
+                f"with link lengths {length[i]:.6g} m and {length[j]:.6g} m")
 
-    def forward_kinematics(self, q, guess=None, tol: float = FK_TOL,
-                           max_iterations: int = FK_MAX_ITERATIONS) -> ForwardKinematicsResult:
+    def solve(self, q, guess=None, tol: float = FK_TOL,
+              max_iterations: int = FK_MAX_ITERATIONS) -> ForwardKinematicsResult:
         """Pose from drive positions: Gauss-Newton least squares over all n legs.
 
         Started from the closed form where the legs pair up (ARCHI), else from
@@ -413,80 +322,93 @@ class PlanarMachine(RailMachine):
         ``converged`` False if the solve fails or lands on another working mode.
         Compiled (:func:`_forward_kinematics_kernel`); ~3 us a call.
         """
-        qs = np.array(finite_floats(q, self.n_legs, "q"))
-        ref = self.home_pose if guess is None else finite_floats(guess, 3, "guess")
+        qs = np.array(finite_floats(q, self.machine.n_legs, "q"))
+        ref = self.machine.home if guess is None else finite_floats(guess, 3, "guess")
         x, y, th, code, iterations, residual, i, j, d = _forward_kinematics_kernel(
-            self.bars, self._pairs_a, self._sides_a, qs, float(ref[0]), float(ref[1]), float(ref[2]),
+            self.bars, self.pairs_array, self.sides, qs, float(ref[0]), float(ref[1]), float(ref[2]),
             tol, max_iterations)
         if code == FK_CONVERGED:
             return ForwardKinematicsResult(np.array([x, y, th]), True, int(iterations), float(residual))
-        reason = self._closed_form_message(i, j, d) if code == FK_UNREACHABLE else FK_REASONS[code]
+        reason = self._unreachable_message(i, j, d) if code == FK_UNREACHABLE else FK_REASONS[code]
         if code == FK_NO_CONVERGENCE:
             reason = reason.format(max_iterations)
         return ForwardKinematicsResult(np.full(3, np.nan), False, int(iterations), float(residual), reason)
 
-    def forward_kinematics_floats(self, q, guess=None) -> tuple[float, float, float]:
-        """:meth:`forward_kinematics` on the per-cycle path: ``q`` n finite floats
-        (finiteness unchecked: the caller checked it), the pose as a tuple; a failed solve
+    def floats(self, q, guess=None) -> tuple[float, float, float]:
+        """:meth:`solve` on the per-cycle path: ``q`` n finite floats (finiteness
+        unchecked: the caller checked it), the pose as a tuple; a failed solve
         raises KinematicsError with the result's reason (UnreachablePoseError for
         legs that cannot close)."""
-        if len(q) != self.n_legs:
-            raise ValueError(f"q: expected {self.n_legs} drive positions, got {len(q)}")
-        ref = self.home_pose if guess is None else guess
+        if len(q) != self.machine.n_legs:
+            raise ValueError(f"q: expected {self.machine.n_legs} drive positions, got {len(q)}")
+        ref = self.machine.home if guess is None else guess
         x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
-            self.bars, self._pairs_a, self._sides_a, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),
+            self.bars, self.pairs_array, self.sides, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),
             float(ref[2]), FK_TOL, FK_MAX_ITERATIONS)
         if code == FK_CONVERGED:
             return x, y, th
         if code == FK_UNREACHABLE:
-            raise UnreachablePoseError(self._closed_form_message(i, j, d))
+            raise UnreachablePoseError(self._unreachable_message(i, j, d))
         raise KinematicsError(FK_REASONS[code].format(FK_MAX_ITERATIONS))
 
-    def forward_kinematics_batch(self, q, guesses=None, tol: float = FK_TOL,
-                                 max_iterations: int = FK_MAX_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`forward_kinematics` for q of shape (N, n): the same compiled solver on
-        every row (closed-form start where there is one, else the row of ``guesses``
-        (N, 3) or the home pose; its step criteria, Hessian gate and working-mode
-        checks). Returns (poses (N, 3), converged mask (N,)); failed rows are NaN."""
-        q = finite_array(q, "q", (-1, self.n_legs))
+    def batch(self, q, guesses=None, tol: float = FK_TOL,
+              max_iterations: int = FK_MAX_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`solve` for q of shape (N, n): the same compiled solver on every row
+        (closed-form start where there is one, else the row of ``guesses`` (N, 3) or
+        the home pose; its step criteria, Hessian gate and working-mode checks).
+        Returns (poses (N, 3), converged mask (N,)); failed rows are NaN."""
+        q = finite_array(q, "q", (-1, self.machine.n_legs))
         n = q.shape[0]
-        guesses = np.tile(self.home_pose, (n, 1)) if guesses is None else finite_array(guesses, "guesses", (n, 3))
-        poses, codes = _forward_kinematics_batch_kernel(self.bars, self._pairs_a, self._sides_a,
+        guesses = (np.tile(self.machine.home, (n, 1)) if guesses is None
+                   else finite_array(guesses, "guesses", (n, 3)))
+        poses, codes = _forward_kinematics_batch_kernel(self.bars, self.pairs_array, self.sides,
                                                         np.ascontiguousarray(q), np.ascontiguousarray(guesses),
                                                         float(tol), int(max_iterations))
         return poses, codes == FK_CONVERGED
 
-    # ------------------------------------------------------ force mapping
-    def pair_force_map(self, pose) -> tuple[np.ndarray, np.ndarray]:
-        """For a machine of two leg pairs (ARCHI §4.3): (M, J_f).
 
-        M = (J_v^-1 J_q)^T maps the forces (f1x, f1y, f2x, f2y) applied at the two
-        shared platform points to drive forces, f_d = M f_pts (the seed text writes
-        J_x^-1 for the 4x4 J_v). J_f maps (f1, f2) to (f_x, f_y, m_z, internal force
-        (f1 - f2) . n) with n the unit vector from point 1 to point 2.
-        """
-        if len(self._pairs) != 2 or self.n_legs != 4:
-            raise ValueError(f"machine {self.name!r}: the two-arm model needs exactly two pairs "
-                             "of legs sharing two platform points (ARCHI)")
-        pose = np.asarray(pose, dtype=float)
-        q = self.inverse_kinematics(pose, check_limits=False)
-        e = self._leg_vectors(pose, q)
-        jv = np.zeros((4, 4))
-        jq = np.zeros((4, 4))
-        for k, pair in enumerate(self._pairs):
-            for leg in pair:
-                jv[leg, 2 * k:2 * k + 2] = e[leg]
-                jq[leg, leg] = e[leg] @ self._u[leg]
-        force_map = np.linalg.solve(jv, jq).T
-        pts = self._platform_points(pose)
-        (i1, _), (i2, _) = self._pairs
-        r1 = pts[i1] - pose[:2]
-        r2 = pts[i2] - pose[:2]
-        n = (pts[i2] - pts[i1]) / np.linalg.norm(pts[i2] - pts[i1])
-        jf = np.array([
-            [1.0, 0.0, 1.0, 0.0],
-            [0.0, 1.0, 0.0, 1.0],
-            [-r1[1], r1[0], -r2[1], r2[0]],
-            [n[0], n[1], -n[0], -n[1]],
-        ])
-        return force_map, jf
+def platform_points(machine, pose) -> np.ndarray:
+    """World coordinates of a planar machine's platform points B_i = p + R b_i, (n, 2)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    b = machine.bars[:, B.COL_B:B.COL_B + 2]
+    out = np.empty_like(b)
+    out[:, 0] = pose[0] + c * b[:, 0] - s * b[:, 1]
+    out[:, 1] = pose[1] + s * b[:, 0] + c * b[:, 1]
+    return out
+
+
+def pair_force_map(machine, pose) -> tuple[np.ndarray, np.ndarray]:
+    """For a planar machine of two leg pairs (ARCHI §4.3): (M, J_f).
+
+    M = (J_v^-1 J_q)^T maps the forces (f1x, f1y, f2x, f2y) applied at the two
+    shared platform points to drive forces, f_d = M f_pts (the seed text writes
+    J_x^-1 for the 4x4 J_v). J_f maps (f1, f2) to (f_x, f_y, m_z, internal force
+    (f1 - f2) . n) with n the unit vector from point 1 to point 2.
+    """
+    pairs = getattr(machine, "leg_pairs", [])
+    if machine.task_space is not PLANAR or len(pairs) != 2 or machine.n_legs != 4:
+        raise ValueError(f"machine {machine.name!r}: the two-arm model needs exactly two pairs "
+                         "of legs sharing two platform points (ARCHI)")
+    pose = np.asarray(pose, dtype=float)
+    q = machine.inverse_kinematics(pose, check_limits=False)
+    u = machine.bars[:, B.COL_U:B.COL_U + 2]
+    pts = platform_points(machine, pose)
+    e = pts - machine.bars[:, B.COL_A:B.COL_A + 2] - q[:, None] * u     # e_i = B_i - A_i
+    jv = np.zeros((4, 4))
+    jq = np.zeros((4, 4))
+    for k, pair in enumerate(pairs):
+        for leg in pair:
+            jv[leg, 2 * k:2 * k + 2] = e[leg]
+            jq[leg, leg] = e[leg] @ u[leg]
+    force_map = np.linalg.solve(jv, jq).T
+    (i1, _), (i2, _) = pairs
+    r1 = pts[i1] - pose[:2]
+    r2 = pts[i2] - pose[:2]
+    n = (pts[i2] - pts[i1]) / np.linalg.norm(pts[i2] - pts[i1])
+    jf = np.array([
+        [1.0, 0.0, 1.0, 0.0],
+        [0.0, 1.0, 0.0, 1.0],
+        [-r1[1], r1[0], -r2[1], r2[0]],
+        [n[0], n[1], -n[0], -n[1]],
+    ])
+    return force_map, jf

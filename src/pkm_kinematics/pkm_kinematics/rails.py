@@ -1,27 +1,94 @@
-"""What every rail machine shares: one bar per actuator, its base joint on a rail
-(ARCHI, Sliding Star, the Orthoglide, the Delta; ../shared/MACHINE_MODEL.md).
+"""The rail machines: one bar per actuator, its base joint on a rail (ARCHI, Sliding
+Star, the Orthoglide, the Delta; ../shared/MACHINE_MODEL.md).
 
-``RailMachine`` holds the model as bars (``bars.bar_rows``: rail origin a_i, unit
-direction u_i, platform joint b_i, link length L_i, assembly branch sigma_i) and the
-twist components its platform moves in (``twist_columns``: vx vy vz for a
-translating platform, vx vy wz for a planar one), and gives, through the kernels of
-``bars`` and for any such machine, the inverse kinematics (per pose and batched), J_m,
-its derivative, the velocity terms of the dynamic model, the batched J_m and the
-conditioning. ``planar.PlanarMachine`` and ``translational.TranslationalMachine``
-keep only what differs: their forward kinematics (ARCHI's leg pairs and least
-squares; the Orthoglide's three spheres) and their papers' analyses.
+``RailMachine`` is one class for all of them, configured by data:
+
+* the bars (``bars.bar_rows``: rail origin a_i, unit direction u_i, platform joint
+  b_i, link length L_i, assembly branch sigma_i), from its ``legs``;
+* its ``task_space`` (``RAIL_TASKS``: a planar machine moves in x, y, theta, its
+  twist in vx, vy, wz and its rails drawn in the plane; a translating one in
+  x, y, z);
+* its forward kinematics, by name from ``FORWARD_SOLVERS`` ("least_squares": the
+  leg pairs' closed form and Gauss-Newton over all legs, ``planar.py``;
+  "three_spheres": ``translational.py``).
+
+Through the kernels of ``bars``, for any such machine: the inverse kinematics (per
+pose and batched), J_m, its derivative, the velocity terms of the dynamic model, the
+batches, the conditioning, the sub-machines, the velocity transmission factors and
+the parallel-singularity measure.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
 
 import numpy as np
 
 from . import bars as B
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
-from .measures import condition_numbers
+from .measures import condition_numbers, cube_grid
+from .planar import PlanarLeastSquaresFK
+from .task_space import PLANAR, POSITION, TaskSpace
+from .translational import ThreeSpheresFK, unit_rows_determinant
 from .validation import finite_array, finite_floats
+
+
+@dataclass(frozen=True)
+class RailLeg:
+    """One leg of a rail machine (SI units): a carriage on the rail through
+    ``rail_origin`` along ``rail_direction`` and a link of ``link_length`` to the
+    platform joint ``platform_point`` (platform frame) on its ``assembly`` branch
+    (+1 or -1). Points have 2 coordinates on a planar machine, 3 otherwise."""
+
+    name: str
+    rail_origin: tuple
+    rail_direction: tuple
+    link_length: float
+    platform_point: tuple
+    assembly: int
+    joint_limits: tuple[float, float] = (-math.inf, math.inf)
+
+
+def _describe_planar(x) -> str:
+    return f"pose (x={x[0]:.6g} m, y={x[1]:.6g} m, theta={math.degrees(x[2]):.6g} deg)"
+
+
+def _describe_position(x) -> str:
+    return f"position ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}) m"
+
+
+def _planar_grid(workspace: dict, points_per_axis: int, theta_points: int) -> np.ndarray:
+    axes = [np.linspace(*workspace["x"], points_per_axis), np.linspace(*workspace["y"], points_per_axis),
+            np.radians(np.linspace(*workspace["theta_deg"], theta_points))]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _cube_grid(workspace: dict, points_per_axis: int, theta_points: int) -> np.ndarray:
+    return cube_grid(workspace["center"], workspace["size"], points_per_axis)
+
+
+class RailTask(NamedTuple):
+    """What a task space means for a rail machine."""
+
+    columns: np.ndarray     # the twist components the platform moves in (vx vy vz wx wy wz = 0..5)
+    dimension: int          # of its rails and points: 2 for a planar machine (z = 0), 3
+    pose_label: str         # what messages call x and x'
+    rate_label: str
+    describe: Callable      # a pose in words
+    grid: Callable          # (workspace, points_per_axis, theta_points) -> poses over the workspace
+
+
+PLANAR_COLUMNS = np.array([0, 1, 5], dtype=np.int64)
+TRANSLATION_COLUMNS = np.array([0, 1, 2], dtype=np.int64)
+RAIL_TASKS = {
+    PLANAR: RailTask(PLANAR_COLUMNS, 2, "pose", "twist", _describe_planar, _planar_grid),
+    POSITION: RailTask(TRANSLATION_COLUMNS, 3, "position", "velocity", _describe_position, _cube_grid),
+}
+FORWARD_SOLVERS = {"least_squares": PlanarLeastSquaresFK, "three_spheres": ThreeSpheresFK}
 
 
 def velocity_terms_error(code: int, leg_name: str, label: str, values) -> KinematicsError:
@@ -32,18 +99,51 @@ def velocity_terms_error(code: int, leg_name: str, label: str, values) -> Kinema
     return SingularityError(f"leg {leg_name} is perpendicular to its rail (serial singularity)")
 
 
+@dataclass
 class RailMachine:
-    """The shared part of a rail machine (module doc). A subclass sets ``pose_label``
-    ("pose", "position"), ``rate_label`` ("twist", "velocity") and ``dimension`` (2 for a planar machine: its rails, drawn
-    in the plane; 3) and calls :meth:`_init_rails` from its constructor."""
+    """A rail machine (module doc): ``legs`` (``RailLeg``), its ``home`` in task
+    coordinates, its ``task_space`` (a key of ``RAIL_TASKS``) and its ``forward``
+    kinematics (a key of ``FORWARD_SOLVERS``); ``transmission_bounds`` and
+    ``parallel_margin`` (|det| of the unit leg directions below which a pose is
+    refused; 0: none) are what the trajectory planner checks (Orthoglide §3.3, §4.3)."""
 
-    pose_label = "pose"
-    rate_label = "twist"          # what messages call x'
-    dimension = 3
+    name: str
+    legs: list
+    home: np.ndarray
+    task_space: TaskSpace
+    forward: str = "least_squares"
+    workspace: dict = field(default_factory=dict)
+    description: str = ""
+    transmission_bounds: tuple[float, float] | None = None
+    parallel_margin: float = 0.0
 
-    def _init_rails(self, origins, directions, lengths, platform_points, assemblies, limits, names, columns):
+    def __post_init__(self):
+        task = RAIL_TASKS.get(self.task_space)
+        if task is None:
+            raise ValueError(f"task_space: a rail machine moves in one of "
+                             f"{[s.name for s in RAIL_TASKS]}, got {getattr(self.task_space, 'name', self.task_space)!r}")
+        if self.forward not in FORWARD_SOLVERS:
+            raise ValueError(f"forward: one of {sorted(FORWARD_SOLVERS)}, got {self.forward!r}")
+        if len(self.legs) < 3:
+            raise ValueError(f"legs: a rail machine needs at least 3 legs, got {len(self.legs)}")
+        self.home = finite_array(self.home, "home", (3,))
+        self.task_dof = self.spatiality = task.columns.size
+        self.twist_columns, self.dimension = task.columns, task.dimension
+        self.pose_label, self.rate_label = task.pose_label, task.rate_label
+        self._task = task
+        legs = self.legs
+        self._init_rails([leg.rail_origin for leg in legs], [leg.rail_direction for leg in legs],
+                         [leg.link_length for leg in legs], [leg.platform_point for leg in legs],
+                         [float(leg.assembly) for leg in legs], [leg.joint_limits for leg in legs],
+                         [leg.name for leg in legs])
+        self.leg_pairs = self._find_pairs()
+        self.fk = FORWARD_SOLVERS[self.forward](self)
+        # The per-cycle path calls the solver's own method (no delegation in between).
+        self.forward_kinematics_floats = self.fk.floats
+
+    def _init_rails(self, origins, directions, lengths, platform_points, assemblies, limits, names):
         """The bars from per-leg arrays ((n, dimension) points and directions, the
-        latter normalised here) and the task's twist ``columns``."""
+        latter normalised here)."""
         n = len(names)
         flat = np.zeros((n, 3 - self.dimension))             # a planar machine in z = 0
         origins, platform_points = (np.hstack([np.asarray(v, dtype=float), flat]) for v in (origins, platform_points))
@@ -55,12 +155,37 @@ class RailMachine:
         self._limits_f = (self.joint_lower.tolist(), self.joint_upper.tolist())   # floats: the per-cycle check
         self.bars = B.bar_rows(origins, platform_points, actuator=np.arange(n), kind=B.RAIL, rail=u,
                                length=np.asarray(lengths, dtype=float), branch=np.asarray(assemblies, dtype=float))
-        self.twist_columns = np.asarray(columns, dtype=np.int64)
+
+    def _find_pairs(self) -> list[tuple[int, int]]:
+        """Legs sharing a platform point (ARCHI's B12 and B34), when all legs pair up
+        into >= 2 points; [] otherwise."""
+        groups: dict[tuple, list[int]] = {}
+        for i, b in enumerate(self.bars[:, B.COL_B:B.COL_B + 3]):
+            groups.setdefault(tuple(round(float(v), 12) for v in b), []).append(i)
+        pairs = [tuple(g[:2]) for g in groups.values() if len(g) >= 2]
+        return pairs if len(pairs) >= 2 else []
 
     def with_legs(self, name: str, legs):
         """The same machine with other legs (the plant's true machine: link length
         errors, rail offsets), everything else as it is here."""
         return dataclasses.replace(self, name=name, legs=list(legs))
+
+    # ------------------------------------------------------------------ forward
+    def forward_kinematics(self, q, guess=None, **options):
+        """The pose of drive positions ``q`` as a ``ForwardKinematicsResult`` (pose
+        NaN and the reason when it fails), by the configured solver (``fk``;
+        ``options``: its tolerances)."""
+        return self.fk.solve(q, guess, **options)
+
+    def forward_kinematics_batch(self, q, guesses=None, **options) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`forward_kinematics` of q (N, n): (poses (N, 3), converged mask);
+        failed rows NaN."""
+        return self.fk.batch(q, guesses, **options)
+
+    def workspace_grid(self, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
+        """A regular grid over the configured workspace: (N, 3) poses (x, y, theta
+        over x, y, theta_deg) or positions (over the cube of ``center`` and ``size``)."""
+        return self._task.grid(self.workspace, points_per_axis, theta_points)
 
     # ------------------------------------------------- the bars (machine.ParallelMachine)
     @property
@@ -129,7 +254,7 @@ class RailMachine:
 
     def describe_pose(self, x) -> str:
         """The pose x in words, for messages."""
-        return f"{self.pose_label} ({', '.join(f'{v:.6g}' for v in x)})"
+        return self._task.describe(x)
 
     def check_joint_limits(self, q) -> None:
         """Raise JointLimitError naming the first drive outside its joint_limits."""
@@ -218,4 +343,95 @@ class RailMachine:
         return condition_numbers(self.jacobian_batch(xs))
 
 
-__all__ = ["RailMachine", "velocity_terms_error"]
+    # ------------------------------------------------------------- analyses
+    def sub_machines(self) -> list[tuple[int, ...]]:
+        """Every non-redundant sub-machine: each choice of task_dof legs (J_124,
+        J_134, J_123, J_234 for ARCHI)."""
+        return list(itertools.combinations(range(self.n_legs), self.task_dof))
+
+    def sub_machine_name(self, legs: tuple[int, ...]) -> str:
+        return "J_" + "".join(str(i + 1) for i in legs)
+
+    def sub_machine_condition_numbers(self, pose) -> dict[tuple[int, ...], float]:
+        jac = self.jacobian(pose)
+        return {legs: float(np.linalg.cond(jac[list(legs)])) for legs in self.sub_machines()}
+
+    def _bar_vectors(self, x, q=None) -> np.ndarray:
+        """e_i = B_i - A_i (n, 3) at the pose x (``bars.bar_vectors_kernel``)."""
+        x = finite_floats(x, 3, self.pose_label)
+        q = self.inverse_kinematics(x, check_limits=False) if q is None else np.array(finite_floats(q, self.n_legs, "q"))
+        p, rot = self._pose_3d(x)
+        return B.bar_vectors_kernel(self.bars, float(p[0]), float(p[1]), float(p[2]),
+                                    tuple(float(v) for v in rot.ravel()), q)
+
+    def parallel_jacobian(self, x, q=None) -> np.ndarray:
+        """A of A x' = B q' (Orthoglide eq. 4; ARCHI §3.2's J_v G): rows
+        [e_i, (R b_i) x e_i] on the task's twist columns (the leg vectors of a
+        translating machine)."""
+        e = self._bar_vectors(x, q)
+        if self.twist_columns.max() < 3:
+            return e
+        _, rot = self._pose_3d(finite_floats(x, 3, self.pose_label))
+        rb = self.bars[:, B.COL_B:B.COL_B + 3] @ rot.T
+        return np.hstack([e, np.cross(rb, e)])[:, self.twist_columns]
+
+    def serial_jacobian(self, x, q=None) -> np.ndarray:
+        """B = diag(e_i . u_i) (Orthoglide eq. 4): J_m = B^-1 A."""
+        return np.diag(np.einsum("ij,ij->i", self._bar_vectors(x, q), self.bars[:, B.COL_U:B.COL_U + 3]))
+
+    def parallel_singularity_measure(self, x, q=None) -> float:
+        """|det| of the rows of A normalised (Orthoglide §3.3, eq. 4a): 1 when the legs
+        are orthogonal (the Orthoglide's isotropic configuration), 0 at a parallel
+        singularity (det A = 0: the platform moves with the drives locked and resists
+        no force). For a machine of as many legs as task coordinates."""
+        self._square("the parallel-singularity measure")
+        return float(unit_rows_determinant(self.parallel_jacobian(x, q)))
+
+    def parallel_singularity_measure_batch(self, xs) -> np.ndarray:
+        """:meth:`parallel_singularity_measure` for poses (N, 3); NaN where unreachable
+        (the rows of J_m are A's rows over e_i . u_i: the same unit rows up to sign;
+        NaN at a serial singularity too)."""
+        self._square("the parallel-singularity measure")
+        with np.errstate(invalid="ignore"):
+            return unit_rows_determinant(self.jacobian_batch(xs))
+
+    def _square(self, what: str) -> None:
+        if self.n_legs != self.task_dof:
+            raise ValueError(f"machine {self.name!r}: {what} needs as many legs as task coordinates "
+                             f"({self.task_dof}), it has {self.n_legs} (see sub_machines)")
+
+    def check_parallel_singularity(self, x, margin: float | None = None) -> None:
+        """Raise SingularityError when the pose is at a parallel singularity, or within
+        ``margin`` (default ``parallel_margin``) of one by :meth:`parallel_singularity_measure`."""
+        margin = self.parallel_margin if margin is None else margin
+        value = self.parallel_singularity_measure(x)
+        if not value > max(margin, 1e-9):
+            raise SingularityError(
+                f"{self.describe_pose(np.asarray(x, dtype=float))} is {'at' if value <= 1e-9 else 'near'} a parallel "
+                f"singularity (Orthoglide §3.3: the legs nearly coplanar, the platform free with the drives locked): "
+                f"|det| of the unit leg directions {value:.3g}, parallel_margin {margin:g}")
+
+    def transmission_factors(self, x) -> np.ndarray:
+        """Velocity transmission factors psi (Orthoglide §4.3): 1 / the singular values
+        of J_m, sorted ascending."""
+        sv = np.linalg.svd(self.jacobian(x), compute_uv=False)
+        return np.sort(1.0 / sv)
+
+    def transmission_factors_batch(self, xs) -> np.ndarray:
+        """psi for poses (N, 3): (N, 3) ascending, NaN where unreachable."""
+        jac = self.jacobian_batch(xs)
+        out = np.full((jac.shape[0], 3), np.nan)
+        ok = np.isfinite(jac).all(axis=(1, 2))
+        if ok.any():
+            out[ok] = np.sort(1.0 / np.linalg.svd(jac[ok], compute_uv=False), axis=1)
+        return out
+
+    def is_isotropic(self, x, tol: float = 1e-9) -> bool:
+        """True when J_m J_m^T is a multiple of I, i.e. the condition number is 1
+        (Orthoglide §4.1-4.2, eq. 9a-d). The Orthoglide's design also asks the factors
+        to equal 1 there (eq. 10): see :meth:`transmission_factors`."""
+        return abs(self.condition_number(x) - 1.0) < tol
+
+
+__all__ = ["FORWARD_SOLVERS", "PLANAR_COLUMNS", "RAIL_TASKS", "RailLeg", "RailMachine", "TRANSLATION_COLUMNS",
+           "velocity_terms_error"]
