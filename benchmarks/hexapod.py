@@ -8,7 +8,9 @@ LinuxCNC's genhexkins hexapod and of MoM3's Gough metrology platform, each solve
 warm-started from the previous pose. The C reference (benchmarks/c/strut_newton.c:
 genhexkins' Newton iteration, the rotation updated on SO(3)) is built here with
 ``cc -O2`` and called once per stream through ctypes, so its per-reading time is the
-solve's own. Ours: the same stream in one compiled loop (``StrutFK.solve_stream``,
+solve's own. Ours (each reading from the pose extrapolated from the last two: one
+Newton step where C, from the last pose, takes two): the same stream in one compiled
+loop (``StrutFK.solve_stream``,
 the batched form; ``GoughDKMSolver.solve_stream``, the metrology's chord solver), and
 one Python call per reading (``StrutFK.solve``, ``GoughDKMSolver.solve``: what a
 node pays per cycle). Printed: microseconds per

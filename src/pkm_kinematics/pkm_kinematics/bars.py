@@ -811,38 +811,74 @@ def inverse_kinematics_parasitic_kernel(bars, p, rot, q, tol_m, max_iterations):
     return result, iterations, misfit
 
 
-@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], float64, int64, float64)")
-def forward_kinematics_warm_kernel(bars, q, state_p, state_r, out_p, out_r, tol_m, max_iterations,
-                                   divergence_limit):
-    """One reading of a stream: ``forward_kinematics_kernel`` from the warm start
-    (``state_p``, ``state_r``) into ``out_p``, ``out_r``; the warm start moves to the
-    solution when it converged, else it stays. Returns (code, iterations, misfit)."""
-    out_p[:] = state_p
-    out_r[:] = state_r
-    code, iterations, misfit = forward_kinematics_kernel(bars, q, out_p, out_r, tol_m, max_iterations,
-                                                         divergence_limit)
+@kernel()
+def extrapolated_pose_into(p1, r1, p0, r0, p, rot):
+    """The guess of a warm-started solve along a stream, from its last two solutions
+    (p1, R1) and (p0, R0) (R row-major (9,)): p = 2 p1 - p0; R = exp(w) R1 with w the
+    rotation vector of R1 R0^T (exact to O(w^3)), into ``p`` and ``rot``. From it one
+    Newton step closes a smooth stream's reading where the last solution needs two."""
+    for k in range(3):
+        p[k] = 2.0 * p1[k] - p0[k]
+    b = (r1[0], r1[1], r1[2], r1[3], r1[4], r1[5], r1[6], r1[7], r1[8])
+    d = mul3_kernel(b, (r0[0], r0[3], r0[6], r0[1], r0[4], r0[7], r0[2], r0[5], r0[8]))
+    g = mul3_kernel(exp_so3_kernel(0.5 * (d[7] - d[5]), 0.5 * (d[2] - d[6]), 0.5 * (d[3] - d[1])), b)
+    for k in range(9):
+        rot[k] = g[k]
+
+
+# A warm-started stream's state (StrutFK), one array: the last good pose (p1, R1
+# row-major) and the one before (p0, R0); flags[0]: whether (p0, R0) is there.
+WARM_P1, WARM_R1, WARM_P0, WARM_R0, WARM_STATE_SIZE = 0, 3, 12, 15, 24
+
+
+@kernel("(float64[:, :], float64[:], float64[::1], int64[:], float64, int64, float64, float64[::1], "
+        "float64[:, ::1])")
+def forward_kinematics_warm_kernel(bars, q, state, flags, tol_m, max_iterations, divergence_limit, p, rotation):
+    """One reading of a stream: ``forward_kinematics_kernel`` from the guess
+    extrapolated from the last two solutions (``extrapolated_pose_into``; the last
+    solution itself when there is one only), the last iterate into ``p`` (3,) and
+    ``rotation`` (3, 3). The state moves on only when it converged; after a failure
+    the next guess is the last good pose. Returns (code, iterations, misfit)."""
+    p1, r1 = state[WARM_P1:WARM_R1], state[WARM_R1:WARM_P0]
+    p0, r0 = state[WARM_P0:WARM_R0], state[WARM_R0:WARM_STATE_SIZE]
+    rot = rotation.reshape(9)
+    has_previous = flags[0] != 0
+    if has_previous:
+        extrapolated_pose_into(p1, r1, p0, r0, p, rot)
+    else:
+        p[:] = p1
+        rot[:] = r1
+    code, iterations, misfit = forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence_limit)
     if code == FK_CONVERGED:
-        state_p[:] = out_p
-        state_r[:] = out_r
+        if has_previous:
+            p0[:] = p1
+            r0[:] = r1
+        else:
+            p0[:] = p
+            r0[:] = rot
+        p1[:] = p
+        r1[:] = rot
+        flags[0] = 1
+    else:
+        flags[0] = 0
     return code, iterations, misfit
 
 
-@kernel("(float64[:, :], float64[:, :], float64[:], float64[:], float64, int64, float64, float64[:, :], "
+@kernel("(float64[:, :], float64[:, :], float64[::1], int64[:], float64, int64, float64, float64[:, :], "
         "int64[:], int64[:], float64[:])")
-def forward_kinematics_stream_kernel(bars, lengths, p, rot, tol_m, max_iterations, divergence_limit, poses, codes,
-                                     iterations, misfits):
-    """``forward_kinematics_kernel`` over a stream of readings (N, n), each solve
-    warm-started from the last converged pose (``p``, ``rot`` hold it, updated):
-    ``poses`` (N, 12) = p and R row-major, with each reading's code, iterations and
-    misfit. A failed reading leaves the warm start as it was."""
-    trial_p = np.empty(3)
-    trial_r = np.empty(9)
+def forward_kinematics_stream_kernel(bars, lengths, state, flags, tol_m, max_iterations, divergence_limit, poses,
+                                     codes, iterations, misfits):
+    """``forward_kinematics_warm_kernel`` over a stream of readings (N, n) in one
+    compiled loop, bit for bit N calls of it: ``poses`` (N, 12) = p and R row-major,
+    with each reading's code, iterations and misfit."""
+    p, rotation = np.empty(3), np.empty((3, 3))
+    rot = rotation.reshape(9)
     for k in range(lengths.shape[0]):
-        code, its, misfit = forward_kinematics_warm_kernel(bars, lengths[k], p, rot, trial_p, trial_r, tol_m,
-                                                           max_iterations, divergence_limit)
+        code, its, misfit = forward_kinematics_warm_kernel(bars, lengths[k], state, flags, tol_m, max_iterations,
+                                                           divergence_limit, p, rotation)
         codes[k], iterations[k], misfits[k] = code, its, misfit
-        poses[k, 0:3] = trial_p
-        poses[k, 3:12] = trial_r
+        poses[k, 0:3] = p
+        poses[k, 3:12] = rot
 
 
 __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
@@ -854,7 +890,7 @@ __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "F
            "rail_task_velocity_terms_kernel", "rail_velocity_terms_into", "rail_velocity_terms_kernel",
            "task_pose_twist",
            "chord_forward_kinematics_kernel", "forward_kinematics_kernel", "forward_kinematics_stream_kernel",
-           "forward_kinematics_warm_kernel", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
+           "forward_kinematics_warm_kernel", "extrapolated_pose_into", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
            "invert6_into", "pose_from_lengths_jacobian_into", "pose_from_lengths_jacobian_kernel",
            "rail_closure_rows_into", "strut_lengths_batch_kernel", "strut_lengths_into", "strut_lengths_kernel",
            "unit_pose_jacobian_batch_kernel", "unit_pose_jacobian_into"]

@@ -32,7 +32,6 @@ import numpy as np
 
 from . import bars as B
 from .jit import direct_call, kernel
-from .rotations import exp_so3_kernel, mul3_kernel
 from .validation import finite_array, finite_floats
 
 
@@ -99,21 +98,14 @@ def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh
                          divergence_limit, p, rot):
     """One solve of a warm-starting solver (GoughDKMSolver.solve), compiled: the guess
     extrapolated from the last two solutions (p1, R1) and (p0, R0) when
-    ``has_previous`` (p = 2 p1 - p0; R = exp(w) R1 with w the rotation vector of
-    R1 R0^T, exact to O(w^3)), else (p1, R1); then ``bars.chord_forward_kinematics_kernel``
+    ``has_previous`` (``bars.extrapolated_pose_into``), else (p1, R1); then ``bars.chord_forward_kinematics_kernel``
     into ``p`` and ``rot``. DKM_BAD_LENGTHS (nothing solved) when a length is not
     finite and > 0."""
     for i in range(6):
         if not (0.0 < target[i] < math.inf):
             return DKM_BAD_LENGTHS, 0, 0, math.inf, have_jh
     if has_previous:
-        for k in range(3):
-            p[k] = 2.0 * p1[k] - p0[k]
-        b = (r1[0], r1[1], r1[2], r1[3], r1[4], r1[5], r1[6], r1[7], r1[8])
-        d = mul3_kernel(b, (r0[0], r0[3], r0[6], r0[1], r0[4], r0[7], r0[2], r0[5], r0[8]))
-        g = mul3_kernel(exp_so3_kernel(0.5 * (d[7] - d[5]), 0.5 * (d[2] - d[6]), 0.5 * (d[3] - d[1])), b)
-        for k in range(9):
-            rot[k] = g[k]
+        B.extrapolated_pose_into(p1, r1, p0, r0, p, rot)
     else:
         p[:] = p1
         rot[:] = r1

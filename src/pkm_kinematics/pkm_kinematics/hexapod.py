@@ -303,40 +303,44 @@ def weighted_condition_kernel(jac, length):
 
 
 class StrutFK:
-    """Forward kinematics of one stream of strut readings, warm-started from the last
-    pose found (the per-stream data beside a constant ``StrutMachine``)."""
+    """Forward kinematics of one stream of strut readings, warm-started from the pose
+    extrapolated from the last two found (``bars.forward_kinematics_warm_kernel``;
+    the per-stream data beside a constant ``StrutMachine``)."""
 
     def __init__(self, machine: StrutMachine, tol_m: float = 1e-12, max_iterations: int = 30,
                  divergence_limit_m: float = 1.0):
         self.machine = machine
         self.tol_m, self.max_iterations, self.divergence_limit_m = tol_m, max_iterations, divergence_limit_m
         self._shape = (machine.n_legs,)
+        self._state, self._flags = np.zeros(B.WARM_STATE_SIZE), np.zeros(1, dtype=np.int64)
         self.reset()
 
     def reset(self, x=None) -> None:
+        """Start the stream again from the pose ``x`` (task coordinates; default home)."""
         p, rot = self.machine.pose(self.machine.home if x is None else x)
-        self._p, self._rot = p, rot.reshape(9).copy()
+        self._state[B.WARM_P1:B.WARM_R1], self._state[B.WARM_R1:B.WARM_P0] = p, rot.reshape(9)
+        self._flags[0] = 0
 
     def solve(self, q) -> StrutFKResult:
-        """The pose of ``q`` from the last pose; on a failure the warm start is kept."""
+        """The pose of ``q``; on a failure the last good pose is the next start."""
         if type(q) is not np.ndarray or q.dtype is not _FLOAT64:
             q = np.asarray(q, dtype=float)
         if q.shape != self._shape:
             raise ValueError(f"strut lengths: expected {self.machine.n_legs} values, got shape {q.shape}")
-        p, rot = np.empty(3), np.empty(9)
-        code, iterations, misfit = _warm_solve(
-            self.machine.bars, q, self._p, self._rot, p, rot, self.tol_m, self.max_iterations,
-            self.divergence_limit_m)
-        return StrutFKResult(_CODES[code], p, rot.reshape(3, 3), iterations, misfit)
+        p, rotation = np.empty(3), np.empty((3, 3))
+        code, iterations, misfit = _warm_solve(self.machine.bars, q, self._state, self._flags, self.tol_m,
+                                               self.max_iterations, self.divergence_limit_m, p, rotation)
+        return StrutFKResult(_CODES[code], p, rotation, iterations, misfit)
 
     def solve_stream(self, lengths) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`solve` over readings (N, n) in one compiled loop: (poses (N, 12) as
-        p and R row-major, codes (N,), iterations (N,), misfits (N,) in m)."""
+        """:meth:`solve` over readings (N, n) in one compiled loop, bit for bit N calls
+        of it: (poses (N, 12) as p and R row-major, codes (N,), iterations (N,),
+        misfits (N,) in m)."""
         lengths = np.ascontiguousarray(lengths, dtype=float).reshape(-1, self.machine.n_legs)
         n = lengths.shape[0]
         poses, codes = np.empty((n, 12)), np.empty(n, dtype=np.int64)
         iterations, misfits = np.empty(n, dtype=np.int64), np.empty(n)
-        B.forward_kinematics_stream_kernel(self.machine.bars, lengths, self._p, self._rot, self.tol_m,
+        B.forward_kinematics_stream_kernel(self.machine.bars, lengths, self._state, self._flags, self.tol_m,
                                            self.max_iterations, self.divergence_limit_m, poses, codes, iterations,
                                            misfits)
         return poses, codes, iterations, misfits
