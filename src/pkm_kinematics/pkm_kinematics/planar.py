@@ -145,19 +145,13 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))
     else:
         x, y, th = ref_x, ref_y, ref_th
-    ax = np.empty(n)
-    ay = np.empty(n)
-    length = np.empty(n)
-    for k in range(n):
-        ax[k] = bars[k, 0] + q[k] * bars[k, 3]
-        ay[k] = bars[k, 1] + q[k] * bars[k, 4]
-        length[k] = math.sqrt((bars[k, 9] * bars[k, 9]))
     use_hessian = False
     previous_size = math.inf
     converged = False
     iteration = 0
     for iteration in range(1, max_iterations + 1):
         c, s = math.cos(th), math.sin(th)
+        r = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
         # Newton on C = 1/2 sum f_i^2, f_i = |e_i| - L_i, e_i = p + R b_i - A_i:
         # grad f_i = g_i = [e^T, e^T E R b] / |e|; its Hessian is h_i h_i^T / |e| with
         # h_i = [n^T, n^T E R b], n = E e / |e|, plus -e.(R b)/|e| in (theta, theta).
@@ -170,13 +164,9 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         h00 = h01 = h02 = h11 = h12 = h22 = 0.0
         misfit = 0.0
         for k in range(n):
-            bx, by = bars[k, 6], bars[k, 7]
-            rbx = c * bx - s * by
-            rby = s * bx + c * by
-            ex = x + rbx - ax[k]
-            ey = y + rby - ay[k]
+            ex, ey, _, rbx, rby, _ = B.bar_vector(bars, k, x, y, 0.0, r, q)
             dist = math.sqrt(ex * ex + ey * ey)
-            f = dist - length[k]
+            f = dist - B.bar_length(bars, k, q)
             gx, gy, gt = ex / dist, ey / dist, (ey * rbx - ex * rby) / dist
             a00 += gx * gx
             a01 += gx * gy
@@ -220,21 +210,22 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
     if not converged:
         return 0.0, 0.0, 0.0, FK_NO_CONVERGENCE, max_iterations, math.nan, 0, 0, 0.0
     th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))   # on the guess's revolution
-    # residual at the returned pose, and the working mode (see __post_init__)
+    # residual at the returned pose, and the working mode (see PlanarLeastSquaresFK)
     c, s = math.cos(th), math.sin(th)
+    r = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
     residual = 0.0
-    px = np.empty(n)
-    py = np.empty(n)
+    e = np.empty((n, 2))
     for k in range(n):
-        bx, by = bars[k, 6], bars[k, 7]
-        px[k], py[k] = x + c * bx - s * by, y + s * bx + c * by
-        ex, ey = px[k] - ax[k], py[k] - ay[k]
-        residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - length[k]))
+        ex, ey, _, _, _, _ = B.bar_vector(bars, k, x, y, 0.0, r, q)
+        e[k, 0], e[k, 1] = ex, ey
+        residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - B.bar_length(bars, k, q)))
         if (ex * bars[k, 3] + ey * bars[k, 4]) * bars[k, 12] > 0.0:
             return 0.0, 0.0, 0.0, FK_ASSEMBLY, iteration, residual, 0, 0, 0.0
     for k in range(pairs.shape[0]):
+        # the side of carriage i's link its pair's carriage j is on: a pair shares its
+        # platform point, so A_j - A_i = e_i - e_j
         i, j = pairs[k, 0], pairs[k, 1]
-        if ((ax[j] - ax[i]) * (py[i] - ay[i]) - (ay[j] - ay[i]) * (px[i] - ax[i])) * sides[k] < 0.0:
+        if ((e[i, 0] - e[j, 0]) * e[i, 1] - (e[i, 1] - e[j, 1]) * e[i, 0]) * sides[k] < 0.0:
             return 0.0, 0.0, 0.0, FK_PAIR, iteration, residual, 0, 0, 0.0
     return x, y, th, FK_CONVERGED, iteration, residual, 0, 0, 0.0
 
