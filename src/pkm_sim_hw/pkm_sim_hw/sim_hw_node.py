@@ -13,7 +13,7 @@ re-published as in lockstep). The answer to the state last published is applied 
 it arrives (the plant integrates then, so that the tick only publishes: the step's
 ~0.1 ms is off the deadline's path; the same numbers as stepping at the tick); without
 one, the tick steps on the command held. A step whose command was not for the
-previous state counts as a deadline miss: its state says ``setpoint_held:<stamp>`` in the status word
+previous state counts as a deadline miss (until the plant stops): its state says ``setpoint_held:<stamp>`` in the status word
 (the forces it reports answer the command of that stamp), and the drives' sync error counter
 (sync_monitor, ``sync_error_limit``) brakes the plant when the misses come too often
 (cause ``deadline_missed``).
@@ -232,7 +232,9 @@ class SimHwNode(Node):
         if not self.started or self.finished:
             return                                 # held until the controller's first command
         effort, held, tripped = self.hold.tick(self.last_published_ns)
-        self.counts["deadline_misses"] += held is not None
+        # a miss is a held setpoint of a running plant: once it has stopped, the
+        # setpoints it holds are not commands it would follow
+        self.counts["deadline_misses"] += held is not None and not self.plant.stopped
         if tripped and not self.plant.stopped:
             self.plant.safe_stop(self.hold.sync.tripped, self.hold.sync.cause)
             self.get_logger().error(self.plant.stop_reason)
