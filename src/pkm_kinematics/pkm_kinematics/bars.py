@@ -593,19 +593,24 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     n = bars.shape[0]
     px, py, pz = p[0], p[1], p[2]
     r = (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6], rot[7], rot[8])
-    jac = np.empty((n, 6))
-    res = np.empty(n)
-    normal = np.empty((6, 6))
-    inverse = np.empty((6, 6))
-    g = np.empty(6)
-    step = np.empty(6)
+    work = np.empty(7 * n + 84)          # the scratch arrays, one allocation
+    jac = work[:6 * n].reshape((n, 6))
+    res = work[6 * n:7 * n]
+    normal = work[7 * n:7 * n + 36].reshape((6, 6))
+    inverse = work[7 * n + 36:7 * n + 72].reshape((6, 6))
+    g = work[7 * n + 72:7 * n + 78]
+    step = work[7 * n + 78:7 * n + 84]
     previous, growth, misfit = math.inf, 0, math.inf
     code, iterations = FK_NO_CONVERGENCE, max_iterations
     for iteration in range(max_iterations + 1):
-        worst, squares = 0.0, 0.0
+        # the misfits and the rows of the unit pose Jacobian in one pass over the bars
+        # (``unit_row``; the rows of the last, converged, pass go unused)
+        worst, squares, degenerate = 0.0, 0.0, False
         for k in range(n):
-            ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
-            res[k] = math.sqrt(ex * ex + ey * ey + ez * ez) - bar_length(bars, k, q)
+            length, ux, uy, uz, mx, my, mz = unit_row(bars, k, px, py, pz, r, q)
+            jac[k, 0], jac[k, 1], jac[k, 2], jac[k, 3], jac[k, 4], jac[k, 5] = ux, uy, uz, mx, my, mz
+            degenerate = degenerate or not length > 0.0
+            res[k] = length - bar_length(bars, k, q)
             squares += res[k] * res[k]
             if not abs(res[k]) <= worst:           # (NaN propagates)
                 worst = abs(res[k])
@@ -623,7 +628,7 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
             code, iterations = FK_STALLED, iteration
             break
         previous = misfit
-        if not unit_pose_jacobian_into(bars, px, py, pz, r, q, jac):
+        if degenerate:                              # a bar of zero length: no direction
             code, iterations = FK_SINGULAR, iteration
             break
         if n == 6:                                  # Newton: dx = -J^-1 r
