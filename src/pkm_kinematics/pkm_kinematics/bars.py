@@ -836,6 +836,19 @@ def extrapolated_pose_into(p1, r1, p0, r0, p, rot):
 WARM_P1, WARM_R1, WARM_P0, WARM_R0, WARM_STATE_SIZE = 0, 3, 12, 15, 24
 
 
+@kernel()
+def advance_warm_state(state, p, rot, has_previous):
+    """A warm state after a good solve (p, rot): (p0, R0) <- (p1, R1), or the solution
+    itself when there was no previous one; (p1, R1) <- the solution."""
+    if has_previous:
+        state[WARM_P0:WARM_STATE_SIZE] = state[WARM_P1:WARM_P0]
+    else:
+        state[WARM_P0:WARM_R0] = p
+        state[WARM_R0:WARM_STATE_SIZE] = rot
+    state[WARM_P1:WARM_R1] = p
+    state[WARM_R1:WARM_P0] = rot
+
+
 @kernel("(float64[:, :], float64[:], float64[::1], int64[:], float64, int64, float64, float64[::1], "
         "float64[:, ::1])")
 def forward_kinematics_warm_kernel(bars, q, state, flags, tol_m, max_iterations, divergence_limit, p, rotation):
@@ -855,14 +868,7 @@ def forward_kinematics_warm_kernel(bars, q, state, flags, tol_m, max_iterations,
         rot[:] = r1
     code, iterations, misfit = forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence_limit)
     if code == FK_CONVERGED:
-        if has_previous:
-            p0[:] = p1
-            r0[:] = r1
-        else:
-            p0[:] = p
-            r0[:] = rot
-        p1[:] = p
-        r1[:] = rot
+        advance_warm_state(state, p, rot, has_previous)
         flags[0] = 1
     else:
         flags[0] = 0
@@ -895,7 +901,7 @@ __all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "F
            "rail_task_velocity_terms_kernel", "rail_velocity_terms_into", "rail_velocity_terms_kernel",
            "task_pose_twist",
            "chord_forward_kinematics_kernel", "forward_kinematics_kernel", "forward_kinematics_stream_kernel",
-           "forward_kinematics_warm_kernel", "extrapolated_pose_into", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
+           "forward_kinematics_warm_kernel", "advance_warm_state", "extrapolated_pose_into", "inverse_kinematics_into", "inverse_kinematics_parasitic_kernel",
            "invert6_into", "pose_from_lengths_jacobian_into", "pose_from_lengths_jacobian_kernel",
            "rail_closure_rows_into", "strut_lengths_batch_kernel", "strut_lengths_into", "strut_lengths_kernel",
            "unit_pose_jacobian_batch_kernel", "unit_pose_jacobian_into"]

@@ -154,9 +154,11 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
             rot[:] = math.nan
 
 
-# GoughDKMSolver's state, one array: the last good pose (p1, R1), the one before (p0,
-# R0), J_h of the last linearisation; flags: (has_previous, have_jh)
-_P1, _R1, _P0, _R0, _JH, STATE_SIZE = 0, 3, 12, 15, 24, 60
+# GoughDKMSolver's state, one array: a warm state (bars.WARM_*: the last good pose
+# (p1, R1), the one before (p0, R0)), then J_h of the last linearisation; flags:
+# (has_previous, have_jh)
+_P1, _R1, _P0, _R0, _JH = B.WARM_P1, B.WARM_R1, B.WARM_P0, B.WARM_R0, B.WARM_STATE_SIZE
+STATE_SIZE = _JH + 36
 
 
 @kernel("(float64[:, :], float64[:], float64[::1], int64[:], float64, int64, float64, float64, float64[::1], "
@@ -181,14 +183,7 @@ def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergen
         code = plate_branch_code(bars, p, rot, evaluations, iterations, home_det_sign)
     if code == B.FK_CONVERGED:
         flags[1] = 1 if have else 0
-        if has_previous:
-            p0[:] = p1
-            r0[:] = r1
-        else:
-            p0[:] = p
-            r0[:] = rot
-        p1[:] = p
-        r1[:] = rot
+        B.advance_warm_state(state, p, rot, has_previous)
         flags[0] = 1
     else:
         flags[0] = flags[1] = 0

@@ -232,8 +232,7 @@ class SimHwNode(Node):
         if not self.started or self.finished:
             return                                 # held until the controller's first command
         effort, held, tripped = self.hold.tick(self.last_published_ns)
-        # a miss is a held setpoint of a running plant: once it has stopped, the
-        # setpoints it holds are not commands it would follow
+        # a miss is a held setpoint of a running plant (not a stopped one's)
         self.counts["deadline_misses"] += held is not None and not self.plant.stopped
         if tripped and not self.plant.stopped:
             self.plant.safe_stop(self.hold.sync.tripped, self.hold.sync.cause)
