@@ -31,7 +31,7 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
-from starlette.websockets import WebSocket, WebSocketDisconnect
+from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketDisconnected
 
 STATIC = Path(__file__).with_name("panel_static")
 AHEAD = 8          # snapshots a page may have in flight, not yet drawn (module doc)
@@ -117,8 +117,8 @@ def create_app(panel, publish, token: str | None = None, rate_hz: float = 25.0, 
                 reply = await execute(action, client, allowed)
                 if action is None or action.get("type") != "heartbeat":
                     await ws.send_json(reply)
-        except WebSocketDisconnect:
-            pass
+        except (WebSocketDisconnect, WebSocketDisconnected):     # closed by the client; or closed while the
+            pass                                                 # sender wrote, then read again (starlette's second kind)
         finally:
             sender.cancel()
             panel.disconnected(client)
