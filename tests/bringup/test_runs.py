@@ -453,3 +453,29 @@ def test_a_second_run_in_the_same_domain_is_refused(tmp_path, ros_context):
         executor.shutdown()
         other.destroy_node()
     assert run["status"] == "failed" and "another run is active" in run["error"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_that_surfaces_as_another_error_still_reads_interrupted(tmp_path, monkeypatch, sig):
+    """A KeyboardInterrupt raised while rclpy's C++ executor converts a message for a
+    callback reaches Python as pybind11's RuntimeError("Unable to convert call
+    argument '0' to Python object"). The run was interrupted: run.json says so, not
+    that the run failed on a RuntimeError; and the handlers are put back afterwards."""
+    from pkm_bringup import orchestrator
+
+    def interrupted_inside_a_callback(*_):
+        try:
+            signal.raise_signal(sig)
+        except KeyboardInterrupt:
+            raise RuntimeError("Unable to convert call argument '0' to Python object") from None
+    monkeypatch.setattr(orchestrator, "run_processes", interrupted_inside_a_callback)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    run = run_scenario(load_scenario("archi_demo", {"record": False}), tmp_path / "run", progress=False)
+    assert run["status"] == "failed" and run["error"] == "interrupted (Ctrl-C / SIGTERM)", run["error"]
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+    def failing(*_):
+        raise RuntimeError("a real defect")
+    monkeypatch.setattr(orchestrator, "run_processes", failing)
+    run = run_scenario(load_scenario("archi_demo", {"record": False}), tmp_path / "run2", progress=False)
+    assert run["error"] == "RuntimeError: a real defect"

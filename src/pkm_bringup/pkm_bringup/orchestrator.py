@@ -498,17 +498,20 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     use_ros_environment()
     mode = "in_process" if in_process else "processes"
     start = time.monotonic()
-    error, codes = "", {}
+    error, codes, interruption = "", {}, _Interruption()
     try:
         run = run_in_process if in_process else run_processes
-        with RunLock(s.namespace), _in_process_profile(s, in_process):
+        with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
             run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
     except RunFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
-        error = "interrupted (Ctrl-C / SIGTERM)"
+        error = INTERRUPTED
     except Exception as exc:                      # noqa: BLE001 - reported in run.json, never a traceback
-        error = f"{type(exc).__name__}: {exc}"
+        # a signal's KeyboardInterrupt raised while rclpy's executor converts a message
+        # for a callback comes out of pybind11 as RuntimeError("Unable to convert call
+        # argument ..."): the run was interrupted all the same
+        error = INTERRUPTED if interruption.signalled else f"{type(exc).__name__}: {exc}"
     recovered = _recover_bag(s, run_dir)
     result = collect(s, run_dir, mode, time.monotonic() - start, codes, error)
     if recovered:
@@ -583,8 +586,35 @@ def format_summary(run: dict, run_dir: Path) -> str:
     return "\n".join(lines)
 
 
+INTERRUPTED = "interrupted (Ctrl-C / SIGTERM)"
+
+
 def _interrupt(*_):
     raise KeyboardInterrupt
+
+
+class _Interruption:
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt inside the block, as
+    ``signalled`` records (main thread only; elsewhere the handlers stay as they are
+    and nothing is recorded)."""
+
+    signalled = False
+
+    def __enter__(self):
+        import threading
+        self.saved = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.saved[sig] = signal.signal(sig, self._raise)
+        return self
+
+    def _raise(self, *_):
+        self.signalled = True
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        for sig, handler in self.saved.items():
+            signal.signal(sig, handler)
 
 
 def main(argv=None) -> int:
