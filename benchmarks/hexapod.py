@@ -83,6 +83,77 @@ def motion(home, n: int, scale_m: float):
     return out
 
 
+def timed(run_once, n: int):
+    """(seconds per reading, iterations per reading or NaN) of one run."""
+    t0 = time.perf_counter()
+    its = run_once()
+    return (time.perf_counter() - t0) / n, its
+
+
+def ours(machine: StrutMachine, gough, lengths, poses, tol: float) -> dict:
+    """label -> a function timing one run of that solver over the stream."""
+    n = len(lengths)
+    p0, r0 = poses[0]
+
+    def strut_stream():
+        fk = StrutFK(machine, tol_m=tol)
+        fk.reset(machine.task_coordinates(p0, r0))
+        def once():
+            _, codes, iterations, _ = fk.solve_stream(lengths)
+            assert (codes == 0).all(), "a reading of the stream did not converge"
+            return iterations.mean()
+        return timed(once, n)
+
+    def strut_calls():
+        fk = StrutFK(machine, tol_m=tol)
+        fk.reset(machine.task_coordinates(p0, r0))
+        def once():
+            for q in lengths:
+                fk.solve(q)
+            return math.nan
+        return timed(once, n)
+
+    variants = {"ours, compiled stream (StrutFK.solve_stream)": strut_stream,
+                "ours, a Python call per reading (StrutFK.solve)": strut_calls}
+    if gough is None:
+        return variants
+
+    def gough_calls():
+        solver = GoughDKMSolver(gough, tol_m=tol)
+        solver.reset(p0, r0)
+        def once():
+            for q in lengths:
+                solver.solve(q)
+            return math.nan
+        return timed(once, n)
+
+    def gough_stream():
+        solver = GoughDKMSolver(gough, tol_m=tol)
+        solver.reset(p0, r0)
+        def once():
+            _, _, converged, iterations = solver.solve_stream(lengths)
+            assert converged.all(), "a reading of the stream did not converge"
+            return iterations.mean()
+        return timed(once, n)
+
+    # a batch of independent readings (a study's, a log's), each from the pose before
+    # it as C's stream starts each: rows with no state between them
+    guess_p = np.array([poses[max(k - 1, 0)][0] for k in range(n)])
+    guess_r = np.array([poses[max(k - 1, 0)][1] for k in range(n)])
+
+    def gough_batch():
+        def once():
+            _, _, converged, iterations = gough.direct_kinematics_batch(lengths, guess_p, guess_r, tol_m=tol)
+            assert converged.all(), "a reading of the batch did not converge"
+            return iterations.mean()
+        return timed(once, n)
+
+    return {**variants,
+            "ours, the metrology's GoughDKMSolver.solve per reading": gough_calls,
+            "ours, the metrology's solver as a compiled stream (GoughDKMSolver.solve_stream)": gough_stream,
+            "ours, a batch of independent readings, one core (GoughPlatform.direct_kinematics_batch)": gough_batch}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeat", type=int, default=7)
@@ -103,74 +174,31 @@ def main(argv=None) -> int:
         lengths = stream(poses, lengths_of)
         legs = np.hstack((base, plate))
         p0, r0 = poses[0][0].copy(), poses[0][1].copy()
-        c_us = math.nan
-        if lib is not None:
-            runs = [c_stream(lib, legs, lengths, p0, r0, tol) for _ in range(args.repeat)]
-            c_us = 1e6 * statistics.median(r[0] for r in runs)
-            rows.append((name, "C Newton (cc -O2), stream", c_us, runs[0][1], 1.0))
-        else:
-            rows.append((name, "C Newton: no C compiler (cc) here", math.nan, math.nan, math.nan))
         machine = StrutMachine(name, [f"s{k}" for k in range(6)], base, plate, [(1e-3, 10.0)] * 6,
                                hexapod.task_coordinates(p0, r0), {})
-        times, its = [], None
+        variants = ours(machine, gough if name.startswith("MoM3") else None, lengths, poses, tol)
+        if lib is None:
+            rows.append((name, "C Newton: no C compiler (cc) here", math.nan, math.nan, math.nan))
+        # each repeat times C and then every one of ours, so that a ratio compares
+        # runs of the same seconds (this VM's speed drifts by tens of per cent)
+        c_times, times, ratios, its = [], {v: [] for v in variants}, {v: [] for v in variants}, {}
         for _ in range(args.repeat):
-            fk = StrutFK(machine, tol_m=tol)
-            fk.reset(machine.task_coordinates(p0, r0))
-            t0 = time.perf_counter()
-            out, codes, iterations, _ = fk.solve_stream(lengths)
-            times.append((time.perf_counter() - t0) / len(lengths))
-            assert (codes == 0).all(), "a reading of the stream did not converge"
-            its = iterations.mean()
-        us = 1e6 * statistics.median(times)
-        rows.append((name, "ours, compiled stream (StrutFK.solve_stream)", us, its, us / c_us))
-        times = []
-        for _ in range(args.repeat):
-            fk = StrutFK(machine, tol_m=tol)
-            fk.reset(machine.task_coordinates(p0, r0))
-            t0 = time.perf_counter()
-            for q in lengths:
-                fk.solve(q)
-            times.append((time.perf_counter() - t0) / len(lengths))
-        us = 1e6 * statistics.median(times)
-        rows.append((name, "ours, a Python call per reading (StrutFK.solve)", us, math.nan, us / c_us))
-        if name.startswith("MoM3"):
-            times = []
-            for _ in range(args.repeat):
-                solver = GoughDKMSolver(gough, tol_m=tol)
-                solver.reset(p0, r0)
-                t0 = time.perf_counter()
-                for q in lengths:
-                    solver.solve(q)
-                times.append((time.perf_counter() - t0) / len(lengths))
-            us = 1e6 * statistics.median(times)
-            rows.append((name, "ours, the metrology's GoughDKMSolver.solve per reading", us, math.nan, us / c_us))
-            times = []
-            for _ in range(args.repeat):
-                solver = GoughDKMSolver(gough, tol_m=tol)
-                solver.reset(p0, r0)
-                t0 = time.perf_counter()
-                _, _, converged, iterations = solver.solve_stream(lengths)
-                times.append((time.perf_counter() - t0) / len(lengths))
-                assert converged.all(), "a reading of the stream did not converge"
-            us = 1e6 * statistics.median(times)
-            rows.append((name, "ours, the metrology's solver as a compiled stream (GoughDKMSolver.solve_stream)", us,
-                         iterations.mean(), us / c_us))
-            # a batch of independent readings (a study's, a log's), each from the pose
-            # before it as C's stream starts each: rows with no state between them
-            guess_p = np.array([poses[max(k - 1, 0)][0] for k in range(len(poses))])
-            guess_r = np.array([poses[max(k - 1, 0)][1] for k in range(len(poses))])
-            times = []
-            for _ in range(args.repeat):
-                t0 = time.perf_counter()
-                _, _, converged, iterations = gough.direct_kinematics_batch(lengths, guess_p, guess_r, tol_m=tol)
-                times.append((time.perf_counter() - t0) / len(lengths))
-                assert converged.all(), "a reading of the batch did not converge"
-            us = 1e6 * statistics.median(times)
-            rows.append((name, "ours, a batch of independent readings, one core (GoughPlatform.direct_kinematics_batch)",
-                         us, iterations.mean(), us / c_us))
+            c_s = math.nan
+            if lib is not None:
+                c_s, c_its, _ = c_stream(lib, legs, lengths, p0, r0, tol)
+                c_times.append(c_s)
+            for label, run in variants.items():
+                seconds, its[label] = run()
+                times[label].append(seconds)
+                ratios[label].append(seconds / c_s)
+        if lib is not None:
+            rows.append((name, "C Newton (cc -O2), stream", 1e6 * statistics.median(c_times), c_its, 1.0))
+        for label in variants:
+            rows.append((name, label, 1e6 * statistics.median(times[label]), its[label],
+                         statistics.median(ratios[label])))
 
     print(f"hexapod benchmark: warm-started FK over a {args.readings}-reading 2 kHz stream, "
-          f"tol {tol:g} m, median of {args.repeat}")
+          f"tol {tol:g} m, median of {args.repeat} (x C: the median of the ratios to the C run of the same repeat)")
     print(f"| machine | solver | us/reading | iterations/reading | x C |")
     print("|---|---|---|---|---|")
     for name, solver, us, its, ratio in rows:

@@ -68,3 +68,19 @@ def test_a_rail_that_cannot_reach_and_a_bar_across_its_rail_are_named():
     out = B.rail_velocity_terms_kernel(across, 1, 0.0, 1.0, 0.0, (1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0), (0.0,) * 6,
                                        np.array([0, 1, 2], dtype=np.int64))
     assert out[0][0] == 0.0 and (out[4], out[5]) == (B.VT_SINGULAR, 0)
+
+
+def test_the_inline_6x6_determinant_is_numpys_with_its_sign():
+    """``determinant6`` (the Gough branch check's det(J_h^-1), no LAPACK call) against
+    numpy's det: random matrices, a row swap (sign), a singular matrix (0) and the
+    unit pose Jacobian of the six-rail machine's bars."""
+    rng = np.random.default_rng(5)
+    for a in list(rng.normal(size=(50, 6, 6))) + [np.eye(6)[[1, 0, 2, 3, 4, 5]]]:
+        assert np.isclose(B.determinant6(a.copy()), np.linalg.det(a), rtol=1e-12, atol=1e-14)
+    singular = rng.normal(size=(6, 6))
+    singular[3] = singular[1]
+    assert abs(B.determinant6(singular.copy())) < 1e-12
+    rows = np.empty((6, 6))
+    assert B.unit_pose_jacobian_into(six_rail_machine(), 0.1, 0.0, 0.2, tuple(np.eye(3).reshape(9)), np.zeros(6),
+                                     rows)
+    assert np.isclose(B.determinant6(rows.copy()), np.linalg.det(rows), rtol=1e-12)

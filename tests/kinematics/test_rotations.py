@@ -57,3 +57,23 @@ def test_quaternion_validation():
     with pytest.raises(ValueError, match="quaternion: must be finite and non-zero"):
         rotation_from_quaternion([0.0, 0.0, 0.0, 0.0])
     np.testing.assert_allclose(rotation_from_quaternion([0, 0, 0, 2.0]), np.eye(3))
+
+
+def test_the_compiled_rotation_check_finds_the_first_improper_row_as_numpy_does():
+    """``first_improper_rotation_kernel`` against numpy's R^T R and det on rotations,
+    a reflection, a scaled rotation, a slightly skewed one and a NaN."""
+    from pkm_kinematics.rotations import first_improper_rotation_kernel
+    rng = np.random.default_rng(2)
+    good = np.array([exp_so3(w) for w in rng.uniform(-3.0, 3.0, (20, 3))])
+    bad = [np.diag([1.0, 1.0, -1.0]), 1.01 * np.eye(3), exp_so3([0.1, 0.2, 0.3]) + 2e-6 * np.eye(3)[[1, 2, 0]],
+           np.full((3, 3), np.nan)]
+
+    def numpy_first(rotations):
+        distortion = np.abs(np.einsum("nji,njk->nik", rotations, rotations) - np.eye(3)).max(axis=(1, 2))
+        with np.errstate(invalid="ignore"):
+            flagged = ~(distortion <= 1e-6) | ~(np.linalg.det(rotations) > 0.0)
+        return int(np.argmax(flagged)) if flagged.any() else -1
+    assert first_improper_rotation_kernel(good.reshape(-1, 9), 1e-6) == -1
+    for k, b in enumerate(bad):
+        rotations = np.concatenate([good[:5 + k], [b], good[5 + k:]])
+        assert first_improper_rotation_kernel(rotations.reshape(-1, 9), 1e-6) == numpy_first(rotations) == 5 + k

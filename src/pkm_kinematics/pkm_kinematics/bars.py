@@ -103,6 +103,34 @@ def invert6_into(a, out) -> bool:
     return True
 
 
+@kernel()
+def determinant6(a) -> float:
+    """det(a) of a 6 x 6 matrix by elimination with partial pivoting (``a`` is
+    overwritten): the product of the pivots, its sign flipped per row exchange.
+    Inline for the same reason as ``invert6_into``: numpy's det allocates and calls
+    LAPACK, which costs more than this on a 6 x 6."""
+    det = 1.0
+    for col in range(6):
+        pivot = col
+        for row in range(col + 1, 6):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if a[pivot, col] == 0.0:
+            return 0.0
+        if pivot != col:
+            det = -det
+            for j in range(col, 6):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+        det *= a[col, col]
+        inv_p = 1.0 / a[col, col]
+        for row in range(col + 1, 6):
+            f = a[row, col] * inv_p
+            if f != 0.0:
+                for j in range(col + 1, 6):
+                    a[row, j] -= f * a[col, j]
+    return det
+
+
 def bar_rows(base, platform, actuator, kind, rail=None, length=None, branch=None) -> np.ndarray:
     """The ``bars`` array of a model from per-bar lists (one row per bar)."""
     base = np.asarray(base, dtype=float).reshape(-1, 3)
@@ -674,15 +702,19 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     return code, iterations, misfit
 
 
-@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64, int64, float64)")
-def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, tol_m, max_iterations, divergence_limit):
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64[:, :], float64, int64, "
+        "float64)")
+def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, tol_m, max_iterations, divergence_limit):
     """``forward_kinematics_kernel`` for six bars with chord steps, the solver of a
     stream of small moves (the Gough metrology's DKM, MoM3 §6.3): Newton on
     r_k = l_k - |e_k|, the step [dp; dw] = J_h r, p += dp, R <- exp([dw]x) R, with
     J_h (``jh``, valid when ``have_jh``; ``pose_from_lengths_jacobian_into``) kept
     from earlier steps and solves and re-evaluated only when an iteration gains less
     than three orders of magnitude. ``p`` (3,), ``rot`` (9, row-major) and ``jh``
-    (6, 6) are updated in place. Returns (code, iterations, evaluations, residual,
+    (6, 6) are updated in place; ``rows`` (6, 6) ends holding the unit pose Jacobian
+    J_h^-1 at the returned pose, but after FK_SINGULAR (``unit_row``: each pass makes
+    the residuals and the rows together, so that an evaluation of J_h and a caller's
+    branch check need no pass of their own). Returns (code, iterations, evaluations, residual,
     have_jh): FK_CONVERGED (every |r_k| <= tol_m), FK_NO_CONVERGENCE, FK_DIVERGED
     (a residual above ``divergence_limit``), FK_STALLED (it grew twice in a row),
     FK_SINGULAR (J_h has no inverse, or there are not six bars)."""
@@ -700,8 +732,9 @@ def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, tol_m, max_ite
     for iteration in range(max_iterations + 1):
         residual = 0.0
         for k in range(6):
-            ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
-            res[k] = bar_length(bars, k, q) - math.sqrt(ex * ex + ey * ey + ez * ez)
+            length, rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3], rows[k, 4], rows[k, 5] = \
+                unit_row(bars, k, px, py, pz, r, q)
+            res[k] = bar_length(bars, k, q) - length
             if not abs(res[k]) <= residual:       # (NaN propagates)
                 residual = abs(res[k])
         if residual <= tol_m:
@@ -718,7 +751,9 @@ def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, tol_m, max_ite
             break
         if not have_jh or residual > 1e-3 * previous:
             evaluations += 1
-            if not pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, jh):
+            # J_h = (J_h^-1)^-1 (pose_from_lengths_jacobian_into) of this pass's rows; a
+            # bar of zero length has a zero row: singular too
+            if not invert6_into(rows, jh):
                 code, iterations = FK_SINGULAR, iteration
                 break
             have_jh = True

@@ -32,6 +32,7 @@ import numpy as np
 
 from . import bars as B
 from .jit import direct_call, kernel
+from .rotations import first_improper_rotation_kernel
 from .validation import finite_array, finite_floats
 
 
@@ -93,8 +94,8 @@ DKM_MIRROR, DKM_OTHER_MODE = 6, 7
 
 
 @kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:], float64[:], boolean, float64[:, :], boolean, "
-        "float64, int64, float64, float64[:], float64[:])")
-def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh, tol_m, max_iterations,
+        "float64[:, :], float64, int64, float64, float64[:], float64[:])")
+def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh, rows, tol_m, max_iterations,
                          divergence_limit, p, rot):
     """One solve of a warm-starting solver (GoughDKMSolver.solve), compiled: the guess
     extrapolated from the last two solutions (p1, R1) and (p0, R0) when
@@ -109,25 +110,23 @@ def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh
     else:
         p[:] = p1
         rot[:] = r1
-    return B.chord_forward_kinematics_kernel(bars, target, p, rot, jh, have_jh, tol_m, max_iterations,
+    return B.chord_forward_kinematics_kernel(bars, target, p, rot, jh, have_jh, rows, tol_m, max_iterations,
                                              divergence_limit)
 
 
-@kernel("(float64[:, :], float64[:], float64[:], int64, int64, float64)")
-def plate_branch_code(bars, p, rot, evaluations, iterations, home_det_sign):
-    """The branch checks of a converged solve: DKM_MIRROR unless the plate is above
-    the base plane and not flipped; for a solve that travelled (re-linearised, or more
-    than two steps) DKM_OTHER_MODE unless det(J_h^-1) has the sign it has at home (a
-    path between assembly modes crosses a singularity: short warm-started solves
-    cannot, and skip this check); else FK_CONVERGED."""
+@kernel("(float64[:], float64[:], float64[:, :], int64, int64, float64)")
+def plate_branch_code(p, rot, rows, evaluations, iterations, home_det_sign):
+    """The branch checks of a converged solve at the plate's pose ``p``, ``rot`` (9,
+    row-major), ``rows`` the unit pose Jacobian J_h^-1 there (overwritten):
+    DKM_MIRROR unless the plate is above the base plane and not flipped; for a solve
+    that travelled (re-linearised, or more than two steps) DKM_OTHER_MODE unless
+    det(J_h^-1) has the sign it has at home (a path between assembly modes crosses a
+    singularity: short warm-started solves cannot, and skip this check); else
+    FK_CONVERGED."""
     if not (p[2] > 0.0 and rot[8] > 0.0):
         return DKM_MIRROR
-    if evaluations > 0 or iterations > 2:
-        jinv = np.empty((6, 6))
-        B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5], rot[6],
-                                                           rot[7], rot[8]), p, jinv)
-        if not np.linalg.det(jinv) * home_det_sign > 0.0:
-            return DKM_OTHER_MODE
+    if (evaluations > 0 or iterations > 2) and not B.determinant6(rows) * home_det_sign > 0.0:
+        return DKM_OTHER_MODE
     return B.FK_CONVERGED
 
 
@@ -138,14 +137,14 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
     """``bars.chord_forward_kinematics_kernel`` on every row of ``lengths`` (N, 6) from its guess (``guess_r``
     rows row-major), with the branch checks (``plate_branch_code``). Rows that failed
     are NaN."""
-    jh = np.empty((6, 6))
+    jh, rows = np.empty((6, 6)), np.empty((6, 6))
     for n in range(lengths.shape[0]):
         p, rot = p_out[n], r_out[n]
         p[:] = guess_p[n]
         rot[:] = guess_r[n]
-        code, its, evaluations, _, _ = B.chord_forward_kinematics_kernel(bars, lengths[n], p, rot, jh, False, tol_m,
-                                                                         max_iterations, divergence_limit)
-        good = code == B.FK_CONVERGED and plate_branch_code(bars, p, rot, evaluations, its,
+        code, its, evaluations, _, _ = B.chord_forward_kinematics_kernel(bars, lengths[n], p, rot, jh, False, rows,
+                                                                         tol_m, max_iterations, divergence_limit)
+        good = code == B.FK_CONVERGED and plate_branch_code(p, rot, rows, evaluations, its,
                                                              home_det_sign) == B.FK_CONVERGED
         ok[n] = good
         iterations[n] = its
@@ -155,10 +154,11 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
 
 
 # GoughDKMSolver's state, one array: a warm state (bars.WARM_*: the last good pose
-# (p1, R1), the one before (p0, R0)), then J_h of the last linearisation; flags:
-# (has_previous, have_jh)
+# (p1, R1), the one before (p0, R0)), then J_h of the last linearisation, then the
+# solve's scratch (the unit pose Jacobian of its last pass); flags: (has_previous, have_jh)
 _P1, _R1, _P0, _R0, _JH = B.WARM_P1, B.WARM_R1, B.WARM_P0, B.WARM_R0, B.WARM_STATE_SIZE
-STATE_SIZE = _JH + 36
+_ROWS = _JH + 36
+STATE_SIZE = _ROWS + 36
 
 
 @kernel("(float64[:, :], float64[:], float64[::1], int64[:], float64, int64, float64, float64, float64[::1], "
@@ -173,14 +173,15 @@ def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergen
     iterate into ``p`` (3,) and ``rotation`` (3, 3). Returns (code, iterations, J_h
     evaluations, residual)."""
     p1, r1, p0, r0 = state[_P1:_R1], state[_R1:_P0], state[_P0:_R0], state[_R0:_JH]
-    jh = state[_JH:STATE_SIZE].reshape((6, 6))
+    jh = state[_JH:_ROWS].reshape((6, 6))
+    rows = state[_ROWS:STATE_SIZE].reshape((6, 6))
     rot = rotation.reshape(9)
     has_previous = flags[0] != 0
     code, iterations, evaluations, residual, have = dkm_warm_step_kernel(
-        bars, target, p1, r1, p0, r0, has_previous, jh, flags[1] != 0, tol_m, max_iterations, divergence_limit, p,
-        rot)
+        bars, target, p1, r1, p0, r0, has_previous, jh, flags[1] != 0, rows, tol_m, max_iterations, divergence_limit,
+        p, rot)
     if code == B.FK_CONVERGED:
-        code = plate_branch_code(bars, p, rot, evaluations, iterations, home_det_sign)
+        code = plate_branch_code(p, rot, rows, evaluations, iterations, home_det_sign)
     if code == B.FK_CONVERGED:
         flags[1] = 1 if have else 0
         B.advance_warm_state(state, p, rot, has_previous)
@@ -337,17 +338,21 @@ class GoughPlatform:
         p_a, rot_a = np.array(p, dtype=float), np.array(rot, dtype=float)
         have = jh is not None
         jh_a = np.array(jh, dtype=float) if have else np.empty((6, 6))
+        rows = np.empty((6, 6))
         code, iterations, evaluations, residual, have = B.chord_forward_kinematics_kernel(
-            self.bars, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, float(tol_m),
+            self.bars, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, rows, float(tol_m),
             int(max_iterations), self._divergence_limit)
+        if code == B.FK_CONVERGED:
+            code = plate_branch_code(p_a, rot_a, rows, evaluations, iterations, self._home_det_sign)
         return self._result(code, p_a, rot_a, iterations, evaluations, residual, jh_a if have else None,
                             max_iterations)
 
     def _result(self, code, p, rot, iterations, evaluations, residual, jh, max_iterations) -> GoughDKMResult:
-        """The GoughDKMResult of a kernel's solve (``p`` (3,), ``rot`` (9,) its last
-        iterate; the result holds copies of them)."""
+        """The GoughDKMResult of a kernel's solve, its branch checked (``p`` (3,),
+        ``rot`` (9,) its last iterate; the result holds copies of them)."""
         if code == B.FK_CONVERGED:
-            return self._finish(p, rot, iterations, evaluations, residual, jh)
+            return GoughDKMResult(p.copy(), rot.reshape(3, 3).copy(), True, iterations, evaluations, residual, "",
+                                  jh)
         reason = {B.FK_DIVERGED: f"diverged: residual {residual:.3g} m above the limit "
                                       f"{self._divergence_limit:.3g} m",
                   B.FK_STALLED: "diverged: residual grew twice in a row",
@@ -356,13 +361,6 @@ class GoughPlatform:
                   DKM_OTHER_MODE: "another assembly mode: det(J_h^-1) has the opposite sign to home"}.get(
             code, f"no convergence in {max_iterations} iterations (residual {residual:.3g} m)")
         return self._fail(iterations, evaluations, residual, reason)
-
-    def _finish(self, p, rot, iterations, evaluations, residual, jh) -> GoughDKMResult:
-        """The branch checks of a converged solve (``plate_branch_code``), then the result."""
-        code = plate_branch_code(self.bars, p, rot, evaluations, iterations, self._home_det_sign)
-        if code != B.FK_CONVERGED:
-            return self._result(code, p, rot, iterations, evaluations, residual, None, 0)
-        return GoughDKMResult(p.copy(), rot.reshape(3, 3).copy(), True, iterations, evaluations, residual, "", jh)
 
     @staticmethod
     def _fail(iterations, evaluations, residual, reason) -> GoughDKMResult:
@@ -383,16 +381,15 @@ class GoughPlatform:
         n = lengths.shape[0]
         guess_positions = finite_array(guess_positions, "guess_positions", (n, 3))
         guess_rotations = finite_array(guess_rotations, "guess_rotations", (n, 3, 3))
-        distortion = np.abs(np.einsum("nji,njk->nik", guess_rotations, guess_rotations) - np.eye(3)).max(axis=(1, 2))
-        bad = (distortion > 1e-6) | (np.linalg.det(guess_rotations) <= 0.0)
-        if bad.any():
-            raise ValueError(f"guess_rotations[{int(np.argmax(bad))}]: not a rotation matrix "
-                             "(R^T R != I or det(R) <= 0)")
+        guess_rotations = np.ascontiguousarray(guess_rotations.reshape(n, 9))
+        bad = first_improper_rotation_kernel(guess_rotations, 1e-6)
+        if bad >= 0:
+            raise ValueError(f"guess_rotations[{bad}]: not a rotation matrix (R^T R != I or det(R) <= 0)")
         p_out, r_out = np.empty((n, 3)), np.empty((n, 9))
         iters, ok = np.empty(n, dtype=np.int64), np.empty(n, dtype=bool)
         dkm_batch_kernel(self.bars, np.ascontiguousarray(lengths), np.ascontiguousarray(guess_positions),
-                         np.ascontiguousarray(guess_rotations.reshape(n, 9)), float(tol_m), int(max_iterations),
-                         self._divergence_limit, self._home_det_sign, p_out, r_out, ok, iters)
+                         guess_rotations, float(tol_m), int(max_iterations), self._divergence_limit,
+                         self._home_det_sign, p_out, r_out, ok, iters)
         r_out = r_out.reshape(n, 3, 3)
         return p_out, r_out, ok, iters
 

@@ -170,6 +170,25 @@ def angular_motion_kernel(b, c, ra, rb, rc, aa, ab, ac) -> tuple:
 angular_motion_floats = angular_motion_kernel.py_func
 
 
+@kernel("(float64[:, :], float64)")
+def first_improper_rotation_kernel(rotations, tol):
+    """The index of the first row of ``rotations`` (N, 9, row-major) that is not a
+    rotation matrix (an entry of R^T R - I above ``tol``, or det(R) <= 0), or -1.
+    Compiled: numpy's batched R^T R and det cost more than a warm-started FK."""
+    for n in range(rotations.shape[0]):
+        r = rotations[n]
+        for i in range(3):
+            for j in range(3):
+                s = r[i] * r[j] + r[3 + i] * r[3 + j] + r[6 + i] * r[6 + j]
+                if not abs(s - (1.0 if i == j else 0.0)) <= tol:    # (NaN is improper)
+                    return n
+        det = (r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
+               + r[2] * (r[3] * r[7] - r[4] * r[6]))
+        if not det > 0.0:
+            return n
+    return -1
+
+
 def rotation_about_z(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
