@@ -228,7 +228,7 @@ def test_a_second_publisher_on_drives_command_is_an_intruder(ros_graph):
     rogue.create_publisher(JointState, "drives/command", STREAM_QOS)
     assert ros_graph.spin_until(lambda: sim.plant.stopped, timeout_sec=5.0)
     assert str(sim.plant.stop_cause) == "intruder" and "/rogue" in sim.plant.stop_reason
-    assert sim.intruder == "/rogue" and sim.summary()["intruder"] == "/rogue"
+    assert sim.run.intruder == "/rogue" and sim.summary()["intruder"] == "/rogue"
     assert ros_graph.spin_until(lambda: refused.messages, timeout_sec=5.0)
     values = {kv.key: kv.value for kv in refused.messages[0].status[0].values}
     assert values["cause"] == "intruder" and values["sender"] == "/rogue"

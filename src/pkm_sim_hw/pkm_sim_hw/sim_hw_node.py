@@ -46,8 +46,7 @@ from visualization_msgs.msg import MarkerArray
 from pkm_common.causes import TripCause, plant_status_word, setpoint_held_word
 from pkm_common.node_tap import NodeTap
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, line_list_markers, machine_pose_components,
-                                    ns_to_stamp, pose_components, publisher_names)
+from pkm_common.conversions import diagnostic_array, diagnostic_status, line_list_markers, ns_to_stamp, publisher_names
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -57,6 +56,7 @@ from pkm_sim_hw.authority import APPLY, STALE, Refusal
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.plant import command_efforts, leg_segments
 from pkm_sim_hw.refusals import RefusalReport
+from pkm_sim_hw.run_record import RunRecord, true_pose_components
 from pkm_sim_hw.sync_monitor import SetpointHold
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
@@ -72,14 +72,9 @@ class SimHwNode(Node):
         self.duration_steps, self.summary_path = settings.duration_steps, settings.summary_path
         self.shutdown_on_finish = settings.shutdown_on_finish
         n, dt_s = self.plant.n, self.plant.params.dt_s
-        self.finished = False
-        self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
-        self.last_published_ns = -1
-        self.first_command_wall = None
+        self.run = RunRecord(self.config.name, self.lockstep)     # counters, intruder, steps: the summary's
+        self.counts = self.run.counts
         self.dt_ns = round(dt_s * 1e9)
-        self.counts = {"refused_commands": 0, "stale_commands": 0, "deadline_misses": 0, "timeouts": 0,
-                       "refused_loads": 0, "refusals_not_published": 0, "state_repeats": 0}
-        self.intruder = ""
         self.command_matches = 1                # publishers matched to drives/command (the matched event)
         self.started = False
         # the command watchdog does not count this process's own stalls (another node's
@@ -120,6 +115,11 @@ class SimHwNode(Node):
             self.create_timer(dt_s, self.on_realtime_tick)
         self.publish_state()
 
+    @property
+    def finished(self) -> bool:
+        """The run's last step is done (an in-process run waits for it)."""
+        return self.run.finished
+
     # ------------------------------------------------------------- publishing
     def now_ns(self) -> int:
         return self.plant.k * self.dt_ns
@@ -130,17 +130,8 @@ class SimHwNode(Node):
         ns = self.now_ns()
         # the true pose first: the sensor's work is on the critical path of the step
         # (state -> sensor -> controller), the drive state and the clock are not
-        # the tool of the task-space pose (task_space.pose_fields), or the plant's own
-        # rotation where it has one (the imperfect Delta's parasitic rotation, a hexapod's)
-        if out.tool_rotation is None:
-            position, orientation = machine_pose_components(self.space, out.tool_pose)
-        else:
-            r = out.tool_rotation
-            position, orientation = pose_components(out.tool_pose[:3], (r[0:3], r[3:6], r[6:9]))
-        self.pub_pose.publish(self.pose_encoder.encode(ns, position, orientation))
-        if ns != self.last_published_ns:          # counted once per step (not the discovery repeats)
-            self.last_published_ns = ns
-            self.steps_published += 1
+        self.pub_pose.publish(self.pose_encoder.encode(ns, *true_pose_components(self.space, out)))
+        self.run.published(ns)
         encoder = self.held_encoder or self.state_encoder
         if self.plant.stopped:                    # the status word: braked, and why (also before a step)
             if self.stopped_encoder is None:
@@ -151,14 +142,7 @@ class SimHwNode(Node):
         self.pub_clock.publish(encode_clock(ns))
 
     def publish_diagnostics(self) -> None:
-        out = self.plant.output()
-        level = 2 if self.plant.stopped else 0
-        message = f"stopped: {self.plant.stop_reason}" if self.plant.stopped else "running"
-        values = {"step": out.step, "time_s": out.time_s, "finished": self.finished,
-                  "cause": str(self.plant.stop_cause), "intruder": self.intruder or "none",
-                  "mode": "lockstep" if self.lockstep else "realtime",
-                  "internal_force_norm_n": out.internal_force_norm, "saturated_drives": sum(out.saturated),
-                  "faults": ",".join(out.faults_active) or "none", **self.counts}
+        level, message, values = self.run.diagnostics(self.plant, self.plant.output())
         self.pub_diag.publish(diagnostic_array(ns_to_stamp(self.now_ns()),
                                                [diagnostic_status("sim_hw", level, message, values)]))
 
@@ -171,10 +155,7 @@ class SimHwNode(Node):
         second) and, for most refusals, the machine stopped safely with its cause."""
         if isinstance(refusal, str):
             refusal = Refusal(refusal, TripCause.INPUT_REFUSED)
-        self.counts["refused_loads" if topic == "load" else "refused_commands"] += 1
-        if refusal.cause == TripCause.INTRUDER and not self.intruder:
-            self.intruder = refusal.sender or "unknown"
-        text = f"refused {'load' if topic == 'load' else 'command'}: {refusal.reason}"
+        text = self.run.refused(refusal, topic)
         if refusal.stop:
             self.plant.safe_stop(text, refusal.cause)
         self.refusals.report(refusal, topic, text, self.plant.k, self.now_ns())
@@ -189,12 +170,12 @@ class SimHwNode(Node):
     def on_command_matched(self, status) -> None:
         """A publisher matched drives/command (before its first message is delivered)."""
         self.command_matches = status.current_count
-        if self.started and not self.intruder and not self.finished and status.current_count > 1:
+        if self.started and not self.run.intruder and not self.run.finished and status.current_count > 1:
             self._refuse(self.gate.check_publishers(self.command_publishers()) or Refusal(
                 f"{status.current_count} publishers on drives/command", TripCause.INTRUDER))
 
     def on_command(self, buf: bytes) -> None:
-        if self.finished:
+        if self.run.finished:
             return
         try:
             msg = self.command_decoder.decode(buf)
@@ -206,7 +187,7 @@ class SimHwNode(Node):
         intruder = None if self.started else self.gate.connect(self.command_publishers(), self.command_matches)
         if intruder:                               # braked; lockstep goes on with the answers that come
             self._refuse(intruder)
-        verdict = self.gate.check_stamp(stamp, self.last_published_ns)     # realtime: plant may be ahead
+        verdict = self.gate.check_stamp(stamp, self.run.last_published_ns)     # realtime: plant may be ahead
         if verdict == STALE:
             self.counts["stale_commands"] += 1    # an answer to an older state: not alive
             return
@@ -220,18 +201,18 @@ class SimHwNode(Node):
         self.started = True
         now = time.monotonic()
         self.command_watchdog.feed(now)            # only a fresh command feeds the watchdog
-        if self.first_command_wall is None:
-            self.first_command_wall = now
+        if self.run.first_command_wall is None:
+            self.run.first_command_wall = now
         if not self.lockstep:
-            if self.hold.latch(effort, stamp, self.last_published_ns):
+            if self.hold.latch(effort, stamp, self.run.last_published_ns):
                 self.plant.step(effort)            # the next tick's step, made now; the tick publishes it
             return
         self.advance(effort)
 
     def on_realtime_tick(self) -> None:
-        if not self.started or self.finished:
+        if not self.started or self.run.finished:
             return                                 # held until the controller's first command
-        effort, held, tripped = self.hold.tick(self.last_published_ns)
+        effort, held, tripped = self.hold.tick(self.run.last_published_ns)
         # a miss is a held setpoint of a running plant (not a stopped one's)
         self.counts["deadline_misses"] += held is not None and not self.plant.stopped
         if tripped and not self.plant.stopped:
@@ -263,13 +244,7 @@ class SimHwNode(Node):
             self.finish()
 
     def summary(self) -> dict:
-        wall = time.monotonic() - (self.first_command_wall or time.monotonic())
-        return {"machine": self.config.name, "steps": self.plant.k, "sim_time_s": self.plant.t,
-                "wall_s": wall, "steps_per_s": self.plant.k / wall if wall > 0 else None,
-                "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason,
-                "cause": str(self.plant.stop_cause), "intruder": self.intruder, **self.counts,
-                "published": dict.fromkeys(("drives/state", "platform/true_pose", "/clock"), self.steps_published),
-                "complete": self.finished}
+        return self.run.summary(self.plant, time.monotonic())
 
     def write_summary(self) -> None:
         if self.summary_path:
@@ -278,7 +253,7 @@ class SimHwNode(Node):
 
     def finish(self) -> None:
         """The run is complete: summary, then shut the context down (clean exit 0)."""
-        self.finished = True
+        self.run.finished = True
         self.publish_diagnostics()
         self.get_logger().info(f"run complete: {json.dumps(self.summary())}")
         self.write_summary()
@@ -289,13 +264,13 @@ class SimHwNode(Node):
             self.tap.flush()
 
     def destroy_node(self):
-        if not self.finished and hasattr(self, "steps_published"):
+        if not self.run.finished and hasattr(self, "run"):
             self.write_summary()                   # interrupted: what was done so far
             self.tap.close()
         return super().destroy_node()
 
     def on_watchdog(self) -> None:
-        if self.finished:
+        if self.run.finished:
             return
         silence_s = self.command_watchdog.silence_s(time.monotonic())
         if not self.started:
@@ -306,7 +281,7 @@ class SimHwNode(Node):
             # the repeat is answered again (the controller re-sends its command)
             self.counts["state_repeats"] += 1
             self.publish_state()
-        if self.started and not self.intruder:
+        if self.started and not self.run.intruder:
             intruder = self.gate.check_publishers(self.command_publishers())
             if intruder:
                 self._refuse(intruder)
