@@ -348,8 +348,9 @@ class GoughPlatform:
                             max_iterations)
 
     def _result(self, code, p, rot, iterations, evaluations, residual, jh, max_iterations) -> GoughDKMResult:
-        """The GoughDKMResult of a kernel's solve, its branch checked (``p`` (3,),
-        ``rot`` (9,) its last iterate; the result holds copies of them)."""
+        """The GoughDKMResult of a kernel's solve whose branch the caller has checked
+        (``plate_branch_code``: FK_CONVERGED is a good solve); ``p`` (3,), ``rot`` (9,)
+        its last iterate (the result holds copies of them)."""
         if code == B.FK_CONVERGED:
             return GoughDKMResult(p.copy(), rot.reshape(3, 3).copy(), True, iterations, evaluations, residual, "",
                                   jh)
