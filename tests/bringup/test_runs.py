@@ -479,3 +479,22 @@ def test_a_signal_that_surfaces_as_another_error_still_reads_interrupted(tmp_pat
     monkeypatch.setattr(orchestrator, "run_processes", failing)
     run = run_scenario(load_scenario("archi_demo", {"record": False}), tmp_path / "run2", progress=False)
     assert run["error"] == "RuntimeError: a real defect"
+
+
+def _dds_participant_threads() -> int:
+    """Fast DDS's event threads of this process (one per participant: 'dds.ev.<n>')."""
+    names = (Path(f"/proc/self/task/{t}/comm").read_text().strip() for t in os.listdir("/proc/self/task"))
+    return sum(name.startswith("dds.ev.") for name in names)
+
+
+def test_an_in_process_run_leaves_no_dds_participant_behind(tmp_path):
+    """A run's DDS participant ends with the run: left to the garbage collector, it
+    lived on into the next run of the process (a gallery, a study, a test worker) and
+    met the next run's participant."""
+    import gc
+    gc.collect()                       # what earlier tests of this worker left to the collector
+    before = _dds_participant_threads()
+    run = run_scenario(load_scenario("mom3_square", {"duration_s": 0.05, "record": False}), tmp_path / "run",
+                       in_process=True, progress=False, report=False)
+    assert run["status"] == "completed", run["error"]
+    assert _dds_participant_threads() == before

@@ -97,6 +97,22 @@ class Progress:
             self.stream.write("\n")
 
 
+def end_context(context) -> None:
+    """Shut ``context`` down, destroy it and collect what held it: its DDS participant
+    (threads, sockets) goes with the run. Shut down only, it lived on until a garbage
+    collection, in a process of many runs (a gallery, a study, a test worker) the one
+    at the next run's start, after the next run's participant had met it. That overlap
+    is the likely cause of a suite's in-process run whose plant refused "a second
+    /pkm/controller" on drives/command at its first command (not reproduced in 17
+    runs of the same pair of experiments)."""
+    import gc
+
+    import rclpy
+    rclpy.try_shutdown(context=context)
+    context.destroy()
+    gc.collect()
+
+
 def _monitor(context, namespace: str):
     """A small node of the orchestrator: simulated time (progress), the end of the
     loop and graph checks. It follows the sim's diagnostics (1 Hz and a last one when
@@ -318,7 +334,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes]))
         executor.shutdown()
         monitor.destroy_node()
-        rclpy.try_shutdown(context=context)
+        end_context(context)
     return codes
 
 
@@ -405,7 +421,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
         with _signals_ignored():
             close(STOP_ORDER)
         executor.shutdown()
-        rclpy.try_shutdown(context=context)
+        end_context(context)
     codes.update({name: 0 for name in params})
     return codes
 
