@@ -186,20 +186,52 @@ def ros_graph(request, ros_context):
         graph.close()
 
 
-# --- realtime graphs one at a time ---------------------------------------------
-@pytest.fixture
-def realtime_loop_alone():
-    """Holds an exclusive lock (flock, released by the kernel even after a crash) while
-    a test runs a graph with the realtime profile: two SCHED_FIFO loops on the two
-    workers of the suite share two cores, each starves the other's, and a run that
-    keeps its deadlines alone tripped on following error (485 of 2000 deadlines missed
-    beside the hexapod panel's loop). A test waiting for it leaves its core to the other."""
-    import fcntl
+# --- realtime graphs alone on the machine ---------------------------------------
+# A realtime graph's deadlines are 1 ms: it must not share the two cores with the other
+# worker's tests. Every other test holds _REALTIME_LOCK shared, a realtime test holds it
+# exclusive. A turnstile lets the realtime test through: while it waits for the running
+# tests to end, the next ones wait at the turnstile (flock would let shared holders
+# overtake a waiting exclusive one for ever).
+_REALTIME_LOCK = "pkm-tests-realtime-loop.lock"
+_TURNSTILE = "pkm-tests-realtime-turnstile.lock"
+
+
+def _lock_path(name: str) -> str:
     import os
     import tempfile
-    path = os.path.join(tempfile.gettempdir(), "pkm-tests-realtime-loop.lock")
-    with open(path, "a") as handle:
+    return os.path.join(tempfile.gettempdir(), name)
+
+
+@pytest.fixture(autouse=True)
+def _no_realtime_loop_beside(request):
+    """Every test but a realtime one holds the realtime lock shared (see above)."""
+    if "realtime_loop_alone" in request.fixturenames:
+        yield                  # takes it exclusive itself (flock: another descriptor would deadlock)
+        return
+    import fcntl
+    with open(_lock_path(_TURNSTILE), "a") as turnstile, open(_lock_path(_REALTIME_LOCK), "a") as handle:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(handle, fcntl.LOCK_SH)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@pytest.fixture
+def realtime_loop_alone():
+    """Holds the realtime lock exclusive (flock, released by the kernel even after a
+    crash) while a test runs a graph with the realtime profile: no other test of the
+    suite runs meanwhile. Two SCHED_FIFO loops on the two workers starve each other (a
+    run that keeps its deadlines alone tripped on following error, 485 of 2000
+    deadlines missed beside the hexapod panel's loop), and beside the other worker's
+    graphs a realtime run missed 338 of 2000 and tripped."""
+    import fcntl
+    with open(_lock_path(_TURNSTILE), "a") as turnstile, open(_lock_path(_REALTIME_LOCK), "a") as handle:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
         fcntl.flock(handle, fcntl.LOCK_EX)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
         try:
             yield
         finally:
