@@ -702,19 +702,23 @@ def forward_kinematics_kernel(bars, q, p, rot, tol_m, max_iterations, divergence
     return code, iterations, misfit
 
 
-@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64[:, :], float64, int64, "
-        "float64)")
-def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, tol_m, max_iterations, divergence_limit):
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64[:, :], boolean, float64, "
+        "int64, float64)")
+def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, rows_each_pass, tol_m, max_iterations,
+                                    divergence_limit):
     """``forward_kinematics_kernel`` for six bars with chord steps, the solver of a
     stream of small moves (the Gough metrology's DKM, MoM3 §6.3): Newton on
     r_k = l_k - |e_k|, the step [dp; dw] = J_h r, p += dp, R <- exp([dw]x) R, with
     J_h (``jh``, valid when ``have_jh``; ``pose_from_lengths_jacobian_into``) kept
     from earlier steps and solves and re-evaluated only when an iteration gains less
     than three orders of magnitude. ``p`` (3,), ``rot`` (9, row-major) and ``jh``
-    (6, 6) are updated in place; ``rows`` (6, 6) ends holding the unit pose Jacobian
-    J_h^-1 at the returned pose, but after FK_SINGULAR (``unit_row``: each pass makes
-    the residuals and the rows together, so that an evaluation of J_h and a caller's
-    branch check need no pass of their own). Returns (code, iterations, evaluations, residual,
+    (6, 6) are updated in place. ``rows`` (6, 6): the unit pose Jacobian J_h^-1 that
+    an evaluation of J_h inverts. With ``rows_each_pass`` every pass makes the
+    residuals and the rows together (``unit_row``), and ``rows`` ends holding J_h^-1
+    at the returned pose (but after FK_SINGULAR): for solves that evaluate J_h and
+    have their branch checked anyway (a batch, a cold start), no pass of their own.
+    Without, a pass makes the rows only where J_h is evaluated (a warm stream: most
+    solves keep J_h, and the rows would double a pass's cost). Returns (code, iterations, evaluations, residual,
     have_jh): FK_CONVERGED (every |r_k| <= tol_m), FK_NO_CONVERGENCE, FK_DIVERGED
     (a residual above ``divergence_limit``), FK_STALLED (it grew twice in a row),
     FK_SINGULAR (J_h has no inverse, or there are not six bars)."""
@@ -731,9 +735,14 @@ def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, tol_m, m
     iterations = max_iterations
     for iteration in range(max_iterations + 1):
         residual = 0.0
+        with_rows = rows_each_pass or not have_jh          # (without J_h this pass evaluates it)
         for k in range(6):
-            length, rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3], rows[k, 4], rows[k, 5] = \
-                unit_row(bars, k, px, py, pz, r, q)
+            if with_rows:
+                length, rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3], rows[k, 4], rows[k, 5] = \
+                    unit_row(bars, k, px, py, pz, r, q)
+            else:
+                ex, ey, ez, _, _, _ = bar_vector(bars, k, px, py, pz, r, q)
+                length = math.sqrt(ex * ex + ey * ey + ez * ez)
             res[k] = bar_length(bars, k, q) - length
             if not abs(res[k]) <= residual:       # (NaN propagates)
                 residual = abs(res[k])
@@ -753,6 +762,9 @@ def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, tol_m, m
             evaluations += 1
             # J_h = (J_h^-1)^-1 (pose_from_lengths_jacobian_into) of this pass's rows; a
             # bar of zero length has a zero row: singular too
+            if not with_rows and not unit_pose_jacobian_into(bars, px, py, pz, r, q, rows):
+                code, iterations = FK_SINGULAR, iteration
+                break
             if not invert6_into(rows, jh):
                 code, iterations = FK_SINGULAR, iteration
                 break

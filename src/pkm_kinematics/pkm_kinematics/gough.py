@@ -110,14 +110,15 @@ def dkm_warm_step_kernel(bars, target, p1, r1, p0, r0, has_previous, jh, have_jh
     else:
         p[:] = p1
         rot[:] = r1
-    return B.chord_forward_kinematics_kernel(bars, target, p, rot, jh, have_jh, rows, tol_m, max_iterations,
+    return B.chord_forward_kinematics_kernel(bars, target, p, rot, jh, have_jh, rows, False, tol_m, max_iterations,
                                              divergence_limit)
 
 
-@kernel("(float64[:], float64[:], float64[:, :], int64, int64, float64)")
-def plate_branch_code(p, rot, rows, evaluations, iterations, home_det_sign):
-    """The branch checks of a converged solve at the plate's pose ``p``, ``rot`` (9,
-    row-major), ``rows`` the unit pose Jacobian J_h^-1 there (overwritten):
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, int64, int64, float64)")
+def plate_branch_code(bars, lengths, p, rot, rows, rows_valid, evaluations, iterations, home_det_sign):
+    """The branch checks of a converged solve of the strut ``lengths`` at the plate's
+    pose ``p``, ``rot`` (9, row-major); ``rows``: the unit pose Jacobian J_h^-1 there
+    when ``rows_valid`` (else made here when the check needs it; overwritten):
     DKM_MIRROR unless the plate is above the base plane and not flipped; for a solve
     that travelled (re-linearised, or more than two steps) DKM_OTHER_MODE unless
     det(J_h^-1) has the sign it has at home (a path between assembly modes crosses a
@@ -125,8 +126,12 @@ def plate_branch_code(p, rot, rows, evaluations, iterations, home_det_sign):
     FK_CONVERGED."""
     if not (p[2] > 0.0 and rot[8] > 0.0):
         return DKM_MIRROR
-    if (evaluations > 0 or iterations > 2) and not B.determinant6(rows) * home_det_sign > 0.0:
-        return DKM_OTHER_MODE
+    if evaluations > 0 or iterations > 2:
+        if not rows_valid:
+            B.unit_pose_jacobian_into(bars, p[0], p[1], p[2], (rot[0], rot[1], rot[2], rot[3], rot[4], rot[5],
+                                                               rot[6], rot[7], rot[8]), lengths, rows)
+        if not B.determinant6(rows) * home_det_sign > 0.0:
+            return DKM_OTHER_MODE
     return B.FK_CONVERGED
 
 
@@ -143,8 +148,8 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
         p[:] = guess_p[n]
         rot[:] = guess_r[n]
         code, its, evaluations, _, _ = B.chord_forward_kinematics_kernel(bars, lengths[n], p, rot, jh, False, rows,
-                                                                         tol_m, max_iterations, divergence_limit)
-        good = code == B.FK_CONVERGED and plate_branch_code(p, rot, rows, evaluations, its,
+                                                                         True, tol_m, max_iterations, divergence_limit)
+        good = code == B.FK_CONVERGED and plate_branch_code(bars, lengths[n], p, rot, rows, True, evaluations, its,
                                                              home_det_sign) == B.FK_CONVERGED
         ok[n] = good
         iterations[n] = its
@@ -181,7 +186,7 @@ def dkm_solve_kernel(bars, target, state, flags, tol_m, max_iterations, divergen
         bars, target, p1, r1, p0, r0, has_previous, jh, flags[1] != 0, rows, tol_m, max_iterations, divergence_limit,
         p, rot)
     if code == B.FK_CONVERGED:
-        code = plate_branch_code(p, rot, rows, evaluations, iterations, home_det_sign)
+        code = plate_branch_code(bars, target, p, rot, rows, False, evaluations, iterations, home_det_sign)
     if code == B.FK_CONVERGED:
         flags[1] = 1 if have else 0
         B.advance_warm_state(state, p, rot, has_previous)
@@ -339,11 +344,13 @@ class GoughPlatform:
         have = jh is not None
         jh_a = np.array(jh, dtype=float) if have else np.empty((6, 6))
         rows = np.empty((6, 6))
+        target_a = np.asarray(target, dtype=float)
         code, iterations, evaluations, residual, have = B.chord_forward_kinematics_kernel(
-            self.bars, np.asarray(target, dtype=float), p_a, rot_a, jh_a, have, rows, float(tol_m),
-            int(max_iterations), self._divergence_limit)
+            self.bars, target_a, p_a, rot_a, jh_a, have, rows, True, float(tol_m), int(max_iterations),
+            self._divergence_limit)
         if code == B.FK_CONVERGED:
-            code = plate_branch_code(p_a, rot_a, rows, evaluations, iterations, self._home_det_sign)
+            code = plate_branch_code(self.bars, target_a, p_a, rot_a, rows, True, evaluations, iterations,
+                                     self._home_det_sign)
         return self._result(code, p_a, rot_a, iterations, evaluations, residual, jh_a if have else None,
                             max_iterations)
 
