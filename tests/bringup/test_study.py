@@ -241,6 +241,9 @@ def test_a_study_on_a_scheduler_with_two_workers_survives_a_killed_worker(tmp_pa
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                           start_new_session=True))
         address = json.loads(scheduler_file.read_text())["address"]
+        from distributed import Client
+        with Client(address, timeout=60) as client:    # both workers up before the study: on a loaded
+            client.wait_for_workers(2, timeout=120)      # machine one came late and did no run at all
         out = tmp_path / "out"
         killed = []
 
