@@ -160,7 +160,7 @@ def dkm_batch_kernel(bars, lengths, guess_p, guess_r, tol_m, max_iterations, div
 
 # GoughDKMSolver's state, one array: a warm state (bars.WARM_*: the last good pose
 # (p1, R1), the one before (p0, R0)), then J_h of the last linearisation, then the
-# solve's scratch (the unit pose Jacobian of its last pass); flags: (has_previous, have_jh)
+# solve's scratch for the unit pose Jacobian J_h^-1; flags: (has_previous, have_jh)
 _P1, _R1, _P0, _R0, _JH = B.WARM_P1, B.WARM_R1, B.WARM_P0, B.WARM_R0, B.WARM_STATE_SIZE
 _ROWS = _JH + 36
 STATE_SIZE = _ROWS + 36
