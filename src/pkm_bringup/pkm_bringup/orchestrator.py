@@ -257,8 +257,6 @@ def _in_process_profile(s: Scenario, in_process: bool):
 def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
     """The scenario as separate processes; fills and returns ``codes`` (exit codes).
     Raises RunFailed."""
-    import rclpy
-
     from pkm_bringup.processes import start_node, stop_nodes
     context = init_context()
     from rclpy.experimental import EventsExecutor
@@ -340,7 +338,6 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
 
 def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
     """The scenario with every node in one EventsExecutor (same parameters)."""
-    import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
