@@ -18,6 +18,7 @@ Fixtures:
   always driven by ``spin_once(timeout_sec=...)``; its ``spin()`` hangs).
 """
 
+import contextlib
 import threading
 import time
 
@@ -202,6 +203,21 @@ def _lock_path(name: str) -> str:
     return os.path.join(tempfile.gettempdir(), name)
 
 
+@contextlib.contextmanager
+def _realtime_lock(mode: int):
+    """The realtime lock held in ``mode`` (fcntl.LOCK_SH or LOCK_EX), taken through
+    the turnstile."""
+    import fcntl
+    with open(_lock_path(_TURNSTILE), "a") as turnstile, open(_lock_path(_REALTIME_LOCK), "a") as handle:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(handle, mode)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 @pytest.fixture(autouse=True)
 def _no_realtime_loop_beside(request):
     """Every test but a realtime one holds the realtime lock shared (see above)."""
@@ -209,14 +225,8 @@ def _no_realtime_loop_beside(request):
         yield                  # takes it exclusive itself (flock: another descriptor would deadlock)
         return
     import fcntl
-    with open(_lock_path(_TURNSTILE), "a") as turnstile, open(_lock_path(_REALTIME_LOCK), "a") as handle:
-        fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(handle, fcntl.LOCK_SH)
-        fcntl.flock(turnstile, fcntl.LOCK_UN)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with _realtime_lock(fcntl.LOCK_SH):
+        yield
 
 
 @pytest.fixture
@@ -228,11 +238,5 @@ def realtime_loop_alone():
     deadlines missed beside the hexapod panel's loop), and beside the other worker's
     graphs a realtime run missed 338 of 2000 and tripped."""
     import fcntl
-    with open(_lock_path(_TURNSTILE), "a") as turnstile, open(_lock_path(_REALTIME_LOCK), "a") as handle:
-        fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        fcntl.flock(turnstile, fcntl.LOCK_UN)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with _realtime_lock(fcntl.LOCK_EX):
+        yield

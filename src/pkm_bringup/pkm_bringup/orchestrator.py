@@ -423,20 +423,29 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     return codes
 
 
-class _signals_ignored:
-    """SIGINT/SIGTERM ignored inside the block (main thread only)."""
+class _stop_signals:
+    """SIGINT and SIGTERM handled by ``handler`` inside the block, the handlers before
+    put back after it (main thread only; elsewhere nothing changes)."""
+
+    def __init__(self, handler):
+        self.handler = handler
 
     def __enter__(self):
         import threading
         self.saved = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
-                self.saved[sig] = signal.signal(sig, signal.SIG_IGN)
+                self.saved[sig] = signal.signal(sig, self.handler)
         return self
 
     def __exit__(self, *exc):
         for sig, handler in self.saved.items():
             signal.signal(sig, handler)
+
+
+def _signals_ignored() -> _stop_signals:
+    """SIGINT/SIGTERM ignored inside the block (main thread only)."""
+    return _stop_signals(signal.SIG_IGN)
 
 
 def _read_json(path: Path) -> dict:
@@ -606,28 +615,19 @@ def _interrupt(*_):
     raise KeyboardInterrupt
 
 
-class _Interruption:
+class _Interruption(_stop_signals):
     """Ctrl-C and SIGTERM raise KeyboardInterrupt inside the block, as
     ``signalled`` records (main thread only; elsewhere the handlers stay as they are
     and nothing is recorded)."""
 
     signalled = False
 
-    def __enter__(self):
-        import threading
-        self.saved = {}
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.saved[sig] = signal.signal(sig, self._raise)
-        return self
+    def __init__(self):
+        super().__init__(self._raise)
 
     def _raise(self, *_):
         self.signalled = True
         raise KeyboardInterrupt
-
-    def __exit__(self, *exc):
-        for sig, handler in self.saved.items():
-            signal.signal(sig, handler)
 
 
 def main(argv=None) -> int:
