@@ -195,12 +195,12 @@ def unit_pose_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
 
 
 @kernel()
-def pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, out) -> bool:
+def pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, out, rows) -> bool:
     """The inverse of the 6 x 6 unit pose Jacobian into ``out``: the platform's twist
     per unit rate of six bar lengths, t = J_h l' (MoM3 eq. 1, J_h = (J_h^-1)^-1 with
-    J_h^-1 the rows of ``unit_pose_jacobian_into``, eq. 2-3), by Gauss-Jordan
-    (``invert6_into``). False where a bar has zero length or the rows are singular."""
-    rows = np.empty((6, 6))
+    J_h^-1 the rows of ``unit_pose_jacobian_into``, eq. 2-3, made in ``rows`` (6, 6),
+    a scratch), by Gauss-Jordan (``invert6_into``). False where a bar has zero length
+    or the rows are singular."""
     if not unit_pose_jacobian_into(bars, px, py, pz, r, q, rows):
         return False
     return invert6_into(rows, out)
@@ -760,12 +760,10 @@ def chord_forward_kinematics_kernel(bars, q, p, rot, jh, have_jh, rows, rows_eac
             break
         if not have_jh or residual > 1e-3 * previous:
             evaluations += 1
-            # J_h = (J_h^-1)^-1 (pose_from_lengths_jacobian_into) of this pass's rows; a
-            # bar of zero length has a zero row: singular too
-            if not with_rows and not unit_pose_jacobian_into(bars, px, py, pz, r, q, rows):
-                code, iterations = FK_SINGULAR, iteration
-                break
-            if not invert6_into(rows, jh):
+            # J_h = (J_h^-1)^-1: of the rows this pass made (a bar of zero length has a
+            # zero row: singular too), or made now
+            if not (invert6_into(rows, jh) if with_rows else
+                    pose_from_lengths_jacobian_into(bars, px, py, pz, r, q, jh, rows)):
                 code, iterations = FK_SINGULAR, iteration
                 break
             have_jh = True
