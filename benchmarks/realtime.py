@@ -12,6 +12,13 @@ ratio with / without, the hypervisor's CPU steal of each run; per rate: the medi
 ratio and the pooled miss rates (all misses over all steps). Rates: 1 kHz (dt 1 ms) and
 2 kHz (dt 0.5 ms).
 
+After each pair, the machine's floor in the same minutes (benchmarks/rt_floor.py, with
+the profile's scheduling, as many periods as the graph's run steps): ``timer``, the
+deadlines a bare SCHED_FIFO sleeper misses (woken more than a period late), and
+``chain``, the misses of the graph's three-process path (plant -> sensor -> controller
+-> plant) forwarding messages with no work (as processes only). A graph cannot do
+better than its floor: judge a target against it (``--no-floor`` leaves it out).
+
 Each run is the scenario's program (archi_demo: ~5 s of motion, plus ~15 s of start-up
 and shutdown): ``--pairs 3`` (default) and both rates take ~4-5 minutes.
 
@@ -35,6 +42,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from hoststat import CpuSteal  # noqa: E402  (benchmarks/hoststat.py)
+from rt_floor import Floor, chain_floor, timer_floor  # noqa: E402  (benchmarks/rt_floor.py)
 
 
 @dataclass(frozen=True)
@@ -90,6 +98,25 @@ def _status(r: RunResult, label: str) -> str:
     return "" if r.status == "completed" else f"  ({label} {r.status})"
 
 
+def _floor(f: Floor | None) -> str:
+    return "-" if f is None else _pct(f.misses, f.steps)
+
+
+def _pooled(results: list) -> str:
+    """All misses over all steps of ``results`` (RunResult or Floor; None: not measured)."""
+    results = [r for r in results if r is not None]
+    misses, steps = sum(r.misses for r in results), sum(r.steps for r in results)
+    return f"{misses} / {steps} = {100.0 * misses / steps:5.2f} %" if steps else "-"
+
+
+def measure_floors(rate: float, steps: int, args) -> tuple[Floor | None, Floor | None]:
+    """The machine's floors over ``steps`` periods, right after a pair: the bare timer,
+    and the three-process chain (a graph of processes only; None: not measured)."""
+    if args.no_floor:
+        return None, None
+    return timer_floor(rate, steps), None if args.in_process else chain_floor(rate, steps)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pairs", type=int, default=3, help="pairs (without, with) per rate (default 3)")
@@ -97,6 +124,7 @@ def main(argv=None) -> int:
     parser.add_argument("--scenario", default="archi_demo")
     parser.add_argument("--duration-s", type=float, default=0.0, help="simulated time (0: the program's)")
     parser.add_argument("--in-process", action="store_true", help="one process (the profile on all of it)")
+    parser.add_argument("--no-floor", action="store_true", help="leave out the machine's floor (rt_floor.py)")
     args = parser.parse_args(argv)
     from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
     try:
@@ -107,35 +135,37 @@ def main(argv=None) -> int:
     rates = [float(r) for r in args.rates.split(",") if r.strip()]
     mode = "in one process" if args.in_process else "as processes"
     print(f"{args.scenario}, mode: realtime, {mode}; {args.pairs} pairs per rate (without, then with the profile)")
-    header = (f"{'rate':>6} {'pair':>4} {'steps':>6} {'misses without':>17} {'misses with':>17} {'ratio':>6}"
-              f"   steal % (without, with)")
+    header = (f"{'rate':>6} {'pair':>4} {'steps':>6} {'floor: timer':>14} {'floor: chain':>14}"
+              f" {'misses without':>17} {'misses with':>17} {'ratio':>6}   steal % (without, with)")
     print(header)
     print("-" * len(header))
     summaries = []
     start = time.monotonic()
     for rate in rates:
-        pairs = []
+        pairs, floor_pairs = [], []
         for k in range(args.pairs):
             without = run_once(args.scenario, 1.0 / rate, False, args.duration_s, args.in_process)
             with_profile = run_once(args.scenario, 1.0 / rate, True, args.duration_s, args.in_process)
+            floors = measure_floors(rate, max(without.steps, with_profile.steps), args)
             pairs.append((without, with_profile))
+            floor_pairs.append(floors)
             r = ratio(with_profile, without)
-            print(f"{rate:6.0f} {k + 1:4d} {without.steps:6d} {_pct(without.misses, without.steps):>17}"
+            print(f"{rate:6.0f} {k + 1:4d} {without.steps:6d} {_floor(floors[0]):>14} {_floor(floors[1]):>14}"
+                  f" {_pct(without.misses, without.steps):>17}"
                   f" {_pct(with_profile.misses, with_profile.steps):>17} {r:6.3f}   "
                   f"{_steal(without)}, {_steal(with_profile)}{_status(without, 'without:')}"
                   f"{_status(with_profile, 'with:')}",
                   flush=True)
         ratios = [ratio(b, a) for a, b in pairs]
         finite = [r for r in ratios if not math.isnan(r)]
-        steps_a, steps_b = sum(a.steps for a, _ in pairs), sum(b.steps for _, b in pairs)
-        misses_a, misses_b = sum(a.misses for a, _ in pairs), sum(b.misses for _, b in pairs)
         summaries.append((rate, statistics.median(finite) if finite else math.nan,
-                          misses_a, steps_a, misses_b, steps_b))
+                          _pooled([a for a, _ in pairs]), _pooled([b for _, b in pairs]),
+                          _pooled([f[0] for f in floor_pairs]), _pooled([f[1] for f in floor_pairs])))
     print()
-    print(f"{'rate':>6} {'median ratio':>12} {'pooled without':>24} {'pooled with':>24}")
-    for rate, median, misses_a, steps_a, misses_b, steps_b in summaries:
-        print(f"{rate:6.0f} {median:12.3f} {misses_a:>7d} / {steps_a:6d} = {100.0 * misses_a / steps_a:5.2f} %"
-              f" {misses_b:>7d} / {steps_b:6d} = {100.0 * misses_b / steps_b:5.2f} %")
+    print(f"{'rate':>6} {'median ratio':>12} {'pooled without':>24} {'pooled with':>24}"
+          f" {'floor: timer':>24} {'floor: chain':>24}")
+    for rate, median, *pooled in summaries:
+        print(f"{rate:6.0f} {median:12.3f} " + " ".join(f"{p:>24}" for p in pooled))
     print(f"({time.monotonic() - start:.0f} s)")
     return 0
 

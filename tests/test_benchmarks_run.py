@@ -24,6 +24,7 @@ SMALL = {
     "lockstep_echo.py": ([], "steps/s"),
     "report_memory.py": (["--seconds", "0.5"], "MiB"),
     "realtime.py": (["--pairs", "1", "--rates", "1000", "--duration-s", "0.3", "--in-process"], "ratio"),
+    "rt_floor.py": (["--steps", "200"], "chain floor:"),
     "study.py": (["--runs", "3", "--duration-s", "0.2", "--variants", "2000", "--workers", "1"], "Pareto front"),
     "bringup.py": (["--windows-only", "--window-modes", "in-process", "--window-runs", "1",
                     "--window-length-s", "6"], "in-process"),
@@ -35,9 +36,23 @@ def test_every_benchmark_is_listed():
     assert found == set(SMALL), found ^ set(SMALL)
 
 
+# SCHED_FIFO loops (the realtime profile): alone on the machine (conftest.realtime_loop_alone)
+REALTIME = {"realtime.py", "rt_floor.py"}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(SMALL))
+@pytest.mark.parametrize("name", sorted(set(SMALL) - REALTIME))
 def test_the_benchmark_runs(name):
+    _runs(name)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(REALTIME))
+def test_the_realtime_benchmark_runs(name, realtime_loop_alone):
+    _runs(name)
+
+
+def _runs(name):
     args, expected = SMALL[name]
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / name), *args], cwd=ROOT, capture_output=True,
                          text=True, timeout=240)
