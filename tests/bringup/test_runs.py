@@ -20,21 +20,15 @@ from pkm_kinematics.task_space import POSITION
 from pkm_bringup.orchestrator import EXIT_CODES, run_scenario
 from pkm_bringup.replay import replay_controller
 from pkm_bringup.scenario import load_scenario
+from terminal import default_sigint      # tests/bringup/terminal.py
 
 SHORT = {"duration_s": 0.8}          # MoM3 square (sensor space, 110 N from 0.3 s), first 0.8 s
-
-
-def _default_sigint() -> None:
-    # as started from a terminal: a shell without job control starts background jobs
-    # with SIGINT ignored, and Python keeps an ignored SIGINT ignored (no
-    # KeyboardInterrupt), so a suite run in the background would not test Ctrl-C
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _pkm_run(*args, **kwargs):
     return subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", *args, "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            preexec_fn=_default_sigint, **kwargs)
+                            preexec_fn=default_sigint, **kwargs)
 
 
 def _leftovers(run_dir: Path) -> list[str]:

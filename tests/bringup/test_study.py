@@ -20,6 +20,7 @@ import yaml
 
 from pkm_bringup.study import StudyError, load_study, scenario_overrides
 from pkm_bringup.study_tables import summarise
+from terminal import default_sigint      # tests/bringup/terminal.py
 
 BIN = Path(sys.executable).parent
 
@@ -190,7 +191,7 @@ def test_an_interrupted_study_resumes_running_only_what_is_missing(tmp_path):
     out = tmp_path / "out"
     cmd = [str(BIN / "pkm-study"), str(path), "--out", str(out), "--workers", "2", "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=default_sigint)
     try:
         _wait_for(lambda: len(_results(out)) >= 1 or proc.poll() is not None, 120, "a first row")
         os.killpg(proc.pid, signal.SIGINT)                 # Ctrl-C at a terminal: the whole group
