@@ -14,16 +14,17 @@ ratio and the pooled miss rates (all misses over all steps). Rates: 1 kHz (dt 1 
 
 After each pair, the machine's floor in the same minutes (benchmarks/rt_floor.py, with
 the profile's scheduling, as many periods as the graph's run steps): ``timer``, the
-deadlines a bare SCHED_FIFO sleeper misses (woken more than a period late), and
-``chain``, the misses of the graph's three-process path (plant -> sensor -> controller
--> plant) forwarding messages with no work (as processes only). A graph cannot do
-better than its floor: judge a target against it (``--no-floor`` leaves it out).
+wake-ups of a bare SCHED_FIFO sleeper more than a period late, and ``chain``, the
+misses of the graph's three-process path (plant -> sensor -> controller -> plant)
+forwarding messages with no work (as processes only). A graph of processes cannot do
+better than its chain floor: judge a target against it (``--no-floor`` leaves it out).
 
 Each run is the scenario's program (archi_demo: ~5 s of motion, plus ~15 s of start-up
-and shutdown): ``--pairs 3`` (default) and both rates take ~4-5 minutes.
+and shutdown), and the floors take ~20 s a pair: ``--pairs 3`` (default) and both rates
+take ~6 minutes.
 
 Usage: python benchmarks/realtime.py [--pairs 3] [--rates 1000,2000] [--scenario archi_demo]
-       [--duration-s 0] [--in-process]
+       [--duration-s 0] [--in-process] [--no-floor]
 
 Needs what the profile needs (root, or CAP_SYS_NICE and CAP_IPC_LOCK); where the OS
 refuses it the benchmark says why and exits 0 (``make bench`` goes on).

@@ -1,13 +1,16 @@
 """The machine's realtime floor: how many 1/rate deadlines a loop that does no work at
-all misses on this machine, with the realtime profile's scheduling. A graph cannot miss
-fewer than the floor of its own topology, so a miss-rate target is judged against it.
+all misses on this machine, with the realtime profile's scheduling. A graph of the same
+shape (rclpy over Fast DDS, one message a hop) cannot miss fewer than its chain floor,
+so a miss-rate target is judged against it.
 
 Two floors, each in processes of their own (SCHED_FIFO as pkm_bringup.rt_profile.PROFILE
 says, memory locked):
 
 - **timer**: one thread at the controller's priority sleeps to each period boundary
-  (absolute times, as cyclictest) and counts the wake-ups later than one period. Such a
-  wake-up is a missed deadline of a loop of one process that computes nothing.
+  (absolute times, as cyclictest) and counts the wake-ups later than one period; after
+  one, it goes on at the next boundary still ahead, as an rcl timer skips the periods
+  it missed (one stall, one count). This is the wake-up lateness of the machine, what
+  every hop of a graph pays, not sim_hw's rule.
 - **chain**: the graph's critical path without its work: a plant process (sim_hw's
   priority, a wall timer every period, publishing a 6-joint JointState as bytes), a
   sensor process (gough_sensor's priority) that forwards it, and a controller process
@@ -15,7 +18,7 @@ says, memory locked):
   QoS, EventsExecutor and runner. A tick whose command did not answer the previous state
   is a miss: sim_hw's rule.
 
-Run by benchmarks/realtime.py before each pair of graph runs. Alone:
+Run by benchmarks/realtime.py after each pair of graph runs. Alone:
 
     .venv/bin/python benchmarks/rt_floor.py [--rate 1000] [--steps 5000]
 
@@ -28,6 +31,7 @@ import argparse
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,7 +61,7 @@ def _timer(rate: float, steps: int) -> None:
         while (now := time.clock_gettime_ns(time.CLOCK_MONOTONIC)) < deadline:
             time.sleep((deadline - now) * 1e-9)
         late += now - deadline > period
-        deadline += period
+        deadline += period * (1 + (now - deadline) // period)     # the next boundary ahead
     print(f"floor steps {steps} misses {late}", flush=True)
 
 
@@ -67,7 +71,7 @@ def _chain_node(role: str, rate: float, steps: int):
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
-    from pkm_common.cdr import JointStateDecoder, JointStateEncoder
+    from pkm_common.cdr import JointStateEncoder, stamp_ns_of
     from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 
     topics = {"gough_sensor": ("floor/state", "floor/readings"), "controller": ("floor/readings", "floor/command")}
@@ -84,14 +88,14 @@ def _chain_node(role: str, rate: float, steps: int):
             super().__init__("floor_sim_hw", context=context)
             self.pub = self.create_publisher(JointState, "floor/state", STREAM_PUBLISHER_QOS)
             self.create_subscription(JointState, "floor/command", self.on_command, STREAM_QOS, raw=True)
-            self.encoder, self.decoder = JointStateEncoder(NAMES), JointStateDecoder("floor/command")
+            self.encoder = JointStateEncoder(NAMES)
             self.dt_ns = round(1e9 / rate)
             self.k, self.started, self.answered, self.misses = 0, False, False, 0
             self.zeros = [0.0] * len(NAMES)
             self.create_timer(1.0 / rate, self.on_tick)
 
         def on_command(self, buf: bytes) -> None:
-            if self.decoder.decode(buf).stamp_ns == self.k * self.dt_ns:
+            if stamp_ns_of(buf) == self.k * self.dt_ns:
                 self.answered = self.started = True
 
         def on_tick(self) -> None:
@@ -116,39 +120,62 @@ def _child(role: str, rate: float, steps: int) -> int:
     return run_node(_chain_node(role, rate, steps), args=[], executor="events", name=role)
 
 
-def _popen(role: str, rate: float, steps: int, env: dict) -> subprocess.Popen:
+def _start(role: str, rate: float, steps: int, log_dir: Path):
+    """A child of the floor at the profile's scheduling, its output in ``log_dir``; it
+    dies with this process (PR_SET_PDEATHSIG), as a graph's nodes do."""
+    from pkm_bringup.processes import NodeProcess, die_with_parent
     from pkm_bringup.rt_profile import child_environment, preexec, scheduling
     s = scheduling("controller" if role == "timer" else role)
-    return subprocess.Popen([sys.executable, __file__, "--child", role, "--rate", str(rate), "--steps", str(steps)],
-                            env=child_environment(env, s), preexec_fn=preexec(s), stdout=subprocess.PIPE, text=True)
+    log = log_dir / f"{role}.log"
+    with log.open("w") as out:
+        popen = subprocess.Popen([sys.executable, __file__, "--child", role, "--rate", str(rate), "--steps",
+                                  str(steps)], env=child_environment(dict(os.environ), s), stdout=out,
+                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                 preexec_fn=preexec(s, before=die_with_parent))
+    return NodeProcess(role, popen, log)
 
 
-def _result(line: str) -> Floor:
-    words = line.split()                      # "floor steps S misses M"
-    return Floor(int(words[2]), int(words[4]))
+def _measure(roles: tuple[str, ...], rate: float, steps: int) -> Floor:
+    """Start ``roles`` in order; the last one counts and prints. Fails (RuntimeError,
+    with the output) when a child exits early or the count does not end in time;
+    every child is stopped however it ends."""
+    from pkm_bringup.processes import stop_nodes
+    with tempfile.TemporaryDirectory(prefix="rt_floor_") as tmp:
+        children = []
+        try:
+            for role in roles:
+                children.append(_start(role, rate, steps, Path(tmp)))
+            counter, deadline = children[-1], time.monotonic() + steps / rate + 120
+            while counter.running():
+                early = [c for c in children[:-1] if not c.running()]
+                if early or time.monotonic() > deadline:
+                    what = f"{early[0].name} exited ({early[0].popen.returncode})" if early else "timed out"
+                    raise RuntimeError(f"floor {'/'.join(roles)}: {what}:\n" + _output(children))
+                time.sleep(0.05)
+        finally:
+            stop_nodes(children, timeout_s=10.0, together=True)
+        lines = [line for line in counter.log.read_text(errors="replace").splitlines()
+                 if line.startswith("floor steps")]
+        if counter.popen.returncode != 0 or not lines:
+            raise RuntimeError(f"floor {counter.name} exited {counter.popen.returncode}:\n" + _output(children))
+        words = lines[-1].split()                 # "floor steps S misses M"
+        return Floor(int(words[2]), int(words[4]))
+
+
+def _output(children) -> str:
+    return "\n".join(f"--- {c.name}\n{c.log.read_text(errors='replace')[-2000:]}" for c in children)
 
 
 def timer_floor(rate: float, steps: int) -> Floor:
-    proc = _popen("timer", rate, steps, dict(os.environ))
-    out, _ = proc.communicate(timeout=steps / rate + 60)
-    return _result(out.strip().splitlines()[-1])
+    return _measure(("timer",), rate, steps)
 
 
-def chain_floor(rate: float, steps: int, domain_id: int | None = None) -> Floor:
-    """The three processes in a DDS domain of their own (``domain_id``, default: one
-    from this process's id), discovery on this host only."""
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=str(domain_id if domain_id is not None else 150 + os.getpid() % 80))
-    forwarders = [_popen(role, rate, steps, env) for role in CHAIN[:-1]]
-    try:
-        plant = _popen(CHAIN[-1], rate, steps, env)
-        out, _ = plant.communicate(timeout=steps / rate + 120)
-    finally:
-        for proc in forwarders:
-            proc.terminate()
-        for proc in forwarders:
-            proc.communicate(timeout=30)
-    return _result(out.strip().splitlines()[-1])
+def chain_floor(rate: float, steps: int) -> Floor:
+    """The three processes in a DDS domain this process holds (pkm_common.domains),
+    discovery on this host only."""
+    from pkm_common.domains import use_private_domain
+    use_private_domain()
+    return _measure(CHAIN, rate, steps)
 
 
 def main(argv=None) -> int:

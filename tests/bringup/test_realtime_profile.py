@@ -233,7 +233,8 @@ def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_lock
     # the run goes to its end; in a slow phase of this VM a burst of missed deadlines may
     # trip the controller's following-error supervision (539 of 2000 missed in one
     # suite), which is the supervision working, not the scheduling failing
-    tripped_by_misses = run["status"] == "tripped" and run["cause"] == "following_error"
+    tripped_by_misses = run["status"] == "tripped" and run["cause"] == "following_error" and \
+        run["summaries"]["sim_hw"]["deadline_misses"] > 0
     assert proc.returncode == (3 if tripped_by_misses else 0), out
     assert run["realtime_profile"] is True and run["status"] in ("completed", "tripped"), out
     for name in ("sim_hw", "controller", "gough_sensor"):

@@ -39,7 +39,7 @@ except (OSError, AttributeError):
     _PRCTL = None
 
 
-def _die_with_parent() -> None:          # runs in the child between fork and exec
+def die_with_parent() -> None:          # runs in the child between fork and exec
     if _PRCTL is not None:
         _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
@@ -67,10 +67,10 @@ def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env:
     log = log_dir / f"{name}.log"
     args = [sys.executable, "-u", "-m", MODULES[name], "--ros-args", "-r", f"__ns:={namespace}",
             "--params-file", str(params_file)]
-    preexec_fn = _die_with_parent
+    preexec_fn = die_with_parent
     if scheduling is not None:
         env = child_environment(env, scheduling)
-        preexec_fn = preexec(scheduling, before=_die_with_parent)
+        preexec_fn = preexec(scheduling, before=die_with_parent)
     with log.open("w") as out:
         popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                  start_new_session=True, preexec_fn=preexec_fn)
