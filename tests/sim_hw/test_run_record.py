@@ -47,3 +47,18 @@ def test_the_true_pose_of_a_planar_plant_is_its_tool_pose():
     assert np.allclose(position[:2], [x, y])
     # a rotation about z by theta as a quaternion (x, y, z, w)
     assert np.allclose(np.abs(orientation), np.abs([0.0, 0.0, np.sin(theta / 2), np.cos(theta / 2)]), atol=1e-12)
+
+
+def test_an_intruder_counted_before_the_graph_names_it_is_named_by_the_next_refusal():
+    """The matched event can count a second publisher on drives/command before
+    discovery names its node: the plant stops at once, unnamed; the first refusal
+    that names it (sim_hw's watchdog asks the graph every 0.1 s) names it, and a later
+    one does not rename it."""
+    run = RunRecord("archi", lockstep=False)
+    assert not run.intruder_named
+    run.refused(Refusal("2 publishers on drives/command", TripCause.INTRUDER), "drives/command")
+    assert run.intruder == "unknown" and not run.intruder_named
+    run.refused(Refusal("/pkm/rogue publishes", TripCause.INTRUDER, sender="/pkm/rogue"), "drives/command")
+    run.refused(Refusal("/pkm/other publishes", TripCause.INTRUDER, sender="/pkm/other"), "drives/command")
+    assert run.intruder == "/pkm/rogue" and run.intruder_named
+    assert run.counts["refused_commands"] == 3

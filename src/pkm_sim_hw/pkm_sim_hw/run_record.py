@@ -14,6 +14,7 @@ COUNTERS = ("refused_commands", "stale_commands", "deadline_misses", "timeouts",
             "refusals_not_published", "state_repeats")
 # the streams published once per step (the discovery repeats not counted)
 STEP_TOPICS = ("drives/state", "platform/true_pose", "/clock")
+UNNAMED = "unknown"          # an intruder counted (a second publisher matched) before the graph names it
 
 
 class RunRecord:
@@ -23,11 +24,18 @@ class RunRecord:
     def __init__(self, machine_name: str, lockstep: bool):
         self.machine_name, self.lockstep = machine_name, lockstep
         self.counts = dict.fromkeys(COUNTERS, 0)
-        self.intruder = ""                 # the first intruder named (a node), "" while none
+        # the first intruder named (a node); UNNAMED while the graph has only counted a
+        # second publisher (its name comes with discovery, later); "" while none
+        self.intruder = ""
         self.steps_published = 0           # distinct steps on /clock, drives/state, platform/true_pose
         self.last_published_ns = -1
         self.first_command_wall = None     # monotonic seconds of the first command applied
         self.finished = False
+
+    @property
+    def intruder_named(self) -> bool:
+        """An intruder was refused and named (not only counted)."""
+        return self.intruder not in ("", UNNAMED)
 
     def published(self, ns: int) -> None:
         """The state of the step at ``ns`` went out (a repeat of it is not a step)."""
@@ -36,12 +44,13 @@ class RunRecord:
             self.steps_published += 1
 
     def refused(self, refusal: Refusal, topic: str) -> str:
-        """Count a refusal (a load's or a command's), keep the first intruder's name;
-        returns the text that says it."""
+        """Count a refusal (a load's or a command's), keep the first intruder's name
+        (an unnamed one is named by the first refusal that names it); returns the text
+        that says it."""
         load = topic == "load"
         self.counts["refused_loads" if load else "refused_commands"] += 1
-        if refusal.cause == TripCause.INTRUDER and not self.intruder:
-            self.intruder = refusal.sender or "unknown"
+        if refusal.cause == TripCause.INTRUDER and not self.intruder_named:
+            self.intruder = refusal.sender or UNNAMED
         return f"refused {'load' if load else 'command'}: {refusal.reason}"
 
     def diagnostics(self, plant, out) -> tuple[int, str, dict]:

@@ -281,7 +281,7 @@ class SimHwNode(Node):
             # the repeat is answered again (the controller re-sends its command)
             self.counts["state_repeats"] += 1
             self.publish_state()
-        if self.started and not self.run.intruder:
+        if self.started and not self.run.intruder_named:      # also names one only counted so far
             intruder = self.gate.check_publishers(self.command_publishers())
             if intruder:
                 self._refuse(intruder)
