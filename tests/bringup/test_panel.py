@@ -138,6 +138,29 @@ def test_a_controller_that_stops_latches_the_panel_with_its_reason():
     assert snap["latched"] and "following error 10.2 mm" in snap["why"]
 
 
+def test_an_action_whose_reader_is_not_discovered_yet_is_refused_not_lost():
+    """A goal published before the planner's subscription is matched is lost (volatile):
+    the panel said "done jog" and nothing moved (a suite's hexapod panel test). Now an
+    action is refused, naming the topic and its reader, until a subscriber is matched;
+    the refused jog leaves no jog running, and the next one, once matched, goes out."""
+    panel, _ = live_panel()
+    subscribers = {"goal": 0, "program": 0, "controller/feed_override": 1, "controller/settings": 1}
+    panel.connect(lambda topic: subscribers[topic])
+    assert panel.snapshot()["unreached"] == ["start", "jog"]
+    refused = panel.handle({"type": "jog", "axis": "y", "step": -0.004}, "page")
+    assert not refused.ok and refused.publish == [] and refused.message == (
+        "jog: not sent: nothing subscribes to goal yet (the planner (trajectory_node) not discovered); try again")
+    assert panel.snapshot()["jog"] is None
+    assert panel.handle({"type": "feed", "percent": 50}, "page").ok           # the controller is there
+    subscribers["goal"] = 1
+    assert panel.snapshot()["unreached"] == ["start"]
+    result = panel.handle({"type": "jog", "axis": "y", "step": -0.004}, "page")
+    assert result.ok and result.publish[0][0] == "goal"
+    subscribers.update({"controller/feed_override": 0, "controller/settings": 0})
+    estop = panel.handle({"type": "estop"}, "page")                           # never held back
+    assert estop.ok and estop.publish == [("estop", True)]
+
+
 def test_a_jog_is_held_when_its_page_falls_silent_and_ends_when_it_arrives():
     panel, clock = live_panel()
     target = panel.handle({"type": "jog", "axis": "x", "step": 0.002}, "page").publish[0][1]

@@ -83,6 +83,8 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loo
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text(), timeout_s=120)
         wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
                  timeout_s=90)
+        wait_for("the planner and the controller discovered", lambda: not snapshot(url)["unreached"],
+                 timeout_s=30)
         expect.set_options(timeout=UI_MS)
         with sync_playwright() as p, diagnosed(url):
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])

@@ -43,6 +43,8 @@ def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realti
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text(), timeout_s=120)
         wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
                  timeout_s=90)
+        wait_for("the planner and the controller discovered", lambda: not snapshot(url)["unreached"],
+                 timeout_s=30)
         with urllib.request.urlopen(url + "api/machine", timeout=5) as response:
             machine = json.load(response)
         assert machine["axes"] == ["x", "y", "z", "a", "b", "c"] and machine["angular"] == ["a", "b", "c"]

@@ -32,7 +32,10 @@ heartbeat  (none)                          nothing: a jog whose page falls silen
 =========  ==============================  ===========================================
 
 Motion (start, jog) is refused while the controller is not holding still (another
-trajectory runs, or it is stopped) or the E-stop is latched.
+trajectory runs, or it is stopped) or the E-stop is latched. An action whose topic no
+node subscribes to yet (``RECEIVERS``: the planner or the controller not discovered,
+as the node's ``receivers`` count says) is refused, not published: a message sent
+before its reader is matched is lost, and the panel would have said "done".
 """
 
 from __future__ import annotations
@@ -57,6 +60,10 @@ HEARTBEAT_TIMEOUT_S = 0.5       # a jog whose page is silent this long is held
 JOG_MAX_M = 0.01                # one jog increment at most (Sliding Star: incremental motion)
 JOG_MAX_RAD = 0.1
 PROGRAM_MAX_BYTES = 1_000_000
+# the topic each action publishes on, and who must be there to read it
+RECEIVERS = {"start": ("program", "the planner (trajectory_node)"), "jog": ("goal", "the planner (trajectory_node)"),
+             "feed": ("controller/feed_override", "the controller"),
+             "settings": ("controller/settings", "the controller")}
 PLOT_PERIOD_S = 0.02            # tracking error samples kept for the plot, per simulated second
 PLOT_POINTS = 500               # 10 s of plot
 SETTING_RANGES = {              # the page's inputs; the controller core has the last word
@@ -149,6 +156,19 @@ class Panel:
         self.sent: dict[str, float] = {}  # action kind -> monotonic time published, for its latency
         self.latency_ms: dict[str, float] = {}
         self.counts = collections.Counter()
+        self.receivers = None             # topic -> number of nodes subscribed (the node's); None: not asked
+
+    def connect(self, receivers) -> None:
+        """``receivers(topic)``: how many subscribers the panel's publisher of ``topic``
+        has matched (PanelNode). Without it every action is published."""
+        self.receivers = receivers
+
+    def _unreached(self, kind: str) -> str:
+        """Why ``kind`` cannot be sent now ("" if it can)."""
+        topic, who = RECEIVERS.get(kind, (None, ""))
+        if topic is None or self.receivers is None or self.receivers(topic) > 0:
+            return ""
+        return f"{kind}: not sent: nothing subscribes to {topic} yet ({who} not discovered); try again"
 
     # ------------------------------------------------------------ from the graph
     def on_state(self, stamp_ns, names, position, velocity, effort, word) -> None:
@@ -234,7 +254,8 @@ class Panel:
                    "jog": None if self.jog is None else {"target": self.jog["target"]},
                    "latency_ms": dict(self.latency_ms), "counts": dict(self.counts),
                    "pose": self.pose, "reference": self.reference, "plot": list(self.plot),
-                   "silent_s": None if self.state_clock is None else self.clock() - self.state_clock}
+                   "silent_s": None if self.state_clock is None else self.clock() - self.state_clock,
+                   "unreached": [kind for kind in RECEIVERS if self._unreached(kind)]}
             if self.state is not None:
                 stamp, names, position, velocity, effort, word = self.state
                 out.update(t_s=stamp * 1e-9, drives={"names": names, "position": position, "effort": effort,
@@ -298,6 +319,9 @@ class Panel:
             return self._refuse(client, kind, "not authorized: control needs the panel's token (view only)")
         if self.estop_latched and kind != "reset":
             return self._refuse(client, kind, f"E-stop latched ({self.estop_why}): reset first")
+        unreached = self._unreached(kind)
+        if unreached:
+            return self._refuse(client, kind, unreached)
         try:
             message, publish, restart = handler(action, client)
         except ValueError as exc:

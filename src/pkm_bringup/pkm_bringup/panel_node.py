@@ -43,6 +43,11 @@ class PanelNode(Node):
         self.create_subscription(Bool, "estop", lambda m: panel.on_estop(bool(m.data)), LATCHED_QOS)
         self.create_subscription(String, "controller/events", lambda m: panel.on_event(m.data), EVENTS_QOS)
         self.create_timer(WATCHDOG_PERIOD_S, self.on_watchdog)
+        panel.connect(self.receivers)
+
+    def receivers(self, topic: str) -> int:
+        """Subscribers matched to the panel's publisher of ``topic``."""
+        return self.pubs[topic].get_subscription_count()
 
     def on_state(self, buf: bytes) -> None:
         m = self.state_decoder.decode(buf)
