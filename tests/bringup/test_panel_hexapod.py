@@ -33,6 +33,10 @@ def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realti
     scenario = yaml.safe_load((config_dir() / "scenarios" / "panel_hexapod.yaml").read_text())
     scenario["realtime_profile"] = True
     scenario["duration_s"], scenario["timeout_s"] = 120.0, 180.0      # an upper bound: the test ends it
+    # the drives' sync error counter off: in a slow phase of this VM the first 0.5 s of the
+    # loop missed 46 of its 4 ms cycles and the counter braked the plant before any jog
+    # (one suite); the jog and the E-stop are the point here (the counter: test_sync_monitor)
+    scenario["plant"] = {**scenario.get("plant", {}), "sync_error_limit": 0}
     scenario_path = tmp_path / "panel_hexapod.yaml"
     scenario_path.write_text(yaml.safe_dump(scenario))
     url_file = tmp_path / "url"
