@@ -28,3 +28,19 @@ def realtime_profile_permitted() -> bool:
     except RealtimeProfileRefused:
         return False
     return True
+
+
+def wait_for_a_holding_graph(url: str) -> None:
+    """The panel's graph holding still, and every action's reader (the planner, the
+    controller) discovered: the panel would refuse an action before (panel.RECEIVERS)."""
+    wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
+             timeout_s=90)
+    wait_for("the planner and the controller discovered", lambda: not snapshot(url)["unreached"], timeout_s=30)
+
+
+def without_sync_counter(scenario: dict) -> dict:
+    """``scenario`` with the drives' sync error counter off. In a slow phase of this VM
+    a start-up stall (21-46 cycles held in the first 0.5 s, in two suites) braked the
+    plant before a test could act; the panel's actions are what these tests check
+    (the counter: tests/sim_hw/test_sync_monitor.py)."""
+    return {**scenario, "plant": {**scenario.get("plant", {}), "sync_error_limit": 0}}

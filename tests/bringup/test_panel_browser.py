@@ -21,7 +21,8 @@ import yaml
 
 from pkm_kinematics.config import config_dir
 
-from panel_helpers import realtime_profile_permitted, snapshot, wait_for     # tests/bringup/panel_helpers.py
+from panel_helpers import (realtime_profile_permitted, snapshot, wait_for, wait_for_a_holding_graph,
+                           without_sync_counter)     # tests/bringup/panel_helpers.py
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # how long the page may take to show an outcome: the suite's other worker, chromium and
@@ -67,10 +68,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loo
     # second on the same two cores delayed most of the loop's commands
     scenario["realtime_profile"] = realtime_profile_permitted()
     scenario["duration_s"], scenario["timeout_s"] = 300.0, 360.0      # an upper bound: the test ends it
-    # the drives' sync error counter off: a start-up stall of the VM (21 cycles held in the
-    # first 0.36 s, one suite) braked the plant before the page could act; the page's
-    # actions are the point here (the counter: tests/sim_hw/test_sync_monitor.py)
-    scenario["plant"] = {**scenario.get("plant", {}), "sync_error_limit": 0}
+    scenario = without_sync_counter(scenario)
     scenario_path = tmp_path / "panel_test.yaml"
     scenario_path.write_text(yaml.safe_dump(scenario))
     programs = tmp_path / "programs"
@@ -85,10 +83,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loo
     try:
         # the panel's imports and the graph's start share the cores with the suite's other worker
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text(), timeout_s=120)
-        wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
-                 timeout_s=90)
-        wait_for("the planner and the controller discovered", lambda: not snapshot(url)["unreached"],
-                 timeout_s=30)
+        wait_for_a_holding_graph(url)
         expect.set_options(timeout=UI_MS)
         with sync_playwright() as p, diagnosed(url):
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])

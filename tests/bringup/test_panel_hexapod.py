@@ -15,7 +15,8 @@ import yaml
 
 from pkm_kinematics.config import config_dir
 
-from panel_helpers import realtime_profile_permitted, snapshot, wait_for     # tests/bringup/panel_helpers.py
+from panel_helpers import (realtime_profile_permitted, snapshot, wait_for, wait_for_a_holding_graph,
+                           without_sync_counter)     # tests/bringup/panel_helpers.py
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not realtime_profile_permitted(),
@@ -33,10 +34,7 @@ def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realti
     scenario = yaml.safe_load((config_dir() / "scenarios" / "panel_hexapod.yaml").read_text())
     scenario["realtime_profile"] = True
     scenario["duration_s"], scenario["timeout_s"] = 120.0, 180.0      # an upper bound: the test ends it
-    # the drives' sync error counter off: in a slow phase of this VM the first 0.5 s of the
-    # loop missed 46 of its 4 ms cycles and the counter braked the plant before any jog
-    # (one suite); the jog and the E-stop are the point here (the counter: test_sync_monitor)
-    scenario["plant"] = {**scenario.get("plant", {}), "sync_error_limit": 0}
+    scenario = without_sync_counter(scenario)
     scenario_path = tmp_path / "panel_hexapod.yaml"
     scenario_path.write_text(yaml.safe_dump(scenario))
     url_file = tmp_path / "url"
@@ -45,10 +43,7 @@ def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realti
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text(), timeout_s=120)
-        wait_for("the graph holding", lambda: snapshot(url)["controller"]["values"].get("mode") == "holding",
-                 timeout_s=90)
-        wait_for("the planner and the controller discovered", lambda: not snapshot(url)["unreached"],
-                 timeout_s=30)
+        wait_for_a_holding_graph(url)
         with urllib.request.urlopen(url + "api/machine", timeout=5) as response:
             machine = json.load(response)
         assert machine["axes"] == ["x", "y", "z", "a", "b", "c"] and machine["angular"] == ["a", "b", "c"]
