@@ -219,3 +219,41 @@ def test_a_message_lost_in_transport_does_not_stop_the_lockstep(ros_graph, lost)
     assert sim.plant.k >= 400 and not sim.plant.stopped
     if lost == "command":
         assert ctrl.commands_resent >= 1
+
+
+@pytest.mark.ros
+def test_a_stopped_controller_keeps_saying_so(ros_graph):
+    """controller/status is volatile: a reader that matched after the stop, or lost its
+    one message, learns of the stop only from a later status. A stopped controller
+    used to go silent (its status counted control cycles, and a stopped one has none):
+    the operator panel, matched late, still showed "holding" and offered a jog."""
+    ctrl = ros_graph.add_node(ControllerNode(context=ros_graph.context,
+                                             parameter_overrides=overrides(status_decimation=10)))
+    probe = ros_graph.create_node("probe")
+    pub = probe.create_publisher(JointState, "drives/state", STREAM_QOS)
+    estop = probe.create_publisher(Bool, "estop", LATCHED_QOS)
+    modes, commands = [], []
+    probe.create_subscription(DiagnosticArray, "controller/status",
+                              lambda m: modes.extend(kv.value for s in m.status for kv in s.values
+                                                     if kv.key == "mode"), STREAM_QOS)
+    probe.create_subscription(JointState, "drives/command", lambda m: commands.append(m), STREAM_QOS)
+    assert ros_graph.spin_until(lambda: pub.get_subscription_count() > 0 and estop.get_subscription_count() > 0
+                                and ctrl.pub_status.get_subscription_count() > 0, timeout_sec=5.0)
+    names, home = list(ARCHI.model.leg_names), ARCHI.model.inverse_kinematics(ARCHI.model.home).tolist()
+    period_ns = 1_000_000
+
+    def step(k: int) -> None:
+        pub.publish(_state(names, home, k * period_ns))
+        assert ros_graph.spin_until(lambda: len(commands) > k, timeout_sec=5.0), f"no answer to state {k}"
+
+    for k in range(5):                   # 5 cycles: the stop falls between two decimated statuses
+        step(k)
+    estop.publish(Bool(data=True))
+    assert ros_graph.spin_until(lambda: ctrl.core.stopped, timeout_sec=5.0)
+    stopped_at = len(modes)
+    for k in range(5, 45):
+        step(k)
+    ros_graph.spin_until(lambda: False, timeout_sec=0.2)
+    after = modes[stopped_at:]
+    assert after.count("stopped") >= 3 and set(after) == {"stopped"}, modes
+    assert len(after) <= 6, f"a stopped controller floods its status: {len(after)} in 40 answers"

@@ -291,7 +291,9 @@ class ControllerNode(LifecycleNode):
         if core.stopped and not self.was_stopped:
             self.safe_stop(core.stop_reason, core.stop_cause)
         self.publish_reference(stamp)
-        if core.cycles % self.values["status_decimation"] == 0:
+        # counted in answers, not control cycles: a stopped controller has no cycles and
+        # must keep saying it is stopped to a reader that matched late or lost a message
+        if self.answers_published % self.values["status_decimation"] == 0:
             self.publish_status()
         if self.inbox.pending:
             self.report(self.inbox.drain(core))
