@@ -269,3 +269,41 @@ def test_a_hexapod_on_the_panel_its_six_axes_its_angles_jogged_in_rad_its_struts
     refused.on_reference(1_000_000, *machine_pose_components(SPATIAL, home))
     too_far = refused.handle({"type": "jog", "axis": "a", "step": 0.2}, "page")
     assert not too_far.ok and "jog: step must be a number with 0 < |step| <= 0.1 rad" in too_far.message
+
+
+def test_drives_that_braked_latch_the_panel_even_if_the_controller_still_says_holding():
+    """The controller's status is volatile: a panel matched late, or one that lost the
+    status that said "stopped", still held "holding" and accepted a jog that the
+    stopped controller then refused (a full test run). The drives' status word is on
+    every state: a braked plant latches the panel with its cause."""
+    panel, _ = live_panel()
+    panel.on_state(3_000_000, ["q1"], [0.0], [0.0], [0.0], "")                 # running: nothing latched
+    assert not panel.snapshot()["estop"]["latched"]
+    panel.on_state(4_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:deadline_missed")
+    snap = panel.snapshot()
+    assert snap["controller"]["values"]["mode"] == "holding"                  # the controller's last word
+    assert snap["estop"]["latched"] and snap["estop"]["why"] == "the drives braked: deadline_missed"
+    refused = panel.handle({"type": "jog", "axis": "x", "step": 0.001}, "page")
+    assert not refused.ok and refused.publish == [] and "deadline_missed" in refused.message
+
+
+def test_after_a_reset_the_ended_runs_last_words_do_not_latch_the_new_one():
+    """A reset restarts the graph: until the old one has ended, it still publishes its
+    braked states and "stopped" statuses. They must not latch the panel of the new
+    run; once restarted, a braked drive latches again."""
+    from pkm_bringup.panel_main import Graph
+    panel, _ = live_panel(can_reset=True)
+    panel.handle({"type": "estop"}, "page")
+    order = []
+    graph = Graph("scenario.yaml", "runs")
+    graph.stop = lambda: (order.append("stop"), panel.on_state(9, ["q1"], [0.0], [0.0], [0.0], "safe_stop:estop"),
+                          panel.on_status("controller", 2, "stopped: estop", {**HOLDING, "mode": "stopped"}),
+                          panel.on_estop(True))
+    graph.start = lambda: order.append("start")
+    assert panel.handle({"type": "reset"}, "page").restart
+    graph.restart(panel.restarted)
+    snap = panel.snapshot()
+    assert order == ["stop", "start"] and not snap["estop"]["latched"], snap["estop"]
+    assert snap["controller"]["message"] == "restarting" and snap["pose"] is None and "t_s" not in snap
+    panel.on_state(1_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:following_error")     # the new run's
+    assert panel.snapshot()["estop"]["why"] == "the drives braked: following_error"

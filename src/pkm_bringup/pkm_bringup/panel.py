@@ -32,7 +32,9 @@ heartbeat  (none)                          nothing: a jog whose page falls silen
 =========  ==============================  ===========================================
 
 Motion (start, jog) is refused while the controller is not holding still (another
-trajectory runs, or it is stopped) or the E-stop is latched. An action whose topic no
+trajectory runs, or it is stopped) or the E-stop is latched: by the panel, by the
+graph's ``estop``, by a controller status that says stopped, or by the drives' status
+word saying they braked. An action whose topic no
 node subscribes to yet (``RECEIVERS``: the planner or the controller not discovered,
 as the node's ``receivers`` count says) is refused, not published: a message sent
 before its reader is matched is lost, and the panel would have said "done".
@@ -157,6 +159,7 @@ class Panel:
         self.latency_ms: dict[str, float] = {}
         self.counts = collections.Counter()
         self.receivers = None             # topic -> number of nodes subscribed (the node's); None: not asked
+        self.restarting = False           # a reset until restarted(): the old graph still publishes
 
     def connect(self, receivers) -> None:
         """``receivers(topic)``: how many subscribers the panel's publisher of ``topic``
@@ -173,12 +176,20 @@ class Panel:
     # ------------------------------------------------------------ from the graph
     def on_state(self, stamp_ns, names, position, velocity, effort, word) -> None:
         with self.lock:
+            if self.restarting:           # the ended run's last words (restarted())
+                return
             self.state = (stamp_ns, list(names), list(position), list(velocity), list(effort), word)
             self.state_clock = self.clock()
             self.counts["drives/state"] += 1
             cause = plant_stop_cause(word)
-            if cause is not None and "estop" in self.sent and "estop" not in self.latency_ms:
+            if cause is None:
+                return
+            if "estop" in self.sent and "estop" not in self.latency_ms:
                 self.latency_ms["estop"] = 1e3 * (self.clock() - self.sent["estop"])   # press -> drives braked
+            # the drives' own word latches too: the controller's status saying so can be
+            # missed (a volatile topic, a panel matched late), the word is on every state
+            if not self.estop_latched:
+                self.estop_latched, self.estop_why = True, f"the drives braked: {cause.value}"
 
     def on_struts(self) -> None:
         """The Gough sensor publishes (its struts are drawn)."""
@@ -187,12 +198,16 @@ class Panel:
 
     def on_true_pose(self, stamp_ns, position, orientation) -> None:
         with self.lock:
+            if self.restarting:           # the ended run's last words (restarted())
+                return
             ref_theta = self.pose[2] if self.pose is not None and self.model.planar else None
             self.pose = self.model.to_machine(position, orientation, ref_theta)
             self._pair(stamp_ns, pose=self.pose)
 
     def on_reference(self, stamp_ns, position, orientation) -> None:
         with self.lock:
+            if self.restarting:           # the ended run's last words (restarted())
+                return
             ref_theta = self.reference[2] if self.reference is not None and self.model.planar else None
             self.reference = self.model.to_machine(position, orientation, ref_theta)
             self._pair(stamp_ns, reference=self.reference)
@@ -215,6 +230,8 @@ class Panel:
 
     def on_status(self, name: str, level: int, message: str, values: dict) -> None:
         with self.lock:
+            if self.restarting:           # the ended run's last words (restarted())
+                return
             if name == "controller":
                 self.status = (level, message, values)
                 if values.get("mode") == "stopped" and not self.estop_latched:
@@ -224,6 +241,8 @@ class Panel:
 
     def on_estop(self, active: bool) -> None:
         with self.lock:
+            if self.restarting:           # the ended run's last words (restarted())
+                return
             if active and not self.estop_latched:
                 self.estop_latched, self.estop_why = True, self.estop_why or "estop from the graph"
 
@@ -335,13 +354,28 @@ class Panel:
                              "start a new run (pkm-run), or let pkm-panel start the graph (--start)")
         with self.lock:
             self.estop_latched, self.estop_why, self.jog = False, "", None
-            self.status = (0, "restarting", {})
-            self.pose = self.reference = self.state = self.state_clock = None
-            self.plot.clear()
             self.latency_ms.clear()
             self.sent.clear()
+            self.restarting = True
+            self._forget_the_run()
         # the panel's latched estop is taken back first: the new run's nodes would get it
         return "reset: a new run starts", [("estop", False)], True
+
+    def restarted(self) -> None:
+        """The old graph of a reset has ended (its braked states and "stopped" statuses,
+        which would latch the panel again, are over): listen to the new one."""
+        with self.lock:
+            self._forget_the_run()
+            self.restarting = False
+
+    def _forget_the_run(self) -> None:
+        self.status = (0, "restarting", {})
+        self.pose = self.reference = self.state = self.state_clock = None
+        self.poses.clear()
+        self.references.clear()
+        self.diagnostics.clear()
+        self.plot.clear()
+        self.last_plot_ns = None
 
     def _program(self, action, client):
         text, name = action.get("text"), action.get("name") or "program"

@@ -55,8 +55,11 @@ class Graph:
                     self.process.kill()
                     self.process.wait()
 
-    def restart(self) -> None:
+    def restart(self, between=None) -> None:
+        """Stop, call ``between()`` (the old graph is gone), start."""
         self.stop()
+        if between is not None:
+            between()
         self.start()
 
 
@@ -180,7 +183,7 @@ def main(argv=None) -> int:
     estop_server = uvicorn.Server(uvicorn.Config(create_estop_app(panel, node.publish), log_level="warning"))
     threading.Thread(target=estop_server.run, kwargs={"sockets": [estop_sock]}, name="panel-estop",
                      daemon=True).start()
-    app = create_app(panel, node.publish, token, args.rate_hz, on_restart=graph.restart if graph else None,
+    app = create_app(panel, node.publish, token, args.rate_hz, on_restart=(lambda: graph.restart(panel.restarted)) if graph else None,
                      estop_url=f"{base}:{estop_sock.getsockname()[1]}/estop")
     if graph is not None:
         graph.start()
