@@ -145,11 +145,13 @@ def test_an_action_whose_reader_is_not_discovered_yet_is_refused_not_lost():
     the refused jog leaves no jog running, and the next one, once matched, goes out."""
     panel, _ = live_panel()
     subscribers = {"goal": 0, "program": 0, "controller/feed_override": 1, "controller/settings": 1}
-    panel.connect(lambda topic: subscribers[topic])
+    readers = {"goal": "trajectory", "program": "trajectory", "controller/feed_override": "controller",
+               "controller/settings": "controller"}
+    panel.connect(lambda topic, node: subscribers[topic] if readers[topic] == node else 0)
     assert panel.snapshot()["unreached"] == ["start", "jog"]
     refused = panel.handle({"type": "jog", "axis": "y", "step": -0.004}, "page")
     assert not refused.ok and refused.publish == [] and refused.message == (
-        "jog: not sent: nothing subscribes to goal yet (the planner (trajectory_node) not discovered); try again")
+        "jog: not sent: the planner (trajectory_node) does not read goal yet (not discovered); try again")
     assert panel.snapshot()["jog"] is None
     assert panel.handle({"type": "feed", "percent": 50}, "page").ok           # the controller is there
     subscribers["goal"] = 1

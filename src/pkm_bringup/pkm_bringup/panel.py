@@ -34,10 +34,10 @@ heartbeat  (none)                          nothing: a jog whose page falls silen
 Motion (start, jog) is refused while the controller is not holding still (another
 trajectory runs, or it is stopped) or the E-stop is latched: by the panel, by the
 graph's ``estop``, by a controller status that says stopped, or by the drives' status
-word saying they braked. An action whose topic no
-node subscribes to yet (``RECEIVERS``: the planner or the controller not discovered,
-as the node's ``receivers`` count says) is refused, not published: a message sent
-before its reader is matched is lost, and the panel would have said "done".
+word saying they braked. An action whose reader does
+not subscribe yet (``RECEIVERS``: the planner or the controller not discovered, as the
+node's ``receivers`` count says) is refused, not published: a message sent before its
+reader is matched is lost, and the panel would have said "done".
 """
 
 from __future__ import annotations
@@ -62,10 +62,12 @@ HEARTBEAT_TIMEOUT_S = 0.5       # a jog whose page is silent this long is held
 JOG_MAX_M = 0.01                # one jog increment at most (Sliding Star: incremental motion)
 JOG_MAX_RAD = 0.1
 PROGRAM_MAX_BYTES = 1_000_000
-# the topic each action publishes on, and who must be there to read it
-RECEIVERS = {"start": ("program", "the planner (trajectory_node)"), "jog": ("goal", "the planner (trajectory_node)"),
-             "feed": ("controller/feed_override", "the controller"),
-             "settings": ("controller/settings", "the controller")}
+# the topic each action publishes on, the node that must read it, and its description
+# (another reader does not count: the recorder subscribes to every topic it discovers)
+RECEIVERS = {"start": ("program", "trajectory", "the planner (trajectory_node)"),
+             "jog": ("goal", "trajectory", "the planner (trajectory_node)"),
+             "feed": ("controller/feed_override", "controller", "the controller"),
+             "settings": ("controller/settings", "controller", "the controller")}
 PLOT_PERIOD_S = 0.02            # tracking error samples kept for the plot, per simulated second
 PLOT_POINTS = 500               # 10 s of plot
 SETTING_RANGES = {              # the page's inputs; the controller core has the last word
@@ -162,16 +164,19 @@ class Panel:
         self.restarting = False           # a reset until restarted(): the old graph still publishes
 
     def connect(self, receivers) -> None:
-        """``receivers(topic)``: how many subscribers the panel's publisher of ``topic``
-        has matched (PanelNode). Without it every action is published."""
+        """``receivers(topic, node)``: how many subscriptions of the node named ``node``
+        the panel's publisher of ``topic`` has matched (PanelNode). Without it every
+        action is published."""
         self.receivers = receivers
 
     def _unreached(self, kind: str) -> str:
         """Why ``kind`` cannot be sent now ("" if it can)."""
-        topic, who = RECEIVERS.get(kind, (None, ""))
-        if topic is None or self.receivers is None or self.receivers(topic) > 0:
+        if kind not in RECEIVERS or self.receivers is None:
             return ""
-        return f"{kind}: not sent: nothing subscribes to {topic} yet ({who} not discovered); try again"
+        topic, node, who = RECEIVERS[kind]
+        if self.receivers(topic, node) > 0:
+            return ""
+        return f"{kind}: not sent: {who} does not read {topic} yet (not discovered); try again"
 
     # ------------------------------------------------------------ from the graph
     def on_state(self, stamp_ns, names, position, velocity, effort, word) -> None:

@@ -45,9 +45,15 @@ class PanelNode(Node):
         self.create_timer(WATCHDOG_PERIOD_S, self.on_watchdog)
         panel.connect(self.receivers)
 
-    def receivers(self, topic: str) -> int:
-        """Subscribers matched to the panel's publisher of ``topic``."""
-        return self.pubs[topic].get_subscription_count()
+    def receivers(self, topic: str, node: str) -> int:
+        """Subscriptions of ``node`` (in the panel's namespace) on ``topic``, once the
+        panel's publisher has matched a subscriber: any other reader, such as the
+        recorder, which subscribes to every topic it discovers, is not the one an action
+        is for (a goal went to the recorder alone and was lost)."""
+        if self.pubs[topic].get_subscription_count() == 0:
+            return 0
+        return sum(info.node_name == node and info.node_namespace == self.get_namespace()
+                   for info in self.get_subscriptions_info_by_topic(topic))
 
     def on_state(self, buf: bytes) -> None:
         m = self.state_decoder.decode(buf)
