@@ -49,7 +49,7 @@ def test_lifecycle_configure_activate_deactivate(ros_graph):
     probe = ros_graph.create_node("probe")
     probe.create_subscription(Bool, "estop", lambda m: estops.append(m.data), LATCHED_QOS)
     assert ctrl.trigger_configure() == TransitionCallbackReturn.SUCCESS
-    assert ctrl.trigger_activate() == TransitionCallbackReturn.SUCCESS and ctrl.active
+    assert ctrl.trigger_activate() == TransitionCallbackReturn.SUCCESS and ctrl.loop.active
     assert ctrl.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
     assert ros_graph.spin_until(lambda: estops == [True], timeout_sec=5.0)   # brakes requested
     assert ctrl.core.stop_reason == "deactivated"
@@ -177,7 +177,7 @@ def test_the_end_of_the_run_is_not_a_silent_plant(ros_graph, end_time_s):
     assert ros_graph.spin_until(lambda: sim.finished, timeout_sec=30.0)
     ros_graph.spin_until(lambda: ctrl.core.stopped, timeout_sec=0.8)
     if end_time_s:
-        assert not ctrl.core.stopped and ctrl.run_ended, ctrl.core.stop_reason
+        assert not ctrl.core.stopped and ctrl.loop.run_ended, ctrl.core.stop_reason
     else:
         assert ctrl.core.stopped and ctrl.core.stop_reason == "drives/state: none for 0.2 s"
 
@@ -218,7 +218,7 @@ def test_a_message_lost_in_transport_does_not_stop_the_lockstep(ros_graph, lost)
     assert sim.counts["state_repeats"] >= 1
     assert sim.plant.k >= 400 and not sim.plant.stopped
     if lost == "command":
-        assert ctrl.commands_resent >= 1
+        assert ctrl.loop.commands_resent >= 1
 
 
 @pytest.mark.ros

@@ -1,0 +1,234 @@
+"""What controller_node does with each message, without rclpy: the lockstep answer
+to a drive state (and its metrology reading), the operator's actions, the safe stops
+and the status. It works on the messages' bytes (pkm_common.cdr) and hands what goes
+out to ``ports``, which the node implements with its publishers (ros2_control's
+boundary: the node owns the middleware, this owns the decisions).
+
+``ports`` needs: ``publish_command(bytes)`` (drives/command, tapped for the recorder),
+``resend_command(bytes)`` (the same answer again, not tapped: the bag holds one per
+stamp), ``publish_reference_bytes(bytes)``, ``publish_status(stamp_ns, level,
+message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop()``
+(latched true: the drives brake), ``after_cycle()`` (the end of an answer: the
+recording tap's moment to flush), ``log_info(text)`` and ``log_error(text)``.
+"""
+
+from __future__ import annotations
+
+import time
+
+from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
+from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
+                            decode_pose_stamped, in_order)
+from pkm_common.conversions import machine_pose_components
+from pkm_common.timing import DurationHistogram
+
+from .configuration import metrology_inputs, run_summary
+from .controller import ControllerCore
+from .lockstep import StampPairing
+from .operator import Action, OperatorInbox, apply_action, event_json, event_summary
+from .reference import reference_from_trajectory
+from .strategies import Feedback
+
+__all__ = ["ControllerLoop"]
+
+
+class ControllerLoop:
+    """One configured controller's answers (the node's ``values``: its parameters
+    beside ControllerConfig, config/controller/*.yaml)."""
+
+    def __init__(self, core: ControllerCore, values: dict, ports):
+        self.core, self.values, self.ports = core, values, ports
+        self.active = False
+        self.compute_s = DurationHistogram()     # prepare + complete per cycle (constant memory)
+        self.response_s = DurationHistogram()    # last input (state or metrology) -> command ready
+        self.prepare_s = 0.0
+        self.was_stopped = False
+        self.trajectory_accepted = False
+        self.start_received = False    # run/start (latched Bool) from an orchestrator
+        self.answers_published = 0     # drives/command and controller/reference, one each per answer
+        self.last_answer = (None, b"")  # (stamp, command bytes): sent again when the sim repeats the state
+        self.commands_resent = 0
+        self.inbox = OperatorInbox()   # an operator's actions, applied after the next answer
+        # the run's last step (the plant stops publishing after it): once its state is
+        # here, silence is the end of the run, not a fault (0: no known end)
+        end_s = float(values["end_time_s"])
+        self.end_ns = round((end_s - 0.5 * core.config.dt_s) * 1e9) if end_s > 0.0 else 0
+        self.run_ended = False
+        self.names = core.names
+        strategy = core.strategy
+        self.wait_for = strategy.reading          # "struts", "pose", or "" for the encoder strategies
+        self.pairing = StampPairing(strategy.uses_metrology, strategy.reading)
+        struts = strategy.feedback == Feedback.STRUTS
+        # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
+        # ~30-50 us to take and ~13 us to publish each, more than most control laws
+        self.state_decoder = JointStateDecoder("drives/state")
+        self.command_encoder = JointStateEncoder(self.names, fields=("effort",))
+        self.reference_encoder = PoseStampedEncoder("world")
+        self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
+            (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
+
+    # ----------------------------------------------------------------- inputs
+    def on_state(self, buf: bytes) -> None:
+        if not self.active:
+            return
+        if (not self.trajectory_accepted and self.values["wait_for_trajectory"]) or \
+                (not self.start_received and self.values["wait_for_start"]):
+            return                     # a scripted run starts at its first state, deterministically
+        # the watchdog is armed from the first state answered: before its start the
+        # sim only repeats step 0 for discovery, and on a loaded machine a pause in
+        # those repeats tripped a run before it began (a full test run, 2 tests)
+        now = time.monotonic()
+        try:
+            msg = self.state_decoder.decode(buf)
+        except ValueError as exc:      # malformed bytes from a raw publisher
+            if not self.core.stopped:
+                self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
+            return
+        self.run_ended = self.run_ended or 0 < self.end_ns <= msg.stamp_ns
+        plant_cause = plant_stop_cause(msg.frame_id)
+        if plant_cause is not None and not self.core.stopped:
+            self.safe_stop_plant(plant_cause)      # the drives' status word: the plant braked
+        if not self.pairing.state_arrived(msg.stamp_ns, now):
+            # a repeat: sim_hw republishes a state it has no answer for (step 0 until the
+            # graph is connected; later a lost message); our answer was lost: again
+            stamp, command = self.last_answer
+            if stamp == msg.stamp_ns and command:
+                self.ports.resend_command(command)
+                self.commands_resent += 1
+            return
+        start = time.perf_counter()
+        prepared = self.prepare(msg)
+        self.prepare_s = time.perf_counter() - start
+        if prepared and self.pairing.wait_for_reading(msg):
+            return                     # complete() when the metrology of this stamp arrives
+        self.answer(msg.stamp_ns, start)
+
+    def on_metrology(self, buf: bytes) -> None:
+        try:
+            msg = self.decode_metrology(buf)
+        except ValueError as exc:
+            if self.active and not self.core.stopped:
+                self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
+            return
+        state = self.pairing.reading_arrived(msg.stamp_ns, msg)
+        if state is not None and self.active:
+            self.answer(state.stamp_ns, time.perf_counter())
+
+    def on_trajectory(self, buf: bytes) -> None:
+        """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
+        trajectory would hold the loop for tens of milliseconds."""
+        try:
+            ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.model.task_space)
+        except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
+            self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
+            return
+        self.operator(Action.TRAJECTORY, ref)
+
+    def operator(self, action: Action, payload) -> None:
+        """A trajectory, feed override or settings change (operator.py): applied at once
+        before the first cycle, else right after the next answer (between two cycles)."""
+        self.report(self.inbox.add(self.core, action, payload))
+
+    def report(self, events: list) -> None:
+        """Each applied or refused action: recorded on controller/events and logged."""
+        for event in events:
+            self.ports.publish_event(event_json(event))
+            if event["ok"]:
+                self.trajectory_accepted |= event["kind"] == Action.TRAJECTORY.value
+                self.ports.log_info(event_summary(event))
+            else:
+                self.ports.log_error(event["message"])
+                self.publish_status(extra=event_summary(event))
+
+    def on_start(self, started: bool) -> None:
+        self.start_received = self.start_received or started
+
+    def on_estop(self, active: bool) -> None:
+        """Stop at once, and record after which answered state (controller/events): the
+        replay stops the controller at the same point, whatever order the recorder got
+        the estop and the commands in."""
+        if active and not self.core.stopped:
+            self.report([apply_action(self.core, Action.ESTOP, None, after_ns=self.last_answer[0])])
+            self.safe_stop("estop", TripCause.ESTOP)
+
+    def on_watchdog(self) -> None:
+        if not self.active or self.core.stopped or self.run_ended:
+            return
+        fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
+                                           self.values["metrology_timeout_s"])
+        if fault:
+            self.safe_stop(fault, TripCause.WATCHDOG)
+
+    # ----------------------------------------------------------------- output
+    def prepare(self, msg) -> bool:
+        """First half of the cycle on a drive state (pkm_common.cdr.JointStateData);
+        False when the controller is stopped (the answer is zero forces)."""
+        core = self.core
+        self.was_stopped = core.stopped
+        try:
+            msg = in_order(msg, self.names, "drives/state")
+        except ValueError as exc:
+            core.trip(str(exc), TripCause.INPUT_REFUSED)
+        return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort,
+                            held=setpoint_held(msg.frame_id))
+
+    def answer(self, stamp: int, start: float) -> None:
+        """Complete the prepared cycle with the metrology of ``stamp`` and publish the
+        command; ``start``: when the last input arrived (the response time is timed)."""
+        core = self.core
+        struts = pose = None
+        extra = self.pairing.take_reading(stamp)
+        if not core.stopped:                      # stopped: zero forces, no metrology needed
+            try:
+                struts, pose = metrology_inputs(self.wait_for, extra)
+            except ValueError as exc:             # NaN or a non-unit quaternion
+                core.trip(str(exc), TripCause.INPUT_REFUSED)
+        complete_start = time.perf_counter()
+        forces = core.complete(struts=struts, metrology_pose=pose)
+        end = time.perf_counter()
+        self.compute_s.add(self.prepare_s + end - complete_start)
+        self.response_s.add(end - start)
+        command = self.command_encoder.encode(stamp, effort=forces)
+        self.ports.publish_command(command)
+        self.last_answer = (stamp, command)
+        self.answers_published += 1
+        if core.stopped and not self.was_stopped:
+            self.safe_stop(core.stop_reason, core.stop_cause)
+        self.publish_reference(stamp)
+        # counted in answers, not control cycles: a stopped controller has no cycles and
+        # must keep saying it is stopped to a reader that matched late or lost a message
+        if self.answers_published % self.values["status_decimation"] == 0:
+            self.publish_status()
+        if self.inbox.pending:
+            self.report(self.inbox.drain(core))
+        self.ports.after_cycle()
+
+    def publish_reference(self, stamp_ns: int) -> None:
+        position, orientation = machine_pose_components(self.core.space, self.core.record.reference)
+        self.ports.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
+
+    def publish_status(self, extra: str = "") -> None:
+        level, message, values = self.core.status()
+        if extra:
+            level, message = max(level, 1), f"{message}; {extra}"
+        self.ports.publish_status(round((self.core.last_time_s or 0.0) * 1e9), level, message, values)
+
+    def safe_stop_plant(self, cause: TripCause) -> None:
+        """The plant stopped on its own (its status word in drives/state): the
+        controller stops with the plant's cause, not as a drive failure."""
+        self.core.plant_stopped(cause)
+        self.safe_stop(self.core.stop_reason, self.core.stop_cause)
+
+    def safe_stop(self, reason: str, cause: TripCause) -> None:
+        """Zero forces, brakes requested (estop latched), reported, and recorded after the
+        last answered state (controller/events: the replay stops there too)."""
+        self.report([apply_action(self.core, Action.SAFE_STOP, {"reason": reason, "cause": cause},
+                                  after_ns=self.last_answer[0])])
+        self.ports.log_error(f"safe stop: {self.core.stop_reason}")
+        self.ports.publish_estop()
+        self.publish_status()
+
+    def summary(self) -> dict:
+        """The run's summary file (configuration.run_summary) and the answers sent again."""
+        return {**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
+                "commands_resent": self.commands_resent}
