@@ -43,9 +43,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from pkm_common.causes import TripCause, plant_status_word, setpoint_held_word
+from pkm_common.causes import TripCause
 from pkm_common.node_tap import NodeTap
-from pkm_common.cdr import JointStateDecoder, JointStateEncoder, PoseStampedEncoder, encode_clock
+from pkm_common.cdr import JointStateDecoder
 from pkm_common.conversions import diagnostic_array, diagnostic_status, line_list_markers, ns_to_stamp, publisher_names
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -56,7 +56,8 @@ from pkm_sim_hw.authority import APPLY, STALE, Refusal
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.plant import command_efforts, leg_segments
 from pkm_sim_hw.refusals import RefusalReport
-from pkm_sim_hw.run_record import RunRecord, true_pose_components
+from pkm_sim_hw.run_record import RunRecord
+from pkm_sim_hw.step_streams import StepStreams
 from pkm_sim_hw.sync_monitor import SetpointHold
 
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
@@ -81,13 +82,6 @@ class SimHwNode(Node):
         # callback in a shared executor): 3 periods of its 0.1 s timer
         self.command_watchdog = SilenceWatchdog(own_stall_s=0.3)
         self.hold = SetpointHold(n, settings.sync_error_limit)    # realtime: the drives' zero-order hold
-        # the per-step streams as bytes (pkm_common.cdr): rclpy message objects cost
-        # ~13 us to publish and ~30 us to take each, the bytes 1-4 us
-        self.state_encoder = JointStateEncoder(self.plant.names)
-        self.stopped_encoder = None                # frame_id "safe_stop:<cause>", made at the stop
-        self.held_encoder = None                   # frame_id "setpoint_held:<stamp>" of this step, if held
-        self.pose_encoder = PoseStampedEncoder("world")
-        self.space = self.config.model.task_space
         self.command_decoder = JointStateDecoder("drives/command")
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
                                               "in batches (pkm_common.tap) instead of its subscribing to them"))
@@ -96,6 +90,8 @@ class SimHwNode(Node):
                                        JointState)
         self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, "platform/true_pose",
                                                             STREAM_PUBLISHER_QOS), PoseStamped)
+        self.streams = StepStreams(self.plant, self.config.model.task_space, self.pub_pose, self.pub_state,
+                                   self.pub_clock)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
         self.refusals = RefusalReport(self, self.counts)
         self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
@@ -126,20 +122,9 @@ class SimHwNode(Node):
 
     def publish_state(self) -> None:
         """Clock, drives/state and platform/true_pose of the current step."""
-        out = self.plant.output()
         ns = self.now_ns()
-        # the true pose first: the sensor's work is on the critical path of the step
-        # (state -> sensor -> controller), the drive state and the clock are not
-        self.pub_pose.publish(self.pose_encoder.encode(ns, *true_pose_components(self.space, out)))
         self.run.published(ns)
-        encoder = self.held_encoder or self.state_encoder
-        if self.plant.stopped:                    # the status word: braked, and why (also before a step)
-            if self.stopped_encoder is None:
-                self.stopped_encoder = JointStateEncoder(self.plant.names, plant_status_word(self.plant.stop_cause))
-            encoder = self.stopped_encoder
-        self.pub_state.publish(encoder.encode(ns, out.encoder_positions, out.encoder_velocities,
-                                              out.applied_forces))
-        self.pub_clock.publish(encode_clock(ns))
+        self.streams.publish(ns)
 
     def publish_diagnostics(self) -> None:
         level, message, values = self.run.diagnostics(self.plant, self.plant.output())
@@ -232,9 +217,8 @@ class SimHwNode(Node):
     def publish_step(self, held_stamp_ns: int | None = None) -> None:
         """The step just made; ``held_stamp_ns``: its command was the one of that stamp
         again (the answer to the last state missed the tick), said in the status word,
-        where the drive supervision finds the command to compare (~20 us, a miss only)."""
-        self.held_encoder = None if held_stamp_ns is None else \
-            JointStateEncoder(self.plant.names, setpoint_held_word(held_stamp_ns))
+        where the drive supervision finds the command to compare."""
+        self.streams.hold(held_stamp_ns)
         self.publish_state()
         self.tap.after_cycle()
         for cadence, work in self.cadences:
