@@ -151,7 +151,8 @@ def test_an_action_whose_reader_is_not_discovered_yet_is_refused_not_lost():
     assert panel.snapshot()["unreached"] == ["start", "jog"]
     refused = panel.handle({"type": "jog", "axis": "y", "step": -0.004}, "page")
     assert not refused.ok and refused.publish == [] and refused.message == (
-        "jog: not sent: the planner (trajectory_node) does not read goal yet (not discovered); try again")
+        "jog: not sent: the planner (trajectory_node) does not read goal yet (not discovered, or not matched); "
+        "try again")
     assert panel.snapshot()["jog"] is None
     assert panel.handle({"type": "feed", "percent": 50}, "page").ok           # the controller is there
     subscribers["goal"] = 1
@@ -303,9 +304,29 @@ def test_after_a_reset_the_ended_runs_last_words_do_not_latch_the_new_one():
                           panel.on_estop(True))
     graph.start = lambda: order.append("start")
     assert panel.handle({"type": "reset"}, "page").restart
+    for action in ({"type": "reset"}, {"type": "feed", "percent": 50}):     # not to the old graph, not twice
+        refused = panel.handle(action, "page")
+        assert not refused.ok and refused.publish == [] and "restarting" in refused.message
     graph.restart(panel.restarted)
     snap = panel.snapshot()
     assert order == ["stop", "start"] and not snap["estop"]["latched"], snap["estop"]
     assert snap["controller"]["message"] == "restarting" and snap["pose"] is None and "t_s" not in snap
     panel.on_state(1_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:following_error")     # the new run's
     assert panel.snapshot()["estop"]["why"] == "the drives braked: following_error"
+
+
+def test_a_reset_whose_stop_fails_still_listens_to_the_graph():
+    """Until restarted() the panel ignores the graph: a stop that raised must not leave
+    it deaf to every later stop."""
+    from pkm_bringup.panel_main import Graph
+    panel, _ = live_panel(can_reset=True)
+    graph = Graph("scenario.yaml", "runs")
+
+    def stop():
+        raise OSError("no such process")
+    graph.stop, graph.start = stop, lambda: None
+    assert panel.handle({"type": "reset"}, "page").restart
+    with pytest.raises(OSError):
+        graph.restart(panel.restarted)
+    panel.on_state(1_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:watchdog")
+    assert panel.snapshot()["estop"]["why"] == "the drives braked: watchdog"

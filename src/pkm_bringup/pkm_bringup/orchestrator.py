@@ -116,7 +116,7 @@ def end_context(context) -> None:
 def _monitor(context, namespace: str):
     """A small node of the orchestrator: simulated time (progress), the end of the
     loop and graph checks. It follows the sim's diagnostics (1 Hz and a last one when
-    it finishes) and the controller's status (every 100 cycles), never a per-step
+    it finishes) and the controller's status (every 100 answers), never a per-step
     stream: one more reader of /clock cost the loop 5-15 % (measured)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.node import Node

@@ -160,7 +160,7 @@ class Panel:
         self.sent: dict[str, float] = {}  # action kind -> monotonic time published, for its latency
         self.latency_ms: dict[str, float] = {}
         self.counts = collections.Counter()
-        self.receivers = None             # topic -> number of nodes subscribed (the node's); None: not asked
+        self.receivers = None             # (topic, node) -> that node's matched readers (the node's); None: not asked
         self.restarting = False           # a reset until restarted(): the old graph still publishes
 
     def connect(self, receivers) -> None:
@@ -176,7 +176,7 @@ class Panel:
         topic, node, who = RECEIVERS[kind]
         if self.receivers(topic, node) > 0:
             return ""
-        return f"{kind}: not sent: {who} does not read {topic} yet (not discovered); try again"
+        return f"{kind}: not sent: {who} does not read {topic} yet (not discovered, or not matched); try again"
 
     # ------------------------------------------------------------ from the graph
     def on_state(self, stamp_ns, names, position, velocity, effort, word) -> None:
@@ -199,6 +199,8 @@ class Panel:
     def on_struts(self) -> None:
         """The Gough sensor publishes (its struts are drawn)."""
         with self.lock:
+            if self.restarting:
+                return
             self.counts["metrology/struts"] += 1
 
     def on_true_pose(self, stamp_ns, position, orientation) -> None:
@@ -258,6 +260,8 @@ class Panel:
         except ValueError:
             return
         with self.lock:
+            if self.restarting:
+                return
             self.events.append(event)
             kind = event.get("kind")
             # the E-stop's latency runs to the drives braking (on_state), not to the event
@@ -267,6 +271,7 @@ class Panel:
 
     # ------------------------------------------------------------------ the page
     def snapshot(self) -> dict:
+        unreached = [kind for kind in RECEIVERS if self._unreached(kind)]    # graph queries: outside the lock
         with self.lock:
             level, message, values = self.status
             out = {"machine": self.model.machine.name, "wall_s": time.time(),
@@ -279,7 +284,7 @@ class Panel:
                    "latency_ms": dict(self.latency_ms), "counts": dict(self.counts),
                    "pose": self.pose, "reference": self.reference, "plot": list(self.plot),
                    "silent_s": None if self.state_clock is None else self.clock() - self.state_clock,
-                   "unreached": [kind for kind in RECEIVERS if self._unreached(kind)]}
+                   "unreached": unreached}
             if self.state is not None:
                 stamp, names, position, velocity, effort, word = self.state
                 out.update(t_s=stamp * 1e-9, drives={"names": names, "position": position, "effort": effort,
@@ -341,6 +346,8 @@ class Panel:
                                               f"settings, heartbeat; got {kind!r}")
         if not authorized:
             return self._refuse(client, kind, "not authorized: control needs the panel's token (view only)")
+        if self.restarting:           # the old graph would get it, or a second graph start
+            return self._refuse(client, kind, f"{kind}: the graph is restarting (reset); try again when it runs")
         if self.estop_latched and kind != "reset":
             return self._refuse(client, kind, f"E-stop latched ({self.estop_why}): reset first")
         unreached = self._unreached(kind)

@@ -56,10 +56,13 @@ class Graph:
                     self.process.wait()
 
     def restart(self, between=None) -> None:
-        """Stop, call ``between()`` (the old graph is gone), start."""
-        self.stop()
-        if between is not None:
-            between()
+        """Stop, call ``between()`` (the old graph is gone; called whatever the stop
+        raised: the panel listens again), start."""
+        try:
+            self.stop()
+        finally:
+            if between is not None:
+                between()
         self.start()
 
 

@@ -47,13 +47,14 @@ class PanelNode(Node):
 
     def receivers(self, topic: str, node: str) -> int:
         """Subscriptions of ``node`` (in the panel's namespace) on ``topic``, once the
-        panel's publisher has matched a subscriber: any other reader, such as the
-        recorder, which subscribes to every topic it discovers, is not the one an action
-        is for (a goal went to the recorder alone and was lost)."""
-        if self.pubs[topic].get_subscription_count() == 0:
+        panel's publisher has matched every reader the graph knows: any other reader,
+        such as the recorder, which subscribes to every topic it discovers, is not the
+        one an action is for (a goal went to the recorder alone and was lost), and a
+        node is known by name before its reader is matched."""
+        readers = self.get_subscriptions_info_by_topic(topic)
+        if self.pubs[topic].get_subscription_count() < len(readers):
             return 0
-        return sum(info.node_name == node and info.node_namespace == self.get_namespace()
-                   for info in self.get_subscriptions_info_by_topic(topic))
+        return sum(info.node_name == node and info.node_namespace == self.get_namespace() for info in readers)
 
     def on_state(self, buf: bytes) -> None:
         m = self.state_decoder.decode(buf)

@@ -184,7 +184,7 @@ class CycleRecord:
     @property
     def internal_force_norm_n(self) -> float:
         """|null-space part of the commands| (nominal model); computed when asked (status,
-        every status_decimation cycles), not in the 1-2 kHz loop."""
+        every status_decimation answers), not in the 1-2 kHz loop."""
         rows = self.rows
         if not len(rows) or len(rows) <= len(rows[0]) or len(self.forces) != len(rows):   # not run, no redundancy
             return 0.0
