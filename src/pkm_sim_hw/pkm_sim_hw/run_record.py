@@ -1,6 +1,6 @@
 """What sim_hw keeps of its run (pure, no rclpy): the counters, the intruder named,
 the steps published, and from them the diagnostics' values and the summary written
-at exit. The node (sim_hw_node) only publishes what this makes."""
+at exit. The loop (sim_loop) keeps it; the node only publishes what it makes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``sim_hw_node``: the simulated machine as a ROS 2 node (thin shell over plant.Plant).
+"""``sim_hw_node``: the simulated machine as a ROS 2 node (thin shell over sim_loop.SimLoop,
+which steps a plant.Plant).
 
 Timing (DESIGN.md): in ``lockstep`` (default) the node publishes the state of step k
 (``/clock``, ``drives/state``, ``platform/true_pose``, all stamped t_k), waits for the

@@ -1,0 +1,106 @@
+"""sim_hw's loop without ROS (pkm_sim_hw.sim_loop): the lockstep and the command
+authority decided on bytes, with the node's ports replaced by a recorder of calls.
+The node's own tests (test_sim_hw_node.py) run the same code through DDS."""
+
+from pkm_common.causes import TripCause, plant_stop_cause
+from pkm_common.cdr import JointStateDecoder, JointStateEncoder
+from pkm_kinematics import load_machine
+from pkm_sim_hw.authority import CommandGate
+from pkm_sim_hw.parameters import SimHwSettings
+from pkm_sim_hw.plant import Plant, PlantParameters
+from pkm_sim_hw.sim_loop import SimLoop
+from pkm_sim_hw.step_streams import StepStreams
+
+ARCHI = load_machine("archi")
+CONTROLLER = "/pkm/controller"
+
+
+class Wire:
+    """A publisher: keeps what was published."""
+
+    def __init__(self):
+        self.sent = []
+
+    def publish(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+class Ports:
+    def __init__(self):
+        self.publishers = [CONTROLLER]
+        self.refusals, self.diagnostics, self.errors, self.ended = [], [], [], False
+
+    def publish_diagnostics(self, stamp_ns, level, message, values):
+        self.diagnostics.append((level, message))
+
+    def publish_markers(self, segments, stamp_ns):
+        pass
+
+    def report_refusal(self, refusal, topic, text, plant_step, now_ns):
+        self.refusals.append(refusal)
+
+    def command_publishers(self):
+        return list(self.publishers)
+
+    def after_cycle(self):
+        pass
+
+    def run_finished(self):
+        self.ended = True
+
+    def log_info(self, text):
+        pass
+
+    def log_error(self, text):
+        self.errors.append(text)
+
+
+def lockstep_loop(duration_steps=0):
+    plant = Plant(ARCHI, PlantParameters(dt_s=0.001))
+    settings = SimHwSettings(ARCHI, plant, lockstep=True, command_timeout_s=1.0, sync_error_limit=12,
+                             gate=CommandGate("", True, 20_000_000), publish_markers=False,
+                             duration_s=duration_steps * 0.001, duration_steps=duration_steps, summary_path="",
+                             shutdown_on_finish=True)
+    state = Wire()
+    ports = Ports()
+    loop = SimLoop(settings, StepStreams(plant, ARCHI.model.task_space, Wire(), state, Wire()), ports)
+    return loop, state, ports
+
+
+def command(stamp_ns, effort=(0.0, 0.0, 0.0, 0.0)):
+    return JointStateEncoder(list(ARCHI.model.leg_names), fields=("effort",)).encode(stamp_ns, effort=effort)
+
+
+def test_each_answer_steps_the_plant_once_and_publishes_the_next_state():
+    loop, state, ports = lockstep_loop(duration_steps=3)
+    loop.publish_state()                                   # step 0, as the node does at start
+    decode = JointStateDecoder("drives/state").decode
+    for k in range(3):
+        assert decode(state.sent[-1]).stamp_ns == k * 1_000_000
+        loop.on_command(command(k * 1_000_000))
+        loop.on_command(command(k * 1_000_000))            # the same answer again: stale, not a step
+    # stale twice; the third repeat came after the last step: a finished run takes nothing
+    assert loop.plant.k == 3 and loop.counts["stale_commands"] == 2
+    assert ports.ended and loop.run.finished and not ports.refusals
+
+
+def test_a_command_ahead_of_the_plant_is_refused_and_the_plant_brakes():
+    loop, state, ports = lockstep_loop()
+    loop.publish_state()
+    loop.on_command(command(5_000_000))
+    assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INPUT_REFUSED
+    assert "ahead of the plant's step" in ports.refusals[0].reason
+    loop.publish_state()
+    assert plant_stop_cause(JointStateDecoder("drives/state").decode(state.sent[-1]).frame_id) \
+        == TripCause.INPUT_REFUSED                          # the status word says why
+
+
+def test_a_second_publisher_is_an_intruder_named_in_the_refusal():
+    loop, _, ports = lockstep_loop()
+    loop.publish_state()
+    loop.on_command(command(0))                            # the controller is the one publisher
+    assert loop.plant.k == 1 and not loop.plant.stopped
+    ports.publishers.append("/rogue")
+    loop.on_command_matched(2)
+    assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
+    assert ports.refusals[-1].sender == "/rogue" and loop.run.intruder_named
