@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from pkm_common.causes import TripCause
 from pkm_controller.controller import ControllerConfig, ControllerCore
 from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters
@@ -19,17 +20,22 @@ ARCHI = load_machine("archi")
 def excursion_under_delay(bandwidth_hz: float, delay_steps: int, settle: int = 400, window: int = 50) -> float:
     """Holding at home at 250 Hz: after ``settle`` steps, every command reaches the drives
     ``delay_steps`` steps late for ``window`` steps. The largest move from where the
-    tool had settled (m); inf if the controller tripped."""
+    tool had settled (m); inf if the controller tripped (on following error)."""
     core = ControllerCore(ARCHI, ControllerConfig(strategy="decentralized_projected", distribution="inf_norm",
                                                   dt_s=0.004, bandwidth_hz=bandwidth_hz))
     plant = Plant(ARCHI, PlantParameters(dt_s=0.004))
-    out, sent, settled, worst = plant.output(), [], None, 0.0
+    out, sent, settled, worst, held = plant.output(), [], None, 0.0, None
     for k in range(settle + 2 * window):
-        sent.append(core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces))
+        sent.append(core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+                                held=held))
         if core.stopped:
+            assert core.stop_cause == TripCause.FOLLOWING_ERROR, core.stop_reason
             return float("inf")
-        late = settle <= k < settle + window
-        out = plant.step(sent[k - delay_steps] if late else sent[k])
+        applied = k - delay_steps if settle <= k < settle + window else k
+        # the state says which command the drives applied, as sim_hw's status word does
+        # (setpoint_held): the drive supervision compares the forces with that one
+        held = None if applied == k else round(applied * 0.004 * 1e9)
+        out = plant.step(sent[applied])
         position = np.array(out.tool_pose[:2])
         if k == settle:
             settled = position
@@ -43,4 +49,5 @@ def test_the_panel_scenario_holds_through_four_late_steps_where_archis_default_t
     bandwidth = scenario["controller"]["bandwidth_hz"]
     assert scenario["dt_s"] == 0.004
     assert excursion_under_delay(bandwidth, 4) < 100e-6
-    assert excursion_under_delay(20.0, 1) == float("inf")       # ARCHI's default: one late step trips
+    assert excursion_under_delay(20.0, 1) > 1e-3                # ARCHI's default: one late step, mm
+    assert excursion_under_delay(20.0, 2) == float("inf")       # two: a following-error trip
