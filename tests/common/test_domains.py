@@ -4,7 +4,9 @@ import os
 import subprocess
 import sys
 
-from pkm_common.domains import DOMAIN_IDS, claim_domain_id
+import pytest
+
+from pkm_common.domains import DOMAIN_IDS, NoFreeDomain, claim_domain_id, domains_named_by_live_processes
 
 _CHILD = """
 import sys, time
@@ -14,18 +16,28 @@ time.sleep(30)
 """
 
 
+# IDs outside DOMAIN_IDS: no other process of this host (a parallel test worker's
+# graph) names them in its environment
+TEST_IDS = (150, 151, 152)
+
+
+def _environment(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("PKM_TEST_ROS_DOMAIN_ID", "ROS_DOMAIN_ID")}
+    return {**env, **extra}
+
+
 def test_live_processes_never_share_an_id_and_a_dead_ones_id_is_free_again(tmp_path, monkeypatch):
     monkeypatch.delenv("PKM_TEST_ROS_DOMAIN_ID", raising=False)
-    env = {k: v for k, v in os.environ.items() if k != "PKM_TEST_ROS_DOMAIN_ID"}
-    children = [subprocess.Popen([sys.executable, "-c", _CHILD, "1", "4", str(tmp_path)], env=env,
+    lo, hi = TEST_IDS[0], TEST_IDS[-1] + 1
+    children = [subprocess.Popen([sys.executable, "-c", _CHILD, str(lo), str(hi), str(tmp_path)], env=_environment(),
                                  stdout=subprocess.PIPE, text=True) for _ in range(3)]
     try:
         ids = [int(c.stdout.readline()) for c in children]
-        assert sorted(ids) == [1, 2, 3]                  # three live holders: all three IDs, once each
+        assert sorted(ids) == list(TEST_IDS)              # three live holders: all three IDs, once each
         children[1].kill()
         children[1].wait()
         # the kernel released the dead one's lock: its ID, and only it, is free again
-        assert claim_domain_id(ids=range(1, 4), lock_dir=str(tmp_path)) == ids[1]
+        assert claim_domain_id(ids=TEST_IDS, lock_dir=str(tmp_path)) == ids[1]
     finally:
         for c in children:
             c.kill()
@@ -34,3 +46,22 @@ def test_live_processes_never_share_an_id_and_a_dead_ones_id_is_free_again(tmp_p
 
 def test_the_ids_map_to_valid_fast_dds_ports():
     assert 0 not in DOMAIN_IDS and max(DOMAIN_IDS) == 232 and all(i <= 101 or i >= 215 for i in DOMAIN_IDS)
+
+
+def test_an_id_named_in_a_live_process_environment_is_not_claimed(tmp_path, monkeypatch):
+    """A graph started by hand with ROS_DOMAIN_ID set, or the nodes of a run whose
+    claiming process has ended (an orphan), hold no lock but use the domain."""
+    monkeypatch.delenv("PKM_TEST_ROS_DOMAIN_ID", raising=False)
+    used, free = TEST_IDS[0], TEST_IDS[1]
+    orphan = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                              env=_environment(ROS_DOMAIN_ID=str(used)))
+    try:
+        assert used in domains_named_by_live_processes()
+        with pytest.raises(NoFreeDomain, match="named in their environment"):
+            claim_domain_id(ids=[used], lock_dir=str(tmp_path), strict=True)
+        assert claim_domain_id(ids=[used, free], lock_dir=str(tmp_path), strict=True) == free
+    finally:
+        orphan.kill()
+        orphan.wait()
+    assert used not in domains_named_by_live_processes()
+    assert claim_domain_id(ids=[used], lock_dir=str(tmp_path), strict=True) == used

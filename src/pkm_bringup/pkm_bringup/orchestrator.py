@@ -661,7 +661,10 @@ def main(argv=None) -> int:
         print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, _interrupt)
-    print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated)", flush=True)
+    from pkm_bringup.processes import use_ros_environment
+    domain = use_ros_environment()["ROS_DOMAIN_ID"]     # this shell's, or one claimed: said, to join it
+    print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated, "
+          f"ROS_DOMAIN_ID={domain})", flush=True)
     run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress)
     print(format_summary(run, run_dir), flush=True)
     return EXIT_CODES[run["status"]]

@@ -19,11 +19,11 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from pkm_bringup.rt_profile import Scheduling, child_environment, preexec
+from pkm_common.domains import claim_domain_id
 
 MODULES = {
     "recorder": "pkm_bringup.recorder_node",
@@ -101,10 +101,12 @@ def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool
 
 def ros_environment() -> dict:
     """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else one
-    derived from the pid and the time) and discovery on localhost."""
+    claimed for this process: no live process on the host holds it) and discovery on
+    localhost."""
     env = dict(os.environ)
     env.pop("ROS_LOCALHOST_ONLY", None)
-    env.setdefault("ROS_DOMAIN_ID", str(1 + (os.getpid() + time.time_ns() // 10**9) % 101))
+    if "ROS_DOMAIN_ID" not in env:
+        env["ROS_DOMAIN_ID"] = str(claim_domain_id())
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env

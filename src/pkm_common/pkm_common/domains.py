@@ -5,7 +5,10 @@ whole graphs side by side on one machine; each claims a domain ID that no other 
 process on the host holds, so their runs never answer each other's states. The claim
 is an exclusive ``flock`` on ``<lock dir>/<id>.lock``, held by an open file for the
 life of the process and released by the kernel when it ends, even on a crash or a
-``kill -9``. With discovery kept on localhost (``ROS_AUTOMATIC_DISCOVERY_RANGE=
+``kill -9``. A process that names the ID in its environment holds it too: a graph
+started by hand (``ROS_DOMAIN_ID=5 pkm-run ...``), or the nodes of a run whose
+claiming process has ended (an orphan keeps its environment, not its parent's lock).
+With discovery kept on localhost (``ROS_AUTOMATIC_DISCOVERY_RANGE=
 LOCALHOST``, set by :func:`use_private_domain`), processes on different hosts never
 meet whatever their IDs, so the claim only needs to be unique per host.
 
@@ -15,6 +18,7 @@ ROS_DOMAIN_ID"); 0 is everybody's default, so :data:`DOMAIN_IDS` leaves it out.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import os
@@ -29,6 +33,29 @@ FORCE_ENV = "PKM_TEST_ROS_DOMAIN_ID"           # forces an ID (to watch a run wi
 _held: dict[int, int] = {}                      # domain ID -> the fd holding its lock (this process)
 
 
+def domains_named_by_live_processes(proc_dir: str = "/proc") -> set[int]:
+    """The ROS_DOMAIN_IDs in the environments of this host's live processes (this one
+    left out; processes whose environment cannot be read are skipped). The environment
+    is the one a process was started with: a child of a claiming process names the ID,
+    the claiming process itself may not, and its lock covers it."""
+    named, own = set(), str(os.getpid())
+    try:
+        pids = [p for p in os.listdir(proc_dir) if p.isdigit() and p != own]
+    except OSError:
+        return named
+    for pid in pids:
+        try:
+            with open(os.path.join(proc_dir, pid, "environ"), "rb") as fh:
+                environ = fh.read()
+        except OSError:
+            continue                             # ended meanwhile, or another user's
+        for entry in environ.split(b"\0"):
+            if entry.startswith(b"ROS_DOMAIN_ID="):
+                with contextlib.suppress(ValueError):
+                    named.add(int(entry[len(b"ROS_DOMAIN_ID="):]))
+    return named
+
+
 class NoFreeDomain(RuntimeError):
     """Every domain ID is held by a live process on this host (strict claims only)."""
 
@@ -36,23 +63,26 @@ class NoFreeDomain(RuntimeError):
 def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = False) -> int:
     """A domain ID no other live process on this host holds, locked for this process.
 
-    IDs are tried from a random start; the first whose lock file can be locked is
-    ours. Where locking is not supported the first ID tried is taken unlocked; when
-    every ID is held, one is shared rather than failing, unless ``strict`` (study
-    workers: runs must never share a domain), which raises NoFreeDomain and ignores
-    PKM_TEST_ROS_DOMAIN_ID."""
+    IDs are tried from a random start, skipping those a live process names in its
+    environment; the first whose lock file can be locked is ours. Where locking is not
+    supported the first ID tried is taken unlocked; when every ID is held, one is shared
+    rather than failing, unless ``strict`` (study workers: runs must never share a
+    domain), which raises NoFreeDomain and ignores PKM_TEST_ROS_DOMAIN_ID."""
     forced = os.environ.get(FORCE_ENV)
     if forced and not strict:
         return int(forced)
     ids = list(ids)
     start = random.Random(os.getpid() ^ time.time_ns()).randrange(len(ids))
     ids = ids[start:] + ids[:start]
+    named = domains_named_by_live_processes()
     try:
         os.makedirs(lock_dir, exist_ok=True)
         os.chmod(lock_dir, 0o1777)          # shared by all users, like /tmp
     except OSError:
         pass
     for domain_id in ids:
+        if domain_id in named:
+            continue                            # an unlocked user: a graph by hand, an orphan
         try:
             fd = os.open(os.path.join(lock_dir, f"{domain_id}.lock"), os.O_RDONLY | os.O_CREAT, 0o644)
         except OSError:
@@ -70,7 +100,7 @@ def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = Fal
         return domain_id
     if strict:
         raise NoFreeDomain(f"all {len(ids)} ROS domain IDs are held by live processes on this host "
-                           f"(locks in {lock_dir}); fewer workers per host")
+                           f"(locks in {lock_dir}, or named in their environment); fewer workers per host")
     return ids[0]
 
 
