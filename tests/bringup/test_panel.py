@@ -330,3 +330,41 @@ def test_a_reset_whose_stop_fails_still_listens_to_the_graph():
         graph.restart(panel.restarted)
     panel.on_state(1_000_000, ["q1"], [0.0], [0.0], [0.0], "safe_stop:watchdog")
     assert panel.snapshot()["estop"]["why"] == "the drives braked: watchdog"
+
+
+_PANEL_THAT_DIES = """
+import sys, time
+from pkm_bringup.panel_main import Graph
+graph = Graph("scenario.yaml", "runs")
+graph.command = [sys.executable, "-c", "import time; time.sleep(60)"]    # stands for pkm-run
+graph.start()
+print(graph.process.pid, flush=True)
+time.sleep(60)
+"""
+
+
+def test_the_graph_a_panel_started_dies_with_the_panel_even_killed():
+    """An orphan graph would hold the machine, and its DDS domain, with nobody to stop it."""
+    import os
+    import subprocess
+    import sys
+    import time
+    panel = subprocess.Popen([sys.executable, "-c", _PANEL_THAT_DIES], stdout=subprocess.PIPE, text=True)
+    try:
+        graph_pid = int(panel.stdout.readline())
+        os.kill(graph_pid, 0)                          # running
+        panel.kill()
+        panel.wait()
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end:
+            try:
+                os.kill(graph_pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        else:
+            os.kill(graph_pid, 9)
+            pytest.fail("the graph outlived its panel by 10 s")
+    finally:
+        panel.kill()
+        panel.wait()

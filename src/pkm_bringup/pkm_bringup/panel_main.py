@@ -24,6 +24,7 @@ import sys
 import threading
 from pathlib import Path
 
+from pkm_bringup.processes import die_with_parent, use_ros_environment
 from pkm_common.conversions import MACHINE_KINDS
 
 LOG = logging.getLogger("pkm-panel")
@@ -32,17 +33,21 @@ LOG = logging.getLogger("pkm-panel")
 class Graph:
     """A graph the panel started: ``pkm-run SCENARIO`` as a child process; a reset
     ends it (SIGTERM: its run is recorded and reported as interrupted) and starts
-    another run of the same scenario."""
+    another run of the same scenario. The graph dies with the panel, however the panel
+    ends (PR_SET_PDEATHSIG, as pkm-run's own nodes): an orphan would hold the machine
+    and its domain with nobody to stop it. The signal follows the thread that started
+    the graph: the main thread, or a worker of asyncio's default executor (a reset),
+    which lives until the panel's event loop closes."""
 
     def __init__(self, scenario: str, runs: str, rt_profile: bool = False):
-        self.scenario, self.runs, self.process = scenario, runs, None
-        self.options = ["--rt-profile"] if rt_profile else []
+        self.scenario, self.process = scenario, None
+        self.command = [sys.executable, "-m", "pkm_bringup.orchestrator", scenario, "--runs", runs,
+                        "--no-progress", *(["--rt-profile"] if rt_profile else [])]
         self.lock = threading.Lock()
 
     def start(self) -> None:
         with self.lock:
-            self.process = subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", self.scenario,
-                                             "--runs", self.runs, "--no-progress", *self.options])
+            self.process = subprocess.Popen(self.command, preexec_fn=die_with_parent)
             LOG.info("graph started: pkm-run %s (pid %d)", self.scenario, self.process.pid)
 
     def stop(self, timeout_s: float = 60.0) -> None:
@@ -135,6 +140,8 @@ def main(argv=None) -> int:
                   f"can and ends), got {s.mode}", file=sys.stderr)
             return 2
         machine, namespace = args.machine or s.machine, args.namespace or s.namespace
+        domain = use_ros_environment()["ROS_DOMAIN_ID"]       # the panel's and its graph's (this shell's, or claimed)
+        LOG.info("the graph runs in ROS_DOMAIN_ID=%s", domain)
         if args.rt_profile or s.realtime_profile:
             from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
             try:
