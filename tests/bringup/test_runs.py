@@ -271,6 +271,8 @@ def test_interrupted_run_leaves_a_valid_bag_and_no_process(tmp_path, sig):
         counts = {c.topic: c.msgcount for c in reader.connections}
     run = json.loads((run_dir / "run.json").read_text())
     assert run["status"] == "failed" and "interrupted" in run["error"]
+    # the interrupt stopped the machine first (an E-stop), not the plant's watchdog later
+    assert run["cause"] == "estop", (run["cause"], run["trip_reason"])
     steps = run["recorded"]["/pkm/drives/state"]          # distinct stamps (discovery repeats once)
     assert 100 < steps < 4956 and run["recorded"]["/pkm/drives/command"] >= steps - 1
     assert counts["/pkm/drives/state"] >= steps             # the bag itself holds them all

@@ -125,6 +125,7 @@ def _monitor(context, namespace: str):
     node = Node("bringup_monitor", namespace=namespace, context=context)
     node.sim_time_s = 0.0
     node.sim_finished = False
+    node.controller_stopped = False
 
     def on_diagnostics(msg):
         for status in msg.status:
@@ -135,9 +136,32 @@ def _monitor(context, namespace: str):
 
     def on_time(msg):
         node.sim_time_s = max(node.sim_time_s, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+
+    def on_status(msg):                 # a safe stop publishes its status at once
+        on_time(msg)
+        node.controller_stopped = node.controller_stopped or any(
+            kv.key == "mode" and kv.value == "stopped" for status in msg.status for kv in status.values)
     node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, STREAM_QOS)
-    node.create_subscription(DiagnosticArray, "controller/status", on_time, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "controller/status", on_status, STREAM_QOS)
     return node
+
+
+def _estop_before_stop(executor, monitor, nodes: dict, wait_s: float = 1.0) -> None:
+    """An interrupted run stops the machine before its processes, as the panel's E-stop
+    does: the controller brakes the plant and names the stop (cause estop). Stopped
+    first, the controller would leave a realtime plant to its watchdog, and the run would
+    name that consequence ("watchdog") as its cause. Waits up to ``wait_s`` for the
+    controller's stopped status."""
+    from std_msgs.msg import Bool
+
+    from pkm_common.qos import LATCHED_QOS
+    controller = nodes.get("controller")
+    if controller is None or not controller.running() or monitor.controller_stopped:
+        return
+    monitor.create_publisher(Bool, "estop", LATCHED_QOS).publish(Bool(data=True))
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end and not monitor.controller_stopped:
+        executor.spin_once(timeout_sec=0.02)
 
 
 def init_context():
@@ -254,9 +278,11 @@ def _in_process_profile(s: Scenario, in_process: bool):
     return applied_to_this_process()
 
 
-def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
+def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
+                  interruption=None) -> dict:
     """The scenario as separate processes; fills and returns ``codes`` (exit codes).
-    Raises RunFailed."""
+    Raises RunFailed. ``interruption``: the run's _Interruption (signalled: an E-stop
+    before the ordered stop)."""
     from pkm_bringup.processes import start_node, stop_nodes
     context = init_context()
     from rclpy.experimental import EventsExecutor
@@ -329,6 +355,8 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     finally:
         progress.done()
         with _signals_ignored():              # a second Ctrl-C must not abandon the ordered stop
+            if interruption is not None and interruption.signalled:
+                _estop_before_stop(executor, monitor, nodes)
             codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes]))
         executor.shutdown()
         monitor.destroy_node()
@@ -336,8 +364,10 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     return codes
 
 
-def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict) -> dict:
-    """The scenario with every node in one EventsExecutor (same parameters)."""
+def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
+                   interruption=None) -> dict:
+    """The scenario with every node in one EventsExecutor (same parameters); an
+    interruption stops every node at once (no plant runs on without its controller)."""
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
@@ -524,7 +554,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     try:
         run = run_in_process if in_process else run_processes
         with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
-            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes)
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption)
     except RunFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
