@@ -13,6 +13,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
+from pkm_common.causes import TripCause
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_controller.controller_node import ControllerNode
 from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
@@ -257,3 +258,33 @@ def test_a_stopped_controller_keeps_saying_so(ros_graph):
     after = modes[stopped_at:]
     assert after.count("stopped") >= 3 and set(after) == {"stopped"}, modes
     assert len(after) <= 6, f"a stopped controller floods its status: {len(after)} in 40 answers"
+
+
+@pytest.mark.ros
+def test_a_second_publisher_of_drive_states_stops_the_controller_naming_it(ros_graph):
+    """Nothing but its plant may feed the controller: states from another node would
+    move the machine through the controller's answers. The rogue here never sends a
+    state; publishing on the topic is enough (as for the plant's drives/command)."""
+    ctrl = ros_graph.add_node(ControllerNode(context=ros_graph.context,
+                                             parameter_overrides=overrides(state_source="/plant")))
+    plant = ros_graph.create_node("plant")
+    pub = plant.create_publisher(JointState, "drives/state", STREAM_QOS)
+    commands = []
+    plant.create_subscription(JointState, "drives/command", lambda m: commands.append(m), STREAM_QOS)
+    assert ros_graph.spin_until(lambda: pub.get_subscription_count() > 0, timeout_sec=5.0)
+    names, home = list(ARCHI.model.leg_names), ARCHI.model.inverse_kinematics(ARCHI.model.home).tolist()
+    for k in range(5):
+        pub.publish(_state(names, home, k * 1_000_000))
+        assert ros_graph.spin_until(lambda: len(commands) > k, timeout_sec=5.0), f"no answer to state {k}"
+    ros_graph.spin_until(lambda: False, timeout_sec=0.3)          # a few graph checks: nothing found
+    assert not ctrl.core.stopped, ctrl.core.stop_reason
+    rogue = ros_graph.create_node("rogue")
+    rogue.create_publisher(JointState, "drives/state", STREAM_QOS)
+    assert ros_graph.spin_until(lambda: ctrl.core.stopped, timeout_sec=5.0)
+    assert ctrl.core.stop_cause == TripCause.INTRUDER, ctrl.core.stop_reason
+    assert ros_graph.spin_until(lambda: ctrl.loop.summary()["intruder"] == "/rogue", timeout_sec=5.0)
+    assert ctrl.core.stop_reason in ("/rogue publishes on drives/state (only /plant may)",
+                                     "2 publishers on drives/state (only /plant may)"), ctrl.core.stop_reason
+    pub.publish(_state(names, home, 5_000_000))                  # answered, with the brakes' zero forces
+    assert ros_graph.spin_until(lambda: len(commands) > 5, timeout_sec=5.0)
+    assert not any(commands[-1].effort)

@@ -481,7 +481,12 @@ def _typed(node: str, params: dict) -> dict:
 
 def controller_node_name(s: Scenario) -> str:
     """The full name of the run's controller: the one node sim_hw takes commands from."""
-    return f"{s.namespace.rstrip('/')}/controller"
+    return run_node_name(s, "controller")
+
+
+def run_node_name(s: Scenario, node: str) -> str:
+    """The full name of one of the run's nodes (the one source of what it publishes)."""
+    return f"{s.namespace.rstrip('/')}/{node}"
 
 
 def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
@@ -498,6 +503,8 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
                        "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
+                       "state_source": run_node_name(s, "sim_hw"),
+                       "metrology_source": run_node_name(s, "gough_sensor") if s.metrology else "",
                        "summary_path": str(summaries / "controller.json")},
     }
     if s.metrology:

@@ -26,13 +26,14 @@ from dataclasses import fields
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.causes import TripCause
-from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp
+from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, publisher_names
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -45,7 +46,9 @@ from pkm_controller.strategies import Feedback
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
                    "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
-                   "wait_for_start": False, "end_time_s": 0.0}
+                   "wait_for_start": False, "end_time_s": 0.0,
+                   # full node names of the inputs' sources (node_loop; empty: the one publisher)
+                   "state_source": "", "metrology_source": ""}
 
 
 class ControllerNode(LifecycleNode):
@@ -56,6 +59,7 @@ class ControllerNode(LifecycleNode):
         super().__init__("controller", context=context, **kwargs)
         self.loop = None               # the configured controller (node_loop.ControllerLoop)
         self.entities = []
+        self.inputs = {}               # input topic -> its subscription (publishers())
         self.configure_error = ""
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
                                               "to a recorder in batches (pkm_common.tap)"))
@@ -99,8 +103,7 @@ class ControllerNode(LifecycleNode):
                                                   lambda m: loop.operator(Action.FEED_OVERRIDE, m.data), STREAM_QOS),
                          self.create_subscription(String, "controller/settings",
                                                   lambda m: loop.operator(Action.SETTINGS, m.data), STREAM_QOS),
-                         self.create_subscription(JointState, "drives/state", loop.on_state, STREAM_QOS,
-                                                  raw=True),
+                         self._input(JointState, "drives/state", loop.on_state),
                          self.create_subscription(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory,
                                                   LATCHED_QOS, raw=True),
                          self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS),
@@ -109,11 +112,18 @@ class ControllerNode(LifecycleNode):
                          self.create_timer(0.01, loop.on_watchdog)]
         if strategy.uses_metrology:
             struts = strategy.feedback == Feedback.STRUTS
-            self.entities.append(self.create_subscription(JointState if struts else PoseStamped,
-                                                          strategy.metrology_topic, loop.on_metrology, STREAM_QOS,
-                                                          raw=True))
+            self.entities.append(self._input(JointState if struts else PoseStamped, strategy.metrology_topic,
+                                             loop.on_metrology))
         self.get_logger().info(f"configured: {values['machine']}, {config.strategy}, {config.distribution}")
         return TransitionCallbackReturn.SUCCESS
+
+    def _input(self, msg_type, topic: str, callback):
+        """A per-step input (raw bytes) whose publishers are watched (node_loop: one source)."""
+        subscription = self.create_subscription(
+            msg_type, topic, callback, STREAM_QOS, raw=True,
+            event_callbacks=SubscriptionEventCallbacks(matched=lambda s: self.loop.on_matched(topic, s.current_count)))
+        self.inputs[topic] = subscription
+        return subscription
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.loop.active = True
@@ -140,8 +150,12 @@ class ControllerNode(LifecycleNode):
                 if destroy(entity):
                     break
         self.entities = []
+        self.inputs = {}
 
     # ------------------------------------------------ the loop's ports (node_loop)
+    def publishers(self, topic: str) -> list[str]:
+        return publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))
+
     def resend_command(self, command: bytes) -> None:
         self.pub_command.publish(command)        # not tapped: the bag holds one per stamp
 

@@ -9,7 +9,17 @@ boundary: the node owns the middleware, this owns the decisions).
 stamp), ``publish_reference_bytes(bytes)``, ``publish_status(stamp_ns, level,
 message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop()``
 (latched true: the drives brake), ``after_cycle()`` (the end of an answer: the
-recording tap's moment to flush), ``log_info(text)`` and ``log_error(text)``.
+recording tap's moment to flush), ``publishers(topic)`` (the full names of the nodes
+publishing an input topic, one per publisher), ``log_info(text)`` and
+``log_error(text)``.
+
+Its inputs have one source each, as the plant's commands do (pkm_common.sources):
+``drives/state`` comes from ``state_source`` (pkm-run: the run's sim_hw) and the
+metrology from ``metrology_source`` (its gough_sensor), or else from the one
+publisher there is at the first state answered. Another publisher on either would
+move the machine through this controller's answers: it stops it (cause intruder),
+named, when its publisher matches (before its first message) or at the next check
+of the graph (every ``SOURCE_CHECK_S``).
 """
 
 from __future__ import annotations
@@ -20,6 +30,7 @@ from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
                             decode_pose_stamped, in_order)
 from pkm_common.conversions import machine_pose_components
+from pkm_common.sources import Intrusion, SourceGate
 from pkm_common.timing import DurationHistogram
 
 from .configuration import metrology_inputs, run_summary
@@ -29,7 +40,9 @@ from .operator import Action, OperatorInbox, apply_action, event_json, event_sum
 from .reference import reference_from_trajectory
 from .strategies import Feedback
 
-__all__ = ["ControllerLoop"]
+__all__ = ["ControllerLoop", "SOURCE_CHECK_S"]
+
+SOURCE_CHECK_S = 0.1            # how often the graph is asked who publishes the inputs
 
 
 class ControllerLoop:
@@ -66,6 +79,13 @@ class ControllerLoop:
         self.reference_encoder = PoseStampedEncoder("world")
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
+        self.sources = [SourceGate("drives/state", values["state_source"], "state_source")]
+        if strategy.uses_metrology:
+            self.sources.append(SourceGate(strategy.metrology_topic, values["metrology_source"], "metrology_source"))
+        self.sources_connected = False
+        self.matched = {}               # input topic -> publishers matched to its subscription
+        self.intruder = ""              # the intruders' node names, once the graph knows them
+        self.sources_checked = 0.0      # monotonic time of the last check of the graph
 
     # ----------------------------------------------------------------- inputs
     def on_state(self, buf: bytes) -> None:
@@ -85,6 +105,9 @@ class ControllerLoop:
                 self.safe_stop(str(exc), TripCause.INPUT_REFUSED)
             return
         self.run_ended = self.run_ended or 0 < self.end_ns <= msg.stamp_ns
+        if not self.sources_connected:
+            self.sources_connected = True            # the first state answered: its source is ours
+            self.check_sources()
         plant_cause = plant_stop_cause(msg.frame_id)
         if plant_cause is not None and not self.core.stopped:
             self.safe_stop_plant(plant_cause)      # the drives' status word: the plant braked
@@ -151,7 +174,36 @@ class ControllerLoop:
             self.report([apply_action(self.core, Action.ESTOP, None, after_ns=self.last_answer[0])])
             self.safe_stop("estop", TripCause.ESTOP)
 
+    def on_matched(self, topic: str, count: int) -> None:
+        """A publisher matched an input's subscription (before its first message)."""
+        self.matched[topic] = count
+        if self.sources_connected and count > 1 and not self.intruder:
+            self.check_sources()
+
+    def check_sources(self) -> None:
+        """Ask the graph who publishes the inputs (a source not known yet: the one
+        publisher there is). An intruder stops the machine at once, named, or counted
+        until the graph knows its name (then named in the log and the summary)."""
+        self.sources_checked = time.monotonic()
+        for gate in self.sources:
+            publishers = self.ports.publishers(gate.topic)
+            matched = self.matched.get(gate.topic, 1)
+            found = gate.check(publishers) if gate.source else gate.connect(publishers, matched)
+            if found is None and gate.source and matched > max(1, len(publishers)):
+                found = Intrusion(f"{matched} publishers on {gate.topic} (only {gate.source} may)")
+            if found is None:
+                continue
+            self.intruder = found.sender          # named: the checks end
+            if self.active and not self.core.stopped:
+                self.safe_stop(found.reason, TripCause.INTRUDER)
+            elif found.sender:
+                self.ports.log_error(found.reason)
+            return
+
     def on_watchdog(self) -> None:
+        if self.sources_connected and not self.intruder and \
+                time.monotonic() - self.sources_checked >= SOURCE_CHECK_S:
+            self.check_sources()
         if not self.active or self.core.stopped or self.run_ended:
             return
         fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
@@ -231,4 +283,4 @@ class ControllerLoop:
     def summary(self) -> dict:
         """The run's summary file (configuration.run_summary) and the answers sent again."""
         return {**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
-                "commands_resent": self.commands_resent}
+                "commands_resent": self.commands_resent, "intruder": self.intruder}

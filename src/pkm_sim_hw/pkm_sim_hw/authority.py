@@ -6,11 +6,11 @@ hardware/controller boundary, made explicit):
 
 * **Source.** ``command_source`` names the controller node (``/pkm/controller``); empty:
   the one publisher on ``drives/command`` when the first command arrives. Any other
-  publisher on the topic, at any time, is an intruder: the plant holds safe and the
-  diagnostics name it. DDS gives no sender per message; the node counts the
-  publishers matched to its subscription (the ``matched`` event, which comes before a
-  new publisher's first message) and asks the graph who publishes
-  (``get_publishers_info_by_topic``) at the first command and on every watchdog tick.
+  publisher on the topic, at any time, is an intruder (pkm_common.sources, which the
+  controller uses for its own inputs the other way round): the plant holds safe and
+  the diagnostics name it. The node counts the publishers matched to its
+  subscription and asks the graph who publishes at the first command and on every
+  watchdog tick.
   (Each publisher numbers its messages, but rclpy 7.1.6's EventsExecutor raises a
   SystemError for a raw subscription that asks for the message info, so the numbers
   are not used.)
@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pkm_common.causes import TripCause
+from pkm_common.sources import Intrusion, SourceGate
 
 __all__ = ["CommandGate", "Refusal", "STALE", "APPLY"]
 
@@ -51,10 +52,9 @@ class CommandGate:
     def __init__(self, command_source: str, lockstep: bool, max_age_ns: int):
         if max_age_ns <= 0:
             raise ValueError(f"command_max_age_s: must be > 0, got {max_age_ns * 1e-9:g} s")
-        self.expected = command_source
+        self.sources = SourceGate("drives/command", command_source, "command_source")
         self.lockstep = lockstep
         self.max_age_ns = max_age_ns
-        self.source = command_source         # the controller, once known
 
     def check_stamp(self, stamp_ns: int, now_ns: int) -> str | Refusal:
         """APPLY, STALE (lockstep: an answer to an older state) or a Refusal."""
@@ -74,31 +74,17 @@ class CommandGate:
     def check_publishers(self, publishers: list[str]) -> Refusal | None:
         """The fully qualified names of the nodes publishing drives/command, one per
         publisher: any other than the controller, or a second publisher under its
-        name (an orphan of an earlier run), is an intruder. Before the controller is
-        known (no ``command_source``, no command yet) nothing is decided."""
-        if not self.source:
-            return None
-        others = sorted({p for p in publishers if p != self.source})
-        if publishers.count(self.source) > 1:
-            others.append(f"a second {self.source}")
-        if not others:
-            return None
-        return Refusal(f"{', '.join(others)} publishes on drives/command (only {self.source} may)",
-                       TripCause.INTRUDER, sender=", ".join(others))
+        name (an orphan of an earlier run), is an intruder (pkm_common.sources).
+        Before the controller is known (no ``command_source``, no command yet)
+        nothing is decided."""
+        return _refused(self.sources.check(publishers))
 
     def connect(self, publishers: list[str], matched: int = 1) -> Refusal | None:
         """At the first command: the controller is the expected one, or else the one
         publisher there is; two publishers (``matched`` to the subscription, named or
         not yet) without a ``command_source`` are refused."""
-        if not self.source and matched > 1:
-            return Refusal(f"{matched} publishers on drives/command: set command_source to the controller's node "
-                           "name", TripCause.INTRUDER, sender=", ".join(sorted(set(publishers))))
-        if not self.source:
-            distinct = sorted(set(publishers))
-            if len(distinct) > 1:
-                return Refusal(f"{len(distinct)} publishers on drives/command ({', '.join(distinct)}): "
-                               "set command_source to the controller's node name", TripCause.INTRUDER,
-                               sender=", ".join(distinct))
-            if distinct:
-                self.source = distinct[0]
-        return self.check_publishers(publishers)
+        return _refused(self.sources.connect(publishers, matched))
+
+
+def _refused(intrusion: Intrusion | None) -> Refusal | None:
+    return None if intrusion is None else Refusal(intrusion.reason, TripCause.INTRUDER, sender=intrusion.sender)

@@ -1,0 +1,63 @@
+"""Who may publish on a topic a node acts on (pure, no rclpy).
+
+DDS gives no sender per message: a node that acts on a stream (the plant on
+``drives/command``, the controller on ``drives/state`` and its metrology) asks the
+graph who publishes it (``get_publishers_info_by_topic``, full node names) and counts
+the publishers matched to its subscription (the ``matched`` event comes before a new
+publisher's first message). The source is the node it was told (a ``*_source``
+parameter) or, with none, the one publisher there is at the first message; any other
+publisher, or a second one under the source's name (an orphan of an earlier run), is
+an intruder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Intrusion", "SourceGate"]
+
+
+@dataclass(frozen=True)
+class Intrusion:
+    """Another publisher on the topic: why, and who (node names, when known)."""
+
+    reason: str
+    sender: str = ""
+
+
+class SourceGate:
+    """The one source of ``topic`` (``expected``: a full node name, or "" for the one
+    publisher at the first message; ``parameter``: the parameter that names it, for
+    the message)."""
+
+    def __init__(self, topic: str, expected: str = "", parameter: str = "source"):
+        self.topic, self.expected, self.parameter = topic, expected, parameter
+        self.source = expected               # the node, once known
+
+    def check(self, publishers: list[str]) -> Intrusion | None:
+        """The nodes publishing ``topic``, one name per publisher: any other than the
+        source is an intruder. Before the source is known nothing is decided."""
+        if not self.source:
+            return None
+        others = sorted({p for p in publishers if p != self.source})
+        if publishers.count(self.source) > 1:
+            others.append(f"a second {self.source}")
+        if not others:
+            return None
+        return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {self.source} may)", ", ".join(others))
+
+    def connect(self, publishers: list[str], matched: int = 1) -> Intrusion | None:
+        """At the first message: the source is the expected node, or else the one
+        publisher there is; two publishers (``matched`` to the subscription, named or
+        not yet) and no expected node are refused."""
+        if not self.source and matched > 1:
+            return Intrusion(f"{matched} publishers on {self.topic}: set {self.parameter} to the node name of its "
+                             "source", ", ".join(sorted(set(publishers))))
+        if not self.source:
+            distinct = sorted(set(publishers))
+            if len(distinct) > 1:
+                return Intrusion(f"{len(distinct)} publishers on {self.topic} ({', '.join(distinct)}): set "
+                                 f"{self.parameter} to the node name of its source", ", ".join(distinct))
+            if distinct:
+                self.source = distinct[0]
+        return self.check(publishers)
