@@ -31,6 +31,7 @@ FOLLOW_BOUND_M = 1e-3         # the tool's distance to its reference at the stop
 class Adversary(threading.Thread):
     """A node of another context in the run's domain that acts once /clock passes
     ONSET_S: ``commands`` publishes 1e9 N drive commands stamped like the plant,
+    ``states`` drive states 10 mm off stamped like the plant (to the controller),
     ``estop`` latches estop, ``load`` sends a 1e7 N external load."""
 
     def __init__(self, action: str, namespace: str = "/pkm"):
@@ -69,6 +70,13 @@ class Adversary(threading.Thread):
                     t_ns = round(clock[-1] * 1e9)
                     pub.publish(joint_state_msg(["q1", "q2", "q3", "q4"], t_ns, effort=[1e9] * 4))
                     executor.spin_once(timeout_sec=0.002)
+            elif self.action == "states":           # encoders 10 mm off, stamped like the plant
+                pub = node.create_publisher(JointState, "drives/state", STREAM_QOS)
+                for _ in range(200):
+                    t_ns = round(clock[-1] * 1e9)
+                    pub.publish(joint_state_msg(["q1", "q2", "q3", "q4"], t_ns, position=[1.01] * 4,
+                                                velocity=[0.0] * 4))
+                    executor.spin_once(timeout_sec=0.002)
             elif self.action == "estop":
                 node.create_publisher(Bool, "estop", LATCHED_QOS).publish(Bool(data=True))
             elif self.action == "load":
@@ -93,6 +101,7 @@ CASES = [
     ("drive_locked", "archi_demo", f"0:locked:{ONSET_S}", None, "drive_failure", "q1"),
     ("drive_no_force_mom3", "mom3_square", f"0:no_force:{ONSET_S}", None, "drive_failure", "q1"),
     ("intruder_1e9_N", "archi_demo", "", "commands", "intruder", "/pkm/rogue"),
+    ("intruder_states", "archi_demo", "", "states", "intruder", "/pkm/rogue"),
     ("estop", "archi_demo", "", "estop", "estop", ""),
     ("load_1e7_N", "archi_demo", "", "load", "load_refused", "max_load_n"),
 ]
