@@ -24,6 +24,18 @@ def test_shipped_scenarios_load(path, tmp_path):
         assert data["/**"]["ros__parameters"] == values, name
 
 
+def test_each_loop_input_is_wired_to_its_one_source(tmp_path):
+    """Who may publish what the plant and the controller act on: the run's own nodes."""
+    p = node_parameters(load_scenario("archi_demo", {"namespace": "/cell2"}), tmp_path)
+    assert p["sim_hw"]["command_source"] == "/cell2/controller"
+    assert (p["controller"]["state_source"], p["controller"]["metrology_source"]) == \
+        ("/cell2/sim_hw", "/cell2/gough_sensor")
+    no_metrology = node_parameters(load_scenario("archi_demo", {"metrology": False,
+                                                                "controller": {"strategy": "computed_torque"}}),
+                                   tmp_path)["controller"]
+    assert no_metrology["state_source"] == "/pkm/sim_hw" and "metrology_source" not in no_metrology
+
+
 def test_default_scenario_is_the_archi_demo():
     s = load_scenario("archi_demo")
     assert (s.machine, s.strategy, s.controller["distribution"], s.metrology, s.record) == \

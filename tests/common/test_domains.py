@@ -52,7 +52,7 @@ def test_an_id_named_in_a_live_process_environment_is_not_claimed(tmp_path, monk
     """A graph started by hand with ROS_DOMAIN_ID set, or the nodes of a run whose
     claiming process has ended (an orphan), hold no lock but use the domain."""
     monkeypatch.delenv("PKM_TEST_ROS_DOMAIN_ID", raising=False)
-    used, free = TEST_IDS[0], TEST_IDS[1]
+    used, free = 160, 161              # not TEST_IDS: the test above may run beside this one (xdist)
     orphan = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
                               env=_environment(ROS_DOMAIN_ID=str(used)))
     try:

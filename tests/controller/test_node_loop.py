@@ -20,7 +20,7 @@ class Ports:
         self.graph = {"drives/state": ["/plant"]}
         self.commands, self.errors = [], []
 
-    def publishers(self, topic):
+    def input_publishers(self, topic):
         return list(self.graph.get(topic, []))
 
     def publish_command(self, command):

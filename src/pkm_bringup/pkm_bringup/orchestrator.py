@@ -151,17 +151,18 @@ def _estop_before_stop(executor, monitor, nodes: dict, wait_s: float = 1.0) -> N
     does: the controller brakes the plant and names the stop (cause estop). Stopped
     first, the controller would leave a realtime plant to its watchdog, and the run would
     name that consequence ("watchdog") as its cause. Waits up to ``wait_s`` for the
-    controller's stopped status."""
+    controller's stopped status. Whatever fails here, the ordered stop that follows runs."""
     from std_msgs.msg import Bool
-
-    from pkm_common.qos import LATCHED_QOS
     controller = nodes.get("controller")
     if controller is None or not controller.running() or monitor.controller_stopped:
         return
-    monitor.create_publisher(Bool, "estop", LATCHED_QOS).publish(Bool(data=True))
-    end = time.monotonic() + wait_s
-    while time.monotonic() < end and not monitor.controller_stopped:
-        executor.spin_once(timeout_sec=0.02)
+    try:
+        monitor.estop_publisher.publish(Bool(data=True))
+        end = time.monotonic() + wait_s
+        while time.monotonic() < end and not monitor.controller_stopped:
+            executor.spin_once(timeout_sec=0.02)
+    except Exception as exc:              # noqa: BLE001 - the processes must still be stopped in order
+        print(f"pkm-run: the E-stop before the stop failed: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
 def init_context():
@@ -289,6 +290,11 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     executor = EventsExecutor(context=context)
     monitor = _monitor(context, s.namespace)
     executor.add_node(monitor)
+    from std_msgs.msg import Bool
+
+    from pkm_common.qos import LATCHED_QOS
+    # matched with the controller from the start: an interrupt's E-stop goes out at once
+    monitor.estop_publisher = monitor.create_publisher(Bool, "estop", LATCHED_QOS)
     nodes = {}
 
     def check_alive(allowed_done=()):
@@ -656,6 +662,8 @@ class _Interruption(_stop_signals):
         super().__init__(self._raise)
 
     def _raise(self, *_):
+        if self.signalled:                 # a second signal (a panel's SIGTERM after a Ctrl-C, ...):
+            return                         # the ordered stop of the first one is running
         self.signalled = True
         raise KeyboardInterrupt
 

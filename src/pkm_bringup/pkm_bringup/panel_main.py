@@ -4,7 +4,8 @@
     pkm-panel --machine archi                # joins a graph already running (pkm-run, realtime)
 
 then open http://127.0.0.1:8080/ . The panel joins the graph of this shell's
-``ROS_DOMAIN_ID`` in ``--namespace`` (with ``--start``: the scenario's). It is bound to
+``ROS_DOMAIN_ID`` in ``--namespace`` (with ``--start``: the scenario's namespace, and a
+domain claimed for the panel and its graph when the shell sets none). It is bound to
 127.0.0.1 by default; bound to any other address it requires a token for control
 (``--token``, or one is made and printed), and the E-stop stays open to every page.
 Every action is logged, accepted or refused (stderr, and ``--log`` as JSON lines).
@@ -24,7 +25,6 @@ import sys
 import threading
 from pathlib import Path
 
-from pkm_bringup.processes import die_with_parent, use_ros_environment
 from pkm_common.conversions import MACHINE_KINDS
 
 LOG = logging.getLogger("pkm-panel")
@@ -46,6 +46,7 @@ class Graph:
         self.lock = threading.Lock()
 
     def start(self) -> None:
+        from pkm_bringup.processes import die_with_parent
         with self.lock:
             self.process = subprocess.Popen(self.command, preexec_fn=die_with_parent)
             LOG.info("graph started: pkm-run %s (pid %d)", self.scenario, self.process.pid)
@@ -140,6 +141,7 @@ def main(argv=None) -> int:
                   f"can and ends), got {s.mode}", file=sys.stderr)
             return 2
         machine, namespace = args.machine or s.machine, args.namespace or s.namespace
+        from pkm_bringup.processes import use_ros_environment
         domain = use_ros_environment()["ROS_DOMAIN_ID"]       # the panel's and its graph's (this shell's, or claimed)
         LOG.info("the graph runs in ROS_DOMAIN_ID=%s", domain)
         if args.rt_profile or s.realtime_profile:

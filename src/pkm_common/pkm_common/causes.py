@@ -37,7 +37,7 @@ class TripCause(str, enum.Enum):
     DRIVE_FAILURE = "drive_failure"          # a drive's force differs from its command
     ENCODER_FAULT = "encoder_fault"          # a frozen or slipping encoder
     INPUT_REFUSED = "input_refused"          # a malformed, NaN, stale or future input
-    INTRUDER = "intruder"                    # a second publisher on drives/command
+    INTRUDER = "intruder"                    # a second publisher on drives/command, drives/state, metrology
     ESTOP = "estop"                          # an operator's estop
     WATCHDOG = "watchdog"                    # an input went silent
     DEADLINE_MISSED = "deadline_missed"      # realtime: commands missed the plant's cycle too often

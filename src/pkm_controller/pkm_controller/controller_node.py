@@ -15,7 +15,10 @@ first state answered, until the state of ``end_time_s`` (the run's last step, af
 which the plant is silent by design; 0: no known end). (DDS deadline
 QoS would need the publisher to offer a deadline too; sim_hw in lockstep publishes
 only when answered, so a timer on the controller's side is the same test.)
-With ``autostart`` (default) the node configures and activates itself.
+Each input has one source (``state_source``, ``metrology_source``: full node names;
+empty: the one publisher at the first state): another publisher stops the machine
+(cause intruder, node_loop). With ``autostart`` (default) the node configures and
+activates itself.
 """
 
 from __future__ import annotations
@@ -121,7 +124,8 @@ class ControllerNode(LifecycleNode):
         """A per-step input (raw bytes) whose publishers are watched (node_loop: one source)."""
         subscription = self.create_subscription(
             msg_type, topic, callback, STREAM_QOS, raw=True,
-            event_callbacks=SubscriptionEventCallbacks(matched=lambda s: self.loop.on_matched(topic, s.current_count)))
+            event_callbacks=SubscriptionEventCallbacks(matched=lambda s, loop=self.loop: loop.on_matched(
+                topic, s.current_count)))
         self.inputs[topic] = subscription
         return subscription
 
@@ -153,7 +157,7 @@ class ControllerNode(LifecycleNode):
         self.inputs = {}
 
     # ------------------------------------------------ the loop's ports (node_loop)
-    def publishers(self, topic: str) -> list[str]:
+    def input_publishers(self, topic: str) -> list[str]:
         return publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))
 
     def resend_command(self, command: bytes) -> None:

@@ -9,7 +9,7 @@ boundary: the node owns the middleware, this owns the decisions).
 stamp), ``publish_reference_bytes(bytes)``, ``publish_status(stamp_ns, level,
 message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop()``
 (latched true: the drives brake), ``after_cycle()`` (the end of an answer: the
-recording tap's moment to flush), ``publishers(topic)`` (the full names of the nodes
+recording tap's moment to flush), ``input_publishers(topic)`` (the full names of the nodes
 publishing an input topic, one per publisher), ``log_info(text)`` and
 ``log_error(text)``.
 
@@ -186,7 +186,7 @@ class ControllerLoop:
         until the graph knows its name (then named in the log and the summary)."""
         self.sources_checked = time.monotonic()
         for gate in self.sources:
-            publishers = self.ports.publishers(gate.topic)
+            publishers = self.ports.input_publishers(gate.topic)
             matched = self.matched.get(gate.topic, 1)
             found = gate.check(publishers) if gate.source else gate.connect(publishers, matched)
             if found is None and gate.source and matched > max(1, len(publishers)):
