@@ -46,6 +46,19 @@ def _leftovers(run_dir: Path) -> list[str]:
     return found
 
 
+def _held_archi_demo(tmp_path: Path) -> str:
+    """archi_demo held 15 s after its motion, for a test that acts on the run a second
+    or so into its loop: the shipped ~5 s simulated had ended within that second on a
+    quiet machine, and the test met the run's own end."""
+    import yaml
+
+    from pkm_kinematics.config import config_dir
+    scenario = yaml.safe_load((config_dir() / "scenarios" / "archi_demo.yaml").read_text())
+    scenario.update(program=str(config_dir() / "programs" / "archi_test_motion.nc"), settle_s=15.0)
+    (tmp_path / "held.yaml").write_text(yaml.safe_dump(scenario))
+    return str(tmp_path / "held.yaml")
+
+
 def _wait_running(run_dir: Path, proc, timeout_s: float = 90.0) -> None:
     """Until the controller has its trajectory (the lockstep runs from then on)."""
     log = run_dir / "logs" / "controller.log"
@@ -258,16 +271,8 @@ def test_archi_demo_runs_to_completion_as_processes(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_interrupted_run_leaves_a_valid_bag_and_no_process(tmp_path, sig):
-    # archi_demo held 15 s after its motion: its ~5 s simulated had ended within the
-    # second below on a quiet machine, and the interrupt met the run's own end
-    import yaml
-
-    from pkm_kinematics.config import config_dir
-    scenario = yaml.safe_load((config_dir() / "scenarios" / "archi_demo.yaml").read_text())
-    scenario.update(program=str(config_dir() / "programs" / "archi_test_motion.nc"), settle_s=15.0)
-    (tmp_path / "held.yaml").write_text(yaml.safe_dump(scenario))
     run_dir = tmp_path / "interrupted"
-    proc = _pkm_run(str(tmp_path / "held.yaml"), "--run-dir", str(run_dir))
+    proc = _pkm_run(_held_archi_demo(tmp_path), "--run-dir", str(run_dir))
     _wait_running(run_dir, proc)
     time.sleep(1.0)                                   # in the middle of the motion
     proc.send_signal(sig)
@@ -291,7 +296,7 @@ def test_interrupted_run_leaves_a_valid_bag_and_no_process(tmp_path, sig):
 @pytest.mark.slow
 def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
     run_dir = tmp_path / "crash"
-    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    proc = _pkm_run(_held_archi_demo(tmp_path), "--run-dir", str(run_dir))
     _wait_running(run_dir, proc)
     time.sleep(0.5)
     victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_controller.controller_node" in line]
@@ -308,7 +313,7 @@ def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
 @pytest.mark.slow
 def test_after_a_recorder_kill_the_run_recovers_its_bag_and_reports_the_loss(tmp_path):
     run_dir = tmp_path / "recorder_killed"
-    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    proc = _pkm_run(_held_archi_demo(tmp_path), "--run-dir", str(run_dir))
     _wait_running(run_dir, proc)
     time.sleep(1.5)
     victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_bringup.recorder_node" in line]
