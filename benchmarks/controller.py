@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import random
 import sys
 import tempfile
 import time
@@ -27,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pkm_bringup.processes import ros_environment
 from pkm_common.timing import percentiles_us
 from pkm_controller.closed_loop import run
 from pkm_controller.controller import ControllerConfig, ControllerCore
@@ -84,8 +83,7 @@ def compute_times(machine_name: str, strategy: str, distribution: str, cycles: i
 
 
 def graph_rate(duration_s: float) -> dict:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    env.pop("ROS_LOCALHOST_ONLY", None)
+    env = ros_environment(own_domain=True)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         procs = [start("pkm_gough_sensor.gough_sensor_node", {"machine": "mom3"}, env, tmp / "sensor.log"),

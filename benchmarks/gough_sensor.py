@@ -73,9 +73,11 @@ def main(argv=None) -> int:
     import rclpy
     from rclpy.serialization import serialize_message
     from pkm_common.conversions import pose_msg
+    from pkm_common.domains import claim_domain_id
     from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
     context = rclpy.Context()
-    rclpy.init(args=[], context=context, domain_id=232)   # no traffic: nothing subscribes
+    # a domain claimed for this process: its node must not join a graph that runs beside
+    rclpy.init(args=[], context=context, domain_id=claim_domain_id())
     try:
         node = GoughSensorNode(context=context, namespace="/pkm_bench")
         # the node takes the serialized bytes (a raw subscription), as the executor hands them over

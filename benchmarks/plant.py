@@ -10,21 +10,21 @@ reports the wall time from a state's arrival to its answer: the sensor's added
 latency is the difference of the two runs. Targets (issue 3): >= 3,000 steps/s
 without the sensor, >= 2,000 with it. The first row is the floor: a zero-work
 two-process ping-pong of the same message type, QoS and executor
-(benchmarks/lockstep_echo.py). Each run gets its own ROS_DOMAIN_ID.
+(benchmarks/lockstep_echo.py). Each run gets its own ROS_DOMAIN_ID, claimed for this
+process (pkm_common.domains): never the domain of a test worker or of another graph.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import random
 import signal
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from pkm_bringup.processes import ros_environment
 from pkm_kinematics import load_machine
 
 
@@ -48,9 +48,7 @@ def stop_all(procs) -> None:
 
 
 def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    env.pop("ROS_LOCALHOST_ONLY", None)
+    env = ros_environment(own_domain=True)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         procs = []
@@ -75,8 +73,7 @@ def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
 
 def echo_floor(steps: int = 6000) -> float | None:
     """steps/s of the zero-work two-process ping-pong (benchmarks/lockstep_echo.py)."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(40, 101)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = ros_environment(own_domain=True)
     script = str(Path(__file__).with_name("lockstep_echo.py"))
     answer = subprocess.Popen([sys.executable, script, "answer"], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

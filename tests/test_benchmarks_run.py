@@ -4,11 +4,16 @@ longer matches the code it measures (a callback that now takes bytes, a renamed
 function) fails here instead of in the next ``make bench`` (issue 20: one did).
 The figures themselves are not checked: speed targets live in benchmarks/."""
 
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from pkm_bringup.processes import ros_environment
+from pkm_common.domains import NoFreeDomain, claim_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,6 +39,21 @@ SMALL = {
 def test_every_benchmark_is_listed():
     found = {p.name for p in (ROOT / "benchmarks").glob("*.py")} - {"hoststat.py"}
     assert found == set(SMALL), found ^ set(SMALL)
+
+
+def test_a_benchmark_graph_runs_in_a_domain_it_holds_apart_from_the_test_that_starts_it():
+    """plant.py and controller.py picked a random unlocked ROS_DOMAIN_ID in 40-101: started
+    here, one landed in the other xdist worker's domain, and its /pkm/sim_hw and
+    /pkm/hold_controller met that worker's gallery run (the intruder guards stopped it)."""
+    env = ros_environment(own_domain=True)
+    domain = int(env["ROS_DOMAIN_ID"])
+    assert domain != int(os.environ["ROS_DOMAIN_ID"])            # not this worker's
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    with pytest.raises(NoFreeDomain):                             # held: nobody else claims it
+        claim_domain_id(ids=[domain], strict=True)
+    # and no benchmark names a domain of its own choosing
+    for path in (ROOT / "benchmarks").glob("*.py"):
+        assert not re.search(r"ROS_DOMAIN_ID\s*=|domain_id\s*=\s*\d|randint", path.read_text()), path.name
 
 
 # SCHED_FIFO loops (the realtime profile): alone on the machine (conftest.realtime_loop_alone)

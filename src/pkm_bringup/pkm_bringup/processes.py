@@ -99,13 +99,15 @@ def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool
     return {node.name: node.popen.returncode for node in nodes}
 
 
-def ros_environment() -> dict:
+def ros_environment(own_domain: bool = False) -> dict:
     """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else one
     claimed for this process: no live process on the host holds it) and discovery on
-    localhost."""
+    localhost. ``own_domain`` claims one even if ROS_DOMAIN_ID is set: for a graph that
+    must stay apart from the graph of whoever started this process (a benchmark started
+    by a test, whose worker runs its own graphs in the domain it passed down)."""
     env = dict(os.environ)
     env.pop("ROS_LOCALHOST_ONLY", None)
-    if "ROS_DOMAIN_ID" not in env:
+    if own_domain or "ROS_DOMAIN_ID" not in env:
         env["ROS_DOMAIN_ID"] = str(claim_domain_id())
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("PYTHONUNBUFFERED", "1")
