@@ -28,3 +28,16 @@ def test_two_publishers_at_the_first_message_without_an_expected_source_are_refu
     one_not_named_yet = SourceGate("drives/command", "", "command_source")
     assert one_not_named_yet.connect(["/a"], matched=2).reason.startswith("2 publishers on drives/command")
     assert one_not_named_yet.source == ""
+
+
+def test_more_publishers_matched_than_the_graph_names_yet_are_an_intruder_counted():
+    """The matched event comes before discovery names the new publisher: counted now,
+    named by a later check."""
+    gate = SourceGate("drives/state", "/pkm/sim_hw", "state_source")
+    assert gate.check(["/pkm/sim_hw"], matched=1) is None
+    assert gate.check([], matched=1) is None                          # the source not discovered yet
+    assert gate.check(["/pkm/sim_hw"], matched=2) == Intrusion("2 publishers on drives/state (only /pkm/sim_hw may)")
+    assert gate.check([], matched=2).sender == ""
+    assert gate.check(["/pkm/sim_hw", "/rogue"], matched=2).sender == "/rogue"     # named once known
+    # with an expected source, a counted one at the first message too
+    assert SourceGate("drives/state", "/pkm/sim_hw").connect(["/pkm/sim_hw"], matched=2).reason.startswith("2 ")

@@ -104,3 +104,16 @@ def test_a_second_publisher_is_an_intruder_named_in_the_refusal():
     loop.on_command_matched(2)
     assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
     assert ports.refusals[-1].sender == "/rogue" and loop.run.intruder_named
+
+
+def test_a_publisher_matched_before_the_graph_names_it_is_refused_counted_then_named():
+    loop, _, ports = lockstep_loop()
+    loop.publish_state()
+    loop.on_command(command(0))
+    loop.on_command_matched(2)                             # discovery has not named it yet
+    assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
+    assert ports.refusals[-1].reason == f"2 publishers on drives/command (only {CONTROLLER} may)"
+    assert not loop.run.intruder_named
+    ports.publishers.append("/rogue")
+    loop.on_watchdog()                                     # the graph knows it now: named
+    assert ports.refusals[-1].sender == "/rogue" and loop.run.intruder_named

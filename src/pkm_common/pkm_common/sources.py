@@ -34,17 +34,22 @@ class SourceGate:
         self.topic, self.expected, self.parameter = topic, expected, parameter
         self.source = expected               # the node, once known
 
-    def check(self, publishers: list[str]) -> Intrusion | None:
+    def check(self, publishers: list[str], matched: int = 1) -> Intrusion | None:
         """The nodes publishing ``topic``, one name per publisher: any other than the
-        source is an intruder. Before the source is known nothing is decided."""
+        source is an intruder, named; more publishers ``matched`` to the subscription
+        than the graph names yet is one too, counted (its name comes with a later
+        check). Before the source is known nothing is decided."""
         if not self.source:
             return None
         others = sorted({p for p in publishers if p != self.source})
         if publishers.count(self.source) > 1:
             others.append(f"a second {self.source}")
-        if not others:
-            return None
-        return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {self.source} may)", ", ".join(others))
+        if others:
+            return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {self.source} may)",
+                             ", ".join(others))
+        if matched > max(1, len(publishers)):
+            return Intrusion(f"{matched} publishers on {self.topic} (only {self.source} may)")
+        return None
 
     def connect(self, publishers: list[str], matched: int = 1) -> Intrusion | None:
         """At the first message: the source is the expected node, or else the one
@@ -60,4 +65,4 @@ class SourceGate:
                                  f"{self.parameter} to the node name of its source", ", ".join(distinct))
             if distinct:
                 self.source = distinct[0]
-        return self.check(publishers)
+        return self.check(publishers, matched)

@@ -71,13 +71,13 @@ class CommandGate:
                            stamp_ns, stop=False)
         return APPLY
 
-    def check_publishers(self, publishers: list[str]) -> Refusal | None:
+    def check_publishers(self, publishers: list[str], matched: int = 1) -> Refusal | None:
         """The fully qualified names of the nodes publishing drives/command, one per
         publisher: any other than the controller, or a second publisher under its
-        name (an orphan of an earlier run), is an intruder (pkm_common.sources).
-        Before the controller is known (no ``command_source``, no command yet)
-        nothing is decided."""
-        return _refused(self.sources.check(publishers))
+        name (an orphan of an earlier run), or more ``matched`` publishers than named,
+        is an intruder (pkm_common.sources). Before the controller is known (no
+        ``command_source``, no command yet) nothing is decided."""
+        return _refused(self.sources.check(publishers, matched))
 
     def connect(self, publishers: list[str], matched: int = 1) -> Refusal | None:
         """At the first command: the controller is the expected one, or else the one

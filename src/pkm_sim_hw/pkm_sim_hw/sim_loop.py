@@ -96,8 +96,9 @@ class SimLoop:
         """A publisher matched drives/command (before its first message is delivered)."""
         self.command_matches = current_count
         if self.started and not self.run.intruder and not self.run.finished and current_count > 1:
-            self.refuse(self.gate.check_publishers(self.ports.command_publishers()) or Refusal(
-                f"{current_count} publishers on drives/command", TripCause.INTRUDER))
+            intruder = self.gate.check_publishers(self.ports.command_publishers(), current_count)
+            if intruder:
+                self.refuse(intruder)
 
     def on_command(self, buf: bytes) -> None:
         if self.run.finished:
