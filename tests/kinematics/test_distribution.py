@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize, minimize_scalar
 
@@ -28,6 +28,8 @@ def well_conditioned(jac):
 
 @settings(max_examples=150, deadline=None)
 @given(jacobians, wrenches)
+# a leg of slope ~1e-9 against two nearly parallel ones: the crossing heights tie in floats
+@example(np.array([0, 1, -1, 1, 0.25, 0, 1e-8, 0, -0.5, 0, 0, 0.5]).reshape(4, 3), np.array([0.0, 1, -1]))
 def test_min_inf_norm_is_exact(jac, wrench):
     assume(well_conditioned(jac))
     f = fd.min_inf_norm(jac, wrench)
@@ -39,8 +41,9 @@ def test_min_inf_norm_is_exact(jac, wrench):
                   b_ub=np.zeros(2 * n), A_eq=np.hstack([jac.T, np.zeros((3, 1))]), b_eq=wrench,
                   bounds=[(None, None)] * (n + 1), method="highs")
     assert res.success
-    assert np.abs(f).max() == pytest.approx(res.fun, rel=1e-7, abs=1e-7)   # HiGHS tolerance
-    assert np.abs(f).max() <= np.abs(fd.min_two_norm(jac, wrench)).max() + 1e-9
+    # HiGHS's tolerances (it also drops matrix entries under 1e-9, which the draws reach)
+    assert np.abs(f).max() == pytest.approx(res.fun, rel=1e-6, abs=1e-7)
+    assert np.abs(f).max() <= np.abs(fd.min_two_norm(jac, wrench)).max() * (1 + 1e-9) + 1e-12   # + subnormal wrenches
 
 
 def test_min_inf_norm_with_a_leg_outside_the_null_space():
@@ -66,6 +69,7 @@ def test_min_inf_norm_with_a_single_leg_in_the_null_space():
 
 @settings(max_examples=80, deadline=None)
 @given(jacobians, wrenches, st.sampled_from([3.0, 4.0, 8.0, 32.0, 64.0]))
+@example(np.array([1e-13, 0, 0, 0, 1, 0, 0.125, 0, 0, 0, 0, 1]).reshape(4, 3), np.array([244.0, 0, 0]), 64.0)
 def test_min_p_norm_against_scipy(jac, wrench, p):
     assume(well_conditioned(jac) and np.abs(wrench).max() > 1.0)
     f = fd.min_p_norm(jac, wrench, p)
@@ -73,9 +77,10 @@ def test_min_p_norm_against_scipy(jac, wrench, p):
     f0, n = fd.min_two_norm(jac, wrench), fd.null_direction(jac)
     ref = minimize_scalar(lambda t: np.sum(np.abs(f0 + t * n) ** p), bracket=(-1.0, 1.0), tol=1e-12)
     assert np.sum(np.abs(f) ** p) <= ref.fun * (1 + 1e-9) + 1e-12
-    # each optimum is optimal for its own norm only
-    assert np.linalg.norm(f) >= np.linalg.norm(f0) - 1e-9
-    assert np.abs(f).max() >= np.abs(fd.min_inf_norm(jac, wrench)).max() - 1e-9
+    # each optimum is optimal for its own norm only (relative tolerances: where the null
+    # space does not help, the optima coincide up to rounding of forces in the thousands)
+    assert np.linalg.norm(f) >= np.linalg.norm(f0) * (1 - 1e-9)
+    assert np.abs(f).max() >= np.abs(fd.min_inf_norm(jac, wrench)).max() * (1 - 1e-9)
 
 
 def test_two_dimensional_null_space_uses_lp_and_bfgs():

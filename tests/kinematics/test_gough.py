@@ -71,9 +71,10 @@ def test_dkm_round_trip_cold_start(x):
     res = GOUGH.direct_kinematics(GOUGH.strut_lengths(p, rot))
     assert res.converged, res.reason
     assert res.iterations <= 8
-    # strut tolerance 1e-10 m: pose error below ||J_h|| x 1e-10 (~6 um/um, ~60 urad/um)
+    # strut tolerance 1e-10 m on each of six struts: pose error below sqrt(6) ||J_h|| x 1e-10
+    # (~6 um/um, ~60 urad/um)
     np.testing.assert_allclose(res.position, p, atol=5e-9)
-    np.testing.assert_allclose(res.rotation, rot, atol=1e-8)
+    np.testing.assert_allclose(res.rotation, rot, atol=2e-8)
 
 
 def test_dkm_warm_start_takes_few_iterations():
@@ -268,7 +269,8 @@ def test_jacobian_rows_for_the_loop_equal_the_numpy_jacobian(dx, dy, dz, roll, p
     rot = rotation_from_rpy(roll, pitch, yaw)
     p = HOME + [dx, dy, dz]
     rows = GOUGH.jacobian_rows(p.tolist(), tuple(rot.ravel().tolist()))
-    np.testing.assert_allclose(np.array(rows), GOUGH.jacobian(p, rot), rtol=1e-10, atol=1e-12)
+    # two LAPACK inverses (numba's, numpy's) of entries up to ~60: last bits differ
+    np.testing.assert_allclose(np.array(rows), GOUGH.jacobian(p, rot), rtol=1e-10, atol=1e-10)
 
 
 def test_the_compiled_stream_is_the_per_reading_solver_bit_for_bit():

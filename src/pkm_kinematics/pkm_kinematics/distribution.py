@@ -339,17 +339,25 @@ def _min_inf_norm_1d_kernel(f0, n):
     # the falling line of leg j is -a_j - b_j t. The crossing of a leg's own two lines
     # (height 0) never beats the other pairs once two legs have slopes: if the optimum
     # is 0, all lines meet at one t and every pair finds it; with a single sloped leg
-    # no pair remains and the floor branch below places t.
-    best_h, best_t = -math.inf, 0.0
+    # no pair remains and the floor branch below places t. The envelope is evaluated at
+    # each crossing and the least kept: in exact arithmetic that is the highest
+    # crossing, but two crossings' heights can tie in floating point while their t
+    # differ (a leg of slope ~1e-9 against two nearly parallel ones), and the wrong
+    # one leaves a peak above the optimum.
+    best_h, best_t = math.inf, 0.0
     for i in range(count):
         ai, bi = intercepts[i], slopes[i]
         for j in range(count):
             if j != i:
                 aj, bj = intercepts[j], slopes[j]
-                den = bi + bj
-                h = (ai * bj - aj * bi) / den
-                if h > best_h:
-                    best_h, best_t = h, -(aj + ai) / den
+                tc = -(aj + ai) / (bi + bj)
+                h = 0.0
+                for k in range(count):
+                    h = max(h, abs(intercepts[k] + slopes[k] * tc))
+                if h < best_h:
+                    best_h, best_t = h, tc
+    if count == 1:
+        best_h = -math.inf
     t = best_t
     if floor >= best_h:
         floor = max(floor, 0.0)
@@ -375,7 +383,7 @@ def min_inf_norm_1d(f0, n) -> np.ndarray:
     that crossing is the unique minimiser. Legs with n_i = 0 add a floor |f0_i|: if it
     dominates, the minimisers form an interval and we take the t closest to 0, i.e.
     the minimum 2-norm solution among the optimal ones (f0 is the pseudo-inverse one).
-    O(n^2) float operations.
+    The crossing is chosen by evaluating the envelope at each: O(n^3) float operations.
     """
     f0, n = np.array(f0, dtype=float).ravel(), np.array(n, dtype=float).ravel()
     if len(f0) != len(n):
