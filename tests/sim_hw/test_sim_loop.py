@@ -29,6 +29,7 @@ class Ports:
     def __init__(self):
         self.publishers = [CONTROLLER]
         self.refusals, self.diagnostics, self.errors, self.ended = [], [], [], False
+        self.infos = []
 
     def publish_diagnostics(self, stamp_ns, level, message, values):
         self.diagnostics.append((level, message))
@@ -49,7 +50,7 @@ class Ports:
         self.ended = True
 
     def log_info(self, text):
-        pass
+        self.infos.append(text)
 
     def log_error(self, text):
         self.errors.append(text)
@@ -82,6 +83,8 @@ def test_each_answer_steps_the_plant_once_and_publishes_the_next_state():
     # stale twice; the third repeat came after the last step: a finished run takes nothing
     assert loop.plant.k == 3 and loop.counts["stale_commands"] == 2
     assert ports.ended and loop.run.finished and not ports.refusals
+    # the loop's start is logged once, at the first command (what a test or an operator waits for)
+    assert [t for t in ports.infos if t.startswith("loop started")] == ["loop started: the first command, at step 0"]
 
 
 def test_a_command_ahead_of_the_plant_is_refused_and_the_plant_brakes():

@@ -130,6 +130,8 @@ class SimLoop:
         self.command_watchdog.feed(now)            # only a fresh command feeds the watchdog
         if self.run.first_command_wall is None:
             self.run.first_command_wall = now
+            # when the loop began (start-up under load can take seconds after the graph connected)
+            self.ports.log_info(f"loop started: the first command, at step {self.plant.k}")
         if not self.lockstep:
             if self.hold.latch(effort, stamp, self.run.last_published_ns):
                 self.plant.step(effort)            # the next tick's step, made now; the tick publishes it
