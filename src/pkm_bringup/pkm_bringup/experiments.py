@@ -708,7 +708,9 @@ def hexapod_redundant_fighting(bench: Bench) -> Outcome:
     """Sliding Star §3 on a 6-DOF machine: hexapod8 (8 struts) with strut s1 1 % longer
     than its encoder reads; independent joint PIDs fight up to saturation; the eq. 8
     projection and centralized Cartesian control (eq. 9) hold without fighting."""
-    runs = {st: bench.run("hexapod_redundant_fighting", label=st, controller={"strategy": st})
+    from pkm_bringup.scenario import load_scenario
+    shipped = load_scenario("hexapod_redundant_fighting").controller      # its integral time (a stable one)
+    runs = {st: bench.run("hexapod_redundant_fighting", label=st, controller={**shipped, "strategy": st})
             for st in HEXAPOD_STRATEGIES}
     internal = {st: _internal_force(r, "hexapod8") for st, r in runs.items()}
     peak_force = {st: float(np.nanmax(np.abs(r.steps["applied"]))) for st, r in runs.items()}

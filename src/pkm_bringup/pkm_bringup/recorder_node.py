@@ -30,14 +30,11 @@ Readiness: once every topic of ``expect_topics`` is subscribed and matched with 
 least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
 orchestrator starts the run only then, so that nothing of it is missed.
 
-Chunks are compressed with lz4 by default (``compression``): on archi_demo's records
-it compresses ~4x faster than zstd's default level for 2.5x instead of 3.3x smaller
-chunks, and in one process that work is on the loop's thread. rosbag2, rosbags and
-mcap read both.
-
-The bag is flushed every ``flush_period_s`` (completed chunks reach the OS: a kill -9
-loses at most the open chunk, see bag.recover) and finalized (summary, metadata.yaml)
-when the node is destroyed: normal end, SIGINT and SIGTERM alike (runner.run_node).
+Chunks are lz4 by default (``compression``): ~4x faster than zstd's default for 2.5x
+instead of 3.3x smaller (archi_demo), and in one process that is on the loop's thread.
+The bag is flushed every ``flush_period_s`` (a kill -9 loses at most the open chunk,
+see bag.recover) and finalized (summary, metadata.yaml) when the node is destroyed:
+normal end, SIGINT and SIGTERM alike (runner.run_node).
 """
 
 from __future__ import annotations

@@ -52,7 +52,7 @@ from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force, internal_force_rows,
                                         prestress_direction, raise_distribution_error,
                                         two_arm_gravity_internal_force)
-from pkm_kinematics.dynamics import dynamic_model
+from pkm_kinematics.dynamics import dynamic_model, holding_forces
 from pkm_kinematics.errors import DistributionError, KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.planar import pair_force_map
@@ -64,7 +64,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, clamp_forces_kernel,
                    error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
-                   spatial_limits_kernel, task_pose_error, tool_pose_floats)
+                   spatial_limits_kernel, task_pose_error, tool_pose_floats, weakest_mode_ratio)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
@@ -94,7 +94,7 @@ class ControllerConfig:
                                           # has more than one dimension (projected on it; a redundant hexapod)
     bandwidth_hz: float = 20.0            # closed-loop bandwidth omega / 2 pi
     damping_ratio: float = 1.0
-    integral_time_s: float = 0.05         # T_i; 0 disables the integral action
+    integral_time_s: float = 0.05         # T_i; 0 disables the integral action (and its holding start)
     dt_s: float = 0.001                   # nominal period (the first cycle; then the stamps)
     force_limit_n: float = 2000.0         # commands are clamped here (saturation counted)
     saturation_trip_s: float = 0.5        # continuous saturation for this long trips (0: never)
@@ -231,6 +231,7 @@ class ControllerCore:
         # cond(J_m) of the active drives: the 3-DOF closed form, or the machine's own
         # (a spatial J_m's rotation columns weighted by the platform's size)
         self._condition = self.model.rows_condition if self.spatial else gram_condition
+        self._mode_ratio = self._pid_mode_ratios()
         self._check_config(self.config)
         self.strategy = strategy(self.config.strategy)
         self.metrology = None
@@ -252,6 +253,17 @@ class ControllerCore:
     def _check_config(self, config: ControllerConfig) -> None:
         """ControllerConfig.validate, and what only this machine can say (ValueError)."""
         config.validate(self.n, self.planar)
+        law = strategy(config.strategy).law
+        ratio = self._mode_ratio.get(law, 1.0)
+        if ratio <= 0.0:
+            raise ValueError(f"strategy: {config.strategy} on {self.machine.name}: its gains leave a mode of the "
+                             f"machine at home without stiffness (mass ratio {ratio:.3g})")
+        if config.integral_time_s != 0.0 and ratio < 1.0:
+            low = 1.0 / (2.0 * config.damping_ratio * 2.0 * math.pi * config.bandwidth_hz * ratio)
+            if config.integral_time_s <= low:
+                raise ValueError(f"integral_time_s: must be 0, or in ({low:.4g}, inf) s for {config.strategy} on "
+                                 f"{self.machine.name} (stability of its weakest mode, mass ratio {ratio:.3g}: "
+                                 f"T_i > 1 / (2 zeta omega r)), got {config.integral_time_s!r}")
         if config.prestress_n != 0.0 and self.n <= self.dof:
             raise ValueError(f"prestress_n: must be 0 on a machine without redundant drives ({self.n} drives for "
                              f"{self.dof} DOF: no internal force exists)")
@@ -290,7 +302,8 @@ class ControllerCore:
         between two cycles. Only ``RUNTIME_SETTINGS``; a strategy only to one fed by the
         same measurement (the graph's topics stay); the whole set validated like a
         start-up configuration. The integral state is kept when the law stays (a joint
-        PID with or without the projection), else restarts at zero. Returns the
+        PID with or without the projection), else restarts holding the load where the
+        machine is (``_holding_integral``; zero for a model-based law). Returns the
         settings changed; ValueError (naming the field and its range), nothing changed."""
         if not isinstance(changes, dict) or not changes:
             raise ValueError("settings: expected a non-empty mapping of name: value")
@@ -311,32 +324,72 @@ class ControllerCore:
             raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
                              f"{self.strategy.name} {self.strategy.feedback.value}: only a strategy on the same "
                              f"measurement can take over without a restart")
-        same_integral = new_strategy.law == self.strategy.law
+        integral = None                            # kept when the law stays
+        if new_strategy.law != self.strategy.law:
+            try:                                   # computed before anything changes
+                integral = self._holding_integral(self.pose, new_strategy.law, new.integral_time_s)
+            except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
+                raise ValueError(f"strategy: {new.strategy} cannot take over holding at the measured pose: "
+                                 f"{exc}") from None
         self.config = new
         self._apply_config()
-        if not same_integral:
-            self.integral = self._zero_integral()
+        if integral is not None:
+            self.integral = integral
         return dict(changes)
 
     def _home(self) -> list:
         return self.model.home.tolist()
 
-    def _zero_integral(self):
-        return [0.0] * self.n if self.strategy.joint_space else (0.0,) * self.dof
+    def _zero_integral(self, law: Law | None = None):
+        """The integral state at zero, of ``law`` (default: the running one's shape):
+        per drive for the joint PIDs, per task axis otherwise."""
+        joint = (law or self.strategy.law) == Law.JOINT_PID
+        return [0.0] * self.n if joint else (0.0,) * self.dof
+
+    def _holding_integral(self, pose, law: Law, integral_time_s: float, rows=None):
+        """The integral state that holds the machine still at ``pose``: the nominal
+        model's static forces H(x, 0) (ARCHI §3.4), as drive forces of minimum 2-norm
+        (in range(J), where the projected PIDs keep their integral) for a joint PID, as
+        the task wrench for the Cartesian PID, as a drive holds its load before the
+        brake opens. These laws have no gravity term but their integral: started at
+        zero, the platform fell until the integral caught up (ARCHI at 20 Hz: 0.9 mm,
+        4 mm at the panel's 8 Hz, a following-error trip with a few late commands).
+        Zero for the model-based laws, whose H(x, v) holds it already, without an
+        integral (``integral_time_s`` 0: a P(D) law, as the paper's), and before the
+        first pose. ``rows``: J_m of the active drives at ``pose`` if known. Raises
+        KinematicsError (DistributionError) at a singular pose."""
+        if pose is None or integral_time_s == 0.0 or law not in (Law.JOINT_PID, Law.CARTESIAN_PID):
+            return self._zero_integral(law)
+        if law == Law.CARTESIAN_PID:
+            return tuple(float(w) for w in self.dynamics.static_forces(pose))
+        if rows is None:
+            rows = np.asarray(self.model.jacobian(pose), dtype=float)[self.active]
+        return [float(f) for f in self._expand(holding_forces(self.dynamics, rows, pose))]
+
+    def home_masses(self) -> tuple[np.ndarray, np.ndarray, list]:
+        """(A(x_home), J_m(x_home), the mass each drive sees there): the scale of the
+        gains (see _scale_gains)."""
+        if self.spatial:
+            a, _, rows, _ = self.dynamics.measured_state(self._home(), [0.0] * self.n)
+            return np.asarray(a), np.asarray(rows), apparent_drive_mass(rows, a).tolist()
+        a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
+        jac, a = np.array(rows), np.array(a)
+        pinv = np.linalg.pinv(jac)                           # 3 x n
+        return a, jac, np.diag(pinv.T @ a @ pinv).tolist()
+
+    def _pid_mode_ratios(self) -> dict:
+        """The weakest mode's mass ratio of each PID law at home (laws.weakest_mode_ratio):
+        how far below the task mass its gains' shape falls; the integral time's bound."""
+        a, jac, m_joint = self.home_masses()
+        return {Law.JOINT_PID: weakest_mode_ratio(jac.T @ np.diag(m_joint) @ jac, a),
+                Law.CARTESIAN_PID: weakest_mode_ratio(np.diag(np.diag(a)), a)}
 
     def _scale_gains(self) -> None:
         """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint
         the mass each drive sees: diag(J^+T A J^+) on the 3-DOF machines, the apparent
         mass 1 / (J A^-1 J^T)_ii on a spatial one (laws.apparent_drive_mass)."""
-        if self.spatial:
-            a, _, rows, _ = self.dynamics.measured_state(self._home(), [0.0] * self.n)
-            m_joint = apparent_drive_mass(rows, a).tolist()
-            a = a.tolist()
-        else:
-            a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
-            jac = np.array(rows)
-            pinv = np.linalg.pinv(jac)                           # 3 x n
-            m_joint = np.diag(pinv.T @ np.array(a) @ pinv).tolist()
+        a, _, m_joint = self.home_masses()
+        a = a.tolist()
         g = self.gains
         m_task = [a[i][i] for i in range(self.dof)]
         self.task_mass = m_task
@@ -707,6 +760,9 @@ class ControllerCore:
             if not self._prepare_reference(c):
                 return list(self.last_command)
         try:
+            if c.first:         # the PID laws start holding the load (a singular start pose trips here)
+                self.integral = self._holding_integral(c.pose, self.strategy.law, self.config.integral_time_s,
+                                                       c.active_rows)
             measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
             if self.gough_check is not None and not c.first:
                 self._gough_pending = (c.q_array, measured, c.suspect)    # judged in the next prepare

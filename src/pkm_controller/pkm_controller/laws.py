@@ -34,7 +34,8 @@ class Gains:
     """PID gains placed from a bandwidth omega (rad/s), a damping ratio zeta and an
     integral time T_i (0: no integral action): closed-loop characteristic
     (s^2 + 2 zeta omega s + omega^2)(1 + 1/(T_i s)) per axis. Stability of the
-    integral needs T_i > 1 / (2 zeta omega) (Routh)."""
+    integral needs T_i > 1 / (2 zeta omega) (Routh) where the gains' mass is the
+    mode's; see weakest_mode_ratio for the modes it is not."""
 
     omega: float
     zeta: float
@@ -399,6 +400,21 @@ def apparent_drive_mass(rows, a) -> np.ndarray:
     PIDs 13-15 times too stiff in the vertical, unstable at 1 kHz."""
     j = np.asarray(rows, dtype=float)
     return 1.0 / np.einsum("ij,ji->i", j, np.linalg.solve(np.asarray(a, dtype=float), j.T))
+
+
+def weakest_mode_ratio(shape, a) -> float:
+    """The smallest r of (K - r A) v = 0, K = ``shape``: the task stiffness shape every
+    gain of a PID law shares (K_p = kp K, K_d = kd K, K_i = ki K; J^T diag(m) J for the
+    joint PIDs, diag(A) for the Cartesian PID), A the task mass matrix. Each mode of the
+    hold is s^3 + r (kd s^2 + kp s + ki) = 0, which Routh makes stable only if
+    r kd kp > ki: T_i > 1 / (2 zeta omega r). r = 1 for every mode of a law through A(x).
+    A necessary condition, at home and in continuous time: the sampling is not in it.
+    hexapod8's joint PIDs have r = 0.059 (its x-roll and y-pitch modes): with the
+    default T_i = 0.05 s they grew from the encoders' quantisation until a
+    following-error trip ~10 s into a hold."""
+    chol = np.linalg.cholesky(np.asarray(a, dtype=float))
+    m = np.linalg.solve(chol, np.linalg.solve(chol, np.asarray(shape, dtype=float)).T)
+    return float(np.linalg.eigvalsh(0.5 * (m + m.T))[0])
 
 
 def joint_pid(e, edot, integral, kp, kd) -> list:

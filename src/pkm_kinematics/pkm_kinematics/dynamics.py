@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bars as B
-from .distribution import SINGULAR_GRAM, _least_squares_kernel
+from .distribution import SINGULAR_GRAM, _least_squares_kernel, min_two_norm
 from .errors import DistributionError
 from .jit import kernel
 from .planar import _solve3
@@ -126,6 +126,14 @@ class DynamicModel:
     def static_forces(self, x, wrench=(0.0, 0.0, 0.0)) -> np.ndarray:
         """The platform wrench the drives must produce to hold x still: H(x, 0) - f_n."""
         return self.inverse_dynamics(x, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), wrench)
+
+
+def holding_forces(dynamics, rows, x) -> np.ndarray:
+    """The drive forces of minimum 2-norm that hold the platform still at x: the
+    static wrench H(x, 0) (``dynamics.static_forces``, either model) distributed by the
+    pseudo-inverse (ARCHI §3.4, §4.4.1); ``rows``: J_m at x (of the drives that act).
+    Raises DistributionError where J_m has not full rank."""
+    return min_two_norm(rows, dynamics.static_forces(x))
 
 
 def dynamic_model(config):

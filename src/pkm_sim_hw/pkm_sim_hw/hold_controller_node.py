@@ -23,8 +23,7 @@ from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.timing import DurationHistogram, percentiles_us
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_kinematics.distribution import min_two_norm
-from pkm_kinematics.dynamics import dynamic_model
+from pkm_kinematics.dynamics import dynamic_model, holding_forces
 
 
 class HoldControllerNode(Node):
@@ -75,8 +74,7 @@ class HoldControllerNode(Node):
         except ValueError as exc:          # unassemblable readings: no answer, sim times out safely
             self.get_logger().error(f"drives/state not usable: {exc}")
             return
-        # static wrench H(x, 0) distributed by the pseudo-inverse (ARCHI §4.4.1)
-        forces = min_two_norm(self.model.jacobian(self.pose), self.dynamics.static_forces(self.pose)).tolist()
+        forces = holding_forces(self.dynamics, self.model.jacobian(self.pose), self.pose).tolist()
         forces = [f + self.kp * (t - qi) - self.kd * v for f, t, qi, v in zip(forces, self.target, q, msg.velocity)]
         self.msg_command.header.stamp = msg.header.stamp
         self.msg_command.name = msg.name
