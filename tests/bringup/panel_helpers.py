@@ -4,10 +4,23 @@ condition, and whether the realtime profile is allowed here."""
 import json
 import time
 import urllib.request
+from urllib.parse import parse_qs, urlsplit
+
+
+def base(url: str) -> str:
+    """The panel's root, without the token pkm-panel's URL carries: http://host:port/."""
+    parts = urlsplit(url)
+    return f"{parts.scheme}://{parts.netloc}/"
+
+
+def ws_url(url: str) -> str:
+    """The panel's socket with the token of ``url`` (pkm-panel's printed URL): control."""
+    token = parse_qs(urlsplit(url).query)["token"][0]
+    return base(url).replace("http", "ws", 1) + f"ws?token={token}"
 
 
 def snapshot(url: str) -> dict:
-    with urllib.request.urlopen(url + "api/snapshot", timeout=5) as response:
+    with urllib.request.urlopen(base(url) + "api/snapshot", timeout=5) as response:
         return json.load(response)
 
 

@@ -15,7 +15,7 @@ import yaml
 
 from pkm_kinematics.config import config_dir
 
-from panel_helpers import (realtime_profile_permitted, snapshot, wait_for, wait_for_a_holding_graph,
+from panel_helpers import (base, realtime_profile_permitted, snapshot, ws_url, wait_for, wait_for_a_holding_graph,
                            without_sync_counter)     # tests/bringup/panel_helpers.py
 
 pytestmark = [pytest.mark.slow,
@@ -44,13 +44,13 @@ def test_the_panel_jogs_a_hexapod_in_rad_and_its_estop_stops_it(tmp_path, realti
     try:
         url = wait_for("the panel's URL", lambda: url_file.exists() and url_file.read_text(), timeout_s=120)
         wait_for_a_holding_graph(url)
-        with urllib.request.urlopen(url + "api/machine", timeout=5) as response:
+        with urllib.request.urlopen(base(url) + "api/machine", timeout=5) as response:
             machine = json.load(response)
         assert machine["axes"] == ["x", "y", "z", "a", "b", "c"] and machine["angular"] == ["a", "b", "c"]
         state = snapshot(url)
         assert len(state["drawing"]["legs"]) == 8 and len(state["drawing"]["struts"]) == 6
         home = state["reference"]
-        with connect(url.replace("http", "ws") + "ws") as ws:
+        with connect(ws_url(url)) as ws:
             ws.recv()                                                             # hello
 
             def ask(message: dict) -> dict:

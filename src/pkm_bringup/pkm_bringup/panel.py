@@ -75,6 +75,29 @@ SETTING_RANGES = {              # the page's inputs; the controller core has the
     "p_norm": (2.0, 64.0), "prestress_n": (-2000.0, 2000.0)}
 
 
+def check_setting(model, name, value) -> None:
+    """One setting of a page against what the page offers (``PanelModel.describe``):
+    the runtime settings only, a strategy or distribution of the lists, a number in
+    ``SETTING_RANGES``. The running controller's own rule follows (Panel._settings).
+    ValueError naming the field and the allowed values."""
+    choices = {"strategy": list(STRATEGIES), "distribution": list(METHODS)}
+    if name not in RUNTIME_SETTINGS:
+        raise ValueError(f"settings: {_shown(name)} is not a runtime setting; one of {list(RUNTIME_SETTINGS)}")
+    if name in choices:
+        if value not in choices[name]:
+            raise ValueError(f"settings: {name} must be one of {choices[name]}, got {_shown(value)}")
+        return
+    lo, hi = SETTING_RANGES[name]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+        raise ValueError(f"settings: {name} must be a number in [{lo:g}, {hi:g}], got {_shown(value)}")
+
+
+def _shown(value, limit: int = 40) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a page may send anything)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 class PanelModel:
     """What the panel knows of the machine (constant): axes, workspace, drawing."""
 
@@ -359,6 +382,14 @@ class Panel:
             return self._refuse(client, kind, str(exc))
         return self._done(client, kind, True, message, publish, restart)
 
+    def malformed(self, client: str, why: str) -> Result:
+        """A message of a page that is not an action (panel_app.parse_action): refused, logged."""
+        return self._refuse(client, "?", why)
+
+    def refused_request(self, client: str, why: str) -> None:
+        """A request the web side refused before any action (a foreign Host or Origin): logged."""
+        self._refuse(client, "request", why)
+
     # -------------------------------------------------------------- the actions
     def _reset(self, action, client):
         if not self.can_reset:
@@ -458,6 +489,8 @@ class Panel:
         changes = action.get("changes")
         if not isinstance(changes, dict) or not changes:
             raise ValueError("settings: changes must be a non-empty object {name: value}")
+        for name, value in changes.items():
+            check_setting(self.model, name, value)
         with self.lock:
             values = self.status[2]
         if "strategy" not in values:

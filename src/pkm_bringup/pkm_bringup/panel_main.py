@@ -6,15 +6,16 @@
 then open http://127.0.0.1:8080/ . The panel joins the graph of this shell's
 ``ROS_DOMAIN_ID`` in ``--namespace`` (with ``--start``: the scenario's namespace, and a
 domain claimed for the panel and its graph when the shell sets none). It is bound to
-127.0.0.1 by default; bound to any other address it requires a token for control
-(``--token``, or one is made and printed), and the E-stop stays open to every page.
-Every action is logged, accepted or refused (stderr, and ``--log`` as JSON lines).
+127.0.0.1 by default. Control always needs a token (``--token``, or one is made): it is
+in the URL printed at start, which the page keeps; a page of another origin or a
+request by another host name (``--allow-host`` adds one) is refused; the E-stop stays
+open to every page (panel_app's doc says what this protects against). Every action is
+logged, accepted or refused (stderr, and ``--log`` as JSON lines).
 """
 
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import json
 import logging
 import secrets
@@ -85,13 +86,6 @@ def listening_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return host == "localhost"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="pkm-panel", description=__doc__.split("\n\n")[0])
     parser.add_argument("--start", metavar="SCENARIO", help="start this scenario's graph (pkm-run) and reset it "
@@ -107,7 +101,9 @@ def main(argv=None) -> int:
     parser.add_argument("--port", type=int, default=8080, help="port (0: any free one; default 8080)")
     parser.add_argument("--estop-port", type=int, default=0,
                         help="port of the E-stop's own server (default 0: any free one; the page is told)")
-    parser.add_argument("--token", help="token required for control (made and printed when bound beyond localhost)")
+    parser.add_argument("--token", help="token required for control (default: one is made; printed in the URL)")
+    parser.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                        help="a further name pages may reach the panel by (a proxy, a DNS alias); repeatable")
     parser.add_argument("--rate-hz", type=float, default=25.0, help="snapshots per second to each page (1-100)")
     parser.add_argument("--log", help="append every action (JSON lines) to this file")
     parser.add_argument("--url-file", help="write the panel's URL here once it serves (scripts, tests)")
@@ -124,7 +120,7 @@ def main(argv=None) -> int:
     import uvicorn
 
     from pkm_bringup.panel import Panel, PanelModel
-    from pkm_bringup.panel_app import create_app, create_estop_app
+    from pkm_bringup.panel_app import MAX_MESSAGE_BYTES, create_app, create_estop_app, served_hosts
     from pkm_bringup.panel_node import PanelNode
     from pkm_bringup.scenario import ScenarioError, load_scenario
     from pkm_kinematics import load_machine
@@ -151,9 +147,9 @@ def main(argv=None) -> int:
             except RealtimeProfileRefused as exc:
                 print(f"pkm-panel: {exc}", file=sys.stderr)
                 return 2
-    token = args.token
-    if token is None and not _loopback(args.host):
-        token = secrets.token_urlsafe(16)
+    token = args.token if args.token is not None else secrets.token_urlsafe(16)
+    if len(token) < 8:
+        parser.error("--token: at least 8 characters")
     try:
         config = load_machine(machine)
     except ValueError as exc:
@@ -190,19 +186,21 @@ def main(argv=None) -> int:
     estop_sock = listening_socket(args.host, args.estop_port)
     host, port = sock.getsockname()[:2]
     base = f"http://{host if ':' not in host else f'[{host}]'}"
-    url = f"{base}:{port}/" + (f"?token={token}" if token else "")
+    url = f"{base}:{port}/?token={token}"
     # the E-stop's own server: a second uvicorn in its own thread and event loop
     estop_server = uvicorn.Server(uvicorn.Config(create_estop_app(panel, node.publish), log_level="warning"))
     threading.Thread(target=estop_server.run, kwargs={"sockets": [estop_sock]}, name="panel-estop",
                      daemon=True).start()
     app = create_app(panel, node.publish, token, args.rate_hz, on_restart=(lambda: graph.restart(panel.restarted)) if graph else None,
-                     estop_url=f"{base}:{estop_sock.getsockname()[1]}/estop")
+                     estop_url=f"{base}:{estop_sock.getsockname()[1]}/estop",
+                     hosts=served_hosts(args.host, args.allow_host))
     if graph is not None:
         graph.start()
     print(f"pkm-panel: {machine} in {namespace}: {url}", flush=True)
     if args.url_file:
         Path(args.url_file).write_text(url, encoding="utf-8")
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio",
+                                           ws_max_size=MAX_MESSAGE_BYTES))
     signal.signal(signal.SIGTERM, lambda *_: setattr(server, "should_exit", True))
     try:
         server.run(sockets=[sock])

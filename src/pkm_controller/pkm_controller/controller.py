@@ -129,6 +129,9 @@ class ControllerConfig:
             ("prestress_n", math.isfinite(self.prestress_n) and (
                 self.prestress_n == 0.0 or n_drives == 4 or len(self.prestress_direction) == n_drives),
              "0, or finite on a machine with one redundant drive (4 drives) or with a prestress_direction"),
+            # beyond the drives' limit the internal force alone saturates them
+            ("prestress_n", abs(self.prestress_n) <= self.force_limit_n,
+             f"in [-{self.force_limit_n:g}, {self.force_limit_n:g}] N (force_limit_n)"),
             ("bandwidth_hz", 0.0 < self.bandwidth_hz <= 0.1 / self.dt_s if self.dt_s > 0 else False,
              f"in (0, {0.1 / self.dt_s if self.dt_s > 0 else 0:g}] Hz (a tenth of the control rate)"),
             ("damping_ratio", 0.1 <= self.damping_ratio <= 10.0, "in [0.1, 10]"),

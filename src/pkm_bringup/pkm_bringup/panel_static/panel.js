@@ -3,7 +3,18 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const token = new URLSearchParams(location.search).get("token");
+// the panel's token: in the URL pkm-panel printed, then kept by this tab (and taken out
+// of the address bar, so that a screenshot or a shared link does not carry it)
+const token = (() => {
+  const params = new URLSearchParams(location.search);
+  const given = params.get("token");
+  if (given) {
+    sessionStorage.setItem("pkm-panel-token", given);
+    params.delete("token");
+    history.replaceState(null, "", location.pathname + (params.toString() ? `?${params}` : "") + location.hash);
+  }
+  return given || sessionStorage.getItem("pkm-panel-token");
+})();
 const SETTINGS = ["strategy", "distribution", "bandwidth_hz", "damping_ratio", "integral_time_s"];
 let ws = null, machine = null, last = null, received = 0, perSecond = 0, estopUrl = "";
 // snapshots drawn on this connection, told to the server with each heartbeat: it sends
