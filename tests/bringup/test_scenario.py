@@ -283,3 +283,48 @@ def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
     with pytest.raises(ScenarioError, match=r"frame_compliance: must be 6 values on hexapod8"):
         load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
                                             "plant": {"frame_compliance": [7e-8] * 3}})
+
+
+def test_a_scenario_that_is_no_text_or_an_alias_bomb_is_refused_by_name(tmp_path):
+    """A non-UTF-8 scenario ended in a UnicodeDecodeError traceback; a "billion laughs"
+    in its name passed 3 GB. Each is refused with the file named, in well under a second."""
+    import time
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"name: caf\xe9\nmachine: archi\n")
+    with pytest.raises(ScenarioError, match=r"binary.yaml: not UTF-8 text \(byte 9"):
+        load_scenario(binary)
+    nul = tmp_path / "nul.yaml"
+    nul.write_bytes(b"machine: archi\x00\n")
+    with pytest.raises(ScenarioError, match="contains a NUL byte"):
+        load_scenario(nul)
+    lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 10) + "]" for k in range(1, 9)]
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("\n".join(lines) + "\nname: *a8\nmachine: archi\nduration_s: 1.0\n")
+    start = time.perf_counter()
+    with pytest.raises(ScenarioError, match="more than 1000000 values once its aliases are expanded"):
+        load_scenario(bomb)
+    assert time.perf_counter() - start < 5.0
+    looping = tmp_path / "loop.yaml"
+    looping.write_text("name: &n [*n]\nmachine: archi\n")
+    with pytest.raises(ScenarioError, match="aliases are expanded"):
+        load_scenario(looping)
+
+
+def test_a_machine_file_that_is_no_text_is_refused_by_name(tmp_path):
+    from pkm_kinematics import load_machine
+    from pkm_kinematics.errors import ConfigError
+    path = tmp_path / "m.yaml"
+    path.write_bytes(b"\xff\xfe kind: planar\n")
+    with pytest.raises(ConfigError, match=r"m.yaml: .*not UTF-8 text"):
+        load_machine(path)
+
+
+@pytest.mark.parametrize("trajectory, words", [
+    ({"rate_hz": 1e6}, r"trajectory.rate_hz: must be in \[1, 20000\] Hz, got 1000000.0"),
+    ({"max_segments": 0}, r"trajectory.max_segments: must be an integer >= 1"),
+])
+def test_the_planners_rate_and_budget_are_refused_before_anything_starts(trajectory, words):
+    """rate_hz 1e6 was refused only by trajectory_node, once the graph had started."""
+    with pytest.raises(ScenarioError, match=words):
+        load_scenario("archi_demo", {"trajectory": trajectory})

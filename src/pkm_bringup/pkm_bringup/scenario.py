@@ -56,6 +56,7 @@ from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
+from pkm_kinematics.yaml_files import YamlFileError, read_yaml
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
@@ -245,8 +246,8 @@ def read_mapping_file(path: str | Path, folder: str, what: str, error: type) -> 
     if not path.exists() and not path.suffix:
         path = config_dir() / folder / f"{path}.yaml"
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
+        data = read_yaml(path) or {}
+    except (OSError, YamlFileError) as exc:       # not UTF-8, invalid, an alias bomb (yaml_files)
         raise error(f"{what} {path}: {exc}") from None
     if not isinstance(data, dict):
         raise error(f"{what} {path}: must be a mapping")
@@ -375,7 +376,18 @@ def _check_sensor(p: dict, config) -> None:
     GoughSensorModel(config.metrology, **values)
 
 
-_OWNER_CHECKS = {"controller": _check_controller, "plant": _check_plant, "sensor": _check_sensor}
+def _check_trajectory(p: dict, config) -> None:
+    """trajectory_node's rate and plan budget (its other parameters: program_duration)."""
+    from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
+    lo, hi = RATE_HZ_RANGE
+    rate = p.get("rate_hz", 1000.0)
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
+        raise ValueError(f"rate_hz: must be in [{lo:g}, {hi:g}] Hz, got {rate!r}")
+    PlanBudget(p.get("max_points", 200_000), p.get("max_segments", 10_000), float(p.get("max_planning_s", 10.0)))
+
+
+_OWNER_CHECKS = {"controller": _check_controller, "plant": _check_plant, "sensor": _check_sensor,
+                 "trajectory": _check_trajectory}
 
 
 def _check_nodes(s: Scenario, config) -> None:
@@ -431,7 +443,7 @@ def _node_defaults(name: str) -> dict:
 def _ros_parameters(path: str, mtime_ns: int) -> dict:
     """A node's YAML parsed once per version of the file (``mtime_ns`` in the key):
     loading one scenario asked for them ~20 times, 0.3 s of pure-Python YAML each time."""
-    data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    data = read_yaml(path) or {}
     return dict(data.get("/**", {}).get("ros__parameters", {}))
 
 
@@ -439,7 +451,7 @@ def program_duration(s: Scenario, model) -> float:
     """The planned duration of the scenario's program on ``model`` (the scenario's
     machine), planned and validated exactly as trajectory_node will (a program it would
     refuse fails here, before anything starts)."""
-    from pkm_trajectory.planner import Limits, plan_validated
+    from pkm_trajectory.planner import Limits, PlanBudget, plan_validated
     from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
     home = model.home
@@ -452,7 +464,8 @@ def program_duration(s: Scenario, model) -> float:
         samples = plan_validated(segments, model, limits, float(p.get("rate_hz", 1000.0)),
                                  float(p.get("blend_tolerance_m", 0.0)), float(p.get("max_joint_velocity", 2.0)),
                                  float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
-                                 int(p.get("max_points", 200_000)))
+                                 PlanBudget(int(p.get("max_points", 200_000)), int(p.get("max_segments", 10_000)),
+                                            float(p.get("max_planning_s", 10.0))))
     except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
         raise ScenarioError(f"program: {exc}") from None
     return float(samples.duration_s)

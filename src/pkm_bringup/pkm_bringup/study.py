@@ -45,11 +45,11 @@ from itertools import product
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario, read_mapping_file
 from pkm_kinematics.config import config_dir
 from pkm_kinematics.task_space import PLANAR
+from pkm_kinematics.yaml_files import read_yaml
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
               "design", "objectives")
@@ -169,7 +169,7 @@ class Study:
 
 # ------------------------------------------------------------------ dotted paths
 def _scenario_data(path: Path) -> dict:
-    return yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    return read_yaml(path) or {}
 
 
 def scenario_fingerprint(path: Path, data: dict) -> str:

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from .errors import ConfigError, JointLimitError, KinematicsError, UnreachablePoseError
 from .dynamics import DynamicsParameters
@@ -25,6 +24,7 @@ from .rails import FORWARD_SOLVERS, RailLeg, RailMachine
 from .rigid_body import RigidBodyParameters
 from .rotations import rotation_from_rpy
 from .task_space import PLANAR, POSITION
+from .yaml_files import YamlFileError, read_yaml
 
 MACHINE_KINDS = ("planar", "translational", "struts", "parallelograms")
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "inch": 0.0254}
@@ -433,9 +433,8 @@ def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
         if not path.is_file():
             raise ConfigError("machine", f"unknown machine {str(name_or_path)!r}; "
                               f"known: {', '.join(machine_names())}")
-    with open(path, encoding="utf-8") as fh:
-        try:
-            data = yaml.safe_load(fh)
-        except yaml.YAMLError as exc:
-            raise ConfigError(path.name, f"invalid YAML: {exc}") from None
+    try:
+        data = read_yaml(path)
+    except YamlFileError as exc:
+        raise ConfigError(path.name, str(exc)) from None
     return load_machine_data(data, path.name)

@@ -167,7 +167,11 @@ def _tokenize(code: str, n: int) -> list[_Word]:
             raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
         if not _NUMBER.match(text):
             raise GcodeError(n, f'{letter}{text}: malformed number {text!r}')
-        words.append(_Word(letter, float(text), letter + text))
+        value = float(text)
+        if not math.isfinite(value):           # 400 digits: a float's range ends near 1.8e308
+            raise GcodeError(n, f'{letter}{text[:20]}{"..." if len(text) > 20 else ""}: number out of range '
+                                f'({len(text)} characters)')
+        words.append(_Word(letter, value, letter + text))
         i = j
     return words
 

@@ -19,13 +19,17 @@ acceleration and jerk get the other half; the sampled profile is then checked.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
+
+
+RATE_HZ_RANGE = (1.0, 20000.0)      # a trajectory's sample rate (Hz)
 
 
 class TrajectoryRejected(ValueError):
@@ -63,6 +67,7 @@ class Line:
     end: tuple
     speed: float | None = None     # path speed cap of the translation (m/s), e.g. a G-code feed
     blend_tolerance: float | None = None   # its corner's blending (G64 P / G61: 0), None: the plan's own
+    line: int | None = field(default=None, compare=False)     # its program line, for a refusal
 
     def point(self, u):
         if u >= 1.0:
@@ -90,6 +95,7 @@ class Arc:
     sweep: float
     end_rest: tuple
     speed: float | None = None
+    line: int | None = field(default=None, compare=False)
 
     @property
     def r(self):
@@ -126,6 +132,7 @@ class Arc:
 class Dwell:
     at: tuple
     duration_s: float
+    line: int | None = field(default=None, compare=False)
 
     @property
     def end(self):
@@ -242,6 +249,65 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
             accs.append(a)
         t0 += ts.duration_s
     return Samples(np.array(times), np.array(xs), np.array(vs), np.array(accs))
+
+
+# ----------------------------------------------------------------- the budget
+@dataclass(frozen=True)
+class PlanBudget:
+    """What one plan may cost, decided before it is sampled: its samples (each is a
+    message's worth of memory in the planner, the controller and the bag), its
+    segments, and the time to blend its corners."""
+
+    max_points: int = 200_000
+    max_segments: int = 10_000
+    max_planning_s: float = 10.0
+
+    def __post_init__(self):
+        for name, lo in (("max_points", 2), ("max_segments", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+                raise ValueError(f"{name}: must be an integer >= {lo}, got {value!r}")
+        if not 0.0 < self.max_planning_s < math.inf:
+            raise ValueError(f"max_planning_s: must be in (0, inf) s, got {self.max_planning_s!r}")
+
+
+def _where(segment) -> str:
+    line = getattr(segment, "line", None)
+    return f"line {line}: " if line is not None else ""
+
+
+def check_plan_size(segments, limits: Limits, rate_hz: float, budget: PlanBudget, translation_axes: int = 3,
+                    blended: bool = False) -> float:
+    """Refuse a plan beyond ``budget`` before a sample is made (TrajectoryRejected,
+    naming the segment's line): too many segments; a dwell, or any one segment, longer
+    than ``max_points`` samples; or all of them together (each segment is timed, once
+    per distinct segment: a repeated program's copies share theirs). A blended plan is
+    shorter than its segments end to end, by at most half (each corner overlaps at most
+    half of its shorter line), so it is refused here only when half is too long; the
+    sampled count is checked after. Returns the end-to-end duration (s)."""
+    if len(segments) > budget.max_segments:
+        raise TrajectoryRejected(f"{len(segments)} segments exceed max_segments {budget.max_segments}")
+    most = budget.max_points / rate_hz                   # seconds of samples the budget allows
+    for seg in segments:                                 # dwells first: no timing needed
+        if isinstance(seg, Dwell) and not seg.duration_s <= most:
+            raise TrajectoryRejected(f"{_where(seg)}a dwell of {seg.duration_s:g} s exceeds max_points "
+                                     f"{budget.max_points} ({most:g} s at {rate_hz:g} Hz)")
+    durations, total, longest = {}, 0.0, None
+    for seg in segments:
+        d = durations.get(id(seg))
+        if d is None:
+            d = durations[id(seg)] = time_law(seg, limits, translation_axes).duration_s
+            if not d <= most:
+                raise TrajectoryRejected(f"{_where(seg)}one move takes {d:g} s (its feed, or its length): it "
+                                         f"exceeds max_points {budget.max_points} ({most:g} s at {rate_hz:g} Hz)")
+        total += d
+        if longest is None or d > durations[id(longest)]:
+            longest = seg
+    if not (0.5 if blended else 1.0) * total <= most:
+        raise TrajectoryRejected(f"the plan takes {total:g} s{' before blending' if blended else ''} "
+                                 f"({len(segments)} segments; the longest, {_where(longest)}{durations[id(longest)]:g} "
+                                 f"s): it exceeds max_points {budget.max_points} ({most:g} s at {rate_hz:g} Hz)")
+    return total
 
 
 # ----------------------------------------------------------------- validation
@@ -386,7 +452,7 @@ def _deviation(p, a, b, c) -> float:
 
 
 def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float = 1000.0,
-                 translation_axes: int = 3) -> Samples:
+                 translation_axes: int = 3, deadline: float | None = None) -> Samples:
     """Corners blended within a path ``tolerance`` (like G64 P) without exceeding the
     limits. Each line keeps its rest-to-rest Ruckig profile and the next line starts
     before the previous one ends: the commanded motion is the sum of the two profiles
@@ -394,7 +460,8 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
     the corner stays within ``tolerance`` of the programmed path and every axis within
     its velocity, acceleration and jerk limits, checked densely over the overlap (the
     profiles are piecewise polynomial) - where LinuxCNC's blending exceeds its
-    acceleration limit by 1.9-8.1x (LinuxCNC issue #3773)."""
+    acceleration limit by 1.9-8.1x (LinuxCNC issue #3773). ``deadline``
+    (time.monotonic): a corner reached after it refuses the plan (TrajectoryRejected)."""
     if not all(isinstance(s, Line) for s in lines):
         raise ValueError("plan_blended: blends straight lines only (arcs and dwells stop exactly)")
     lines = [s for s in lines if max(abs(v) for v in s.first(0.0)) >= 1e-12]
@@ -406,6 +473,10 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
     caps = [np.array(limits.velocity), np.array(limits.acceleration), np.array(limits.jerk)]
     starts = [0.0]
     for k in range(len(timed) - 1):
+        if deadline is not None and time.monotonic() > deadline:
+            raise TrajectoryRejected(f"{_where(lines[k])}blending its corner passed the planning time limit "
+                                     f"(corner {k + 1} of {len(lines) - 1}): blend fewer corners (G61) or "
+                                     f"split the program")
         t_end = starts[k] + timed[k].duration_s
         corner = (lines[k].start, lines[k].end, lines[k + 1].end)
         longest = 0.5 * min(timed[k].duration_s, timed[k + 1].duration_s)
@@ -466,7 +537,7 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
 
 
 def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz: float = 1000.0,
-                       translation_axes: int = 3) -> Samples:
+                       translation_axes: int = 3, deadline: float | None = None) -> Samples:
     """Runs of consecutive lines with the same tolerance are blended within it: a line's
     own ``blend_tolerance`` (G64 P, G61: 0) or else ``blend_tolerance``; arcs, dwells,
     the corners of lines under 0 and the corners where the tolerance changes stop
@@ -490,7 +561,7 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
             groups.append(("other", [seg]))
     if run:
         groups.append(("lines", run))
-    parts = [plan_blended(g, limits, tolerance(g[0]), rate_hz, translation_axes)
+    parts = [plan_blended(g, limits, tolerance(g[0]), rate_hz, translation_axes, deadline)
              if kind == "lines" and tolerance(g[0]) > 0.0 else plan(g, limits, rate_hz, translation_axes)
              for kind, g in groups]
     t0, out = 0.0, []
@@ -503,14 +574,22 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
 
 def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, blend_tolerance: float = 0.0,
                    joint_velocity_limit: float | None = None, joint_acceleration_limit: float | None = None,
-                   max_condition: float | None = None, max_points: int | None = None) -> Samples:
+                   max_condition: float | None = None, budget: PlanBudget | None = None) -> Samples:
     """What trajectory_node publishes: the segments planned (with corner blending) and
-    sampled, then every sample checked against ``machine`` (:func:`validate`).
-    Raises TrajectoryRejected (or ValueError) naming the sample and the limit."""
-    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz,
-                                 translation_axes=machine.task_space.translation_axes)
-    if max_points is not None and len(samples.time_s) > max_points:
-        raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {max_points} "
+    sampled, then every sample checked against ``machine`` (:func:`validate`). With a
+    ``budget`` its size is checked before anything is sampled (check_plan_size) and
+    blending stops at its planning time. Raises TrajectoryRejected (or ValueError)
+    naming the sample (or line) and the limit."""
+    axes = machine.task_space.translation_axes
+    deadline = None
+    if budget is not None:
+        blended = any(isinstance(seg, Line) and (blend_tolerance if seg.blend_tolerance is None
+                                                 else seg.blend_tolerance) > 0.0 for seg in segments)
+        check_plan_size(segments, limits, rate_hz, budget, axes, blended)
+        deadline = time.monotonic() + budget.max_planning_s
+    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz, translation_axes=axes, deadline=deadline)
+    if budget is not None and len(samples.time_s) > budget.max_points:
+        raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {budget.max_points} "
                                  f"({samples.duration_s:.1f} s at {rate_hz:g} Hz)")
     validate(samples, machine, joint_velocity_limit, joint_acceleration_limit, max_condition,
              transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits)

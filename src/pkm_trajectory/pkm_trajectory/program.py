@@ -69,13 +69,13 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
     segments, pose = [], list(origin)
     for move in moves:
         if move.kind == "dwell":
-            segments.append(Dwell(tuple(pose), move.dwell_s))
+            segments.append(Dwell(tuple(pose), move.dwell_s, line=move.line))
             continue
         target = to_task(move, pose)
         speed = None if move.feed is None else move.feed * feed_override
         if move.kind in ("rapid", "linear"):
             if target != pose:
-                segments.append(Line(tuple(pose), tuple(target), speed, move.blend_tolerance))
+                segments.append(Line(tuple(pose), tuple(target), speed, move.blend_tolerance, line=move.line))
         else:  # arc in the XY plane about the (scaled) centre
             cx = origin[0] + scale * (move.center[0] - origin[0])
             cy = origin[1] + scale * (move.center[1] - origin[1])
@@ -90,7 +90,7 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
                     sweep = -((a0 - a1) % (2.0 * math.pi))
                 else:
                     sweep = (a1 - a0) % (2.0 * math.pi)
-            segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed))
+            segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed, line=move.line))
         pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
     if repeat > 1:
         if max(abs(a - b) for a, b in zip(pose, origin)) > 1e-9:

@@ -27,7 +27,7 @@ from pkm_common.params import declare_float, declare_float_list, declare_int, de
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
-from pkm_trajectory.planner import Limits, plan_validated, point_to_point
+from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.program import gcode_segments
 
 
@@ -44,7 +44,7 @@ class TrajectoryNode(Node):
                                            ("max_jerk", (200.0, 800.0)))}
         self.limits = Limits(*(tuple(declare_float_list(self, name, default, length=self.space.dof, lo=0.0))
                                for name, default in defaults.items()))
-        self.rate_hz = declare_float(self, "rate_hz", 1000.0, 1.0, 20000.0, unit="Hz")
+        self.rate_hz = declare_float(self, "rate_hz", 1000.0, *RATE_HZ_RANGE, unit="Hz")
         self.joint_velocity = declare_float(self, "max_joint_velocity", 2.0, 0.0, 100.0, lo_open=True, unit="m/s")
         self.joint_acceleration = declare_float(self, "max_joint_acceleration", 50.0, 0.0, 1e4, lo_open=True,
                                                 unit="m/s^2")
@@ -54,8 +54,13 @@ class TrajectoryNode(Node):
         self.repeat = declare_int(self, "repeat", 1, 1, 10000)
         self.blend_tolerance = declare_float(self, "blend_tolerance_m", 0.0, 0.0, 0.01,
                                              "corner blending of line moves (0: exact stop)", unit="m")
-        self.max_points = declare_int(self, "max_points", 200_000, 2, 10_000_000,
-                                      "longer trajectories are refused (message size and memory)")
+        # a plan's size is known before it is sampled, and refused beyond these (planner.PlanBudget)
+        self.budget = PlanBudget(
+            declare_int(self, "max_points", 200_000, 2, 10_000_000,
+                        "longer trajectories are refused (message size and memory)"),
+            declare_int(self, "max_segments", 10_000, 1, 1_000_000, "programs of more segments are refused"),
+            declare_float(self, "max_planning_s", 10.0, 0.0, 3600.0, "corner blending that takes longer is refused",
+                          lo_open=True, unit="s"))
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
         home = self.model.home
         self.pose = [float(v) for v in home]
@@ -87,7 +92,7 @@ class TrajectoryNode(Node):
         try:
             samples = plan_validated(build(), self.model, self.limits, self.rate_hz, self.blend_tolerance,
                                      self.joint_velocity, self.joint_acceleration, self.max_condition,
-                                     self.max_points)
+                                     self.budget)
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")

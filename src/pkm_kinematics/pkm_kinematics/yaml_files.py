@@ -1,0 +1,68 @@
+"""Configuration files read with bounds (pure): a machine, a scenario or a study file
+is input too. A file over ``MAX_FILE_BYTES``, not UTF-8 text (a binary file), invalid
+YAML, or a document that expands to more than ``MAX_NODES`` values through its aliases
+(a "billion laughs": nine levels of ten aliases load as a few shared lists, then
+anything that walks them, ``str()`` or a deep copy, visits 10^9) is refused with a
+YamlFileError (a ValueError) naming the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+__all__ = ["MAX_FILE_BYTES", "MAX_NODES", "YamlFileError", "parse_yaml", "read_yaml"]
+
+MAX_FILE_BYTES = 16 * 1024 * 1024
+MAX_NODES = 1_000_000            # values of the document with every alias expanded
+
+
+class YamlFileError(ValueError):
+    """A configuration file that cannot be taken: names the file and why."""
+
+
+def expanded_size(data, limit: int = MAX_NODES) -> int:
+    """The number of values in ``data`` with every shared (aliased) value counted each
+    time it is reached; counting stops past ``limit`` (a self-referential alias never
+    ends) and returns limit + 1."""
+    count, stack = 0, [data]
+    while stack:
+        value = stack.pop()
+        count += 1
+        if count > limit:
+            return count
+        if isinstance(value, dict):
+            stack.extend(value.keys())
+            stack.extend(value.values())
+        elif isinstance(value, (list, tuple, set)):
+            stack.extend(value)
+    return count
+
+
+def parse_yaml(text: str, where: str):
+    """``text`` (from ``where``, for the message) as YAML, bounded (module doc)."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise YamlFileError(f"{where}: invalid YAML: {exc}") from None
+    if expanded_size(data) > MAX_NODES:
+        raise YamlFileError(f"{where}: more than {MAX_NODES} values once its aliases are expanded (an alias "
+                            f"bomb?)")
+    return data
+
+
+def read_yaml(path: str | Path):
+    """The YAML document of the file ``path``, bounded (module doc); OSError as it comes."""
+    path = Path(path)
+    with open(path, "rb") as fh:
+        raw = fh.read(MAX_FILE_BYTES + 1)
+    if len(raw) > MAX_FILE_BYTES:
+        raise YamlFileError(f"{path}: over {MAX_FILE_BYTES} bytes: not a configuration file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise YamlFileError(f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start:exc.start + 1]!r}); a "
+                            f"binary file, or another encoding: save it as UTF-8") from None
+    if "\x00" in text:
+        raise YamlFileError(f"{path}: contains a NUL byte (at {text.index(chr(0))}): a binary file")
+    return parse_yaml(text, str(path))
