@@ -216,3 +216,22 @@ def test_a_malformed_trajectory_is_refused_naming_the_point_and_field():
         decode_multidof_trajectory(serialize_message(bad))
     with pytest.raises(ValueError, match="not a little-endian CDR message"):
         decode_multidof_trajectory(b"\x00\x00\x00\x00" + buf[4:])
+
+
+def test_a_stamp_before_1970_is_refused_by_both_readers():
+    """Every reader of a stamped message: the general one and the decoder's cached layout."""
+    import pytest
+    from pkm_common.cdr import JointStateDecoder, decode_pose_stamped
+    from geometry_msgs.msg import PoseStamped
+    good = JointState(name=["d1", "d2"], position=[1.0, 2.0])
+    bad = JointState(name=["d1", "d2"], position=[1.0, 2.0])
+    bad.header.stamp.sec = -1
+    decoder = JointStateDecoder("drives/state")
+    decoder.decode(serialize_message(good))              # its layout is now cached
+    for decode in (decoder.decode, decode_joint_state):
+        with pytest.raises(ValueError, match=r"header.stamp must be at or after 0 s .* got sec -1"):
+            decode(serialize_message(bad))
+    pose = PoseStamped()
+    pose.header.stamp.sec = -3
+    with pytest.raises(ValueError, match="got sec -3"):
+        decode_pose_stamped(serialize_message(pose))

@@ -71,3 +71,18 @@ def test_the_plant_alone_is_never_an_intruder():
     loop.on_matched("drives/state", 1)
     assert not loop.core.stopped and len(ports.commands) == 3
     assert loop.sources[0].source == "/plant"         # no state_source: the one publisher at the first state
+
+
+def test_a_state_with_a_negative_stamp_is_refused_not_a_crash():
+    """A well-typed drives/state stamped before 1970 raised ValueError out of the
+    answer (the command's stamp cannot be encoded): the run "failed", exit 1. It is
+    refused: the machine stops safely with the input named, and nothing raises."""
+    ports = Ports()
+    loop = ControllerLoop(core_from_parameters("archi", ControllerConfig()), dict(NODE_PARAMETERS), ports)
+    loop.active = True
+    loop.on_state(state(0))
+    bad = JointState(name=list(ARCHI.model.leg_names), position=[0.0] * 4, velocity=[0.0] * 4)
+    bad.header.stamp.sec = -5
+    loop.on_state(serialize_message(bad))
+    assert loop.core.stopped and loop.core.stop_cause == TripCause.INPUT_REFUSED, loop.core.stop_reason
+    assert "header.stamp must be at or after 0 s" in loop.core.stop_reason and "sec -5" in loop.core.stop_reason

@@ -77,6 +77,15 @@ def _pad(offset: int, alignment: int) -> int:
     return -offset % alignment
 
 
+def _stamp_ns(sec: int, nanosec: int, what: str) -> int:
+    """A received stamp as nanoseconds; before 1970 or a nanosec of a second or more is
+    refused (ValueError): it is no time of a run, and answered it cannot be encoded."""
+    if sec < 0 or nanosec >= NS_PER_S:
+        raise ValueError(f"{what}: header.stamp must be at or after 0 s with nanosec < 1e9, got sec {sec}, "
+                         f"nanosec {nanosec}")
+    return sec * NS_PER_S + nanosec
+
+
 def _split_stamp(stamp_ns: int) -> tuple[int, int]:
     sec, nanosec = divmod(stamp_ns, NS_PER_S)
     if not 0 <= sec < 2**31:
@@ -147,7 +156,7 @@ class _Reader:
         self._need(8, "header.stamp")
         sec, nanosec = _STAMP.unpack_from(self.buf, self.pos)
         self.pos += 8
-        return sec * NS_PER_S + nanosec
+        return _stamp_ns(sec, nanosec, self.what)
 
 
 def stamp_ns_of(buf) -> int:
@@ -270,7 +279,7 @@ class JointStateDecoder:
             values = lay._struct.unpack_from(buf)
             if values[0] == CDR_LE_HEADER and values[3] == lay._middle \
                     and all(values[i] == count for i, count in lay._count_index):
-                stamp = values[1] * NS_PER_S + values[2]
+                stamp = _stamp_ns(values[1], values[2], self.what)
                 arrays = [values[i + 1:i + 1 + count] for i, count in lay._count_index]
                 return JointStateData(stamp, lay.frame_id, lay.names, *arrays)
         data = decode_joint_state(buf, self.what)
