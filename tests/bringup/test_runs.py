@@ -309,10 +309,14 @@ def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
     os.kill(int(victims[0]), signal.SIGKILL)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 1
-    assert "node controller exited with code -9" in out and "its last output" in out, out
+    assert "node controller exited with code -9 (killed by SIGKILL)" in out and "its last output" in out, out
     assert (run_dir / "bag" / "metadata.yaml").exists()        # the recorder still finalized
     assert not _leftovers(run_dir)
-    assert np.isfinite(json.loads((run_dir / "run.json").read_text())["wall_s"])
+    run = json.loads((run_dir / "run.json").read_text())
+    assert np.isfinite(run["wall_s"])
+    # the kill is the run's cause (it was "none"; the plant's silent-controller stop is its consequence)
+    assert run["status"] == "failed" and run["cause"] == "node_died", (run["cause"], run["trip_reason"])
+    assert run["trip_reason"] == "node controller exited with code -9 (killed by SIGKILL)", run["trip_reason"]
 
 
 @pytest.mark.slow
@@ -513,3 +517,19 @@ def test_an_in_process_run_leaves_no_dds_participant_behind(tmp_path):
                        in_process=True, progress=False, report=False)
     assert run["status"] == "completed", run["error"]
     assert _dds_participant_threads() == before
+
+
+def test_a_node_that_died_is_the_runs_cause_unless_the_machine_stopped_first():
+    from pkm_bringup.orchestrator import node_died, run_cause
+    from pkm_common.causes import TripCause
+    failed = node_died("sim_hw", -9, "last words")
+    assert failed.cause == TripCause.NODE_DIED
+    assert str(failed).startswith("node sim_hw exited with code -9 (killed by SIGKILL); its last output")
+    why = "node sim_hw exited with code -9 (killed by SIGKILL)"
+    silent = {"controller": {"stopped": True, "cause": "watchdog", "stop_reason": "drives/state silent"}}
+    tripped = {"controller": {"stopped": True, "cause": "following_error", "stop_reason": "12 mm"}}
+    for summaries in ({}, silent):                   # no stop, or its consequence: the death started it
+        assert run_cause(summaries, failed.cause, str(failed)) == (TripCause.NODE_DIED, why)
+    assert run_cause(tripped, failed.cause, str(failed)) == (TripCause.FOLLOWING_ERROR, "12 mm")
+    assert run_cause(silent) == (TripCause.WATCHDOG, "drives/state silent")
+    assert "killed by signal 99" in str(node_died("x", -99, ""))

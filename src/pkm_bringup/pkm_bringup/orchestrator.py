@@ -60,7 +60,33 @@ EXIT_CODES = {"completed": 0, "failed": 1, "tripped": 3}
 
 
 class RunFailed(RuntimeError):
-    """The run could not complete (crash, timeout, no connection); the message says why."""
+    """The run could not complete (crash, timeout, no connection); the message says why,
+    ``cause`` what started it when it is the machine's (a node that died: NODE_DIED)."""
+
+    def __init__(self, message: str, cause: TripCause = TripCause.NONE):
+        super().__init__(message)
+        self.cause = cause
+
+
+def node_died(name: str, code: int, tail: str) -> RunFailed:
+    """A node's process ended unbidden: its exit code, the signal that killed it, its last output."""
+    how = ""
+    if code < 0:
+        try:
+            how = f" (killed by {signal.Signals(-code).name})"
+        except ValueError:
+            how = f" (killed by signal {-code})"
+    return RunFailed(f"node {name} exited with code {code}{how}; its last output:\n{tail}", TripCause.NODE_DIED)
+
+
+def run_cause(summaries: dict, failure: TripCause = TripCause.NONE, error: str = "") -> tuple[TripCause, str]:
+    """The cause that started the run's stop and its reason (trip_cause), but a node
+    that died (``failure``) when the machine did not stop before, or stopped only as a
+    consequence: its inputs went silent (watchdog), its plant braked."""
+    cause, reason = trip_cause(summaries)
+    if failure != TripCause.NONE and cause in (TripCause.NONE, TripCause.WATCHDOG, TripCause.PLANT_SAFE_STOP):
+        return failure, error.split("; its last output")[0]
+    return cause, reason
 
 
 def make_run_dir(s: Scenario, root: Path) -> Path:
@@ -300,8 +326,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     def check_alive(allowed_done=()):
         for node in nodes.values():
             if not node.running() and node.name not in allowed_done:
-                raise RunFailed(f"node {node.name} exited with code {node.popen.returncode}; its last output:\n"
-                                f"{node.tail()}")
+                raise node_died(node.name, node.popen.returncode, node.tail())
     try:
         _refuse_if_another_run(executor, monitor, s)
         # a planner for an operator (realtime, no program) starts with the loop's nodes and
@@ -354,7 +379,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         if sim.popen.returncode is None:
             raise RunFailed(f"node sim_hw finished but did not exit within 10 s; its last output:\n{sim.tail()}")
         if sim.popen.returncode != 0:
-            raise RunFailed(f"node sim_hw exited with code {sim.popen.returncode}; its last output:\n{sim.tail()}")
+            raise node_died("sim_hw", sim.popen.returncode, sim.tail())
         end = time.monotonic() + DRAIN_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
@@ -506,8 +531,10 @@ def trip_cause(summaries: dict) -> tuple[TripCause, str]:
     return TripCause.NONE, ""
 
 
-def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, error: str = "") -> dict:
-    """run.json: node summaries, published vs recorded per topic, exit codes."""
+def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, error: str = "",
+            failure: TripCause = TripCause.NONE) -> dict:
+    """run.json: node summaries, published vs recorded per topic, exit codes; ``failure``:
+    the cause of the RunFailed that ended it (run_cause)."""
     summaries = {p.stem: _read_json(p) for p in sorted((run_dir / "summaries").glob("*.json"))}
     published = {}
     for node in ("sim_hw", "controller", "gough_sensor"):
@@ -518,7 +545,7 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     if any(v < 0 for v in lost.values()) and not error:
         error = (f"more messages recorded than published on {[t for t, v in lost.items() if v < 0]}: "
                  "another graph publishes in this domain and namespace")
-    cause, reason = trip_cause(summaries)
+    cause, reason = run_cause(summaries, failure, error)
     # DDS delivery to the sensor is not a recording loss, but a true pose it never
     # measured is a step the metrology missed: stated, not silent
     sensor, sim = summaries.get("gough_sensor", {}), summaries.get("sim_hw", {})
@@ -556,13 +583,13 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     use_ros_environment()
     mode = "in_process" if in_process else "processes"
     start = time.monotonic()
-    error, codes, interruption = "", {}, _Interruption()
+    error, codes, interruption, failure = "", {}, _Interruption(), TripCause.NONE
     try:
         run = run_in_process if in_process else run_processes
         with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
             run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption)
     except RunFailed as exc:
-        error = str(exc)
+        error, failure = str(exc), exc.cause
     except KeyboardInterrupt:
         error = INTERRUPTED
     except Exception as exc:                      # noqa: BLE001 - reported in run.json, never a traceback
@@ -571,7 +598,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         # argument ..."): the run was interrupted all the same
         error = INTERRUPTED if interruption.signalled else f"{type(exc).__name__}: {exc}"
     recovered = _recover_bag(s, run_dir)
-    result = collect(s, run_dir, mode, time.monotonic() - start, codes, error)
+    result = collect(s, run_dir, mode, time.monotonic() - start, codes, error, failure)
     if recovered:
         result["recovered"] = recovered
         (run_dir / "run.json").write_text(json.dumps(result, indent=2), encoding="utf-8")

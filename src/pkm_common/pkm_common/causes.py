@@ -45,6 +45,7 @@ class TripCause(str, enum.Enum):
     LOAD_REFUSED = "load_refused"            # an external load over its bound
     KINEMATICS = "kinematics"                # FK/IK failed, a law produced non-finite forces
     DEACTIVATED = "deactivated"              # lifecycle deactivate
+    NODE_DIED = "node_died"                  # a process of the graph ended unbidden (a signal, a crash)
 
     def __str__(self) -> str:
         return self.value
