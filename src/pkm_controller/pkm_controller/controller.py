@@ -64,7 +64,8 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLL
                    LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, clamp_forces_kernel,
                    error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
-                   spatial_limits_kernel, task_pose_error, tool_pose_floats, weakest_mode_ratio)
+                   spatial_limits_kernel, task_pose_error, tool_pose_floats, mode_ratios,
+                   sampled_hold_radius)
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
@@ -130,7 +131,7 @@ class ControllerConfig:
                 self.prestress_n == 0.0 or n_drives == 4 or len(self.prestress_direction) == n_drives),
              "0, or finite on a machine with one redundant drive (4 drives) or with a prestress_direction"),
             # beyond the drives' limit the internal force alone saturates them
-            ("prestress_n", abs(self.prestress_n) <= self.force_limit_n,
+            ("prestress_n", not self.force_limit_n > 0.0 or abs(self.prestress_n) <= self.force_limit_n,
              f"in [-{self.force_limit_n:g}, {self.force_limit_n:g}] N (force_limit_n)"),
             ("bandwidth_hz", 0.0 < self.bandwidth_hz <= 0.1 / self.dt_s if self.dt_s > 0 else False,
              f"in (0, {0.1 / self.dt_s if self.dt_s > 0 else 0:g}] Hz (a tenth of the control rate)"),
@@ -234,7 +235,7 @@ class ControllerCore:
         # cond(J_m) of the active drives: the 3-DOF closed form, or the machine's own
         # (a spatial J_m's rotation columns weighted by the platform's size)
         self._condition = self.model.rows_condition if self.spatial else gram_condition
-        self._mode_ratio = self._pid_mode_ratios()
+        self._mode_ratios = self._pid_mode_ratios()
         self._check_config(self.config)
         self.strategy = strategy(self.config.strategy)
         self.metrology = None
@@ -257,7 +258,8 @@ class ControllerCore:
         """ControllerConfig.validate, and what only this machine can say (ValueError)."""
         config.validate(self.n, self.planar)
         law = strategy(config.strategy).law
-        ratio = self._mode_ratio.get(law, 1.0)
+        ratios = self._mode_ratios.get(law, (1.0,))
+        ratio = ratios[0]
         if ratio <= 0.0:
             raise ValueError(f"strategy: {config.strategy} on {self.machine.name}: its gains leave a mode of the "
                              f"machine at home without stiffness (mass ratio {ratio:.3g})")
@@ -267,6 +269,7 @@ class ControllerCore:
                 raise ValueError(f"integral_time_s: must be 0, or in ({low:.4g}, inf) s for {config.strategy} on "
                                  f"{self.machine.name} (stability of its weakest mode, mass ratio {ratio:.3g}: "
                                  f"T_i > 1 / (2 zeta omega r)), got {config.integral_time_s!r}")
+        self._check_sampled(config, ratios)
         if config.prestress_n != 0.0 and self.n <= self.dof:
             raise ValueError(f"prestress_n: must be 0 on a machine without redundant drives ({self.n} drives for "
                              f"{self.dof} DOF: no internal force exists)")
@@ -381,11 +384,35 @@ class ControllerCore:
         return a, jac, np.diag(pinv.T @ a @ pinv).tolist()
 
     def _pid_mode_ratios(self) -> dict:
-        """The weakest mode's mass ratio of each PID law at home (laws.weakest_mode_ratio):
-        how far below the task mass its gains' shape falls; the integral time's bound."""
+        """The mass ratios of the modes of each PID law at home, ascending, distinct
+        (laws.mode_ratios): how far its gains' shape is from the task mass. Every other
+        law acts through A(x): its modes are all 1."""
         a, jac, m_joint = self.home_masses()
-        return {Law.JOINT_PID: weakest_mode_ratio(jac.T @ np.diag(m_joint) @ jac, a),
-                Law.CARTESIAN_PID: weakest_mode_ratio(np.diag(np.diag(a)), a)}
+        return {law: tuple(sorted({round(float(r), 9) for r in mode_ratios(shape, a)}))
+                for law, shape in ((Law.JOINT_PID, jac.T @ np.diag(m_joint) @ jac),
+                                   (Law.CARTESIAN_PID, np.diag(np.diag(a))))}
+
+    def _check_sampled(self, config: ControllerConfig, ratios) -> None:
+        """Refuse gains whose hold is unstable as sampled every ``config.dt_s``
+        (laws.sampled_hold_radius, every mode of the law), naming the bandwidths that
+        are stable with the same damping and integral time (ValueError)."""
+        def radii(bandwidth_hz: float) -> list:
+            gains = Gains(2.0 * math.pi * bandwidth_hz, config.damping_ratio, config.integral_time_s)
+            return [sampled_hold_radius(r, gains, config.dt_s) for r in ratios]
+        now = radii(config.bandwidth_hz)
+        worst = int(np.argmax(now))
+        if now[worst] < 1.0:
+            return
+        top = 0.1 / config.dt_s                              # ControllerConfig's own bound
+        stable = [b for b in np.geomspace(0.1, top, 160) if max(radii(b)) < 1.0]
+        where = (f"stable for bandwidth_hz in [{min(stable):.3g}, {max(stable):.3g}] Hz" if stable else
+                 "no bandwidth is stable with this damping and integral time (a longer integral_time_s or "
+                 "a higher damping_ratio widens the range)")
+        raise ValueError(f"bandwidth_hz: {config.strategy} on {self.machine.name} sampled at {1.0 / config.dt_s:g} Hz "
+                         f"is unstable at {config.bandwidth_hz:g} Hz (damping_ratio {config.damping_ratio:g}, "
+                         f"integral_time_s {config.integral_time_s:g}): its mode of mass ratio {ratios[worst]:.3g} "
+                         f"grows {now[worst]:.4f}x per cycle; {where} (or a faster control rate), "
+                         f"got {config.bandwidth_hz!r}")
 
     def _scale_gains(self) -> None:
         """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint

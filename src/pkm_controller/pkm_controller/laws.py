@@ -402,6 +402,41 @@ def apparent_drive_mass(rows, a) -> np.ndarray:
     return 1.0 / np.einsum("ij,ji->i", j, np.linalg.solve(np.asarray(a, dtype=float), j.T))
 
 
+def mode_ratios(shape, a) -> np.ndarray:
+    """Every r of (K - r A) v = 0, ascending (K = ``shape``, A the task mass matrix):
+    how much of each mode's mass a PID law's common gain shape carries
+    (weakest_mode_ratio explains; 1 for every mode of a law through A(x))."""
+    chol = np.linalg.cholesky(np.asarray(a, dtype=float))
+    m = np.linalg.solve(chol, np.linalg.solve(chol, np.asarray(shape, dtype=float)).T)
+    return np.linalg.eigvalsh(0.5 * (m + m.T))
+
+
+def sampled_mode_matrix(r: float, gains: Gains, dt: float, euler: bool = False) -> np.ndarray:
+    """One mode of a hold under a PID law sampled every ``dt``, state (z, zdot, I):
+    the command of step k from the state at k, I first (I_{k+1} = I_k - k_i z_k dt,
+    as ControllerCore does), then held for the step: zddot = r (-k_p z - k_d zdot + I).
+    The plant's step is exact for a held force (the machine: z += dt zdot + dt^2/2
+    zddot) or, ``euler``, sim_hw's semi-implicit Euler (z += dt zdot + dt^2 zddot)."""
+    kp, kd, ki = gains.kp, gains.kd, gains.ki
+    acc = r * np.array([-(kp + ki * dt), -kd, 1.0])
+    step = np.array([[1.0, dt, 0.0], [0.0, 1.0, 0.0], [-ki * dt, 0.0, 1.0]])
+    step[0] += (dt * dt if euler else 0.5 * dt * dt) * acc
+    step[1] += dt * acc
+    return step
+
+
+def sampled_hold_radius(r: float, gains: Gains, dt: float) -> float:
+    """The spectral radius of a mode of mass ratio ``r`` held by ``gains`` sampled
+    every ``dt`` (sampled_mode_matrix), the larger of the machine's (exact) and the
+    simulated plant's (Euler): >= 1 grows. The continuous bound T_i > 1/(2 zeta omega r)
+    is its limit for small dt; sampling adds a bound on the stiff modes (r omega^2 dt^2)
+    and, through the exact step, on low damping. Not in it: a computation delay
+    (a late command is a held setpoint, counted as a deadline miss)."""
+    size = 3 if gains.ki > 0.0 else 2              # without an integral its state stays put: not a mode
+    return max(float(np.abs(np.linalg.eigvals(sampled_mode_matrix(r, gains, dt, euler)[:size, :size])).max())
+               for euler in (False, True))
+
+
 def weakest_mode_ratio(shape, a) -> float:
     """The smallest r of (K - r A) v = 0, K = ``shape``: the task stiffness shape every
     gain of a PID law shares (K_p = kp K, K_d = kd K, K_i = ki K; J^T diag(m) J for the
@@ -412,9 +447,7 @@ def weakest_mode_ratio(shape, a) -> float:
     hexapod8's joint PIDs have r = 0.059 (its x-roll and y-pitch modes): with the
     default T_i = 0.05 s they grew from the encoders' quantisation until a
     following-error trip ~10 s into a hold."""
-    chol = np.linalg.cholesky(np.asarray(a, dtype=float))
-    m = np.linalg.solve(chol, np.linalg.solve(chol, np.asarray(shape, dtype=float)).T)
-    return float(np.linalg.eigvalsh(0.5 * (m + m.T))[0])
+    return float(mode_ratios(shape, a)[0])
 
 
 def joint_pid(e, edot, integral, kp, kd) -> list:
