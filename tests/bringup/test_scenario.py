@@ -313,10 +313,10 @@ def test_a_scenario_that_is_no_text_or_an_alias_bomb_is_refused_by_name(tmp_path
 
 def test_a_machine_file_that_is_no_text_is_refused_by_name(tmp_path):
     from pkm_kinematics import load_machine
-    from pkm_kinematics.errors import ConfigError
+    from pkm_kinematics.yaml_files import UnreadableFileError
     path = tmp_path / "m.yaml"
     path.write_bytes(b"\xff\xfe kind: planar\n")
-    with pytest.raises(ConfigError, match=r"m.yaml: .*not UTF-8 text"):
+    with pytest.raises(UnreadableFileError, match=r"m.yaml: not UTF-8 text"):
         load_machine(path)
 
 

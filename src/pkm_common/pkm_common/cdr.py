@@ -152,17 +152,18 @@ class _Reader:
     def double_sequence(self, field: str) -> tuple:
         return self.doubles(self.uint32(f"{field} count"), field)
 
-    def stamp_ns(self) -> int:
+    def stamp_ns(self, checked: bool = True) -> int:
         self._need(8, "header.stamp")
         sec, nanosec = _STAMP.unpack_from(self.buf, self.pos)
         self.pos += 8
-        return _stamp_ns(sec, nanosec, self.what)
+        return _stamp_ns(sec, nanosec, self.what) if checked else sec * NS_PER_S + nanosec
 
 
 def stamp_ns_of(buf) -> int:
     """header.stamp (or Clock.clock) of a serialized stamped message, as nanoseconds:
-    the first field of the body."""
-    return _Reader(buf, "message").stamp_ns()
+    the first field of the body, unchecked: the recorder and a bag's recovery read it
+    of every message, stamped or not (what acts on a stamp decodes it, checked)."""
+    return _Reader(buf, "message").stamp_ns(checked=False)
 
 
 def decode_joint_state(buf, what: str = "JointState") -> JointStateData:

@@ -28,6 +28,7 @@ import numpy as np
 from . import analysis
 from .config import MachineConfig, load_machine, machine_names
 from .errors import KinematicsError, UnreachablePoseError
+from .yaml_files import UnreadableFileError
 from .parallelogram import ParallelogramMachine, tilt_urad
 from .rails import RailMachine
 from .task_space import PLANAR
@@ -109,8 +110,8 @@ def _load(name: str) -> MachineConfig:
     """load_machine, with an unreadable file reported against --machine."""
     try:
         return load_machine(name)
-    except (OSError, UnicodeError) as exc:
-        reason = getattr(exc, "strerror", None) or str(exc)
+    except (OSError, UnreadableFileError) as exc:
+        reason = getattr(exc, "strerror", None) or getattr(exc, "reason", None) or str(exc)
         raise KinematicsError(f"--machine: cannot read {name!r}: {reason}") from None
 
 

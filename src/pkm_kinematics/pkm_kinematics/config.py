@@ -24,7 +24,7 @@ from .rails import FORWARD_SOLVERS, RailLeg, RailMachine
 from .rigid_body import RigidBodyParameters
 from .rotations import rotation_from_rpy
 from .task_space import PLANAR, POSITION
-from .yaml_files import YamlFileError, read_yaml
+from .yaml_files import UnreadableFileError, YamlFileError, read_yaml
 
 MACHINE_KINDS = ("planar", "translational", "struts", "parallelograms")
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "inch": 0.0254}
@@ -434,7 +434,9 @@ def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
             raise ConfigError("machine", f"unknown machine {str(name_or_path)!r}; "
                               f"known: {', '.join(machine_names())}")
     try:
-        data = read_yaml(path)
+        data = read_yaml(path)                   # UnreadableFileError (not text) as it is
+    except UnreadableFileError:
+        raise
     except YamlFileError as exc:
-        raise ConfigError(path.name, str(exc)) from None
+        raise ConfigError(path.name, exc.reason) from None
     return load_machine_data(data, path.name)

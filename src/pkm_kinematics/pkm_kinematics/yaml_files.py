@@ -11,14 +11,23 @@ from pathlib import Path
 
 import yaml
 
-__all__ = ["MAX_FILE_BYTES", "MAX_NODES", "YamlFileError", "parse_yaml", "read_yaml"]
+__all__ = ["MAX_FILE_BYTES", "MAX_NODES", "UnreadableFileError", "YamlFileError", "parse_yaml", "read_yaml"]
 
 MAX_FILE_BYTES = 16 * 1024 * 1024
 MAX_NODES = 1_000_000            # values of the document with every alias expanded
 
 
 class YamlFileError(ValueError):
-    """A configuration file that cannot be taken: names the file and why."""
+    """A configuration file that cannot be taken: names the file (``where``) and why
+    (``reason``)."""
+
+    def __init__(self, where: str, reason: str):
+        super().__init__(f"{where}: {reason}")
+        self.where, self.reason = where, reason
+
+
+class UnreadableFileError(YamlFileError):
+    """A file that is no text to read: too large, not UTF-8, binary."""
 
 
 def expanded_size(data, limit: int = MAX_NODES) -> int:
@@ -44,10 +53,9 @@ def parse_yaml(text: str, where: str):
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise YamlFileError(f"{where}: invalid YAML: {exc}") from None
+        raise YamlFileError(where, f"invalid YAML: {exc}") from None
     if expanded_size(data) > MAX_NODES:
-        raise YamlFileError(f"{where}: more than {MAX_NODES} values once its aliases are expanded (an alias "
-                            f"bomb?)")
+        raise YamlFileError(where, f"more than {MAX_NODES} values once its aliases are expanded (an alias bomb?)")
     return data
 
 
@@ -57,12 +65,12 @@ def read_yaml(path: str | Path):
     with open(path, "rb") as fh:
         raw = fh.read(MAX_FILE_BYTES + 1)
     if len(raw) > MAX_FILE_BYTES:
-        raise YamlFileError(f"{path}: over {MAX_FILE_BYTES} bytes: not a configuration file")
+        raise UnreadableFileError(str(path), f"over {MAX_FILE_BYTES} bytes: not a configuration file")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise YamlFileError(f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start:exc.start + 1]!r}); a "
-                            f"binary file, or another encoding: save it as UTF-8") from None
+        raise UnreadableFileError(str(path), f"not UTF-8 text (byte {exc.start}: {raw[exc.start:exc.start + 1]!r}); "
+                                             f"a binary file, or another encoding: save it as UTF-8") from None
     if "\x00" in text:
-        raise YamlFileError(f"{path}: contains a NUL byte (at {text.index(chr(0))}): a binary file")
+        raise UnreadableFileError(str(path), f"contains a NUL byte (at {text.index(chr(0))}): a binary file")
     return parse_yaml(text, str(path))
