@@ -220,7 +220,7 @@ def test_a_failed_drive_near_a_sub_machine_singularity_stops():
 def test_following_error_trips():
     """A 5 mm step with a 1 mm following-error limit."""
     core, log = closed_loop(ARCHI, "computed_torque", 100, step_reference(ARCHI_HOME, 0, 0.0049),
-                            following_error_m=0.001)
+                            following_error_m=0.001, start_tolerance_m=0.0005)
     assert core.stopped and "following error 4.9" in core.stop_reason
     assert log.forces[-1] == [0.0] * 4
 
@@ -372,6 +372,10 @@ def _state_at(pose):
     ("integral_time_s", 0.001, r"integral_time_s: must be 0, or in \(0.003979, inf\) s"),
     ("prestress_n", 10.0, "prestress_n: must be 0, or finite on a machine with one redundant drive"),
     ("force_limit_n", -1.0, r"force_limit_n: must be in \(0, inf\) N"),
+    # a trajectory accepted 4.24 mm off the reference made it jump 4.24 mm in a step: the
+    # tolerance was 20 mm against a 10 mm following-error bound
+    ("start_tolerance_m", 0.02, r"start_tolerance_m: must be in \[0, 0.01\) m \(below following_error_m\)"),
+    ("start_tolerance_rad", 0.05, r"start_tolerance_rad: must be in \[0, 0.05\) rad"),
 ])
 def test_invalid_configuration_names_the_field(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -517,12 +521,14 @@ def test_fk_resync_cycles_puts_a_newton_solution_every_n_cycles():
     assert exact == [k % 5 == 0 for k in range(12)]
 
 
-def test_a_controller_stopped_in_its_first_cycle_reports_the_machine_where_it_is():
+def test_a_trajectory_too_far_from_the_machine_is_refused_and_it_holds_where_it_is():
     """ARCHI with leg-length errors of ~1 % starts 11.6 mm from the program's start in
-    the nominal model: the following error stops it in its first cycle. Its reference
-    (controller/reference, against which the report measures the tracking error) is
-    where the machine is, not (0, 0, 0): a study's report said 1.077 m of tracking
-    error, |(1, -0.4)|, for a machine that never moved."""
+    the nominal model. The trajectory was accepted (20 mm start tolerance), the
+    reference jumped 11.6 mm and the following error stopped the machine in its first
+    cycle; now it is refused (5 mm, below the following-error bound) and the machine
+    holds. Its reference (controller/reference, against which the report measures the
+    tracking error) is where the machine is, not (0, 0, 0): a study's report said
+    1.077 m of tracking error, |(1, -0.4)|, for a machine that never moved."""
     from pkm_controller.closed_loop import run
     from pkm_controller.reference import Reference
     from pkm_sim_hw.plant import Plant, PlantParameters
@@ -534,5 +540,7 @@ def test_a_controller_stopped_in_its_first_cycle_reports_the_machine_where_it_is
     plant = Plant(machine, PlantParameters(link_length_errors=(-0.0063, 0.0008, -0.013, -0.0004)))
     core, log = run(machine, ControllerConfig(strategy="joint_pid"), plant, 3,
                     reference=Reference(samples.time_s, samples.position, samples.velocity, samples.acceleration))
-    assert core.stopped and str(core.stop_cause) == "following_error"
+    assert not core.stopped and core.mode == "holding", core.stop_reason
+    assert any("trajectory refused" in f and "11.6" in f and "start_tolerance_m 0.005" in f for f in core.faults), \
+        core.faults
     assert np.allclose(log.reference[0][:2], home[:2], atol=0.05) and abs(log.reference[0][0]) > 0.5

@@ -62,7 +62,7 @@ def test_a_repeated_program_is_refused_by_its_segment_count_at_once():
 
 
 def test_blending_stops_at_its_planning_time():
-    zigzag = "G91 G64 P0.1 G1 F6000\n" + "X2 Y1\nX2 Y-1\n" * 2_000
+    zigzag = "G91 G64 P0.1 G1 F6000\n" + "X2\nY2\nX-2\nY-2\n" * 1_000       # 4,000 corners, in a 2 mm square
     budget = PlanBudget(max_planning_s=0.3)
     message, wall_s, _ = refused(zigzag, budget, blend=0.0)
     assert "blending its corner passed the planning time limit" in message and message.startswith("line "), message

@@ -80,10 +80,10 @@ def test_a_six_axis_program_is_planned_and_validated_on_the_hexapod_strut_rates_
 def test_a_hexapod_path_past_a_strut_limit_is_refused_naming_the_strut():
     """The planner's joint-limit check on a strut machine names the strut and its
     limits (it said only "rejected": a strut machine had no check_joint_limits)."""
-    from pkm_trajectory.planner import Limits, TrajectoryRejected, plan_validated, point_to_point
+    from pkm_trajectory.planner import Limits, TrajectoryRejected, plan, point_to_point, validate
     machine = load_machine("hexapod8").model
-    end = machine.home + [0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
+    end = machine.home + [0.0, 0.0, 0.5, 0.0, 0.0, 0.0]        # past the workspace too: validate without it
+    samples = plan([point_to_point(machine.home, end)], Limits(np.full(6, 0.5), np.full(6, 5.0), np.full(6, 100.0)))
     with pytest.raises(TrajectoryRejected, match=r"x = \[0\.0, 0\.0, 0\.\d+.*\]\): s\d: 0\.95\d+ m outside its "
                                                  r"limits \[\d\.\d+, 0\.950000\] m"):
-        plan_validated([point_to_point(machine.home, end)], machine,
-                       Limits(np.full(6, 0.5), np.full(6, 5.0), np.full(6, 100.0)))
+        validate(samples, machine)

@@ -142,3 +142,23 @@ def test_a_six_axis_program_moves_every_task_coordinate_its_words_name():
                                             deg(6), deg(-1.5), deg(20)])
     big = gcode_segments(text, space=SPATIAL, start_pose=start, scale=2.0)
     assert big[2].end == pytest.approx((0.020, 0.0, 0.496, deg(6), deg(-3), deg(20)))
+
+
+def test_a_program_that_leaves_the_workspace_is_refused_with_its_line():
+    """G1 X2000 on ARCHI was planned (joint limits only) and travelled ~420 mm to
+    x = 1.42 m before the controller's workspace trip; an arc bulging out of the box
+    is refused too, and a hexapod's angle past its range."""
+    from pkm_trajectory.planner import PlanBudget, TrajectoryRejected, plan_validated
+    from pkm_kinematics.analysis import task_box
+    home = [float(v) for v in ARCHI.home]
+    for text, words in (("G1 F600 X1050\nG1 X2000\n", "line 2: x would reach 2, outside the workspace [0.6, 1.4]"),
+                        # from y = -0.4 a half circle of radius 0.1 to the +y side reaches y = -0.2
+                        ("G1 F600 Y-400\nG2 X1000 Y-400 I0 J100\n", "line 2: y would reach -0.2")):
+        with pytest.raises(TrajectoryRejected, match=words.replace("[", r"\[").replace("]", r"\]")):
+            plan_validated(gcode_segments(text, PLANAR, home), ARCHI, LIMITS, 1000.0, budget=PlanBudget())
+    hexapod = load_machine("hexapod8").model
+    lo, hi = task_box(hexapod)[3]
+    assert hi - lo < 2.0                                               # a's range about home, in rad
+    with pytest.raises(TrajectoryRejected, match=r"line 1: a would reach"):
+        plan_validated(gcode_segments(f"G1 F600 A{math.degrees(hi) + 5:.3f}\n", SPATIAL, list(hexapod.home)),
+                       hexapod, Limits(velocity=(0.5,) * 6, acceleration=(5.0,) * 6, jerk=(200.0,) * 6), 1000.0)

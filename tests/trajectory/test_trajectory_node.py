@@ -39,7 +39,7 @@ def test_accepts_a_program_and_refuses_bad_ones(ros_graph):
     assert traj.points[1].time_from_start.nanosec == 5_000_000       # 200 Hz
 
     program.publish(String(data="G1 F600 X1050\nG5 X1\n"))           # unsupported word
-    program.publish(String(data="G1 F600 Y-1300\nM2\n"))            # into bad conditioning, then out of reach
+    program.publish(String(data="G1 F600 Y-1300\nM2\n"))            # out of the workspace (and of reach)
     assert ros_graph.spin_until(lambda: node.rejected == 2)
 
     def errors():
@@ -47,8 +47,9 @@ def test_accepts_a_program_and_refuses_bad_ones(ros_graph):
     assert ros_graph.spin_until(lambda: len(errors()) == 2)
     messages = errors()
     assert any("line 2" in m and "G5" in m for m in messages)
-    assert any(m.startswith("program rejected: sample") and "machine condition number" in m
-               and "exceeds the bound 50 by" in m for m in messages)
+    # refused with its line before anything is planned (it travelled 420 mm before a trip)
+    assert any(m == "program rejected: line 1: y would reach -1.3, outside the workspace [-0.6, -0.25]"
+               for m in messages), messages
 
     goal.publish(pose_msg([1.1, -0.35, 0.0], rotation_about_z(2.0), 0, "world"))
     assert ros_graph.spin_until(lambda: len(trajectories) == 2)
@@ -93,3 +94,38 @@ def test_a_hexapod_program_is_published_as_poses_and_twists(ros_graph):
     ratio = rates / np.radians([4.0, -3.0, 10.0])         # a straight line: every angle at the same pace
     np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)
     assert load_machine("genhexkins").model.task_space.dof == 6
+
+
+def test_a_goal_the_controller_refused_does_not_move_the_planners_pose(ros_graph):
+    """The controller's verdicts on controller/events: a refused goal's end is dropped
+    (it moved the planner's pose: the next plan started where the machine was not); an
+    accepted one's kept."""
+    import json
+
+    from pkm_common.qos import EVENTS_QOS
+    node = ros_graph.add_node(TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+        Parameter("machine", value="archi"), Parameter("rate_hz", value=200.0)]))
+    client = ros_graph.create_node("client")
+    trajectories = []
+    client.create_subscription(MultiDOFJointTrajectory, "trajectory", trajectories.append, LATCHED_QOS)
+    goal = client.create_publisher(PoseStamped, "goal", STREAM_QOS)
+    events = client.create_publisher(String, "controller/events", EVENTS_QOS)
+    assert ros_graph.spin_until(lambda: goal.get_subscription_count() > 0 and events.get_subscription_count() > 0)
+    home = list(node.pose)
+
+    def verdict(ok: bool) -> None:
+        count = len(node.chain.pending)
+        events.publish(String(data=json.dumps({"kind": "trajectory", "ok": ok, "after_ns": 1, "message": ""})))
+        assert ros_graph.spin_until(lambda: len(node.chain.pending) < count)
+
+    goal.publish(pose_msg([1.01, -0.4, 0.0], rotation_about_z(home[2]), 0, "world"))
+    assert ros_graph.spin_until(lambda: len(trajectories) == 1)
+    assert node.pose == pytest.approx([1.01, -0.4, home[2]])        # chained while awaiting the verdict
+    verdict(False)
+    assert node.pose == pytest.approx(home)                          # refused: back where the machine is
+    goal.publish(pose_msg([1.0, -0.39, 0.0], rotation_about_z(home[2]), 0, "world"))
+    assert ros_graph.spin_until(lambda: len(trajectories) == 2)
+    start = trajectories[1].points[0].transforms[0].translation
+    assert (start.x, start.y) == pytest.approx(tuple(home[:2]))      # planned from home, not from x = 1.01
+    verdict(True)
+    assert node.pose == pytest.approx([1.0, -0.39, home[2]])

@@ -47,7 +47,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from pkm_common.causes import TripCause
-from pkm_kinematics.analysis import workspace_box
+from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import (METHODS, TWO_ARM, distribute, internal_force, internal_force_rows,
                                         prestress_direction, raise_distribution_error,
@@ -104,8 +104,8 @@ class ControllerConfig:
     max_condition: float = 100.0          # singularity margin: cond(J of the active drives)
     workspace_margin_m: float = 0.02      # the measured pose may leave the workspace box by this much
     workspace_margin_rad: float = 0.02    # ... and a spatial machine's a, b, c their ranges by this much
-    start_tolerance_m: float = 0.02       # a trajectory must start this close to the current reference
-    start_tolerance_rad: float = 0.05
+    start_tolerance_m: float = 0.005      # a trajectory must start this close to the current reference
+    start_tolerance_rad: float = 0.04     # (each below its following-error bound: the reference jumps by it)
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
     drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
     continue_on_drive_failure: bool = True
@@ -144,8 +144,11 @@ class ControllerConfig:
             ("max_condition", 1.0 <= self.max_condition < math.inf, "in [1, inf)"),
             ("workspace_margin_m", 0.0 <= self.workspace_margin_m < math.inf, "in [0, inf) m"),
             ("workspace_margin_rad", 0.0 <= self.workspace_margin_rad < math.inf, "in [0, inf) rad"),
-            ("start_tolerance_m", 0.0 <= self.start_tolerance_m < math.inf, "in [0, inf) m"),
-            ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < math.inf, "in [0, inf) rad"),
+            # a trajectory accepted this far from the reference starts with a jump of that much
+            ("start_tolerance_m", 0.0 <= self.start_tolerance_m < self.following_error_m,
+             f"in [0, {self.following_error_m:g}) m (below following_error_m)"),
+            ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < self.following_error_rad,
+             f"in [0, {self.following_error_rad:g}) rad (below following_error_rad)"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
             ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
@@ -447,12 +450,8 @@ class ControllerCore:
     def _task_box(self) -> np.ndarray:
         """(lower, upper) per task axis the measured pose must stay in: the translation
         box, and a spatial machine's angles within their ranges about home."""
-        box = workspace_box(self.model, self.config.workspace_margin_m)
-        if self.spatial:
-            margin = self.config.workspace_margin_rad
-            box += [(h - math.radians(r) - margin, h + math.radians(r) + margin)
-                    for h, r in zip(self._home()[3:], self.model.workspace["abc_half_range_deg"])]
-        return np.array(box, dtype=float)
+        return np.array(task_box(self.model, self.config.workspace_margin_m, self.config.workspace_margin_rad),
+                        dtype=float)
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""

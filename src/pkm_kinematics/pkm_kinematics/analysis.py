@@ -53,6 +53,21 @@ def workspace_box(machine, margin_m: float = 0.0) -> list[tuple[float, float]]:
     return [(float(c) - half, float(c) + half) for c in ws["center"]]
 
 
+def task_box(machine, margin_m: float = 0.0, margin_rad: float = 0.0) -> list[tuple[float, float]]:
+    """(lower, upper) per task axis a pose must stay in: the translation box
+    (workspace_box, widened by ``margin_m``), then a strut machine's angles a, b, c
+    within its ``abc_half_range_deg`` about home (widened by ``margin_rad``); a planar
+    machine's angle is free. The planner checks its plans against it (no margin), the
+    controller the measured pose (with its margins)."""
+    box = workspace_box(machine, margin_m)
+    ranges = machine.workspace.get("abc_half_range_deg")
+    if ranges is not None and machine.task_space.dof == 6:
+        home = [float(v) for v in machine.home][3:]
+        box += [(h - math.radians(float(r)) - margin_rad, h + math.radians(float(r)) + margin_rad)
+                for h, r in zip(home, ranges)]
+    return box
+
+
 def workspace_grid(machine, points_per_axis: int = 11, theta_points: int = 13) -> np.ndarray:
     """A regular grid over the machine's configured workspace (the machine's own
     ``workspace_grid``: (N, 3) poses/positions of a 3-DOF machine, (N, 6) of a hexapod)."""

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
+from pkm_kinematics.analysis import task_box
 from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
 
@@ -310,14 +311,37 @@ def check_plan_size(segments, limits: Limits, rate_hz: float, budget: PlanBudget
     return total
 
 
+def check_workspace(segments, box, axes=None) -> None:
+    """Refuse a plan whose path leaves the workspace ``box`` ((lower, upper) per task
+    axis, analysis.task_box; the axes after it are free), naming the first segment's
+    line, before anything is timed or moves: a line's ends (the box is convex), 65
+    points of an arc. Blended corners stay within their tolerance of the path; the
+    samples are checked again (validate). TrajectoryRejected."""
+    lo = np.array([b[0] for b in box])
+    hi = np.array([b[1] for b in box])
+    size = len(box)
+    for seg in segments:
+        if isinstance(seg, Dwell):
+            continue
+        us = (0.0, 1.0) if isinstance(seg, Line) else np.linspace(0.0, 1.0, 65)
+        for u in us:
+            p = np.asarray(seg.point(u), dtype=float)[:size]
+            out = (p < lo - 1e-12) | (p > hi + 1e-12)
+            if out.any():
+                i = int(np.argmax(out))
+                name = axes[i] if axes is not None else f"axis {i}"
+                raise TrajectoryRejected(f"{_where(seg)}{name} would reach {p[i]:.6g}, outside the workspace "
+                                         f"[{lo[i]:.6g}, {hi[i]:.6g}]")
+
+
 # ----------------------------------------------------------------- validation
 def validate(samples: Samples, machine, joint_velocity_limit: float | None = None,
              joint_acceleration_limit: float | None = None, max_condition: float | None = None,
-             legs=None, transmission_bounds=None, task_limits: Limits | None = None) -> None:
+             legs=None, transmission_bounds=None, task_limits: Limits | None = None, workspace=None) -> None:
     """Every sample reachable, inside the joint limits and the joint velocity and
     acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), inside the task
     ``task_limits`` (velocity and acceleration per axis: a backstop for the planner's
-    own bounds), and better
+    own bounds), inside the ``workspace`` box (analysis.task_box), and better
     conditioned than ``max_condition``; ``legs`` restricts the conditioning check to a
     sub-machine (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds``
     (psi_min, psi_max) checks the Orthoglide's velocity transmission factors (§4.3,
@@ -344,6 +368,15 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
             return "rejected"
         return message
 
+    if workspace is not None:
+        lo, hi = (np.array([b[k] for b in workspace]) for k in (0, 1))
+        inside = x[:, :len(workspace)]
+        out = (inside < lo - 1e-12) | (inside > hi + 1e-12)
+
+        def workspace_message(k):
+            i = int(np.argmax(out[k]))
+            return f"task axis {i} at {inside[k, i]:.6g} outside the workspace [{lo[i]:.6g}, {hi[i]:.6g}]"
+        first(out.any(axis=1), 0, workspace_message)
     q, reachable = machine.inverse_kinematics_batch(x)
     first(~reachable, 0, scalar_error(lambda k: machine.inverse_kinematics(x[k], check_limits=False)))
     first(reachable & ~machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0)), 1,
@@ -581,6 +614,8 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
     blending stops at its planning time. Raises TrajectoryRejected (or ValueError)
     naming the sample (or line) and the limit."""
     axes = machine.task_space.translation_axes
+    box = task_box(machine)
+    check_workspace(segments, box, machine.task_space.axes)
     deadline = None
     if budget is not None:
         blended = any(isinstance(seg, Line) and (blend_tolerance if seg.blend_tolerance is None
@@ -592,5 +627,5 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
         raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {budget.max_points} "
                                  f"({samples.duration_s:.1f} s at {rate_hz:g} Hz)")
     validate(samples, machine, joint_velocity_limit, joint_acceleration_limit, max_condition,
-             transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits)
+             transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits, workspace=box)
     return samples

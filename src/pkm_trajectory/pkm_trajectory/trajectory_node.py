@@ -24,10 +24,11 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine,
                                     trajectory_msg)
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
-from pkm_common.qos import LATCHED_QOS, STREAM_QOS
+from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_kinematics import load_machine
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
+from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
 from pkm_trajectory.program import gcode_segments
 
 
@@ -62,15 +63,26 @@ class TrajectoryNode(Node):
             declare_float(self, "max_planning_s", 10.0, 0.0, 3600.0, "corner blending that takes longer is refused",
                           lo_open=True, unit="s"))
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
-        home = self.model.home
-        self.pose = [float(v) for v in home]
+        # plans start where the controller's accepted trajectories end (plan_chain)
+        self.chain = PlanChain(self.model.home)
         self.accepted = self.rejected = 0
         self.pub = self.create_publisher(MultiDOFJointTrajectory, "trajectory", LATCHED_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
         self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS)
         self.create_subscription(String, "program", self.on_program, STREAM_QOS)
+        self.create_subscription(String, "controller/events", self.on_event, EVENTS_QOS)
         if program_file:
             self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
+
+    @property
+    def pose(self) -> list:
+        """Where the next plan starts."""
+        return self.chain.start()
+
+    def on_event(self, msg: String) -> None:
+        verdict = trajectory_verdict(msg.data)
+        if verdict is not None and self.chain.verdict(verdict) and not verdict:
+            self.get_logger().warning(f"the controller refused the trajectory: plans start at {self.pose} again")
 
     def _options(self):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
@@ -99,7 +111,7 @@ class TrajectoryNode(Node):
             self.report(2, f"{source} rejected: {exc}", {})
             return
         self.pub.publish(self.to_msg(samples))
-        self.pose = samples.position[-1].tolist()
+        self.chain.published(samples.position[-1].tolist())
         self.accepted += 1
         self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
