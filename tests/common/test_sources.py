@@ -41,3 +41,16 @@ def test_more_publishers_matched_than_the_graph_names_yet_are_an_intruder_counte
     assert gate.check(["/pkm/sim_hw", "/rogue"], matched=2).sender == "/rogue"     # named once known
     # with an expected source, a counted one at the first message too
     assert SourceGate("drives/state", "/pkm/sim_hw").connect(["/pkm/sim_hw"], matched=2).reason.startswith("2 ")
+
+
+def test_a_command_is_taken_only_while_every_publisher_is_allowed():
+    from pkm_common.sources import CommandGate, node_names
+    allowed = node_names(" /pkm/panel, /pkm/bringup_monitor,,")
+    assert allowed == {"/pkm/panel", "/pkm/bringup_monitor"}
+    gate = CommandGate("controller/settings", allowed, "operator_sources")
+    assert gate.check(["/pkm/panel"]) is None and gate.check([]) is None
+    found = gate.check(["/pkm/panel", "/pkm/rogue", "/x/y", "/pkm/rogue"])
+    assert found.sender == "/pkm/rogue, /x/y"
+    assert found.reason == ("/pkm/rogue, /x/y publishes on controller/settings (only /pkm/bringup_monitor, "
+                            "/pkm/panel may: operator_sources)")
+    assert CommandGate("goal", node_names("")).check(["/anyone"]) is None       # a node run by hand: open

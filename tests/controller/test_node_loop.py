@@ -8,6 +8,7 @@ from pkm_controller.configuration import core_from_parameters
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.controller_node import NODE_PARAMETERS
 from pkm_controller.node_loop import ControllerLoop
+from pkm_controller.operator import Action
 from pkm_kinematics import load_machine
 
 ARCHI = load_machine("archi")
@@ -86,3 +87,79 @@ def test_a_state_with_a_negative_stamp_is_refused_not_a_crash():
     loop.on_state(serialize_message(bad))
     assert loop.core.stopped and loop.core.stop_cause == TripCause.INPUT_REFUSED, loop.core.stop_reason
     assert "header.stamp must be at or after 0 s" in loop.core.stop_reason and "sec -5" in loop.core.stop_reason
+
+
+def trajectory_bytes(seconds: float = 1.0) -> bytes:
+    """A 10 mm move in x from home, as trajectory_node publishes it."""
+    from pkm_common.conversions import trajectory_msg
+    from pkm_trajectory.planner import Limits, Line, plan
+    home = list(ARCHI.model.home)
+    samples = plan([Line(tuple(home), (home[0] + 0.01, *home[1:]), speed=0.01 / seconds)],
+                   Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), 1000.0, translation_axes=2)
+    return serialize_message(trajectory_msg(ARCHI.model.task_space, samples.time_s, samples.position,
+                                            samples.velocity, samples.acceleration))
+
+
+def commanded_loop(ports):
+    import json
+    events = []
+    ports.publish_event = lambda text: events.append(json.loads(text))
+    loop = ControllerLoop(core_from_parameters("archi", ControllerConfig()),
+                          {**NODE_PARAMETERS, "state_source": "/plant", "trajectory_source": "/pkm/trajectory",
+                           "operator_sources": "/pkm/panel, /pkm/bringup_monitor"}, ports)
+    loop.active = True
+    return loop, events
+
+
+def test_a_command_from_a_node_the_run_did_not_name_is_refused_and_named():
+    """A rogue node in the run's domain moved the tool through trajectory (8 mm, the
+    run "completed") and controller/settings (computed torque, prestress 1e9 N). Its
+    commands are refused, recorded with its name and counted; holding, the machine holds."""
+    ports = Ports()
+    loop, events = commanded_loop(ports)
+    loop.on_state(state(0))
+    ports.graph["trajectory"] = ["/pkm/trajectory", "/pkm/rogue"]
+    loop.on_trajectory(trajectory_bytes())
+    ports.graph["controller/settings"] = ["/pkm/rogue"]
+    loop.on_command("controller/settings", Action.SETTINGS, '{"bandwidth_hz": 5.0}')
+    assert [(e["kind"], e["ok"], e["intruder"]) for e in events] == [("trajectory", False, "/pkm/rogue"),
+                                                                     ("settings", False, "/pkm/rogue")]
+    assert events[0]["message"] == ("refused: /pkm/rogue publishes on trajectory (only /pkm/trajectory may: "
+                                    "trajectory_source)")
+    assert loop.core.mode == "holding" and not loop.core.stopped and loop.core.config.bandwidth_hz == 20.0
+    assert loop.summary()["commands_refused"] == {"trajectory": 1, "controller/settings": 1}
+    assert loop.summary()["intruder"] == "/pkm/rogue"
+    # the rogue gone, the planner's trajectory is taken
+    ports.graph["trajectory"] = ["/pkm/trajectory"]
+    loop.on_trajectory(trajectory_bytes())
+    loop.on_state(state(1_000_000))                # applied after the next answer
+    assert events[-1]["kind"] == "trajectory" and events[-1]["ok"] and loop.core.mode == "tracking"
+
+
+def test_a_rogue_commanding_during_a_motion_stops_the_machine():
+    ports = Ports()
+    loop, events = commanded_loop(ports)
+    ports.graph["trajectory"] = ["/pkm/trajectory"]
+    loop.on_state(state(0))
+    loop.on_trajectory(trajectory_bytes())
+    for k in range(1, 4):
+        loop.on_state(state(k * 1_000_000))
+    assert loop.core.mode == "tracking" and not loop.core.stopped
+    ports.graph["controller/feed_override"] = ["/pkm/panel", "/elsewhere/rogue"]       # it publishes
+    loop.commands_checked = 0.0                                                       # the next check is due
+    loop.on_watchdog()
+    assert loop.core.stopped and loop.core.stop_cause == TripCause.INTRUDER, loop.core.stop_reason
+    assert "/elsewhere/rogue publishes on controller/feed_override" in loop.core.stop_reason
+    assert any(e["kind"] == "safe_stop" and e["cause"] == "intruder" for e in events)   # in the bag
+
+
+def test_a_run_without_named_sources_takes_commands_from_anyone():
+    """A controller started by hand (no run): its command topics are open, as before."""
+    ports = Ports()
+    loop = ControllerLoop(core_from_parameters("archi", ControllerConfig()), dict(NODE_PARAMETERS), ports)
+    loop.active = True
+    loop.on_state(state(0))
+    ports.graph["trajectory"] = ["/anyone"]
+    loop.on_trajectory(trajectory_bytes())
+    loop.on_state(state(1_000_000))
+    assert loop.core.mode == "tracking" and loop.summary()["commands_refused"] == {}

@@ -129,3 +129,30 @@ def test_a_goal_the_controller_refused_does_not_move_the_planners_pose(ros_graph
     assert (start.x, start.y) == pytest.approx(tuple(home[:2]))      # planned from home, not from x = 1.01
     verdict(True)
     assert node.pose == pytest.approx([1.0, -0.39, home[2]])
+
+
+def test_a_goal_or_program_from_a_node_the_run_did_not_name_is_refused(ros_graph):
+    """A rogue node moved the tool through goal (+5 mm) and program (G91 G1 Y5): with
+    the run's operators named, both are refused with its name, nothing is planned."""
+    node = ros_graph.add_node(TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+        Parameter("machine", value="archi"), Parameter("operator_sources", value="/panel, /bringup_monitor")]))
+    rogue = ros_graph.create_node("rogue")
+    trajectories, diags = [], []
+    rogue.create_subscription(MultiDOFJointTrajectory, "trajectory", trajectories.append, LATCHED_QOS)
+    rogue.create_subscription(DiagnosticArray, "diagnostics", diags.append, STREAM_QOS)
+    program = rogue.create_publisher(String, "program", STREAM_QOS)
+    goal = rogue.create_publisher(PoseStamped, "goal", STREAM_QOS)
+    assert ros_graph.spin_until(lambda: program.get_subscription_count() > 0 and goal.get_subscription_count() > 0
+                                and node.pub_diag.get_subscription_count() > 0)
+    program.publish(String(data="G91 G1 F600 Y5\n"))
+    goal.publish(pose_msg([1.005, -0.4, 0.0], rotation_about_z(0.7), 0, "world"))
+    assert ros_graph.spin_until(lambda: node.refused_senders == 2)
+    def errors():
+        return [s for d in diags for s in d.status if s.level == DiagnosticStatus.ERROR]
+    assert ros_graph.spin_until(lambda: len(errors()) == 2)
+    refusals = errors()
+    assert {s.message.split(":")[0] for s in refusals} == {"program refused", "goal refused"}
+    assert all("/rogue publishes on" in s.message and "operator_sources" in s.message for s in refusals)
+    assert all({kv.key: kv.value for kv in s.values}["intruder"] == "/rogue" for s in refusals)
+    ros_graph.spin_until(lambda: False, timeout_sec=0.3)
+    assert trajectories == [] and node.accepted == 0

@@ -115,6 +115,8 @@ class _Replay:
         are applied now, the others after the answer of their state."""
         for event in events:
             action = Action(event["kind"])
+            if "intruder" in event and action != Action.TRAJECTORY:
+                continue                           # refused for its sender: nothing was applied
             payload = recorded_payload(event)
             self.stops_recorded |= action in (Action.ESTOP, Action.SAFE_STOP)
             if action == Action.TRAJECTORY:
@@ -122,8 +124,8 @@ class _Replay:
                 if msg is None:
                     self.note = self.note or "a trajectory event without its recorded trajectory: replay incomplete"
                     continue
-                if "points" not in event:          # the node could not read it: nothing was applied
-                    continue
+                if "points" not in event:          # the node could not read it, or refused its
+                    continue                       # sender (an intruder): nothing was applied
                 payload = reference_from_msg(msg, self.core.model.task_space)
                 self.trajectory_seen = True
             if event["after_ns"] is None:

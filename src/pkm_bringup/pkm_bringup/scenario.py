@@ -31,6 +31,10 @@ node runs by default. Keys (all optional but ``machine``)::
                                       # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
                                       # (exit 2, nothing started) where the OS does not allow it.
                                       # pkm-run --rt-profile sets it.
+    operators: [/pkm/my_script]       # nodes (full names) that may command the run beside pkm-run and
+                                      # the panel (<namespace>/panel): goals, programs, settings, feed
+                                      # override; a command while any other node publishes on its
+                                      # topic is refused, and during a motion stops the machine
 
 Every error names the key and what is allowed; nothing is started on a bad scenario:
 the parameters each node will get (node defaults < scenario section < the run's wiring)
@@ -60,7 +64,7 @@ from pkm_kinematics.yaml_files import YamlFileError, read_yaml
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
-        "timeout_s", "realtime_profile")
+        "timeout_s", "realtime_profile", "operators")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder"}
@@ -99,6 +103,7 @@ class Scenario:
     timeout_s: float = 600.0
     description: str = ""
     realtime_profile: bool = False
+    operators: list = field(default_factory=list)     # more nodes that may command (full names)
 
     @property
     def strategy(self) -> str:
@@ -303,6 +308,12 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.metrology = _boolean(data, "metrology", False)
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
+    operators = data.get("operators") or []
+    if not isinstance(operators, list) or not all(
+            isinstance(o, str) and re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", o) for o in operators):
+        raise ScenarioError(f"operators: must be a list of full node names such as '/pkm/my_script', got "
+                            f"{operators!r}")
+    s.operators = list(operators)
     size = len(config.model.task_space.loads)
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
@@ -502,6 +513,13 @@ def run_node_name(s: Scenario, node: str) -> str:
     return f"{s.namespace.rstrip('/')}/{node}"
 
 
+def operator_names(s: Scenario) -> list[str]:
+    """The nodes that may command the run (pkm_common.sources.CommandGate): pkm-run's
+    own (the start, an interrupt's E-stop), the panel's, and the scenario's
+    ``operators``."""
+    return [run_node_name(s, "bringup_monitor"), run_node_name(s, "panel"), *s.operators]
+
+
 def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     """node name -> its parameters for this run (node defaults < scenario < run wiring)."""
     summaries = run_dir / "summaries"
@@ -517,6 +535,8 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                        "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
                        "state_source": run_node_name(s, "sim_hw"),
+                       "trajectory_source": run_node_name(s, "trajectory"),
+                       "operator_sources": ",".join(operator_names(s)),
                        "metrology_source": run_node_name(s, "gough_sensor") if s.metrology else "",
                        "summary_path": str(summaries / "controller.json")},
     }
@@ -525,7 +545,8 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                                  "summary_path": str(summaries / "gough_sensor.json")}
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
-                               "program_file": str(s.program or "")}
+                               "program_file": str(s.program or ""),
+                               "operator_sources": ",".join(operator_names(s))}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
         # (pkm_common.tap) instead of a delivery per message to one more process

@@ -8,13 +8,20 @@ publisher's first message). The source is the node it was told (a ``*_source``
 parameter) or, with none, the one publisher there is at the first message; any other
 publisher, or a second one under the source's name (an orphan of an earlier run), is
 an intruder.
+
+A command (a trajectory, a goal, a program, a setting, the feed override, the start)
+may come from any of the nodes a run names (``CommandGate``: the run's planner, the
+operator's panel, pkm-run itself): a publisher of another name is an intruder. DDS
+gives no sender per message, so while an intruder publishes on a commanding topic no
+message of it is taken, from anyone. Names are what the graph says: a process that
+names its node like an allowed one is not caught here.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Intrusion", "SourceGate"]
+__all__ = ["CommandGate", "Intrusion", "SourceGate", "node_names"]
 
 
 @dataclass(frozen=True)
@@ -66,3 +73,28 @@ class SourceGate:
             if distinct:
                 self.source = distinct[0]
         return self.check(publishers, matched)
+
+
+def node_names(text: str) -> frozenset:
+    """Full node names from a comma-separated parameter ("/pkm/panel, /pkm/x")."""
+    return frozenset(name.strip() for name in text.split(",") if name.strip())
+
+
+class CommandGate:
+    """Who may command through ``topic``: the nodes ``allowed`` (full names; empty:
+    anyone, a node started by hand without a run); ``parameter`` names the setting
+    that lists them, for the message."""
+
+    def __init__(self, topic: str, allowed, parameter: str = "sources"):
+        self.topic, self.parameter = topic, parameter
+        self.allowed = frozenset(allowed)
+
+    def check(self, publishers: list[str]) -> Intrusion | None:
+        """The nodes publishing ``topic``: any not allowed is an intruder, named."""
+        if not self.allowed:
+            return None
+        others = sorted({p for p in publishers if p not in self.allowed})
+        if not others:
+            return None
+        return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {', '.join(sorted(self.allowed))} "
+                         f"may: {self.parameter})", ", ".join(others))

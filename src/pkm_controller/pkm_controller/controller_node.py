@@ -51,7 +51,9 @@ NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeou
                    "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
                    "wait_for_start": False, "end_time_s": 0.0,
                    # full node names of the inputs' sources (node_loop; empty: the one publisher)
-                   "state_source": "", "metrology_source": ""}
+                   "state_source": "", "metrology_source": "",
+                   # who may command (comma-separated full node names; empty: anyone): node_loop
+                   "trajectory_source": "", "operator_sources": ""}
 
 
 class ControllerNode(LifecycleNode):
@@ -102,16 +104,15 @@ class ControllerNode(LifecycleNode):
         self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
         self.pub_events = self.create_publisher(String, "controller/events", EVENTS_QOS)
         self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop, self.pub_events,
-                         self.create_subscription(Float64, "controller/feed_override",
-                                                  lambda m: loop.operator(Action.FEED_OVERRIDE, m.data), STREAM_QOS),
-                         self.create_subscription(String, "controller/settings",
-                                                  lambda m: loop.operator(Action.SETTINGS, m.data), STREAM_QOS),
+                         self._command(Float64, "controller/feed_override", lambda m: loop.on_command(
+                             "controller/feed_override", Action.FEED_OVERRIDE, m.data), STREAM_QOS),
+                         self._command(String, "controller/settings", lambda m: loop.on_command(
+                             "controller/settings", Action.SETTINGS, m.data), STREAM_QOS),
                          self._input(JointState, "drives/state", loop.on_state),
-                         self.create_subscription(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory,
-                                                  LATCHED_QOS, raw=True),
+                         self._command(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory, LATCHED_QOS,
+                                       raw=True),
                          self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS),
-                         self.create_subscription(Bool, "run/start", lambda m: loop.on_start(bool(m.data)),
-                                                  LATCHED_QOS),
+                         self._command(Bool, "run/start", lambda m: loop.on_start(bool(m.data)), LATCHED_QOS),
                          self.create_timer(0.01, loop.on_watchdog)]
         if strategy.uses_metrology:
             struts = strategy.feedback == Feedback.STRUTS
@@ -126,6 +127,12 @@ class ControllerNode(LifecycleNode):
             msg_type, topic, callback, STREAM_QOS, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s, loop=self.loop: loop.on_matched(
                 topic, s.current_count)))
+        self.inputs[topic] = subscription
+        return subscription
+
+    def _command(self, msg_type, topic: str, callback, qos, raw: bool = False):
+        """A command input, whose publishers are asked for at each message (node_loop)."""
+        subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.inputs[topic] = subscription
         return subscription
 

@@ -20,6 +20,14 @@ publisher there is at the first state answered. Another publisher on either woul
 move the machine through this controller's answers: it stops it (cause intruder),
 named, when its publisher matches (before its first message) or at the next check
 of the graph (every ``SOURCE_CHECK_S``).
+
+Its commands have named sources too (pkm_common.sources.CommandGate; empty: anyone):
+``trajectory`` from ``trajectory_source`` (the run's planner), the settings, the feed
+override and ``run/start`` from ``operator_sources`` (pkm-run, the panel, the nodes a
+scenario names). A command while another node publishes on its topic is refused,
+recorded on controller/events with the intruder's name (``intruder`` key; the replay
+skips it: nothing was applied) and counted; during a motion the machine stops (cause
+intruder), at the command or at the next check of the graph.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
                             decode_pose_stamped, in_order)
 from pkm_common.conversions import machine_pose_components
-from pkm_common.sources import SourceGate
+from pkm_common.sources import CommandGate, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
 
 from .configuration import metrology_inputs, run_summary
@@ -79,6 +87,14 @@ class ControllerLoop:
         self.reference_encoder = PoseStampedEncoder("world")
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
+        operators = node_names(values["operator_sources"])
+        self.commands = {topic: CommandGate(topic, allowed, parameter) for topic, allowed, parameter in (
+            ("trajectory", node_names(values["trajectory_source"]), "trajectory_source"),
+            ("controller/settings", operators, "operator_sources"),
+            ("controller/feed_override", operators, "operator_sources"),
+            ("run/start", operators, "operator_sources"))}
+        self.commands_refused = {}      # topic -> commands refused (an intruder on it)
+        self.commands_checked = 0.0     # monotonic time of the last check during a motion
         self.sources = [SourceGate("drives/state", values["state_source"], "state_source")]
         if strategy.uses_metrology:
             self.sources.append(SourceGate(strategy.metrology_topic, values["metrology_source"], "metrology_source"))
@@ -140,12 +156,49 @@ class ControllerLoop:
     def on_trajectory(self, buf: bytes) -> None:
         """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
         trajectory would hold the loop for tens of milliseconds."""
+        if not self.commanded("trajectory", Action.TRAJECTORY):
+            return
         try:
             ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.model.task_space)
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
             self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return
         self.operator(Action.TRAJECTORY, ref)
+
+    def on_command(self, topic: str, action: Action, payload) -> None:
+        """An operator's command from ``topic`` (settings, feed override): taken if
+        its sources are the allowed ones (module doc)."""
+        if self.commanded(topic, action):
+            self.operator(action, payload)
+
+    def commanded(self, topic: str, action: Action | None) -> bool:
+        """Whether a command on ``topic`` may be taken: every publisher of it allowed.
+        Else it is refused (recorded, counted; ``action`` None: no event) and, during a
+        motion, the machine stops."""
+        gate = self.commands[topic]
+        if not gate.allowed:
+            return True
+        found = gate.check(self.ports.input_publishers(topic))
+        if found is None:
+            return True
+        self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
+        self.intruder = self.intruder or found.sender
+        if action is not None:
+            self.report([{"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
+                          "intruder": found.sender, "after_ns": self.last_answer[0]}])
+        else:
+            self.ports.log_error(f"{topic} refused: {found.reason}")
+        if self.active and not self.core.stopped and self.core.mode == "tracking":
+            self.safe_stop(found.reason, TripCause.INTRUDER)
+        return False
+
+    def check_commands(self) -> None:
+        """During a motion, every ``SOURCE_CHECK_S``: a node publishing a command topic
+        it may not stops the machine (it is commanding while the machine moves)."""
+        self.commands_checked = time.monotonic()
+        for topic, gate in self.commands.items():
+            if gate.allowed and not self.commanded(topic, None):
+                return
 
     def operator(self, action: Action, payload) -> None:
         """A trajectory, feed override or settings change (operator.py): applied at once
@@ -164,7 +217,8 @@ class ControllerLoop:
                 self.publish_status(extra=event_summary(event))
 
     def on_start(self, started: bool) -> None:
-        self.start_received = self.start_received or started
+        if self.commanded("run/start", None):
+            self.start_received = self.start_received or started
 
     def on_estop(self, active: bool) -> None:
         """Stop at once, and record after which answered state (controller/events): the
@@ -202,6 +256,9 @@ class ControllerLoop:
         if self.sources_connected and not self.intruder and \
                 time.monotonic() - self.sources_checked >= SOURCE_CHECK_S:
             self.check_sources()
+        if self.active and not self.core.stopped and self.core.mode == "tracking" and \
+                time.monotonic() - self.commands_checked >= SOURCE_CHECK_S:
+            self.check_commands()
         if not self.active or self.core.stopped or self.run_ended:
             return
         fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],
@@ -281,4 +338,5 @@ class ControllerLoop:
     def summary(self) -> dict:
         """The run's summary file (configuration.run_summary) and the answers sent again."""
         return {**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
-                "commands_resent": self.commands_resent, "intruder": self.intruder}
+                "commands_resent": self.commands_resent, "intruder": self.intruder,
+                "commands_refused": dict(self.commands_refused)}

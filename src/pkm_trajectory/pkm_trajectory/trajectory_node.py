@@ -22,10 +22,11 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine,
-                                    trajectory_msg)
+                                    publisher_names, trajectory_msg)
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.sources import CommandGate, node_names
 from pkm_kinematics import load_machine
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
@@ -68,8 +69,13 @@ class TrajectoryNode(Node):
         self.accepted = self.rejected = 0
         self.pub = self.create_publisher(MultiDOFJointTrajectory, "trajectory", LATCHED_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
-        self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS)
-        self.create_subscription(String, "program", self.on_program, STREAM_QOS)
+        # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
+        operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
+                                           "and programs, comma-separated (empty: anyone)", allow_empty=True))
+        self.gates = {topic: CommandGate(topic, operators, "operator_sources") for topic in ("goal", "program")}
+        self.refused_senders = 0
+        self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS),
+                       "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS)}
         self.create_subscription(String, "controller/events", self.on_event, EVENTS_QOS)
         if program_file:
             self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
@@ -88,7 +94,23 @@ class TrajectoryNode(Node):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
                 "scale": self.scale, "repeat": self.repeat}
 
+    def sender_refused(self, topic: str) -> bool:
+        """A goal or program while a node the run did not name publishes on its topic:
+        refused, reported with its name (diagnostics, recorded), counted."""
+        gate = self.gates[topic]
+        found = gate.check(publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))) \
+            if gate.allowed else None
+        if found is None:
+            return False
+        self.refused_senders += 1
+        self.get_logger().error(f"{topic} refused: {found.reason}")
+        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender})
+        return True
+
     def on_goal(self, msg: PoseStamped) -> None:
+        if self.sender_refused("goal"):
+            return
+
         def segments():
             position, rotation = pose_from_msg(msg)
             # a planar machine's yaw on the revolution it is at (a 6-DOF pose: its roll, pitch, yaw)
@@ -97,6 +119,8 @@ class TrajectoryNode(Node):
         self.submit("goal", segments)
 
     def on_program(self, msg: String) -> None:
+        if self.sender_refused("program"):
+            return
         self.submit("program", lambda: gcode_segments(msg.data, **self._options()))
 
     def submit(self, source: str, build) -> None:
@@ -123,7 +147,8 @@ class TrajectoryNode(Node):
         return msg
 
     def report(self, level: int, message: str, values: dict) -> None:
-        values = {**values, "accepted": self.accepted, "rejected": self.rejected}
+        values = {**values, "accepted": self.accepted, "rejected": self.rejected,
+                  "refused_senders": self.refused_senders}
         self.pub_diag.publish(diagnostic_array(self.get_clock().now().to_msg(),
                                                [diagnostic_status("trajectory", level, message, values)]))
 
