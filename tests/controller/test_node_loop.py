@@ -153,6 +153,21 @@ def test_a_rogue_commanding_during_a_motion_stops_the_machine():
     assert any(e["kind"] == "safe_stop" and e["cause"] == "intruder" for e in events)   # in the bag
 
 
+def test_a_rogue_goal_during_a_motion_stops_the_machine_too():
+    """The planner refuses a rogue's goal; the controller, watching the planner's
+    inputs during a motion, stops the machine."""
+    ports = Ports()
+    loop, _ = commanded_loop(ports)
+    ports.graph["trajectory"] = ["/pkm/trajectory"]
+    loop.on_state(state(0))
+    loop.on_trajectory(trajectory_bytes())
+    loop.on_state(state(1_000_000))
+    ports.graph["goal"] = ["/pkm/panel", "/pkm/rogue"]
+    loop.commands_checked = 0.0
+    loop.on_watchdog()
+    assert loop.core.stop_cause == TripCause.INTRUDER and "/pkm/rogue publishes on goal" in loop.core.stop_reason
+
+
 def test_a_run_without_named_sources_takes_commands_from_anyone():
     """A controller started by hand (no run): its command topics are open, as before."""
     ports = Ports()

@@ -32,7 +32,8 @@ class Adversary(threading.Thread):
     """A node of another context in the run's domain that acts once /clock passes
     ONSET_S: ``commands`` publishes 1e9 N drive commands stamped like the plant,
     ``states`` drive states 10 mm off stamped like the plant (to the controller),
-    ``estop`` latches estop, ``load`` sends a 1e7 N external load."""
+    ``estop`` latches estop, ``load`` sends a 1e7 N external load; the
+    COMMAND_ACTIONS an operator's command (command_message)."""
 
     def __init__(self, action: str, namespace: str = "/pkm"):
         super().__init__(daemon=True)
@@ -86,12 +87,56 @@ class Adversary(threading.Thread):
                 for _ in range(20):
                     pub.publish(msg)
                     executor.spin_once(timeout_sec=0.01)
+            elif self.action == "oversized":       # an operator's program too long to sample
+                from std_msgs.msg import String
+                pub = node.create_publisher(String, "program", STREAM_QOS)
+                for _ in range(3):
+                    pub.publish(String(data="G4 P1000000\n"))
+                    executor.spin_once(timeout_sec=0.01)
+            elif self.action in COMMAND_ACTIONS:    # an operator's command from a node the run did not name
+                topic, msg_type, message = command_message(self.action)
+                pub = node.create_publisher(msg_type, topic, LATCHED_QOS if topic == "trajectory" else STREAM_QOS)
+                for _ in range(20):
+                    pub.publish(message)
+                    executor.spin_once(timeout_sec=0.01)
             while not self.done.is_set():
                 executor.spin_once(timeout_sec=0.05)
         finally:
             executor.shutdown()
             node.destroy_node()
             rclpy.try_shutdown(context=context)
+
+
+# a rogue's command on each commanding topic, as the issue's adversary sent them
+COMMAND_ACTIONS = ("trajectory", "settings", "feed", "goal", "program")
+
+
+def command_message(action: str):
+    """(topic, type, message) of the rogue's command ``action``."""
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import Float64, String
+    from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+    from pkm_common.conversions import pose_msg, trajectory_msg
+    from pkm_kinematics import load_machine
+    from pkm_kinematics.rotations import rotation_about_z
+    from pkm_trajectory.planner import Limits, Line, plan
+    model = load_machine("archi").model
+    home = [float(v) for v in model.home]
+    if action == "trajectory":                  # 8 mm in x, smooth
+        samples = plan([Line(tuple(home), (home[0] + 0.008, *home[1:]))],
+                       Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), 1000.0, translation_axes=2)
+        msg = trajectory_msg(model.task_space, samples.time_s, samples.position, samples.velocity,
+                             samples.acceleration)
+        msg.header.frame_id = "world"
+        return "trajectory", MultiDOFJointTrajectory, msg
+    if action == "settings":                    # computed torque with prestress 1e9 N
+        return "controller/settings", String, String(data='{"strategy": "computed_torque", "prestress_n": 1e9}')
+    if action == "feed":
+        return "controller/feed_override", Float64, Float64(data=2.0)
+    if action == "goal":                        # +5 mm
+        return "goal", PoseStamped, pose_msg([home[0] + 0.005, home[1], 0.0], rotation_about_z(home[2]), 0, "world")
+    return "program", String, String(data="G91 G1 F600 Y5\n")
 
 
 # (case id, scenario, plant faults, adversary action, expected cause, drive named in the reason)
@@ -104,6 +149,12 @@ CASES = [
     ("intruder_states", "archi_demo", "", "states", "intruder", "/pkm/rogue"),
     ("estop", "archi_demo", "", "estop", "estop", ""),
     ("load_1e7_N", "archi_demo", "", "load", "load_refused", "max_load_n"),
+    # a node the run did not name, commanding during the motion (issue 40): refused, the machine stopped
+    ("rogue_trajectory", "archi_demo", "", "trajectory", "intruder", "/pkm/rogue"),
+    ("rogue_settings", "archi_demo", "", "settings", "intruder", "/pkm/rogue"),
+    ("rogue_feed", "archi_demo", "", "feed", "intruder", "/pkm/rogue"),
+    ("rogue_goal", "archi_demo", "", "goal", "intruder", "/pkm/rogue"),
+    ("rogue_program", "archi_demo", "", "program", "intruder", "/pkm/rogue"),
 ]
 
 
@@ -179,3 +230,90 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     assert held < HOLD_BOUND_M, row
     assert error < FOLLOW_BOUND_M, row
     assert row["detection_ms"] < 500.0, row
+
+
+def _row(row: dict) -> None:
+    if os.environ.get("PKM_CAMPAIGN_TABLE"):
+        with open(os.environ["PKM_CAMPAIGN_TABLE"], "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+
+def test_campaign_an_operators_oversized_program_is_refused_and_the_run_goes_on(tmp_path):
+    """A named operator (not a rogue) sends `G4 P1000000` mid-run: the planner knows the
+    plan's size before it samples it (it passed 3 GB before) and refuses it with its
+    line, recorded in the bag; the motion goes on to its end."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    s = load_scenario("archi_demo", {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0]},
+                                     "operators": ["/pkm/rogue"]})
+    adversary = Adversary("oversized")
+    adversary.start()
+    try:
+        run = run_scenario(s, tmp_path / "oversized", in_process=True, progress=False, report=False)
+    finally:
+        adversary.done.set()
+        adversary.join(timeout=10)
+    assert run["status"] == "completed", (run["status"], run["error"], run["trip_reason"])
+    with AnyReader([tmp_path / "oversized" / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        wanted = [c for c in reader.connections if c.topic == "/pkm/diagnostics"]
+        messages = [s.message for c, _, raw in reader.messages(connections=wanted)
+                    for s in reader.deserialize(raw, c.msgtype).status if s.name == "trajectory"]
+    refusal = [m for m in messages if "program rejected" in m]
+    assert refusal and "line 1: a dwell of 1e+06 s exceeds max_points 200000" in refusal[0], messages
+    _row({"fault": "oversized_program (G4 P1000000)", "detection_ms": None, "error_at_stop_um": None,
+          "motion_after_stop_um": None, "cause": "refused (trajectory diagnostics)", "reason": refusal[0]})
+
+
+def test_campaign_a_hostile_page_cannot_command_the_panel():
+    """A page of another origin, and a DNS-rebinding host name, on the panel's socket:
+    refused before any action (403, 400), nothing published; the E-stop stays open."""
+    import socket as sockets
+    import urllib.error
+    import urllib.request
+
+    import uvicorn
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from pkm_bringup.panel import Panel, PanelModel
+    from pkm_bringup.panel_app import create_app
+    from pkm_kinematics import load_machine
+    published = []
+    panel = Panel(PanelModel(load_machine("archi")))
+    sock = sockets.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(8)
+    port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(panel, published.extend, "campaign-token"), log_level="warning",
+                                           ws="websockets-sansio"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 10
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.02)
+        codes = {}
+        with pytest.raises(InvalidStatus) as foreign:
+            connect(f"ws://127.0.0.1:{port}/ws?token=campaign-token", origin="http://evil.example")
+        codes["origin"] = foreign.value.response.status_code
+        raw = sockets.create_connection(("127.0.0.1", port))
+        with pytest.raises(InvalidStatus) as rebinding:
+            connect(f"ws://evil.example:{port}/ws?token=campaign-token", sock=raw, origin=f"http://evil.example:{port}")
+        codes["host_ws"] = rebinding.value.response.status_code
+        with pytest.raises(urllib.error.HTTPError) as page:
+            urllib.request.urlopen(urllib.request.Request(f"http://127.0.0.1:{port}/api/snapshot",
+                                                          headers={"Host": f"evil.example:{port}"}), timeout=5)
+        codes["host_http"] = page.value.code
+        estop = urllib.request.Request(f"http://127.0.0.1:{port}/api/estop", method="POST",
+                                       headers={"Origin": "http://evil.example"})
+        with urllib.request.urlopen(estop, timeout=5) as response:
+            assert json.load(response)["ok"]
+    finally:
+        server.should_exit = True
+        thread.join(10)
+    assert codes == {"origin": 403, "host_ws": 403, "host_http": 400}, codes
+    assert published == [("estop", True)]                  # the E-stop only
+    refused = [a for a in panel.actions if not a["ok"]]
+    assert len(refused) == 3 and all(a["type"] == "request" for a in refused), refused   # logged
+    _row({"fault": "hostile_page (foreign Origin, rebinding Host)", "detection_ms": 0.0, "error_at_stop_um": None,
+          "motion_after_stop_um": 0.0, "cause": "refused (403/400, logged)", "reason": json.dumps(codes)})

@@ -165,7 +165,9 @@ class ControllerNode(LifecycleNode):
 
     # ------------------------------------------------ the loop's ports (node_loop)
     def input_publishers(self, topic: str) -> list[str]:
-        return publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))
+        """The nodes publishing ``topic``: an input of this node, or another's (goal, program)."""
+        name = self.inputs[topic].topic_name if topic in self.inputs else self.resolve_topic_name(topic)
+        return publisher_names(self.get_publishers_info_by_topic(name))
 
     def resend_command(self, command: bytes) -> None:
         self.pub_command.publish(command)        # not tapped: the bag holds one per stamp

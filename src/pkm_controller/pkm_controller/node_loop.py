@@ -24,7 +24,7 @@ of the graph (every ``SOURCE_CHECK_S``).
 Its commands have named sources too (pkm_common.sources.CommandGate; empty: anyone):
 ``trajectory`` from ``trajectory_source`` (the run's planner), the settings, the feed
 override and ``run/start`` from ``operator_sources`` (pkm-run, the panel, the nodes a
-scenario names). A command while another node publishes on its topic is refused,
+scenario names), and so the planner's ``goal`` and ``program``, which it watches. A command while another node publishes on its topic is refused,
 recorded on controller/events with the intruder's name (``intruder`` key; the replay
 skips it: nothing was applied) and counted; during a motion the machine stops (cause
 intruder), at the command or at the next check of the graph.
@@ -92,7 +92,9 @@ class ControllerLoop:
             ("trajectory", node_names(values["trajectory_source"]), "trajectory_source"),
             ("controller/settings", operators, "operator_sources"),
             ("controller/feed_override", operators, "operator_sources"),
-            ("run/start", operators, "operator_sources"))}
+            ("run/start", operators, "operator_sources"),
+            # the planner's inputs, watched during a motion (the planner refuses their messages)
+            ("goal", operators, "operator_sources"), ("program", operators, "operator_sources"))}
         self.commands_refused = {}      # topic -> commands refused (an intruder on it)
         self.commands_checked = 0.0     # monotonic time of the last check during a motion
         self.sources = [SourceGate("drives/state", values["state_source"], "state_source")]
