@@ -128,3 +128,36 @@ def test_only_the_runs_namespace_and_the_global_topics_are_recorded(ros_context,
     finally:
         for node in (mine, other, rec):
             node.destroy_node()
+
+
+def test_a_tap_batch_while_a_node_not_named_publishes_on_the_tap_is_refused(ros_context, tmp_path):
+    """A forged batch on the tap topic would be recorded as the graph's own data: while
+    a node not in tap_sources publishes there, batches are refused whole and counted."""
+    import time
+
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import UInt8MultiArray
+
+    from pkm_common.qos import TAP_QOS
+    from pkm_common.tap import TAP_TOPIC
+    node = _recorder(ros_context, tmp_path, "f", tapped_topics="/clock", tap_sources="/rec_test/sim_hw")
+    rogue = __import__("rclpy").create_node("rogue", namespace="/rec_test", context=ros_context)
+    clock = "rosgraph_msgs/msg/Clock"
+    try:
+        rogue.create_publisher(UInt8MultiArray, TAP_TOPIC, TAP_QOS)
+        deadline = time.monotonic() + 10
+        while not node.get_publishers_info_by_topic(node.tap_topic) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        forged = serialize_message(UInt8MultiArray(data=_payload([("/clock", clock, 5, _clock(5))])))
+        node.on_tap(forged)
+        assert node.tap_forged == 1 and node.tap_batches == 0 and "/clock" not in node.writer.counts
+        # without names (a recorder started by hand) it is taken, as before
+        open_node = _recorder(ros_context, tmp_path, "g", tapped_topics="/clock")
+        try:
+            open_node.on_tap(forged)
+            assert open_node.tap_batches == 1 and open_node.writer.counts["/clock"] == 1
+        finally:
+            open_node.destroy_node()
+    finally:
+        rogue.destroy_node()
+        node.destroy_node()

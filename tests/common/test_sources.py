@@ -44,13 +44,13 @@ def test_more_publishers_matched_than_the_graph_names_yet_are_an_intruder_counte
 
 
 def test_a_command_is_taken_only_while_every_publisher_is_allowed():
-    from pkm_common.sources import CommandGate, node_names
+    from pkm_common.sources import AllowedSenders, node_names
     allowed = node_names(" /pkm/panel, /pkm/bringup_monitor,,")
     assert allowed == {"/pkm/panel", "/pkm/bringup_monitor"}
-    gate = CommandGate("controller/settings", allowed, "operator_sources")
+    gate = AllowedSenders("controller/settings", allowed, "operator_sources")
     assert gate.check(["/pkm/panel"]) is None and gate.check([]) is None
     found = gate.check(["/pkm/panel", "/pkm/rogue", "/x/y", "/pkm/rogue"])
     assert found.sender == "/pkm/rogue, /x/y"
     assert found.reason == ("/pkm/rogue, /x/y publishes on controller/settings (only /pkm/bringup_monitor, "
                             "/pkm/panel may: operator_sources)")
-    assert CommandGate("goal", node_names("")).check(["/anyone"]) is None       # a node run by hand: open
+    assert AllowedSenders("goal", node_names("")).check(["/anyone"]) is None       # a node run by hand: open

@@ -80,10 +80,10 @@ class Adversary(threading.Thread):
                     executor.spin_once(timeout_sec=0.002)
             elif self.action == "estop":
                 node.create_publisher(Bool, "estop", LATCHED_QOS).publish(Bool(data=True))
-            elif self.action == "load":
+            elif self.action in ("load", "load4900"):
                 pub = node.create_publisher(WrenchStamped, "load", STREAM_QOS)
                 msg = WrenchStamped()
-                msg.wrench.force.x = 1e7
+                msg.wrench.force.x = 1e7 if self.action == "load" else 4900.0
                 for _ in range(20):
                     pub.publish(msg)
                     executor.spin_once(timeout_sec=0.01)
@@ -148,7 +148,9 @@ CASES = [
     ("intruder_1e9_N", "archi_demo", "", "commands", "intruder", "/pkm/rogue"),
     ("intruder_states", "archi_demo", "", "states", "intruder", "/pkm/rogue"),
     ("estop", "archi_demo", "", "estop", "estop", ""),
-    ("load_1e7_N", "archi_demo", "", "load", "load_refused", "max_load_n"),
+    # an operator's load (a node the run names) over the plant's bound
+    ("load_1e7_N_operator", "archi_demo", "", "load", "load_refused", "max_load_n"),
+    ("rogue_load_4900_N", "archi_demo", "", "load4900", "intruder", "/pkm/rogue"),
     # a node the run did not name, commanding during the motion (issue 40): refused, the machine stopped
     ("rogue_trajectory", "archi_demo", "", "trajectory", "intruder", "/pkm/rogue"),
     ("rogue_settings", "archi_demo", "", "settings", "intruder", "/pkm/rogue"),
@@ -190,6 +192,8 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     overrides = {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0], **({"faults": faults} if faults else {})}}
     if scenario == "mom3_square":
         overrides["plant"] = {"faults": faults}
+    if case.endswith("_operator"):
+        overrides["operators"] = ["/pkm/rogue"]         # the adversary's node, named by the run
     s = load_scenario(scenario, overrides)
     adversary = Adversary(action) if action else None
     if adversary:
@@ -208,7 +212,7 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     poses, refs, statuses, refusals = _bag_series(tmp_path / case / "bag")
     stops = [(stamp, v) for stamp, level, v in statuses if level == 2]
     assert stops and stops[0][1]["cause"] == cause, stops[:1]
-    if action in ("commands", "load"):
+    if action in ("commands", "load", "load4900"):
         assert any(v["cause"] == cause for _, _, v in refusals), refusals[:3]
     # the tool held
     stop_ns = stops[0][0]

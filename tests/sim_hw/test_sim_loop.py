@@ -4,6 +4,7 @@ The node's own tests (test_sim_hw_node.py) run the same code through DDS."""
 
 from pkm_common.causes import TripCause, plant_stop_cause
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder
+from pkm_common.sources import AllowedSenders
 from pkm_kinematics import load_machine
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.parameters import SimHwSettings
@@ -28,6 +29,7 @@ class Wire:
 class Ports:
     def __init__(self):
         self.publishers = [CONTROLLER]
+        self.loads = []
         self.refusals, self.diagnostics, self.errors, self.ended = [], [], [], False
         self.infos = []
 
@@ -43,6 +45,9 @@ class Ports:
     def command_publishers(self):
         return list(self.publishers)
 
+    def load_publishers(self):
+        return list(self.loads)
+
     def after_cycle(self):
         pass
 
@@ -56,12 +61,12 @@ class Ports:
         self.errors.append(text)
 
 
-def lockstep_loop(duration_steps=0):
+def lockstep_loop(duration_steps=0, load_sources=()):
     plant = Plant(ARCHI, PlantParameters(dt_s=0.001))
     settings = SimHwSettings(ARCHI, plant, lockstep=True, command_timeout_s=1.0, sync_error_limit=12,
                              gate=CommandGate("", True, 20_000_000), publish_markers=False,
                              duration_s=duration_steps * 0.001, duration_steps=duration_steps, summary_path="",
-                             shutdown_on_finish=True)
+                             shutdown_on_finish=True, load_senders=AllowedSenders("load", load_sources, "load_sources"))
     state = Wire()
     ports = Ports()
     loop = SimLoop(settings, StepStreams(plant, ARCHI.model.task_space, Wire(), state, Wire()), ports)
@@ -120,3 +125,22 @@ def test_a_publisher_matched_before_the_graph_names_it_is_refused_counted_then_n
     ports.publishers.append("/rogue")
     loop.on_watchdog()                                     # the graph knows it now: named
     assert ports.refusals[-1].sender == "/rogue" and loop.run.intruder_named
+
+
+def test_a_load_from_a_node_the_run_did_not_name_stops_the_machine():
+    """A rogue's 4,900 N load (under the plant's bound) moved the tool 15.4 mm at up to
+    998 mm/s: now refused, and the plant brakes (cause intruder), the rogue named."""
+    loop, _, ports = lockstep_loop(load_sources=("/pkm/bringup_monitor", "/pkm/panel"))
+    loop.publish_state()
+    loop.on_command(command(0))
+    ports.loads = ["/pkm/rogue"]
+    loop.on_load((4900.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
+    assert ports.refusals[0].reason.startswith("/pkm/rogue publishes on load (only /pkm/bringup_monitor, /pkm/panel")
+    assert loop.plant.load == [0.0, 0.0, 0.0] or not any(loop.plant.load)        # never applied
+    assert loop.run.intruder == "/pkm/rogue"
+    # a named operator's load within the bounds is applied
+    loop, _, ports = lockstep_loop(load_sources=("/pkm/panel",))
+    ports.loads = ["/pkm/panel"]
+    loop.on_load((100.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert not loop.plant.stopped and loop.plant.load[0] == 100.0

@@ -1,34 +1,26 @@
 """``recorder_node``: records the graph to a rosbag2-compatible MCAP directory.
 
-Thin shell over :class:`pkm_bringup.bag.BagWriter`. Every topic of the graph (all of
-them but ``/parameter_events``, or the ``topics`` listed) is subscribed **raw**: the
-callback receives the CDR bytes exactly as published and writes them as they are
-(ROS2_NOTES.md: re-serialising adds trailing bytes that rosbags refuses). Topics are
-discovered every ``discovery_period_s`` until the node is ready, then every
-``running_discovery_period_s`` (a graph query costs ~1-2 ms with a whole in-process
-graph; at 10 Hz that was ~1.7 % of the loop's period); each is subscribed with the QoS its
-publishers offer (RELIABLE only if all of them are, TRANSIENT_LOCAL likewise, so a
-latched trajectory recorded late is still received) and a deep queue, and the offered
-profiles go into the channel metadata as ``ros2 bag record`` writes them.
+Thin shell over :class:`pkm_bringup.bag.BagWriter`. Every topic (but
+``/parameter_events``, or the ``topics`` listed) is subscribed **raw** and written as
+published (ROS2_NOTES.md: re-serialising adds trailing bytes rosbags refuses). Topics are
+discovered every ``discovery_period_s`` until ready, then every
+``running_discovery_period_s`` (a graph query costs ~1-2 ms in one process); each is
+subscribed with the QoS its publishers offer (RELIABLE, TRANSIENT_LOCAL only if all
+are) and a deep queue; the offered profiles go into the channel metadata.
 
-Counts: messages per topic, and messages with a new stamp per topic (the header stamp
-is at a fixed place in CDR, bytes 4-12, for every stamped message and for Clock): the
-nodes count their publications the same way, so published minus recorded is the loss
-even when a node repeats a message during discovery.
+Counts: messages per topic, and those with a new stamp (CDR bytes 4-12), as the nodes
+count their publications: published minus recorded is the loss, repeats aside.
 
 Tapped topics (``tapped_topics``): the loop's per-step streams, whose nodes run with
-``tap: true`` (pkm_common.tap), are not subscribed. Their nodes copy what they publish
-into batches on ``_recorder/tap`` (one message per node every 0.2 s instead of one
-delivery per message to one more process, on the loop's critical path); each record
-is written to its topic's channel with the node's publish time as log time, a whole
-batch in one compiled pass (pkm_bringup.tap_records; a malformed batch is refused
-whole and counted in ``tap_errors``). In one process the taps hand their batch
-payloads to ``write_records`` directly. The channel (type, offered QoS) comes from
-discovery as for any topic.
+``tap: true`` (pkm_common.tap), are not subscribed: their nodes send batches on
+``_recorder/tap`` (one per node every 0.2 s, off the loop's critical path), written a
+batch in one compiled pass (pkm_bringup.tap_records) with the publish times as log
+times. Refused whole: a malformed batch (``tap_errors``), and one received while a
+node not in ``tap_sources`` publishes on the tap (``tap_forged``: it would be recorded
+as the graph's own data). In one process the taps call ``write_records`` directly.
 
-Readiness: once every topic of ``expect_topics`` is subscribed and matched with at
-least one publisher, the node logs ``recorder ready`` and touches ``ready_file``: an
-orchestrator starts the run only then, so that nothing of it is missed.
+Readiness: once every topic of ``expect_topics`` is subscribed and matched, the node
+logs ``recorder ready`` and touches ``ready_file`` (the orchestrator starts then).
 
 Chunks are lz4 by default (``compression``): ~4x faster than zstd's default for 2.5x
 instead of 3.3x smaller (archi_demo), and in one process that is on the loop's thread.
@@ -49,9 +41,11 @@ from std_msgs.msg import UInt8MultiArray
 from pkm_bringup.bag import BagWriter
 from pkm_bringup.recording import lower_cpu_priority, message_class, qos_dict, subscription_qos
 from pkm_bringup.tap_records import StampCounter
+from pkm_common.conversions import publisher_names
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_common.sources import AllowedSenders, node_names
 from pkm_common.tap import TAP_TOPIC, split_batch
 
 EXCLUDED = ("/parameter_events",)
@@ -73,6 +67,10 @@ class RecorderNode(Node):
                              "and matched before the node is ready", allow_empty=True)
         tapped = declare_str(self, "tapped_topics", "", "comma-separated topics whose publishers send them "
                              "through the recording tap (pkm_common.tap) instead", allow_empty=True)
+        self.tap_senders = AllowedSenders(TAP_TOPIC, node_names(declare_str(
+            self, "tap_sources", "", "full node names allowed to publish tap batches (empty: any)",
+            allow_empty=True)), "tap_sources")
+        self.tap_forged = 0                  # batches refused: a node not named published on the tap
         self.ready_file = declare_str(self, "ready_file", "", "touched when ready", allow_empty=True)
         self.summary_path = declare_str(self, "summary_path", "", "JSON counts at exit", allow_empty=True)
         self.depth = declare_int(self, "depth", 1000, 1, 100000, "subscription queue depth")
@@ -184,7 +182,13 @@ class RecorderNode(Node):
         return bool(publishers) and publishers <= tapping
 
     def on_tap(self, buf: bytes) -> None:
-        if self._write_tapped(buf):
+        found = self.tap_senders.check(publisher_names(self.get_publishers_info_by_topic(self.tap_topic))) \
+            if self.tap_senders.allowed else None
+        if found is not None:
+            self.tap_forged += 1
+            if self.tap_forged == 1:
+                self.get_logger().error(f"tap batches refused: {found.reason}")
+        elif self._write_tapped(buf):
             self.tap_batches += 1
 
     def write_records(self, payload: bytes) -> bool:
@@ -238,7 +242,8 @@ class RecorderNode(Node):
                 with open(self.summary_path, "w", encoding="utf-8") as fh:
                     json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps,
                                "tapped": sorted(self.tapped), "tap_errors": self.tap_errors,
-                               "tap_batches": self.tap_batches, "tap_lists": self.tap_lists}, fh, indent=2)
+                               "tap_batches": self.tap_batches, "tap_lists": self.tap_lists,
+                               "tap_forged": self.tap_forged}, fh, indent=2)
             self.writer = None
         return super().destroy_node()
 

@@ -514,7 +514,7 @@ def run_node_name(s: Scenario, node: str) -> str:
 
 
 def operator_names(s: Scenario) -> list[str]:
-    """The nodes that may command the run (pkm_common.sources.CommandGate): pkm-run's
+    """The nodes that may command the run (pkm_common.sources.AllowedSenders): pkm-run's
     own (the start, an interrupt's E-stop), the panel's, and the scenario's
     ``operators``."""
     return [run_node_name(s, "bringup_monitor"), run_node_name(s, "panel"), *s.operators]
@@ -529,6 +529,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
         "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
                    "duration_s": s.duration_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load,
                    "command_source": controller_node_name(s),
+                   "load_sources": ",".join(operator_names(s)),
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
@@ -555,6 +556,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
             nodes[node]["tap"] = True
             tapped += TAPPED_STREAMS[node]
         nodes["recorder"] = {**_node_defaults("recorder"), **s.recorder,   # cpu_priority idle: its own process
+                             "tap_sources": ",".join(run_node_name(s, n) for n in TAPPED_STREAMS if n in nodes),
                              "output": str(run_dir / "bag"), "ready_file": str(run_dir / "recorder.ready"),
                              "expect_topics": ",".join(expected_topics(s)), "tapped_topics": ",".join(tapped),
                              "summary_path": str(summaries / "recorder.json")}

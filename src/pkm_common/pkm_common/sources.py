@@ -10,7 +10,7 @@ publisher, or a second one under the source's name (an orphan of an earlier run)
 an intruder.
 
 A command (a trajectory, a goal, a program, a setting, the feed override, the start)
-may come from any of the nodes a run names (``CommandGate``: the run's planner, the
+may come from any of the nodes a run names (``AllowedSenders``: the run's planner, the
 operator's panel, pkm-run itself): a publisher of another name is an intruder. DDS
 gives no sender per message, so while an intruder publishes on a commanding topic no
 message of it is taken, from anyone. Names are what the graph says: a process that
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CommandGate", "Intrusion", "SourceGate", "node_names"]
+__all__ = ["AllowedSenders", "Intrusion", "SourceGate", "node_names"]
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def node_names(text: str) -> frozenset:
     return frozenset(name.strip() for name in text.split(",") if name.strip())
 
 
-class CommandGate:
+class AllowedSenders:
     """Who may command through ``topic``: the nodes ``allowed`` (full names; empty:
     anyone, a node started by hand without a run); ``parameter`` names the setting
     that lists them, for the message."""

@@ -21,7 +21,7 @@ move the machine through this controller's answers: it stops it (cause intruder)
 named, when its publisher matches (before its first message) or at the next check
 of the graph (every ``SOURCE_CHECK_S``).
 
-Its commands have named sources too (pkm_common.sources.CommandGate; empty: anyone):
+Its commands have named sources too (pkm_common.sources.AllowedSenders; empty: anyone):
 ``trajectory`` from ``trajectory_source`` (the run's planner), the settings, the feed
 override and ``run/start`` from ``operator_sources`` (pkm-run, the panel, the nodes a
 scenario names), and so the planner's ``goal`` and ``program``, which it watches. A command while another node publishes on its topic is refused,
@@ -38,7 +38,7 @@ from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
                             decode_pose_stamped, in_order)
 from pkm_common.conversions import machine_pose_components
-from pkm_common.sources import CommandGate, SourceGate, node_names
+from pkm_common.sources import AllowedSenders, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
 
 from .configuration import metrology_inputs, run_summary
@@ -88,7 +88,7 @@ class ControllerLoop:
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
         operators = node_names(values["operator_sources"])
-        self.commands = {topic: CommandGate(topic, allowed, parameter) for topic, allowed, parameter in (
+        self.commands = {topic: AllowedSenders(topic, allowed, parameter) for topic, allowed, parameter in (
             ("trajectory", node_names(values["trajectory_source"]), "trajectory_source"),
             ("controller/settings", operators, "operator_sources"),
             ("controller/feed_override", operators, "operator_sources"),

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.sources import AllowedSenders, node_names
 from pkm_kinematics import MachineConfig, load_machine
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.plant import Plant, PlantParameters
@@ -31,6 +32,7 @@ class SimHwSettings:
     duration_steps: int              # simulated time as a step count (plant.t accumulates dt)
     summary_path: str
     shutdown_on_finish: bool
+    load_senders: AllowedSenders = AllowedSenders("load", ())    # who may send a load (empty: anyone)
 
 
 def declare_settings(node) -> SimHwSettings:
@@ -101,5 +103,8 @@ def declare_settings(node) -> SimHwSettings:
             raise ParameterError(name, str(exc).partition(": ")[2]) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
     duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
+    load_senders = AllowedSenders("load", node_names(declare_str(
+        node, "load_sources", "", "full node names allowed to publish a load, comma-separated (empty: anyone); "
+        "another's load stops the machine (cause intruder)", allow_empty=True)), "load_sources")
     return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s,
-                         duration_steps, summary_path, shutdown_on_finish)
+                         duration_steps, summary_path, shutdown_on_finish, load_senders)

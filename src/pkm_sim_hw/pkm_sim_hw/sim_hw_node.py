@@ -77,7 +77,7 @@ class SimHwNode(Node):
         self.command_sub = self.create_subscription(
             JointState, "drives/command", loop.on_command, STREAM_QOS, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s: loop.on_command_matched(s.current_count)))
-        self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
+        self.load_sub = self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
         self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS)
         self.create_timer(0.1, loop.on_watchdog)
         for cadence, work in loop.cadences:
@@ -111,6 +111,9 @@ class SimHwNode(Node):
 
     def report_refusal(self, refusal, topic: str, text: str, plant_step: int, now_ns: int) -> None:
         self.refusals.report(refusal, topic, text, plant_step, now_ns)
+
+    def load_publishers(self) -> list[str]:
+        return publisher_names(self.get_publishers_info_by_topic(self.load_sub.topic_name))
 
     def command_publishers(self) -> list[str]:
         """Full names of the nodes publishing drives/command, one per publisher (the

@@ -8,7 +8,7 @@ end. It works on the messages' bytes (pkm_common.cdr) and hands what goes out to
 ``publish_markers(segments, stamp_ns)``, ``report_refusal(refusal, topic, text,
 plant_step, now_ns)`` (drives/refused and the rate-limited log),
 ``command_publishers()`` (the full names of the nodes publishing drives/command, as
-the graph knows them), ``after_cycle()`` (the recording tap's flush point),
+the graph knows them), ``load_publishers()`` (the same of ``load``), ``after_cycle()`` (the recording tap's flush point),
 ``run_finished()`` (the last step is done: end the process, or let the executor
 drain), ``log_info(text)`` and ``log_error(text)``.
 """
@@ -44,6 +44,7 @@ class SimLoop:
 
     def __init__(self, settings: SimHwSettings, streams: StepStreams, ports):
         self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
+        self.load_senders = settings.load_senders
         self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
         self.duration_s, self.duration_steps = settings.duration_s, settings.duration_steps
         self.summary_path = settings.summary_path
@@ -211,6 +212,14 @@ class SimLoop:
             self.publish_state()
 
     def on_load(self, force, moment) -> None:
+        """An external load (a simulation input): from the nodes the run names
+        (``load_sources``), within its bounds; else refused and the machine stopped."""
+        senders = self.load_senders
+        found = senders.check(self.ports.load_publishers()) if senders.allowed else None
+        if found is not None:
+            self.run.intruder = self.run.intruder or found.sender
+            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender), topic="load")
+            return
         try:
             self.plant.set_load(self.plant.load_components(force, moment))
         except ValueError as exc:                  # nothing applied; the experiment cannot go on

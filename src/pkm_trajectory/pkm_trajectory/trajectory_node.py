@@ -26,7 +26,7 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, pose_fr
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
-from pkm_common.sources import CommandGate, node_names
+from pkm_common.sources import AllowedSenders, node_names
 from pkm_kinematics import load_machine
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
@@ -72,7 +72,7 @@ class TrajectoryNode(Node):
         # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
         operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
-        self.gates = {topic: CommandGate(topic, operators, "operator_sources") for topic in ("goal", "program")}
+        self.gates = {topic: AllowedSenders(topic, operators, "operator_sources") for topic in ("goal", "program")}
         self.refused_senders = 0
         self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS),
                        "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS)}
