@@ -533,3 +533,72 @@ def test_a_node_that_died_is_the_runs_cause_unless_the_machine_stopped_first():
     assert run_cause(tripped, failed.cause, str(failed)) == (TripCause.FOLLOWING_ERROR, "12 mm")
     assert run_cause(silent) == (TripCause.WATCHDOG, "drives/state silent")
     assert "killed by signal 99" in str(node_died("x", -99, ""))
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A filesystem of a few megabytes (tmpfs; root, as CI and this project's machines
+    are): ``small_disk(size)`` mounts one and returns its path; unmounted after."""
+    mounted = []
+
+    def mount(size: str) -> Path:
+        path = tmp_path / f"disk{len(mounted)}"
+        path.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                              capture_output=True, text=True)
+        if done.returncode != 0:
+            pytest.skip(f"a small filesystem needs mount (root): {done.stderr.strip()}")
+        mounted.append(path)
+        return path
+    yield mount
+    for path in mounted:
+        subprocess.run(["umount", "-l", str(path)], capture_output=True)
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_up_ends_the_run_with_its_cause_and_a_whole_run_json(small_disk):
+    """On a 4 MB disk the bag fills it mid-run: the recorder dies; the run is named
+    failed by node_died "the disk is full", exit 1, its run.json and the nodes'
+    summaries whole (the space kept for them at the start), the bag readable. Before,
+    pkm-run ended in a traceback writing run.json and left it and the summaries empty."""
+    run_dir = small_disk("4m") / "run"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    out, _ = proc.communicate(timeout=180)
+    assert proc.returncode == 1, out[-3000:]
+    assert out.rstrip().splitlines()[-1].startswith("  run directory:"), out[-3000:]    # its summary, no traceback
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["status"] == "failed" and run["cause"] == "node_died", (run["status"], run["cause"])
+    assert run["trip_reason"] == "node recorder exited with code 1: the disk is full", run["trip_reason"]
+    for name in ("sim_hw", "controller", "gough_sensor", "recorder"):
+        assert json.loads((run_dir / "summaries" / f"{name}.json").read_text()), name
+    assert run["recovered"]["messages"] > 1000                  # the bag, readable up to its last chunk
+    assert not (run_dir / ".reserved").exists() and not _leftovers(run_dir)
+
+
+@pytest.mark.slow
+def test_a_disk_too_full_for_the_end_of_a_run_refuses_it_before_anything_starts(small_disk):
+    run_dir = small_disk("1m") / "run"
+    proc = _pkm_run("archi_demo", "--run-dir", str(run_dir))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 1, out[-3000:]
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["status"] == "failed" and "nothing started" in run["error"] and "No space left" in run["error"], run
+    assert not (run_dir / "bag").exists() and not list((run_dir / "logs").iterdir())    # no node was started
+
+
+def test_run_json_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """run_files.write_json: a disk full in the middle of the write leaves the old file
+    as it was and no temporary file."""
+    import errno
+
+    from pkm_bringup import run_files
+    path = tmp_path / "run.json"
+    run_files.write_json(path, {"status": "completed"})
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(run_files.json, "dump", full)
+    with pytest.raises(OSError):
+        run_files.write_json(path, {"status": "failed"})
+    assert json.loads(path.read_text()) == {"status": "completed"} and sorted(tmp_path.iterdir()) == [path]
+    assert run_files.disk_full(OSError(errno.ENOSPC, "full")) and not run_files.disk_full(OSError(errno.EIO, "io"))

@@ -42,6 +42,7 @@ from pathlib import Path
 
 from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
                                   load_scenario, node_parameters, params_file_text)
+from pkm_bringup.run_files import DiskReserve, disk_full, write_json
 from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 
@@ -76,6 +77,8 @@ def node_died(name: str, code: int, tail: str) -> RunFailed:
             how = f" (killed by {signal.Signals(-code).name})"
         except ValueError:
             how = f" (killed by signal {-code})"
+    if "No space left on device" in tail or "Disk quota exceeded" in tail:
+        how += ": the disk is full"
     return RunFailed(f"node {name} exited with code {code}{how}; its last output:\n{tail}", TripCause.NODE_DIED)
 
 
@@ -306,7 +309,7 @@ def _in_process_profile(s: Scenario, in_process: bool):
 
 
 def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
-                  interruption=None) -> dict:
+                  interruption=None, reserve=None) -> dict:
     """The scenario as separate processes; fills and returns ``codes`` (exit codes).
     Raises RunFailed. ``interruption``: the run's _Interruption (signalled: an E-stop
     before the ordered stop)."""
@@ -385,6 +388,8 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             executor.spin_once(timeout_sec=0.05)
     finally:
         progress.done()
+        if reserve is not None:               # the nodes' summaries and run.json get the space kept for them
+            reserve.release()
         with _signals_ignored():              # a second Ctrl-C must not abandon the ordered stop
             if interruption is not None and interruption.signalled:
                 _estop_before_stop(executor, monitor, nodes)
@@ -396,7 +401,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
 
 
 def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
-                   interruption=None) -> dict:
+                   interruption=None, reserve=None) -> dict:
     """The scenario with every node in one EventsExecutor (same parameters); an
     interruption stops every node at once (no plant runs on without its controller)."""
     from rclpy.experimental import EventsExecutor
@@ -476,6 +481,8 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
             executor.spin_once(timeout_sec=0.05)
     finally:
         progress.done()
+        if reserve is not None:
+            reserve.release()
         with _signals_ignored():
             close(STOP_ORDER)
         executor.shutdown()
@@ -558,8 +565,18 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
            "status": run_status(error, cause), "error": error, "cause": str(cause), "trip_reason": reason,
            "sensor_missed_steps": sensor_missed, "exit_codes": codes,
            "published": published, "recorded": recorded, "lost": lost, "summaries": summaries}
-    (run_dir / "run.json").write_text(json.dumps(run, indent=2), encoding="utf-8")
+    _write_run(run_dir, run)
     return run
+
+
+def _write_run(run_dir: Path, run: dict) -> None:
+    """run.json, whole (run_files.write_json); a disk too full even for it is said on
+    stderr and in the returned record, never a traceback."""
+    try:
+        write_json(run_dir / "run.json", run)
+    except OSError as exc:
+        run["status"], run["error"] = "failed", run.get("error") or f"run.json not written: {exc}"
+        print(f"pkm-run: run.json not written: {exc}", file=sys.stderr)
 
 
 def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
@@ -571,23 +588,29 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     if s.realtime_profile:
         from pkm_bringup.rt_profile import check_permitted
         check_permitted(in_process)
-    for sub in ("params", "logs", "summaries"):
-        (run_dir / sub).mkdir(parents=True, exist_ok=True)
-    for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
-        stale.unlink()
-    params = node_parameters(s, run_dir)
-    for name, values in params.items():
-        (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
-    (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
+    mode = "in_process" if in_process else "processes"
+    try:                                       # nothing started yet: a full disk is said, not a traceback
+        for sub in ("params", "logs", "summaries"):
+            (run_dir / sub).mkdir(parents=True, exist_ok=True)
+        reserve = DiskReserve(run_dir)         # the end of the run's space, kept from the start
+        if not reserve.held:
+            raise OSError(reserve.error)
+        for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
+            stale.unlink()
+        params = node_parameters(s, run_dir)
+        for name, values in params.items():
+            (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
+        (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
+    except OSError as exc:
+        return collect(s, run_dir, mode, 0.0, {}, f"the run directory cannot be written, nothing started: {exc}")
     from pkm_bringup.processes import use_ros_environment
     use_ros_environment()
-    mode = "in_process" if in_process else "processes"
     start = time.monotonic()
     error, codes, interruption, failure = "", {}, _Interruption(), TripCause.NONE
     try:
         run = run_in_process if in_process else run_processes
         with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
-            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption)
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserve)
     except RunFailed as exc:
         error, failure = str(exc), exc.cause
     except KeyboardInterrupt:
@@ -597,17 +620,21 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         # for a callback comes out of pybind11 as RuntimeError("Unable to convert call
         # argument ..."): the run was interrupted all the same
         error = INTERRUPTED if interruption.signalled else f"{type(exc).__name__}: {exc}"
+    reserve.release()                              # a runner that failed before its loop
     recovered = _recover_bag(s, run_dir)
     result = collect(s, run_dir, mode, time.monotonic() - start, codes, error, failure)
     if recovered:
         result["recovered"] = recovered
-        (run_dir / "run.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
+        _write_run(run_dir, result)
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         from pkm_bringup.report import write_report
         try:
             result["metrics"] = write_report(run_dir)
         except (ValueError, OSError) as exc:      # an unreadable bag (IncompleteBagError, ...): said, no traceback
             result["report_error"] = str(exc)
+            if disk_full(exc):                     # the run's record is incomplete: the run failed
+                result["status"], result["error"] = "failed", result["error"] or f"report: the disk is full: {exc}"
+                _write_run(run_dir, result)
     return result
 
 
