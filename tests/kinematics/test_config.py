@@ -45,6 +45,9 @@ def test_the_forward_solver_is_chosen_by_the_configuration():
     (lambda d: d["legs"][0].update(assembly=2), "legs[0].assembly", "must be -1 or \\+1"),
     (lambda d: d["legs"][3].update(joint_limits=[2.0, 1.0]), "legs[3].joint_limits", "min < max"),
     (lambda d: d["legs"][0].update(rail_direction=[0.0, 0.0]), "legs[0].rail_direction", "non-zero"),
+    # the drives' names are the messages' joint names: a duplicate was accepted
+    (lambda d: d["legs"][3].update(name=d["legs"][1]["name"]), "legs",
+     r"leg names must be unique, got \['q1', 'q2', 'q3', 'q2'\]"),
     (lambda d: d["legs"][0].update(platform_point=[0.1, "a"]), r"legs[0].platform_point[1]", "finite number"),
     (lambda d: d.update(kind="hexapod"), "kind", r"must be one of \['planar', 'translational', 'struts', 'parallelograms'\]"),
     (lambda d: d.update(home_pose=[1.0, -3.0, 0.0]), "home_pose", "unreachable"),

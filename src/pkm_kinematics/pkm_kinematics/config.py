@@ -188,6 +188,9 @@ def _legs(r: _Reader, dim: int, attachment: str) -> list[RailLeg]:
             lr.string("name"), tuple(lr.vector("rail_origin", dim, unit="m")), tuple(direction),
             lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
             tuple(lr.vector(attachment, dim, unit="m")), _assembly(lr), lr.interval("joint_limits", unit="m")))
+    names = [leg.name for leg in legs]
+    if len(set(names)) != len(names):           # the drives' names: the messages' joint names
+        raise ConfigError(r._name("legs"), f"leg names must be unique, got {names}")
     return legs
 
 
