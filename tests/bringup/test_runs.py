@@ -572,7 +572,7 @@ def test_a_disk_that_fills_up_ends_the_run_with_its_cause_and_a_whole_run_json(s
     for name in ("sim_hw", "controller", "gough_sensor", "recorder"):
         assert json.loads((run_dir / "summaries" / f"{name}.json").read_text()), name
     assert run["recovered"]["messages"] > 1000                  # the bag, readable up to its last chunk
-    assert not (run_dir / ".reserved").exists() and not _leftovers(run_dir)
+    assert not list(run_dir.glob(".reserved*")) and not _leftovers(run_dir)
 
 
 @pytest.mark.slow
@@ -583,6 +583,7 @@ def test_a_disk_too_full_for_the_end_of_a_run_refuses_it_before_anything_starts(
     assert proc.returncode == 1, out[-3000:]
     run = json.loads((run_dir / "run.json").read_text())
     assert run["status"] == "failed" and "nothing started" in run["error"] and "No space left" in run["error"], run
+    assert not list(run_dir.glob(".reserved*"))
     assert not (run_dir / "bag").exists() and not list((run_dir / "logs").iterdir())    # no node was started
 
 
@@ -591,14 +592,17 @@ def test_run_json_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
     as it was and no temporary file."""
     import errno
 
-    from pkm_bringup import run_files
+    from pkm_common import files
     path = tmp_path / "run.json"
-    run_files.write_json(path, {"status": "completed"})
+    files.write_json(path, {"status": "completed"})
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(run_files.json, "dump", full)
+    monkeypatch.setattr(files.json, "dump", full)
     with pytest.raises(OSError):
-        run_files.write_json(path, {"status": "failed"})
+        files.write_json(path, {"status": "failed"})
     assert json.loads(path.read_text()) == {"status": "completed"} and sorted(tmp_path.iterdir()) == [path]
-    assert run_files.disk_full(OSError(errno.ENOSPC, "full")) and not run_files.disk_full(OSError(errno.EIO, "io"))
+    assert files.disk_full(OSError(errno.ENOSPC, "full")) and not files.disk_full(OSError(errno.EIO, "io"))
+    # a node's summary on a full disk: logged, never raised into the node's end
+    errors = []
+    assert files.write_summary(path, {"x": 1}, errors.append) is False and "No space left" in errors[0]

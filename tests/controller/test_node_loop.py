@@ -24,6 +24,10 @@ class Ports:
     def input_publishers(self, topic):
         return list(self.graph.get(topic, []))
 
+    def topic_senders(self, topic):
+        names = list(self.graph.get(topic, []))
+        return [n for n in names if n != "?"], names.count("?")        # "?": an endpoint of no known node
+
     def publish_command(self, command):
         self.commands.append(command)
 
@@ -129,11 +133,34 @@ def test_a_command_from_a_node_the_run_did_not_name_is_refused_and_named():
     assert loop.core.mode == "holding" and not loop.core.stopped and loop.core.config.bandwidth_hz == 20.0
     assert loop.summary()["commands_refused"] == {"trajectory": 1, "controller/settings": 1}
     assert loop.summary()["intruder"] == "/pkm/rogue"
-    # the rogue gone, the planner's trajectory is taken
+    # refused commands do not end the watch on the inputs' sources (it went quiet once the
+    # first intruder was named): a rogue on drives/state still stops the machine
+    ports.graph["drives/state"] = ["/plant", "/pkm/rogue"]
+    loop.sources_checked = 0.0
+    loop.on_watchdog()
+    assert loop.core.stopped and loop.core.stop_cause == TripCause.INTRUDER and "drives/state" in loop.core.stop_reason
+
+
+
+def test_a_command_is_taken_again_once_the_rogue_is_gone_and_refused_while_a_publisher_is_unnamed():
+    ports = Ports()
+    loop, events = commanded_loop(ports)
+    loop.on_state(state(0))
+    ports.graph["trajectory"] = ["/pkm/trajectory", "?"]        # a plain DDS writer: no node name
+    loop.on_trajectory(trajectory_bytes())
+    assert events[-1]["ok"] is False and events[-1]["intruder"] == "unnamed" and not loop.core.stopped
+    assert "publisher(s) of no known node on trajectory" in events[-1]["message"]
     ports.graph["trajectory"] = ["/pkm/trajectory"]
     loop.on_trajectory(trajectory_bytes())
     loop.on_state(state(1_000_000))                # applied after the next answer
     assert events[-1]["kind"] == "trajectory" and events[-1]["ok"] and loop.core.mode == "tracking"
+
+
+def check_every_command_topic(loop) -> None:
+    """The watchdog's checks of the command topics, one a call, each one due."""
+    for _ in loop.commands:
+        loop.commands_checked = 0.0
+        loop.on_watchdog()
 
 
 def test_a_rogue_commanding_during_a_motion_stops_the_machine():
@@ -146,8 +173,7 @@ def test_a_rogue_commanding_during_a_motion_stops_the_machine():
         loop.on_state(state(k * 1_000_000))
     assert loop.core.mode == "tracking" and not loop.core.stopped
     ports.graph["controller/feed_override"] = ["/pkm/panel", "/elsewhere/rogue"]       # it publishes
-    loop.commands_checked = 0.0                                                       # the next check is due
-    loop.on_watchdog()
+    check_every_command_topic(loop)
     assert loop.core.stopped and loop.core.stop_cause == TripCause.INTRUDER, loop.core.stop_reason
     assert "/elsewhere/rogue publishes on controller/feed_override" in loop.core.stop_reason
     assert any(e["kind"] == "safe_stop" and e["cause"] == "intruder" for e in events)   # in the bag
@@ -163,8 +189,7 @@ def test_a_rogue_goal_during_a_motion_stops_the_machine_too():
     loop.on_trajectory(trajectory_bytes())
     loop.on_state(state(1_000_000))
     ports.graph["goal"] = ["/pkm/panel", "/pkm/rogue"]
-    loop.commands_checked = 0.0
-    loop.on_watchdog()
+    check_every_command_topic(loop)
     assert loop.core.stop_cause == TripCause.INTRUDER and "/pkm/rogue publishes on goal" in loop.core.stop_reason
 
 

@@ -45,8 +45,8 @@ class Ports:
     def command_publishers(self):
         return list(self.publishers)
 
-    def load_publishers(self):
-        return list(self.loads)
+    def load_senders(self):
+        return list(self.loads), 0
 
     def after_cycle(self):
         pass
@@ -138,7 +138,7 @@ def test_a_load_from_a_node_the_run_did_not_name_stops_the_machine():
     assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
     assert ports.refusals[0].reason.startswith("/pkm/rogue publishes on load (only /pkm/bringup_monitor, /pkm/panel")
     assert loop.plant.load == [0.0, 0.0, 0.0] or not any(loop.plant.load)        # never applied
-    assert loop.run.intruder == "/pkm/rogue"
+    assert ports.refusals[0].sender == "/pkm/rogue"
     # a named operator's load within the bounds is applied
     loop, _, ports = lockstep_loop(load_sources=("/pkm/panel",))
     ports.loads = ["/pkm/panel"]

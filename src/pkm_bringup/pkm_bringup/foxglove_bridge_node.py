@@ -42,16 +42,30 @@ class FoxgloveBridgeNode(Node):
         self.get_logger().info(f"Foxglove: ws://127.0.0.1:{self.port}")
 
     def on_state(self, buf: bytes) -> None:
-        m = self.state_decoder.decode(buf)
-        self.live.log("drives/state", joint_json(m.name, m.position, m.velocity, m.effort, m.frame_id), m.stamp_ns)
+        m = self._read(self.state_decoder.decode, buf)
+        if m is not None:
+            self.live.log("drives/state", joint_json(m.name, m.position, m.velocity, m.effort, m.frame_id),
+                          m.stamp_ns)
 
     def on_struts(self, buf: bytes) -> None:
-        m = self.struts_decoder.decode(buf)
-        self.live.log("metrology/struts", joint_json(m.name, m.position, m.velocity, m.effort), m.stamp_ns)
+        m = self._read(self.struts_decoder.decode, buf)
+        if m is not None:
+            self.live.log("metrology/struts", joint_json(m.name, m.position, m.velocity, m.effort), m.stamp_ns)
 
     def on_pose(self, buf: bytes, stream: str) -> None:
-        m = decode_pose_stamped(buf, stream)
-        self.live.log(stream, pose_in_frame(m.position, m.orientation, m.stamp_ns), m.stamp_ns)
+        m = self._read(lambda b: decode_pose_stamped(b, stream), buf)
+        if m is not None:
+            self.live.log(stream, pose_in_frame(m.position, m.orientation, m.stamp_ns), m.stamp_ns)
+
+    def _read(self, decode, buf):
+        """A message only shown: one that cannot be read is dropped, logged once, never a crash."""
+        try:
+            return decode(buf)
+        except ValueError as exc:
+            self.unreadable = getattr(self, "unreadable", 0) + 1
+            if self.unreadable == 1:
+                self.get_logger().error(f"not shown: {exc}")
+            return None
 
     def on_markers(self, msg: MarkerArray) -> None:
         points = [(p.x, p.y, p.z) for marker in msg.markers for p in marker.points]

@@ -42,8 +42,9 @@ from pathlib import Path
 
 from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
                                   load_scenario, node_parameters, params_file_text)
-from pkm_bringup.run_files import DiskReserve, disk_full, write_json
+from pkm_bringup.run_files import DiskReserve
 from pkm_common.causes import TripCause, parse_cause, run_status
+from pkm_common.files import disk_full, write_json
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
@@ -589,19 +590,26 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         from pkm_bringup.rt_profile import check_permitted
         check_permitted(in_process)
     mode = "in_process" if in_process else "processes"
+    reserves = []
     try:                                       # nothing started yet: a full disk is said, not a traceback
         for sub in ("params", "logs", "summaries"):
             (run_dir / sub).mkdir(parents=True, exist_ok=True)
-        reserve = DiskReserve(run_dir)         # the end of the run's space, kept from the start
-        if not reserve.held:
-            raise OSError(reserve.error)
+        # the end of the run's space, kept from the start: the nodes' summaries, then run.json
+        reserves = [DiskReserve(run_dir, "nodes"), DiskReserve(run_dir, "end")]
+        for reserve in reserves:
+            if not reserve.held:
+                raise OSError(reserve.error)
         for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
             stale.unlink()
         params = node_parameters(s, run_dir)
         for name, values in params.items():
             (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
         (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
-    except OSError as exc:
+    except BaseException as exc:
+        for reserve in reserves:
+            reserve.release()
+        if not isinstance(exc, OSError):
+            raise
         return collect(s, run_dir, mode, 0.0, {}, f"the run directory cannot be written, nothing started: {exc}")
     from pkm_bringup.processes import use_ros_environment
     use_ros_environment()
@@ -610,7 +618,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     try:
         run = run_in_process if in_process else run_processes
         with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
-            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserve)
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0])
     except RunFailed as exc:
         error, failure = str(exc), exc.cause
     except KeyboardInterrupt:
@@ -620,7 +628,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         # for a callback comes out of pybind11 as RuntimeError("Unable to convert call
         # argument ..."): the run was interrupted all the same
         error = INTERRUPTED if interruption.signalled else f"{type(exc).__name__}: {exc}"
-    reserve.release()                              # a runner that failed before its loop
+    for reserve in reserves:                       # (the first: a runner that failed before its loop)
+        reserve.release()
     recovered = _recover_bag(s, run_dir)
     result = collect(s, run_dir, mode, time.monotonic() - start, codes, error, failure)
     if recovered:

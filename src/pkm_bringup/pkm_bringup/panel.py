@@ -75,7 +75,7 @@ SETTING_RANGES = {              # the page's inputs; the controller core has the
     "p_norm": (2.0, 64.0), "prestress_n": (-2000.0, 2000.0)}
 
 
-def check_setting(model, name, value) -> None:
+def check_setting(name, value) -> None:
     """One setting of a page against what the page offers (``PanelModel.describe``):
     the runtime settings only, a strategy or distribution of the lists, a number in
     ``SETTING_RANGES``. The running controller's own rule follows (Panel._settings).
@@ -490,7 +490,7 @@ class Panel:
         if not isinstance(changes, dict) or not changes:
             raise ValueError("settings: changes must be a non-empty object {name: value}")
         for name, value in changes.items():
-            check_setting(self.model, name, value)
+            check_setting(name, value)
         with self.lock:
             values = self.status[2]
         if "strategy" not in values:

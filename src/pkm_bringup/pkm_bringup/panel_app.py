@@ -84,8 +84,14 @@ def served_hosts(bind_host: str, extra=()) -> frozenset:
 
 
 def host_name(value: str) -> str:
-    """The name of a ``Host`` header (``name:port``, ``[v6]:port``), lower case."""
-    return (urlsplit(f"//{value}").hostname or "") if value else ""
+    """The name of a ``Host`` header (``name:port``, ``[v6]:port``), lower case; "" for
+    one that is no plain host and port (a user part, a path, a bad bracket)."""
+    if not value or any(c in value for c in "@/#?\\ "):
+        return ""
+    try:
+        return urlsplit(f"//{value}").hostname or ""
+    except ValueError:
+        return ""
 
 
 class SameOriginGuard:
@@ -221,7 +227,11 @@ def create_app(panel, publish, token: str, rate_hz: float = 25.0, on_restart=Non
         sender = asyncio.create_task(push())
         try:
             while True:
-                action, why = parse_action(await ws.receive_text())
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                text = message.get("text")
+                action, why = parse_action(text) if text is not None else (None, "action: expected a text frame")
                 if action is None:
                     await ws.send_json({"type": "result", "action": None, "ok": False,
                                         "message": panel.malformed(client, why).message})

@@ -185,6 +185,8 @@ def main(argv=None) -> int:
     sock = listening_socket(args.host, args.port)
     estop_sock = listening_socket(args.host, args.estop_port)
     host, port = sock.getsockname()[:2]
+    if host in ("0.0.0.0", "::"):        # every interface: a URL by a name the panel serves (served_hosts)
+        host = socket.gethostname()
     base = f"http://{host if ':' not in host else f'[{host}]'}"
     url = f"{base}:{port}/?token={token}"
     # the E-stop's own server: a second uvicorn in its own thread and event loop

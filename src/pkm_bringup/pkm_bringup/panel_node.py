@@ -57,16 +57,29 @@ class PanelNode(Node):
         return sum(info.node_name == node and info.node_namespace == self.get_namespace() for info in readers)
 
     def on_state(self, buf: bytes) -> None:
-        m = self.state_decoder.decode(buf)
-        self.panel.on_state(m.stamp_ns, m.name, m.position, m.velocity, m.effort, m.frame_id)
+        m = self._read(self.state_decoder.decode, buf)
+        if m is not None:
+            self.panel.on_state(m.stamp_ns, m.name, m.position, m.velocity, m.effort, m.frame_id)
 
     def on_true_pose(self, buf: bytes) -> None:
-        m = decode_pose_stamped(buf, "platform/true_pose")
-        self.panel.on_true_pose(m.stamp_ns, m.position, m.orientation)
+        m = self._read(lambda b: decode_pose_stamped(b, "platform/true_pose"), buf)
+        if m is not None:
+            self.panel.on_true_pose(m.stamp_ns, m.position, m.orientation)
 
     def on_reference(self, buf: bytes) -> None:
-        m = decode_pose_stamped(buf, "controller/reference")
-        self.panel.on_reference(m.stamp_ns, m.position, m.orientation)
+        m = self._read(lambda b: decode_pose_stamped(b, "controller/reference"), buf)
+        if m is not None:
+            self.panel.on_reference(m.stamp_ns, m.position, m.orientation)
+
+    def _read(self, decode, buf):
+        """A message the panel only shows: one it cannot read is dropped, logged once, never a crash."""
+        try:
+            return decode(buf)
+        except ValueError as exc:
+            self.unreadable = getattr(self, "unreadable", 0) + 1
+            if self.unreadable == 1:
+                self.get_logger().error(f"not shown: {exc}")
+            return None
 
     def on_status(self, msg: DiagnosticArray) -> None:
         for status in msg.status:          # level is a byte in rclpy's messages

@@ -31,7 +31,6 @@ normal end, SIGINT and SIGTERM alike (runner.run_node).
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -41,7 +40,8 @@ from std_msgs.msg import UInt8MultiArray
 from pkm_bringup.bag import BagWriter
 from pkm_bringup.recording import lower_cpu_priority, message_class, qos_dict, subscription_qos
 from pkm_bringup.tap_records import StampCounter
-from pkm_common.conversions import publisher_names
+from pkm_common.files import write_summary
+from pkm_common.conversions import graph_senders
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
 from pkm_common.runner import main_exit, run_node
@@ -182,8 +182,8 @@ class RecorderNode(Node):
         return bool(publishers) and publishers <= tapping
 
     def on_tap(self, buf: bytes) -> None:
-        found = self.tap_senders.check(publisher_names(self.get_publishers_info_by_topic(self.tap_topic))) \
-            if self.tap_senders.allowed else None
+        # names only: a tapped node's endpoint is seen before its name at start (its batches would be lost)
+        found = self.tap_senders.check(graph_senders(self, self.tap_topic)[0]) if self.tap_senders.allowed else None
         if found is not None:
             self.tap_forged += 1
             if self.tap_forged == 1:
@@ -239,11 +239,10 @@ class RecorderNode(Node):
         if self.writer is not None:
             self.writer.close()
             if self.summary_path:
-                with open(self.summary_path, "w", encoding="utf-8") as fh:
-                    json.dump({"recorded": self.writer.counts, "recorded_stamps": self.steps,
-                               "tapped": sorted(self.tapped), "tap_errors": self.tap_errors,
-                               "tap_batches": self.tap_batches, "tap_lists": self.tap_lists,
-                               "tap_forged": self.tap_forged}, fh, indent=2)
+                write_summary(self.summary_path, {
+                    "recorded": self.writer.counts, "recorded_stamps": self.steps, "tapped": sorted(self.tapped),
+                    "tap_errors": self.tap_errors, "tap_batches": self.tap_batches, "tap_lists": self.tap_lists,
+                    "tap_forged": self.tap_forged}, self.get_logger().error)
             self.writer = None
         return super().destroy_node()
 

@@ -1,44 +1,23 @@
 """A run directory's files on a disk that may fill up (pure, no rclpy).
 
 A full disk during a run left run.json empty, pkm-run in a traceback, and the nodes'
-summaries empty. ``DiskReserve`` sets space aside when the run starts (a file of
-zeros) and gives it back when the loop is over, before the nodes write their summaries
-and pkm-run its run.json; ``write_json`` writes a file whole or not at all (a
+summaries empty. ``DiskReserve`` sets space aside when the run starts (allocated
+blocks) and gives it back when it is needed: one when the loop is over, before the
+nodes write their summaries, one before pkm-run writes run.json and the report (the
+recorder's last chunk may take the first); ``write_json`` writes a file whole or not at all (a
 temporary file, then an atomic rename), so a reader never finds half a run.json.
 """
 
 from __future__ import annotations
 
-import errno
-import json
 import os
 from pathlib import Path
 
+from pkm_common.files import disk_full, write_json
+
 __all__ = ["RESERVE_BYTES", "DiskReserve", "disk_full", "write_json"]
 
-RESERVE_BYTES = 2 * 1024 * 1024      # the end of a run: summaries and run.json (~50 kB), the report's metrics
-RESERVE_NAME = ".reserved"
-
-
-def disk_full(exc: BaseException) -> bool:
-    """Whether ``exc`` says the disk (or a quota) is full."""
-    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
-
-
-def write_json(path: Path, data, indent: int = 2) -> None:
-    """``data`` as JSON to ``path``, whole or not at all; OSError as it comes (the old
-    file, if any, stays)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=indent)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+RESERVE_BYTES = 1024 * 1024          # each of the two: the nodes' summaries; run.json (~50 kB) and the report
 
 
 class DiskReserve:
@@ -46,12 +25,17 @@ class DiskReserve:
     does not fit, ``held`` is False and ``error`` says why: the run is refused before
     anything starts (it could not record its end)."""
 
-    def __init__(self, directory: Path, size: int = RESERVE_BYTES):
-        self.path = Path(directory) / RESERVE_NAME
+    def __init__(self, directory: Path, name: str, size: int = RESERVE_BYTES):
+        self.path = Path(directory) / f".reserved-{name}"
         self.held, self.error = False, ""
         try:
             with open(self.path, "wb") as fh:
-                fh.write(b"\0" * size)
+                try:                         # blocks allocated: zeros alone reserve nothing where they compress
+                    os.posix_fallocate(fh.fileno(), 0, size)
+                except OSError as exc:
+                    if disk_full(exc):
+                        raise
+                    fh.write(b"\0" * size)  # a filesystem without fallocate
                 fh.flush()
                 os.fsync(fh.fileno())
             self.held = True

@@ -23,7 +23,6 @@ activates itself.
 
 from __future__ import annotations
 
-import json
 from dataclasses import fields
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -35,8 +34,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from pkm_common.files import write_summary
 from pkm_common.causes import TripCause
-from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, publisher_names
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
+                                    publisher_names)
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -165,9 +166,13 @@ class ControllerNode(LifecycleNode):
 
     # ------------------------------------------------ the loop's ports (node_loop)
     def input_publishers(self, topic: str) -> list[str]:
-        """The nodes publishing ``topic``: an input of this node, or another's (goal, program)."""
-        name = self.inputs[topic].topic_name if topic in self.inputs else self.resolve_topic_name(topic)
-        return publisher_names(self.get_publishers_info_by_topic(name))
+        return publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))
+
+    def topic_senders(self, topic: str) -> tuple[list[str], int]:
+        """(node names, unnamed publishers) of ``topic``: an input of this node, or
+        another's (goal, program); a graph that cannot be asked refuses (fails closed)."""
+        return graph_senders(self, self.inputs[topic].topic_name if topic in self.inputs
+                             else self.resolve_topic_name(topic))
 
     def resend_command(self, command: bytes) -> None:
         self.pub_command.publish(command)        # not tapped: the bag holds one per stamp
@@ -196,8 +201,7 @@ class ControllerNode(LifecycleNode):
             self.tap.close()
         path = getattr(self, "values", {}).get("summary_path")
         if path and self.loop is not None:
-            with open(path, "w", encoding="utf-8") as fh:
-                json.dump(self.loop.summary(), fh, indent=2)
+            write_summary(path, self.loop.summary(), self.get_logger().error)
         return super().destroy_node()
 
 

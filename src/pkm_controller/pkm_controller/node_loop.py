@@ -11,7 +11,9 @@ message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop
 (latched true: the drives brake), ``after_cycle()`` (the end of an answer: the
 recording tap's moment to flush), ``input_publishers(topic)`` (the full names of the nodes
 publishing an input topic, one per publisher), ``log_info(text)`` and
-``log_error(text)``.
+``log_error(text)``, ``topic_senders(topic)`` (the node names publishing a command
+topic and the count of publishers without a known node; a failed graph query answers
+a name no run allows).
 
 Its inputs have one source each, as the plant's commands do (pkm_common.sources):
 ``drives/state`` comes from ``state_source`` (pkm-run: the run's sim_hw) and the
@@ -27,7 +29,9 @@ override and ``run/start`` from ``operator_sources`` (pkm-run, the panel, the no
 scenario names), and so the planner's ``goal`` and ``program``, which it watches. A command while another node publishes on its topic is refused,
 recorded on controller/events with the intruder's name (``intruder`` key; the replay
 skips it: nothing was applied) and counted; during a motion the machine stops (cause
-intruder), at the command or at the next check of the graph.
+intruder), at the command or at a check of the graph (one topic every
+``SOURCE_CHECK_S`` / 2, in turn). A publisher the graph knows no node of is refused,
+without a stop (a node's name can come a moment after its endpoint).
 """
 
 from __future__ import annotations
@@ -96,7 +100,9 @@ class ControllerLoop:
             # the planner's inputs, watched during a motion (the planner refuses their messages)
             ("goal", operators, "operator_sources"), ("program", operators, "operator_sources"))}
         self.commands_refused = {}      # topic -> commands refused (an intruder on it)
+        self.command_intruder = ""      # who published a command it may not (the source checks go on)
         self.commands_checked = 0.0     # monotonic time of the last check during a motion
+        self.next_command_check = 0     # the command topics are checked one at a time, in turn
         self.sources = [SourceGate("drives/state", values["state_source"], "state_source")]
         if strategy.uses_metrology:
             self.sources.append(SourceGate(strategy.metrology_topic, values["metrology_source"], "metrology_source"))
@@ -180,27 +186,32 @@ class ControllerLoop:
         gate = self.commands[topic]
         if not gate.allowed:
             return True
-        found = gate.check(self.ports.input_publishers(topic))
+        found = gate.check(*self.ports.topic_senders(topic))
         if found is None:
             return True
-        self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
-        self.intruder = self.intruder or found.sender
         if action is not None:
+            self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
             self.report([{"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
-                          "intruder": found.sender, "after_ns": self.last_answer[0]}])
-        else:
-            self.ports.log_error(f"{topic} refused: {found.reason}")
+                          "intruder": found.sender or "unnamed", "after_ns": self.last_answer[0]}])
+        if not found.sender:             # a publisher the graph cannot name yet: refused, no stop
+            return False
+        if not self.command_intruder:
+            self.command_intruder = found.sender
+            self.ports.log_error(f"{topic}: {found.reason}")
         if self.active and not self.core.stopped and self.core.mode == "tracking":
             self.safe_stop(found.reason, TripCause.INTRUDER)
         return False
 
     def check_commands(self) -> None:
-        """During a motion, every ``SOURCE_CHECK_S``: a node publishing a command topic
-        it may not stops the machine (it is commanding while the machine moves)."""
+        """During a motion: a node publishing a command topic it may not stops the
+        machine (it commands while the machine moves). One topic per call, in turn
+        (a graph query each; called every SOURCE_CHECK_S / 2)."""
         self.commands_checked = time.monotonic()
-        for topic, gate in self.commands.items():
-            if gate.allowed and not self.commanded(topic, None):
-                return
+        gates = [topic for topic, gate in self.commands.items() if gate.allowed]
+        if gates:
+            topic = gates[self.next_command_check % len(gates)]
+            self.next_command_check += 1
+            self.commanded(topic, None)
 
     def operator(self, action: Action, payload) -> None:
         """A trajectory, feed override or settings change (operator.py): applied at once
@@ -259,7 +270,7 @@ class ControllerLoop:
                 time.monotonic() - self.sources_checked >= SOURCE_CHECK_S:
             self.check_sources()
         if self.active and not self.core.stopped and self.core.mode == "tracking" and \
-                time.monotonic() - self.commands_checked >= SOURCE_CHECK_S:
+                time.monotonic() - self.commands_checked >= 0.5 * SOURCE_CHECK_S:
             self.check_commands()
         if not self.active or self.core.stopped or self.run_ended:
             return
@@ -340,5 +351,5 @@ class ControllerLoop:
     def summary(self) -> dict:
         """The run's summary file (configuration.run_summary) and the answers sent again."""
         return {**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
-                "commands_resent": self.commands_resent, "intruder": self.intruder,
+                "commands_resent": self.commands_resent, "intruder": self.intruder or self.command_intruder,
                 "commands_refused": dict(self.commands_refused)}

@@ -20,7 +20,6 @@ Run: ``python -m pkm_gough_sensor.gough_sensor_node --ros-args -r __ns:=/pkm
 
 from __future__ import annotations
 
-import json
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -29,6 +28,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from pkm_common.files import write_summary
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
 from pkm_common.node_tap import NodeTap
@@ -109,8 +109,8 @@ class GoughSensorNode(Node):
 
     def destroy_node(self):
         if getattr(self, 'summary_path', '') and hasattr(self, 'published'):
-            with open(self.summary_path, 'w', encoding='utf-8') as fh:
-                json.dump({**self.counts, 'published': self.published}, fh, indent=2)
+            write_summary(self.summary_path, {**self.counts, 'published': self.published},
+                          self.get_logger().error)
         if hasattr(self, 'tap'):
             self.tap.close()
         return super().destroy_node()

@@ -54,6 +54,8 @@ def parse_yaml(text: str, where: str):
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise YamlFileError(where, f"invalid YAML: {exc}") from None
+    except RecursionError:
+        raise YamlFileError(where, "nested too deep") from None
     if expanded_size(data) > MAX_NODES:
         raise YamlFileError(where, f"more than {MAX_NODES} values once its aliases are expanded (an alias bomb?)")
     return data

@@ -41,7 +41,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from pkm_common.conversions import diagnostic_array, diagnostic_status, line_list_markers, ns_to_stamp, publisher_names
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, line_list_markers,
+                                    ns_to_stamp, publisher_names)
 from pkm_common.node_tap import NodeTap
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -112,8 +113,8 @@ class SimHwNode(Node):
     def report_refusal(self, refusal, topic: str, text: str, plant_step: int, now_ns: int) -> None:
         self.refusals.report(refusal, topic, text, plant_step, now_ns)
 
-    def load_publishers(self) -> list[str]:
-        return publisher_names(self.get_publishers_info_by_topic(self.load_sub.topic_name))
+    def load_senders(self) -> tuple[list[str], int]:
+        return graph_senders(self, self.load_sub.topic_name)
 
     def command_publishers(self) -> list[str]:
         """Full names of the nodes publishing drives/command, one per publisher (the

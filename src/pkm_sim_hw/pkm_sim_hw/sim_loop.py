@@ -8,7 +8,8 @@ end. It works on the messages' bytes (pkm_common.cdr) and hands what goes out to
 ``publish_markers(segments, stamp_ns)``, ``report_refusal(refusal, topic, text,
 plant_step, now_ns)`` (drives/refused and the rate-limited log),
 ``command_publishers()`` (the full names of the nodes publishing drives/command, as
-the graph knows them), ``load_publishers()`` (the same of ``load``), ``after_cycle()`` (the recording tap's flush point),
+the graph knows them), ``load_senders()`` (the names and the unnamed count of ``load``'s
+publishers), ``after_cycle()`` (the recording tap's flush point),
 ``run_finished()`` (the last step is done: end the process, or let the executor
 drain), ``log_info(text)`` and ``log_error(text)``.
 """
@@ -21,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder
+from pkm_common.files import write_summary as write_summary_file
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
 
@@ -177,8 +179,7 @@ class SimLoop:
 
     def write_summary(self) -> None:
         if self.summary_path:
-            with open(self.summary_path, "w", encoding="utf-8") as fh:
-                json.dump(self.summary(), fh, indent=2)
+            write_summary_file(self.summary_path, self.summary(), self.ports.log_error)
 
     def finish(self) -> None:
         """The run is complete: diagnostics, summary, then the node ends the run."""
@@ -215,10 +216,10 @@ class SimLoop:
         """An external load (a simulation input): from the nodes the run names
         (``load_sources``), within its bounds; else refused and the machine stopped."""
         senders = self.load_senders
-        found = senders.check(self.ports.load_publishers()) if senders.allowed else None
-        if found is not None:
-            self.run.intruder = self.run.intruder or found.sender
-            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender), topic="load")
+        found = senders.check(*self.ports.load_senders()) if senders.allowed else None
+        if found is not None:                      # an unnamed sender's: not applied, no stop (a name comes late)
+            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender, stop=bool(found.sender)),
+                        topic="load")
             return
         try:
             self.plant.set_load(self.plant.load_components(force, moment))

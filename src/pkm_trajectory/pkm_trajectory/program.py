@@ -26,6 +26,9 @@ _POINT = {"X": 0, "Y": 1, "Z": 2}    # a move's target (x, y, z)
 _ANGLE = {"A": 0, "B": 1, "C": 2}    # a move's angles (A, B, C)
 
 
+MAX_SEGMENTS = 1_000_000     # a program's segments, repeats included (trajectory_node's max_segments is below)
+
+
 def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_override: float = 1.0,
                      scale: float = 1.0, repeat: int = 1) -> list:
     """Segments of a parsed program starting at ``start_pose`` (task coordinates of ``space``)."""
@@ -92,6 +95,8 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
                     sweep = (a1 - a0) % (2.0 * math.pi)
             segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed, line=move.line))
         pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
+    if len(segments) * repeat > MAX_SEGMENTS:       # before the list is made (a 1 MB program x 10,000)
+        raise ValueError(f"repeat: {len(segments)} segments x {repeat} exceed {MAX_SEGMENTS} segments")
     if repeat > 1:
         if max(abs(a - b) for a, b in zip(pose, origin)) > 1e-9:
             raise ValueError(f"repeat: the program ends at {pose}, not at its start {origin}: "

@@ -21,8 +21,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, pose_from_msg, tool_pose_to_machine,
-                                    publisher_names, trajectory_msg)
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, pose_from_msg,
+                                    tool_pose_to_machine, trajectory_msg)
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -98,13 +98,14 @@ class TrajectoryNode(Node):
         """A goal or program while a node the run did not name publishes on its topic:
         refused, reported with its name (diagnostics, recorded), counted."""
         gate = self.gates[topic]
-        found = gate.check(publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))) \
-            if gate.allowed else None
+        if not gate.allowed:
+            return False
+        found = gate.check(*graph_senders(self, self.inputs[topic].topic_name))
         if found is None:
             return False
         self.refused_senders += 1
         self.get_logger().error(f"{topic} refused: {found.reason}")
-        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender})
+        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender or "unnamed"})
         return True
 
     def on_goal(self, msg: PoseStamped) -> None:
