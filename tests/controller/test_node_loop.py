@@ -100,8 +100,10 @@ def trajectory_bytes(seconds: float = 1.0) -> bytes:
     home = list(ARCHI.model.home)
     samples = plan([Line(tuple(home), (home[0] + 0.01, *home[1:]), speed=0.01 / seconds)],
                    Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), 1000.0, translation_axes=2)
-    return serialize_message(trajectory_msg(ARCHI.model.task_space, samples.time_s, samples.position,
-                                            samples.velocity, samples.acceleration))
+    msg = trajectory_msg(ARCHI.model.task_space, samples.time_s, samples.position, samples.velocity,
+                         samples.acceleration)
+    msg.header.stamp.sec = 7                     # the planner's stamp: the verdict names it
+    return serialize_message(msg)
 
 
 def commanded_loop(ports):
@@ -154,6 +156,7 @@ def test_a_command_is_taken_again_once_the_rogue_is_gone_and_refused_while_a_pub
     loop.on_trajectory(trajectory_bytes())
     loop.on_state(state(1_000_000))                # applied after the next answer
     assert events[-1]["kind"] == "trajectory" and events[-1]["ok"] and loop.core.mode == "tracking"
+    assert events[-1]["stamp_ns"] == 7_000_000_000 and events[-2]["stamp_ns"] == 7_000_000_000
 
 
 def check_every_command_topic(loop) -> None:

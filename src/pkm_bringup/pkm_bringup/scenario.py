@@ -547,7 +547,8 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
                                "program_file": str(s.program or ""),
-                               "operator_sources": ",".join(operator_names(s))}
+                               "operator_sources": ",".join(operator_names(s)),
+                               "controller_source": controller_node_name(s)}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
         # (pkm_common.tap) instead of a delivery per message to one more process

@@ -40,7 +40,7 @@ import time
 
 from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
-                            decode_pose_stamped, in_order)
+                            decode_pose_stamped, in_order, stamp_ns_of)
 from pkm_common.conversions import machine_pose_components
 from pkm_common.sources import AllowedSenders, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
@@ -164,13 +164,15 @@ class ControllerLoop:
     def on_trajectory(self, buf: bytes) -> None:
         """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
         trajectory would hold the loop for tens of milliseconds."""
-        if not self.commanded("trajectory", Action.TRAJECTORY):
+        if not self.commanded("trajectory", Action.TRAJECTORY, buf):
             return
         try:
-            ref = reference_from_trajectory(decode_multidof_trajectory(buf), self.core.model.task_space)
+            data = decode_multidof_trajectory(buf)
+            ref = reference_from_trajectory(data, self.core.model.task_space)
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
             self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return
+        ref.stamp_ns = data.stamp_ns   # its verdict names it (the planner's plan_chain)
         self.operator(Action.TRAJECTORY, ref)
 
     def on_command(self, topic: str, action: Action, payload) -> None:
@@ -179,7 +181,7 @@ class ControllerLoop:
         if self.commanded(topic, action):
             self.operator(action, payload)
 
-    def commanded(self, topic: str, action: Action | None) -> bool:
+    def commanded(self, topic: str, action: Action | None, buf: bytes = b"") -> bool:
         """Whether a command on ``topic`` may be taken: every publisher of it allowed.
         Else it is refused (recorded, counted; ``action`` None: no event) and, during a
         motion, the machine stops."""
@@ -191,8 +193,11 @@ class ControllerLoop:
             return True
         if action is not None:
             self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
-            self.report([{"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
-                          "intruder": found.sender or "unnamed", "after_ns": self.last_answer[0]}])
+            event = {"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
+                     "intruder": found.sender or "unnamed", "after_ns": self.last_answer[0]}
+            if len(buf) >= 12:         # a trajectory's stamp: the planner matches its verdicts by it
+                event["stamp_ns"] = stamp_ns_of(buf)
+            self.report([event])
         if not found.sender:             # a publisher the graph cannot name yet: refused, no stop
             return False
         if not self.command_intruder:

@@ -27,6 +27,7 @@ class Reference:
     def __init__(self, time_s, position, velocity=None, acceleration=None):
         t = np.asarray(time_s, dtype=float)
         x = np.asarray(position, dtype=float)
+        self.stamp_ns = None           # the trajectory message's header stamp, when it came as one
         if t.ndim != 1 or t.size < 1 or x.ndim != 2 or x.shape[0] != t.size or x.shape[1] not in (3, 6):
             raise ValueError(f"trajectory: expected N times and N x 3 (or N x 6) positions, got shapes "
                              f"{t.shape}, {x.shape}")

@@ -1,7 +1,7 @@
 """Where trajectory_node's next plan starts (pure, no rclpy): the end of the last
 trajectory the controller accepted, not of the last one published. The controller
 judges each trajectory on ``controller/events`` (a JSON record of kind "trajectory",
-ok or refused), in the order it received them. Before, a refused goal still moved the
+ok or refused, naming the trajectory by its header stamp). Before, a refused goal still moved the
 planner's pose to its end: the next plan started where the machine was not, and inside
 the start tolerance the reference jumped to it in one step."""
 
@@ -15,16 +15,18 @@ __all__ = ["PlanChain", "trajectory_verdict"]
 PENDING_MAX = 64          # trajectories published and not judged yet (the controller judges each in a cycle)
 
 
-def trajectory_verdict(text: str) -> bool | None:
+def trajectory_verdict(text: str) -> tuple[bool, int | None] | None:
     """The controller's verdict on a trajectory from one controller/events record:
-    True accepted, False refused, None for any other record (or one not readable)."""
+    (accepted, the trajectory's header stamp or None), None for any other record (or
+    one not readable)."""
     try:
         event = json.loads(text)
     except ValueError:
         return None
     if not isinstance(event, dict) or event.get("kind") != "trajectory":
         return None
-    return bool(event.get("ok"))
+    stamp = event.get("stamp_ns")
+    return bool(event.get("ok")), stamp if isinstance(stamp, int) else None
 
 
 class PlanChain:
@@ -38,17 +40,28 @@ class PlanChain:
         self.pending: collections.deque = collections.deque(maxlen=PENDING_MAX)
 
     def start(self) -> list:
-        return list(self.pending[-1] if self.pending else self.accepted)
+        return list(self.pending[-1][1] if self.pending else self.accepted)
 
-    def published(self, end) -> None:
-        self.pending.append([float(v) for v in end])
+    def published(self, end, stamp_ns: int | None = None) -> None:
+        """A trajectory published, ending at ``end``; ``stamp_ns`` its header stamp, which
+        the controller's verdict names."""
+        self.pending.append((stamp_ns, [float(v) for v in end]))
 
-    def verdict(self, ok: bool) -> bool:
-        """The controller judged the oldest pending trajectory; False when none was
-        pending (a verdict on someone else's, or replayed from before this planner)."""
-        if not self.pending:
+    def verdict(self, ok: bool, stamp_ns: int | None = None) -> bool:
+        """The controller judged the trajectory stamped ``stamp_ns`` (None: the oldest
+        pending). The ones published before it and never judged were replaced on the
+        latched topic before the controller read them: dropped. False when it is none of
+        ours (someone else's, or replayed from before this planner)."""
+        stamps = [s for s, _ in self.pending]
+        if stamp_ns is None:
+            k = 0 if self.pending else -1
+        else:
+            k = stamps.index(stamp_ns) if stamp_ns in stamps else -1
+        if k < 0:
             return False
-        end = self.pending.popleft()
+        end = self.pending[k][1]
+        for _ in range(k + 1):
+            self.pending.popleft()
         if ok:
             self.accepted = end
         else:

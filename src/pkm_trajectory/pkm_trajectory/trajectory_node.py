@@ -76,7 +76,10 @@ class TrajectoryNode(Node):
         self.refused_senders = 0
         self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS),
                        "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS)}
-        self.create_subscription(String, "controller/events", self.on_event, EVENTS_QOS)
+        self.controller = AllowedSenders("controller/events", node_names(declare_str(
+            self, "controller_source", "", "the controller's full node name: its verdicts move where plans start "
+            "(empty: anyone's)", allow_empty=True)), "controller_source")
+        self.events_sub = self.create_subscription(String, "controller/events", self.on_event, EVENTS_QOS)
         if program_file:
             self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
 
@@ -87,7 +90,15 @@ class TrajectoryNode(Node):
 
     def on_event(self, msg: String) -> None:
         verdict = trajectory_verdict(msg.data)
-        if verdict is not None and self.chain.verdict(verdict) and not verdict:
+        if verdict is None:
+            return
+        if self.controller.allowed:       # a verdict only from the run's controller (names only)
+            found = self.controller.check(graph_senders(self, self.events_sub.topic_name)[0])
+            if found is not None:
+                self.get_logger().error(f"verdict ignored: {found.reason}")
+                return
+        ok, stamp_ns = verdict
+        if self.chain.verdict(ok, stamp_ns) and not ok:
             self.get_logger().warning(f"the controller refused the trajectory: plans start at {self.pose} again")
 
     def _options(self):
@@ -135,8 +146,9 @@ class TrajectoryNode(Node):
             self.get_logger().error(f"{source} rejected: {exc}")
             self.report(2, f"{source} rejected: {exc}", {})
             return
-        self.pub.publish(self.to_msg(samples))
-        self.chain.published(samples.position[-1].tolist())
+        msg = self.to_msg(samples)
+        self.pub.publish(msg)
+        self.chain.published(samples.position[-1].tolist(), msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
         self.accepted += 1
         self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
