@@ -46,7 +46,7 @@ class Ports:
         return list(self.publishers)
 
     def load_senders(self):
-        return list(self.loads), 0
+        return list(self.loads)
 
     def after_cycle(self):
         pass

@@ -182,8 +182,7 @@ class RecorderNode(Node):
         return bool(publishers) and publishers <= tapping
 
     def on_tap(self, buf: bytes) -> None:
-        # names only: a tapped node's endpoint is seen before its name at start (its batches would be lost)
-        found = self.tap_senders.check(graph_senders(self, self.tap_topic)[0]) if self.tap_senders.allowed else None
+        found = self.tap_senders.check(graph_senders(self, self.tap_topic)) if self.tap_senders.allowed else None
         if found is not None:
             self.tap_forged += 1
             if self.tap_forged == 1:

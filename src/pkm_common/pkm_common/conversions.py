@@ -285,21 +285,15 @@ def line_list_markers(segments, stamp, frame_id: str = "world", ns: str = "legs"
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"     # an endpoint discovered before its node's name
 
 
-def unnamed_publishers(infos) -> int:
-    """How many of ``get_publishers_info_by_topic``'s entries have no node name yet (or
-    never: a plain DDS writer)."""
-    return sum(i.node_name == UNKNOWN_NODE for i in infos)
-
-
-def graph_senders(node, topic_name: str) -> tuple[list[str], int]:
-    """(node names, unnamed publishers) of the resolved ``topic_name`` as ``node`` sees
-    the graph (sources.AllowedSenders.check's arguments); a graph that cannot be asked
-    answers a name no run allows (the check fails closed)."""
+def graph_senders(node, topic_name: str) -> list[str]:
+    """The node names publishing the resolved ``topic_name`` as ``node`` sees the graph
+    (sources.AllowedSenders.check's argument); a graph that cannot be asked answers a
+    name no run allows (the check fails closed)."""
     try:
         infos = node.get_publishers_info_by_topic(topic_name)
     except Exception as exc:                # noqa: BLE001 - rclpy's RCLError on a closing context
-        return [f"<the graph could not be asked: {type(exc).__name__}>"], 0
-    return publisher_names(infos), unnamed_publishers(infos)
+        return [f"<the graph could not be asked: {type(exc).__name__}>"]
+    return publisher_names(infos)
 
 
 def publisher_names(infos) -> list[str]:

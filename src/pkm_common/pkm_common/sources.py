@@ -89,20 +89,16 @@ class AllowedSenders:
         self.topic, self.parameter = topic, parameter
         self.allowed = frozenset(allowed)
 
-    def check(self, publishers: list[str], unnamed: int = 0) -> Intrusion | None:
-        """The nodes publishing ``topic`` (``unnamed``: endpoints the graph knows no node
-        of yet, or a DDS writer that never says one): any publisher not allowed is an
-        intruder, named; an unnamed one is refused too (its ``sender`` is empty: the
-        controller does not stop the machine for it, a legitimate node's name can come
-        a moment after its endpoint)."""
+    def check(self, publishers: list[str]) -> Intrusion | None:
+        """The nodes publishing ``topic`` (named: conversions.graph_senders): any not
+        allowed is an intruder, named. An endpoint the graph knows no node of is not
+        counted: at start-up a legitimate node's endpoints are seen before its name, and
+        refusing them lost a run's latched trajectory under load (a DDS writer that never
+        names a node, like a spoofed name, is what a credential would catch)."""
         if not self.allowed:
             return None
         others = sorted({p for p in publishers if p not in self.allowed})
-        allowed = ", ".join(sorted(self.allowed))
-        if others:
-            return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {allowed} may: {self.parameter})",
-                             ", ".join(others))
-        if unnamed:
-            return Intrusion(f"{unnamed} publisher(s) of no known node on {self.topic} (only {allowed} may: "
-                             f"{self.parameter}); try again once the graph names it")
-        return None
+        if not others:
+            return None
+        return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {', '.join(sorted(self.allowed))} "
+                         f"may: {self.parameter})", ", ".join(others))

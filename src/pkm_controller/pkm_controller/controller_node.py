@@ -168,8 +168,8 @@ class ControllerNode(LifecycleNode):
     def input_publishers(self, topic: str) -> list[str]:
         return publisher_names(self.get_publishers_info_by_topic(self.inputs[topic].topic_name))
 
-    def topic_senders(self, topic: str) -> tuple[list[str], int]:
-        """(node names, unnamed publishers) of ``topic``: an input of this node, or
+    def topic_senders(self, topic: str) -> list[str]:
+        """The node names publishing ``topic``: an input of this node, or
         another's (goal, program); a graph that cannot be asked refuses (fails closed)."""
         return graph_senders(self, self.inputs[topic].topic_name if topic in self.inputs
                              else self.resolve_topic_name(topic))

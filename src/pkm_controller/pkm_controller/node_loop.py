@@ -12,8 +12,7 @@ message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop
 recording tap's moment to flush), ``input_publishers(topic)`` (the full names of the nodes
 publishing an input topic, one per publisher), ``log_info(text)`` and
 ``log_error(text)``, ``topic_senders(topic)`` (the node names publishing a command
-topic and the count of publishers without a known node; a failed graph query answers
-a name no run allows).
+topic; a failed graph query answers a name no run allows).
 
 Its inputs have one source each, as the plant's commands do (pkm_common.sources):
 ``drives/state`` comes from ``state_source`` (pkm-run: the run's sim_hw) and the
@@ -30,8 +29,8 @@ scenario names), and so the planner's ``goal`` and ``program``, which it watches
 recorded on controller/events with the intruder's name (``intruder`` key; the replay
 skips it: nothing was applied) and counted; during a motion the machine stops (cause
 intruder), at the command or at a check of the graph (one topic every
-``SOURCE_CHECK_S`` / 2, in turn). A publisher the graph knows no node of is refused,
-without a stop (a node's name can come a moment after its endpoint).
+``SOURCE_CHECK_S`` / 2, in turn). A publisher the graph knows no node of is not
+counted (sources.AllowedSenders.check says why).
 """
 
 from __future__ import annotations
@@ -188,18 +187,16 @@ class ControllerLoop:
         gate = self.commands[topic]
         if not gate.allowed:
             return True
-        found = gate.check(*self.ports.topic_senders(topic))
+        found = gate.check(self.ports.topic_senders(topic))
         if found is None:
             return True
         if action is not None:
             self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
             event = {"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
-                     "intruder": found.sender or "unnamed", "after_ns": self.last_answer[0]}
+                     "intruder": found.sender, "after_ns": self.last_answer[0]}
             if len(buf) >= 12:         # a trajectory's stamp: the planner matches its verdicts by it
                 event["stamp_ns"] = stamp_ns_of(buf)
             self.report([event])
-        if not found.sender:             # a publisher the graph cannot name yet: refused, no stop
-            return False
         if not self.command_intruder:
             self.command_intruder = found.sender
             self.ports.log_error(f"{topic}: {found.reason}")

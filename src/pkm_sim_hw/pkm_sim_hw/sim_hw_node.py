@@ -113,7 +113,7 @@ class SimHwNode(Node):
     def report_refusal(self, refusal, topic: str, text: str, plant_step: int, now_ns: int) -> None:
         self.refusals.report(refusal, topic, text, plant_step, now_ns)
 
-    def load_senders(self) -> tuple[list[str], int]:
+    def load_senders(self) -> list[str]:
         return graph_senders(self, self.load_sub.topic_name)
 
     def command_publishers(self) -> list[str]:

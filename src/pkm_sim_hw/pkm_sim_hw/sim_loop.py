@@ -8,8 +8,7 @@ end. It works on the messages' bytes (pkm_common.cdr) and hands what goes out to
 ``publish_markers(segments, stamp_ns)``, ``report_refusal(refusal, topic, text,
 plant_step, now_ns)`` (drives/refused and the rate-limited log),
 ``command_publishers()`` (the full names of the nodes publishing drives/command, as
-the graph knows them), ``load_senders()`` (the names and the unnamed count of ``load``'s
-publishers), ``after_cycle()`` (the recording tap's flush point),
+the graph knows them), ``load_senders()`` (the same of ``load``), ``after_cycle()`` (the recording tap's flush point),
 ``run_finished()`` (the last step is done: end the process, or let the executor
 drain), ``log_info(text)`` and ``log_error(text)``.
 """
@@ -216,10 +215,9 @@ class SimLoop:
         """An external load (a simulation input): from the nodes the run names
         (``load_sources``), within its bounds; else refused and the machine stopped."""
         senders = self.load_senders
-        found = senders.check(*self.ports.load_senders()) if senders.allowed else None
-        if found is not None:                      # an unnamed sender's: not applied, no stop (a name comes late)
-            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender, stop=bool(found.sender)),
-                        topic="load")
+        found = senders.check(self.ports.load_senders()) if senders.allowed else None
+        if found is not None:
+            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender), topic="load")
             return
         try:
             self.plant.set_load(self.plant.load_components(force, moment))

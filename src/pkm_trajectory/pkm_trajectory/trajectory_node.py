@@ -93,7 +93,7 @@ class TrajectoryNode(Node):
         if verdict is None:
             return
         if self.controller.allowed:       # a verdict only from the run's controller (names only)
-            found = self.controller.check(graph_senders(self, self.events_sub.topic_name)[0])
+            found = self.controller.check(graph_senders(self, self.events_sub.topic_name))
             if found is not None:
                 self.get_logger().error(f"verdict ignored: {found.reason}")
                 return
@@ -111,12 +111,12 @@ class TrajectoryNode(Node):
         gate = self.gates[topic]
         if not gate.allowed:
             return False
-        found = gate.check(*graph_senders(self, self.inputs[topic].topic_name))
+        found = gate.check(graph_senders(self, self.inputs[topic].topic_name))
         if found is None:
             return False
         self.refused_senders += 1
         self.get_logger().error(f"{topic} refused: {found.reason}")
-        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender or "unnamed"})
+        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender})
         return True
 
     def on_goal(self, msg: PoseStamped) -> None:
