@@ -29,7 +29,7 @@ scenario names), and so the planner's ``goal`` and ``program``, which it watches
 recorded on controller/events with the intruder's name (``intruder`` key; the replay
 skips it: nothing was applied) and counted; during a motion the machine stops (cause
 intruder), at the command or at a check of the graph (one topic every
-``SOURCE_CHECK_S`` / 2, in turn). A publisher the graph knows no node of is not
+``COMMAND_CHECK_S``, in turn). A publisher the graph knows no node of is not
 counted (sources.AllowedSenders.check says why).
 """
 
@@ -51,9 +51,10 @@ from .operator import Action, OperatorInbox, apply_action, event_json, event_sum
 from .reference import reference_from_trajectory
 from .strategies import Feedback
 
-__all__ = ["ControllerLoop", "SOURCE_CHECK_S"]
+__all__ = ["COMMAND_CHECK_S", "ControllerLoop", "SOURCE_CHECK_S"]
 
 SOURCE_CHECK_S = 0.1            # how often the graph is asked who publishes the inputs
+COMMAND_CHECK_S = 0.025         # during a motion, one command topic asked this often (all six in 0.15 s)
 
 
 class ControllerLoop:
@@ -207,7 +208,7 @@ class ControllerLoop:
     def check_commands(self) -> None:
         """During a motion: a node publishing a command topic it may not stops the
         machine (it commands while the machine moves). One topic per call, in turn
-        (a graph query each; called every SOURCE_CHECK_S / 2)."""
+        (a graph query each; called every COMMAND_CHECK_S)."""
         self.commands_checked = time.monotonic()
         gates = [topic for topic, gate in self.commands.items() if gate.allowed]
         if gates:
@@ -272,7 +273,7 @@ class ControllerLoop:
                 time.monotonic() - self.sources_checked >= SOURCE_CHECK_S:
             self.check_sources()
         if self.active and not self.core.stopped and self.core.mode == "tracking" and \
-                time.monotonic() - self.commands_checked >= 0.5 * SOURCE_CHECK_S:
+                time.monotonic() - self.commands_checked >= COMMAND_CHECK_S:
             self.check_commands()
         if not self.active or self.core.stopped or self.run_ended:
             return
