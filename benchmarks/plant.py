@@ -24,6 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from pkm_common.files import summary_written
 from pkm_bringup.processes import ros_environment
 from pkm_kinematics import load_machine
 
@@ -67,7 +68,7 @@ def run(machine: str, with_sensor: bool, duration_s: float) -> dict:
         if not (tmp / "sim.json").exists():
             raise RuntimeError("sim_hw did not finish:\n" + (tmp / "sim.log").read_text()[-2000:])
         sim_summary = json.loads((tmp / "sim.json").read_text())
-        ctrl_summary = json.loads((tmp / "ctrl.json").read_text()) if (tmp / "ctrl.json").exists() else {}
+        ctrl_summary = json.loads((tmp / "ctrl.json").read_text()) if summary_written(tmp / "ctrl.json") else {}
     return {"sim": sim_summary, "ctrl": ctrl_summary}
 
 

@@ -605,4 +605,9 @@ def test_run_json_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
     assert files.disk_full(OSError(errno.ENOSPC, "full")) and not files.disk_full(OSError(errno.EIO, "io"))
     # a node's summary on a full disk: logged, never raised into the node's end
     errors = []
-    assert files.write_summary(path, {"x": 1}, errors.append) is False and "No space left" in errors[0]
+    assert files.write_summary(tmp_path / "new.json", {"x": 1}, errors.append) is False and "No space" in errors[0]
+    # ... or written into the blocks it reserved at start, which a full disk cannot take
+    monkeypatch.undo()
+    summary = tmp_path / "sim_hw.json"
+    assert files.reserve_file(summary, 4096) and summary.stat().st_size == 4096 and not files.summary_written(summary)
+    assert files.write_summary(summary, {"steps": 3}, errors.append) and json.loads(summary.read_text()) == {"steps": 3}

@@ -44,7 +44,7 @@ from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controll
                                   load_scenario, node_parameters, params_file_text)
 from pkm_bringup.run_files import DiskReserve
 from pkm_common.causes import TripCause, parse_cause, run_status
-from pkm_common.files import disk_full, write_json
+from pkm_common.files import disk_full, summary_written, write_json
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 
 # start order; the stop order is the reverse of the run order with the recorder last
@@ -368,7 +368,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                 raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
             executor.spin_once(timeout_sec=0.02)
             progress.update(monitor.sim_time_s)
-            if finished_wall == math.inf and (monitor.sim_finished or sim_summary.exists()):
+            if finished_wall == math.inf and (monitor.sim_finished or summary_written(sim_summary)):
                 finished_wall = time.monotonic()
         progress.update(s.duration_s)
         if "recorder" in nodes:       # the loop is over: its idle priority would starve the last batches
@@ -661,7 +661,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
     except (OSError, ValueError) as exc:
         return {"error": f"bag could not be recovered: {exc}"}
     summary_path = run_dir / "summaries" / "recorder.json"
-    if not summary_path.exists():             # the recorder was killed: count what the bag kept
+    if not _read_json(summary_path):          # the recorder was killed (its reserved file holds zeros): the bag's count
         from rosbags.highlevel import AnyReader
         last: dict[str, int] = {}
         steps: dict[str, int] = {}

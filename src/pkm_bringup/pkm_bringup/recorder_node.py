@@ -40,7 +40,7 @@ from std_msgs.msg import UInt8MultiArray
 from pkm_bringup.bag import BagWriter
 from pkm_bringup.recording import lower_cpu_priority, message_class, qos_dict, subscription_qos
 from pkm_bringup.tap_records import StampCounter
-from pkm_common.files import write_summary
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.conversions import graph_senders
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
@@ -73,6 +73,8 @@ class RecorderNode(Node):
         self.tap_forged = 0                  # batches refused: a node not named published on the tap
         self.ready_file = declare_str(self, "ready_file", "", "touched when ready", allow_empty=True)
         self.summary_path = declare_str(self, "summary_path", "", "JSON counts at exit", allow_empty=True)
+        if self.summary_path:
+            reserve_file(self.summary_path)
         self.depth = declare_int(self, "depth", 1000, 1, 100000, "subscription queue depth")
         flush = declare_float(self, "flush_period_s", 0.5, 0.01, 60.0, "bag flush period", unit="s")
         discovery = declare_float(self, "discovery_period_s", 0.1, 0.01, 10.0, "until ready", unit="s")

@@ -9,7 +9,9 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["disk_full", "write_json", "write_summary"]
+__all__ = ["SUMMARY_BYTES", "disk_full", "reserve_file", "summary_written", "write_json", "write_summary"]
+
+SUMMARY_BYTES = 64 * 1024          # what a node's summary may take, allocated when the node starts
 
 
 def disk_full(exc: BaseException) -> bool:
@@ -33,11 +35,46 @@ def write_json(path, data, indent: int = 2) -> None:
         raise
 
 
-def write_summary(path, data, log_error) -> bool:
-    """A node's summary file (write_json); a disk that cannot take it is logged
-    (``log_error(text)``) and False, never raised into the node's end."""
+def reserve_file(path, size: int = SUMMARY_BYTES) -> bool:
+    """Allocate ``size`` bytes for a file written at the end (a node's summary): a
+    disk that fills up meanwhile (the recorder's bag) cannot take its place. The
+    reserved file holds zeros, which no reader takes for JSON. False where it fails."""
     try:
-        write_json(path, data)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.posix_fallocate(fd, 0, size)
+        finally:
+            os.close(fd)
+    except OSError:
+        return False
+    return True
+
+
+def summary_written(path) -> bool:
+    """Whether the node has written its summary (a reserved one holds zeros until then)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(1) == b"{"
+    except OSError:
+        return False
+
+
+def write_summary(path, data, log_error) -> bool:
+    """A node's summary file: into the blocks ``reserve_file`` allocated when it fits
+    there (then truncated to its length), else whole or not at all (write_json). A
+    disk that cannot take it is logged (``log_error(text)``) and False, never raised
+    into the node's end."""
+    path = Path(path)
+    text = json.dumps(data, indent=2).encode()
+    try:
+        if path.is_file() and path.stat().st_size >= len(text):
+            with open(path, "r+b") as fh:
+                fh.write(text)
+                fh.truncate()
+                fh.flush()
+                os.fsync(fh.fileno())
+        else:
+            write_json(path, data)
     except OSError as exc:
         log_error(f"summary not written: {path}: {exc}")
         return False

@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.files import write_summary
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.causes import TripCause
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
                                     publisher_names)
@@ -95,6 +95,8 @@ class ControllerNode(LifecycleNode):
             self.get_logger().error(f"configure refused: {exc}")
             return TransitionCallbackReturn.FAILURE
         self.values = values
+        if values["summary_path"]:
+            reserve_file(values["summary_path"])    # a disk the bag fills cannot take the summary's place
         loop = self.loop = ControllerLoop(core, values, self)
         strategy = core.strategy
         self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)

@@ -28,7 +28,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from pkm_common.files import write_summary
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
 from pkm_common.node_tap import NodeTap
@@ -67,6 +67,8 @@ class GoughSensorNode(Node):
                                'period of the summary diagnostic', unit='s')
         self.summary_path = declare_str(self, 'summary_path', '', 'write a JSON summary here at exit',
                                         allow_empty=True)
+        if self.summary_path:
+            reserve_file(self.summary_path)     # a disk the bag fills cannot take the summary's place
         config = load_machine(machine)
         if config.metrology is None:
             with_metrology = [n for n in machine_names() if _has_metrology(n)]

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder
-from pkm_common.files import write_summary as write_summary_file
+from pkm_common.files import reserve_file, write_summary as write_summary_file
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
 
@@ -49,6 +49,8 @@ class SimLoop:
         self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
         self.duration_s, self.duration_steps = settings.duration_s, settings.duration_steps
         self.summary_path = settings.summary_path
+        if self.summary_path:
+            reserve_file(self.summary_path)       # a disk the bag fills cannot take the summary's place
         self.streams, self.ports = streams, ports
         self.run = RunRecord(self.config.name, self.lockstep)     # counters, intruder, steps: the summary's
         self.counts = self.run.counts
