@@ -1,11 +1,10 @@
-"""A run directory's files on a disk that may fill up (pure, no rclpy).
-
-A full disk during a run left run.json empty, pkm-run in a traceback, and the nodes'
-summaries empty. ``DiskReserve`` sets space aside when the run starts (allocated
-blocks) and gives it back when it is needed: one when the loop is over, before the
-nodes write their summaries, one before pkm-run writes run.json and the report (the
-recorder's last chunk may take the first); ``write_json`` writes a file whole or not at all (a
-temporary file, then an atomic rename), so a reader never finds half a run.json.
+"""The space a run directory keeps for its end on a disk that may fill up (pure, no
+rclpy). A full disk during a run left run.json empty, pkm-run in a traceback, and the
+nodes' summaries empty. ``DiskReserve`` sets space aside when the run starts
+(allocated blocks) and gives it back when it is needed: one when the loop is over,
+before the nodes stop, one before pkm-run writes run.json and the report (the
+recorder's last chunk may take the first). The nodes allocate their own summaries'
+blocks, and JSON is written whole or not at all: pkm_common.files.
 """
 
 from __future__ import annotations
@@ -13,9 +12,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pkm_common.files import disk_full, write_json
+from pkm_common.files import disk_full
 
-__all__ = ["RESERVE_BYTES", "DiskReserve", "disk_full", "write_json"]
+__all__ = ["RESERVE_BYTES", "DiskReserve"]
 
 RESERVE_BYTES = 1024 * 1024          # each of the two: the nodes' summaries; run.json (~50 kB) and the report
 
