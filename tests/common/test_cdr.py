@@ -235,3 +235,11 @@ def test_a_stamp_before_1970_is_refused_by_both_readers():
     pose.header.stamp.sec = -3
     with pytest.raises(ValueError, match="got sec -3"):
         decode_pose_stamped(serialize_message(pose))
+
+
+def test_a_viewer_drops_what_it_cannot_read_and_reports_the_first():
+    from pkm_common.cdr import ShownReader, decode_pose_stamped
+    reports = []
+    read = ShownReader(reports.append)
+    assert read(decode_pose_stamped, b"\x00\x01\x00\x00") is None and read(decode_pose_stamped, b"") is None
+    assert read.dropped == 2 and len(reports) == 1 and reports[0].startswith("not shown: ")

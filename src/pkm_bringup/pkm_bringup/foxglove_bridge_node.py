@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
 from pkm_bringup.foxglove_live import LiveChannels, joint_json, machine_scene, pose_in_frame
-from pkm_common.cdr import JointStateDecoder, decode_pose_stamped
+from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
 from pkm_common.params import declare_float, declare_int
 from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -30,6 +30,7 @@ class FoxgloveBridgeNode(Node):
         self.live = LiveChannels(self.get_namespace(), port=port, rate_hz=rate_hz)
         self.port = self.live.server.port
         self.state_decoder = JointStateDecoder("drives/state")
+        self._read = ShownReader(self.get_logger().error)       # a message it cannot read: dropped
         self.struts_decoder = JointStateDecoder("metrology/struts")
         self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS, raw=True)
         self.create_subscription(JointState, "metrology/struts", self.on_struts, STREAM_QOS, raw=True)
@@ -56,16 +57,6 @@ class FoxgloveBridgeNode(Node):
         m = self._read(lambda b: decode_pose_stamped(b, stream), buf)
         if m is not None:
             self.live.log(stream, pose_in_frame(m.position, m.orientation, m.stamp_ns), m.stamp_ns)
-
-    def _read(self, decode, buf):
-        """A message only shown: one that cannot be read is dropped, logged once, never a crash."""
-        try:
-            return decode(buf)
-        except ValueError as exc:
-            self.unreadable = getattr(self, "unreadable", 0) + 1
-            if self.unreadable == 1:
-                self.get_logger().error(f"not shown: {exc}")
-            return None
 
     def on_markers(self, msg: MarkerArray) -> None:
         points = [(p.x, p.y, p.z) for marker in msg.markers for p in marker.points]

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, String
 
-from pkm_common.cdr import JointStateDecoder, decode_pose_stamped
+from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
 from pkm_common.conversions import machine_pose_components
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 
@@ -28,6 +28,7 @@ class PanelNode(Node):
         super().__init__("panel", namespace=namespace, context=context)
         self.panel = panel
         self.state_decoder = JointStateDecoder("drives/state")
+        self._read = ShownReader(self.get_logger().error)       # a message it cannot read: dropped
         self.pubs = {"estop": self.create_publisher(Bool, "estop", LATCHED_QOS),
                      "program": self.create_publisher(String, "program", STREAM_QOS),
                      "goal": self.create_publisher(PoseStamped, "goal", STREAM_QOS),
@@ -70,16 +71,6 @@ class PanelNode(Node):
         m = self._read(lambda b: decode_pose_stamped(b, "controller/reference"), buf)
         if m is not None:
             self.panel.on_reference(m.stamp_ns, m.position, m.orientation)
-
-    def _read(self, decode, buf):
-        """A message the panel only shows: one it cannot read is dropped, logged once, never a crash."""
-        try:
-            return decode(buf)
-        except ValueError as exc:
-            self.unreadable = getattr(self, "unreadable", 0) + 1
-            if self.unreadable == 1:
-                self.get_logger().error(f"not shown: {exc}")
-            return None
 
     def on_status(self, msg: DiagnosticArray) -> None:
         for status in msg.status:          # level is a byte in rclpy's messages

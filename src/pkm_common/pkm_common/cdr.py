@@ -381,5 +381,24 @@ def encode_clock(stamp_ns: int) -> bytes:
     return _HEADER_AND_STAMP.pack(CDR_LE_HEADER, sec, nanosec)
 
 
-__all__ = ["CDR_LE_HEADER", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
+__all__ = ["CDR_LE_HEADER", "ShownReader", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
            "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "encode_clock", "stamp_ns_of"]
+
+
+class ShownReader:
+    """For a node that only shows what it reads (the panel, the Foxglove bridge):
+    ``read(decode, buf)`` is the decoded message, or None for one it cannot read
+    (malformed, stamped before 1970), dropped and counted; the first is reported
+    (``report(text)``), never raised into the node."""
+
+    def __init__(self, report):
+        self.report, self.dropped = report, 0
+
+    def __call__(self, decode, buf):
+        try:
+            return decode(buf)
+        except ValueError as exc:
+            self.dropped += 1
+            if self.dropped == 1:
+                self.report(f"not shown: {exc}")
+            return None
