@@ -2,14 +2,10 @@
 
 Thin shell over :class:`pkm_bringup.bag.BagWriter`. Every topic (but
 ``/parameter_events``, or the ``topics`` listed) is subscribed **raw** and written as
-published (ROS2_NOTES.md: re-serialising adds trailing bytes rosbags refuses). Topics are
-discovered every ``discovery_period_s`` until ready, then every
-``running_discovery_period_s`` (a graph query costs ~1-2 ms in one process); each is
-subscribed with the QoS its publishers offer (RELIABLE, TRANSIENT_LOCAL only if all
-are) and a deep queue; the offered profiles go into the channel metadata.
-
-Counts: messages per topic, and those with a new stamp (CDR bytes 4-12), as the nodes
-count their publications: published minus recorded is the loss, repeats aside.
+published (re-serialising adds bytes rosbags refuses), discovered every
+``discovery_period_s`` until ready, then every ``running_discovery_period_s``, with
+the QoS its publishers offer, recorded in the channel metadata. Counts: messages per
+topic and those with a new stamp (CDR bytes 4-12), as the nodes count theirs.
 
 Tapped topics (``tapped_topics``): the loop's per-step streams, whose nodes run with
 ``tap: true`` (pkm_common.tap), are not subscribed: their nodes send batches on
@@ -22,11 +18,9 @@ as the graph's own data). In one process the taps call ``write_records`` directl
 Readiness: once every topic of ``expect_topics`` is subscribed and matched, the node
 logs ``recorder ready`` and touches ``ready_file`` (the orchestrator starts then).
 
-Chunks are lz4 by default (``compression``): ~4x faster than zstd's default for 2.5x
-instead of 3.3x smaller (archi_demo), and in one process that is on the loop's thread.
-The bag is flushed every ``flush_period_s`` (a kill -9 loses at most the open chunk,
-see bag.recover) and finalized (summary, metadata.yaml) when the node is destroyed:
-normal end, SIGINT and SIGTERM alike (runner.run_node).
+Chunks are lz4 by default (``compression``: ~4x faster than zstd for 2.5x instead of
+3.3x smaller). The bag is flushed every ``flush_period_s`` (a kill -9 loses at most
+the open chunk, bag.recover) and finalized when the node is destroyed (runner.run_node).
 """
 
 from __future__ import annotations
