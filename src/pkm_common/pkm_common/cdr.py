@@ -107,8 +107,8 @@ class _Reader:
 
     __slots__ = ("buf", "pos", "what")
 
-    def __init__(self, buf, what: str):
-        if len(buf) < 12 or bytes(buf[:4]) != CDR_LE_HEADER:
+    def __init__(self, buf, what: str, minimum: int = 12):
+        if len(buf) < minimum or bytes(buf[:4]) != CDR_LE_HEADER:
             raise ValueError(f"{what}: not a little-endian CDR message "
                              f"(header {bytes(buf[:4]).hex()}, {len(buf)} bytes)")
         self.buf, self.pos, self.what = buf, 4, what
@@ -375,6 +375,29 @@ class PoseStampedEncoder:
         return self._struct.pack(CDR_LE_HEADER, sec, nanosec, self._middle, px, py, pz, qx, qy, qz, qw)
 
 
+def encode_string(text: str) -> bytes:
+    """Serialized std_msgs/String."""
+    middle, _ = _string_bytes(text, 0)
+    return CDR_LE_HEADER + middle
+
+
+def decode_string(buf, what: str = "String") -> str:
+    """``data`` of a serialized std_msgs/String."""
+    return _Reader(buf, what, minimum=9).string("data")
+
+
+def first_string_span(buf, stamped: bool, what: str = "message") -> tuple[int, int]:
+    """Byte offsets [start, end) of the first string's characters, its NUL excluded:
+    ``header.frame_id`` of a stamped message (``stamped``), else the first field
+    (std_msgs/String ``data``). The string is checked as the decoders check it."""
+    r = _Reader(buf, what, minimum=9)
+    if stamped:
+        r.stamp_ns(checked=False)
+    start = r.pos + _pad(r.pos - 4, 4) + 4
+    r.string("header.frame_id" if stamped else "data")
+    return start, r.pos - 1
+
+
 def encode_clock(stamp_ns: int) -> bytes:
     """Serialized rosgraph_msgs/Clock."""
     sec, nanosec = _split_stamp(stamp_ns)
@@ -382,7 +405,8 @@ def encode_clock(stamp_ns: int) -> bytes:
 
 
 __all__ = ["CDR_LE_HEADER", "ShownReader", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
-           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "encode_clock", "stamp_ns_of"]
+           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "decode_string", "encode_clock", "encode_string",
+           "first_string_span", "stamp_ns_of"]
 
 
 class ShownReader:

@@ -301,3 +301,13 @@ def publisher_names(infos) -> list[str]:
     per publisher (a node with two publishers is named twice); endpoints whose node is
     not discovered yet are left out."""
     return [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos if i.node_name != UNKNOWN_NODE]
+
+
+def signed_message(signer, topic: str, msg) -> bytes:
+    """A stamped command (goal, trajectory, load) serialized with its credential in
+    ``header.frame_id`` (pkm_common.credential); ``signer`` None: serialized as is."""
+    from rclpy.serialization import serialize_message
+    if signer is None:
+        return serialize_message(msg)
+    msg.header.frame_id = signer.placeholder()
+    return signer.seal(topic, serialize_message(msg), stamped=True)

@@ -1,0 +1,202 @@
+"""The run's credential: a command only the holders of the run's key can make (pure).
+
+The graph's node names can be spoofed (sources.py) and DDS Security is not in the
+Fast DDS wheel, so every command that can move the machine carries a tag that only a
+process holding the run's key can compute:
+
+    pkm-cred/1 <sender> <seq> <mac>
+
+``mac`` is HMAC-SHA256 (RFC 2104, Python's ``hmac``) keyed with the run's 32-byte key,
+over the topic (relative: ``goal``, ``controller/settings``) and the message's whole
+serialized (CDR) bytes in which the 64 hex digits of the mac itself are zeros. So the
+tag binds the sender's name, the sequence number and every field of the message.
+``seq`` only grows per sender (a signer starts it at the wall clock in ns): a verifier
+takes from each sender only a seq above the last it took, so a message recorded off
+the wire and sent again is refused.
+
+The tag is the message's first string:
+- a stamped command (``goal``, ``trajectory``, ``load``) carries it as
+  ``header.frame_id`` (a command's frame is the world frame);
+- a std_msgs/String command (``program``, ``controller/settings``,
+  ``controller/feed_override``, ``run/start``) carries it as its first line, before the
+  body (a G-code program, a JSON object, a number, ``start``).
+A node without a key (started by hand, outside a run) takes the body and ignores a tag.
+
+The key is made by pkm-run for each run (``credential.key`` in the run directory,
+mode 0600, or ``pkm-run --credential FILE``), given to the nodes it starts (the
+``credential_file`` parameter) and to the panel (``pkm-panel --start`` makes it;
+``--credential`` to join a run). A user's script that is given the file signs with
+``Signer``.
+
+What this protects against: a process that cannot read the key file (another user, a
+container or host that shares the DDS domain, a web page, a node of an earlier run, a
+stray script) cannot command the run, whatever node name it takes, nor replay a
+command it recorded, nor alter one in flight. What it does not: a process of the same
+user that reads the key file (or a root process); reading the commands (nothing is
+encrypted); a flood that keeps the nodes busy (refused messages still cost their
+check); the streams of the loop itself (``drives/*``, the metrology), whose sources
+are checked by name (sources.py); a clock set back by more than a sender's rate
+(its new seq is below the old: refused until the clock passes it).
+"""
+
+from __future__ import annotations
+
+import hmac
+import os
+import secrets
+import stat
+import time
+from dataclasses import dataclass
+from hashlib import sha256
+from pathlib import Path
+
+from pkm_common.cdr import encode_string, first_string_span
+
+__all__ = ["KEY_FILE", "CredentialRefused", "RunKey", "SCHEME", "Signer", "Verifier", "split_text"]
+
+SCHEME = "pkm-cred/1"
+KEY_BYTES = 32
+MAC_HEX = 64
+ZERO_MAC = "0" * MAC_HEX
+KEY_FILE = "credential.key"            # in the run directory
+
+
+@dataclass(frozen=True)
+class CredentialRefused:
+    """Why a command was not taken, and the sender its tag names ("" when it names none
+    or the tag cannot be trusted)."""
+
+    reason: str
+    sender: str = ""
+
+
+class RunKey:
+    """A run's secret key (``KEY_BYTES``), kept in a file only its owner reads."""
+
+    def __init__(self, key: bytes):
+        if len(key) != KEY_BYTES:
+            raise ValueError(f"credential key: must be {KEY_BYTES} bytes, got {len(key)}")
+        self._key = key
+
+    @classmethod
+    def create(cls, path) -> "RunKey":
+        """A new random key written to ``path`` (mode 0600; an existing file is replaced)."""
+        path = Path(path)
+        key = cls(secrets.token_bytes(KEY_BYTES))
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.unlink(missing_ok=True)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w", encoding="ascii") as fh:
+            fh.write(key._key.hex() + "\n")
+        os.replace(tmp, path)
+        return key
+
+    @classmethod
+    def read(cls, path) -> "RunKey":
+        """The key in ``path``; a file others may read is refused (its key is no secret)."""
+        path = Path(path)
+        try:
+            mode = path.stat().st_mode
+            text = path.read_text(encoding="ascii").strip()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"credential_file: cannot read {path}: {exc}") from None
+        if mode & (stat.S_IRWXG | stat.S_IRWXO):
+            raise ValueError(f"credential_file: {path} may be read by others (mode {stat.S_IMODE(mode):o}); "
+                             "it must be 600")
+        try:
+            return cls(bytes.fromhex(text))
+        except ValueError:
+            raise ValueError(f"credential_file: {path} does not hold {KEY_BYTES} bytes in hex") from None
+
+    def mac(self, topic: str, buf) -> str:
+        """HMAC-SHA256 over the topic, a NUL and the bytes, in hex."""
+        return hmac.new(self._key, topic.encode("utf-8") + b"\x00" + bytes(buf), sha256).hexdigest()
+
+
+def _tag_parts(tag: str):
+    """(sender, seq, mac) of a tag, or None."""
+    parts = tag.split(" ")
+    if len(parts) != 4 or parts[0] != SCHEME or len(parts[3]) != MAC_HEX or not parts[2].isdigit():
+        return None
+    return parts[1], int(parts[2]), parts[3]
+
+
+def split_text(text: str) -> tuple[str, str]:
+    """(tag, body) of a String command: its first line when that is a tag, else ("", text)."""
+    if text.startswith(SCHEME + " "):
+        tag, _, body = text.partition("\n")
+        return tag, body
+    return "", text
+
+
+class Signer:
+    """Makes the tags of one sender (its full node name) with the run's key."""
+
+    def __init__(self, key: RunKey, sender: str, clock=time.time_ns):
+        if not sender or " " in sender:
+            raise ValueError(f"credential sender: a node name without spaces, got {sender!r}")
+        self.key, self.sender, self.clock = key, sender, clock
+        self.seq = 0
+
+    def placeholder(self) -> str:
+        """The next tag with a zero mac: set it as the message's first string, serialize,
+        then ``seal``."""
+        self.seq = max(self.seq + 1, self.clock())
+        return f"{SCHEME} {self.sender} {self.seq} {ZERO_MAC}"
+
+    def seal(self, topic: str, buf, stamped: bool) -> bytes:
+        """The serialized message with its placeholder's mac filled in."""
+        start, end = first_string_span(buf, stamped, topic)
+        out = bytearray(buf)
+        tag = out[start:end].split(b"\n", 1)[0].decode("utf-8")
+        if _tag_parts(tag) is None or not tag.endswith(ZERO_MAC):
+            raise ValueError(f"{topic}: the message's first string is not a placeholder tag")
+        mac_at = start + len(tag) - MAC_HEX
+        out[mac_at:mac_at + MAC_HEX] = self.key.mac(topic, out).encode("ascii")
+        return bytes(out)
+
+    def text(self, topic: str, body: str) -> bytes:
+        """A serialized std_msgs/String command: the tag's line, then ``body``."""
+        return self.seal(topic, encode_string(f"{self.placeholder()}\n{body}"), stamped=False)
+
+
+class Verifier:
+    """Checks the tags of one run's commands (``key`` None: none is required)."""
+
+    def __init__(self, key: RunKey | None):
+        self.key = key
+        self.last_seq: dict[str, int] = {}      # sender -> last seq taken (only senders holding the key)
+
+    @property
+    def required(self) -> bool:
+        return self.key is not None
+
+    def check(self, topic: str, buf, stamped: bool) -> tuple[str, CredentialRefused | None]:
+        """(sender, None) for a command of a key holder, taken once; else ("", why). A
+        malformed message raises ValueError (as its decoder would). Without a key
+        every command is taken (its tag, if any, unchecked)."""
+        if self.key is None:
+            return "", None
+        start, end = first_string_span(buf, stamped, topic)
+        tag = bytes(buf[start:end]).split(b"\n", 1)[0].decode("utf-8")
+        parts = _tag_parts(tag)
+        if parts is None:
+            return "", CredentialRefused(f"{topic}: no credential ({SCHEME} tag) in the message")
+        sender, seq, mac = parts
+        zeroed = bytearray(buf)
+        mac_at = start + len(tag) - MAC_HEX
+        zeroed[mac_at:mac_at + MAC_HEX] = ZERO_MAC.encode("ascii")
+        if not hmac.compare_digest(mac, self.key.mac(topic, zeroed)):
+            return "", CredentialRefused(f"{topic}: credential not valid for this run (says {sender}): "
+                                         "another key, or the message was altered")
+        last = self.last_seq.get(sender, 0)
+        if seq <= last:
+            return sender, CredentialRefused(f"{topic}: a replayed command of {sender} (seq {seq}, already "
+                                             f"took {last})", sender)
+        self.last_seq[sender] = seq
+        return sender, None
+
+    @classmethod
+    def from_file(cls, path: str) -> "Verifier":
+        """The verifier of a node's ``credential_file`` parameter ("": none required)."""
+        return cls(RunKey.read(path) if path else None)

@@ -1,0 +1,122 @@
+"""pkm_common.credential: a command only the run's key holders can make, checked
+against a second reader (rclpy's own deserialization and hmac recomputed here)."""
+
+import hashlib
+import hmac
+import os
+import stat
+
+import pytest
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import String
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from pkm_common.cdr import first_string_span
+from pkm_common.conversions import signed_message
+from pkm_common.credential import SCHEME, RunKey, Signer, Verifier, split_text
+
+
+def _key(tmp_path, name="credential.key"):
+    return RunKey.create(tmp_path / name)
+
+
+def _goal(x=0.1):
+    msg = PoseStamped()
+    msg.header.stamp.sec = 3
+    msg.pose.position.x, msg.pose.orientation.w = x, 1.0
+    return msg
+
+
+def _trajectory():
+    msg = MultiDOFJointTrajectory()
+    msg.joint_names = ["tool"]
+    for k in range(3):
+        point = MultiDOFJointTrajectoryPoint()
+        point.time_from_start.nanosec = 1000 * k
+        msg.points.append(point)
+    return msg
+
+
+def test_the_key_file_is_the_owners_alone_and_holds_its_key(tmp_path):
+    key = _key(tmp_path)
+    path = tmp_path / "credential.key"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    again = RunKey.read(path)
+    assert again.mac("goal", b"x") == key.mac("goal", b"x")
+    os.chmod(path, 0o644)
+    with pytest.raises(ValueError, match=r"credential_file: .* may be read by others \(mode 644\); it must be 600"):
+        RunKey.read(path)
+    with pytest.raises(ValueError, match="credential_file: cannot read"):
+        RunKey.read(tmp_path / "missing.key")
+
+
+@pytest.mark.parametrize("topic, msg", [("goal", _goal()), ("load", WrenchStamped()),
+                                        ("trajectory", _trajectory())])
+def test_a_signed_stamped_command_verifies_and_its_mac_is_hmac_sha256_of_the_zeroed_bytes(tmp_path, topic, msg):
+    key = _key(tmp_path)
+    buf = signed_message(Signer(key, "/pkm/panel", clock=lambda: 7), topic, msg)
+    # second reader: rclpy deserializes the tag; HMAC recomputed over the message
+    # re-serialized by rclpy with the mac's digits as zeros
+    tag = deserialize_message(buf, type(msg)).header.frame_id
+    scheme, sender, seq, mac = tag.split(" ")
+    assert (scheme, sender, seq) == (SCHEME, "/pkm/panel", "7")
+    zeroed = deserialize_message(buf, type(msg))
+    zeroed.header.frame_id = tag[:-64] + "0" * 64
+    secret = bytes.fromhex((tmp_path / "credential.key").read_text().strip())
+    assert mac == hmac.new(secret, topic.encode() + b"\0" + serialize_message(zeroed), hashlib.sha256).hexdigest()
+    assert Verifier(key).check(topic, buf, stamped=True) == ("/pkm/panel", None)
+
+
+def test_a_string_command_carries_its_tag_as_the_first_line_and_keeps_its_body(tmp_path):
+    key = _key(tmp_path)
+    buf = Signer(key, "/pkm/panel").text("program", "G91 G1 X0.001\nM2")
+    data = deserialize_message(buf, String).data
+    tag, body = split_text(data)
+    assert tag.startswith(SCHEME + " /pkm/panel ") and body == "G91 G1 X0.001\nM2"
+    assert Verifier(key).check("program", buf, stamped=False) == ("/pkm/panel", None)
+    assert split_text("G1 X1") == ("", "G1 X1")
+
+
+def test_each_forgery_is_refused_with_its_reason(tmp_path):
+    key = _key(tmp_path)
+    signer = Signer(key, "/pkm/panel")
+    verifier = Verifier(key)
+    good = signer.text("controller/settings", '{"bandwidth_hz": 10}')
+    # no tag at all (a rogue that names itself /pkm/panel)
+    sender, why = verifier.check("controller/settings", serialize_message(String(data='{"bandwidth_hz": 10}')), False)
+    assert (sender, why.reason) == ("", "controller/settings: no credential (pkm-cred/1 tag) in the message")
+    # another run's key
+    other = Signer(_key(tmp_path, "other.key"), "/pkm/panel").text("controller/settings", "{}")
+    assert "not valid for this run (says /pkm/panel)" in verifier.check("controller/settings", other, False)[1].reason
+    # altered in flight: one digit of the body
+    altered = good.replace(b"10}", b"90}")
+    assert altered != good and "altered" in verifier.check("controller/settings", altered, False)[1].reason
+    # signed for another topic
+    assert verifier.check("controller/feed_override", good, False)[1] is not None
+    # a stamped message's stamp changed
+    goal = signed_message(signer, "goal", _goal())
+    moved = bytearray(goal)
+    moved[4] ^= 1
+    assert "altered" in verifier.check("goal", bytes(moved), True)[1].reason
+    # the good one is taken once; sent again it is a replay
+    assert verifier.check("controller/settings", good, False) == ("/pkm/panel", None)
+    sender, why = verifier.check("controller/settings", good, False)
+    assert sender == "/pkm/panel" and "a replayed command of /pkm/panel" in why.reason
+    # a later command of the same sender is taken
+    assert verifier.check("controller/settings", signer.text("controller/settings", "{}"), False)[1] is None
+
+
+def test_seq_grows_with_the_clock_and_past_it(tmp_path):
+    times = iter([100, 100, 50, 500])
+    signer = Signer(_key(tmp_path), "/pkm/x", clock=lambda: next(times))
+    assert [signer.placeholder().split(" ")[2] for _ in range(4)] == ["100", "101", "102", "500"]
+
+
+def test_without_a_key_every_command_is_taken_and_a_malformed_one_raises(tmp_path):
+    assert Verifier.from_file("").check("goal", b"", True) == ("", None)
+    verifier = Verifier(_key(tmp_path))
+    with pytest.raises(ValueError, match="not a little-endian CDR message"):
+        verifier.check("goal", b"\x00\x01\x00\x00\x05", True)
+    start, end = first_string_span(serialize_message(String(data="abc")), stamped=False)
+    assert serialize_message(String(data="abc"))[start:end] == b"abc"
