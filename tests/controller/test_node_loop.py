@@ -4,6 +4,9 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
 from pkm_common.causes import TripCause
+from pkm_common.cdr import encode_string
+from pkm_common.conversions import signed_message
+from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_controller.configuration import core_from_parameters
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.controller_node import NODE_PARAMETERS
@@ -92,8 +95,9 @@ def test_a_state_with_a_negative_stamp_is_refused_not_a_crash():
     assert "header.stamp must be at or after 0 s" in loop.core.stop_reason and "sec -5" in loop.core.stop_reason
 
 
-def trajectory_bytes(seconds: float = 1.0) -> bytes:
-    """A 10 mm move in x from home, as trajectory_node publishes it."""
+def trajectory_bytes(seconds: float = 1.0, signer=None) -> bytes:
+    """A 10 mm move in x from home, as trajectory_node publishes it (``signer``: with
+    the run's credential)."""
     from pkm_common.conversions import trajectory_msg
     from pkm_trajectory.planner import Limits, Line, plan
     home = list(ARCHI.model.home)
@@ -102,16 +106,16 @@ def trajectory_bytes(seconds: float = 1.0) -> bytes:
     msg = trajectory_msg(ARCHI.model.task_space, samples.time_s, samples.position, samples.velocity,
                          samples.acceleration)
     msg.header.stamp.sec = 7                     # the planner's stamp: the verdict names it
-    return serialize_message(msg)
+    return signed_message(signer, "trajectory", msg)
 
 
-def commanded_loop(ports):
+def commanded_loop(ports, key=None):
     import json
     events = []
     ports.publish_event = lambda text: events.append(json.loads(text))
     loop = ControllerLoop(core_from_parameters("archi", ControllerConfig()),
                           {**NODE_PARAMETERS, "state_source": "/plant", "trajectory_source": "/pkm/trajectory",
-                           "operator_sources": "/pkm/panel, /pkm/bringup_monitor"}, ports)
+                           "operator_sources": "/pkm/panel, /pkm/bringup_monitor"}, ports, Verifier(key))
     loop.active = True
     return loop, events
 
@@ -126,7 +130,7 @@ def test_a_command_from_a_node_the_run_did_not_name_is_refused_and_named():
     ports.graph["trajectory"] = ["/pkm/trajectory", "/pkm/rogue"]
     loop.on_trajectory(trajectory_bytes())
     ports.graph["controller/settings"] = ["/pkm/rogue"]
-    loop.on_command("controller/settings", Action.SETTINGS, '{"bandwidth_hz": 5.0}')
+    loop.on_command("controller/settings", Action.SETTINGS, encode_string('{"bandwidth_hz": 5.0}'))
     assert [(e["kind"], e["ok"], e["intruder"]) for e in events] == [("trajectory", False, "/pkm/rogue"),
                                                                      ("settings", False, "/pkm/rogue")]
     assert events[0]["message"] == ("refused: /pkm/rogue publishes on trajectory (only /pkm/trajectory may: "
@@ -204,3 +208,73 @@ def test_a_run_without_named_sources_takes_commands_from_anyone():
     loop.on_trajectory(trajectory_bytes())
     loop.on_state(state(1_000_000))
     assert loop.core.mode == "tracking" and loop.summary()["commands_refused"] == {}
+
+
+def credential_loop(tmp_path):
+    """A run's controller with its key, every command topic's publishers named as
+    allowed (a rogue that took an allowed name: only the credential tells)."""
+    key = RunKey.create(tmp_path / "credential.key")
+    ports = Ports()
+    loop, events = commanded_loop(ports, key)
+    ports.graph.update({"trajectory": ["/pkm/trajectory"], "controller/settings": ["/pkm/panel"],
+                        "controller/feed_override": ["/pkm/panel"], "run/start": ["/pkm/bringup_monitor"]})
+    return key, loop, events
+
+
+def test_with_the_runs_key_a_command_without_its_credential_is_refused_whatever_its_name(tmp_path):
+    key, loop, events = credential_loop(tmp_path)
+    panel = Signer(key, "/pkm/panel")
+    loop.on_state(state(0))
+    loop.on_command("controller/settings", Action.SETTINGS, encode_string('{"bandwidth_hz": 5.0}'))
+    loop.on_trajectory(trajectory_bytes())                               # unsigned: a spoofed planner
+    other = Signer(RunKey.create(tmp_path / "old.key"), "/pkm/trajectory")   # an earlier run's planner
+    loop.on_trajectory(trajectory_bytes(signer=other))
+    assert [(e["kind"], e["ok"], e["intruder"]) for e in events] == [
+        ("settings", False, "(no credential)"), ("trajectory", False, "(no credential)"),
+        ("trajectory", False, "(no credential)")]
+    assert events[0]["message"] == "refused: controller/settings: no credential (pkm-cred/1 tag) in the message"
+    assert "not valid for this run (says /pkm/trajectory)" in events[2]["message"]
+    assert events[1]["stamp_ns"] == 7_000_000_000       # the planner's chain still matches the verdict
+    assert loop.core.config.bandwidth_hz == 20.0 and loop.core.mode == "holding"
+    signed = panel.text("controller/settings", '{"bandwidth_hz": 5.0}')
+    loop.on_command("controller/settings", Action.SETTINGS, signed)
+    loop.on_state(state(1_000_000))                                    # applied after the next answer
+    assert events[-1]["kind"] == "settings" and events[-1]["ok"] and loop.core.config.bandwidth_hz == 5.0
+    loop.on_command("controller/settings", Action.SETTINGS, signed)     # recorded off the wire, sent again
+    assert events[-1]["ok"] is False and "a replayed command of /pkm/panel" in events[-1]["message"]
+    # the planner may not send settings, though it holds the key
+    loop.on_command("controller/settings", Action.SETTINGS,
+                    Signer(key, "/pkm/trajectory").text("controller/settings", "{}"))
+    assert "/pkm/trajectory holds the run's credential but may not command controller/settings" in \
+        events[-1]["message"]
+    assert loop.summary()["commands_refused"] == {"controller/settings": 3, "trajectory": 2}
+    assert not loop.core.stopped
+
+
+def test_with_the_runs_key_the_signed_trajectory_runs_and_a_forged_command_stops_the_motion(tmp_path):
+    key, loop, events = credential_loop(tmp_path)
+    loop.on_state(state(0))
+    loop.on_trajectory(trajectory_bytes(signer=Signer(key, "/pkm/trajectory")))
+    loop.on_command("controller/feed_override", Action.FEED_OVERRIDE,
+                    Signer(key, "/pkm/panel").text("controller/feed_override", "0.5"))
+    for k in range(1, 4):
+        loop.on_state(state(k * 1_000_000))
+    assert loop.core.mode == "tracking" and not loop.core.stopped
+    assert [e["value"] for e in events if e["kind"] == "feed_override"] == [0.5]
+    loop.on_command("controller/feed_override", Action.FEED_OVERRIDE, encode_string("2.0"))
+    assert loop.core.stopped and loop.core.stop_cause == TripCause.INTRUDER
+    assert loop.core.stop_reason == "controller/feed_override: no credential (pkm-cred/1 tag) in the message"
+    assert any(e["kind"] == "safe_stop" and e["cause"] == "intruder" for e in events)
+
+
+def test_a_signed_feed_override_that_is_no_number_is_refused_and_the_start_needs_its_credential(tmp_path):
+    key, loop, events = credential_loop(tmp_path)
+    loop.values["wait_for_start"] = True
+    loop.on_command("controller/feed_override", Action.FEED_OVERRIDE,
+                    Signer(key, "/pkm/panel").text("controller/feed_override", "fast"))
+    assert events[-1]["ok"] is False and events[-1]["message"] == \
+        "controller/feed_override: expected a number, got 'fast'"
+    loop.on_start(encode_string("start"))
+    assert not loop.start_received
+    loop.on_start(Signer(key, "/pkm/bringup_monitor").text("run/start", "start"))
+    assert loop.start_received

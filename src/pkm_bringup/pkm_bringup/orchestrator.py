@@ -20,10 +20,14 @@ SCHED_FIFO and locked memory for the loop's nodes (rt_profile.py), set as each
 process starts; in one process, for the whole process during the run. Refused (exit
 2, nothing started) where the OS does not allow it.
 
+Every command that can move the machine carries the run's credential (pkm_common.credential):
+pkm-run makes a key per run (``credential.key``, mode 600) or takes one (``--credential``:
+a panel's, a script's), gives its path to the nodes, and signs its start signal.
+
 Run directory::
 
     runs/<date>-<time>_<scenario>/
-      scenario.yaml  params/<node>.yaml  logs/<node>.log  summaries/<node>.json
+      credential.key  scenario.yaml  params/<node>.yaml  logs/<node>.log  summaries/<node>.json
       bag/ (rosbag2: metadata.yaml + .mcap)  run.json  report/ (metrics.json, *.png)
 """
 
@@ -44,6 +48,7 @@ from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controll
                                   load_scenario, node_parameters, params_file_text)
 from pkm_bringup.run_files import DiskReserve
 from pkm_common.causes import TripCause, parse_cause, run_status
+from pkm_common.credential import KEY_FILE, RunKey
 from pkm_common.files import disk_full, summary_written, write_json
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 
@@ -255,13 +260,16 @@ def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 
                             f"{os.environ.get('ROS_DOMAIN_ID', '0')}; use another domain (export ROS_DOMAIN_ID=...)")
 
 
-def _publish_start(node) -> None:
-    """The latched start signal of a scenario without a program (controller wait_for_start)."""
-    from std_msgs.msg import Bool
+def _publish_start(node, credential: Path) -> None:
+    """The latched start signal of a scenario without a program (controller
+    wait_for_start), with the run's credential (pkm_common.credential)."""
+    from std_msgs.msg import String
 
+    from pkm_common.credential import RunKey, Signer
     from pkm_common.qos import LATCHED_QOS
-    node.start_publisher = node.create_publisher(Bool, START_TOPIC, LATCHED_QOS)
-    node.start_publisher.publish(Bool(data=True))
+    node.start_publisher = node.create_publisher(String, START_TOPIC, LATCHED_QOS)
+    signer = Signer(RunKey.read(credential), node.get_fully_qualified_name())
+    node.start_publisher.publish(signer.text(START_TOPIC, "start"))
 
 
 def _refuse_intruders(monitor, s: Scenario) -> None:
@@ -353,7 +361,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
                                              run_dir / "logs", os.environ.copy(), _scheduling(s, "trajectory"))
         if s.program is None:               # ... or at the start signal (realtime: the planner waits for goals)
-            _publish_start(monitor)
+            _publish_start(monitor, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
         # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it finished
@@ -462,7 +470,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
             starter = _monitor(context, s.namespace)
             executor.add_node(starter)
             nodes["starter"] = starter
-            _publish_start(starter)
+            _publish_start(starter, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
         sim = nodes["sim_hw"]
         last = 0.0
@@ -581,9 +589,11 @@ def _write_run(run_dir: Path, run: dict) -> None:
 
 
 def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
-                 report: bool = True) -> dict:
+                 report: bool = True, credential: Path | None = None) -> dict:
     """Run ``s`` into ``run_dir`` (created); returns run.json's content (status
     ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded.
+    ``credential``: the key file the run's commands are signed with (a panel's, a
+    script's: pkm_common.credential); by default a new one in the run directory.
     Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
     when the scenario asks for the realtime profile and the OS does not allow it."""
     if s.realtime_profile:
@@ -601,13 +611,19 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
                 raise OSError(reserve.error)
         for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
             stale.unlink()
-        params = node_parameters(s, run_dir)
+        if credential is None:
+            RunKey.create(run_dir / KEY_FILE)
+        params = node_parameters(s, run_dir, credential)
         for name, values in params.items():
             (run_dir / "params" / f"{name}.yaml").write_text(params_file_text(values), encoding="utf-8")
         (run_dir / "scenario.yaml").write_text(s.source.read_text(encoding="utf-8"), encoding="utf-8")
+        if credential is not None:
+            RunKey.read(credential)                # a key others may read, or none: said before anything starts
     except BaseException as exc:
         for reserve in reserves:
             reserve.release()
+        if isinstance(exc, ValueError):
+            return collect(s, run_dir, mode, 0.0, {}, f"{exc}; nothing started")
         if not isinstance(exc, OSError):
             raise
         return collect(s, run_dir, mode, 0.0, {}, f"the run directory cannot be written, nothing started: {exc}")
@@ -742,6 +758,9 @@ def main(argv=None) -> int:
     parser.add_argument("--rt-profile", action="store_true",
                         help="realtime profile: SCHED_FIFO and locked memory for the loop's nodes "
                              "(the scenario key realtime_profile; needs root or CAP_SYS_NICE and CAP_IPC_LOCK)")
+    parser.add_argument("--credential", metavar="FILE",
+                        help="the key the run's commands are signed with (mode 600; a panel's or a script's: "
+                             "pkm_common.credential); default: a new one, RUN_DIR/credential.key")
     args = parser.parse_args(argv)
     overrides = {**({"record": False} if args.no_record else {}),
                  **({"realtime_profile": True} if args.rt_profile else {})}
@@ -766,7 +785,10 @@ def main(argv=None) -> int:
     domain = use_ros_environment()["ROS_DOMAIN_ID"]     # this shell's, or one claimed: said, to join it
     print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated, "
           f"ROS_DOMAIN_ID={domain})", flush=True)
-    run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress)
+    credential = Path(args.credential).resolve() if args.credential else None
+    print(f"commands need the credential in {credential or run_dir / KEY_FILE}", flush=True)
+    run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress,
+                       credential=credential)
     print(format_summary(run, run_dir), flush=True)
     return EXIT_CODES[run["status"]]
 

@@ -1,7 +1,7 @@
 """``pkm-panel``: the web operator panel of a running graph.
 
     pkm-panel --start panel_archi [--rt-profile]   # starts the graph (pkm-run) and serves the panel
-    pkm-panel --machine archi                # joins a graph already running (pkm-run, realtime)
+    pkm-panel --machine archi --credential runs/<run>/credential.key   # joins a running graph
 
 then open http://127.0.0.1:8080/ . The panel joins the graph of this shell's
 ``ROS_DOMAIN_ID`` in ``--namespace`` (with ``--start``: the scenario's namespace, and a
@@ -10,7 +10,10 @@ domain claimed for the panel and its graph when the shell sets none). It is boun
 in the URL printed at start, which the page keeps; a page of another origin or a
 request by another host name (``--allow-host`` adds one) is refused; the E-stop stays
 open to every page (panel_app's doc says what this protects against). Every action is
-logged, accepted or refused (stderr, and ``--log`` as JSON lines).
+logged, accepted or refused (stderr, and ``--log`` as JSON lines). The panel's
+commands carry the run's credential (pkm_common.credential): with ``--start`` the
+panel makes a new key for each run it starts (in a private temporary directory,
+removed at exit); to join a run, ``--credential`` names the run's key file.
 """
 
 from __future__ import annotations
@@ -19,10 +22,12 @@ import argparse
 import json
 import logging
 import secrets
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -40,15 +45,24 @@ class Graph:
     the graph: the main thread, or a worker of asyncio's default executor (a reset),
     which lives until the panel's event loop closes."""
 
-    def __init__(self, scenario: str, runs: str, rt_profile: bool = False):
+    def __init__(self, scenario: str, runs: str, rt_profile: bool = False, key_file: Path | None = None,
+                 on_key=None):
         self.scenario, self.process = scenario, None
+        self.key_file, self.on_key = key_file, on_key
         self.command = [sys.executable, "-m", "pkm_bringup.orchestrator", scenario, "--runs", runs,
-                        "--no-progress", *(["--rt-profile"] if rt_profile else [])]
+                        "--no-progress", *(["--rt-profile"] if rt_profile else []),
+                        *(["--credential", str(key_file)] if key_file else [])]
         self.lock = threading.Lock()
 
     def start(self) -> None:
+        """A new run, with a new key (``on_key(key)``: the panel signs with it)."""
         from pkm_bringup.processes import die_with_parent
+        from pkm_common.credential import RunKey
         with self.lock:
+            if self.key_file is not None:
+                key = RunKey.create(self.key_file)
+                if self.on_key is not None:
+                    self.on_key(key)
             self.process = subprocess.Popen(self.command, preexec_fn=die_with_parent)
             LOG.info("graph started: pkm-run %s (pid %d)", self.scenario, self.process.pid)
 
@@ -107,6 +121,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rate-hz", type=float, default=25.0, help="snapshots per second to each page (1-100)")
     parser.add_argument("--log", help="append every action (JSON lines) to this file")
     parser.add_argument("--url-file", help="write the panel's URL here once it serves (scripts, tests)")
+    parser.add_argument("--credential", metavar="FILE",
+                        help="the run's key file (RUN_DIR/credential.key) to join a run; with --start one is made")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s pkm-panel: %(message)s")
     for name in ("port", "estop_port"):
@@ -168,11 +184,26 @@ def main(argv=None) -> int:
             log_file.write(json.dumps(entry) + "\n")
             log_file.flush()
 
-    graph = Graph(args.start, args.runs, args.rt_profile) if args.start else None
-    panel = Panel(PanelModel(config), can_reset=graph is not None, log=log_line)
+    from pkm_common.credential import RunKey
+    key, key_dir = None, None
+    if args.credential:
+        try:
+            key = RunKey.read(args.credential)
+        except ValueError as exc:
+            print(f"pkm-panel: --{exc}".replace("credential_file", "credential"), file=sys.stderr)
+            return 2
+    elif args.start:                  # each run it starts gets a new key (Graph.start)
+        key_dir = Path(tempfile.mkdtemp(prefix="pkm-panel-"))
+        key = RunKey.create(key_dir / "credential.key")
+    else:
+        LOG.warning("no --credential: a run started by pkm-run refuses this panel's commands (give it the run's "
+                    "RUN_DIR/credential.key)")
+    panel = Panel(PanelModel(config), can_reset=bool(args.start), log=log_line)
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = PanelNode(panel, namespace, context=context)
+    node = PanelNode(panel, namespace, context=context, key=key)
+    graph = Graph(args.start, args.runs, args.rt_profile, key_dir / "credential.key",
+                  on_key=lambda k: setattr(node.signer, "key", k)) if args.start else None
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     def spin() -> None:
@@ -216,6 +247,8 @@ def main(argv=None) -> int:
         node.destroy_node()
         if log_file is not None:
             log_file.close()
+        if key_dir is not None:
+            shutil.rmtree(key_dir, ignore_errors=True)
     return 0
 
 

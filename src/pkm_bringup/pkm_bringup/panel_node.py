@@ -3,36 +3,43 @@ panel shows, publishes what its actions ask for, and runs the jog watchdog on th
 executor's own thread, so that a stuck web loop still holds a jog whose page went
 silent. Nothing here reaches the drives: the panel talks to the controller and the
 planner only (``estop``, ``program``, ``goal``, ``controller/feed_override``,
-``controller/settings``), and the controller decides.
+``controller/settings``), and the controller decides. With the run's key (``key``)
+every command but the E-stop carries the run's credential (pkm_common.credential).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64, String
+from std_msgs.msg import Bool, String
 
 from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
-from pkm_common.conversions import machine_pose_components
+from pkm_common.conversions import machine_pose_components, signed_message
+from pkm_common.credential import Signer
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 
 WATCHDOG_PERIOD_S = 0.05
 
 
 class PanelNode(Node):
-    def __init__(self, panel, namespace: str = "/pkm", context=None):
+    def __init__(self, panel, namespace: str = "/pkm", context=None, key=None):
         super().__init__("panel", namespace=namespace, context=context)
         self.panel = panel
+        # the run's credential (None: the commands go without one); a reset's new run
+        # sets ``signer.key``
+        self.signer = Signer(key, self.get_fully_qualified_name()) if key is not None else None
+        self.publish_lock = threading.Lock()
         self.state_decoder = JointStateDecoder("drives/state")
         self._read = ShownReader(self.get_logger().error)       # a message it cannot read: dropped
         self.pubs = {"estop": self.create_publisher(Bool, "estop", LATCHED_QOS),
                      "program": self.create_publisher(String, "program", STREAM_QOS),
                      "goal": self.create_publisher(PoseStamped, "goal", STREAM_QOS),
-                     "controller/feed_override": self.create_publisher(Float64, "controller/feed_override",
+                     "controller/feed_override": self.create_publisher(String, "controller/feed_override",
                                                                        STREAM_QOS),
                      "controller/settings": self.create_publisher(String, "controller/settings", STREAM_QOS)}
         self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS, raw=True)
@@ -91,12 +98,15 @@ class PanelNode(Node):
             self.get_logger().warning(result.message)
 
     def publish(self, items) -> None:
-        """[(topic, payload)] of a panel.Result (thread-safe: rcl publishers are)."""
+        """[(topic, payload)] of a panel.Result (thread-safe: rcl publishers are, and a
+        command is signed and published under one lock: its seq in order, credential.py)."""
+        with self.publish_lock:
+            self._publish(items)
+
+    def _publish(self, items) -> None:
         for topic, payload in items:
             if topic == "estop":
                 self.pubs[topic].publish(Bool(data=bool(payload)))
-            elif topic == "controller/feed_override":
-                self.pubs[topic].publish(Float64(data=float(payload)))
             elif topic == "goal":
                 msg = PoseStamped()
                 msg.header.frame_id = "world"
@@ -104,6 +114,7 @@ class PanelNode(Node):
                 p, o = msg.pose.position, msg.pose.orientation
                 p.x, p.y, p.z = (float(v) for v in position)
                 o.x, o.y, o.z, o.w = (float(v) for v in orientation)
-                self.pubs[topic].publish(msg)
-            else:
-                self.pubs[topic].publish(String(data=payload))
+                self.pubs[topic].publish(signed_message(self.signer, topic, msg))
+            else:                         # a String: the program, the settings, the feed override
+                body = repr(float(payload)) if topic == "controller/feed_override" else payload
+                self.pubs[topic].publish(self.signer.text(topic, body) if self.signer else String(data=body))

@@ -520,16 +520,20 @@ def operator_names(s: Scenario) -> list[str]:
     return [run_node_name(s, "bringup_monitor"), run_node_name(s, "panel"), *s.operators]
 
 
-def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
-    """node name -> its parameters for this run (node defaults < scenario < run wiring)."""
+def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) -> dict[str, dict]:
+    """node name -> its parameters for this run (node defaults < scenario < run wiring);
+    ``credential``: the run's key file (pkm_common.credential; default the run
+    directory's)."""
+    from pkm_common.credential import KEY_FILE
     summaries = run_dir / "summaries"
+    key = str(credential or run_dir / KEY_FILE)
     flat_load = [v for t, w in s.load for v in (t, *w)]
     flat_frame_load = [v for t, w in s.frame_load for v in (t, *w)]
     nodes = {
         "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
                    "duration_s": s.duration_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load,
                    "command_source": controller_node_name(s),
-                   "load_sources": ",".join(operator_names(s)),
+                   "load_sources": ",".join(operator_names(s)), "credential_file": key,
                    "summary_path": str(summaries / "sim_hw.json")},
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
@@ -537,7 +541,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
                        "wait_for_start": s.program is None,
                        "state_source": run_node_name(s, "sim_hw"),
                        "trajectory_source": run_node_name(s, "trajectory"),
-                       "operator_sources": ",".join(operator_names(s)),
+                       "operator_sources": ",".join(operator_names(s)), "credential_file": key,
                        "metrology_source": run_node_name(s, "gough_sensor") if s.metrology else "",
                        "summary_path": str(summaries / "controller.json")},
     }
@@ -547,7 +551,7 @@ def node_parameters(s: Scenario, run_dir: Path) -> dict[str, dict]:
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
                                "program_file": str(s.program or ""),
-                               "operator_sources": ",".join(operator_names(s)),
+                               "operator_sources": ",".join(operator_names(s)), "credential_file": key,
                                "controller_source": controller_node_name(s)}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
@@ -569,7 +573,8 @@ TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"),
                   "gough_sensor": ("metrology/struts", "metrology/pose"),
                   "controller": ("drives/command", "controller/reference")}
 
-START_TOPIC = "run/start"      # latched Bool: the orchestrator's start signal (scenarios without a program)
+START_TOPIC = "run/start"      # latched String "start" with its credential: the orchestrator's start signal
+                               # (scenarios without a program)
 
 
 def expected_topics(s: Scenario) -> list[str]:

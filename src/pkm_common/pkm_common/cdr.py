@@ -188,6 +188,15 @@ def decode_pose_stamped(buf, what: str = "PoseStamped") -> PoseStampedData:
     return PoseStampedData(stamp, frame_id, values[:3], values[3:])
 
 
+def decode_wrench_stamped(buf, what: str = "WrenchStamped") -> tuple[tuple, tuple]:
+    """(force, torque) of a serialized geometry_msgs/WrenchStamped."""
+    r = _Reader(buf, what)
+    r.stamp_ns()
+    r.string("header.frame_id")
+    values = r.doubles(6, "wrench")
+    return values[:3], values[3:]
+
+
 class TrajectoryData(NamedTuple):
     """The fields of a trajectory_msgs/MultiDOFJointTrajectory as arrays: N points, J
     joints. ``transform[k, j]`` = translation (x, y, z) + rotation (x, y, z, w);
@@ -405,7 +414,7 @@ def encode_clock(stamp_ns: int) -> bytes:
 
 
 __all__ = ["CDR_LE_HEADER", "ShownReader", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
-           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "decode_string", "encode_clock", "encode_string",
+           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "decode_string", "decode_wrench_stamped", "encode_clock", "encode_string",
            "first_string_span", "stamp_ns_of"]
 
 

@@ -11,8 +11,10 @@ over the topic (relative: ``goal``, ``controller/settings``) and the message's w
 serialized (CDR) bytes in which the 64 hex digits of the mac itself are zeros. So the
 tag binds the sender's name, the sequence number and every field of the message.
 ``seq`` only grows per sender (a signer starts it at the wall clock in ns): a verifier
-takes from each sender only a seq above the last it took, so a message recorded off
-the wire and sent again is refused.
+takes from each sender, on each topic, only a seq above the last it took there (DDS
+keeps one writer's order, not the order across topics), so a message recorded off the
+wire and sent again is refused. A sender that publishes one topic from two threads
+signs and publishes under one lock (the panel does).
 
 The tag is the message's first string:
 - a stamped command (``goal``, ``trajectory``, ``load``) carries it as
@@ -45,6 +47,7 @@ import hmac
 import os
 import secrets
 import stat
+import threading
 import time
 from dataclasses import dataclass
 from hashlib import sha256
@@ -137,12 +140,14 @@ class Signer:
             raise ValueError(f"credential sender: a node name without spaces, got {sender!r}")
         self.key, self.sender, self.clock = key, sender, clock
         self.seq = 0
+        self.lock = threading.Lock()
 
     def placeholder(self) -> str:
         """The next tag with a zero mac: set it as the message's first string, serialize,
         then ``seal``."""
-        self.seq = max(self.seq + 1, self.clock())
-        return f"{SCHEME} {self.sender} {self.seq} {ZERO_MAC}"
+        with self.lock:
+            self.seq = seq = max(self.seq + 1, self.clock())
+        return f"{SCHEME} {self.sender} {seq} {ZERO_MAC}"
 
     def seal(self, topic: str, buf, stamped: bool) -> bytes:
         """The serialized message with its placeholder's mac filled in."""
@@ -165,7 +170,7 @@ class Verifier:
 
     def __init__(self, key: RunKey | None):
         self.key = key
-        self.last_seq: dict[str, int] = {}      # sender -> last seq taken (only senders holding the key)
+        self.last_seq: dict[tuple, int] = {}    # (sender, topic) -> last seq taken (only key holders)
 
     @property
     def required(self) -> bool:
@@ -189,11 +194,11 @@ class Verifier:
         if not hmac.compare_digest(mac, self.key.mac(topic, zeroed)):
             return "", CredentialRefused(f"{topic}: credential not valid for this run (says {sender}): "
                                          "another key, or the message was altered")
-        last = self.last_seq.get(sender, 0)
+        last = self.last_seq.get((sender, topic), 0)
         if seq <= last:
             return sender, CredentialRefused(f"{topic}: a replayed command of {sender} (seq {seq}, already "
                                              f"took {last})", sender)
-        self.last_seq[sender] = seq
+        self.last_seq[sender, topic] = seq
         return sender, None
 
     @classmethod

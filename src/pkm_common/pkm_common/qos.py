@@ -16,11 +16,16 @@ a TRANSIENT_LOCAL subscriber gets the latched message).
 | `trajectory`                                   | trajectory_msgs/MultiDOFJointTrajectory | LATCHED_QOS |
 | `markers`                                      | visualization_msgs/MarkerArray | LATCHED_QOS  |
 | `goal`, `program`                              | PoseStamped, std_msgs/String  | STREAM_QOS    |
-| `controller/feed_override`, `controller/settings` | std_msgs/Float64, String (JSON) | STREAM_QOS |
+| `controller/feed_override`, `controller/settings` | std_msgs/String (a number, JSON) | STREAM_QOS |
+| `run/start`                                    | std_msgs/String (`start`)     | LATCHED_QOS   |
 | `controller/events`                            | std_msgs/String (JSON)        | EVENTS_QOS    |
 | `load`                                         | geometry_msgs/WrenchStamped   | STREAM_QOS    |
 | `estop`                                        | std_msgs/Bool                 | LATCHED_QOS   |
 | `diagnostics`                                  | diagnostic_msgs/DiagnosticArray | STREAM_QOS  |
+
+The commands (`goal`, `program`, `trajectory`, `load`, `controller/feed_override`,
+`controller/settings`, `run/start`) carry the run's credential in their first string
+(pkm_common.credential): `header.frame_id`, or a String's first line before its body.
 
 - STREAM_QOS: RELIABLE, KEEP_LAST 10, VOLATILE. Lockstep exchanges one message per
   step and must not lose it (RELIABLE); depth 10 absorbs a burst while a callback
@@ -92,6 +97,7 @@ TOPIC_QOS = {
     'estop': LATCHED_QOS,
     'controller/feed_override': STREAM_QOS,
     'controller/settings': STREAM_QOS,
+    'run/start': LATCHED_QOS,
     'controller/events': EVENTS_QOS,
     '/clock': CLOCK_QOS,
 }

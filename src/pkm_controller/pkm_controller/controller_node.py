@@ -7,7 +7,8 @@ fails the transition with its name and allowed range. activate: answer every
 ``metrology/pose`` of the same stamp) with ``drives/command`` stamped like the state
 (lockstep). ``trajectory`` (latched) starts at the next state; with
 ``wait_for_trajectory`` / ``wait_for_start`` no state is answered before the
-trajectory / a latched ``run/start`` (an orchestrator's start signal); ``estop`` and every
+trajectory / a latched ``run/start`` (an orchestrator's start signal: a String ``start``);
+with ``credential_file`` every command carries the run's credential (node_loop); ``estop`` and every
 trip of the supervisor put the controller in its safe state (zero forces) and latch
 ``estop`` so the drives brake. A wall-clock watchdog trips when ``drives/state`` or
 the metrology stops for ``state_timeout_s`` / ``metrology_timeout_s``, from the
@@ -31,11 +32,12 @@ from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import TransitionCallbackReturn
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64, String
+from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.files import reserve_file, write_summary
 from pkm_common.causes import TripCause
+from pkm_common.credential import Verifier
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
                                     publisher_names)
 from pkm_common.node_tap import NodeTap
@@ -54,7 +56,9 @@ NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeou
                    # full node names of the inputs' sources (node_loop; empty: the one publisher)
                    "state_source": "", "metrology_source": "",
                    # who may command (comma-separated full node names; empty: anyone): node_loop
-                   "trajectory_source": "", "operator_sources": ""}
+                   "trajectory_source": "", "operator_sources": "",
+                   # the run's key (pkm_common.credential; empty: commands need no credential)
+                   "credential_file": ""}
 
 
 class ControllerNode(LifecycleNode):
@@ -89,6 +93,7 @@ class ControllerNode(LifecycleNode):
         try:
             values, config = self._read_parameters()
             core = core_from_parameters(values["machine"], config)
+            credentials = Verifier.from_file(values["credential_file"])
             warm_up(core)                   # the kernels loaded now, not in the first cycles
         except ValueError as exc:
             self.configure_error = str(exc)
@@ -97,7 +102,7 @@ class ControllerNode(LifecycleNode):
         self.values = values
         if values["summary_path"]:
             reserve_file(values["summary_path"])    # a disk the bag fills cannot take the summary's place
-        loop = self.loop = ControllerLoop(core, values, self)
+        loop = self.loop = ControllerLoop(core, values, self, credentials)
         strategy = core.strategy
         self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
         self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_PUBLISHER_QOS)
@@ -107,15 +112,14 @@ class ControllerNode(LifecycleNode):
         self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
         self.pub_events = self.create_publisher(String, "controller/events", EVENTS_QOS)
         self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop, self.pub_events,
-                         self._command(Float64, "controller/feed_override", lambda m: loop.on_command(
-                             "controller/feed_override", Action.FEED_OVERRIDE, m.data), STREAM_QOS),
-                         self._command(String, "controller/settings", lambda m: loop.on_command(
-                             "controller/settings", Action.SETTINGS, m.data), STREAM_QOS),
+                         self._command(String, "controller/feed_override", lambda b: loop.on_command(
+                             "controller/feed_override", Action.FEED_OVERRIDE, b), STREAM_QOS),
+                         self._command(String, "controller/settings", lambda b: loop.on_command(
+                             "controller/settings", Action.SETTINGS, b), STREAM_QOS),
                          self._input(JointState, "drives/state", loop.on_state),
-                         self._command(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory, LATCHED_QOS,
-                                       raw=True),
+                         self._command(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory, LATCHED_QOS),
                          self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS),
-                         self._command(Bool, "run/start", lambda m: loop.on_start(bool(m.data)), LATCHED_QOS),
+                         self._command(String, "run/start", loop.on_start, LATCHED_QOS),
                          self.create_timer(0.01, loop.on_watchdog)]
         if strategy.uses_metrology:
             struts = strategy.feedback == Feedback.STRUTS
@@ -133,9 +137,10 @@ class ControllerNode(LifecycleNode):
         self.inputs[topic] = subscription
         return subscription
 
-    def _command(self, msg_type, topic: str, callback, qos, raw: bool = False):
-        """A command input, whose publishers are asked for at each message (node_loop)."""
-        subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
+    def _command(self, msg_type, topic: str, callback, qos):
+        """A command input (raw bytes: its credential covers them), whose publishers are
+        asked for at each message (node_loop)."""
+        subscription = self.create_subscription(msg_type, topic, callback, qos, raw=True)
         self.inputs[topic] = subscription
         return subscription
 

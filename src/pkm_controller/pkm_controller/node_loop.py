@@ -31,6 +31,11 @@ skips it: nothing was applied) and counted; during a motion the machine stops (c
 intruder), at the command or at a check of the graph (one topic every
 ``COMMAND_CHECK_S``, in turn). A publisher the graph knows no node of is not
 counted (sources.AllowedSenders.check says why).
+
+Names can be spoofed: with the run's key (``credentials``, the ``credential_file``
+parameter) every command message must also carry a valid credential of an allowed
+sender, taken once (pkm_common.credential); one without is refused the same way,
+recorded with the sender its tag claims, or ``(no credential)``.
 """
 
 from __future__ import annotations
@@ -39,9 +44,10 @@ import time
 
 from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
-                            decode_pose_stamped, in_order, stamp_ns_of)
+                            decode_pose_stamped, decode_string, in_order, stamp_ns_of)
+from pkm_common.credential import Verifier, split_text
 from pkm_common.conversions import machine_pose_components
-from pkm_common.sources import AllowedSenders, SourceGate, node_names
+from pkm_common.sources import AllowedSenders, Intrusion, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
 
 from .configuration import metrology_inputs, run_summary
@@ -61,8 +67,9 @@ class ControllerLoop:
     """One configured controller's answers (the node's ``values``: its parameters
     beside ControllerConfig, config/controller/*.yaml)."""
 
-    def __init__(self, core: ControllerCore, values: dict, ports):
+    def __init__(self, core: ControllerCore, values: dict, ports, credentials: Verifier | None = None):
         self.core, self.values, self.ports = core, values, ports
+        self.credentials = credentials or Verifier(None)     # the run's key (pkm_common.credential)
         self.active = False
         self.compute_s = DurationHistogram()     # prepare + complete per cycle (constant memory)
         self.response_s = DurationHistogram()    # last input (state or metrology) -> command ready
@@ -164,7 +171,7 @@ class ControllerLoop:
     def on_trajectory(self, buf: bytes) -> None:
         """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
         trajectory would hold the loop for tens of milliseconds."""
-        if not self.commanded("trajectory", Action.TRAJECTORY, buf):
+        if not self.commanded("trajectory", Action.TRAJECTORY, buf, stamped=True):
             return
         try:
             data = decode_multidof_trajectory(buf)
@@ -175,27 +182,35 @@ class ControllerLoop:
         ref.stamp_ns = data.stamp_ns   # its verdict names it (the planner's plan_chain)
         self.operator(Action.TRAJECTORY, ref)
 
-    def on_command(self, topic: str, action: Action, payload) -> None:
-        """An operator's command from ``topic`` (settings, feed override): taken if
-        its sources are the allowed ones (module doc)."""
-        if self.commanded(topic, action):
-            self.operator(action, payload)
+    def on_command(self, topic: str, action: Action, buf: bytes) -> None:
+        """An operator's command from ``topic`` (settings, feed override: a String, its
+        credential's line then its body): taken if its credential and its topic's
+        publishers are the allowed ones (module doc)."""
+        if not self.commanded(topic, action, buf):
+            return
+        try:
+            body = split_text(decode_string(buf, topic))[1]
+            payload = body if action != Action.FEED_OVERRIDE else _number(topic, body)
+        except ValueError as exc:
+            payload = exc                      # refused with its message (operator.apply_action)
+        self.operator(action, payload)
 
-    def commanded(self, topic: str, action: Action | None, buf: bytes = b"") -> bool:
-        """Whether a command on ``topic`` may be taken: every publisher of it allowed.
-        Else it is refused (recorded, counted; ``action`` None: no event) and, during a
-        motion, the machine stops."""
+    def commanded(self, topic: str, action: Action | None, buf: bytes = b"", stamped: bool = False) -> bool:
+        """Whether a command on ``topic`` may be taken: its credential valid (a message
+        ``buf`` while the run has a key) and its sender allowed, and every publisher of
+        the topic allowed. Else it is refused (recorded, counted; ``action`` None: no
+        event) and, during a motion, the machine stops."""
         gate = self.commands[topic]
-        if not gate.allowed:
-            return True
-        found = gate.check(self.ports.topic_senders(topic))
+        found = self.credential_refused(topic, buf, stamped) if buf else None
+        if found is None and gate.allowed:
+            found = gate.check(self.ports.topic_senders(topic))
         if found is None:
             return True
         if action is not None:
             self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
             event = {"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
                      "intruder": found.sender, "after_ns": self.last_answer[0]}
-            if len(buf) >= 12:         # a trajectory's stamp: the planner matches its verdicts by it
+            if stamped and len(buf) >= 12:     # a trajectory's stamp: the planner matches its verdicts by it
                 event["stamp_ns"] = stamp_ns_of(buf)
             self.report([event])
         if not self.command_intruder:
@@ -204,6 +219,19 @@ class ControllerLoop:
         if self.active and not self.core.stopped and self.core.mode == "tracking":
             self.safe_stop(found.reason, TripCause.INTRUDER)
         return False
+
+    def credential_refused(self, topic: str, buf: bytes, stamped: bool) -> Intrusion | None:
+        """Why the message's credential is refused (pkm_common.credential), or None; its
+        sender must also be one the topic allows."""
+        try:
+            sender, refused = self.credentials.check(topic, buf, stamped)
+        except ValueError as exc:             # malformed: no credential can be read in it
+            return Intrusion(str(exc), "(unreadable)")
+        allowed = self.commands[topic].allowed
+        if refused is None and self.credentials.required and allowed and sender not in allowed:
+            return Intrusion(f"{sender} holds the run's credential but may not command {topic} (only "
+                             f"{', '.join(sorted(allowed))})", sender)
+        return None if refused is None else Intrusion(refused.reason, refused.sender or "(no credential)")
 
     def check_commands(self) -> None:
         """During a motion: a node publishing a command topic it may not stops the
@@ -232,8 +260,13 @@ class ControllerLoop:
                 self.ports.log_error(event["message"])
                 self.publish_status(extra=event_summary(event))
 
-    def on_start(self, started: bool) -> None:
-        if self.commanded("run/start", None):
+    def on_start(self, buf: bytes) -> None:
+        """The orchestrator's start (a String ``start`` after its credential's line)."""
+        if self.commanded("run/start", None, buf):
+            try:
+                started = split_text(decode_string(buf, "run/start"))[1] == "start"
+            except ValueError:
+                started = False
             self.start_received = self.start_received or started
 
     def on_estop(self, active: bool) -> None:
@@ -356,3 +389,10 @@ class ControllerLoop:
         return {**run_summary(self.core, self.compute_s, self.response_s, self.answers_published),
                 "commands_resent": self.commands_resent, "intruder": self.intruder or self.command_intruder,
                 "commands_refused": dict(self.commands_refused)}
+
+
+def _number(topic: str, text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{topic}: expected a number, got {text[:40]!r}") from None

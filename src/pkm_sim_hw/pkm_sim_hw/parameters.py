@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.credential import Verifier
 from pkm_common.sources import AllowedSenders, node_names
 from pkm_kinematics import MachineConfig, load_machine
 from pkm_sim_hw.authority import CommandGate
@@ -33,6 +34,7 @@ class SimHwSettings:
     summary_path: str
     shutdown_on_finish: bool
     load_senders: AllowedSenders = AllowedSenders("load", ())    # who may send a load (empty: anyone)
+    credentials: Verifier = Verifier(None)     # the run's key: a load carries its credential (none: not needed)
 
 
 def declare_settings(node) -> SimHwSettings:
@@ -106,5 +108,11 @@ def declare_settings(node) -> SimHwSettings:
     load_senders = AllowedSenders("load", node_names(declare_str(
         node, "load_sources", "", "full node names allowed to publish a load, comma-separated (empty: anyone); "
         "another's load stops the machine (cause intruder)", allow_empty=True)), "load_sources")
+    path = declare_str(node, "credential_file", "", "the run's key (pkm_common.credential; empty: a load needs "
+                       "no credential)", allow_empty=True)
+    try:
+        credentials = Verifier.from_file(path)
+    except ValueError as exc:
+        raise ParameterError("credential_file", str(exc).partition(": ")[2]) from None
     return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s,
-                         duration_steps, summary_path, shutdown_on_finish, load_senders)
+                         duration_steps, summary_path, shutdown_on_finish, load_senders, credentials)

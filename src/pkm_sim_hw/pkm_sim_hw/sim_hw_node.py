@@ -78,7 +78,7 @@ class SimHwNode(Node):
         self.command_sub = self.create_subscription(
             JointState, "drives/command", loop.on_command, STREAM_QOS, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s: loop.on_command_matched(s.current_count)))
-        self.load_sub = self.create_subscription(WrenchStamped, "load", self.on_load, STREAM_QOS)
+        self.load_sub = self.create_subscription(WrenchStamped, "load", loop.on_load_message, STREAM_QOS, raw=True)
         self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS)
         self.create_timer(0.1, loop.on_watchdog)
         for cadence, work in loop.cadences:
@@ -97,10 +97,6 @@ class SimHwNode(Node):
 
     def summary(self) -> dict:
         return self.loop.summary()
-
-    def on_load(self, msg: WrenchStamped) -> None:
-        f, m = msg.wrench.force, msg.wrench.torque
-        self.loop.on_load((f.x, f.y, f.z), (m.x, m.y, m.z))
 
     # ------------------------------------------------- the loop's ports (sim_loop)
     def publish_diagnostics(self, stamp_ns: int, level: int, message: str, values: dict) -> None:

@@ -20,7 +20,8 @@ import time
 from typing import TYPE_CHECKING
 
 from pkm_common.causes import TripCause
-from pkm_common.cdr import JointStateDecoder
+from pkm_common.cdr import JointStateDecoder, decode_wrench_stamped
+from pkm_common.credential import CredentialRefused
 from pkm_common.files import reserve_file, write_summary as write_summary_file
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
@@ -45,7 +46,7 @@ class SimLoop:
 
     def __init__(self, settings: SimHwSettings, streams: StepStreams, ports):
         self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
-        self.load_senders = settings.load_senders
+        self.load_senders, self.credentials = settings.load_senders, settings.credentials
         self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
         self.duration_s, self.duration_steps = settings.duration_s, settings.duration_steps
         self.summary_path = settings.summary_path
@@ -212,6 +213,24 @@ class SimLoop:
             self.ports.log_error(self.plant.stop_reason)
             self.publish_diagnostics()
             self.publish_state()
+
+    def on_load_message(self, buf: bytes) -> None:
+        """A ``load`` message (WrenchStamped bytes): its credential checked with the
+        run's key (pkm_common.credential), then on_load."""
+        try:
+            sender, refused = self.credentials.check("load", buf, stamped=True)
+            force, moment = decode_wrench_stamped(buf, "load")
+        except ValueError as exc:
+            self.refuse(Refusal(str(exc), TripCause.INPUT_REFUSED), topic="load")
+            return
+        allowed = self.load_senders.allowed
+        if refused is None and self.credentials.required and allowed and sender not in allowed:
+            refused = CredentialRefused(f"{sender} holds the run's credential but may not send a load", sender)
+        if refused is not None:
+            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender=refused.sender or "(no credential)"),
+                        topic="load")
+            return
+        self.on_load(force, moment)
 
     def on_load(self, force, moment) -> None:
         """An external load (a simulation input): from the nodes the run names

@@ -7,7 +7,9 @@ there; ``program_file`` (parameter) is planned at start. Before anything is
 published the whole trajectory is checked against the machine model (reachability,
 joint limits, joint velocity and acceleration, conditioning, transmission factors);
 a rejected one publishes nothing and reports which sample, which limit and by how
-much on ``diagnostics`` (ERROR). An accepted one goes out on ``trajectory``
+much on ``diagnostics`` (ERROR). With ``credential_file`` (the run's key) a goal or
+program without the run's credential is refused, and the trajectories carry it
+(pkm_common.credential). An accepted one goes out on ``trajectory``
 (MultiDOFJointTrajectory, one joint "tool", latched) and is reported OK.
 """
 
@@ -18,11 +20,14 @@ from pathlib import Path
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from pkm_common.cdr import decode_string
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, pose_from_msg,
-                                    tool_pose_to_machine, trajectory_msg)
+                                    signed_message, tool_pose_to_machine, trajectory_msg)
+from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -74,8 +79,15 @@ class TrajectoryNode(Node):
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
         self.gates = {topic: AllowedSenders(topic, operators, "operator_sources") for topic in ("goal", "program")}
         self.refused_senders = 0
-        self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS),
-                       "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS)}
+        # the run's key: goals and programs carry its credential, and so do our trajectories
+        path = declare_str(self, "credential_file", "", "the run's key (pkm_common.credential; empty: commands "
+                           "need none)", allow_empty=True)
+        key = RunKey.read(path) if path else None
+        self.credentials = Verifier(key)
+        self.signer = Signer(key, self.get_fully_qualified_name()) if key else None
+        self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS, raw=True),
+                       "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS,
+                                                           raw=True)}
         self.controller = AllowedSenders("controller/events", node_names(declare_str(
             self, "controller_source", "", "the controller's full node name: its verdicts move where plans start "
             "(empty: anyone's)", allow_empty=True)), "controller_source")
@@ -105,35 +117,45 @@ class TrajectoryNode(Node):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
                 "scale": self.scale, "repeat": self.repeat}
 
-    def sender_refused(self, topic: str) -> bool:
-        """A goal or program while a node the run did not name publishes on its topic:
-        refused, reported with its name (diagnostics, recorded), counted."""
+    def sender_refused(self, topic: str, buf: bytes) -> bool:
+        """A goal or program without the run's credential of an allowed sender, or while
+        a node the run did not name publishes on its topic: refused, reported with the
+        sender (diagnostics, recorded), counted."""
         gate = self.gates[topic]
-        if not gate.allowed:
-            return False
-        found = gate.check(graph_senders(self, self.inputs[topic].topic_name))
-        if found is None:
+        try:
+            sender, refused = self.credentials.check(topic, buf, stamped=topic == "goal")
+            reason, who = (refused.reason, refused.sender or "(no credential)") if refused else ("", "")
+        except ValueError as exc:
+            reason, who = str(exc), "(unreadable)"
+        if not reason and self.credentials.required and gate.allowed and sender not in gate.allowed:
+            reason, who = f"{sender} holds the run's credential but may not send {topic}", sender
+        if not reason and gate.allowed:
+            found = gate.check(graph_senders(self, self.inputs[topic].topic_name))
+            reason, who = (found.reason, found.sender) if found else ("", "")
+        if not reason:
             return False
         self.refused_senders += 1
-        self.get_logger().error(f"{topic} refused: {found.reason}")
-        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender})
+        self.get_logger().error(f"{topic} refused: {reason}")
+        self.report(2, f"{topic} refused: {reason}", {"intruder": who})
         return True
 
-    def on_goal(self, msg: PoseStamped) -> None:
-        if self.sender_refused("goal"):
+    def on_goal(self, buf: bytes) -> None:
+        if self.sender_refused("goal", buf):
             return
 
         def segments():
+            msg = deserialize_message(buf, PoseStamped)
             position, rotation = pose_from_msg(msg)
             # a planar machine's yaw on the revolution it is at (a 6-DOF pose: its roll, pitch, yaw)
             target = tool_pose_to_machine(self.space, position, rotation, self.pose[2])
             return [point_to_point(self.pose, target)]
         self.submit("goal", segments)
 
-    def on_program(self, msg: String) -> None:
-        if self.sender_refused("program"):
+    def on_program(self, buf: bytes) -> None:
+        if self.sender_refused("program", buf):
             return
-        self.submit("program", lambda: gcode_segments(msg.data, **self._options()))
+        self.submit("program", lambda: gcode_segments(split_text(decode_string(buf, "program"))[1],
+                                                      **self._options()))
 
     def submit(self, source: str, build) -> None:
         """Plan, validate, publish or refuse; every outcome is reported."""
@@ -147,7 +169,7 @@ class TrajectoryNode(Node):
             self.report(2, f"{source} rejected: {exc}", {})
             return
         msg = self.to_msg(samples)
-        self.pub.publish(msg)
+        self.pub.publish(signed_message(self.signer, "trajectory", msg))
         self.chain.published(samples.position[-1].tolist(), msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
         self.accepted += 1
         self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
