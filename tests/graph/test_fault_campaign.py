@@ -33,13 +33,29 @@ class Adversary(threading.Thread):
     ONSET_S: ``commands`` publishes 1e9 N drive commands stamped like the plant,
     ``states`` drive states 10 mm off stamped like the plant (to the controller),
     ``estop`` latches estop, ``load`` sends a 1e7 N external load; the
-    COMMAND_ACTIONS an operator's command (command_message)."""
+    COMMAND_ACTIONS an operator's command (command_message). ``name``: its node's
+    (an allowed one: a spoofed name); ``key_file``: the run's key, read when it acts
+    (an operator's script that is given it signs its commands; ``replay`` sends each
+    signed message twice, as a recording of the wire would)."""
 
-    def __init__(self, action: str, namespace: str = "/pkm"):
+    def __init__(self, action: str, namespace: str = "/pkm", name: str = "rogue", key_file=None,
+                 replay: bool = False):
         super().__init__(daemon=True)
-        self.action, self.namespace = action, namespace
+        self.action, self.namespace, self.name = action, namespace, name
+        self.key_file, self.replay = key_file, replay
         self.done = threading.Event()
         self.acted_s = None
+
+    def sign(self, node, topic: str, msg):
+        """``msg`` as published: signed with the run's key when it was given."""
+        from std_msgs.msg import String
+
+        from pkm_common.conversions import signed_message
+        from pkm_common.credential import RunKey, Signer
+        if self.key_file is None:
+            return msg
+        signer = Signer(RunKey.read(self.key_file), node.get_fully_qualified_name())
+        return signer.text(topic, msg.data) if isinstance(msg, String) else signed_message(signer, topic, msg)
 
     def run(self) -> None:
         import rclpy
@@ -53,7 +69,7 @@ class Adversary(threading.Thread):
         from pkm_common.qos import CLOCK_QOS, LATCHED_QOS, STREAM_QOS
         context = rclpy.Context()
         rclpy.init(context=context)
-        node = rclpy.create_node("rogue", namespace=self.namespace, context=context)
+        node = rclpy.create_node(self.name, namespace=self.namespace, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         clock = []
@@ -85,20 +101,22 @@ class Adversary(threading.Thread):
                 msg = WrenchStamped()
                 msg.wrench.force.x = 1e7 if self.action == "load" else 4900.0
                 for _ in range(20):
-                    pub.publish(msg)
+                    pub.publish(self.sign(node, "load", msg))
                     executor.spin_once(timeout_sec=0.01)
             elif self.action == "oversized":       # an operator's program too long to sample
                 from std_msgs.msg import String
                 pub = node.create_publisher(String, "program", STREAM_QOS)
                 for _ in range(3):
-                    pub.publish(String(data="G4 P1000000\n"))
+                    pub.publish(self.sign(node, "program", String(data="G4 P1000000\n")))
                     executor.spin_once(timeout_sec=0.01)
             elif self.action in COMMAND_ACTIONS:    # an operator's command from a node the run did not name
                 topic, msg_type, message = command_message(self.action)
                 pub = node.create_publisher(msg_type, topic, LATCHED_QOS if topic == "trajectory" else STREAM_QOS)
                 for _ in range(20):
-                    pub.publish(message)
-                    executor.spin_once(timeout_sec=0.01)
+                    signed = self.sign(node, topic, message)
+                    for _ in range(2 if self.replay else 1):
+                        pub.publish(signed)
+                        executor.spin_once(timeout_sec=0.01)
             while not self.done.is_set():
                 executor.spin_once(timeout_sec=0.05)
         finally:
@@ -114,7 +132,7 @@ COMMAND_ACTIONS = ("trajectory", "settings", "feed", "goal", "program")
 def command_message(action: str):
     """(topic, type, message) of the rogue's command ``action``."""
     from geometry_msgs.msg import PoseStamped
-    from std_msgs.msg import Float64, String
+    from std_msgs.msg import String
     from trajectory_msgs.msg import MultiDOFJointTrajectory
 
     from pkm_common.conversions import pose_msg, trajectory_msg
@@ -133,7 +151,7 @@ def command_message(action: str):
     if action == "settings":                    # computed torque with prestress 1e9 N
         return "controller/settings", String, String(data='{"strategy": "computed_torque", "prestress_n": 1e9}')
     if action == "feed":
-        return "controller/feed_override", Float64, Float64(data=2.0)
+        return "controller/feed_override", String, String(data="2.0")
     if action == "goal":                        # +5 mm
         return "goal", PoseStamped, pose_msg([home[0] + 0.005, home[1], 0.0], rotation_about_z(home[2]), 0, "world")
     return "program", String, String(data="G91 G1 F600 Y5\n")
@@ -157,6 +175,11 @@ CASES = [
     ("rogue_feed", "archi_demo", "", "feed", "intruder", "/pkm/rogue"),
     ("rogue_goal", "archi_demo", "", "goal", "intruder", "/pkm/rogue"),
     ("rogue_program", "archi_demo", "", "program", "intruder", "/pkm/rogue"),
+    # a rogue that takes the panel's name (names can be spoofed): no credential, refused
+    ("spoofed_panel_settings", "archi_demo", "", "settings", "intruder", "no credential"),
+    ("spoofed_panel_feed", "archi_demo", "", "feed", "intruder", "no credential"),
+    # the panel's own signed feed override, recorded off the wire and sent again
+    ("replayed_panel_feed", "archi_demo", "", "feed", "intruder", "a replayed command of /pkm/panel"),
 ]
 
 
@@ -192,10 +215,15 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     overrides = {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0], **({"faults": faults} if faults else {})}}
     if scenario == "mom3_square":
         overrides["plant"] = {"faults": faults}
+    key_file = None
     if case.endswith("_operator"):
         overrides["operators"] = ["/pkm/rogue"]         # the adversary's node, named by the run
+        key_file = tmp_path / case / "credential.key"   # ... and given the run's key
     s = load_scenario(scenario, overrides)
-    adversary = Adversary(action) if action else None
+    if case.startswith("replayed_"):
+        key_file = tmp_path / case / "credential.key"   # the panel's signed message, as recorded
+    adversary = Adversary(action, name="panel" if case.startswith(("spoofed_", "replayed_")) else "rogue",
+                          key_file=key_file, replay=case.startswith("replayed_")) if action else None
     if adversary:
         adversary.start()
     try:
@@ -250,7 +278,7 @@ def test_campaign_an_operators_oversized_program_is_refused_and_the_run_goes_on(
     from rosbags.typesys import Stores, get_typestore
     s = load_scenario("archi_demo", {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0]},
                                      "operators": ["/pkm/rogue"]})
-    adversary = Adversary("oversized")
+    adversary = Adversary("oversized", key_file=tmp_path / "oversized" / "credential.key")
     adversary.start()
     try:
         run = run_scenario(s, tmp_path / "oversized", in_process=True, progress=False, report=False)
@@ -266,6 +294,35 @@ def test_campaign_an_operators_oversized_program_is_refused_and_the_run_goes_on(
     assert refusal and "line 1: a dwell of 1e+06 s exceeds max_points 200000" in refusal[0], messages
     _row({"fault": "oversized_program (G4 P1000000)", "detection_ms": None, "error_at_stop_um": None,
           "motion_after_stop_um": None, "cause": "refused (trajectory diagnostics)", "reason": refusal[0]})
+
+
+def test_campaign_a_spoofed_panels_goal_is_refused_by_the_planner_and_the_run_goes_on(tmp_path):
+    """A rogue that names its node ``panel`` (an allowed name: the graph cannot tell)
+    sends a +5 mm goal without the run's credential: the planner refuses it, recorded,
+    and the motion goes on to its end (before the credential, a goal moved the tool
+    5.08 mm)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    s = load_scenario("archi_demo", {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0]}})
+    adversary = Adversary("goal", name="panel")
+    adversary.start()
+    try:
+        run = run_scenario(s, tmp_path / "spoofed", in_process=True, progress=False, report=False)
+    finally:
+        adversary.done.set()
+        adversary.join(timeout=10)
+    assert run["status"] == "completed", (run["status"], run["error"], run["trip_reason"])
+    with AnyReader([tmp_path / "spoofed" / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        wanted = [c for c in reader.connections if c.topic == "/pkm/diagnostics"]
+        statuses = [st for c, _, raw in reader.messages(connections=wanted)
+                    for st in reader.deserialize(raw, c.msgtype).status if st.name == "trajectory"]
+    refused = [st for st in statuses if st.message.startswith("goal refused")]
+    assert refused and refused[0].message == "goal refused: goal: no credential (pkm-cred/1 tag) in the message", \
+        [st.message for st in statuses]
+    assert {kv.key: kv.value for kv in refused[0].values}["intruder"] == "(no credential)"
+    assert not any("goal accepted" in st.message for st in statuses)
+    _row({"fault": "spoofed_panel_goal", "detection_ms": 0.0, "error_at_stop_um": None, "motion_after_stop_um": None,
+          "cause": "refused (trajectory diagnostics)", "reason": refused[0].message})
 
 
 def test_campaign_a_hostile_page_cannot_command_the_panel():

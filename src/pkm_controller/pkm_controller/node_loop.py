@@ -201,9 +201,9 @@ class ControllerLoop:
         the topic allowed. Else it is refused (recorded, counted; ``action`` None: no
         event) and, during a motion, the machine stops."""
         gate = self.commands[topic]
-        found = self.credential_refused(topic, buf, stamped) if buf else None
-        if found is None and gate.allowed:
-            found = gate.check(self.ports.topic_senders(topic))
+        found = gate.check(self.ports.topic_senders(topic)) if gate.allowed else None   # an intruder, named
+        if found is None and buf:
+            found = self.credential_refused(topic, buf, stamped)      # ... or one under an allowed name
         if found is None:
             return True
         if action is not None:

@@ -215,8 +215,10 @@ class SimLoop:
             self.publish_state()
 
     def on_load_message(self, buf: bytes) -> None:
-        """A ``load`` message (WrenchStamped bytes): its credential checked with the
-        run's key (pkm_common.credential), then on_load."""
+        """A ``load`` message (WrenchStamped bytes): its senders checked (on_load), and
+        its credential with the run's key (pkm_common.credential)."""
+        if self.load_sender_refused():
+            return
         try:
             sender, refused = self.credentials.check("load", buf, stamped=True)
             force, moment = decode_wrench_stamped(buf, "load")
@@ -230,16 +232,24 @@ class SimLoop:
             self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender=refused.sender or "(no credential)"),
                         topic="load")
             return
-        self.on_load(force, moment)
+        self.apply_load(force, moment)
 
-    def on_load(self, force, moment) -> None:
-        """An external load (a simulation input): from the nodes the run names
-        (``load_sources``), within its bounds; else refused and the machine stopped."""
+    def load_sender_refused(self) -> bool:
+        """A node the run does not name (``load_sources``) publishes a load: refused,
+        the machine stopped."""
         senders = self.load_senders
         found = senders.check(self.ports.load_senders()) if senders.allowed else None
         if found is not None:
             self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender=found.sender), topic="load")
-            return
+        return found is not None
+
+    def on_load(self, force, moment) -> None:
+        """An external load (a simulation input): from the nodes the run names
+        (``load_sources``), within its bounds; else refused and the machine stopped."""
+        if not self.load_sender_refused():
+            self.apply_load(force, moment)
+
+    def apply_load(self, force, moment) -> None:
         try:
             self.plant.set_load(self.plant.load_components(force, moment))
         except ValueError as exc:                  # nothing applied; the experiment cannot go on
