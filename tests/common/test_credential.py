@@ -56,16 +56,36 @@ def test_the_key_file_is_the_owners_alone_and_holds_its_key(tmp_path):
 def test_a_signed_stamped_command_verifies_and_its_mac_is_hmac_sha256_of_the_zeroed_bytes(tmp_path, topic, msg):
     key = _key(tmp_path)
     buf = signed_message(Signer(key, "/pkm/panel", clock=lambda: 7), topic, msg)
-    # second reader: rclpy deserializes the tag; HMAC recomputed over the message
-    # re-serialized by rclpy with the mac's digits as zeros
+    # second reader: rclpy deserializes the tag; HMAC recomputed over the bytes with the
+    # mac's digits replaced by zeros where they are found (not re-serialized: rclpy's
+    # alignment padding is not always zero, so the bytes are what is signed)
     tag = deserialize_message(buf, type(msg)).header.frame_id
-    scheme, sender, seq, mac = tag.split(" ")
-    assert (scheme, sender, seq) == (SCHEME, "/pkm/panel", "7")
-    zeroed = deserialize_message(buf, type(msg))
-    zeroed.header.frame_id = tag[:-64] + "0" * 64
+    scheme, sender, seq, size, mac = tag.split(" ")
+    assert (scheme, sender, seq, int(size)) == (SCHEME, "/pkm/panel", "7", len(buf))
+    assert buf.count(mac.encode()) == 1
+    zeroed = buf.replace(mac.encode(), b"0" * 64)
     secret = bytes.fromhex((tmp_path / "credential.key").read_text().strip())
-    assert mac == hmac.new(secret, topic.encode() + b"\0" + serialize_message(zeroed), hashlib.sha256).hexdigest()
+    assert mac == hmac.new(secret, topic.encode() + b"\0" + zeroed, hashlib.sha256).hexdigest()
+    # the fields survive: the message read back is the one signed, but for its frame
+    back = deserialize_message(buf, type(msg))
+    back.header.frame_id = msg.header.frame_id
+    assert back == msg
     assert Verifier(key).check(topic, buf, stamped=True) == ("/pkm/panel", None)
+
+
+def test_a_command_read_with_the_padding_of_the_wire_verifies_and_a_short_one_does_not(tmp_path):
+    """Fast DDS hands a reader the bytes padded to a multiple of 4 (a 127-byte run/start
+    arrived as 128 between two processes): the mac covers the sender's ``size``."""
+    key = _key(tmp_path)
+    signer = Signer(key, "/pkm/bringup_monitor")
+    buf = signer.text("run/start", "start")
+    assert len(buf) % 4                                   # this one is padded on the wire
+    verifier = Verifier(key)
+    assert verifier.check("run/start", buf + b"\0" * (-len(buf) % 4), False) == ("/pkm/bringup_monitor", None)
+    short = signed_message(signer, "goal", _goal())[:-1]          # the last byte of orientation.w cut
+    sender, why = verifier.check("goal", short, True)
+    assert why.reason == f"goal: credential of /pkm/bringup_monitor for {len(short) + 1} bytes, the message has " \
+        f"{len(short)}"
 
 
 def test_a_string_command_carries_its_tag_as_the_first_line_and_keeps_its_body(tmp_path):
@@ -120,3 +140,17 @@ def test_without_a_key_every_command_is_taken_and_a_malformed_one_raises(tmp_pat
         verifier.check("goal", b"\x00\x01\x00\x00\x05", True)
     start, end = first_string_span(serialize_message(String(data="abc")), stamped=False)
     assert serialize_message(String(data="abc"))[start:end] == b"abc"
+
+
+def test_refusal_names_the_sender_and_holds_a_key_holder_to_its_topics(tmp_path):
+    key = _key(tmp_path)
+    verifier = Verifier(key)
+    allowed = frozenset({"/pkm/panel"})
+    assert verifier.refusal("program", Signer(key, "/pkm/panel").text("program", "M2"), False, allowed) is None
+    planner = verifier.refusal("program", Signer(key, "/pkm/trajectory").text("program", "M2"), False, allowed)
+    assert planner.sender == "/pkm/trajectory" and planner.reason == \
+        "program: /pkm/trajectory holds the run's credential but may not send it (only /pkm/panel)"
+    assert verifier.refusal("program", serialize_message(String(data="M2")), False, allowed).sender == \
+        "(no credential)"
+    assert verifier.refusal("program", b"\x00\x01", False, allowed).sender == "(unreadable)"
+    assert Verifier(None).refusal("program", b"", False, allowed) is None

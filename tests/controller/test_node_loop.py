@@ -245,7 +245,7 @@ def test_with_the_runs_key_a_command_without_its_credential_is_refused_whatever_
     # the planner may not send settings, though it holds the key
     loop.on_command("controller/settings", Action.SETTINGS,
                     Signer(key, "/pkm/trajectory").text("controller/settings", "{}"))
-    assert "/pkm/trajectory holds the run's credential but may not command controller/settings" in \
+    assert "/pkm/trajectory holds the run's credential but may not send it" in \
         events[-1]["message"]
     assert loop.summary()["commands_refused"] == {"controller/settings": 3, "trajectory": 2}
     assert not loop.core.stopped
@@ -278,3 +278,20 @@ def test_a_signed_feed_override_that_is_no_number_is_refused_and_the_start_needs
     assert not loop.start_received
     loop.on_start(Signer(key, "/pkm/bringup_monitor").text("run/start", "start"))
     assert loop.start_received
+
+
+def test_an_estop_before_the_first_cycle_of_a_six_axis_machine_is_reported():
+    """The panel's hexapod graph, E-stopped before it started: the controller crashed
+    making its status (a 3-element error on a 6-DOF machine), and its summary with it."""
+    import json
+    events = []
+    ports = Ports()
+    ports.publish_event = lambda text: events.append(json.loads(text))
+    loop = ControllerLoop(core_from_parameters("hexapod8", ControllerConfig(strategy="computed_torque")),
+                          dict(NODE_PARAMETERS), ports)
+    loop.active = True
+    loop.on_estop(True)
+    level, message, values = loop.core.status()
+    assert (level, message, values["tracking_error_rad"]) == (2, "stopped: estop", 0.0)
+    assert (loop.summary()["cause"], loop.summary()["stopped"]) == ("estop", True)
+    assert events[-1]["kind"] == "safe_stop" and events[-1]["cause"] == "estop"

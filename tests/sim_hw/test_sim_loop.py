@@ -4,6 +4,7 @@ The node's own tests (test_sim_hw_node.py) run the same code through DDS."""
 
 from pkm_common.causes import TripCause, plant_stop_cause
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder
+from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_common.sources import AllowedSenders
 from pkm_kinematics import load_machine
 from pkm_sim_hw.authority import CommandGate
@@ -61,12 +62,13 @@ class Ports:
         self.errors.append(text)
 
 
-def lockstep_loop(duration_steps=0, load_sources=()):
+def lockstep_loop(duration_steps=0, load_sources=(), key=None):
     plant = Plant(ARCHI, PlantParameters(dt_s=0.001))
     settings = SimHwSettings(ARCHI, plant, lockstep=True, command_timeout_s=1.0, sync_error_limit=12,
                              gate=CommandGate("", True, 20_000_000), publish_markers=False,
                              duration_s=duration_steps * 0.001, duration_steps=duration_steps, summary_path="",
-                             shutdown_on_finish=True, load_senders=AllowedSenders("load", load_sources, "load_sources"))
+                             shutdown_on_finish=True, load_senders=AllowedSenders("load", load_sources, "load_sources"),
+                             credentials=Verifier(key))
     state = Wire()
     ports = Ports()
     loop = SimLoop(settings, StepStreams(plant, ARCHI.model.task_space, Wire(), state, Wire()), ports)
@@ -144,3 +146,25 @@ def test_a_load_from_a_node_the_run_did_not_name_stops_the_machine():
     ports.loads = ["/pkm/panel"]
     loop.on_load((100.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     assert not loop.plant.stopped and loop.plant.load[0] == 100.0
+
+
+def test_with_the_runs_key_a_load_needs_its_credential(tmp_path):
+    """A rogue under an allowed name (the graph names only /pkm/panel) sends a load
+    without the run's credential: refused, the plant brakes (cause intruder); the
+    panel's signed load is applied."""
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import serialize_message
+
+    from pkm_common.conversions import signed_message
+    key = RunKey.create(tmp_path / "credential.key")
+    msg = WrenchStamped()
+    msg.wrench.force.x = 100.0
+    loop, _, ports = lockstep_loop(load_sources=("/pkm/panel",), key=key)
+    ports.loads = ["/pkm/panel"]
+    loop.on_load_message(signed_message(Signer(key, "/pkm/panel"), "load", msg))
+    assert not loop.plant.stopped and loop.plant.load[0] == 100.0
+    msg.wrench.force.x, msg.header.frame_id = 4900.0, "world"
+    loop.on_load_message(serialize_message(msg))
+    assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
+    assert ports.refusals[-1].reason == "load: no credential (pkm-cred/1 tag) in the message"
+    assert ports.refusals[-1].sender == "(no credential)" and loop.plant.load[0] == 100.0

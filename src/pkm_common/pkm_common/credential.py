@@ -4,12 +4,14 @@ The graph's node names can be spoofed (sources.py) and DDS Security is not in th
 Fast DDS wheel, so every command that can move the machine carries a tag that only a
 process holding the run's key can compute:
 
-    pkm-cred/1 <sender> <seq> <mac>
+    pkm-cred/1 <sender> <seq> <size> <mac>
 
 ``mac`` is HMAC-SHA256 (RFC 2104, Python's ``hmac``) keyed with the run's 32-byte key,
-over the topic (relative: ``goal``, ``controller/settings``) and the message's whole
-serialized (CDR) bytes in which the 64 hex digits of the mac itself are zeros. So the
-tag binds the sender's name, the sequence number and every field of the message.
+over the topic (relative: ``goal``, ``controller/settings``) and the message's first
+``size`` serialized (CDR) bytes, the whole message as its sender serialized it, in
+which the 64 hex digits of the mac itself are zeros. So the tag binds the sender's
+name, the sequence number and every field of the message. (``size``, 10 digits: a
+reader gets the bytes padded to a multiple of 4, which its decoders ignore.)
 ``seq`` only grows per sender (a signer starts it at the wall clock in ns): a verifier
 takes from each sender, on each topic, only a seq above the last it took there (DDS
 keeps one writer's order, not the order across topics), so a message recorded off the
@@ -61,6 +63,7 @@ SCHEME = "pkm-cred/1"
 KEY_BYTES = 32
 MAC_HEX = 64
 ZERO_MAC = "0" * MAC_HEX
+SIZE_DIGITS = 10
 KEY_FILE = "credential.key"            # in the run directory
 
 
@@ -117,11 +120,12 @@ class RunKey:
 
 
 def _tag_parts(tag: str):
-    """(sender, seq, mac) of a tag, or None."""
+    """(sender, seq, size, mac) of a tag, or None."""
     parts = tag.split(" ")
-    if len(parts) != 4 or parts[0] != SCHEME or len(parts[3]) != MAC_HEX or not parts[2].isdigit():
+    if len(parts) != 5 or parts[0] != SCHEME or len(parts[4]) != MAC_HEX or not parts[2].isdigit() \
+            or len(parts[3]) != SIZE_DIGITS or not parts[3].isdigit():
         return None
-    return parts[1], int(parts[2]), parts[3]
+    return parts[1], int(parts[2]), int(parts[3]), parts[4]
 
 
 def split_text(text: str) -> tuple[str, str]:
@@ -147,7 +151,7 @@ class Signer:
         then ``seal``."""
         with self.lock:
             self.seq = seq = max(self.seq + 1, self.clock())
-        return f"{SCHEME} {self.sender} {seq} {ZERO_MAC}"
+        return f"{SCHEME} {self.sender} {seq} {'0' * SIZE_DIGITS} {ZERO_MAC}"
 
     def seal(self, topic: str, buf, stamped: bool) -> bytes:
         """The serialized message with its placeholder's mac filled in."""
@@ -157,6 +161,8 @@ class Signer:
         if _tag_parts(tag) is None or not tag.endswith(ZERO_MAC):
             raise ValueError(f"{topic}: the message's first string is not a placeholder tag")
         mac_at = start + len(tag) - MAC_HEX
+        size_at = mac_at - 1 - SIZE_DIGITS
+        out[size_at:size_at + SIZE_DIGITS] = f"{len(out):0{SIZE_DIGITS}d}".encode("ascii")
         out[mac_at:mac_at + MAC_HEX] = self.key.mac(topic, out).encode("ascii")
         return bytes(out)
 
@@ -187,9 +193,12 @@ class Verifier:
         parts = _tag_parts(tag)
         if parts is None:
             return "", CredentialRefused(f"{topic}: no credential ({SCHEME} tag) in the message")
-        sender, seq, mac = parts
-        zeroed = bytearray(buf)
+        sender, seq, size, mac = parts
         mac_at = start + len(tag) - MAC_HEX
+        if not mac_at + MAC_HEX <= size <= len(buf):
+            return "", CredentialRefused(f"{topic}: credential of {sender} for {size} bytes, the message has "
+                                         f"{len(buf)}")
+        zeroed = bytearray(buf[:size])
         zeroed[mac_at:mac_at + MAC_HEX] = ZERO_MAC.encode("ascii")
         if not hmac.compare_digest(mac, self.key.mac(topic, zeroed)):
             return "", CredentialRefused(f"{topic}: credential not valid for this run (says {sender}): "
@@ -200,6 +209,21 @@ class Verifier:
                                              f"took {last})", sender)
         self.last_seq[sender, topic] = seq
         return sender, None
+
+    def refusal(self, topic: str, buf, stamped: bool, allowed=frozenset()) -> CredentialRefused | None:
+        """Why a command is not taken, naming its sender (or ``(no credential)``,
+        ``(unreadable)``): no valid credential, or a key holder not among ``allowed``
+        (full node names; empty: any). None: taken."""
+        try:
+            sender, refused = self.check(topic, buf, stamped)
+        except ValueError as exc:
+            return CredentialRefused(str(exc), "(unreadable)")
+        if refused is not None:
+            return CredentialRefused(refused.reason, refused.sender or "(no credential)")
+        if self.required and allowed and sender not in allowed:
+            return CredentialRefused(f"{topic}: {sender} holds the run's credential but may not send it (only "
+                                     f"{', '.join(sorted(allowed))})", sender)
+        return None
 
     @classmethod
     def from_file(cls, path: str) -> "Verifier":

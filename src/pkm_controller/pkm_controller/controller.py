@@ -487,7 +487,8 @@ class ControllerCore:
         self.saturation_count = 0
         self.peak_force_n = 0.0
         self.max_error_m = 0.0
-        self.record = CycleRecord(forces=tuple([0.0] * self.n))
+        zero = (0.0,) * self.dof           # a 6-DOF machine's status before its first cycle (an E-stop then)
+        self.record = CycleRecord(reference=zero, measured=zero, error=zero, forces=(0.0,) * self.n)
         if self.metrology is not None:
             self.metrology.reset()
 

@@ -223,15 +223,8 @@ class ControllerLoop:
     def credential_refused(self, topic: str, buf: bytes, stamped: bool) -> Intrusion | None:
         """Why the message's credential is refused (pkm_common.credential), or None; its
         sender must also be one the topic allows."""
-        try:
-            sender, refused = self.credentials.check(topic, buf, stamped)
-        except ValueError as exc:             # malformed: no credential can be read in it
-            return Intrusion(str(exc), "(unreadable)")
-        allowed = self.commands[topic].allowed
-        if refused is None and self.credentials.required and allowed and sender not in allowed:
-            return Intrusion(f"{sender} holds the run's credential but may not command {topic} (only "
-                             f"{', '.join(sorted(allowed))})", sender)
-        return None if refused is None else Intrusion(refused.reason, refused.sender or "(no credential)")
+        refused = self.credentials.refusal(topic, buf, stamped, self.commands[topic].allowed)
+        return None if refused is None else Intrusion(refused.reason, refused.sender)
 
     def check_commands(self) -> None:
         """During a motion: a node publishing a command topic it may not stops the

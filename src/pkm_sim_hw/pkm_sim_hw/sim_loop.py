@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING
 
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder, decode_wrench_stamped
-from pkm_common.credential import CredentialRefused
 from pkm_common.files import reserve_file, write_summary as write_summary_file
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
@@ -220,17 +219,13 @@ class SimLoop:
         if self.load_sender_refused():
             return
         try:
-            sender, refused = self.credentials.check("load", buf, stamped=True)
             force, moment = decode_wrench_stamped(buf, "load")
         except ValueError as exc:
             self.refuse(Refusal(str(exc), TripCause.INPUT_REFUSED), topic="load")
             return
-        allowed = self.load_senders.allowed
-        if refused is None and self.credentials.required and allowed and sender not in allowed:
-            refused = CredentialRefused(f"{sender} holds the run's credential but may not send a load", sender)
+        refused = self.credentials.refusal("load", buf, True, self.load_senders.allowed)
         if refused is not None:
-            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender=refused.sender or "(no credential)"),
-                        topic="load")
+            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender=refused.sender), topic="load")
             return
         self.apply_load(force, moment)
 

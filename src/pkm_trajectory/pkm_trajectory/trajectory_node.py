@@ -127,13 +127,8 @@ class TrajectoryNode(Node):
             found = gate.check(graph_senders(self, self.inputs[topic].topic_name))
             reason, who = (found.reason, found.sender) if found else ("", "")
         if not reason:                        # ... or one under an allowed name: its credential
-            try:
-                sender, refused = self.credentials.check(topic, buf, stamped=topic == "goal")
-                reason, who = (refused.reason, refused.sender or "(no credential)") if refused else ("", "")
-            except ValueError as exc:
-                reason, who = str(exc), "(unreadable)"
-            if not reason and self.credentials.required and gate.allowed and sender not in gate.allowed:
-                reason, who = f"{sender} holds the run's credential but may not send {topic}", sender
+            refused = self.credentials.refusal(topic, buf, topic == "goal", gate.allowed)
+            reason, who = (refused.reason, refused.sender) if refused else ("", "")
         if not reason:
             return False
         self.refused_senders += 1
