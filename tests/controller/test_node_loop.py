@@ -295,3 +295,22 @@ def test_an_estop_before_the_first_cycle_of_a_six_axis_machine_is_reported():
     assert (level, message, values["tracking_error_rad"]) == (2, "stopped: estop", 0.0)
     assert (loop.summary()["cause"], loop.summary()["stopped"]) == ("estop", True)
     assert events[-1]["kind"] == "safe_stop" and events[-1]["cause"] == "estop"
+
+
+def test_a_bogus_trajectory_is_refused_for_what_it_is_and_the_machine_holds():
+    """A 2 m/s trajectory from rest was accepted, and the trip that followed was named
+    encoder_fault (issue 40): refused now at its arrival, with its reason, recorded."""
+    from pkm_common.conversions import trajectory_msg
+    ports = Ports()
+    loop, events = commanded_loop(ports)
+    ports.graph["trajectory"] = ["/pkm/trajectory"]
+    loop.on_state(state(0))
+    t = [k * 0.001 for k in range(100)]
+    home = list(ARCHI.model.home)
+    position = [[home[0] + 2.0 * tk, home[1], home[2]] for tk in t]
+    msg = trajectory_msg(ARCHI.model.task_space, t, position, [[2.0, 0.0, 0.0]] * 100, [[0.0] * 3] * 100)
+    loop.on_trajectory(serialize_message(msg))
+    loop.on_state(state(1_000_000))
+    assert events[-1]["kind"] == "trajectory" and events[-1]["ok"] is False, events
+    assert events[-1]["message"].startswith("trajectory: it starts moving (point 0, task axis 0 at 2 per s)")
+    assert loop.core.mode == "holding" and not loop.core.stopped

@@ -54,7 +54,7 @@ from .configuration import metrology_inputs, run_summary
 from .controller import ControllerCore
 from .lockstep import StampPairing
 from .operator import Action, OperatorInbox, apply_action, event_json, event_summary
-from .reference import reference_from_trajectory
+from .reference import check_consistent, reference_from_trajectory
 from .strategies import Feedback
 
 __all__ = ["COMMAND_CHECK_S", "ControllerLoop", "SOURCE_CHECK_S"]
@@ -176,6 +176,7 @@ class ControllerLoop:
         try:
             data = decode_multidof_trajectory(buf)
             ref = reference_from_trajectory(data, self.core.model.task_space)
+            check_consistent(ref)      # a bogus one refused for what it is, before it trips anything
         except ValueError as exc:      # recorded too: the replay pairs every trajectory with its event
             self.report([apply_action(self.core, Action.TRAJECTORY, exc)])
             return

@@ -86,6 +86,43 @@ class Reference:
                 [u * p + w * q for p, q in zip(a0, a1)])
 
 
+REST_TOLERANCE = 1e-3           # m/s (rad/s): "at rest" at a trajectory's ends
+POSITION_TOLERANCE = 1e-5       # m (rad): a step's position against its velocities' trapezoid
+VELOCITY_TOLERANCE = 1e-3       # m/s (rad/s): a step's velocity against its accelerations'
+RELATIVE_TOLERANCE = 0.01       # ... plus this part of the step
+
+
+def check_consistent(reference: Reference) -> None:
+    """A trajectory the controller can follow as it is: it starts and ends at rest (the
+    controller takes one only while holding, and holds its end), and each step's
+    position and velocity changes are the trapezoid integrals of its velocities and
+    accelerations (a planner's jerk-limited samples differ by ~1e-7 m at 1 kHz). A
+    bogus one (2 m/s from rest, positions that jump while the velocities say still)
+    otherwise ran into a following-error or encoder trip that named something else.
+    Raises ValueError naming the point and axis."""
+    t = np.asarray(reference.time_s)
+    x, v, a = (np.asarray(arr) for arr in (reference.position, reference.velocity, reference.acceleration))
+    for k, where in ((0, "starts"), (len(t) - 1, "ends")):
+        i = int(np.argmax(np.abs(v[k])))
+        if abs(v[k, i]) > REST_TOLERANCE:
+            raise ValueError(f"trajectory: it {where} moving (point {k}, task axis {i} at {v[k, i]:.6g} per s); "
+                             f"a trajectory starts and ends at rest (within {REST_TOLERANCE:g})")
+    if len(t) < 2:
+        return
+    dt = np.diff(t)[:, None]
+    for name, values, rates, tolerance in (("position", x, v, POSITION_TOLERANCE),
+                                           ("velocity", v, a, VELOCITY_TOLERANCE)):
+        step = np.diff(values, axis=0)
+        off = np.abs(step - 0.5 * (rates[1:] + rates[:-1]) * dt)
+        bad = off > tolerance + RELATIVE_TOLERANCE * np.abs(step)
+        if bad.any():
+            k, i = (int(n) for n in np.argwhere(bad)[0])
+            given = 0.5 * (rates[k + 1, i] + rates[k, i]) * dt[k, 0]
+            raise ValueError(f"trajectory: point {k + 1} (t = {t[k + 1]:.4f} s), task axis {i}: its {name} changes "
+                             f"by {step[k, i]:.6g} where its {'velocities' if name == 'position' else 'accelerations'}"
+                             f" give {given:.6g}: not a motion")
+
+
 def unwrap_angles(angles) -> list:
     """Continuous angles from angles given modulo 2 pi (yaw of a quaternion): each step
     is taken as the shortest one. The nacelle of a planar machine turns without limit,
