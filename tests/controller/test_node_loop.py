@@ -267,6 +267,18 @@ def test_with_the_runs_key_the_signed_trajectory_runs_and_a_forged_command_stops
     assert any(e["kind"] == "safe_stop" and e["cause"] == "intruder" for e in events)
 
 
+def test_a_command_refused_before_the_graph_names_its_sender_is_named_later(tmp_path):
+    key, loop, events = credential_loop(tmp_path)
+    loop.on_command("controller/settings", Action.SETTINGS, encode_string("{}"))
+    assert events[-1]["intruder"] == "(no credential)" and loop.summary()["intruder"] == "(no credential)"
+    loop.on_watchdog()                                     # the graph still names only the panel
+    assert loop.summary()["intruder"] == "(no credential)"
+    loop.ports.graph["controller/settings"] = ["/pkm/panel", "/pkm/rogue"]
+    loop.commands_checked = 0.0
+    loop.on_watchdog()
+    assert loop.summary()["intruder"] == "/pkm/rogue" and loop.unnamed_commands == {}
+
+
 def test_a_signed_feed_override_that_is_no_number_is_refused_and_the_start_needs_its_credential(tmp_path):
     key, loop, events = credential_loop(tmp_path)
     loop.values["wait_for_start"] = True

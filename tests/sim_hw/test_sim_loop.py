@@ -167,4 +167,7 @@ def test_with_the_runs_key_a_load_needs_its_credential(tmp_path):
     loop.on_load_message(serialize_message(msg))
     assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INTRUDER
     assert ports.refusals[-1].reason == "load: no credential (pkm-cred/1 tag) in the message"
-    assert ports.refusals[-1].sender == "(no credential)" and loop.plant.load[0] == 100.0
+    assert loop.plant.load[0] == 100.0 and loop.summary()["intruder"] == "unknown"
+    ports.loads = ["/pkm/panel", "/pkm/rogue"]            # the graph names the rogue later
+    loop.on_watchdog()
+    assert loop.summary()["intruder"] == "/pkm/rogue"

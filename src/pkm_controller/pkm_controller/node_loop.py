@@ -61,6 +61,7 @@ __all__ = ["COMMAND_CHECK_S", "ControllerLoop", "SOURCE_CHECK_S"]
 
 SOURCE_CHECK_S = 0.1            # how often the graph is asked who publishes the inputs
 COMMAND_CHECK_S = 0.025         # during a motion, one command topic asked this often (all six in 0.15 s)
+NAMING_CHECKS = 40              # graph checks (one per COMMAND_CHECK_S) to name a sender refused unnamed
 
 
 class ControllerLoop:
@@ -109,6 +110,7 @@ class ControllerLoop:
         self.commands_refused = {}      # topic -> commands refused (an intruder on it)
         self.command_intruder = ""      # who published a command it may not (the source checks go on)
         self.commands_checked = 0.0     # monotonic time of the last check during a motion
+        self.unnamed_commands = {}      # topic -> graph checks left to name a sender refused without a name
         self.next_command_check = 0     # the command topics are checked one at a time, in turn
         self.sources = [SourceGate("drives/state", values["state_source"], "state_source")]
         if strategy.uses_metrology:
@@ -214,6 +216,8 @@ class ControllerLoop:
             if stamped and len(buf) >= 12:     # a trajectory's stamp: the planner matches its verdicts by it
                 event["stamp_ns"] = stamp_ns_of(buf)
             self.report([event])
+        if found.sender.startswith("("):          # no name in the message: the graph may give it later
+            self.unnamed_commands.setdefault(topic, NAMING_CHECKS)
         if not self.command_intruder:
             self.command_intruder = found.sender
             self.ports.log_error(f"{topic}: {found.reason}")
@@ -237,6 +241,20 @@ class ControllerLoop:
             topic = gates[self.next_command_check % len(gates)]
             self.next_command_check += 1
             self.commanded(topic, None)
+
+    def name_command_intruder(self) -> None:
+        """A command refused before the graph knew its sender (no credential, no name
+        yet): ask the graph again, one topic a call, NAMING_CHECKS times at most (a
+        process under an allowed name is never named)."""
+        self.commands_checked = time.monotonic()
+        topic = next(iter(self.unnamed_commands))
+        found = self.commands[topic].check(self.ports.topic_senders(topic))
+        self.unnamed_commands[topic] -= 1
+        if found is not None or not self.unnamed_commands[topic]:
+            del self.unnamed_commands[topic]
+        if found is not None and self.command_intruder.startswith("("):
+            self.command_intruder = found.sender
+            self.ports.log_error(f"the refused command's sender: {found.reason}")
 
     def operator(self, action: Action, payload) -> None:
         """A trajectory, feed override or settings change (operator.py): applied at once
@@ -302,6 +320,8 @@ class ControllerLoop:
         if self.active and not self.core.stopped and self.core.mode == "tracking" and \
                 time.monotonic() - self.commands_checked >= COMMAND_CHECK_S:
             self.check_commands()
+        elif self.unnamed_commands and time.monotonic() - self.commands_checked >= COMMAND_CHECK_S:
+            self.name_command_intruder()
         if not self.active or self.core.stopped or self.run_ended:
             return
         fault = self.pairing.silence_fault(time.monotonic(), self.values["state_timeout_s"],

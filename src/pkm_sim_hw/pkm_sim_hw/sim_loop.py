@@ -46,6 +46,7 @@ class SimLoop:
     def __init__(self, settings: SimHwSettings, streams: StepStreams, ports):
         self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
         self.load_senders, self.credentials = settings.load_senders, settings.credentials
+        self.load_unnamed = False               # a load refused for its credential, its sender not named yet
         self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
         self.duration_s, self.duration_steps = settings.duration_s, settings.duration_steps
         self.summary_path = settings.summary_path
@@ -206,6 +207,11 @@ class SimLoop:
             intruder = self.gate.check_publishers(self.ports.command_publishers())
             if intruder:
                 self.refuse(intruder)
+        if self.load_unnamed and not self.run.intruder_named:     # a load refused before its sender had a name
+            found = self.load_senders.check(self.ports.load_senders())
+            if found is not None:
+                self.run.intruder = found.sender
+                self.ports.log_error(f"the refused load's sender: {found.reason}")
         if self.started and silence_s > self.timeout_s and not self.plant.stopped:   # lockstep and realtime
             self.counts["timeouts"] += 1
             self.plant.safe_stop(f"no drives/command within {self.timeout_s} s", TripCause.WATCHDOG)
@@ -225,7 +231,11 @@ class SimLoop:
             return
         refused = self.credentials.refusal("load", buf, True, self.load_senders.allowed)
         if refused is not None:
-            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender=refused.sender), topic="load")
+            # a tag that names no sender: the graph may name the node later (on_watchdog)
+            unnamed = refused.sender.startswith("(")
+            self.load_unnamed |= unnamed
+            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender="" if unnamed else refused.sender),
+                        topic="load")
             return
         self.apply_load(force, moment)
 
