@@ -70,7 +70,7 @@ def test_a_signed_stamped_command_verifies_and_its_mac_is_hmac_sha256_of_the_zer
     back = deserialize_message(buf, type(msg))
     back.header.frame_id = msg.header.frame_id
     assert back == msg
-    assert Verifier(key).check(topic, buf, stamped=True) == ("/pkm/panel", None)
+    assert Verifier(key, clock=lambda: 0).check(topic, buf, stamped=True) == ("/pkm/panel", None)
 
 
 def test_a_command_read_with_the_padding_of_the_wire_verifies_and_a_short_one_does_not(tmp_path):
@@ -78,9 +78,9 @@ def test_a_command_read_with_the_padding_of_the_wire_verifies_and_a_short_one_do
     arrived as 128 between two processes): the mac covers the sender's ``size``."""
     key = _key(tmp_path)
     signer = Signer(key, "/pkm/bringup_monitor")
+    verifier = Verifier(key)                              # a reader exists before the command is signed
     buf = signer.text("run/start", "start")
     assert len(buf) % 4                                   # this one is padded on the wire
-    verifier = Verifier(key)
     assert verifier.check("run/start", buf + b"\0" * (-len(buf) % 4), False) == ("/pkm/bringup_monitor", None)
     short = signed_message(signer, "goal", _goal())[:-1]          # the last byte of orientation.w cut
     sender, why = verifier.check("goal", short, True)
@@ -94,7 +94,7 @@ def test_a_string_command_carries_its_tag_as_the_first_line_and_keeps_its_body(t
     data = deserialize_message(buf, String).data
     tag, body = split_text(data)
     assert tag.startswith(SCHEME + " /pkm/panel ") and body == "G91 G1 X0.001\nM2"
-    assert Verifier(key).check("program", buf, stamped=False) == ("/pkm/panel", None)
+    assert Verifier(key, clock=lambda: 0).check("program", buf, stamped=False) == ("/pkm/panel", None)
     assert split_text("G1 X1") == ("", "G1 X1")
 
 
@@ -154,3 +154,35 @@ def test_refusal_names_the_sender_and_holds_a_key_holder_to_its_topics(tmp_path)
         "(no credential)"
     assert verifier.refusal("program", b"\x00\x01", False, allowed).sender == "(unreadable)"
     assert Verifier(None).refusal("program", b"", False, allowed) is None
+
+
+def test_a_command_signed_before_the_reader_existed_is_a_recording_and_refused(tmp_path):
+    """The same key in two runs (``pkm-run --credential``), or a controller configured
+    again: what was signed before the reader was made is refused as a replay."""
+    key = _key(tmp_path)
+    earlier = Signer(key, "/pkm/panel").text("controller/settings", '{"bandwidth_hz": 5}')
+    verifier = Verifier(key)
+    sender, why = verifier.check("controller/settings", earlier, False)
+    assert sender == "/pkm/panel" and "a replayed command of /pkm/panel" in why.reason
+    assert verifier.check("controller/settings", Signer(key, "/pkm/panel").text("controller/settings", "{}"),
+                          False) == ("/pkm/panel", None)
+
+
+@pytest.mark.parametrize("forged", [
+    "pkm-cred/1 /pkm/panel 12 0000000099 " + "\u00e9" * 64,      # a mac of non-ASCII: a TypeError in hmac before
+    "pkm-cred/1 /pkm/panel \u00b2\u0663 0000000099 " + "a" * 64,  # digits that str.isdigit() takes
+    "pkm-cred/1 /pkm/panel 12 0000000099 " + "A" * 64,            # upper-case hex
+    "pkm-cred/1 /pk m/panel 12 0000000099 " + "a" * 64,           # a name with a space
+    "pkm-cred/1 /pkm/p\u00e4nel 12 0000000099 " + "a" * 64,       # a name that is no ROS name
+])
+def test_a_malformed_tag_is_no_credential_and_never_raises(tmp_path, forged):
+    buf = serialize_message(String(data=forged + "\n{}"))
+    verifier = Verifier(_key(tmp_path))
+    assert verifier.check("controller/settings", buf, False) == (
+        "", verifier.check("controller/settings", serialize_message(String(data="{}")), False)[1])
+    assert verifier.refusal("controller/settings", buf, False).sender == "(no credential)"
+
+
+def test_a_sender_must_be_a_ros_node_name(tmp_path):
+    with pytest.raises(ValueError, match="a full ROS node name"):
+        Signer(_key(tmp_path), "/pkm/p\u00e4nel")

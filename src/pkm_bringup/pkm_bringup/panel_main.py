@@ -130,6 +130,8 @@ def main(argv=None) -> int:
             parser.error(f"--{name.replace('_', '-')}: must be in [0, 65535], got {getattr(args, name)}")
     if not 1.0 <= args.rate_hz <= 100.0:
         parser.error(f"--rate-hz: must be in [1, 100], got {args.rate_hz}")
+    if args.start and args.credential:
+        parser.error("--credential joins a running graph; with --start the panel makes each run's key")
 
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

@@ -98,23 +98,26 @@ class PanelNode(Node):
             self.get_logger().warning(result.message)
 
     def publish(self, items) -> None:
-        """[(topic, payload)] of a panel.Result (thread-safe: rcl publishers are, and a
-        command is signed and published under one lock: its seq in order, credential.py)."""
-        with self.publish_lock:
-            self._publish(items)
-
-    def _publish(self, items) -> None:
+        """[(topic, payload)] of a panel.Result (thread-safe: rcl publishers are). A
+        command is signed and published under one lock (its seq in order,
+        credential.py); the E-stop, unsigned, does not wait for it."""
         for topic, payload in items:
             if topic == "estop":
                 self.pubs[topic].publish(Bool(data=bool(payload)))
-            elif topic == "goal":
-                msg = PoseStamped()
-                msg.header.frame_id = "world"
-                position, orientation = machine_pose_components(self.panel.model.space, payload)
-                p, o = msg.pose.position, msg.pose.orientation
-                p.x, p.y, p.z = (float(v) for v in position)
-                o.x, o.y, o.z, o.w = (float(v) for v in orientation)
-                self.pubs[topic].publish(signed_message(self.signer, topic, msg))
-            else:                         # a String: the program, the settings, the feed override
-                body = repr(float(payload)) if topic == "controller/feed_override" else payload
-                self.pubs[topic].publish(self.signer.text(topic, body) if self.signer else String(data=body))
+            else:
+                with self.publish_lock:
+                    self._publish(topic, payload)
+
+    def _publish(self, topic: str, payload) -> None:
+        """One command, with the run's credential when the panel holds the key."""
+        if topic == "goal":
+            msg = PoseStamped()
+            msg.header.frame_id = "world"
+            position, orientation = machine_pose_components(self.panel.model.space, payload)
+            p, o = msg.pose.position, msg.pose.orientation
+            p.x, p.y, p.z = (float(v) for v in position)
+            o.x, o.y, o.z, o.w = (float(v) for v in orientation)
+            self.pubs[topic].publish(signed_message(self.signer, topic, msg))
+        else:                             # a String: the program, the settings, the feed override
+            body = repr(float(payload)) if topic == "controller/feed_override" else payload
+            self.pubs[topic].publish(self.signer.text(topic, body) if self.signer else String(data=body))

@@ -14,9 +14,12 @@ name, the sequence number and every field of the message. (``size``, 10 digits: 
 reader gets the bytes padded to a multiple of 4, which its decoders ignore.)
 ``seq`` only grows per sender (a signer starts it at the wall clock in ns): a verifier
 takes from each sender, on each topic, only a seq above the last it took there (DDS
-keeps one writer's order, not the order across topics), so a message recorded off the
-wire and sent again is refused. A sender that publishes one topic from two threads
-signs and publishes under one lock (the panel does).
+keeps one writer's order, not the order across topics) and above its own creation
+time, so a message recorded off the wire and sent again is refused, and so is one
+recorded in an earlier run with the same key (``--credential``) or before a node was
+configured again. A sender that publishes one topic from two threads signs and
+publishes under one lock (the panel does). The tag is ASCII, parsed by one strict
+pattern (``TAG``); node names are ROS names (letters, digits, ``_``, ``/``).
 
 The tag is the message's first string:
 - a stamped command (``goal``, ``trajectory``, ``load``) carries it as
@@ -47,6 +50,7 @@ from __future__ import annotations
 
 import hmac
 import os
+import re
 import secrets
 import stat
 import threading
@@ -57,7 +61,7 @@ from pathlib import Path
 
 from pkm_common.cdr import encode_string, first_string_span
 
-__all__ = ["KEY_FILE", "CredentialRefused", "RunKey", "SCHEME", "Signer", "Verifier", "split_text"]
+__all__ = ["COMMAND_TOPICS", "KEY_FILE", "CredentialRefused", "RunKey", "SCHEME", "Signer", "Verifier", "split_text"]
 
 SCHEME = "pkm-cred/1"
 KEY_BYTES = 32
@@ -65,6 +69,12 @@ MAC_HEX = 64
 ZERO_MAC = "0" * MAC_HEX
 SIZE_DIGITS = 10
 KEY_FILE = "credential.key"            # in the run directory
+SENDER = re.compile(r"/[A-Za-z0-9_/~]{1,255}")
+# the whole tag, at the start of the first string; the groups: sender, seq, size, mac
+TAG = re.compile(rb"pkm-cred/1 (/[A-Za-z0-9_/~]{1,255}) ([0-9]{1,20}) ([0-9]{10}) ([0-9a-f]{64})(?=\n|$)")
+# the commands that carry it, and whether the message is stamped (the tag in header.frame_id)
+COMMAND_TOPICS = {"goal": True, "trajectory": True, "load": True, "program": False, "controller/settings": False,
+                  "controller/feed_override": False, "run/start": False}
 
 
 @dataclass(frozen=True)
@@ -114,18 +124,25 @@ class RunKey:
         except ValueError:
             raise ValueError(f"credential_file: {path} does not hold {KEY_BYTES} bytes in hex") from None
 
-    def mac(self, topic: str, buf) -> str:
-        """HMAC-SHA256 over the topic, a NUL and the bytes, in hex."""
-        return hmac.new(self._key, topic.encode("utf-8") + b"\x00" + bytes(buf), sha256).hexdigest()
+    def mac(self, topic: str, buf, mac_at: int | None = None, size: int | None = None) -> bytes:
+        """HMAC-SHA256 over the topic, a NUL and ``buf[:size]``, the 64 bytes at
+        ``mac_at`` taken as zeros (no copy of a long trajectory), in hex (ASCII)."""
+        view = memoryview(buf)[:len(buf) if size is None else size]
+        h = hmac.new(self._key, topic.encode("utf-8") + b"\x00", sha256)
+        if mac_at is None:
+            h.update(view)
+        else:
+            h.update(view[:mac_at])
+            h.update(ZERO_MAC.encode("ascii"))
+            h.update(view[mac_at + MAC_HEX:])
+        return h.hexdigest().encode("ascii")
 
 
-def _tag_parts(tag: str):
-    """(sender, seq, size, mac) of a tag, or None."""
-    parts = tag.split(" ")
-    if len(parts) != 5 or parts[0] != SCHEME or len(parts[4]) != MAC_HEX or not parts[2].isdigit() \
-            or len(parts[3]) != SIZE_DIGITS or not parts[3].isdigit():
-        return None
-    return parts[1], int(parts[2]), int(parts[3]), parts[4]
+def _find_tag(buf, stamped: bool, topic: str):
+    """(match, offset of the first string) of the tag at the start of the message's
+    first string, or (None, offset)."""
+    start, end = first_string_span(buf, stamped, topic)
+    return TAG.match(bytes(memoryview(buf)[start:min(end, start + 400)])), start
 
 
 def split_text(text: str) -> tuple[str, str]:
@@ -140,8 +157,8 @@ class Signer:
     """Makes the tags of one sender (its full node name) with the run's key."""
 
     def __init__(self, key: RunKey, sender: str, clock=time.time_ns):
-        if not sender or " " in sender:
-            raise ValueError(f"credential sender: a node name without spaces, got {sender!r}")
+        if not SENDER.fullmatch(sender):
+            raise ValueError(f"credential sender: a full ROS node name (/ns/name), got {sender!r}")
         self.key, self.sender, self.clock = key, sender, clock
         self.seq = 0
         self.lock = threading.Lock()
@@ -155,15 +172,13 @@ class Signer:
 
     def seal(self, topic: str, buf, stamped: bool) -> bytes:
         """The serialized message with its placeholder's mac filled in."""
-        start, end = first_string_span(buf, stamped, topic)
-        out = bytearray(buf)
-        tag = out[start:end].split(b"\n", 1)[0].decode("utf-8")
-        if _tag_parts(tag) is None or not tag.endswith(ZERO_MAC):
+        found, start = _find_tag(buf, stamped, topic)
+        if found is None or found.group(4) != ZERO_MAC.encode("ascii"):
             raise ValueError(f"{topic}: the message's first string is not a placeholder tag")
-        mac_at = start + len(tag) - MAC_HEX
-        size_at = mac_at - 1 - SIZE_DIGITS
-        out[size_at:size_at + SIZE_DIGITS] = f"{len(out):0{SIZE_DIGITS}d}".encode("ascii")
-        out[mac_at:mac_at + MAC_HEX] = self.key.mac(topic, out).encode("ascii")
+        out = bytearray(buf)
+        out[start + found.start(3):start + found.end(3)] = f"{len(out):0{SIZE_DIGITS}d}".encode("ascii")
+        mac_at = start + found.start(4)
+        out[mac_at:mac_at + MAC_HEX] = self.key.mac(topic, out)
         return bytes(out)
 
     def text(self, topic: str, body: str) -> bytes:
@@ -174,8 +189,9 @@ class Signer:
 class Verifier:
     """Checks the tags of one run's commands (``key`` None: none is required)."""
 
-    def __init__(self, key: RunKey | None):
+    def __init__(self, key: RunKey | None, clock=time.time_ns):
         self.key = key
+        self.created_ns = clock()             # a seq (a signer's wall clock) from before: recorded earlier
         self.last_seq: dict[tuple, int] = {}    # (sender, topic) -> last seq taken (only key holders)
 
     @property
@@ -188,25 +204,22 @@ class Verifier:
         every command is taken (its tag, if any, unchecked)."""
         if self.key is None:
             return "", None
-        start, end = first_string_span(buf, stamped, topic)
-        tag = bytes(buf[start:end]).split(b"\n", 1)[0].decode("utf-8")
-        parts = _tag_parts(tag)
-        if parts is None:
+        found, start = _find_tag(buf, stamped, topic)
+        if found is None:
             return "", CredentialRefused(f"{topic}: no credential ({SCHEME} tag) in the message")
-        sender, seq, size, mac = parts
-        mac_at = start + len(tag) - MAC_HEX
+        sender, seq, size, mac = (found.group(1).decode("ascii"), int(found.group(2)), int(found.group(3)),
+                                  found.group(4))
+        mac_at = start + found.start(4)
         if not mac_at + MAC_HEX <= size <= len(buf):
             return "", CredentialRefused(f"{topic}: credential of {sender} for {size} bytes, the message has "
                                          f"{len(buf)}")
-        zeroed = bytearray(buf[:size])
-        zeroed[mac_at:mac_at + MAC_HEX] = ZERO_MAC.encode("ascii")
-        if not hmac.compare_digest(mac, self.key.mac(topic, zeroed)):
+        if not hmac.compare_digest(mac, self.key.mac(topic, buf, mac_at, size)):
             return "", CredentialRefused(f"{topic}: credential not valid for this run (says {sender}): "
                                          "another key, or the message was altered")
-        last = self.last_seq.get((sender, topic), 0)
+        last = max(self.last_seq.get((sender, topic), 0), self.created_ns)
         if seq <= last:
-            return sender, CredentialRefused(f"{topic}: a replayed command of {sender} (seq {seq}, already "
-                                             f"took {last})", sender)
+            return sender, CredentialRefused(f"{topic}: a replayed command of {sender} (seq {seq}, not after "
+                                             f"{last})", sender)
         self.last_seq[sender, topic] = seq
         return sender, None
 
@@ -216,7 +229,7 @@ class Verifier:
         (full node names; empty: any). None: taken."""
         try:
             sender, refused = self.check(topic, buf, stamped)
-        except ValueError as exc:
+        except (ValueError, TypeError) as exc:
             return CredentialRefused(str(exc), "(unreadable)")
         if refused is not None:
             return CredentialRefused(refused.reason, refused.sender or "(no credential)")

@@ -14,14 +14,18 @@ may come from any of the nodes a run names (``AllowedSenders``: the run's planne
 operator's panel, pkm-run itself): a publisher of another name is an intruder. DDS
 gives no sender per message, so while an intruder publishes on a commanding topic no
 message of it is taken, from anyone. Names are what the graph says: a process that
-names its node like an allowed one is not caught here.
+names its node like an allowed one is not caught by them; the run's credential
+(pkm_common.credential) catches it, and ``CommandGuard`` asks both, names first (an
+intruder the graph knows is named).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["AllowedSenders", "Intrusion", "SourceGate", "node_names"]
+from pkm_common.credential import COMMAND_TOPICS, Verifier
+
+__all__ = ["AllowedSenders", "CommandGuard", "Intrusion", "SourceGate", "node_names"]
 
 
 @dataclass(frozen=True)
@@ -30,6 +34,7 @@ class Intrusion:
 
     reason: str
     sender: str = ""
+    by_credential: bool = False          # the message's credential was refused (not the graph's names)
 
 
 class SourceGate:
@@ -102,3 +107,35 @@ class AllowedSenders:
             return None
         return Intrusion(f"{', '.join(others)} publishes on {self.topic} (only {', '.join(sorted(self.allowed))} "
                          f"may: {self.parameter})", ", ".join(others))
+
+
+class CommandGuard:
+    """Whether a command on a topic may be taken: every publisher the graph names is
+    allowed (``names``), then the message carries the run's credential of an allowed
+    sender (``verifier``; none required without a key). One rule for the controller,
+    the planner and the plant."""
+
+    def __init__(self, names: AllowedSenders, verifier: Verifier):
+        self.names, self.verifier = names, verifier
+        self.topic, self.stamped = names.topic, COMMAND_TOPICS[names.topic]
+
+    @property
+    def watched(self) -> bool:
+        """Anything to check: named senders or a key."""
+        return bool(self.names.allowed) or self.verifier.required
+
+    def refused(self, senders, buf=b"") -> Intrusion | None:
+        """Why the command ``buf`` is not taken (None: taken); ``senders()``: the
+        graph's node names on the topic, asked only when the run names its senders.
+        Without ``buf`` only the names are checked (a check of the graph)."""
+        found = self.names.check(senders()) if self.names.allowed else None
+        if found is None and buf:
+            why = self.verifier.refusal(self.topic, buf, self.stamped, self.names.allowed)
+            if why is not None:
+                found = Intrusion(why.reason, why.sender, by_credential=True)
+        return found
+
+    def authentic(self, buf) -> bool:
+        """The message carries a valid credential (or none is required): what it says
+        of itself (a trajectory's stamp) can be believed."""
+        return self.verifier.refusal(self.topic, buf, self.stamped) is None

@@ -47,7 +47,7 @@ from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEnc
                             decode_pose_stamped, decode_string, in_order, stamp_ns_of)
 from pkm_common.credential import Verifier, split_text
 from pkm_common.conversions import machine_pose_components
-from pkm_common.sources import AllowedSenders, Intrusion, SourceGate, node_names
+from pkm_common.sources import AllowedSenders, CommandGuard, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
 
 from .configuration import metrology_inputs, run_summary
@@ -100,7 +100,8 @@ class ControllerLoop:
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
         operators = node_names(values["operator_sources"])
-        self.commands = {topic: AllowedSenders(topic, allowed, parameter) for topic, allowed, parameter in (
+        self.commands = {topic: CommandGuard(AllowedSenders(topic, allowed, parameter), self.credentials)
+                         for topic, allowed, parameter in (
             ("trajectory", node_names(values["trajectory_source"]), "trajectory_source"),
             ("controller/settings", operators, "operator_sources"),
             ("controller/feed_override", operators, "operator_sources"),
@@ -173,7 +174,7 @@ class ControllerLoop:
     def on_trajectory(self, buf: bytes) -> None:
         """Read from its bytes (pkm_common.cdr): rclpy's message objects of a long
         trajectory would hold the loop for tens of milliseconds."""
-        if not self.commanded("trajectory", Action.TRAJECTORY, buf, stamped=True):
+        if not self.commanded("trajectory", Action.TRAJECTORY, buf):
             return
         try:
             data = decode_multidof_trajectory(buf)
@@ -198,22 +199,22 @@ class ControllerLoop:
             payload = exc                      # refused with its message (operator.apply_action)
         self.operator(action, payload)
 
-    def commanded(self, topic: str, action: Action | None, buf: bytes = b"", stamped: bool = False) -> bool:
-        """Whether a command on ``topic`` may be taken: its credential valid (a message
-        ``buf`` while the run has a key) and its sender allowed, and every publisher of
-        the topic allowed. Else it is refused (recorded, counted; ``action`` None: no
+    def commanded(self, topic: str, action: Action | None, buf: bytes = b"") -> bool:
+        """Whether a command on ``topic`` may be taken (sources.CommandGuard: every
+        publisher of the topic allowed, then the message's credential, a key holder
+        the topic allows). Else it is refused (recorded, counted; ``action`` None: no
         event) and, during a motion, the machine stops."""
-        gate = self.commands[topic]
-        found = gate.check(self.ports.topic_senders(topic)) if gate.allowed else None   # an intruder, named
-        if found is None and buf:
-            found = self.credential_refused(topic, buf, stamped)      # ... or one under an allowed name
+        guard = self.commands[topic]
+        found = guard.refused(lambda: self.ports.topic_senders(topic), buf)
         if found is None:
             return True
         if action is not None:
             self.commands_refused[topic] = self.commands_refused.get(topic, 0) + 1
             event = {"kind": action.value, "ok": False, "message": f"refused: {found.reason}",
                      "intruder": found.sender, "after_ns": self.last_answer[0]}
-            if stamped and len(buf) >= 12:     # a trajectory's stamp: the planner matches its verdicts by it
+            # a trajectory's stamp, the planner's own refused while a rogue publishes: its
+            # plan chain matches verdicts by it (believed only with a valid credential)
+            if guard.stamped and len(buf) >= 12 and not found.by_credential and guard.authentic(buf):
                 event["stamp_ns"] = stamp_ns_of(buf)
             self.report([event])
         if found.sender.startswith("("):          # no name in the message: the graph may give it later
@@ -225,18 +226,12 @@ class ControllerLoop:
             self.safe_stop(found.reason, TripCause.INTRUDER)
         return False
 
-    def credential_refused(self, topic: str, buf: bytes, stamped: bool) -> Intrusion | None:
-        """Why the message's credential is refused (pkm_common.credential), or None; its
-        sender must also be one the topic allows."""
-        refused = self.credentials.refusal(topic, buf, stamped, self.commands[topic].allowed)
-        return None if refused is None else Intrusion(refused.reason, refused.sender)
-
     def check_commands(self) -> None:
         """During a motion: a node publishing a command topic it may not stops the
         machine (it commands while the machine moves). One topic per call, in turn
         (a graph query each; called every COMMAND_CHECK_S)."""
         self.commands_checked = time.monotonic()
-        gates = [topic for topic, gate in self.commands.items() if gate.allowed]
+        gates = [topic for topic, guard in self.commands.items() if guard.names.allowed]
         if gates:
             topic = gates[self.next_command_check % len(gates)]
             self.next_command_check += 1
@@ -248,7 +243,7 @@ class ControllerLoop:
         process under an allowed name is never named)."""
         self.commands_checked = time.monotonic()
         topic = next(iter(self.unnamed_commands))
-        found = self.commands[topic].check(self.ports.topic_senders(topic))
+        found = self.commands[topic].refused(lambda: self.ports.topic_senders(topic))
         self.unnamed_commands[topic] -= 1
         if found is not None or not self.unnamed_commands[topic]:
             del self.unnamed_commands[topic]

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder, decode_wrench_stamped
 from pkm_common.files import reserve_file, write_summary as write_summary_file
+from pkm_common.sources import CommandGuard
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
 
@@ -36,6 +37,7 @@ if TYPE_CHECKING:                   # parameters.py declares ROS parameters: rcl
 
 __all__ = ["REPEAT_AFTER_S", "SimLoop"]
 
+NAMING_CHECKS = 20           # watchdog ticks (0.1 s) to name a load's sender refused before the graph knew it
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
 
 
@@ -45,8 +47,9 @@ class SimLoop:
 
     def __init__(self, settings: SimHwSettings, streams: StepStreams, ports):
         self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
-        self.load_senders, self.credentials = settings.load_senders, settings.credentials
-        self.load_unnamed = False               # a load refused for its credential, its sender not named yet
+        self.load_senders = settings.load_senders
+        self.load_guard = CommandGuard(settings.load_senders, settings.credentials)
+        self.load_naming_checks = 0             # graph checks left to name a load's sender refused unnamed
         self.lockstep, self.timeout_s = settings.lockstep, settings.command_timeout_s
         self.duration_s, self.duration_steps = settings.duration_s, settings.duration_steps
         self.summary_path = settings.summary_path
@@ -207,10 +210,11 @@ class SimLoop:
             intruder = self.gate.check_publishers(self.ports.command_publishers())
             if intruder:
                 self.refuse(intruder)
-        if self.load_unnamed and not self.run.intruder_named:     # a load refused before its sender had a name
-            found = self.load_senders.check(self.ports.load_senders())
+        if self.load_naming_checks and not self.run.intruder_named:   # a load refused before its sender had a name
+            self.load_naming_checks -= 1
+            found = self.load_guard.refused(self.ports.load_senders)
             if found is not None:
-                self.run.intruder = found.sender
+                self.run.intruder, self.load_naming_checks = found.sender, 0
                 self.ports.log_error(f"the refused load's sender: {found.reason}")
         if self.started and silence_s > self.timeout_s and not self.plant.stopped:   # lockstep and realtime
             self.counts["timeouts"] += 1
@@ -220,22 +224,21 @@ class SimLoop:
             self.publish_state()
 
     def on_load_message(self, buf: bytes) -> None:
-        """A ``load`` message (WrenchStamped bytes): its senders checked (on_load), and
-        its credential with the run's key (pkm_common.credential)."""
-        if self.load_sender_refused():
+        """A ``load`` message (WrenchStamped bytes): its senders and its credential
+        checked (pkm_common.sources.CommandGuard), then on_load's bounds."""
+        found = self.load_guard.refused(self.ports.load_senders, buf)
+        if found is not None:
+            # a message that names no sender: the graph may name its node later (on_watchdog)
+            unnamed = found.sender.startswith("(")
+            if unnamed:
+                self.load_naming_checks = NAMING_CHECKS
+            self.refuse(Refusal(found.reason, TripCause.INTRUDER, sender="" if unnamed else found.sender),
+                        topic="load")
             return
         try:
             force, moment = decode_wrench_stamped(buf, "load")
         except ValueError as exc:
             self.refuse(Refusal(str(exc), TripCause.INPUT_REFUSED), topic="load")
-            return
-        refused = self.credentials.refusal("load", buf, True, self.load_senders.allowed)
-        if refused is not None:
-            # a tag that names no sender: the graph may name the node later (on_watchdog)
-            unnamed = refused.sender.startswith("(")
-            self.load_unnamed |= unnamed
-            self.refuse(Refusal(refused.reason, TripCause.INTRUDER, sender="" if unnamed else refused.sender),
-                        topic="load")
             return
         self.apply_load(force, moment)
 

@@ -31,7 +31,7 @@ from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
-from pkm_common.sources import AllowedSenders, node_names
+from pkm_common.sources import AllowedSenders, CommandGuard, node_names
 from pkm_kinematics import load_machine
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
@@ -77,14 +77,14 @@ class TrajectoryNode(Node):
         # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
         operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
-        self.gates = {topic: AllowedSenders(topic, operators, "operator_sources") for topic in ("goal", "program")}
-        self.refused_senders = 0
         # the run's key: goals and programs carry its credential, and so do our trajectories
         path = declare_str(self, "credential_file", "", "the run's key (pkm_common.credential; empty: commands "
                            "need none)", allow_empty=True)
         key = RunKey.read(path) if path else None
-        self.credentials = Verifier(key)
         self.signer = Signer(key, self.get_fully_qualified_name()) if key else None
+        self.command_guards = {topic: CommandGuard(AllowedSenders(topic, operators, "operator_sources"), Verifier(key))
+                       for topic in ("goal", "program")}
+        self.refused_senders = 0
         self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS, raw=True),
                        "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS,
                                                            raw=True)}
@@ -121,19 +121,12 @@ class TrajectoryNode(Node):
         """A goal or program without the run's credential of an allowed sender, or while
         a node the run did not name publishes on its topic: refused, reported with the
         sender (diagnostics, recorded), counted."""
-        gate = self.gates[topic]
-        reason, who = "", ""
-        if gate.allowed:                      # an intruder, named by the graph
-            found = gate.check(graph_senders(self, self.inputs[topic].topic_name))
-            reason, who = (found.reason, found.sender) if found else ("", "")
-        if not reason:                        # ... or one under an allowed name: its credential
-            refused = self.credentials.refusal(topic, buf, topic == "goal", gate.allowed)
-            reason, who = (refused.reason, refused.sender) if refused else ("", "")
-        if not reason:
+        found = self.command_guards[topic].refused(lambda: graph_senders(self, self.inputs[topic].topic_name), buf)
+        if found is None:
             return False
         self.refused_senders += 1
-        self.get_logger().error(f"{topic} refused: {reason}")
-        self.report(2, f"{topic} refused: {reason}", {"intruder": who})
+        self.get_logger().error(f"{topic} refused: {found.reason}")
+        self.report(2, f"{topic} refused: {found.reason}", {"intruder": found.sender})
         return True
 
     def on_goal(self, buf: bytes) -> None:
