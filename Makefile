@@ -24,7 +24,7 @@ PKG_META := $(wildcard src/pkm_*/setup.py src/pkm_*/setup.cfg) \
 	$(foreach d,$(PKG_DIRS),$(wildcard $(d)/$(notdir $(d))))
 BENCHES := $(filter-out benchmarks/hoststat.py,$(sort $(wildcard benchmarks/*.py)))
 
-.PHONY: all venv test demo bench clean
+.PHONY: all venv test demo bench golden clean
 
 all: test
 
@@ -59,6 +59,13 @@ demo: venv
 
 bench: venv
 	@set -e; for f in $(BENCHES); do echo "== $$f"; $(VPY) $$f; done
+
+# Every lockstep scenario and pkm-analyze against tests/golden/golden.json (~2 min):
+# commands and true poses bit-identical, metrics to 9 digits, replay exact. The
+# restructuring (issue 41) runs it after each step; `tools/golden.py record` after an
+# intended change of behaviour.
+golden: venv
+	$(VPY) tools/golden.py compare
 
 # Build artefacts only: keeps $(VENV), the hypothesis database and runs/.
 clean:
