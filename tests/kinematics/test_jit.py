@@ -63,8 +63,8 @@ def test_distribution_kernel_matches_interpreted_and_reproduces_the_wrench(rows,
     jac = np.array(rows)
     if np.linalg.matrix_rank(jac) < 3 or np.linalg.cond(jac) > 1e6:
         return
-    compiled = dist._distribute_kernel(jac, *wrench, inf_norm, True)
-    interpreted = dist._distribute_kernel.py_func(jac, *wrench, inf_norm, True)
+    compiled = dist.distribute_kernel(jac, *wrench, inf_norm, True)
+    interpreted = dist.distribute_kernel.py_func(jac, *wrench, inf_norm, True)
     assert compiled[1] == interpreted[1]
     np.testing.assert_allclose(compiled[0], interpreted[0], rtol=1e-12, atol=1e-9)
     if compiled[1] == 0:

@@ -349,6 +349,10 @@ class RunReader:
             self._reader = None
             self._opened.__exit__(*exc)
 
+    def deserialize(self, raw, msgtype: str):
+        """A message of this bag as a rosbags object (the kept trajectory, ...), while open."""
+        return self._reader.deserialize(raw, msgtype)
+
     # -- streaming
     def blocks(self):
         """The run's :class:`StepBlock` s in stamp order (a generator; read once)."""
@@ -743,7 +747,7 @@ def load_run(run_dir_or_bag, namespace: str | None = None) -> RunData:
             run.load_torque = np.array([t for _, _, t in reader.load_records], dtype=float)
         if reader.trajectory is not None:
             raw, msgtype = reader.trajectory
-            _set_trajectory(run, reader._reader.deserialize(raw, msgtype))
+            _set_trajectory(run, reader.deserialize(raw, msgtype))
     return run
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import (_check_wrench_kernel, _distribute_kernel, _rows_array, gram_rows,
+from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel, rows_array, gram_rows,
                                         gram_solve_n_kernel, project_forces, project_rows)
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.hexapod import weighted_condition_kernel
@@ -132,7 +132,7 @@ def gram_condition(rows) -> float:
     """2-norm condition number of J (n x 3, rows of 3 floats or an array) from the
     eigenvalues of J^T J (closed form for a symmetric 3 x 3 matrix); inf when
     singular. Compiled: ~1 us against ~20 us for ``np.linalg.cond``."""
-    return _gram_condition_kernel(_rows_array(rows))
+    return _gram_condition_kernel(rows_array(rows))
 
 
 @kernel("(float64[:, :],)")
@@ -159,7 +159,7 @@ def _gram_condition_kernel(rows):
 # codes of limits_kernel and cartesian_command_kernel (the caller words the message)
 LIMITS_OK, JOINT_LIMIT, WORKSPACE_LIMIT, SINGULARITY_MARGIN, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD = range(6)
 WRENCH_NOT_FINITE, FORCES_NOT_FINITE = 6, 7
-DISTRIBUTION_FAILED = 10      # + the code of pkm_kinematics.distribution._distribute_kernel (1-3)
+DISTRIBUTION_FAILED = 10      # + the code of pkm_kinematics.distribution.distribute_kernel (1-3)
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 
 
@@ -285,7 +285,7 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
       the largest), ``value`` the translation error; empty with NUMPY_DISTRIBUTION,
       whose caller distributes ``wrench`` itself;
     - a limits code with its index and value; WRENCH_NOT_FINITE; DISTRIBUTION_FAILED
-      plus the code of :func:`_distribute_kernel` (``index`` the wrench component J^T f
+      plus the code of :func:`distribute_kernel` (``index`` the wrench component J^T f
       missed, ``value`` what it achieved); FORCES_NOT_FINITE (``forces`` unclamped).
 
     The laws, with I = int Ki e (conditional integration: only when ``integrate``,
@@ -325,7 +325,7 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
         return LIMITS_OK, -1, value, i_new, wrench, empty, 0, 0.0
     if not (math.isfinite(w[0]) and math.isfinite(w[1]) and math.isfinite(w[2])):
         return WRENCH_NOT_FINITE, -1, 0.0, i_new, wrench, empty, 0, 0.0
-    forces, dcode, k, achieved = _distribute_kernel(active_rows, w[0], w[1], w[2], distribution == DIST_INF_NORM,
+    forces, dcode, k, achieved = distribute_kernel(active_rows, w[0], w[1], w[2], distribution == DIST_INF_NORM,
                                                     True)
     if dcode != 0:
         return DISTRIBUTION_FAILED + dcode, k, achieved, i_new, wrench, empty, 0, 0.0
@@ -382,7 +382,7 @@ def spatial_command_kernel(q, joint_box, measured, workspace_box, active_rows, l
     if not ok:
         return DISTRIBUTION_FAILED + 1, -1, 0.0, i_new, wrench, empty, 0, 0.0
     forces = np.ascontiguousarray(active_rows) @ y
-    k, achieved = _check_wrench_kernel(active_rows, forces, wrench, 1e-9)
+    k, achieved = check_wrench_kernel(active_rows, forces, wrench, 1e-9)
     if k >= 0:
         return DISTRIBUTION_FAILED + 3, k, achieved, i_new, wrench, empty, 0, 0.0
     clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)

@@ -39,12 +39,12 @@ P_NORM_MAX = 64.0
 def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
     """Raise DistributionError unless J^T f reproduces the wrench, to ``rtol`` of the
     magnitude of the terms summed (sum_i |J_ik f_i|, the rounding-error scale).
-    Compiled (:func:`_check_wrench_kernel`): it runs every control cycle."""
+    Compiled (:func:`check_wrench_kernel`): it runs every control cycle."""
     w = _floats(wrench)
-    rows, f = _rows_array(jac, len(w)), np.asarray(forces, dtype=float).ravel()
+    rows, f = rows_array(jac, len(w)), np.asarray(forces, dtype=float).ravel()
     if len(f) != rows.shape[0]:
         raise ValueError(f"forces: expected {rows.shape[0]} values (one per row of J), got {len(f)}")
-    k, achieved = _check_wrench_kernel(rows, f, np.array(w, dtype=float), rtol)
+    k, achieved = check_wrench_kernel(rows, f, np.array(w, dtype=float), rtol)
     if k >= 0:
         _raise_wrench_mismatch(k, achieved, w)
 
@@ -55,7 +55,7 @@ def _raise_wrench_mismatch(k: int, achieved: float, w) -> None:
 
 
 @kernel("(float64[:, :], float64[:], float64[:], float64)")
-def _check_wrench_kernel(rows, forces, wrench, rtol):
+def check_wrench_kernel(rows, forces, wrench, rtol):
     """(k, achieved): the first wrench component k that J^T f misses, -1 if none."""
     for k in range(len(wrench)):
         wk = wrench[k]
@@ -74,7 +74,7 @@ def _floats(values) -> list[float]:
     return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
 
-def _rows_array(rows, columns: int = 3) -> np.ndarray:
+def rows_array(rows, columns: int = 3) -> np.ndarray:
     """J given as rows of ``columns`` floats (or an array) as an (n, columns) float
     array for the kernels; ValueError for any other shape."""
     arr = rows if isinstance(rows, np.ndarray) and rows.dtype == np.float64 else np.array(rows, dtype=float)
@@ -124,7 +124,7 @@ SINGULAR_NULL = "singular configuration: ker(J^T) is more than one-dimensional"
 
 
 @kernel("(float64[:, :], float64[:])")
-def _least_squares_kernel(rows, values):
+def least_squares_kernel(rows, values):
     """y = (J^T J)^-1 J^T v, the least-squares solution of J y = v: (y0, y1, y2, solvable)."""
     b0 = b1 = b2 = 0.0
     for i in range(rows.shape[0]):
@@ -191,7 +191,7 @@ def least_squares_n_kernel(rows, values):
 def _rows_and_values(rows, values) -> tuple[np.ndarray, np.ndarray]:
     """(J as an (n, 3) array, v as n floats) for the kernels; ValueError naming a
     mismatch."""
-    rows, v = _rows_array(rows), np.asarray(values, dtype=float).ravel()
+    rows, v = rows_array(rows), np.asarray(values, dtype=float).ravel()
     if len(v) != rows.shape[0]:
         raise ValueError(f"values: expected {rows.shape[0]} (one per row of J), got {len(v)}")
     return rows, v
@@ -199,7 +199,7 @@ def _rows_and_values(rows, values) -> tuple[np.ndarray, np.ndarray]:
 
 def least_squares_rows(rows, values) -> list[float]:
     """(J^T J)^-1 J^T v for J given as n rows of 3 floats (or an (n, 3) array)."""
-    y0, y1, y2, ok = _least_squares_kernel(*_rows_and_values(rows, values))
+    y0, y1, y2, ok = least_squares_kernel(*_rows_and_values(rows, values))
     if not ok:
         raise DistributionError(SINGULAR_GRAM)
     return [y0, y1, y2]
@@ -212,7 +212,7 @@ def _min_two_norm_rows(rows, wrench) -> list[float]:
 @kernel("(float64[:, :], float64[:])")
 def _project_kernel(rows, forces):
     """(J (J^T J)^-1 J^T f, solvable)."""
-    y0, y1, y2, ok = _least_squares_kernel(rows, forces)
+    y0, y1, y2, ok = least_squares_kernel(rows, forces)
     return rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2, ok
 
 
@@ -270,7 +270,7 @@ def _null_direction_rows(rows) -> list[float]:
     """Unit null vector of J^T for J given as 4 rows of 3 floats (sign not fixed)."""
     if len(rows) != 4 or len(rows[0]) != 3:
         raise ValueError(f"jac: null_direction needs a 4 x 3 Jacobian, got {len(rows)} x {len(rows[0])}")
-    out, ok = _null_direction_kernel(_rows_array(rows))
+    out, ok = _null_direction_kernel(rows_array(rows))
     if not ok:
         raise DistributionError(SINGULAR_NULL)
     return out.tolist()
@@ -565,8 +565,8 @@ def two_arm_gravity_internal_force(nacelle_mass_kg: float, theta_rad: float, gra
 def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[float]:
     """The float paths of min_two_norm (J as n rows of 3) and min_inf_norm (4 rows):
     the pseudo-inverse solution, moved along ker(J^T) to the least peak for inf_norm.
-    Compiled (:func:`_distribute_kernel`)."""
-    forces, code, k, achieved = _distribute_kernel(_rows_array(rows), wrench[0], wrench[1], wrench[2],
+    Compiled (:func:`distribute_kernel`)."""
+    forces, code, k, achieved = distribute_kernel(rows_array(rows), wrench[0], wrench[1], wrench[2],
                                                    inf_norm, check)
     if code:
         raise_distribution_error(code, k, achieved, wrench)
@@ -574,7 +574,7 @@ def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[
 
 
 def raise_distribution_error(code: int, k: int, achieved: float, wrench) -> None:
-    """The DistributionError of a non-zero code of :func:`_distribute_kernel`."""
+    """The DistributionError of a non-zero code of :func:`distribute_kernel`."""
     if code == 1:
         raise DistributionError(SINGULAR_GRAM)
     if code == 2:
@@ -583,7 +583,7 @@ def raise_distribution_error(code: int, k: int, achieved: float, wrench) -> None
 
 
 @kernel("(float64[:, :], float64, float64, float64, boolean, boolean)")
-def _distribute_kernel(rows, w0, w1, w2, inf_norm, check):
+def distribute_kernel(rows, w0, w1, w2, inf_norm, check):
     """(forces, code, k, achieved): f = J (J^T J)^-1 F (ARCHI §4.4.1), for inf_norm
     moved along ker(J^T) to the least peak (§4.4.2, :func:`min_inf_norm_1d`), then
     J^T f = F checked. code 0 ok, 1 J^T J singular, 2 ker(J^T) not 1-D, 3 the check
@@ -598,7 +598,7 @@ def _distribute_kernel(rows, w0, w1, w2, inf_norm, check):
             return forces, 2, -1, 0.0
         forces = _min_inf_norm_1d_kernel(forces, n)
     if check:
-        k, achieved = _check_wrench_kernel(rows, forces, np.array([w0, w1, w2]), 1e-9)
+        k, achieved = check_wrench_kernel(rows, forces, np.array([w0, w1, w2]), 1e-9)
         if k >= 0:
             return forces, 3, k, achieved
     return forces, 0, -1, 0.0

@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bars as B
-from .distribution import SINGULAR_GRAM, _least_squares_kernel, min_two_norm
+from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError
 from .jit import kernel
-from .planar import _solve3
+from .planar import solve3
 from .task_space import PLANAR
 
 VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after bars.VT_*)
@@ -107,7 +107,7 @@ class DynamicModel:
             r0 += j0 * f
             r1 += j1 * f
             r2 += j2 * f
-        return _solve3(a, (r0, r1, r2))
+        return solve3(a, (r0, r1, r2))
 
     def inverse_dynamics(self, x, xdot, xddot, wrench=(0.0, 0.0, 0.0)) -> np.ndarray:
         """The platform wrench J^T f_d the drives must produce: A xddot + H - f_n."""
@@ -185,7 +185,7 @@ def _measured_state_kernel(bars, columns, x0, x1, x2, qdot, md, k, dg, mn0, mn1,
     code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
     if code != B.VT_OK:
         return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, code, leg
-    v0, v1, v2, ok = _least_squares_kernel(rows, qdot)
+    v0, v1, v2, ok = least_squares_kernel(rows, qdot)
     if not ok:
         return rows, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, VT_LEAST_SQUARES_SINGULAR, -1
     px, py, pz, r, t = B.task_pose_twist(columns, x0, x1, x2, v0, v1, v2)       # the same pose, the twist found

@@ -65,7 +65,7 @@ class ForwardKinematicsResult:
     reason: str = ""
 
 
-def _solve3(a, b):
+def solve3(a, b):
     """Solve a 3x3 system by Cramer's rule on Python floats (10x faster than LAPACK
     here): :func:`_solve3_kernel` interpreted, for Python callers."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
@@ -87,7 +87,7 @@ FK_REASONS = {FK_SINGULAR: "singular configuration: Jacobian rank < 3",
 
 @kernel()
 def _solve3_kernel(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):
-    """:func:`_solve3` for the kernels: (x0, x1, x2, solvable)."""
+    """:func:`solve3` for the kernels: (x0, x1, x2, solvable)."""
     c00 = a11 * a22 - a12 * a21
     c01 = a12 * a20 - a10 * a22
     c02 = a10 * a21 - a11 * a20
