@@ -77,3 +77,14 @@ def test_the_compiled_rotation_check_finds_the_first_improper_row_as_numpy_does(
     for k, b in enumerate(bad):
         rotations = np.concatenate([good[:5 + k], [b], good[5 + k:]])
         assert first_improper_rotation_kernel(rotations.reshape(-1, 9), 1e-6) == numpy_first(rotations) == 5 + k
+
+
+def test_unwrap_to_moves_by_whole_turns_to_the_nearest_and_the_kernel_agrees():
+    import math
+
+    from pkm_kinematics.rotations import unwrap_to, unwrap_to_kernel
+    for angle, reference, want in ((0.1, 2 * math.pi, 0.1 + 2 * math.pi), (3.0, -3.0, 3.0 - 2 * math.pi),
+                                   (-0.2, 0.0, -0.2), (1.0, 13.0, 1.0 + 4 * math.pi)):
+        got = unwrap_to(angle, reference)
+        assert got == want and abs(got - reference) <= math.pi
+        assert unwrap_to_kernel(angle, reference) == got            # bit for bit, compiled

@@ -56,7 +56,7 @@ from pkm_kinematics.dynamics import dynamic_model, holding_forces
 from pkm_kinematics.errors import DistributionError, KinematicsError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.planar import pair_force_map
-from pkm_kinematics.rotations import exp_so3, rpy_from_rotation
+from pkm_kinematics.rotations import exp_so3, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
@@ -851,7 +851,7 @@ class ControllerCore:
             return p
         r = np.asarray(r, dtype=float)
         theta = math.atan2(r[1, 0], r[0, 0])
-        theta += 2.0 * math.pi * round((reference_pose[2] - theta) / (2.0 * math.pi))
+        theta = unwrap_to(theta, reference_pose[2])
         return [p[0], p[1], theta]
 
     def _pose_minus(self, x, e) -> list:

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from pkm_common.cdr import TrajectoryData
-from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation
+from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates
 
 
@@ -144,7 +144,7 @@ def unwrap_angles(angles) -> list:
     out = []
     for a in angles:
         if out:
-            a += 2.0 * math.pi * round((out[-1] - a) / (2.0 * math.pi))
+            a = unwrap_to(a, out[-1])
         out.append(float(a))
     return out
 

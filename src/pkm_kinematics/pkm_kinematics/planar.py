@@ -41,6 +41,7 @@ import numpy as np
 from . import bars as B
 from .errors import KinematicsError, UnreachablePoseError
 from .jit import kernel
+from .rotations import unwrap_to_kernel
 from .task_space import PLANAR
 from .validation import finite_array, finite_floats
 
@@ -142,7 +143,7 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         x, y, th, code, i, j, d = _closed_form_kernel(bars, pairs, sides, q)
         if code != FK_CONVERGED:
             return 0.0, 0.0, 0.0, code, 0, math.inf, i, j, d
-        th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))
+        th = unwrap_to_kernel(th, ref_th)
     else:
         x, y, th = ref_x, ref_y, ref_th
     use_hessian = False
@@ -209,7 +210,7 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         use_hessian = size < NEWTON_RADIUS and misfit > 1e-9
     if not converged:
         return 0.0, 0.0, 0.0, FK_NO_CONVERGENCE, max_iterations, math.nan, 0, 0, 0.0
-    th += 2.0 * math.pi * round((ref_th - th) / (2.0 * math.pi))   # on the guess's revolution
+    th = unwrap_to_kernel(th, ref_th)                              # on the guess's revolution
     # residual at the returned pose, and the working mode (see PlanarLeastSquaresFK)
     c, s = math.cos(th), math.sin(th)
     r = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)

@@ -13,6 +13,15 @@ import numpy as np
 from .jit import kernel
 
 
+def unwrap_to(angle: float, reference: float) -> float:
+    """``angle`` moved by whole turns to the one nearest ``reference``: a yaw on the
+    revolution the machine is on (a planar nacelle turns without limit)."""
+    return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
+
+
+unwrap_to_kernel = kernel()(unwrap_to)       # the same, for compiled kernels
+
+
 def skew(v) -> np.ndarray:
     """Cross-product matrix: skew(a) @ b == a x b."""
     x, y, z = float(v[0]), float(v[1]), float(v[2])

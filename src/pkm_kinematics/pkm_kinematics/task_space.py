@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .rotations import (angular_motion_floats, quaternion_from_rotation, rate_matrix, rate_matrix_derivative,
-                        rotation_about_z, rotation_from_rpy, rpy_from_rotation)
+                        rotation_about_z, rotation_from_rpy, rpy_from_rotation, unwrap_to)
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def task_pose(space: TaskSpace, position, rotation, reference_angle: float | Non
         return np.concatenate((p, rpy_from_rotation(np.asarray(rotation, dtype=float))))
     theta = math.atan2(rotation[1][0], rotation[0][0])
     if reference_angle is not None:
-        theta += 2.0 * math.pi * round((reference_angle - theta) / (2.0 * math.pi))
+        theta = unwrap_to(theta, reference_angle)
     return np.array([p[0], p[1], theta])
 
 
