@@ -88,3 +88,18 @@ def test_unwrap_to_moves_by_whole_turns_to_the_nearest_and_the_kernel_agrees():
         got = unwrap_to(angle, reference)
         assert got == want and abs(got - reference) <= math.pi
         assert unwrap_to_kernel(angle, reference) == got            # bit for bit, compiled
+
+
+def test_the_yaw_of_a_quaternion_is_the_rotations_and_the_batched_form_agrees_to_an_ulp():
+    import math
+
+    import numpy as np
+
+    from pkm_kinematics.rotations import (quaternion_from_rotation, rotation_about_z, yaw_of_quaternion,
+                                          yaw_of_quaternions)
+    yaws = np.linspace(-math.pi + 1e-9, math.pi, 101)
+    quaternions = np.array([quaternion_from_rotation(rotation_about_z(a)) for a in yaws])
+    scalar = np.array([yaw_of_quaternion(*q) for q in quaternions.tolist()])
+    np.testing.assert_allclose(scalar, yaws, atol=1e-12)
+    # numpy's arctan2 and libm's atan2 differ in the last bit for some inputs
+    np.testing.assert_array_max_ulp(yaw_of_quaternions(quaternions), scalar, maxulp=1)

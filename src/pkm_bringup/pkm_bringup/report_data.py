@@ -26,7 +26,6 @@ others one by one (``pkm_common.cdr``, rosbags' deserializer for another encodin
 from __future__ import annotations
 
 import contextlib
-import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +34,7 @@ import numpy as np
 
 from pkm_bringup.bag import check_complete
 from pkm_common.cdr import CDR_LE_HEADER, JointStateDecoder, decode_joint_state, decode_pose_stamped
+from pkm_kinematics.rotations import yaw_of_quaternion, yaw_of_quaternions
 
 NS_PER_S = 1_000_000_000
 DEFAULT_NAMESPACE = "/pkm"
@@ -197,10 +197,7 @@ class StepBlock:
                                                 for k, r in self.rows.items()})
 
 
-def yaw_of(orientation: np.ndarray) -> np.ndarray:
-    """Rotation about z (rad, in (-pi, pi]) of quaternions (x, y, z, w), shape (N, 4)."""
-    x, y, z, w = orientation.T
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+yaw_of = yaw_of_quaternions          # rotation about z of quaternions (x, y, z, w), shape (N, 4)
 
 
 def rpy_of(orientation: np.ndarray) -> np.ndarray:
@@ -756,6 +753,5 @@ def _set_trajectory(run: RunData, msg) -> None:
     run.trajectory_time_s = np.array([_stamp_time(p.time_from_start) / 1e9 for p in msg.points])
     run.trajectory_position = np.array([(t.translation.x, t.translation.y, t.translation.z) if t else
                                         (np.nan,) * 3 for t in tfs]).reshape(-1, 3)
-    run.trajectory_yaw = np.array([math.atan2(2.0 * (t.rotation.w * t.rotation.z + t.rotation.x * t.rotation.y),
-                                              1.0 - 2.0 * (t.rotation.y ** 2 + t.rotation.z ** 2))
+    run.trajectory_yaw = np.array([yaw_of_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
                                    if t else np.nan for t in tfs])

@@ -12,12 +12,11 @@ a bisection plus a few float operations (~2 us).
 from __future__ import annotations
 
 import bisect
-import math
 
 import numpy as np
 
 from pkm_common.cdr import TrajectoryData
-from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to
+from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to, yaw_of_quaternion
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates
 
 
@@ -160,8 +159,7 @@ def reference_from_trajectory(data, space: TaskSpace) -> "Reference":
                          f"{list(data.joint_names)} with {len(data.time_s)} points")
     tf, vel, acc = data.transform[:, 0], data.velocity[:, 0], data.acceleration[:, 0]
     if space is PLANAR:  # (x, y, yaw about z); the yaw per point in Python floats, as the recorded runs had it
-        yaw = unwrap_angles([math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-                             for x, y, z, w in tf[:, 3:7].tolist()])
+        yaw = unwrap_angles([yaw_of_quaternion(*q) for q in tf[:, 3:7].tolist()])
         return Reference(data.time_s, np.column_stack((tf[:, 0], tf[:, 1], yaw)), vel[:, [0, 1, 5]],
                          acc[:, [0, 1, 5]])
     if space is SPATIAL:

@@ -22,6 +22,18 @@ def unwrap_to(angle: float, reference: float) -> float:
 unwrap_to_kernel = kernel()(unwrap_to)       # the same, for compiled kernels
 
 
+def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Rotation about z (rad, in (-pi, pi]) of the quaternion (x, y, z, w): a planar
+    machine's yaw."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def yaw_of_quaternions(orientation: np.ndarray) -> np.ndarray:
+    """yaw_of_quaternion of each row of an (N, 4) array (x, y, z, w)."""
+    x, y, z, w = np.asarray(orientation, dtype=float).T
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
 def skew(v) -> np.ndarray:
     """Cross-product matrix: skew(a) @ b == a x b."""
     x, y, z = float(v[0]), float(v[1]), float(v[2])
