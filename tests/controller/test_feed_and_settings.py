@@ -164,9 +164,9 @@ def test_new_gains_scale_like_a_start_with_them():
 
 
 def test_an_estop_is_applied_at_once_and_recorded_after_the_state_given():
-    """The estop as an operator action (pkm_controller.operator): the core stops now,
+    """The estop as an operator action (pkm_controller.operator_actions): the core stops now,
     and the event names the last answered state, which the replay stops after."""
-    from pkm_controller.operator import Action, apply_action
+    from pkm_controller.operator_actions import Action, apply_action
     core = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
     event = apply_action(core, Action.ESTOP, None, after_ns=4_000_000)
     assert core.stopped and core.stop_reason == "estop" and str(core.stop_cause) == "estop"
@@ -179,7 +179,7 @@ def test_a_safe_stop_is_recorded_with_its_cause_and_replays_from_the_record():
     the payload read back from the event stops a fresh core the same way; after_ns=None
     given means before the first answer, whatever the core has prepared."""
     from pkm_common.causes import TripCause
-    from pkm_controller.operator import Action, apply_action, recorded_payload
+    from pkm_controller.operator_actions import Action, apply_action, recorded_payload
     core = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
     q = ARCHI.model.inverse_kinematics(ARCHI.model.home).tolist()
     core.prepare(0.004, q, [0.0] * 4, [0.0] * 4)

@@ -11,7 +11,7 @@ from pkm_controller.configuration import core_from_parameters
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.controller_node import NODE_PARAMETERS
 from pkm_controller.node_loop import ControllerLoop
-from pkm_controller.operator import Action
+from pkm_controller.operator_actions import Action
 from pkm_kinematics import load_machine
 
 ARCHI = load_machine("archi")

@@ -277,7 +277,7 @@ class Panel:
                 self.estop_latched, self.estop_why = True, self.estop_why or "estop from the graph"
 
     def on_event(self, text: str) -> None:
-        """A controller/events record (pkm_controller.operator): the latency of the action."""
+        """A controller/events record (pkm_controller.operator_actions): the latency of the action."""
         try:
             event = json.loads(text)
         except ValueError:

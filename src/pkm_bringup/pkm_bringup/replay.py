@@ -15,7 +15,7 @@ received itself after the command that answered it).
 What an operator did while the run went on — a program or jog (``trajectory``), the
 feed override, a strategy or gain change — is replayed from ``controller/events``: the
 controller applied each right after answering a state and recorded which
-(pkm_controller.operator), and the replay applies it after the same state.
+(pkm_controller.operator_actions), and the replay applies it after the same state.
 
 An ``estop`` the controller obeyed is in ``controller/events`` too, after the state
 it followed, and so is every safe stop of the controller (``safe_stop``: the only
@@ -46,7 +46,7 @@ from pkm_bringup.report_data import BagReadError, NoBagError, open_bag, read_mes
 from pkm_common.causes import plant_stop_cause, setpoint_held
 from pkm_common.conversions import pose_from_msg, stamp_to_ns
 from pkm_controller.controller import ControllerConfig, ControllerCore
-from pkm_controller.operator import Action, apply_action, recorded_payload
+from pkm_controller.operator_actions import Action, apply_action, recorded_payload
 from pkm_controller.reference import reference_from_msg
 from pkm_kinematics import load_machine
 

@@ -24,6 +24,7 @@ import numpy as np
 from pkm_bringup.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, rpy_of, yaw_of
 from pkm_bringup.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
 from pkm_common.causes import TripCause
+from pkm_kinematics.distribution import GRAM_RTOL
 from pkm_kinematics.task_space import PLANAR, POSITION
 
 UNKNOWN_CAUSE = "unknown"           # a stop whose status names no cause (recorded before causes were)
@@ -119,7 +120,7 @@ def null_space_part(jac: np.ndarray, forces: np.ndarray) -> np.ndarray:
 
     :func:`pkm_kinematics.distribution.internal_force` vectorised; rows with a non-finite
     J or f, or a singular J^T J (the relative test of ``distribution``: |det| <=
-    1e-13 |a00 a11 a22|), are NaN."""
+    GRAM_RTOL |a00 a11 a22|), are NaN."""
     jac = np.asarray(jac, dtype=float)
     forces = np.asarray(forces, dtype=float)
     out = np.full(forces.shape, np.nan)
@@ -130,7 +131,7 @@ def null_space_part(jac: np.ndarray, forces: np.ndarray) -> np.ndarray:
     gram = np.einsum("kni,knj->kij", j, j)
     det = np.linalg.det(gram)
     diag = np.prod(np.diagonal(gram, axis1=1, axis2=2), axis=1)
-    regular = np.abs(det) > 1e-13 * np.abs(diag)
+    regular = np.abs(det) > GRAM_RTOL * np.abs(diag)
     y = np.linalg.solve(gram[regular], np.einsum("kni,kn->ki", j[regular], f[regular])[..., None])[..., 0]
     rows = np.flatnonzero(ok)[regular]
     out[rows] = f[regular] - np.einsum("kni,ki->kn", j[regular], y)

@@ -34,7 +34,7 @@ The commands (`goal`, `program`, `trajectory`, `load`, `controller/feed_override
   late joiners (a controller started after the planner still gets the trajectory).
   `estop` is latched too: a node that starts during an emergency stop must see it.
 - EVENTS_QOS: RELIABLE, KEEP_LAST 1000, TRANSIENT_LOCAL: the operator's actions as the
-  controller applied them (pkm_controller.operator); rare, and every one is needed to
+  controller applied them (pkm_controller.operator_actions); rare, and every one is needed to
   replay the run, so a recorder that subscribes late still gets them all.
 - CLOCK_QOS: as rclpy's own `/clock` subscription (time_source.py): BEST_EFFORT,
   KEEP_LAST 1, VOLATILE. A publisher of `/clock` must offer at least this.

@@ -47,7 +47,7 @@ from pkm_common.runner import main_exit, run_node
 from pkm_controller.configuration import core_from_parameters, warm_up
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
-from pkm_controller.operator import Action
+from pkm_controller.operator_actions import Action
 from pkm_controller.strategies import Feedback
 
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,

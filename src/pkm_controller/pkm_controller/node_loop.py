@@ -53,7 +53,7 @@ from pkm_common.timing import DurationHistogram
 from .configuration import metrology_inputs, run_summary
 from .controller import ControllerCore
 from .lockstep import StampPairing
-from .operator import Action, OperatorInbox, apply_action, event_json, event_summary
+from .operator_actions import Action, OperatorInbox, apply_action, event_json, event_summary
 from .reference import check_consistent, reference_from_trajectory
 from .strategies import Feedback
 
@@ -196,7 +196,7 @@ class ControllerLoop:
             body = split_text(decode_string(buf, topic))[1]
             payload = body if action != Action.FEED_OVERRIDE else _number(topic, body)
         except ValueError as exc:
-            payload = exc                      # refused with its message (operator.apply_action)
+            payload = exc                      # refused with its message (operator_actions.apply_action)
         self.operator(action, payload)
 
     def commanded(self, topic: str, action: Action | None, buf: bytes = b"") -> bool:
@@ -252,7 +252,7 @@ class ControllerLoop:
             self.ports.log_error(f"the refused command's sender: {found.reason}")
 
     def operator(self, action: Action, payload) -> None:
-        """A trajectory, feed override or settings change (operator.py): applied at once
+        """A trajectory, feed override or settings change (operator_actions.py): applied at once
         before the first cycle, else right after the next answer (between two cycles)."""
         self.report(self.inbox.add(self.core, action, payload))
 

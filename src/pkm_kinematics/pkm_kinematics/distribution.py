@@ -34,6 +34,10 @@ TWO_ARM = ("two_arm", "two_arm_gravity")       # need a planar machine of two le
 # Above p ~ 64 the terms |f_i / max|f||^p underflow and the p-norm stops being
 # computable in floating point; the infinity norm is the limit anyway.
 P_NORM_MAX = 64.0
+# a Gram matrix J^T J is singular when its determinant (or a pivot) falls below this part
+# of the product of its diagonal (of its largest diagonal entry): the 3-DOF solves, the
+# least squares of the dynamics, and the report's internal-force rows
+GRAM_RTOL = 1e-13
 
 
 def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
@@ -110,7 +114,7 @@ def _gram_solve_kernel(rows, b0, b1, b2):
     c02 = a01 * a12 - a11 * a02
     det = a00 * c00 + a01 * c01 + a02 * c02
     # relative singularity test: det of a Gram matrix against the product of its diagonal
-    if not abs(det) > 1e-13 * abs(a00 * a11 * a22):
+    if not abs(det) > GRAM_RTOL * abs(a00 * a11 * a22):
         return 0.0, 0.0, 0.0, False
     c11 = a00 * a22 - a02 * a02
     c12 = a01 * a02 - a00 * a12
@@ -156,7 +160,7 @@ def gram_solve_n_kernel(rows, b):
         d = gram[j, j]
         for k in range(j):
             d -= low[j, k] * low[j, k]
-        if not d > 1e-13 * scale:
+        if not d > GRAM_RTOL * scale:
             return y, False
         low[j, j] = math.sqrt(d)
         for i in range(j + 1, m):
