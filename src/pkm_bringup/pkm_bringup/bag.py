@@ -65,6 +65,7 @@ from mcap.writer import CompressionType, Writer
 
 from pkm_bringup.mcap_writer import FastWriter
 from pkm_bringup.tap_records import PACK_ERRORS, PACK_OK, pack_tap_records
+from pkm_common.files import atomic_write
 
 try:  # mcap's own version string, for the Header's library field
     from importlib.metadata import version as _dist_version
@@ -278,13 +279,8 @@ def _dump_yaml(data) -> str:
 
 def _write_metadata_yaml(directory: Path, info: dict) -> None:
     """metadata.yaml, atomically (temporary file, fsync, rename)."""
-    target = directory / _METADATA_FILE
-    tmp = directory / (_METADATA_FILE + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(_dump_yaml({"rosbag2_bagfile_information": info}))
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, target)
+    text = _dump_yaml({"rosbag2_bagfile_information": info})
+    atomic_write(directory / _METADATA_FILE, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def _finish_mcap(writer: Writer, info: dict) -> None:

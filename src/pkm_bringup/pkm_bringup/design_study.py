@@ -83,7 +83,7 @@ def _readable(path: Path) -> bool:
 
 
 def _save_npz(path: Path, data: dict) -> None:
-    from pkm_bringup.study_tables import atomic_write
+    from pkm_common.files import atomic_write
 
     def write(tmp: Path):
         with open(tmp, "wb") as fh:                  # a file object: np.savez adds no suffix
@@ -165,7 +165,7 @@ def assemble(study: Study, out_dir: Path, values: np.ndarray, chunks) -> tuple[p
 
 
 def write_outputs(study: Study, out_dir: Path, table: pd.DataFrame) -> None:
-    from pkm_bringup.study_tables import atomic_write
+    from pkm_common.files import atomic_write
     atomic_write(out_dir / "results.parquet", lambda p: table.to_parquet(p, engine="pyarrow", index=False))
     atomic_write(out_dir / "results.csv", lambda p: table.to_csv(p, index=False))
     first = list(study.objectives)[0]

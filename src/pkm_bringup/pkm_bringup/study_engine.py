@@ -112,7 +112,7 @@ def _execute(task: RunTask) -> dict:
 
 # ------------------------------------------------------------------ the client
 def write_json_atomic(path: Path, data) -> None:
-    from pkm_bringup.study_tables import atomic_write
+    from pkm_common.files import atomic_write
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=1, allow_nan=True), encoding="utf-8"))
 
 

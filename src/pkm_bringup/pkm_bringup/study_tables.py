@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from pkm_bringup.study import Study
+from pkm_common.files import atomic_write
 
 STATUSES = ("completed", "tripped", "failed")
 
@@ -40,19 +40,6 @@ def read_rows(out_dir: Path, runs) -> pd.DataFrame:
             continue
     frame = pd.DataFrame(rows)
     return frame.sort_values("index").reset_index(drop=True) if len(frame) else frame
-
-
-def atomic_write(path: Path, write) -> None:
-    """``write(tmp)`` a temporary file beside ``path``, flush it to the disk, then rename
-    it to ``path``: a reader sees the old file or the whole new one, also after a crash."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    write(tmp)
-    fd = os.open(tmp, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
 
 
 def group_labels(frame: pd.DataFrame, keys: list[str]) -> pd.Series:

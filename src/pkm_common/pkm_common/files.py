@@ -9,7 +9,8 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["SUMMARY_BYTES", "disk_full", "reserve_file", "summary_written", "write_json", "write_summary"]
+__all__ = ["SUMMARY_BYTES", "atomic_write", "disk_full", "reserve_file", "summary_written", "write_json",
+           "write_summary"]
 
 SUMMARY_BYTES = 64 * 1024          # what a node's summary may take, allocated when the node starts
 
@@ -19,20 +20,32 @@ def disk_full(exc: BaseException) -> bool:
     return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
-def write_json(path, data, indent: int = 2) -> None:
-    """``data`` as JSON to ``path``, whole or not at all; OSError as it comes (the old
-    file, if any, stays)."""
+def atomic_write(path, write) -> None:
+    """``write(tmp)`` a temporary file beside ``path``, flush it to the disk, then rename
+    it to ``path``: a reader sees the old file or the whole new one, also after a crash
+    or a full disk (OSError as it comes; the temporary file removed). The one way the
+    project writes a file whole: JSON, metadata.yaml, tables, plots."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=indent)
-            fh.flush()
-            os.fsync(fh.fileno())
+        write(tmp)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_json(path, data, indent: int = 2) -> None:
+    """``data`` as JSON to ``path``, whole or not at all (atomic_write)."""
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=indent)
+    atomic_write(path, write)
 
 
 def reserve_file(path, size: int = SUMMARY_BYTES) -> bool:
