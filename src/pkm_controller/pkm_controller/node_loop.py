@@ -4,15 +4,7 @@ and the status. It works on the messages' bytes (pkm_common.cdr) and hands what 
 out to ``ports``, which the node implements with its publishers (ros2_control's
 boundary: the node owns the middleware, this owns the decisions).
 
-``ports`` needs: ``publish_command(bytes)`` (drives/command, tapped for the recorder),
-``resend_command(bytes)`` (the same answer again, not tapped: the bag holds one per
-stamp), ``publish_reference_bytes(bytes)``, ``publish_status(stamp_ns, level,
-message, values)``, ``publish_event(text)`` (controller/events), ``publish_estop()``
-(latched true: the drives brake), ``after_cycle()`` (the end of an answer: the
-recording tap's moment to flush), ``input_publishers(topic)`` (the full names of the nodes
-publishing an input topic, one per publisher), ``log_info(text)`` and
-``log_error(text)``, ``topic_senders(topic)`` (the node names publishing a command
-topic; a failed graph query answers a name no run allows).
+``ports`` is a ``ControllerPorts`` (below): what the loop sends out and asks the graph.
 
 Its inputs have one source each, as the plant's commands do (pkm_common.sources):
 ``drives/state`` comes from ``state_source`` (pkm-run: the run's sim_hw) and the
@@ -41,6 +33,7 @@ recorded with the sender its tag claims, or ``(no credential)``.
 from __future__ import annotations
 
 import time
+from typing import Protocol
 
 from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
@@ -57,18 +50,55 @@ from .operator_actions import Action, OperatorInbox, apply_action, event_json, e
 from .reference import check_consistent, reference_from_trajectory
 from .strategies import Feedback
 
-__all__ = ["COMMAND_CHECK_S", "ControllerLoop", "SOURCE_CHECK_S"]
+__all__ = ["COMMAND_CHECK_S", "ControllerLoop", "ControllerPorts", "SOURCE_CHECK_S"]
 
 SOURCE_CHECK_S = 0.1            # how often the graph is asked who publishes the inputs
 COMMAND_CHECK_S = 0.025         # during a motion, one command topic asked this often (all six in 0.15 s)
 NAMING_CHECKS = 40              # graph checks (one per COMMAND_CHECK_S) to name a sender refused unnamed
 
 
+class ControllerPorts(Protocol):
+    """What a ControllerLoop needs of its shell (controller_node implements it with its
+    publishers and the graph; a replay or a study engine with recorders)."""
+
+    def publish_command(self, command: bytes) -> None:
+        """drives/command (tapped for the recorder)."""
+
+    def resend_command(self, command: bytes) -> None:
+        """The same answer again, not tapped (the bag holds one per stamp)."""
+
+    def publish_reference_bytes(self, reference: bytes) -> None:
+        """controller/reference."""
+
+    def publish_status(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
+        """controller/status."""
+
+    def publish_event(self, text: str) -> None:
+        """controller/events (JSON)."""
+
+    def publish_estop(self) -> None:
+        """estop, latched true: the drives brake."""
+
+    def after_cycle(self) -> None:
+        """The end of an answer: the recording tap's moment to flush."""
+
+    def input_publishers(self, topic: str) -> list[str]:
+        """The full names of the nodes publishing an input topic, one per publisher."""
+
+    def topic_senders(self, topic: str) -> list[str]:
+        """The node names publishing a command topic (a failed graph query answers a
+        name no run allows)."""
+
+    def log_info(self, text: str) -> None: ...
+
+    def log_error(self, text: str) -> None: ...
+
+
 class ControllerLoop:
     """One configured controller's answers (the node's ``values``: its parameters
     beside ControllerConfig, config/controller/*.yaml)."""
 
-    def __init__(self, core: ControllerCore, values: dict, ports, credentials: Verifier | None = None):
+    def __init__(self, core: ControllerCore, values: dict, ports: ControllerPorts, credentials: Verifier | None = None):
         self.core, self.values, self.ports = core, values, ports
         self.credentials = credentials or Verifier(None)     # the run's key (pkm_common.credential)
         self.active = False

@@ -4,20 +4,14 @@ end. It works on the messages' bytes (pkm_common.cdr) and hands what goes out to
 ``ports``, which the node implements with its publishers and its view of the graph
 (the timing and the refusals are described in sim_hw_node's docstring).
 
-``ports`` needs: ``publish_diagnostics(stamp_ns, level, message, values)``,
-``publish_markers(segments, stamp_ns)``, ``report_refusal(refusal, topic, text,
-plant_step, now_ns)`` (drives/refused and the rate-limited log),
-``command_publishers()`` (the full names of the nodes publishing drives/command, as
-the graph knows them), ``load_senders()`` (the same of ``load``), ``after_cycle()`` (the recording tap's flush point),
-``run_finished()`` (the last step is done: end the process, or let the executor
-drain), ``log_info(text)`` and ``log_error(text)``.
+``ports`` is a ``SimPorts`` (below): what the loop sends out and asks the graph.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder, decode_wrench_stamped
@@ -41,11 +35,40 @@ NAMING_CHECKS = 20           # watchdog ticks (0.1 s) to name a load's sender re
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
 
 
+class SimPorts(Protocol):
+    """What a SimLoop needs of its shell (sim_hw_node implements it)."""
+
+    def publish_diagnostics(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
+        """diagnostics (sim_hw's status)."""
+
+    def publish_markers(self, segments, stamp_ns: int) -> None:
+        """markers (the legs, for a viewer)."""
+
+    def report_refusal(self, refusal, topic: str, text: str, plant_step: int, now_ns: int) -> None:
+        """drives/refused and the rate-limited log."""
+
+    def command_publishers(self) -> list[str]:
+        """The full names of the nodes publishing drives/command, as the graph knows them."""
+
+    def load_senders(self) -> list[str]:
+        """The same of ``load``."""
+
+    def after_cycle(self) -> None:
+        """The recording tap's flush point."""
+
+    def run_finished(self) -> None:
+        """The last step is done: end the process, or let the executor drain."""
+
+    def log_info(self, text: str) -> None: ...
+
+    def log_error(self, text: str) -> None: ...
+
+
 class SimLoop:
     """The simulated machine of ``settings`` (parameters.declare_settings), publishing
     its steps on ``streams`` (step_streams.StepStreams)."""
 
-    def __init__(self, settings: SimHwSettings, streams: StepStreams, ports):
+    def __init__(self, settings: SimHwSettings, streams: StepStreams, ports: SimPorts):
         self.config, self.plant, self.gate = settings.machine, settings.plant, settings.gate
         self.load_senders = settings.load_senders
         self.load_guard = CommandGuard(settings.load_senders, settings.credentials)
