@@ -103,3 +103,18 @@ def test_the_yaw_of_a_quaternion_is_the_rotations_and_the_batched_form_agrees_to
     np.testing.assert_allclose(scalar, yaws, atol=1e-12)
     # numpy's arctan2 and libm's atan2 differ in the last bit for some inputs
     np.testing.assert_array_max_ulp(yaw_of_quaternions(quaternions), scalar, maxulp=1)
+
+
+def test_wrap_angle_is_in_minus_pi_to_pi_and_keeps_an_angle_inside_as_it_is():
+    import math
+
+    import numpy as np
+
+    from pkm_kinematics.rotations import wrap_angle, wrap_angles
+    angles = [3.0 * math.pi, -3.0 * math.pi, math.pi, -math.pi, 0.1, -0.5, 7.0, -7.0, 1e-9]
+    wrapped = [wrap_angle(a) for a in angles]
+    assert all(-math.pi < w <= math.pi for w in wrapped), wrapped
+    assert wrapped[2] == math.pi and wrapped[3] == math.pi                 # (-pi, pi]: -pi is pi
+    assert wrapped[4:6] == [0.1, -0.5] and wrapped[8] == 1e-9              # inside: unchanged, bit for bit
+    np.testing.assert_allclose(np.cos(wrapped), np.cos(angles), atol=1e-12)
+    assert wrap_angles(np.array(angles)).tolist() == wrapped                # the batched form: the same

@@ -25,6 +25,7 @@ from pkm_bringup.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRe
 from pkm_bringup.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
 from pkm_common.causes import TripCause
 from pkm_kinematics.distribution import GRAM_RTOL
+from pkm_kinematics.rotations import wrap_angles
 from pkm_kinematics.task_space import PLANAR, POSITION
 
 UNKNOWN_CAUSE = "unknown"           # a stop whose status names no cause (recorded before causes were)
@@ -95,11 +96,6 @@ class TrackingStats:
 
 
 # ------------------------------------------------------------ per-row formulas
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Angles to [-pi, pi)."""
-    return (angle + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def tracking_error_rows(true_position, true_orientation, ref_position, ref_orientation,
                         planar: bool) -> dict:
     """Errors true pose - reference row by row: {"axes" (N, 2|3) m, "translation" (N,)
@@ -108,7 +104,7 @@ def tracking_error_rows(true_position, true_orientation, ref_position, ref_orien
     axes = (np.asarray(true_position) - np.asarray(ref_position))[:, : 2 if planar else 3]
     out = {"axes": axes, "translation": np.linalg.norm(axes, axis=1)}
     if planar:
-        out["yaw"] = wrap_angle(yaw_of(true_orientation) - yaw_of(ref_orientation))
+        out["yaw"] = wrap_angles(yaw_of(true_orientation) - yaw_of(ref_orientation))
     else:
         dot = np.abs(np.sum(np.asarray(true_orientation) * np.asarray(ref_orientation), axis=1))
         out["rotation"] = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
@@ -662,4 +658,4 @@ def _since(stamp_ns: int | None, t0: int | None) -> float | None:
 
 __all__ = ["Analysis", "PeakRms", "RunAnalysis", "Span", "Trip", "UNKNOWN_CAUSE", "block_internal_forces",
            "drive_order", "first_stop", "internal_force_rows", "internal_force_setup", "metrics_dict",
-           "null_space_part", "resolve_machine", "tracking_error_rows", "wrap_angle"]
+           "null_space_part", "resolve_machine", "tracking_error_rows"]

@@ -25,7 +25,7 @@ from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel,
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.hexapod import weighted_condition_kernel
 from pkm_kinematics.jit import kernel
-from pkm_kinematics.rotations import exp_so3_kernel, log_so3_kernel, mul3_kernel, rpy_rotation_kernel
+from pkm_kinematics.rotations import exp_so3_kernel, log_so3_kernel, mul3_kernel, rpy_rotation_kernel, wrap_angle
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace
 
 
@@ -65,11 +65,6 @@ class Gains:
     @property
     def outer_ki(self) -> float:
         return self.outer_kp / self.integral_time_s if self.integral_time_s > 0.0 else 0.0
-
-
-def wrap_angle(a: float) -> float:
-    """a in (-pi, pi]."""
-    return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
 
 
 def pose_error(x_d, x, planar: bool) -> list:

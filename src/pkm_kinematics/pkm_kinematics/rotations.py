@@ -22,6 +22,17 @@ def unwrap_to(angle: float, reference: float) -> float:
 unwrap_to_kernel = kernel()(unwrap_to)       # the same, for compiled kernels
 
 
+def wrap_angle(angle: float) -> float:
+    """``angle`` in (-pi, pi] (an angle inside it is returned as it is, bit for bit)."""
+    return angle - 2.0 * math.pi * math.ceil((angle - math.pi) / (2.0 * math.pi))
+
+
+def wrap_angles(angles: np.ndarray) -> np.ndarray:
+    """wrap_angle of each element."""
+    angles = np.asarray(angles, dtype=float)
+    return angles - 2.0 * np.pi * np.ceil((angles - np.pi) / (2.0 * np.pi))
+
+
 def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Rotation about z (rad, in (-pi, pi]) of the quaternion (x, y, z, w): a planar
     machine's yaw."""
