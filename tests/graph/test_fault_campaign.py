@@ -252,9 +252,7 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     row = {"fault": case, "detection_ms": round((stop_ns * 1e-9 - onset_s) * 1e3, 1),
            "error_at_stop_um": round(error * 1e6, 1), "motion_after_stop_um": round(held * 1e6, 3),
            "cause": run["cause"], "reason": run["trip_reason"]}
-    if os.environ.get("PKM_CAMPAIGN_TABLE"):
-        with open(os.environ["PKM_CAMPAIGN_TABLE"], "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(row) + "\n")
+    _row(row)
     # deterministic to the stop and past it: every recorded command recomputed offline
     from pkm_bringup.replay import replay_controller
     replayed = replay_controller(tmp_path / case)
@@ -270,26 +268,36 @@ def _row(row: dict) -> None:
             fh.write(json.dumps(row) + "\n")
 
 
+def _run_beside(adversary: Adversary, s, run_dir) -> dict:
+    """``s`` run in one process while ``adversary`` acts; its run.json content."""
+    adversary.start()
+    try:
+        return run_scenario(s, run_dir, in_process=True, progress=False, report=False)
+    finally:
+        adversary.done.set()
+        adversary.join(timeout=10)
+
+
+def _planner_statuses(bag) -> list:
+    """The planner's diagnostic statuses recorded in ``bag``, in order."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        wanted = [c for c in reader.connections if c.topic == "/pkm/diagnostics"]
+        return [st for c, _, raw in reader.messages(connections=wanted)
+                for st in reader.deserialize(raw, c.msgtype).status if st.name == "trajectory"]
+
+
 def test_campaign_an_operators_oversized_program_is_refused_and_the_run_goes_on(tmp_path):
     """A named operator (not a rogue) sends `G4 P1000000` mid-run: the planner knows the
     plan's size before it samples it (it passed 3 GB before) and refuses it with its
     line, recorded in the bag; the motion goes on to its end."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
     s = load_scenario("archi_demo", {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0]},
                                      "operators": ["/pkm/rogue"]})
     adversary = Adversary("oversized", key_file=tmp_path / "oversized" / "credential.key")
-    adversary.start()
-    try:
-        run = run_scenario(s, tmp_path / "oversized", in_process=True, progress=False, report=False)
-    finally:
-        adversary.done.set()
-        adversary.join(timeout=10)
+    run = _run_beside(adversary, s, tmp_path / "oversized")
     assert run["status"] == "completed", (run["status"], run["error"], run["trip_reason"])
-    with AnyReader([tmp_path / "oversized" / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        wanted = [c for c in reader.connections if c.topic == "/pkm/diagnostics"]
-        messages = [s.message for c, _, raw in reader.messages(connections=wanted)
-                    for s in reader.deserialize(raw, c.msgtype).status if s.name == "trajectory"]
+    messages = [st.message for st in _planner_statuses(tmp_path / "oversized" / "bag")]
     refusal = [m for m in messages if "program rejected" in m]
     assert refusal and "line 1: a dwell of 1e+06 s exceeds max_points 200000" in refusal[0], messages
     _row({"fault": "oversized_program (G4 P1000000)", "detection_ms": None, "error_at_stop_um": None,
@@ -301,21 +309,10 @@ def test_campaign_a_spoofed_panels_goal_is_refused_by_the_planner_and_the_run_go
     sends a +5 mm goal without the run's credential: the planner refuses it, recorded,
     and the motion goes on to its end (before the credential, a goal moved the tool
     5.08 mm)."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
     s = load_scenario("archi_demo", {"duration_s": 1.2, "plant": {"compliance": [0.0, 0.0, 0.0]}})
-    adversary = Adversary("goal", name="panel")
-    adversary.start()
-    try:
-        run = run_scenario(s, tmp_path / "spoofed", in_process=True, progress=False, report=False)
-    finally:
-        adversary.done.set()
-        adversary.join(timeout=10)
+    run = _run_beside(Adversary("goal", name="panel"), s, tmp_path / "spoofed")
     assert run["status"] == "completed", (run["status"], run["error"], run["trip_reason"])
-    with AnyReader([tmp_path / "spoofed" / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        wanted = [c for c in reader.connections if c.topic == "/pkm/diagnostics"]
-        statuses = [st for c, _, raw in reader.messages(connections=wanted)
-                    for st in reader.deserialize(raw, c.msgtype).status if st.name == "trajectory"]
+    statuses = _planner_statuses(tmp_path / "spoofed" / "bag")
     refused = [st for st in statuses if st.message.startswith("goal refused")]
     assert refused and refused[0].message == "goal refused: goal: no credential (pkm-cred/1 tag) in the message", \
         [st.message for st in statuses]
