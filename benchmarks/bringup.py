@@ -77,7 +77,7 @@ def alternating_windows(scenario: str, duration_s: float, in_process: bool, wind
         publish = None
         try:
             if in_process:
-                from pkm_common import tap
+                from pkm_recording import tap
                 publish = tap.TappedPublisher.publish
                 steps, marks = gate.install(window_ns, None)
                 cpu_marks = {"in-process": marks}
@@ -196,7 +196,7 @@ def two_stage_bootstrap_90(runs, statistic, draws: int = 5000) -> tuple[float, f
 
 
 def writer_throughput(messages: int = 200_000) -> tuple[float, int]:
-    from pkm_bringup.bag import BagWriter
+    from pkm_recording.bag import BagWriter
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
     js = store.types["sensor_msgs/msg/JointState"]
@@ -260,7 +260,7 @@ def recorder_throughput(messages: int = 20_000) -> tuple[float, float, int]:
     from rosbags.highlevel import AnyReader
     from sensor_msgs.msg import JointState
 
-    from pkm_bringup.bag import read_counts
+    from pkm_recording.bag import read_counts
     from pkm_common.conversions import joint_state_msg
     from pkm_common.qos import STREAM_PUBLISHER_QOS
     with tempfile.TemporaryDirectory() as tmp:
@@ -298,7 +298,7 @@ def recorder_cpu_per_tapped_message(batches: int = 50, steps: int = 200, depth: 
     from std_msgs.msg import UInt8MultiArray
 
     from pkm_common.qos import STREAM_PUBLISHER_QOS, TAP_QOS
-    from pkm_common.tap import TAP_TOPIC, StreamTap
+    from pkm_recording.tap import TAP_TOPIC, StreamTap
 
     def cpu_s(pid: int) -> float:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()

@@ -1,6 +1,6 @@
 """Report benchmark: peak memory and wall time of the run report against the run's length.
 
-A synthetic ARCHI run is recorded with the project's own writer (``pkm_bringup.bag.BagWriter``,
+A synthetic ARCHI run is recorded with the project's own writer (``pkm_recording.bag.BagWriter``,
 the per-step messages encoded with ``pkm_common.cdr`` as the nodes encode them): at
 ``--rate-hz`` the seven per-step streams of the graph (``/clock``, ``drives/state``,
 ``platform/true_pose``, ``metrology/struts``, ``metrology/pose``, ``drives/command``,
@@ -16,7 +16,7 @@ imports (scipy through pkm_kinematics, matplotlib, rosbags); what grows with the
 length is what the report keeps of it.
 
 ``--report-module PATH`` reports with another copy of the report module (e.g. an older
-one: ``git show <rev>:src/pkm_bringup/pkm_bringup/report.py > /tmp/report_old.py``),
+one: ``git show <rev>:src/pkm_runs/pkm_runs/report.py > /tmp/report_old.py``),
 loaded by path; it must provide ``write_report(run_dir)``.
 
 Usage: python benchmarks/report_memory.py [--seconds 60 600] [--rate-hz 1000] [--report-module PATH]
@@ -66,7 +66,7 @@ if module:
     sys.modules[spec.name] = report            # dataclasses look their module up
     spec.loader.exec_module(report)
 else:
-    from pkm_bringup import report
+    from pkm_runs import report
 report.write_report(run_dir)
 print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "seconds": time.perf_counter() - start}))
@@ -91,7 +91,7 @@ def write_synthetic_run(run_dir, duration_s: float, rate_hz: float = 1000.0) -> 
     are smooth with one spike. Returns {"messages", "bag_bytes", "seconds"}."""
     from rosbags.typesys import Stores, get_typestore
 
-    from pkm_bringup.bag import BagWriter, qos_profile
+    from pkm_recording.bag import BagWriter, qos_profile
     from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, encode_clock
 
     start = time.perf_counter()
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.keep) if args.keep else Path(tmp)
-        print(f"report: {args.report_module or 'pkm_bringup.report'}; {args.rate_hz:g} Hz, "
+        print(f"report: {args.report_module or 'pkm_runs.report'}; {args.rate_hz:g} Hz, "
               f"{len(STEP_TOPICS)} per-step streams")
         print(f"{'sim s':>7} {'steps':>8} {'messages':>9} {'bag MB':>7} {'write s':>8} {'peak RSS MiB':>12} "
               f"{'report s':>9}")

@@ -30,8 +30,8 @@ import yaml
 
 
 def closed_loop(workers: int, runs: int, duration_s: float) -> dict:
-    from pkm_bringup.study import load_study
-    from pkm_bringup.study_engine import run_study
+    from pkm_studies.study import load_study
+    from pkm_studies.study_engine import run_study
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.yaml"
         path.write_text(yaml.safe_dump({
@@ -61,8 +61,8 @@ def closed_loop(workers: int, runs: int, duration_s: float) -> dict:
 
 
 def design(workers: int, variants: int) -> dict:
-    from pkm_bringup.design_study import run_design
-    from pkm_bringup.study import load_study
+    from pkm_studies.design_study import run_design
+    from pkm_studies.study import load_study
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "design.yaml"
         chunk = max(500, variants // 20)

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pkm_common import tap
-from pkm_common.tap import StreamTap, TappedPublisher, read_batch
+from pkm_recording import tap
+from pkm_recording.tap import StreamTap, TappedPublisher, read_batch
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
@@ -108,7 +108,7 @@ def test_the_gate_taps_only_the_messages_of_one_window_in_three(monkeypatch):
 def test_a_node_process_loads_the_gate_from_its_pythonpath_and_logs_its_steps_at_exit(tmp_path):
     """As the benchmark runs the node processes: the gate comes from PYTHONPATH and
     the drives/state steps reach the log folder when the process exits."""
-    code = ("from pkm_common.tap import StreamTap, TappedPublisher\n"
+    code = ("from pkm_recording.tap import StreamTap, TappedPublisher\n"
             "class P:\n    topic_name = '/pkm/drives/state'\n    def publish(self, data): pass\n"
             "pub = TappedPublisher(P(), StreamTap(), 'sensor_msgs/msg/JointState', lambda: 1)\n"
             "for k in range(4):\n"

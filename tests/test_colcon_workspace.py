@@ -23,7 +23,8 @@ REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / 'src'
 EXPECTED_PACKAGES = {
     'pkm_kinematics', 'pkm_common', 'pkm_trajectory', 'pkm_controller', 'pkm_sim_hw',
-    'pkm_gough_sensor', 'pkm_bringup',
+    'pkm_gough_sensor', 'pkm_bringup', 'pkm_recording', 'pkm_runs', 'pkm_operator', 'pkm_studies',
+    'pkm_gallery',
 }
 COLCON = [sys.executable, '-m', 'colcon']
 BUILD_TIMEOUT_S = 600

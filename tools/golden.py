@@ -72,7 +72,7 @@ def _digest(messages, fields) -> dict:
 
 def scenario_outputs(name: str, work: Path) -> dict:
     from pkm_bringup.orchestrator import run_scenario
-    from pkm_bringup.replay import recorded_messages, replay_controller
+    from pkm_runs.replay import recorded_messages, replay_controller
     from pkm_bringup.scenario import load_scenario
     s = load_scenario(name)
     run_dir = work / name

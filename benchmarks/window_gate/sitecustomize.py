@@ -48,7 +48,7 @@ def install(window_ns: int, log_dir: str | None) -> tuple[list, list]:
     (stamp ns, perf_counter ns) pairs of drives/state and the (window, process CPU ns)
     marks are appended to (with ``log_dir``, written to ``<log_dir>/<pid>.txt`` and
     ``<pid>.cpu`` at exit)."""
-    from pkm_common import tap
+    from pkm_recording import tap
 
     publish, steps, cpu = tap.TappedPublisher.publish, [], []
     last = [None]
@@ -103,5 +103,5 @@ def sample_cpu(log_dir: str, period_s: float = 0.02) -> list:
 
 if os.environ.get("PKM_TAP_WINDOW_NS"):
     install(int(os.environ["PKM_TAP_WINDOW_NS"]), os.environ.get("PKM_TAP_WINDOW_LOG"))
-    if os.environ.get("PKM_TAP_WINDOW_LOG") and _module() == "pkm_bringup.recorder_node":
+    if os.environ.get("PKM_TAP_WINDOW_LOG") and _module() == "pkm_recording.recorder_node":
         sample_cpu(os.environ["PKM_TAP_WINDOW_LOG"])

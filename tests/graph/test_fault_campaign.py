@@ -254,7 +254,7 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
            "cause": run["cause"], "reason": run["trip_reason"]}
     _row(row)
     # deterministic to the stop and past it: every recorded command recomputed offline
-    from pkm_bringup.replay import replay_controller
+    from pkm_runs.replay import replay_controller
     replayed = replay_controller(tmp_path / case)
     assert replayed.ok and replayed.compared >= round(ONSET_S / 0.001), replayed
     assert held < HOLD_BOUND_M, row
@@ -333,8 +333,8 @@ def test_campaign_a_hostile_page_cannot_command_the_panel():
     from websockets.exceptions import InvalidStatus
     from websockets.sync.client import connect
 
-    from pkm_bringup.panel import Panel, PanelModel
-    from pkm_bringup.panel_app import create_app
+    from pkm_operator.panel import Panel, PanelModel
+    from pkm_operator.panel_app import create_app
     from pkm_kinematics import load_machine
     published = []
     panel = Panel(PanelModel(load_machine("archi")))

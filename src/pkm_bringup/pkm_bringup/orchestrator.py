@@ -380,7 +380,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                 finished_wall = time.monotonic()
         progress.update(s.duration_s)
         if "recorder" in nodes:       # the loop is over: its idle priority would starve the last batches
-            from pkm_bringup.recording import normal_cpu_priority
+            from pkm_recording.recording import normal_cpu_priority
             normal_cpu_priority(nodes["recorder"].popen.pid)
         # stop the loop's nodes at once (their watchdogs would report the silent
         # plant), then give the recorder time for the last messages
@@ -416,7 +416,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
-    from pkm_bringup.recorder_node import RecorderNode
+    from pkm_recording.recorder_node import RecorderNode
     from pkm_common.runner import start_up_frozen
     from pkm_controller.controller_node import ControllerNode
     from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
@@ -652,7 +652,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         result["recovered"] = recovered
         _write_run(run_dir, result)
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
-        from pkm_bringup.report import write_report
+        from pkm_runs.report import write_report
         try:
             result["metrics"] = write_report(run_dir)
         except (ValueError, OSError) as exc:      # an unreadable bag (IncompleteBagError, ...): said, no traceback
@@ -670,7 +670,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
     bag = run_dir / "bag"
     if not s.record or not bag.is_dir() or (bag / "metadata.yaml").exists() or not any(bag.glob("*.mcap")):
         return {}
-    from pkm_bringup.bag import recover
+    from pkm_recording.bag import recover
     from pkm_common.cdr import stamp_ns_of
     try:
         counts = recover(bag)
@@ -717,7 +717,7 @@ def format_summary(run: dict, run_dir: Path) -> str:
     if run.get("report_error"):
         lines.append(f"  no report: {run['report_error']}")
     if run.get("metrics"):
-        from pkm_bringup.report import summary
+        from pkm_runs.report import summary
         lines.append("  " + summary(run["metrics"]).replace("\n", "\n  "))
     lines.append(f"  run directory: {run_dir}")
     return "\n".join(lines)

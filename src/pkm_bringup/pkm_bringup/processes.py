@@ -26,7 +26,7 @@ from pkm_bringup.rt_profile import Scheduling, child_environment, preexec
 from pkm_common.domains import claim_domain_id
 
 MODULES = {
-    "recorder": "pkm_bringup.recorder_node",
+    "recorder": "pkm_recording.recorder_node",
     "sim_hw": "pkm_sim_hw.sim_hw_node",
     "gough_sensor": "pkm_gough_sensor.gough_sensor_node",
     "controller": "pkm_controller.controller_node",

@@ -555,7 +555,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
                                "controller_source": controller_node_name(s)}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
-        # (pkm_common.tap) instead of a delivery per message to one more process
+        # (pkm_recording.tap) instead of a delivery per message to one more process
         tapped = []
         for node in (n for n in TAPPED_STREAMS if n in nodes):
             nodes[node]["tap"] = True

@@ -1,6 +1,6 @@
 """One private ROS 2 DDS domain per process (no rclpy; safe to import before it).
 
-Test sessions (tests/conftest.py) and study workers (pkm_bringup.study_engine) run
+Test sessions (tests/conftest.py) and study workers (pkm_studies.study_engine) run
 whole graphs side by side on one machine; each claims a domain ID that no other live
 process on the host holds, so their runs never answer each other's states. The claim
 is an exclusive ``flock`` on ``<lock dir>/<id>.lock``, held by an open file for the

@@ -72,7 +72,7 @@ STREAM_PUBLISHER_QOS = QoSProfile(
 # recorder can subscribe RELIABLE and lose no tick
 CLOCK_PUBLISHER_QOS = STREAM_PUBLISHER_QOS
 
-# The recording tap (pkm_common.tap): a batch every 0.2 s, kept for a recorder that
+# The recording tap (pkm_recording.tap): a batch every 0.2 s, kept for a recorder that
 # matches late (TRANSIENT_LOCAL, 50 batches = 10 s): nothing a node published before
 # the recorder saw it is lost
 TAP_QOS = QoSProfile(

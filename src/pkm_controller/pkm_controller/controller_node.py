@@ -40,7 +40,7 @@ from pkm_common.causes import TripCause
 from pkm_common.credential import Verifier
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
                                     publisher_names)
-from pkm_common.node_tap import NodeTap
+from pkm_recording.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -72,7 +72,7 @@ class ControllerNode(LifecycleNode):
         self.inputs = {}               # input topic -> its subscription (publishers())
         self.configure_error = ""
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy drives/command and controller/reference "
-                                              "to a recorder in batches (pkm_common.tap)"))
+                                              "to a recorder in batches (pkm_recording.tap)"))
         if declare_bool(self, "autostart", True, "configure and activate at start"):
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ValueError(self.configure_error)

@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from pkm_common.files import reserve_file, write_summary
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
-from pkm_common.node_tap import NodeTap
+from pkm_recording.node_tap import NodeTap
 from pkm_common.timing import Cadence
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_int, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
@@ -79,7 +79,7 @@ class GoughSensorNode(Node):
         self.hardware_id = f'{machine} gough platform'
 
         self.tap = NodeTap(self, declare_bool(self, 'tap', False, 'copy the per-step streams to a recorder '
-                                              'in batches (pkm_common.tap)'))
+                                              'in batches (pkm_recording.tap)'))
         self.pub_struts = self.tap.wrap(self.create_publisher(JointState, 'metrology/struts', STREAM_PUBLISHER_QOS),
                                         JointState)
         self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, 'metrology/pose', STREAM_PUBLISHER_QOS),

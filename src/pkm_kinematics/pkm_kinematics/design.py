@@ -1,5 +1,5 @@
 """Design sweeps: kinematic variants of a machine, each evaluated over a workspace grid
-(pure numpy/numba; pkm_bringup.design_study runs them in chunks on Dask).
+(pure numpy/numba; pkm_studies.design_study runs them in chunks on Dask).
 
 Sliding Star §2: the team evaluated about 50 structural and several hundred thousand
 parametric variants to choose TriJoint's and Sliding Star's geometry. Here a variant is

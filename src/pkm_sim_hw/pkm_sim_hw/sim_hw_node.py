@@ -43,7 +43,7 @@ from visualization_msgs.msg import MarkerArray
 
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, line_list_markers,
                                     ns_to_stamp, publisher_names)
-from pkm_common.node_tap import NodeTap
+from pkm_recording.node_tap import NodeTap
 from pkm_common.params import declare_bool
 from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
@@ -63,7 +63,7 @@ class SimHwNode(Node):
         self.config, self.plant = settings.machine, settings.plant
         self.shutdown_on_finish = settings.shutdown_on_finish
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
-                                              "in batches (pkm_common.tap) instead of its subscribing to them"))
+                                              "in batches (pkm_recording.tap) instead of its subscribing to them"))
         self.pub_clock = self.tap.wrap(self.create_publisher(Clock, "/clock", CLOCK_PUBLISHER_QOS), Clock)
         self.pub_state = self.tap.wrap(self.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS),
                                        JointState)

@@ -1,0 +1,27 @@
+from setuptools import setup
+
+package_name = 'pkm_gallery'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=[package_name],
+    data_files=[
+        ('share/ament_index/resource_index/packages',
+            ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='PKM controller developers',
+    maintainer_email='pkm-dev@pkm-controller.org',
+    description=(
+        "The papers' experiments run, checked against their claims and written to docs/results.md."
+    ),
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'pkm-gallery = pkm_gallery.gallery:main',
+        ],
+    },
+)
