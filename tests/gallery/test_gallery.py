@@ -8,7 +8,8 @@ import pytest
 
 from pkm_gallery import gallery
 from pkm_gallery.experiments import EXPERIMENTS
-from pkm_gallery.gallery import Bench, Check, Experiment, Outcome, markdown_table, results_markdown
+from pkm_gallery.framework import Bench, Check, Experiment, Outcome
+from pkm_gallery.gallery import markdown_table, results_markdown
 from pkm_kinematics.config import config_dir
 
 pytestmark = pytest.mark.ros

@@ -1,10 +1,9 @@
 """``pkm-gallery``: the papers' experiments, each run from its scenario file, checked
 against what the paper claims, and written to ``docs/results.md`` with its figures.
 
-An :class:`Experiment` (the registry: :mod:`pkm_gallery.experiments`) names its paper
-and section and the scenarios it runs; its ``run`` takes a :class:`Bench` (where runs
-and figures go) and returns an :class:`Outcome`: the checks (the paper's claim, our
-measured figure, a verdict), a table of the measured figures and the figures drawn.
+An :class:`Experiment` (:mod:`pkm_gallery.framework`; the registry:
+:mod:`pkm_gallery.experiments`, one module per paper) names its paper and section and
+the scenarios it runs; its ``run`` takes a :class:`Bench` and returns an :class:`Outcome`.
 The gallery runs the scenarios in one process (``pkm-run --in-process``: the same
 nodes in one executor, faster than a graph of processes); ``pkm-run <scenario>``
 runs any of them alone. The same ``run`` is what each experiment's test calls, so the
@@ -17,149 +16,17 @@ Exit status: 0 when every check passed, 1 when one failed (results.md says which
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
+import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
+import rclpy.logging
 
-PAPERS = {   # the references of README.md (References), by their short names
-    "ARCHI": 'F. Marquet, S. Krut, O. Company, F. Pierrot, "ARCHI: a redundant mechanism for machining '
-             'with unlimited rotation capacities", ICAR 2001, Budapest.',
-    "MoM3": 'D. Corbel, O. Company, S. Krut, F. Pierrot, "Enhancing PKM accuracy by separating actuation '
-            'and measurement: a 3DOF case study", ASME J. Mechanisms and Robotics 2(3), 031008, 2010.',
-    "Sliding Star": 'M. Valasek, Z. Sika, J. Zavrel, T. Skopec, P. Steinbauer, "Control rapid prototyping '
-                    'of redundantly actuated parallel kinematical machine".',
-    "Orthoglide": 'P. Wenger, D. Chablat, "Design of a three-axis isotropic parallel manipulator for '
-                  'machining applications: the Orthoglide", Workshop on Fundamental Issues and Future '
-                  'Research Directions for Parallel Mechanisms and Manipulators, Quebec, 2002.',
-    "LinuxCNC": 'LinuxCNC, genhexkins: kinematics of the Gough-Stewart platform (src/emc/kinematics/'
-                'genhexkins.c, genhexkins.h), its default geometry (config/machines/genhexkins.yaml).',
-}
+from pkm_gallery.experiments import EXPERIMENTS, PENDING
+from pkm_gallery.framework import PAPERS, Bench, Experiment, Outcome
 
 
-@dataclass(frozen=True)
-class Check:
-    """One criterion: what the paper claims (with our threshold), what we measured."""
-    claim: str
-    measured: str
-    passed: bool
-
-
-@dataclass
-class Outcome:
-    """What an experiment found: its checks, a table of measured figures (header row
-    first) and the figure files drawn (names in the bench's figure directory)."""
-    checks: list[Check] = field(default_factory=list)
-    table: list[list[str]] = field(default_factory=list)
-    figures: list[str] = field(default_factory=list)
-    notes: str = ""
-
-    @property
-    def passed(self) -> bool:
-        return all(c.passed for c in self.checks)
-
-    def check(self, claim: str, measured: str, passed) -> bool:
-        self.checks.append(Check(claim, measured, bool(passed)))
-        return bool(passed)
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """A paper's experiment: ``run(bench) -> Outcome``."""
-    name: str
-    title: str
-    paper: str                     # a key of PAPERS
-    section: str                   # where in the paper (section, figure, table)
-    scenarios: tuple[str, ...]     # the scenario files it runs (config/scenarios/<name>.yaml)
-    run: object                    # callable(Bench) -> Outcome
-
-    def __post_init__(self):
-        if self.paper not in PAPERS:
-            raise ValueError(f"paper: must be one of {list(PAPERS)}, got {self.paper!r}")
-
-
-@dataclass
-class Bench:
-    """Where an experiment's runs (``work``) and figures (``figures``) go."""
-    work: Path
-    figures: Path
-    progress: bool = False
-
-    def run(self, scenario: str, label: str = "", **overrides) -> RunOutput:
-        """Run a scenario in one process (``overrides`` replace its top-level keys);
-        its run.json content and its per-step arrays."""
-        from pkm_bringup.orchestrator import run_scenario
-        from pkm_bringup.scenario import load_scenario
-        run_dir = self.work / (label or scenario)
-        shutil.rmtree(run_dir, ignore_errors=True)     # the gallery's own: a run again starts afresh
-        run = run_scenario(load_scenario(scenario, overrides or None), run_dir, in_process=True,
-                           progress=self.progress, report=False)
-        if run["status"] == "failed":
-            raise RuntimeError(f"{scenario} ({label or 'as shipped'}): the run failed: {run['error']}")
-        return RunOutput(run, step_arrays(run_dir))
-
-    def figure(self, name: str) -> Path:
-        self.figures.mkdir(parents=True, exist_ok=True)
-        return self.figures / name
-
-
-@dataclass
-class RunOutput:
-    run: dict                      # run.json
-    steps: dict                    # step_arrays()
-
-    @property
-    def status(self) -> str:
-        return self.run["status"]
-
-    @property
-    def cause(self) -> str:
-        return self.run.get("cause") or "none"
-
-
-def step_arrays(run_dir: Path) -> dict:
-    """The per-step streams of a recorded run as arrays over the drive-state stamps:
-    ``t_s`` (from the first state), ``q``, ``applied`` (N, n); ``command`` (N, n);
-    ``position`` (N, 3), ``yaw`` (N,) and ``orientation`` (N, 4: x, y, z, w) of the true
-    pose, ``ref_position`` ... of the controller's reference, ``gough_position`` ... of
-    the Gough metrology's DKM pose (NaN where a stream has no message of the stamp).
-    A gallery run is a few thousand steps: held whole."""
-    from pkm_runs.report_data import RunReader, yaw_of
-    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "orientation",
-                                   "ref_position", "ref_yaw", "ref_orientation", "gough_position", "gough_yaw",
-                                   "gough_orientation")}
-    with RunReader(run_dir) as reader:
-        for block in reader.blocks():
-            state = block.rows.get("state")
-            if state is None:
-                continue
-            keep = state.present
-            parts["stamp"].append(block.stamp_ns[keep])
-            parts["q"].append(state.position[keep])
-            parts["applied"].append(state.effort[keep])
-            command = block.rows.get("command")
-            parts["command"].append(command.effort[keep] if command is not None
-                                    else np.full_like(state.effort[keep], np.nan))
-            for key, prefix in (("true_pose", ""), ("reference", "ref_"), ("metrology_pose", "gough_")):
-                pose = block.rows.get(key)
-                if pose is not None:
-                    position, orientation = pose.position[keep], pose.orientation[keep].copy()
-                    orientation[~pose.present[keep]] = np.nan
-                else:
-                    position, orientation = np.full((int(keep.sum()), 3), np.nan), np.full((int(keep.sum()), 4), np.nan)
-                parts[prefix + "position"].append(position)
-                parts[prefix + "yaw"].append(yaw_of(orientation))
-                parts[prefix + "orientation"].append(orientation)
-    out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
-    stamp = out.pop("stamp")
-    out["t_s"] = (stamp - stamp[0]) * 1e-9 if len(stamp) else np.zeros(0)
-    return out
-
-
-# ------------------------------------------------------------------ results.md
 def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -208,7 +75,6 @@ def results_markdown(results: list[tuple[Experiment, Outcome, float]], figure_pr
 
 # ------------------------------------------------------------------ command line
 def main(argv=None) -> int:
-    from pkm_gallery.experiments import EXPERIMENTS, PENDING
     parser = argparse.ArgumentParser(prog="pkm-gallery", description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help=f"experiments (default: all): {', '.join(EXPERIMENTS)}")
     parser.add_argument("--docs", default="docs", help="where results.md and figures/ are written (default: docs)")
@@ -218,9 +84,7 @@ def main(argv=None) -> int:
     if unknown:
         print(f"pkm-gallery: unknown experiment(s) {unknown}; known: {list(EXPERIMENTS)}", file=sys.stderr)
         return 2
-    import tempfile
 
-    import rclpy.logging
     # the nodes run in this process: their INFO lines (configured, run complete...) would
     # bury the table; warnings and errors still show (a node's logger inherits "pkm"'s)
     rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.WARN)

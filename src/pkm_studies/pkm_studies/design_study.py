@@ -29,15 +29,19 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
+from pkm_common.files import atomic_write
+from pkm_kinematics import load_machine
+from pkm_kinematics.config import config_dir
+from pkm_kinematics.design import METRICS, gough_metrics, pareto_front, planar_metrics, workspace_poses
+from pkm_studies.dask_runner import completed_on_dask, task_prefix
 from pkm_studies.study import Study
 
 
 def evaluate_chunk(design: dict, names: list, values: np.ndarray) -> dict:
     """The design metrics of ``values`` (V, len(names)) on the worker, with the CPU
     seconds it took (``cpu_s``)."""
-    from pkm_kinematics import load_machine
-    from pkm_kinematics.design import gough_metrics, planar_metrics, workspace_poses
     start = time.process_time()
     config = load_machine(design["machine"])
     if design["kind"] == "planar":
@@ -54,9 +58,7 @@ def evaluate_chunk(design: dict, names: list, values: np.ndarray) -> dict:
 def chunk_keys(study: Study, values: np.ndarray) -> list[tuple[str, slice]]:
     """(key, rows) of each chunk: its index and a hash of the machine file, the design
     section, the parameter names, the metrics computed and the chunk's values."""
-    from pkm_kinematics.config import config_dir
     machine_file = config_dir() / "machines" / f"{study.design['machine']}.yaml"
-    from pkm_kinematics.design import METRICS
     base = hashlib.sha256(machine_file.read_bytes() + repr((sorted(study.design.items()), study.varied,
                                                             METRICS[study.design["kind"]])).encode())
     size = study.design["chunk"]
@@ -83,8 +85,6 @@ def _readable(path: Path) -> bool:
 
 
 def _save_npz(path: Path, data: dict) -> None:
-    from pkm_common.files import atomic_write
-
     def write(tmp: Path):
         with open(tmp, "wb") as fh:                  # a file object: np.savez adds no suffix
             np.savez(fh, **data)
@@ -95,9 +95,6 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
                progress: bool = True, stream=sys.stderr) -> dict:
     """Every missing chunk on Dask, then the table, the front and the plot. Returns
     {"variants", "chunks", "done_before", "ran", "interrupted", "table", "cpu_s", "evaluations"}."""
-    from tqdm import tqdm
-
-    from pkm_studies.study_engine import completed_on_dask, task_prefix
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results").mkdir(exist_ok=True)
     shutil.copyfile(study.source, out_dir / "study.yaml")
@@ -111,11 +108,10 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
                    sum(r.stop - r.start for k, r in pending), unit="variant", disable=not progress, file=stream,
                    desc=study.name, unit_scale=True)
         try:
-            from pkm_studies.design_study import evaluate_chunk as task_function   # by name (see study_engine)
             prefix = task_prefix("design", study.name, out_dir)
             iterables = [[study.design] * len(pending), [study.varied] * len(pending),
                          [values[rows] for _, rows in pending]]
-            for i, future in completed_on_dask(task_function, iterables, [prefix + k for k, _ in pending],
+            for i, future in completed_on_dask(evaluate_chunk, iterables, [prefix + k for k, _ in pending],
                                                workers, scheduler):
                 k, rows = pending[i]
                 try:
@@ -141,7 +137,6 @@ def run_design(study: Study, out_dir: Path, workers: int | None = None, schedule
 def assemble(study: Study, out_dir: Path, values: np.ndarray, chunks) -> tuple[pd.DataFrame, float, int]:
     """The variants whose chunk is done: parameters, metrics and ``pareto`` (the front
     of ``study.objectives`` among them); the CPU seconds and pose evaluations they took."""
-    from pkm_kinematics.design import pareto_front
     parts, cpu_s, evaluations = [], 0.0, 0
     for k, rows in chunks:
         path = out_dir / "results" / f"{k}.npz"
@@ -165,7 +160,6 @@ def assemble(study: Study, out_dir: Path, values: np.ndarray, chunks) -> tuple[p
 
 
 def write_outputs(study: Study, out_dir: Path, table: pd.DataFrame) -> None:
-    from pkm_common.files import atomic_write
     atomic_write(out_dir / "results.parquet", lambda p: table.to_parquet(p, engine="pyarrow", index=False))
     atomic_write(out_dir / "results.csv", lambda p: table.to_csv(p, index=False))
     first = list(study.objectives)[0]

@@ -47,7 +47,9 @@ from pathlib import Path
 import numpy as np
 
 from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario, read_mapping_file
-from pkm_kinematics.config import config_dir
+from pkm_kinematics import load_machine
+from pkm_kinematics.config import config_dir, machine_names
+from pkm_kinematics.design import METRICS, PARAMETERS
 from pkm_kinematics.task_space import PLANAR
 from pkm_kinematics.yaml_files import read_yaml
 
@@ -176,7 +178,6 @@ def scenario_fingerprint(path: Path, data: dict) -> str:
     """A hash of the base scenario file and of the program and machine files it names
     (the node parameter files in config/ are not in it: after editing them, or the
     code, start the study in a new directory)."""
-    from pkm_kinematics.config import machine_names
     h = hashlib.sha256(path.read_bytes())
     program = data.get("program")
     machine = str(data.get("machine", ""))
@@ -345,7 +346,6 @@ def load_study(path: str | Path, check: bool = True) -> Study:
 def _design(data: dict) -> dict | None:
     """The ``design`` section: machine (config/machines name), kind (planar: the actuated
     planar machine; gough: its Gough metrology), the workspace grid, the chunk size."""
-    from pkm_kinematics import load_machine
     design = data.get("design")
     if design is None:
         return None
@@ -354,7 +354,6 @@ def _design(data: dict) -> dict | None:
     unknown = sorted(set(design) - set(DESIGN_KEYS))
     if unknown:
         raise StudyError(f"design.{unknown[0]}: unknown; allowed: {', '.join(DESIGN_KEYS)}")
-    from pkm_kinematics.config import machine_names
     if design.get("machine") not in machine_names():
         raise StudyError(f"design.machine: the name of a machine in config/machines ({', '.join(machine_names())}), "
                          f"got {design.get('machine')!r}")
@@ -376,7 +375,6 @@ def _design(data: dict) -> dict | None:
 def _check_design_values(study: Study) -> None:
     """Every grid value a number inside its parameter's range; a uniform draw inside it;
     a normal one within six standard deviations of its bounds (design.PARAMETERS)."""
-    from pkm_kinematics.design import PARAMETERS
     kind = study.design["kind"]
     for name, values in study.grid.items():
         lo, hi = PARAMETERS[kind][name][1]
@@ -393,7 +391,6 @@ def _check_design_values(study: Study) -> None:
 
 
 def _design_path_check(kind: str):
-    from pkm_kinematics.design import PARAMETERS
 
     def check(name: str):
         if name not in PARAMETERS[kind]:
@@ -402,7 +399,6 @@ def _design_path_check(kind: str):
 
 
 def _objectives(data: dict, kind: str) -> dict:
-    from pkm_kinematics.design import METRICS
     value = data.get("objectives")
     if not isinstance(value, dict) or not value:
         raise StudyError(f"objectives: required for a design sweep, a mapping of metric -> min | max; "

@@ -33,175 +33,26 @@ every run done and none failed, 1 some failed, 2 a bad study, 130 interrupted.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import hashlib
-import json
-import logging
-import os
 import shutil
-import socket
 import sys
-import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-from pkm_studies.study import Study, StudyError, describe, failed_metrics, load_study, result_row, run_metrics
+from distributed import KilledWorker
+from tqdm import tqdm
 
-_ONE_RUN_AT_A_TIME = threading.Lock()       # a worker process with several threads still runs one graph
-
-
-@dataclass(frozen=True)
-class RunTask:
-    """What a worker needs for one run (plain data: sent to the worker by pickle)."""
-    scenario: str               # the base scenario file (the same path on every worker)
-    overrides: dict
-    run_dir: str
-    in_process: bool
-
-
-def execute_run(task: RunTask) -> dict:
-    """Run one study run on this worker and return its metrics (study.run_metrics), or
-    ``failed_metrics`` with the error: never raises for a failing run. What fails
-    around the run (no free DDS domain, rclpy missing on this worker) raises: it is
-    the worker's fault, not the run's, and the study records no row for it."""
-    with _ONE_RUN_AT_A_TIME:
-        from pkm_common.domains import use_private_domain
-        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}",
-                 "run.domain_id": use_private_domain(strict=True)}
-        _quiet_nodes()
-        start = time.monotonic()
-        try:
-            metrics = _execute(task)
-        except Exception as exc:       # noqa: BLE001 - a run's failure is a row, not a lost task
-            metrics = failed_metrics(f"{type(exc).__name__}: {exc}")
-        return {**metrics, **where, "run.task_s": time.monotonic() - start}
-
-
-def _quiet_nodes() -> None:
-    import rclpy.logging
-    # the nodes run in the worker: a thousand runs' lines, trips included, would bury the
-    # progress bar; each row has the run's status, cause and reason (run.*)
-    rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.FATAL)
-
-
-def _execute(task: RunTask) -> dict:
-    from pkm_bringup.orchestrator import run_scenario
-    from pkm_bringup.scenario import ScenarioError, load_scenario
-    try:
-        s = load_scenario(task.scenario, task.overrides)
-    except ScenarioError as exc:
-        return failed_metrics(f"scenario refused: {exc}")
-    run_dir = Path(task.run_dir)
-    shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
-    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False)
-    report = None
-    if s.record and (run_dir / "bag" / "metadata.yaml").exists():
-        from pkm_runs.report import analyse_bag
-        from pkm_runs.report_metrics import metrics_dict
-        try:
-            report = metrics_dict(analyse_bag(run_dir, namespace=run.get("namespace"),
-                                              machine_name=run.get("machine")), run.get("published"))
-        except (ValueError, OSError) as exc:
-            run["error"] = run.get("error") or f"report: {exc}"
-    metrics = run_metrics(run, report)
-    if not s.record and metrics.get("run.status") != "failed":
-        shutil.rmtree(run_dir, ignore_errors=True)
-    return metrics
-
-
-# ------------------------------------------------------------------ the client
-def write_json_atomic(path: Path, data) -> None:
-    from pkm_common.files import atomic_write
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=1, allow_nan=True), encoding="utf-8"))
-
-
-def done_keys(out_dir: Path) -> set[str]:
-    """The runs with a readable row; an unreadable one (a crash while the file system
-    wrote it) is removed, and its run runs again."""
-    done = set()
-    for p in (out_dir / "results").glob("*.json"):
-        try:
-            json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            p.unlink(missing_ok=True)
-            continue
-        done.add(p.stem)
-    return done
-
-
-class StudyBusy(RuntimeError):
-    """Another pkm-study works in the same output directory."""
-
-
-@contextlib.contextmanager
-def study_lock(out_dir: Path):
-    """One client per output directory (``flock`` on ``<out>/.lock``, released by the
-    kernel when the process ends): two would run the same missing runs twice."""
-    import fcntl
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".lock", "a+", encoding="utf-8") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise StudyBusy(f"another pkm-study is running in {out_dir}") from None
-        yield
-
-
-def task_prefix(kind: str, study_name: str, out_dir: Path) -> str:
-    """Dask task keys: the run's key under the study and its output directory (a study
-    run into two directories on one scheduler must not share results)."""
-    where = hashlib.sha256(str(out_dir.resolve()).encode()).hexdigest()[:8]
-    return f"pkm-{kind}-{study_name}-{where}-"
-
-
-class SchedulerUnreachable(RuntimeError):
-    """--scheduler names no scheduler that answers."""
-
-
-def make_client(workers: int | None, scheduler: str | None):
-    """(Client, its LocalCluster or None): the scheduler at ``scheduler``, else a
-    LocalCluster of ``workers`` processes (default: one per core), one thread each."""
-    from dask.distributed import Client, LocalCluster
-    if scheduler:
-        try:
-            return Client(scheduler, timeout="20s"), None
-        except (OSError, TimeoutError) as exc:
-            raise SchedulerUnreachable(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
-    return Client(cluster), cluster
-
-
-def completed_on_dask(function, iterables, keys: list, workers: int | None, scheduler: str | None):
-    """``function`` mapped over ``iterables`` on a Dask client (make_client), one task
-    per key: yields (position in the map, future) as they complete. The client (and its
-    LocalCluster) is closed, the futures left cancelled, however the caller's loop ends
-    (Ctrl-C inside the wait included: the KeyboardInterrupt goes on to the caller).
-    ``function`` must be reachable by its module's name (not defined in __main__), or
-    cloudpickle sends it by value."""
-    from dask.distributed import as_completed
-    client = cluster = None
-    futures = []
-    try:
-        client, cluster = make_client(workers, scheduler)
-        futures = client.map(function, *iterables, key=keys, pure=False)
-        position = {f.key: i for i, f in enumerate(futures)}
-        for future in as_completed(futures):
-            yield position[future.key], future
-    finally:
-        if client is not None:
-            client.cancel(futures)
-            client.close()
-        if cluster is not None:
-            cluster.close()
+from pkm_studies.dask_runner import (SchedulerUnreachable, StudyBusy, completed_on_dask, done_keys, study_lock,
+                                     task_prefix, write_json_atomic)
+from pkm_studies.design_study import format_front, run_design
+from pkm_studies.run_task import RunTask, execute_run
+from pkm_studies.study import Study, StudyError, describe, failed_metrics, load_study, result_row
+from pkm_studies.study_tables import format_summary, write_outputs
 
 
 def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler: str | None = None,
               progress: bool = True, stream=sys.stderr) -> dict:
     """Every run of ``study`` without a result in ``out_dir``, on Dask; then the tables
     and plots. Returns {"runs", "done_before", "ran", "failed", "interrupted", "table"}."""
-    from tqdm import tqdm
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results").mkdir(exist_ok=True)
     shutil.copyfile(study.source, out_dir / "study.yaml")
@@ -216,10 +67,8 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
         try:
             tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
                              study.in_process) for r in pending]
-            # by its module's name, also when this file runs as __main__ (python -m)
-            from pkm_studies.study_engine import execute_run as task_function
             prefix = task_prefix("study", study.name, out_dir)
-            for i, future in completed_on_dask(task_function, [tasks], [prefix + r.key for r in pending],
+            for i, future in completed_on_dask(execute_run, [tasks], [prefix + r.key for r in pending],
                                                workers, scheduler):
                 run = pending[i]
                 metrics, problem = _metrics_of(future)
@@ -236,7 +85,6 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
             outcome["interrupted"] = True
         finally:
             bar.close()
-    from pkm_studies.study_tables import write_outputs
     outcome["table"] = write_outputs(study, out_dir, runs)
     outcome["failed_total"] = int((outcome["table"]["run.status"] == "failed").sum()) \
         if "run.status" in outcome["table"] else 0
@@ -248,7 +96,6 @@ def _metrics_of(future) -> tuple[dict | None, str]:
     time it was tried) is a failed run, named. Anything else (cancelled: the scheduler
     went away; a worker without a free domain or without rclpy) is not the run's
     failure: (None, why), no row, and the run runs when the study is started again."""
-    from distributed import KilledWorker
     try:
         return future.result(), ""
     except KilledWorker as exc:
@@ -302,7 +149,6 @@ def _main_runs(study, out_dir: Path, args) -> int:
     start = time.monotonic()
     outcome = run_study(study, out_dir, workers=args.workers, scheduler=args.scheduler,
                         progress=not args.no_progress)
-    from pkm_studies.study_tables import format_summary
     print(format_summary(study, outcome["table"]), flush=True)
     print(f"{outcome['ran']} runs in {time.monotonic() - start:.1f} s ({outcome['done_before']} done before), "
           f"{outcome['failed_total']} failed; written: {out_dir}/results.parquet, results.csv, summary.csv", flush=True)
@@ -318,7 +164,6 @@ def _main_runs(study, out_dir: Path, args) -> int:
 
 
 def _main_design(study, out_dir: Path, args) -> int:
-    from pkm_studies.design_study import format_front, run_design
     values = study.design_values()
     print(f"design sweep {study.name}: {len(values)} variants of {study.design['machine']} "
           f"({study.design['kind']}), chunks of {study.design['chunk']} -> {out_dir}", flush=True)

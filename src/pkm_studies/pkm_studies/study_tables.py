@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pkm_studies.study import Study
 from pkm_common.files import atomic_write
+from pkm_studies.study import Study
 
 STATUSES = ("completed", "tripped", "failed")
 

@@ -1,0 +1,78 @@
+"""The worker's side of a study of runs: :class:`RunTask` (plain data, sent by pickle)
+and :func:`execute_run`, the task Dask runs (study_engine.py maps it over a study's
+runs; it lives in a module of its own so that Dask reaches it by its module's name
+also when study_engine runs as ``python -m``)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import rclpy.logging
+
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import ScenarioError, load_scenario
+from pkm_common.domains import use_private_domain
+from pkm_runs.report import analyse_bag
+from pkm_runs.report_metrics import metrics_dict
+from pkm_studies.study import failed_metrics, run_metrics
+
+_ONE_RUN_AT_A_TIME = threading.Lock()       # a worker process with several threads still runs one graph
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """What a worker needs for one run (plain data: sent to the worker by pickle)."""
+    scenario: str               # the base scenario file (the same path on every worker)
+    overrides: dict
+    run_dir: str
+    in_process: bool
+
+
+def execute_run(task: RunTask) -> dict:
+    """Run one study run on this worker and return its metrics (study.run_metrics), or
+    ``failed_metrics`` with the error: never raises for a failing run. What fails
+    around the run (no free DDS domain, rclpy missing on this worker) raises: it is
+    the worker's fault, not the run's, and the study records no row for it."""
+    with _ONE_RUN_AT_A_TIME:
+        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}",
+                 "run.domain_id": use_private_domain(strict=True)}
+        _quiet_nodes()
+        start = time.monotonic()
+        try:
+            metrics = _execute(task)
+        except Exception as exc:       # noqa: BLE001 - a run's failure is a row, not a lost task
+            metrics = failed_metrics(f"{type(exc).__name__}: {exc}")
+        return {**metrics, **where, "run.task_s": time.monotonic() - start}
+
+
+def _quiet_nodes() -> None:
+    # the nodes run in the worker: a thousand runs' lines, trips included, would bury the
+    # progress bar; each row has the run's status, cause and reason (run.*)
+    rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.FATAL)
+
+
+def _execute(task: RunTask) -> dict:
+    try:
+        s = load_scenario(task.scenario, task.overrides)
+    except ScenarioError as exc:
+        return failed_metrics(f"scenario refused: {exc}")
+    run_dir = Path(task.run_dir)
+    shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
+    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False)
+    report = None
+    if s.record and (run_dir / "bag" / "metadata.yaml").exists():
+        try:
+            report = metrics_dict(analyse_bag(run_dir, namespace=run.get("namespace"),
+                                              machine_name=run.get("machine")), run.get("published"))
+        except (ValueError, OSError) as exc:
+            run["error"] = run.get("error") or f"report: {exc}"
+    metrics = run_metrics(run, report)
+    if not s.record and metrics.get("run.status") != "failed":
+        shutil.rmtree(run_dir, ignore_errors=True)
+    return metrics
