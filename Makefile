@@ -24,7 +24,7 @@ PKG_META := $(wildcard src/pkm_*/setup.py src/pkm_*/setup.cfg) \
 	$(foreach d,$(PKG_DIRS),$(wildcard $(d)/$(notdir $(d))))
 BENCHES := $(filter-out benchmarks/hoststat.py,$(sort $(wildcard benchmarks/*.py)))
 
-.PHONY: all venv test demo bench golden clean
+.PHONY: all venv test lint demo bench golden clean
 
 all: test
 
@@ -48,7 +48,13 @@ $(PKG_STAMP): $(STAMP) $(PKG_META)
 test: venv
 	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || \
 		echo "make test: chromium not found: the operator panel's browser test is skipped (apt-get install chromium)"
+	$(VENV)/bin/lint-imports --no-cache
 	$(VPY) -m pytest $(PYTEST_ARGS)
+
+# The packages' layer order and the pure core without rclpy (.importlinter); also the
+# first step of `make test`.
+lint: venv
+	$(VENV)/bin/lint-imports --no-cache
 
 # The default scenario (config/scenarios/archi_demo.yaml): ARCHI test motion under a
 # cutting load, Gough metrology, sensor-space control, inf-norm distribution, recorded

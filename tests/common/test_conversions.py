@@ -14,8 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from pkm_kinematics.task_space import PLANAR, POSITION, SPATIAL
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, joint_state_msg, line_list_markers,
-                                    machine_pose_components, machine_to_tool_pose, ns_to_stamp,
-                                    pose_from_msg, pose_msg, stamp_to_ns, tool_pose_to_machine)
+                                    ns_to_stamp, pose_from_msg, pose_msg, stamp_to_ns)
+from pkm_common.poses import machine_pose_components, machine_to_tool_pose, tool_pose_to_machine
 
 
 # ------------------------------------------------------------------- stamps
@@ -191,7 +191,7 @@ def test_line_list_markers_hold_each_segment_as_a_pair_of_points():
 def test_a_spatial_pose_is_published_with_its_roll_pitch_yaw_rotation():
     from scipy.spatial.transform import Rotation
 
-    from pkm_common.conversions import machine_pose_components, machine_to_tool_pose, tool_pose_to_machine
+    from pkm_common.poses import machine_pose_components, machine_to_tool_pose, tool_pose_to_machine
     x = [0.1, -0.2, 0.5, 0.3, -0.2, 1.1]
     position, quaternion = machine_pose_components(SPATIAL, x)
     expected = Rotation.from_euler("ZYX", [1.1, -0.2, 0.3]).as_quat()      # R = Rz(c) Ry(b) Rx(a)

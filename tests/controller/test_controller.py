@@ -395,7 +395,7 @@ def test_shipped_controller_configs_are_valid(name):
     a controller or node parameter."""
     import yaml
 
-    from pkm_controller.controller_node import NODE_PARAMETERS
+    from pkm_controller.configuration import NODE_PARAMETERS
     params = yaml.safe_load((ROOT / "config" / "controller" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
     node_keys = set(NODE_PARAMETERS) | {"autostart"}
     core = ControllerCore(load_machine(params["machine"]),

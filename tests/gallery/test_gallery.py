@@ -2,7 +2,6 @@
 (the same numbers docs/results.md shows); results.md says which check failed and the
 command exits 1 then."""
 
-from pathlib import Path
 
 import pytest
 

@@ -9,7 +9,6 @@ differences for J_m and its derivative, virtual work for the wrench map, and the
 project's other models (the Gough metrology platform, the Delta's rails) for the
 general bar kernels."""
 
-import math
 
 import numpy as np
 import pytest

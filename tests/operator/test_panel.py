@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pkm_operator.panel import HEARTBEAT_TIMEOUT_S, Panel, PanelModel
-from pkm_common.conversions import machine_pose_components
+from pkm_common.poses import machine_pose_components
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine

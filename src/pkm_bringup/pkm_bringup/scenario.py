@@ -55,12 +55,18 @@ from pathlib import Path
 
 import yaml
 
+from pkm_common.credential import KEY_FILE
+from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
+from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
 from pkm_controller.controller import ControllerConfig
-from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.strategies import REGISTRY as STRATEGIES
+from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
+from pkm_sim_hw.plant import Fault, PlantParameters, check_load
+from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated
+from pkm_trajectory.program import gcode_segments
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
@@ -159,7 +165,6 @@ def _parameter_defaults(node: str) -> dict:
     """Every parameter of ``node`` with its default: config/<node>.yaml, or for the
     controller its dataclass and node parameters (its YAML is per machine)."""
     if node == "controller":
-        from pkm_controller.controller_node import NODE_PARAMETERS
         return {**{f.name: f.default for f in fields(ControllerConfig)}, **NODE_PARAMETERS}
     return _node_defaults(node)
 
@@ -346,13 +351,11 @@ def controller_defaults(machine_name: str) -> dict:
 # The owners' validations of a node's parameters ``p`` (as node_parameters gives them)
 # on the scenario's machine ``config``; each raises the owner's ValueError.
 def _check_controller(p: dict, config) -> None:
-    from pkm_controller.configuration import core_from_parameters       # loads p["machine"] as the node does
     known = {f.name for f in fields(ControllerConfig)}
     core_from_parameters(p["machine"], ControllerConfig.from_dict({k: v for k, v in p.items() if k in known}))
 
 
 def _check_plant(p: dict, config) -> None:
-    from pkm_sim_hw.plant import Fault, PlantParameters, check_load
     known = {f.name for f in fields(PlantParameters)}
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in known}
     if "faults" in values:          # one string to ROS; split as sim_hw_node does
@@ -379,7 +382,6 @@ def _check_plant(p: dict, config) -> None:
 
 
 def _check_sensor(p: dict, config) -> None:
-    from pkm_gough_sensor.metrology import GoughSensorModel
     known = set(inspect.signature(GoughSensorModel).parameters) - {"metrology"}
     values = {k: v for k, v in p.items() if k in known}
     if not values.get("resolution_m"):         # 0: the machine file's (gough_sensor_node)
@@ -389,7 +391,6 @@ def _check_sensor(p: dict, config) -> None:
 
 def _check_trajectory(p: dict, config) -> None:
     """trajectory_node's rate and plan budget (its other parameters: program_duration)."""
-    from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
     lo, hi = RATE_HZ_RANGE
     rate = p.get("rate_hz", 1000.0)
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
@@ -462,8 +463,6 @@ def program_duration(s: Scenario, model) -> float:
     """The planned duration of the scenario's program on ``model`` (the scenario's
     machine), planned and validated exactly as trajectory_node will (a program it would
     refuse fails here, before anything starts)."""
-    from pkm_trajectory.planner import Limits, PlanBudget, plan_validated
-    from pkm_trajectory.program import gcode_segments
     p = {**_node_defaults("trajectory"), **s.trajectory}
     home = model.home
     try:
@@ -524,7 +523,6 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     """node name -> its parameters for this run (node defaults < scenario < run wiring);
     ``credential``: the run's key file (pkm_common.credential; default the run
     directory's)."""
-    from pkm_common.credential import KEY_FILE
     summaries = run_dir / "summaries"
     key = str(credential or run_dir / KEY_FILE)
     flat_load = [v for t, w in s.load for v in (t, *w)]

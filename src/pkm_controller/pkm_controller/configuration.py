@@ -6,11 +6,22 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from pkm_common.conversions import pose_from_components
+from pkm_common.poses import pose_from_components
 from pkm_common.timing import percentiles_us
 from pkm_kinematics import load_machine
 
 from .controller import ControllerConfig, ControllerCore
+
+# the controller node's own parameters, beside ControllerConfig's (the scenario checks both)
+NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
+                   "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
+                   "wait_for_start": False, "end_time_s": 0.0,
+                   # full node names of the inputs' sources (node_loop; empty: the one publisher)
+                   "state_source": "", "metrology_source": "",
+                   # who may command (comma-separated full node names; empty: anyone): node_loop
+                   "trajectory_source": "", "operator_sources": "",
+                   # the run's key (pkm_common.credential; empty: commands need no credential)
+                   "credential_file": ""}
 
 
 def core_from_parameters(machine_name: str, config: ControllerConfig) -> ControllerCore:
@@ -50,7 +61,7 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
     zeros = [0.0] * core.n
     struts = pose = None
     if core.metrology is not None:
-        from pkm_common.conversions import machine_pose_components
+        from pkm_common.poses import machine_pose_components
         from pkm_gough_sensor.metrology import GoughSensorModel
         sensor = GoughSensorModel(core.machine.metrology)
         position, orientation = machine_pose_components(core.space, [float(v) for v in home])

@@ -44,21 +44,11 @@ from pkm_recording.node_tap import NodeTap
 from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
-from pkm_controller.configuration import core_from_parameters, warm_up
+from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, warm_up
 from pkm_controller.controller import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
 from pkm_controller.operator_actions import Action
 from pkm_controller.strategies import Feedback
-
-NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
-                   "status_decimation": 100, "summary_path": "", "wait_for_trajectory": False,
-                   "wait_for_start": False, "end_time_s": 0.0,
-                   # full node names of the inputs' sources (node_loop; empty: the one publisher)
-                   "state_source": "", "metrology_source": "",
-                   # who may command (comma-separated full node names; empty: anyone): node_loop
-                   "trajectory_source": "", "operator_sources": "",
-                   # the run's key (pkm_common.credential; empty: commands need no credential)
-                   "credential_file": ""}
 
 
 class ControllerNode(LifecycleNode):

@@ -39,7 +39,7 @@ from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
                             decode_pose_stamped, decode_string, in_order, stamp_ns_of)
 from pkm_common.credential import Verifier, split_text
-from pkm_common.conversions import machine_pose_components
+from pkm_common.poses import machine_pose_components
 from pkm_common.sources import AllowedSenders, CommandGuard, SourceGate, node_names
 from pkm_common.timing import DurationHistogram
 

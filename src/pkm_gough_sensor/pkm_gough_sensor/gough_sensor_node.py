@@ -30,7 +30,8 @@ from sensor_msgs.msg import JointState
 
 from pkm_common.files import reserve_file, write_summary
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
-from pkm_common.conversions import diagnostic_array, diagnostic_status, pose_components, pose_from_components
+from pkm_common.conversions import diagnostic_array, diagnostic_status
+from pkm_common.poses import pose_components, pose_from_components
 from pkm_recording.node_tap import NodeTap
 from pkm_common.timing import Cadence
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_int, declare_str

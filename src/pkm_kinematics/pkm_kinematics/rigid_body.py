@@ -22,7 +22,6 @@ DynamicModel (dynamics.py), whose drives on rails also carry their weight.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

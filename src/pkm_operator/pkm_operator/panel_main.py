@@ -31,7 +31,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from pkm_common.conversions import MACHINE_KINDS
+from pkm_common.poses import MACHINE_KINDS
 
 LOG = logging.getLogger("pkm-panel")
 

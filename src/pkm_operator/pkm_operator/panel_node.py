@@ -19,7 +19,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 
 from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
-from pkm_common.conversions import machine_pose_components, signed_message
+from pkm_common.conversions import signed_message
+from pkm_common.poses import machine_pose_components
 from pkm_common.credential import Signer
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
 

@@ -232,7 +232,7 @@ def resolve_machine(names: list, machine_name: str | None):
     By drive names only among the machines a graph runs (a recording comes from one):
     mom3_imperfect has mom3's drives but is not run yet."""
     import pkm_kinematics
-    from pkm_common.conversions import MACHINE_KINDS as GRAPH_KINDS
+    from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 
     if machine_name:
         return pkm_kinematics.load_machine(machine_name), "given"

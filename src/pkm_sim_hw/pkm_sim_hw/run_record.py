@@ -5,7 +5,7 @@ at exit. The loop (sim_loop) keeps it; the node only publishes what it makes."""
 from __future__ import annotations
 
 from pkm_common.causes import TripCause
-from pkm_common.conversions import machine_pose_components, pose_components
+from pkm_common.poses import machine_pose_components, pose_components
 
 from .authority import Refusal
 

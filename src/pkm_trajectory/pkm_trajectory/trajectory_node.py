@@ -26,7 +26,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common.cdr import decode_string
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, pose_from_msg,
-                                    signed_message, tool_pose_to_machine, trajectory_msg)
+                                    signed_message, trajectory_msg)
+from pkm_common.poses import tool_pose_to_machine
 from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS

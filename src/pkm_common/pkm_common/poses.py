@@ -1,0 +1,133 @@
+"""Poses as the fields of a message, without messages (pure: no rclpy): a position and
+a rotation <-> (x, y, z), (qx, qy, qz, qw); a machine's pose <-> the tool's pose in
+world, with the checks of a message boundary. :mod:`pkm_common.conversions` builds the
+messages from these; the sans-IO loops and the panel's core use them directly.
+
+Conventions (docs/architecture.md): SI units, REP-103 frames, quaternions (x, y, z, w)
+as in geometry_msgs. Bad input raises ValueError naming the field.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pkm_kinematics.task_space import TASK_SPACES, TaskSpace, pose_fields, task_pose, tool_pose
+
+QUATERNION_NORM_TOL = 1e-6
+MACHINE_KINDS = ('planar', 'translational', 'struts')
+
+
+# Per-message paths (1-2 kHz): quaternion <-> matrix on Python floats, ~3x faster than
+# the numpy helpers of pkm_kinematics.rotations for one 3 x 3 matrix.
+def _quaternion(r) -> tuple:
+    """Unit quaternion (x, y, z, w), w >= 0, of a row-major 9-tuple (Shepperd's method)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = ((r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s)
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = (0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s)
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q = ((r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q = ((r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[3] < 0.0:
+        n = -n
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def pose_components(position, rotation) -> tuple[tuple, tuple]:
+    """((x, y, z), (qx, qy, qz, qw)) of a position (3,) and a rotation matrix (3, 3),
+    as Python floats, w >= 0 (the fields of a geometry_msgs/Pose). A non-finite input
+    raises ValueError (a NaN pose is never published)."""
+    try:
+        px, py, pz = (position.tolist() if isinstance(position, np.ndarray) else position)
+        px, py, pz = float(px), float(py), float(pz)
+    except (TypeError, ValueError):
+        raise ValueError(f'position: expected 3 numbers, got {position!r}') from None
+    try:
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (
+            rotation.tolist() if isinstance(rotation, np.ndarray) else rotation)
+        r = (float(r00), float(r01), float(r02), float(r10), float(r11), float(r12),
+             float(r20), float(r21), float(r22))
+    except (TypeError, ValueError):
+        raise ValueError(f'rotation: expected a 3 x 3 matrix, got {rotation!r}') from None
+    if not math.isfinite(px + py + pz + r[0] + r[1] + r[2] + r[3] + r[4] + r[5] + r[6] + r[7] + r[8]):
+        raise ValueError(f'pose: contains NaN or infinite values: position {[px, py, pz]}, '
+                         f'rotation {list(r)}')
+    return (px, py, pz), _quaternion(r)
+
+
+def pose_from_components(position, orientation) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a pose's fields (x, y, z), (qx, qy, qz, qw)
+    (a message, or pkm_common.cdr.PoseStampedData read from its bytes).
+
+    Raises ValueError naming the field for NaN/inf components and for a quaternion
+    whose norm differs from 1 by more than 1e-6 (a malformed message, not rounding);
+    within that tolerance the quaternion is normalised.
+    """
+    p = tuple(position)
+    x, y, z, w = q = tuple(orientation)
+    if not math.isfinite(p[0] + p[1] + p[2]):
+        bad = [f'pose.position.{c}' for c, v in zip('xyz', p) if not math.isfinite(v)]
+        raise ValueError(f'{", ".join(bad) or "pose.position"}: must be finite, got {list(p)}')
+    if not math.isfinite(x + y + z + w):
+        bad = [f'pose.orientation.{c}' for c, v in zip('xyzw', q) if not math.isfinite(v)]
+        raise ValueError(f'{", ".join(bad) or "pose.orientation"}: must be finite, got {list(q)}')
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+        raise ValueError(f'pose.orientation: must be a unit quaternion (|q| within 1 +- '
+                         f'{QUATERNION_NORM_TOL:g}), got |q| = {norm!r}')
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    rot = [[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+           [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+           [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]]
+    return np.array(p), np.array(rot)
+
+
+# ------------------------------------------------------ machine <-> tool pose
+# The task space's own formulas (pkm_kinematics.task_space), with the checks of a
+# message boundary: a machine's model names its task space (``model.task_space``).
+def _check_space(space) -> None:
+    if not isinstance(space, TaskSpace):
+        raise ValueError(f'space: must be a task space (one of {sorted(TASK_SPACES)}), got {space!r}')
+
+
+def machine_to_tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
+    """Machine pose -> tool pose in world (docs/architecture.md, mounting;
+    ``task_space.tool_pose``): planar (x, y, theta) -> ((x, y, 0), Rz(theta)); position
+    p -> (p, I); spatial (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a))."""
+    _check_space(space)
+    x = np.asarray(x, dtype=float)
+    if x.shape != (space.dof,) or not np.isfinite(x).all():
+        raise ValueError(f'x: expected {space.dof} finite numbers ({space.describe()}), got {x.tolist()}')
+    return tool_pose(space, x)
+
+
+def machine_pose_components(space: TaskSpace, x) -> tuple[tuple, tuple]:
+    """Machine pose -> (position (3,), orientation quaternion (x, y, z, w)) as numbers
+    for a PoseStamped (floats, or the input's numpy scalars): the per-step form of
+    :func:`machine_to_tool_pose`, without its checks (``task_space.pose_fields``)."""
+    return pose_fields(space, x)
+
+
+def tool_pose_to_machine(space: TaskSpace, position, rotation, reference_theta: float | None = None) -> np.ndarray:
+    """Tool pose in world -> machine pose; inverse of :func:`machine_to_tool_pose`
+    (``task_space.task_pose``): a planar machine's yaw on the revolution of
+    ``reference_theta``, its height, roll and pitch dropped."""
+    _check_space(space)
+    p = np.asarray(position, dtype=float)
+    rot = np.asarray(rotation, dtype=float)
+    if p.shape != (3,) or rot.shape != (3, 3) or not (np.isfinite(p).all() and np.isfinite(rot).all()):
+        raise ValueError(f'tool pose: expected a finite position (3,) and rotation (3, 3), '
+                         f'got {p.tolist()}, {rot.tolist()}')
+    if reference_theta is not None and not math.isfinite(float(reference_theta)):
+        raise ValueError(f'reference_theta: must be finite, got {reference_theta!r}')
+    return task_pose(space, p, rot, None if reference_theta is None else float(reference_theta))
