@@ -243,3 +243,14 @@ def test_a_viewer_drops_what_it_cannot_read_and_reports_the_first():
     read = ShownReader(reports.append)
     assert read(decode_pose_stamped, b"\x00\x01\x00\x00") is None and read(decode_pose_stamped, b"") is None
     assert read.dropped == 2 and len(reports) == 1 and reports[0].startswith("not shown: ")
+
+
+def test_decode_bool_reads_what_rclpy_serialized_and_refuses_other_bytes():
+    from std_msgs.msg import Bool
+
+    from pkm_common.cdr import decode_bool
+    assert decode_bool(serialize_message(Bool(data=True))) is True
+    assert decode_bool(serialize_message(Bool(data=False))) is False
+    for bad in (b"", b"\x00\x01\x00\x00", b"\x01\x00\x00\x00\x01"):        # empty, cut, big-endian
+        with pytest.raises(ValueError, match="estop: not a little-endian CDR std_msgs/Bool"):
+            decode_bool(bad, "estop")

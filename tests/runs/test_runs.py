@@ -189,6 +189,26 @@ def test_offline_replay_reproduces_every_command_exactly(in_process_run):
     assert result.ok and result.identical == result.compared == 801 and result.max_abs_diff_n == 0.0
 
 
+def test_the_replay_drives_the_controller_nodes_own_loop(in_process_run, monkeypatch):
+    """Not a copy of the node's logic: every replayed command is the answer of a
+    node_loop.ControllerLoop (the class controller_node drives) to the recorded bytes
+    of its state and its Gough reading (mom3_square: sensor space)."""
+    from pkm_controller.node_loop import ControllerLoop
+    seen = {"on_state": 0, "on_metrology": 0, "answer": 0}
+    for name in seen:
+        real = getattr(ControllerLoop, name)
+
+        def spy(self, *args, _real=real, _name=name):
+            seen[_name] += 1
+            if _name != "answer":
+                assert isinstance(args[0], bytes), type(args[0])       # the recorded bytes, as the node gets them
+            return _real(self, *args)
+        monkeypatch.setattr(ControllerLoop, name, spy)
+    result = replay_controller(in_process_run[0])
+    assert result.ok and result.compared == 801, result
+    assert seen == {"on_state": 801, "on_metrology": 801, "answer": 801}, seen
+
+
 def test_offline_replay_detects_a_changed_law(in_process_run, tmp_path):
     """The check can fail: the same data with another bandwidth gives other commands."""
     import shutil

@@ -395,6 +395,13 @@ def decode_string(buf, what: str = "String") -> str:
     return _Reader(buf, what, minimum=9).string("data")
 
 
+def decode_bool(buf, what: str = "Bool") -> bool:
+    """``data`` of a serialized std_msgs/Bool."""
+    if len(buf) < 5 or bytes(buf[:4]) != CDR_LE_HEADER:
+        raise ValueError(f"{what}: not a little-endian CDR std_msgs/Bool ({len(buf)} bytes)")
+    return buf[4] != 0
+
+
 def first_string_span(buf, stamped: bool, what: str = "message") -> tuple[int, int]:
     """Byte offsets [start, end) of the first string's characters, its NUL excluded:
     ``header.frame_id`` of a stamped message (``stamped``), else the first field
