@@ -28,7 +28,8 @@ import numpy as np
 from pkm_bringup.processes import ros_environment
 from pkm_common.timing import percentiles_us
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.reference import Reference
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine

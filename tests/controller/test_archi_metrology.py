@@ -18,7 +18,7 @@ from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, plan_with_blending
 from pkm_trajectory.program import gcode_segments
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.laws import tool_pose_floats
 from pkm_controller.reference import Reference
 

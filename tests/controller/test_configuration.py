@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from pkm_controller.configuration import core_from_parameters, metrology_inputs, run_summary
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_kinematics.config import config_dir
 
 

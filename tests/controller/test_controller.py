@@ -19,7 +19,8 @@ from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan, plan_with_blending
 from pkm_trajectory.program import gcode_segments
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import STRATEGIES, ControllerConfig, ControllerCore
+from pkm_controller.config import STRATEGIES, ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.strategies import REGISTRY, Law
 from pkm_controller.reference import Reference
 

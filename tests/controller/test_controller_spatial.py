@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from pkm_common.causes import TripCause
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.laws import apparent_drive_mass, spatial_pose_error
 from pkm_controller.reference import Reference
 from pkm_kinematics import load_machine

@@ -9,7 +9,8 @@ import numpy as np
 import yaml
 
 from pkm_common.causes import TripCause
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_kinematics import load_machine
 from pkm_sim_hw.parameters import PLANTS
 from pkm_sim_hw.plant import Plant, PlantParameters

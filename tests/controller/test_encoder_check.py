@@ -13,7 +13,7 @@ from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.encoder_check import EncoderMonitor
 from pkm_controller.reference import Reference
 
@@ -113,7 +113,8 @@ def test_encoder_noise_raises_the_threshold_and_a_slip_over_it_is_still_seen():
 
 
 def test_a_test_set_to_zero_is_off():
-    from pkm_controller.controller import ControllerConfig, ControllerCore
+    from pkm_controller.config import ControllerConfig
+    from pkm_controller.controller import ControllerCore
     from pkm_kinematics import load_machine
     core = ControllerCore(load_machine("archi"), ControllerConfig(encoder_jump_m=0.0))
     assert core.encoders.jump_m == float("inf") and core.encoders.freeze_m == 2e-4

@@ -12,7 +12,8 @@ from pkm_kinematics import load_machine
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_trajectory.planner import Limits, Line, plan
 from pkm_controller.closed_loop import run
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.feed import MAX_RATE_PER_S, FeedClock, check_override, scaled_reference
 from pkm_controller.reference import Reference
 

@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+
+from pkm_controller.controller import ControllerCore
 from pkm_controller.laws import Gains, sampled_hold_radius, sampled_mode_matrix, weakest_mode_ratio
 from pkm_kinematics import load_machine
 from pkm_sim_hw.parameters import PLANTS

@@ -8,7 +8,9 @@ suite's browser test; MoM3's joint PIDs tripped on a false encoder slip)."""
 import numpy as np
 import pytest
 
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+
+from pkm_controller.controller import ControllerCore
 from pkm_controller.strategies import REGISTRY
 from pkm_kinematics import load_machine
 from pkm_sim_hw.parameters import PLANTS

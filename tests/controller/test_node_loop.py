@@ -8,7 +8,7 @@ from pkm_common.cdr import encode_string
 from pkm_common.conversions import signed_message
 from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_controller.configuration import core_from_parameters
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.node_loop import ControllerLoop
 from pkm_controller.operator_actions import Action

@@ -5,7 +5,8 @@ known ones."""
 import pytest
 
 from pkm_kinematics import load_machine
-from pkm_controller.controller import ControllerConfig, ControllerCore
+from pkm_controller.config import ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.lockstep import StampPairing
 from pkm_controller.strategies import NAMES, REGISTRY, Feedback, Law, Projection, strategy
 

@@ -58,7 +58,7 @@ import yaml
 from pkm_common.credential import KEY_FILE
 from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine

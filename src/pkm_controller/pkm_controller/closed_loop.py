@@ -14,7 +14,9 @@ import numpy as np
 
 from pkm_kinematics.config import MachineConfig
 
-from .controller import ControllerConfig, ControllerCore
+from .config import ControllerConfig
+
+from .controller import ControllerCore
 from .laws import tool_pose_floats
 from .strategies import Feedback
 

@@ -10,7 +10,9 @@ from pkm_common.poses import pose_from_components
 from pkm_common.timing import percentiles_us
 from pkm_kinematics import load_machine
 
-from .controller import ControllerConfig, ControllerCore
+from .config import ControllerConfig
+
+from .controller import ControllerCore
 
 # the controller node's own parameters, beside ControllerConfig's (the scenario checks both)
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,

@@ -45,7 +45,7 @@ from pkm_common.params import declare_bool, declare_like
 from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, warm_up
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
 from pkm_controller.operator_actions import Action
 from pkm_controller.strategies import Feedback

@@ -51,7 +51,8 @@ from dataclasses import dataclass, field
 
 from pkm_common.causes import plant_stop_cause
 from pkm_common.poses import machine_pose_components, pose_from_components, tool_pose_to_machine
-from pkm_controller.controller import RUNTIME_SETTINGS, ControllerConfig, ControllerCore
+from pkm_controller.config import RUNTIME_SETTINGS, ControllerConfig
+from pkm_controller.controller import ControllerCore
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.distribution import METHODS

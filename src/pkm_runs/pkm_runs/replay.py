@@ -48,7 +48,7 @@ import yaml
 from pkm_common.cdr import JointStateDecoder, decode_bool, decode_string, stamp_ns_of
 from pkm_common.causes import TripCause
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
-from pkm_controller.controller import ControllerConfig
+from pkm_controller.config import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
 from pkm_controller.operator_actions import Action, recorded_payload
 from pkm_recording.bag import IncompleteBagError
