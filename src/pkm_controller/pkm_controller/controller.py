@@ -54,23 +54,22 @@ from pkm_kinematics.distribution import (TWO_ARM, distribute, internal_force, in
                                         two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import dynamic_model, holding_forces
 from pkm_kinematics.errors import DistributionError, KinematicsError
-from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.planar import pair_force_map
-from pkm_kinematics.rotations import exp_so3, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD,
-                   FORCES_NOT_FINITE, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
-                   LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN, WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains,
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
+                   LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, Gains,
                    SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, clamp_forces_kernel,
                    error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
                    spatial_limits_kernel, task_pose_error, tool_pose_floats, mode_ratios,
                    sampled_hold_radius)
-from .config import FORWARD_KINEMATICS, RUNTIME_SETTINGS, ControllerConfig
+from .config import RUNTIME_SETTINGS, ControllerConfig
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
 from .strategies import Feedback, Law, Projection, strategy
+from .pose_estimation import PoseEstimator
+from .supervisor import Supervisor
 
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
 
@@ -152,6 +151,9 @@ class ControllerCore:
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
         self._workspace_box = self._task_box()
+        self.supervisor = Supervisor(self.config, self.names, self.dof, self.space, self._joint_box,
+                                     self._workspace_box, self._condition, self.model)
+        self.estimator = PoseEstimator(self.model, self.config, self.strategy.feedback, self.metrology)
         self._apply_config()
         self.reset()
 
@@ -194,6 +196,7 @@ class ControllerCore:
     def _apply_config(self) -> None:
         """What the strategy, the gains and the distribution make of ``self.config``."""
         c = self.config
+        self.supervisor.config = self.estimator.config = c
         self.strategy = strategy(c.strategy)
         self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
         self._scale_gains()
@@ -357,18 +360,12 @@ class ControllerCore:
         self.reference: Reference | None = None
         self.feed = FeedClock()                  # the trajectory's time under the feed override
         self.pending: Reference | None = None
-        self.pose = None                         # encoder FK estimate (warm start)
-        self._fk_q, self._fk_cycles = None, 0    # the readings of that estimate, cycles since reset
+        self.estimator.reset()
         self.last_time_s = None
         self._cycle: _Cycle | None = None        # prepared, waiting for complete()
         self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
+        self.supervisor.reset()
         self.integral = self._zero_integral()
-        self.active = list(range(self.n))
-        self.failed: dict[int, str] = {}
-        self.stopped = False
-        self.stop_reason = ""
-        self.stop_cause = TripCause.NONE
-        self.faults: list[str] = []
         c = self.config
         self._no_forces = np.zeros(self.n)
         self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
@@ -379,17 +376,48 @@ class ControllerCore:
         # the last answers by the stamp (ns) of their state: a realtime plant may apply
         # one of them again (a held setpoint) and report the forces of that one
         self._answers: dict[int, list] = {}
-        self._mismatch = [0] * self.n
-        self._forces_mismatched = False          # a drive's reported force differs from its command, this cycle
-        self._saturated_since = None
         self.cycles = 0
-        self.saturation_count = 0
         self.peak_force_n = 0.0
         self.max_error_m = 0.0
         zero = (0.0,) * self.dof           # a 6-DOF machine's status before its first cycle (an E-stop then)
         self.record = CycleRecord(reference=zero, measured=zero, error=zero, forces=(0.0,) * self.n)
         if self.metrology is not None:
             self.metrology.reset()
+
+    # ------------------------------------------------- the supervisor's state
+    @property
+    def stopped(self) -> bool:
+        return self.supervisor.stopped
+
+    @property
+    def stop_reason(self) -> str:
+        return self.supervisor.stop_reason
+
+    @property
+    def stop_cause(self) -> TripCause:
+        return self.supervisor.stop_cause
+
+    @property
+    def faults(self) -> list[str]:
+        return self.supervisor.faults
+
+    @property
+    def active(self) -> list[int]:
+        """The drives that take part (a failed one dropped: Supervisor.check_drives)."""
+        return self.supervisor.active
+
+    @property
+    def failed(self) -> dict[int, str]:
+        return self.supervisor.failed
+
+    @property
+    def saturation_count(self) -> int:
+        return self.supervisor.saturation_count
+
+    @property
+    def pose(self):
+        """The last encoder pose (PoseEstimator.encoder_pose), None before the first cycle."""
+        return self.estimator.pose
 
     # ------------------------------------------------------------ trajectory
     @property
@@ -434,9 +462,7 @@ class ControllerCore:
     def trip(self, reason: str, cause: TripCause) -> list:
         """Safe state: zero forces from now on; the first reason and cause are kept
         and reported."""
-        if not self.stopped:
-            self.stopped, self.stop_reason, self.stop_cause = True, reason, TripCause(cause)
-            self.faults.append(reason)
+        self.supervisor.trip(reason, cause)
         self.last_command = [0.0] * self.n
         self.record.forces = tuple(self.last_command)
         return list(self.last_command)
@@ -445,60 +471,6 @@ class ControllerCore:
         """The plant braked on its own (the drives' status word, pkm_common.causes): the
         stop is the plant's, with the plant's cause."""
         return self.trip(f"the plant stopped ({cause})", cause)
-
-    def _check_state(self, q, qdot, applied) -> str:
-        for name, values, size in (("position", q, self.n), ("velocity", qdot, self.n)):
-            if len(values) != size:
-                return f"drives/state: {name} has {len(values)} values, expected {size} ({self.names})"
-            if not math.isfinite(sum(values)):
-                k = next(i for i, v in enumerate(values) if not math.isfinite(v))
-                return f"drives/state: {name}[{k}] ({self.names[k]}) is {values[k]}"
-        if applied is not None and len(applied) and (len(applied) != self.n or not math.isfinite(sum(applied))):
-            return f"drives/state: effort must be {self.n} finite values, got {list(applied)}"
-        return ""
-
-    def _check_metrology(self, struts, metrology_pose) -> str:
-        feedback = self.strategy.feedback
-        if feedback == Feedback.STRUTS:
-            if struts is None or len(struts) != 6 or not math.isfinite(sum(struts)):
-                return f"metrology/struts: expected 6 finite strut lengths, got {struts}"
-        if feedback == Feedback.GOUGH_POSE:
-            if metrology_pose is None:
-                return "metrology/pose: missing (the DKM did not converge or the sensor is silent)"
-            p, r = metrology_pose
-            if len(p) != 3 or not math.isfinite(sum(p)) or not np.isfinite(r).all():
-                return f"metrology/pose: not a finite pose ({p})"
-        return ""
-
-    def _check_drives(self, applied, commanded) -> str:
-        """Compare the forces the drives report with what was ``commanded`` for this
-        period; a drive off by more than drive_mismatch_n for drive_mismatch_cycles
-        cycles has failed. No force -> drop it (if allowed and well conditioned); any
-        other mismatch (a brake, a jam) -> trip."""
-        c = self.config
-        for i in self.active:
-            if abs(applied[i] - commanded[i]) > c.drive_mismatch_n:
-                self._mismatch[i] += 1
-                self._forces_mismatched = True
-            else:
-                self._mismatch[i] = 0
-            if self._mismatch[i] < c.drive_mismatch_cycles:
-                continue
-            kind = "no force" if abs(applied[i]) < c.drive_mismatch_n else \
-                f"reports {applied[i]:.1f} N for {commanded[i]:.1f} N commanded"
-            what = f"drive {self.names[i]} failed ({kind})"
-            remaining = [k for k in self.active if k != i]
-            if kind != "no force" or not c.continue_on_drive_failure or len(remaining) < self.dof:
-                return what
-            rows = self.model.velocity_terms(self.pose, (0.0,) * self.dof)[1]
-            cond = self._condition([rows[k] for k in remaining])
-            name = "J_" + "".join(str(k + 1) for k in remaining)
-            if cond > c.max_condition:
-                return f"{what}; sub-machine {name} too close to singular (condition {cond:.3g} > {c.max_condition:g})"
-            self.active = remaining
-            self.failed[i] = kind
-            self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
-        return ""
 
     def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
         """((what tripped, its cause) or None, the translation error): laws.limits_kernel
@@ -513,31 +485,7 @@ class ControllerCore:
             code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
                                                self._workspace_box, active_rows, tuple(error), self.planar,
                                                c.max_condition, c.following_error_m, c.following_error_rad)
-        return (None, value) if code == LIMITS_OK else (self._limit_trip(code, index, value), value)
-
-    def _limit_trip(self, code: int, index: int, value: float) -> tuple[str, TripCause]:
-        """The trip message and cause of a limits code of laws.limits_kernel."""
-        c = self.config
-        if code == JOINT_LIMIT:
-            lo, hi = self._joint_box[index].tolist()
-            return (f"joint limit: drive {self.names[index]} at {value:.6g} m outside [{lo:g}, {hi:g}] m",
-                    TripCause.JOINT_LIMIT)
-        if code == WORKSPACE_LIMIT:
-            lo, hi = self._workspace_box[index].tolist()
-            unit, margin = ("m", "workspace_margin_m") if index < self.space.translation_axes else \
-                ("rad", "workspace_margin_rad")
-            return (f"workspace: {self.space.axes[index]} = {value:.6g} {unit} outside [{lo:.6g}, {hi:.6g}] {unit} "
-                    f"({margin} {getattr(c, margin):g})", TripCause.WORKSPACE)
-        if code == SINGULARITY_MARGIN:
-            return (f"singularity margin: condition number {value:.6g} > max_condition {c.max_condition:g}",
-                    TripCause.SINGULARITY)
-        if code == FOLLOWING_ERROR_M:
-            return (f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}",
-                    TripCause.FOLLOWING_ERROR)
-        if code == FOLLOWING_ERROR_RAD:
-            return (f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}",
-                    TripCause.FOLLOWING_ERROR)
-        return f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})", TripCause.KINEMATICS
+        return (None, value) if code == LIMITS_OK else (self.supervisor.limit_trip(code, index, value), value)
 
     # ------------------------------------------------------------------ cycle
     def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None,
@@ -565,9 +513,9 @@ class ControllerCore:
         if self.stopped:
             self.trip(self.stop_reason, self.stop_cause)
             return False
-        problem = self._check_state(q, qdot, applied)
-        if problem:
-            self.trip(problem, TripCause.INPUT_REFUSED)
+        problem = self.supervisor.check_state(q, qdot, applied)
+        if problem is not None:
+            self.trip(*problem)
             return False
         if self._gough_pending is not None and not self._check_against_gough():
             return False
@@ -576,18 +524,18 @@ class ControllerCore:
         first = self.last_time_s is None
         self.last_time_s = t_s
         try:
-            pose = self._forward_kinematics(q_array)
+            pose = self.estimator.encoder_pose(q_array)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
         if first:       # until a cycle has a reference of its own, the machine is asked to stay where it is
             self.record.reference = self.record.measured = tuple(float(v) for v in pose)
-        self._forces_mismatched = False
+        self.supervisor.forces_mismatched = False
         commanded = self.last_command if held is None else self._answers.get(held)
         if applied is not None and len(applied) and not first and commanded is not None:
-            problem = self._check_drives(list(applied), commanded)
-            if problem:
-                self.trip(problem, TripCause.DRIVE_FAILURE)
+            problem = self.supervisor.check_drives(list(applied), commanded, self.pose)
+            if problem is not None:
+                self.trip(*problem)
                 return False
         try:
             # J_m, v = J_m^+ qdot, and A(x), H(x, v) for the model-based strategies: one compiled call
@@ -625,7 +573,7 @@ class ControllerCore:
         J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
         J_m v_d dt."""
         applied = c.applied
-        if self._forces_mismatched:       # _check_drives saw it in this cycle
+        if self.supervisor.forces_mismatched:       # the drive supervision saw it in this cycle
             # a drive that does not apply its command (a brake engaging is an impulse the
             # reported forces do not hold): the drive supervision's, not an encoder's
             self.encoders.reset()
@@ -681,9 +629,9 @@ class ControllerCore:
             return self.trip(self.stop_reason, self.stop_cause)
         if c is None:
             raise RuntimeError("ControllerCore.complete: no cycle prepared (call prepare() first)")
-        problem = self._check_metrology(struts, metrology_pose)
-        if problem:
-            return self.trip(problem, TripCause.INPUT_REFUSED)
+        problem = self.supervisor.check_metrology(self.strategy.feedback, struts, metrology_pose)
+        if problem is not None:
+            return self.trip(*problem)
         if c.first:
             self._start(c.pose, struts, metrology_pose)
             if not self._prepare_reference(c):
@@ -692,7 +640,7 @@ class ControllerCore:
             if c.first:         # the PID laws start holding the load (a singular start pose trips here)
                 self.integral = self._holding_integral(c.pose, self.strategy.law, self.config.integral_time_s,
                                                        c.active_rows)
-            measured, error = self._feedback(c.pose, c.x_d, struts, metrology_pose)
+            measured, error = self.estimator.measure(c.pose, c.x_d, struts, metrology_pose)
             if self.gough_check is not None and not c.first:
                 self._gough_pending = (c.q_array, measured, c.suspect)    # judged in the next prepare
             if not self.strategy.joint_space:
@@ -705,73 +653,18 @@ class ControllerCore:
             return self.trip(f"{self.config.strategy}: {exc}", TripCause.KINEMATICS)
         return self._finish(c, forces, trans, measured, error)
 
-    def _forward_kinematics(self, q) -> list:
-        """The encoder pose (planar: warm-started at the last one); q checked finite.
-        ``integrated`` / ``integrated_euler``: carried by the increments since the last
-        cycle (Sliding Star §3.1), solved by Newton at the first cycle and every
-        ``fk_resync_cycles``."""
-        c = self.config
-        order = FORWARD_KINEMATICS[c.forward_kinematics]
-        if order and self.pose is not None and self._fk_q is not None and (
-                c.fk_resync_cycles == 0 or self._fk_cycles % c.fk_resync_cycles):
-            pose = integrate_forward_kinematics(self.model, self.pose, np.asarray(q) - self._fk_q, order).tolist()
-        else:
-            pose = list(self.model.forward_kinematics_floats(q, self.pose))
-        self.pose, self._fk_q, self._fk_cycles = pose, np.array(q, dtype=float), self._fk_cycles + 1
-        return pose
-
     def _start(self, pose, struts, metrology_pose) -> None:
         """First cycle: hold where the machine is (as the strategy measures it), then
         start a trajectory that arrived before the first state."""
-        hold = pose
-        if self.strategy.feedback == Feedback.GOUGH_POSE:
-            hold = self._metrology_task_pose(metrology_pose, pose)
-        self.reference = Reference.hold(hold)
+        self.reference = Reference.hold(self.estimator.hold_pose(self.strategy.feedback, pose, struts,
+                                                                 metrology_pose))
         self.feed.restart(self.last_time_s)
-        if self.strategy.feedback == Feedback.STRUTS:
-            # the tool as the struts see it: one linearised step from the encoder pose
-            p, r = tool_pose_floats(pose, self.planar)
-            e = self.metrology.task_error(p, r, list(struts))
-            self.metrology.reset()
-            self.reference = Reference.hold(self._pose_minus(pose, e))
         if self.pending is not None:
             pending, self.pending = self.pending, None
             try:
                 self.set_trajectory(pending, self.last_time_s)
             except ValueError as exc:              # refused, reported; the machine holds
                 self.faults.append(str(exc))
-
-    def _metrology_task_pose(self, metrology_pose, reference_pose) -> list:
-        p, r = metrology_pose
-        p = [float(v) for v in p]
-        if self.spatial:             # the Gough's rotation as roll, pitch, yaw (the error is rotation-based)
-            return p + list(rpy_from_rotation(np.asarray(r, dtype=float).reshape(3, 3)))
-        if not self.planar:
-            return p
-        r = np.asarray(r, dtype=float)
-        theta = math.atan2(r[1, 0], r[0, 0])
-        theta = unwrap_to(theta, reference_pose[2])
-        return [p[0], p[1], theta]
-
-    def _pose_minus(self, x, e) -> list:
-        """The pose x - e: the coordinates' difference; on a spatial machine the rotation
-        exp(-e_w) R(x) as roll, pitch, yaw (e_w a rotation vector, not angle rates)."""
-        if not self.spatial:
-            return [a - b for a, b in zip(x, e)]
-        _, r = tool_pose_floats(x, False)
-        rot = exp_so3(np.array([-e[3], -e[4], -e[5]])) @ np.array(r).reshape(3, 3)
-        return [x[0] - e[0], x[1] - e[1], x[2] - e[2], *rpy_from_rotation(rot)]
-
-    def _feedback(self, pose, x_d, struts, metrology_pose) -> tuple[list, list]:
-        """(measured task pose, error x_d - measured) as the strategy sees them."""
-        feedback = self.strategy.feedback
-        if feedback == Feedback.STRUTS:
-            error = self.metrology.error_from(list(struts))          # prepared at x_d
-            return self._pose_minus(x_d, error), error
-        if feedback == Feedback.GOUGH_POSE:
-            measured = self._metrology_task_pose(metrology_pose, x_d)
-            return measured, task_pose_error(x_d, measured, self.space)
-        return pose, task_pose_error(x_d, pose, self.space)
 
     def _joint_strategy(self, c: "_Cycle") -> list:
         """joint_pid (ARCHI §4.1), decentralized_projected (Sliding Star eq. 6-8) and
@@ -832,7 +725,7 @@ class ControllerCore:
         if code == WRENCH_NOT_FINITE:
             return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}",
                              TripCause.KINEMATICS)
-        return self.trip(*self._limit_trip(code, index, value))
+        return self.trip(*self.supervisor.limit_trip(code, index, value))
 
     def _spatial_command(self, c: "_Cycle", measured, error) -> list:
         """``_cartesian_command`` of a spatial machine: the limits, the integral, the laws
@@ -862,7 +755,7 @@ class ControllerCore:
         if code == WRENCH_NOT_FINITE:
             return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {wrench.tolist()}",
                              TripCause.KINEMATICS)
-        return self.trip(*self._limit_trip(code, index, value))
+        return self.trip(*self.supervisor.limit_trip(code, index, value))
 
     def _distribute(self, wrench, active_rows, pose) -> list:
         """The distributions that are not compiled (p_norm, two_arm, a prestress); all
@@ -896,15 +789,9 @@ class ControllerCore:
     def _accept(self, c: "_Cycle", forces, saturated, peak, trans, measured, error) -> list:
         """The clamped command of the cycle: the saturation supervisor, the statistics,
         the record."""
-        cfg = self.config
-        if saturated:
-            self.saturation_count += 1
-            self._saturated_since = c.t_s if self._saturated_since is None else self._saturated_since
-            if cfg.saturation_trip_s and c.t_s - self._saturated_since >= cfg.saturation_trip_s - 1e-9:
-                return self.trip(f"drive forces saturated at {cfg.force_limit_n:g} N for {cfg.saturation_trip_s:g} s",
-                                 TripCause.SATURATION)
-        else:
-            self._saturated_since = None
+        problem = self.supervisor.check_saturation(c.t_s, saturated)
+        if problem is not None:
+            return self.trip(*problem)
         self.cycles += 1
         self.last_command = forces
         self._keep_answer(c.t_s, forces)
