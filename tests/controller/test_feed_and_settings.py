@@ -149,10 +149,10 @@ def test_projection_on_while_running_ends_the_fight_of_fig12():
 ])
 def test_bad_settings_are_refused_and_nothing_changes(changes, message):
     core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
-    before = (core.config, core.strategy, core.gains, core.task_kp)
+    before = (core.config, core.strategy, core.tuned.gains, core.tuned.task_kp)
     with pytest.raises(ValueError, match=message):
         core.change_settings(changes)
-    assert (core.config, core.strategy, core.gains, core.task_kp) == before
+    assert (core.config, core.strategy, core.tuned.gains, core.tuned.task_kp) == before
 
 
 def test_new_gains_scale_like_a_start_with_them():
@@ -160,8 +160,8 @@ def test_new_gains_scale_like_a_start_with_them():
     core = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid"))
     core.change_settings({"bandwidth_hz": 10.0, "damping_ratio": 0.8})
     fresh = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", bandwidth_hz=10.0, damping_ratio=0.8))
-    assert core.task_kp == fresh.task_kp and core.joint_kd == fresh.joint_kd
-    assert math.isclose(core.gains.kp, (2 * math.pi * 10.0) ** 2)
+    assert core.tuned.task_kp == fresh.tuned.task_kp and core.tuned.joint_kd == fresh.tuned.joint_kd
+    assert math.isclose(core.tuned.gains.kp, (2 * math.pi * 10.0) ** 2)
 
 
 def test_an_estop_is_applied_at_once_and_recorded_after_the_state_given():

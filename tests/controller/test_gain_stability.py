@@ -53,7 +53,7 @@ def test_the_weakest_mode_ratio_is_the_smallest_generalised_eigenvalue():
 def test_the_integral_time_bound_is_where_the_closed_loop_turns_unstable(name):
     machine = load_machine(name)
     core = ControllerCore(machine, ControllerConfig(strategy="computed_torque"))
-    a, jac, m_joint = core.home_masses()
+    a, jac, m_joint = core.tuning.home_masses()
     shape = jac.T @ np.diag(m_joint) @ jac
     r = weakest_mode_ratio(shape, a)
     omega, zeta = 2 * math.pi * 20.0, 1.0

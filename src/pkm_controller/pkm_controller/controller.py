@@ -49,20 +49,16 @@ import numpy as np
 from pkm_common.causes import TripCause
 from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import (TWO_ARM, distribute, internal_force, internal_force_rows,
-                                        prestress_direction, raise_distribution_error,
+from pkm_kinematics.distribution import (distribute, internal_force, internal_force_rows,
+                                        raise_distribution_error,
                                         two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import dynamic_model, holding_forces
-from pkm_kinematics.errors import DistributionError, KinematicsError
-from pkm_kinematics.planar import pair_force_map
+from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE, LAW_VELOCITY_CASCADE,
-                   LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, Gains,
-                   SensorSpaceFeedback, apparent_drive_mass, cartesian_command_kernel, clamp_forces_kernel,
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel,
                    error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
-                   spatial_limits_kernel, task_pose_error, tool_pose_floats, mode_ratios,
-                   sampled_hold_radius)
+                   spatial_limits_kernel, task_pose_error, tool_pose_floats)
 from .config import RUNTIME_SETTINGS, ControllerConfig
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
@@ -70,6 +66,7 @@ from .reference import Reference
 from .strategies import Feedback, Law, Projection, strategy
 from .pose_estimation import PoseEstimator
 from .supervisor import Supervisor
+from .tuning import MachineTuning
 
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
 
@@ -136,8 +133,8 @@ class ControllerCore:
         # cond(J_m) of the active drives: the 3-DOF closed form, or the machine's own
         # (a spatial J_m's rotation columns weighted by the platform's size)
         self._condition = self.model.rows_condition if self.spatial else gram_condition
-        self._mode_ratios = self._pid_mode_ratios()
-        self._check_config(self.config)
+        self.tuning = MachineTuning(machine, self.dynamics)
+        self.tuning.check(self.config)
         self.strategy = strategy(self.config.strategy)
         self.metrology = None
         if self.strategy.uses_metrology:
@@ -158,49 +155,12 @@ class ControllerCore:
         self.reset()
 
     # ---------------------------------------------------------------- set-up
-    def _check_config(self, config: ControllerConfig) -> None:
-        """ControllerConfig.validate, and what only this machine can say (ValueError)."""
-        config.validate(self.n, self.planar)
-        law = strategy(config.strategy).law
-        ratios = self._mode_ratios.get(law, (1.0,))
-        ratio = ratios[0]
-        if ratio <= 0.0:
-            raise ValueError(f"strategy: {config.strategy} on {self.machine.name}: its gains leave a mode of the "
-                             f"machine at home without stiffness (mass ratio {ratio:.3g})")
-        if config.integral_time_s != 0.0 and ratio < 1.0:
-            low = 1.0 / (2.0 * config.damping_ratio * 2.0 * math.pi * config.bandwidth_hz * ratio)
-            if config.integral_time_s <= low:
-                raise ValueError(f"integral_time_s: must be 0, or in ({low:.4g}, inf) s for {config.strategy} on "
-                                 f"{self.machine.name} (stability of its weakest mode, mass ratio {ratio:.3g}: "
-                                 f"T_i > 1 / (2 zeta omega r)), got {config.integral_time_s!r}")
-        self._check_sampled(config, ratios)
-        if config.prestress_n != 0.0 and self.n <= self.dof:
-            raise ValueError(f"prestress_n: must be 0 on a machine without redundant drives ({self.n} drives for "
-                             f"{self.dof} DOF: no internal force exists)")
-        if config.prestress_direction:
-            try:                       # at home: a pattern with no internal part would trip the first cycle
-                prestress_direction(self.model.jacobian(self.model.home), config.prestress_direction)
-            except DistributionError as exc:
-                raise ValueError(f"prestress_direction: {exc} at home") from None
-        if self.spatial and config.forward_kinematics != "newton":
-            raise ValueError(f"forward_kinematics: must be newton on a {self.dof}-DOF machine "
-                             f"(the integrated forms are written for 3 task coordinates), got "
-                             f"{config.forward_kinematics!r}")
-        if config.distribution in TWO_ARM:
-            try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
-                pair_force_map(self.model, self.model.home)
-            except ValueError as exc:
-                raise ValueError(f"distribution: {config.distribution} needs two pairs of legs sharing a "
-                                 f"platform point (ARCHI §4.3): {exc}") from None
-
     def _apply_config(self) -> None:
         """What the strategy, the gains and the distribution make of ``self.config``."""
         c = self.config
         self.supervisor.config = self.estimator.config = c
         self.strategy = strategy(c.strategy)
-        self.gains = Gains(2.0 * math.pi * c.bandwidth_hz, c.damping_ratio, c.integral_time_s)
-        self._scale_gains()
-        self._law, self._law_gains = self._cartesian_law()
+        self.tuned = self.tuning.scaled(c)
         # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
         self._distribution = NUMPY_DISTRIBUTION
         if c.prestress_n == 0.0 and not self.spatial and (c.distribution == "pseudo_inverse" or (
@@ -229,7 +189,7 @@ class ControllerCore:
                 raise ValueError(f"{name}: must be a {'name' if isinstance(default, str) else 'number'}, "
                                  f"got {value!r}")
         new = replace(self.config, **{k: (v if isinstance(v, str) else float(v)) for k, v in changes.items()})
-        self._check_config(new)
+        self.tuning.check(new)
         new_strategy = strategy(new.strategy)
         if new_strategy.feedback != self.strategy.feedback:
             raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
@@ -276,78 +236,6 @@ class ControllerCore:
         if rows is None:
             rows = np.asarray(self.model.jacobian(pose), dtype=float)[self.active]
         return [float(f) for f in self._expand(holding_forces(self.dynamics, rows, pose))]
-
-    def home_masses(self) -> tuple[np.ndarray, np.ndarray, list]:
-        """(A(x_home), J_m(x_home), the mass each drive sees there): the scale of the
-        gains (see _scale_gains)."""
-        if self.spatial:
-            a, _, rows, _ = self.dynamics.measured_state(self._home(), [0.0] * self.n)
-            return np.asarray(a), np.asarray(rows), apparent_drive_mass(rows, a).tolist()
-        a, _, rows, _, _ = self.dynamics.terms(self._home(), (0.0, 0.0, 0.0))
-        jac, a = np.array(rows), np.array(a)
-        pinv = np.linalg.pinv(jac)                           # 3 x n
-        return a, jac, np.diag(pinv.T @ a @ pinv).tolist()
-
-    def _pid_mode_ratios(self) -> dict:
-        """The mass ratios of the modes of each PID law at home, ascending, distinct
-        (laws.mode_ratios): how far its gains' shape is from the task mass. Every other
-        law acts through A(x): its modes are all 1."""
-        a, jac, m_joint = self.home_masses()
-        return {law: tuple(sorted({round(float(r), 9) for r in mode_ratios(shape, a)}))
-                for law, shape in ((Law.JOINT_PID, jac.T @ np.diag(m_joint) @ jac),
-                                   (Law.CARTESIAN_PID, np.diag(np.diag(a))))}
-
-    def _check_sampled(self, config: ControllerConfig, ratios) -> None:
-        """Refuse gains whose hold is unstable as sampled every ``config.dt_s``
-        (laws.sampled_hold_radius, every mode of the law), naming the bandwidths that
-        are stable with the same damping and integral time (ValueError)."""
-        def radii(bandwidth_hz: float) -> list:
-            gains = Gains(2.0 * math.pi * bandwidth_hz, config.damping_ratio, config.integral_time_s)
-            return [sampled_hold_radius(r, gains, config.dt_s) for r in ratios]
-        now = radii(config.bandwidth_hz)
-        worst = int(np.argmax(now))
-        if now[worst] < 1.0:
-            return
-        top = 0.1 / config.dt_s                              # ControllerConfig's own bound
-        stable = [b for b in np.geomspace(0.1, top, 160) if max(radii(b)) < 1.0]
-        where = (f"stable for bandwidth_hz in [{min(stable):.3g}, {max(stable):.3g}] Hz" if stable else
-                 "no bandwidth is stable with this damping and integral time (a longer integral_time_s or "
-                 "a higher damping_ratio widens the range)")
-        raise ValueError(f"bandwidth_hz: {config.strategy} on {self.machine.name} sampled at {1.0 / config.dt_s:g} Hz "
-                         f"is unstable at {config.bandwidth_hz:g} Hz (damping_ratio {config.damping_ratio:g}, "
-                         f"integral_time_s {config.integral_time_s:g}): its mode of mass ratio {ratios[worst]:.3g} "
-                         f"grows {now[worst]:.4f}x per cycle; {where} (or a faster control rate), "
-                         f"got {config.bandwidth_hz!r}")
-
-    def _scale_gains(self) -> None:
-        """Gains in N/m from the nominal mass at home: Cartesian diag(A(x_home)); joint
-        the mass each drive sees: diag(J^+T A J^+) on the 3-DOF machines, the apparent
-        mass 1 / (J A^-1 J^T)_ii on a spatial one (laws.apparent_drive_mass)."""
-        a, _, m_joint = self.home_masses()
-        a = a.tolist()
-        g = self.gains
-        m_task = [a[i][i] for i in range(self.dof)]
-        self.task_mass = m_task
-        self.task_kp = [g.kp * m for m in m_task]
-        self.task_kd = [g.kd * m for m in m_task]
-        self.task_ki = [g.ki * m for m in m_task]
-        self.joint_mass = m_joint
-        self.joint_kp = [g.kp * m for m in m_joint]
-        self.joint_kd = [g.kd * m for m in m_joint]
-        self.joint_ki = [g.ki * m for m in m_joint]
-
-    def _cartesian_law(self) -> tuple[int, np.ndarray]:
-        """The law code of laws.cartesian_command_kernel and its gain rows (kp, kd, ki,
-        mass) per task axis: the scaled task gains for cartesian_pid; per unit mass
-        for computed_torque (A(x) scales them); the cascade's outer PI and inner
-        velocity gain Kv for the metrology strategies."""
-        g, law = self.gains, self.strategy.law
-        if law == Law.CARTESIAN_PID:
-            return LAW_CARTESIAN_PID, np.array([self.task_kp, self.task_kd, self.task_ki, self.task_mass])
-        d = self.dof
-        if law == Law.COMPUTED_TORQUE:
-            return LAW_COMPUTED_TORQUE, np.array([[g.kp] * d, [g.kd] * d, [g.ki] * d, [0.0] * d])
-        return LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * d, [g.kd] * d, [g.outer_ki] * d, [0.0] * d])
 
     def _task_box(self) -> np.ndarray:
         """(lower, upper) per task axis the measured pose must stay in: the translation
@@ -674,15 +562,15 @@ class ControllerCore:
         # acceleration feed-forward with the mass each drive sees, as industrial
         # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
         if self.spatial:
-            feedforward = (np.asarray(self.joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
+            feedforward = (np.asarray(self.tuned.joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
         else:
             feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
-                           for m, (j0, j1, j2), b in zip(self.joint_mass, rows_d, bias_d)]
+                           for m, (j0, j1, j2), b in zip(self.tuned.joint_mass, rows_d, bias_d)]
         e = [a - b for a, b in zip(q_d, q)]
         edot = [a - b for a, b in zip(qdot_d, qdot)]
         limit = self.config.force_limit_n
         integral = [min(limit, max(-limit, i + ki * ei * dt))
-                    for i, ki, ei in zip(self.integral, self.joint_ki, e)]
+                    for i, ki, ei in zip(self.integral, self.tuned.joint_ki, e)]
         active_rows = c.active_rows
         projection = self.strategy.projection
         if projection != Projection.NONE:
@@ -693,7 +581,7 @@ class ControllerCore:
             for k, f in zip(self.active, sub):
                 integral[k] = f
         self.integral = integral
-        n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.joint_kp, self.joint_kd), feedforward)]
+        n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.tuned.joint_kp, self.tuned.joint_kd), feedforward)]
         if projection != Projection.FORCES:
             return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
         sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
@@ -710,8 +598,8 @@ class ControllerCore:
         full = len(self.active) == self.n
         code, index, value, self.integral, wrench, forces, saturated, peak = cartesian_command_kernel(
             c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
-            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, self._law,
-            self._law_gains, self.record.saturated == 0, self.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
+            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, self.tuned.law,
+            self.tuned.law_gains, self.record.saturated == 0, self.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
             c.v, tuple(c.a_d), self._distribution if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
         if code == LIMITS_OK and forces.shape[0]:
             return self._accept(c, self._expand(forces.tolist()), saturated, peak, value, measured, error)
@@ -738,7 +626,7 @@ class ControllerCore:
         code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
             c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
             self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
-            cfg.following_error_rad, self._law, self._law_gains, self.record.saturated == 0,
+            cfg.following_error_rad, self.tuned.law, self.tuned.law_gains, self.record.saturated == 0,
             np.asarray(self.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
             c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
         self.integral = tuple(integral.tolist())
