@@ -54,11 +54,11 @@ from pkm_kinematics.distribution import (distribute, internal_force, internal_fo
                                         two_arm_gravity_internal_force)
 from pkm_kinematics.dynamics import dynamic_model, holding_forces
 from pkm_kinematics.errors import KinematicsError
-from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
+from pkm_kinematics.task_space import PLANAR, SPATIAL
 
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, cartesian_command_kernel, clamp_forces_kernel,
-                   error_norms, gram_condition, joint_pid, limits_kernel, project_to_range, spatial_command_kernel,
-                   spatial_limits_kernel, task_pose_error, tool_pose_floats)
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel,
+                   error_norms, gram_condition, joint_pid, project_to_range, task_pose_error, tool_pose_floats)
+from .commands import kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig
 from .encoder_check import EncoderMonitor, GoughCrossCheck
 from .feed import FeedClock, scaled_reference
@@ -146,10 +146,11 @@ class ControllerCore:
                                                  at_estimate=self.config.sensor_jacobian == "estimated",
                                                  spatial=self.spatial)
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
-        self._joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
-        self._workspace_box = self._task_box()
-        self.supervisor = Supervisor(self.config, self.names, self.dof, self.space, self._joint_box,
-                                     self._workspace_box, self._condition, self.model)
+        self.joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
+        self.workspace_box = self._task_box()
+        self.kernels = kernels_for(self.model)          # the task space's compiled kernels (commands.py)
+        self.supervisor = Supervisor(self.config, self.names, self.dof, self.space, self.joint_box,
+                                     self.workspace_box, self._condition, self.model)
         self.estimator = PoseEstimator(self.model, self.config, self.strategy.feedback, self.metrology)
         self._apply_config()
         self.reset()
@@ -162,10 +163,10 @@ class ControllerCore:
         self.strategy = strategy(c.strategy)
         self.tuned = self.tuning.scaled(c)
         # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
-        self._distribution = NUMPY_DISTRIBUTION
+        self.distribution_code = NUMPY_DISTRIBUTION
         if c.prestress_n == 0.0 and not self.spatial and (c.distribution == "pseudo_inverse" or (
                 c.distribution == "inf_norm" and self.n == 4)):
-            self._distribution = DIST_PSEUDO_INVERSE if c.distribution == "pseudo_inverse" else DIST_INF_NORM
+            self.distribution_code = DIST_PSEUDO_INVERSE if c.distribution == "pseudo_inverse" else DIST_INF_NORM
 
     def change_settings(self, changes: dict) -> dict:
         """Change the strategy, the distribution or the gains of a running controller
@@ -235,7 +236,7 @@ class ControllerCore:
             return tuple(float(w) for w in self.dynamics.static_forces(pose))
         if rows is None:
             rows = np.asarray(self.model.jacobian(pose), dtype=float)[self.active]
-        return [float(f) for f in self._expand(holding_forces(self.dynamics, rows, pose))]
+        return [float(f) for f in self.expand(holding_forces(self.dynamics, rows, pose))]
 
     def _task_box(self) -> np.ndarray:
         """(lower, upper) per task axis the measured pose must stay in: the translation
@@ -361,18 +362,9 @@ class ControllerCore:
         return self.trip(f"the plant stopped ({cause})", cause)
 
     def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
-        """((what tripped, its cause) or None, the translation error): laws.limits_kernel
-        (laws.spatial_limits_kernel on a spatial machine)."""
-        c = self.config
-        if self.spatial:
-            code, index, value = spatial_limits_kernel(q, self._joint_box, tuple(measured), self._workspace_box,
-                                                       active_rows, self.model.characteristic_length_m,
-                                                       c.max_condition, tuple(error), c.following_error_m,
-                                                       c.following_error_rad)
-        else:
-            code, index, value = limits_kernel(q, self._joint_box, tuple(measured),
-                                               self._workspace_box, active_rows, tuple(error), self.planar,
-                                               c.max_condition, c.following_error_m, c.following_error_rad)
+        """(the Trip or None, the translation error) of the task space's limits kernel."""
+        code, index, value = self.kernels.limits(q, self.joint_box, measured, self.workspace_box, active_rows, error,
+                                                 self.config)
         return (None, value) if code == LIMITS_OK else (self.supervisor.limit_trip(code, index, value), value)
 
     # ------------------------------------------------------------------ cycle
@@ -441,8 +433,7 @@ class ControllerCore:
         metrology arrives (sensor_space: l_des and J_h)."""
         tau, s, sdot = self.feed.advance(c.t_s)           # feed.py: the trajectory's time under the override
         c.x_d, c.v_d, c.a_d = scaled_reference(self.reference.sample(tau), s, sdot)
-        if self.spatial:       # the rates of a, b, c -> the twist and its rate (w in the base frame)
-            c.v_d, c.a_d = task_twists(self.space, c.x_d, c.v_d, c.a_d)
+        c.v_d, c.a_d = self.kernels.twists(c.x_d, c.v_d, c.a_d)
         if self.encoders is not None and not self._check_encoders(c):
             self._cycle = None
             return False
@@ -561,11 +552,7 @@ class ControllerCore:
         q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
         # acceleration feed-forward with the mass each drive sees, as industrial
         # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
-        if self.spatial:
-            feedforward = (np.asarray(self.tuned.joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
-        else:
-            feedforward = [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
-                           for m, (j0, j1, j2), b in zip(self.tuned.joint_mass, rows_d, bias_d)]
+        feedforward = self.kernels.joint_feedforward(self.tuned.joint_mass, rows_d, a_d, bias_d)
         e = [a - b for a, b in zip(q_d, q)]
         edot = [a - b for a, b in zip(qdot_d, qdot)]
         limit = self.config.force_limit_n
@@ -585,63 +572,29 @@ class ControllerCore:
         if projection != Projection.FORCES:
             return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
         sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
-        return self._expand(sub)
+        return self.expand(sub)
 
     def _cartesian_command(self, c: "_Cycle", measured, error) -> list:
         """The Cartesian strategies after the feedback: limits, integral, law (Sliding
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
-        call (laws.cartesian_command_kernel); p_norm, two_arm and a prestress
+        call (commands.py, by task space); the distributions it does not compile
         distribute the wrench it returns with numpy."""
-        if self.spatial:
-            return self._spatial_command(c, measured, error)
         cfg = self.config
-        full = len(self.active) == self.n
-        code, index, value, self.integral, wrench, forces, saturated, peak = cartesian_command_kernel(
-            c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
-            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, self.tuned.law,
-            self.tuned.law_gains, self.record.saturated == 0, self.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
-            c.v, tuple(c.a_d), self._distribution if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
-        if code == LIMITS_OK and forces.shape[0]:
-            return self._accept(c, self._expand(forces.tolist()), saturated, peak, value, measured, error)
-        if code == LIMITS_OK:                     # NUMPY_DISTRIBUTION
-            return self._finish(c, self._distribute(list(wrench), c.active_rows, c.pose), value, measured, error)
-        if code > DISTRIBUTION_FAILED:
-            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench)
-        if code == FORCES_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: non-finite drive forces {self._expand(forces.tolist())}",
-                             TripCause.KINEMATICS)
-        if code == WRENCH_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {list(wrench)}",
-                             TripCause.KINEMATICS)
-        return self.trip(*self.supervisor.limit_trip(code, index, value))
-
-    def _spatial_command(self, c: "_Cycle", measured, error) -> list:
-        """``_cartesian_command`` of a spatial machine: the limits, the integral, the laws
-        on the six axes and the pseudo-inverse in one compiled call
-        (laws.spatial_command_kernel); the other distributions (inf-norm LP, p-norm)
-        and a degraded machine's distribute the wrench it returns with numpy."""
-        cfg = self.config
-        full = len(self.active) == self.n
-        compiled = full and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
-        code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
-            c.q_array, self._joint_box, tuple(measured), self._workspace_box, c.active_rows,
-            self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
-            cfg.following_error_rad, self.tuned.law, self.tuned.law_gains, self.record.saturated == 0,
-            np.asarray(self.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
-            c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
-        self.integral = tuple(integral.tolist())
-        if code == LIMITS_OK and compiled:
-            return self._accept(c, forces.tolist(), saturated, peak, value, measured, error)
+        out = self.kernels.cartesian(self, c, measured, error)
+        self.integral = out.integral
+        code, index, value = out.code, out.index, out.value
+        if code == LIMITS_OK and out.distributed:
+            return self._accept(c, out.forces, out.saturated, out.peak, value, measured, error)
         if code == LIMITS_OK:
-            forces = self._distribute(wrench.tolist(), c.active_rows, c.pose) if full else \
-                self._expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
+            forces = self._distribute(out.wrench, c.active_rows, c.pose) if len(self.active) == self.n else \
+                self.expand(distribute("pseudo_inverse", c.active_rows, out.wrench).tolist())
             return self._finish(c, forces, value, measured, error)
         if code > DISTRIBUTION_FAILED:
-            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench.tolist())
+            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, out.wrench)
         if code == FORCES_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: non-finite drive forces {forces.tolist()}", TripCause.KINEMATICS)
+            return self.trip(f"{cfg.strategy}: non-finite drive forces {out.forces}", TripCause.KINEMATICS)
         if code == WRENCH_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {wrench.tolist()}",
+            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {out.wrench}",
                              TripCause.KINEMATICS)
         return self.trip(*self.supervisor.limit_trip(code, index, value))
 
@@ -658,7 +611,8 @@ class ControllerCore:
                           reference=[1.0] * len(active_rows),
                           prestress_direction=c.prestress_direction or None).tolist()
 
-    def _expand(self, sub) -> list:
+    def expand(self, sub) -> list:
+        """Forces of the active drives -> forces of every drive (0 for a dropped one)."""
         if len(self.active) == self.n:
             return list(sub)
         out = [0.0] * self.n

@@ -1,0 +1,118 @@
+"""The compiled kernels of one cycle, by the machine's task coordinates (pure core, no
+rclpy), chosen once when the controller is made (no test of the task space in the
+cycle):
+
+- :class:`ThreeAxis`: planar (x, y, theta) and translational (x, y, z) machines:
+  laws.limits_kernel and laws.cartesian_command_kernel (the limits, the integral,
+  the law, the compiled distributions and the clamp in one call);
+- :class:`SixAxis`: spatial machines (x, y, z, a, b, c): the rates of a, b, c as a
+  twist, laws.spatial_limits_kernel and laws.spatial_command_kernel (the
+  pseudo-inverse compiled, the other distributions from the wrench it returns).
+
+Each answers the same four questions (``twists``, ``limits``, ``joint_feedforward``,
+``cartesian``); the controller core (controller.py) acts on the answers.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
+
+from .laws import (DIST_PSEUDO_INVERSE, LIMITS_OK, cartesian_command_kernel, limits_kernel, spatial_command_kernel,
+                   spatial_limits_kernel)
+
+__all__ = ["CartesianOutcome", "SixAxis", "ThreeAxis", "kernels_for"]
+
+
+class CartesianOutcome(NamedTuple):
+    """What a Cartesian command kernel returned: its code (laws.LIMITS_OK, a limits
+    code, FORCES_NOT_FINITE, WRENCH_NOT_FINITE, or DISTRIBUTION_FAILED + the
+    distribution's), the index and value it names (the translation error when OK),
+    the new integral state, the wrench (list), the drive forces (list, every drive;
+    meaningful when ``distributed``), the saturation count and the peak force."""
+    code: int
+    index: int
+    value: float
+    integral: object
+    wrench: list
+    forces: list
+    distributed: bool          # the kernel distributed and clamped the forces itself
+    saturated: int
+    peak: float
+
+
+class ThreeAxis:
+    """Planar and translational machines (3 task coordinates)."""
+
+    def __init__(self, model):
+        self.model = model
+        self.planar = model.task_space is PLANAR
+
+    def twists(self, x_d, v_d, a_d):
+        """The reference's rates as the laws take them: as they are."""
+        return v_d, a_d
+
+    def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
+        return limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows, tuple(error), self.planar,
+                             config.max_condition, config.following_error_m, config.following_error_rad)
+
+    def joint_feedforward(self, joint_mass, rows_d, a_d, bias_d) -> list:
+        """m_i (J a_d + Jdot v_d)_i per drive (ARCHI §3.4)."""
+        return [m * (j0 * a_d[0] + j1 * a_d[1] + j2 * a_d[2] + b)
+                for m, (j0, j1, j2), b in zip(joint_mass, rows_d, bias_d)]
+
+    def cartesian(self, core, c, measured, error) -> CartesianOutcome:
+        """laws.cartesian_command_kernel on the prepared cycle ``c``; with a drive dropped
+        the compiled pseudo-inverse distributes."""
+        cfg, tuned = core.config, core.tuned
+        full = len(core.active) == core.n
+        code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
+            c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
+            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, tuned.law,
+            tuned.law_gains, core.record.saturated == 0, core.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
+            c.v, tuple(c.a_d), core.distribution_code if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
+        distributed = bool(forces.shape[0])
+        return CartesianOutcome(code, index, value, integral, list(wrench),
+                                core.expand(forces.tolist()) if distributed else [], distributed, saturated, peak)
+
+
+class SixAxis:
+    """Spatial machines (x, y, z, a, b, c)."""
+
+    def __init__(self, model):
+        self.model = model
+        self.space = model.task_space
+
+    def twists(self, x_d, v_d, a_d):
+        """The rates of a, b, c -> the twist and its rate (w in the base frame)."""
+        return task_twists(self.space, x_d, v_d, a_d)
+
+    def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
+        return spatial_limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows,
+                                     self.model.characteristic_length_m, config.max_condition, tuple(error),
+                                     config.following_error_m, config.following_error_rad)
+
+    def joint_feedforward(self, joint_mass, rows_d, a_d, bias_d) -> list:
+        return (np.asarray(joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
+
+    def cartesian(self, core, c, measured, error) -> CartesianOutcome:
+        """laws.spatial_command_kernel on the prepared cycle ``c``: the pseudo-inverse
+        compiled with every drive and no prestress, else the wrench only."""
+        cfg, tuned = core.config, core.tuned
+        compiled = len(core.active) == core.n and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
+        code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
+            c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
+            self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
+            cfg.following_error_rad, tuned.law, tuned.law_gains, core.record.saturated == 0,
+            np.asarray(core.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
+            c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
+        return CartesianOutcome(code, index, value, tuple(integral.tolist()), wrench.tolist(), forces.tolist(),
+                                compiled and code == LIMITS_OK, saturated, peak)
+
+
+def kernels_for(model) -> ThreeAxis | SixAxis:
+    """The kernels of ``model``'s task coordinates."""
+    return SixAxis(model) if model.task_space is SPATIAL else ThreeAxis(model)
