@@ -117,8 +117,8 @@ def test_a_test_set_to_zero_is_off():
     from pkm_controller.controller import ControllerCore
     from pkm_kinematics import load_machine
     core = ControllerCore(load_machine("archi"), ControllerConfig(encoder_jump_m=0.0))
-    assert core.encoders.jump_m == float("inf") and core.encoders.freeze_m == 2e-4
-    assert ControllerCore(load_machine("archi"), ControllerConfig(encoder_jump_m=0.0, encoder_freeze_m=0.0)).encoders \
+    assert core.encoder_checks.encoders.jump_m == float("inf") and core.encoder_checks.encoders.freeze_m == 2e-4
+    assert ControllerCore(load_machine("archi"), ControllerConfig(encoder_jump_m=0.0, encoder_freeze_m=0.0)).encoder_checks.encoders \
         is None
 
 
@@ -173,7 +173,7 @@ def test_no_gough_false_alarm_in_a_healthy_move_under_a_load_step(machine_name):
     core, _, _, _ = move(machine_name, "sensor_space", "",
                          load=lambda t: [150.0, -100.0, 0.0] if t >= 0.2 else [0.0] * 3, **GOUGH_ONLY)
     assert not core.stopped, core.stop_reason
-    assert core.gough_check is not None and core.gough_check.bias is not None
+    assert core.encoder_checks.gough_check is not None and core.encoder_checks.gough_check.bias is not None
 
 
 def test_a_slip_under_encoder_gough_m_is_not_seen_by_the_gough():
@@ -184,8 +184,8 @@ def test_a_slip_under_encoder_gough_m_is_not_seen_by_the_gough():
 def test_the_gough_cross_check_is_off_at_zero_and_on_the_encoder_strategies():
     from pkm_controller.controller import ControllerCore
     machine = load_machine("mom3")
-    assert ControllerCore(machine, ControllerConfig(strategy="sensor_space", encoder_gough_m=0.0)).gough_check is None
-    assert ControllerCore(machine, ControllerConfig(strategy="computed_torque")).gough_check is None
+    assert ControllerCore(machine, ControllerConfig(strategy="sensor_space", encoder_gough_m=0.0)).encoder_checks.gough_check is None
+    assert ControllerCore(machine, ControllerConfig(strategy="computed_torque")).encoder_checks.gough_check is None
     with pytest.raises(ValueError, match="encoder_gough_m: must be in"):
         ControllerCore(machine, ControllerConfig(strategy="sensor_space", encoder_gough_m=-1.0))
 
@@ -265,5 +265,5 @@ def test_no_gough_false_alarm_with_a_noisy_gough():
                   Plant(machine, PlantParameters(force_limit_n=2000.0)), int(samples.duration_s * 1000) + 100,
                   reference=ref, sensor=GoughSensorModel(machine.metrology, noise_std_m=5e-6, seed=3))
     assert not core.stopped, core.stop_reason
-    rms = np.sqrt(core.gough_check.mean_square)       # the noise the cross-check sees, per drive
+    rms = np.sqrt(core.encoder_checks.gough_check.mean_square)       # the noise the cross-check sees, per drive
     assert (rms > 1e-6).all(), rms

@@ -1,6 +1,6 @@
 """A machine at rest stays at rest when its controller starts: the PID laws have no
 gravity term but their integral, which starts holding the nominal model's static forces
-(ControllerCore._holding_integral), and a change of law while holding does not drop the
+(pkm_controller.tuning.holding_integral), and a change of law while holding does not drop the
 load. Started at zero, the integral let every machine under a PID law fall 0.3-3.7 mm at power-on
 (ARCHI 4 mm at the panel's 8 Hz, a following-error trip with a few late commands in a
 suite's browser test; MoM3's joint PIDs tripped on a false encoder slip)."""

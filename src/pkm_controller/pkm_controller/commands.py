@@ -10,7 +10,9 @@ cycle):
   pseudo-inverse compiled, the other distributions from the wrench it returns).
 
 Each answers the same four questions (``twists``, ``limits``, ``joint_feedforward``,
-``cartesian``); the controller core (controller.py) acts on the answers.
+``cartesian``); the controller core (controller.py) acts on the answers. The joint
+strategies (``joint_command``) and the distributions that are not compiled
+(``distribute_wrench``) are written once for both.
 """
 
 from __future__ import annotations
@@ -19,12 +21,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pkm_kinematics.distribution import distribute, two_arm_gravity_internal_force
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
-from .laws import (DIST_PSEUDO_INVERSE, LIMITS_OK, cartesian_command_kernel, limits_kernel, spatial_command_kernel,
-                   spatial_limits_kernel)
+from .laws import (DIST_PSEUDO_INVERSE, LIMITS_OK, cartesian_command_kernel, joint_pid, limits_kernel,
+                   project_to_range, spatial_command_kernel, spatial_limits_kernel)
+from .strategies import Projection
 
-__all__ = ["CartesianOutcome", "SixAxis", "ThreeAxis", "kernels_for"]
+__all__ = ["CartesianOutcome", "SixAxis", "ThreeAxis", "distribute_wrench", "expand", "joint_command", "kernels_for"]
 
 
 class CartesianOutcome(NamedTuple):
@@ -116,3 +120,55 @@ class SixAxis:
 def kernels_for(model) -> ThreeAxis | SixAxis:
     """The kernels of ``model``'s task coordinates."""
     return SixAxis(model) if model.task_space is SPATIAL else ThreeAxis(model)
+
+
+def joint_command(model, kernels, tuned, config, projection: Projection, active: list, n: int, integral, c):
+    """joint_pid (ARCHI §4.1), decentralized_projected (Sliding Star eq. 6-8) and
+    decentralized_integral_projected (its Fig. 9) on the prepared cycle ``c``:
+    (the drive forces, before the clamp; the new integral state)."""
+    q, qdot, x_d, v_d, a_d, dt = c.q, c.qdot, c.x_d, c.v_d, c.a_d, c.dt
+    q_d, rows_d, qdot_d, bias_d = model.velocity_terms(x_d, v_d)
+    # acceleration feed-forward with the mass each drive sees, as industrial
+    # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
+    feedforward = kernels.joint_feedforward(tuned.joint_mass, rows_d, a_d, bias_d)
+    e = [a - b for a, b in zip(q_d, q)]
+    edot = [a - b for a, b in zip(qdot_d, qdot)]
+    limit = config.force_limit_n
+    integral = [min(limit, max(-limit, i + ki * ei * dt))
+                for i, ki, ei in zip(integral, tuned.joint_ki, e)]
+    active_rows = c.active_rows
+    if projection != Projection.NONE:
+        # the integral state in range(J): no wind-up along ker(J^T) (Sliding Star
+        # Fig. 9 projects only this component; eq. 8 the whole command below)
+        sub = project_to_range(active_rows, [integral[k] for k in active])
+        integral = [0.0] * n
+        for k, f in zip(active, sub):
+            integral[k] = f
+    n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, tuned.joint_kp, tuned.joint_kd), feedforward)]
+    if projection != Projection.FORCES:
+        return [n_d[k] if k in active else 0.0 for k in range(n)], integral
+    sub = project_to_range(active_rows, [n_d[k] for k in active])     # eq. 8
+    return expand(sub, active, n), integral
+
+
+def expand(sub, active: list, n: int) -> list:
+    """Forces of the ``active`` drives -> forces of all ``n`` (0 for a dropped one)."""
+    if len(active) == n:
+        return list(sub)
+    out = [0.0] * n
+    for k, f in zip(active, sub):
+        out[k] = f
+    return out
+
+
+def distribute_wrench(config, dynamics, model, wrench, active_rows, pose) -> list:
+    """The distributions that are not compiled (p_norm, two_arm, a prestress); all
+    drives active (a degraded machine uses the compiled pseudo-inverse)."""
+    internal = 0.0
+    if config.distribution == "two_arm_gravity":
+        p = dynamics.params
+        internal = two_arm_gravity_internal_force(p.platform_mass_kg, float(pose[2]), p.gravity_m_s2)
+    return distribute(config.distribution, active_rows, wrench, machine=model, pose=pose, p=config.p_norm,
+                      internal_force_n=internal, prestress_n=config.prestress_n,
+                      reference=[1.0] * len(active_rows),
+                      prestress_direction=config.prestress_direction or None).tolist()

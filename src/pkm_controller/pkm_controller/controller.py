@@ -41,74 +41,32 @@ far enough from singular.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from pkm_common.causes import TripCause
 from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import (distribute, internal_force, internal_force_rows,
-                                        raise_distribution_error,
-                                        two_arm_gravity_internal_force)
-from pkm_kinematics.dynamics import dynamic_model, holding_forces
+from pkm_kinematics.distribution import (distribute, raise_distribution_error)
+from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel,
-                   error_norms, gram_condition, joint_pid, project_to_range, task_pose_error, tool_pose_floats)
-from .commands import kernels_for
+                   error_norms, gram_condition, task_pose_error, tool_pose_floats)
+from .commands import distribute_wrench, expand, joint_command, kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig
-from .encoder_check import EncoderMonitor, GoughCrossCheck
+from .cycle import Cycle, CycleRecord
+from .encoder_check import EncoderChecks
 from .feed import FeedClock, scaled_reference
 from .reference import Reference
-from .strategies import Feedback, Law, Projection, strategy
+from .strategies import Feedback, strategy
 from .pose_estimation import PoseEstimator
 from .supervisor import Supervisor
-from .tuning import MachineTuning
+from .tuning import MachineTuning, holding_integral, zero_integral
 
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
-
-
-@dataclass
-class CycleRecord:
-    """What the last cycle saw and did (status, recording, tests)."""
-
-    time_s: float = 0.0
-    reference: tuple = (0.0, 0.0, 0.0)
-    measured: tuple = (0.0, 0.0, 0.0)        # the pose the strategy feeds back (task coordinates)
-    error: tuple = (0.0, 0.0, 0.0)
-    forces: tuple = ()
-    saturated: int = 0
-    rows: tuple = ()                         # J_m of the cycle (nominal model), (n, 3) array once run
-
-    @property
-    def internal_force_norm_n(self) -> float:
-        """|null-space part of the commands| (nominal model); computed when asked (status,
-        every status_decimation answers), not in the 1-2 kHz loop."""
-        rows = self.rows
-        if not len(rows) or len(rows) <= len(rows[0]) or len(self.forces) != len(rows):   # not run, no redundancy
-            return 0.0
-        if len(rows[0]) != 3:              # a spatial machine's n x 6
-            return float(np.linalg.norm(internal_force(rows, self.forces)))
-        return math.sqrt(sum(f * f for f in internal_force_rows(rows, self.forces)))
-
-
-class _Cycle:
-    """What ``prepare`` computed for the cycle ``complete`` finishes."""
-
-    __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model", "applied", "suspect", "held")
-
-    def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
-        # q as floats (the joint PIDs) and as the array the compiled kernels take
-        self.t_s, self.dt, self.first, self.q, self.q_array, self.qdot = t_s, dt, first, q, q_array, qdot
-        # J_m as the (n, 3) array measured_state made, and the rows of the active drives
-        self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
-        self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
-        self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
-        self.held = False          # the plant applied an older setpoint again in this period
 
 
 class ControllerCore:
@@ -175,7 +133,7 @@ class ControllerCore:
         same measurement (the graph's topics stay); the whole set validated like a
         start-up configuration. The integral state is kept when the law stays (a joint
         PID with or without the projection), else restarts holding the load where the
-        machine is (``_holding_integral``; zero for a model-based law). Returns the
+        machine is (tuning.holding_integral; zero for a model-based law). Returns the
         settings changed; ValueError (naming the field and its range), nothing changed."""
         if not isinstance(changes, dict) or not changes:
             raise ValueError("settings: expected a non-empty mapping of name: value")
@@ -199,7 +157,8 @@ class ControllerCore:
         integral = None                            # kept when the law stays
         if new_strategy.law != self.strategy.law:
             try:                                   # computed before anything changes
-                integral = self._holding_integral(self.pose, new_strategy.law, new.integral_time_s)
+                integral = holding_integral(self.dynamics, self.model, self.pose, new_strategy.law, new.integral_time_s,
+                                            self.active)
             except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
                 raise ValueError(f"strategy: {new.strategy} cannot take over holding at the measured pose: "
                                  f"{exc}") from None
@@ -211,32 +170,6 @@ class ControllerCore:
 
     def _home(self) -> list:
         return self.model.home.tolist()
-
-    def _zero_integral(self, law: Law | None = None):
-        """The integral state at zero, of ``law`` (default: the running one's shape):
-        per drive for the joint PIDs, per task axis otherwise."""
-        joint = (law or self.strategy.law) == Law.JOINT_PID
-        return [0.0] * self.n if joint else (0.0,) * self.dof
-
-    def _holding_integral(self, pose, law: Law, integral_time_s: float, rows=None):
-        """The integral state that holds the machine still at ``pose``: the nominal
-        model's static forces H(x, 0) (ARCHI §3.4), as drive forces of minimum 2-norm
-        (in range(J), where the projected PIDs keep their integral) for a joint PID, as
-        the task wrench for the Cartesian PID, as a drive holds its load before the
-        brake opens. These laws have no gravity term but their integral: started at
-        zero, the platform fell until the integral caught up (ARCHI at 20 Hz: 0.9 mm,
-        4 mm at the panel's 8 Hz, a following-error trip with a few late commands).
-        Zero for the model-based laws, whose H(x, v) holds it already, without an
-        integral (``integral_time_s`` 0: a P(D) law, as the paper's), and before the
-        first pose. ``rows``: J_m of the active drives at ``pose`` if known. Raises
-        KinematicsError (DistributionError) at a singular pose."""
-        if pose is None or integral_time_s == 0.0 or law not in (Law.JOINT_PID, Law.CARTESIAN_PID):
-            return self._zero_integral(law)
-        if law == Law.CARTESIAN_PID:
-            return tuple(float(w) for w in self.dynamics.static_forces(pose))
-        if rows is None:
-            rows = np.asarray(self.model.jacobian(pose), dtype=float)[self.active]
-        return [float(f) for f in self.expand(holding_forces(self.dynamics, rows, pose))]
 
     def _task_box(self) -> np.ndarray:
         """(lower, upper) per task axis the measured pose must stay in: the translation
@@ -251,16 +184,11 @@ class ControllerCore:
         self.pending: Reference | None = None
         self.estimator.reset()
         self.last_time_s = None
-        self._cycle: _Cycle | None = None        # prepared, waiting for complete()
-        self._gough_pending = None               # (q, Gough pose, suspect) of the last cycle, for the next prepare
+        self._cycle: Cycle | None = None        # prepared, waiting for complete()
         self.supervisor.reset()
-        self.integral = self._zero_integral()
+        self.integral = zero_integral(self.strategy.law, self.n, self.dof)
         c = self.config
-        self._no_forces = np.zeros(self.n)
-        self.encoders = EncoderMonitor(self.n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
-            if c.encoder_jump_m or c.encoder_freeze_m else None
-        self.gough_check = GoughCrossCheck(self.n, c.encoder_gough_m) \
-            if c.encoder_gough_m and self.strategy.uses_metrology else None
+        self.encoder_checks = EncoderChecks(self.model, self.names, c, self.strategy.uses_metrology)
         self.last_command = [0.0] * self.n
         # the last answers by the stamp (ns) of their state: a realtime plant may apply
         # one of them again (a held setpoint) and report the forces of that one
@@ -397,7 +325,9 @@ class ControllerCore:
         if problem is not None:
             self.trip(*problem)
             return False
-        if self._gough_pending is not None and not self._check_against_gough():
+        problem = self.encoder_checks.check_against_gough(self.failed)
+        if problem is not None:
+            self.trip(*problem)
             return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
@@ -424,18 +354,20 @@ class ControllerCore:
             self.trip(f"kinematics at the measured pose: {exc}", TripCause.KINEMATICS)
             return False
         active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
-        self._cycle = c = _Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
+        self._cycle = c = Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
         c.a_model, c.h_model, c.applied, c.held = a_model, h_model, applied, held is not None
         return first or self._prepare_reference(c)
 
-    def _prepare_reference(self, c: "_Cycle") -> bool:
+    def _prepare_reference(self, c: "Cycle") -> bool:
         """The reference of the cycle and what the strategy derives from it before the
         metrology arrives (sensor_space: l_des and J_h)."""
         tau, s, sdot = self.feed.advance(c.t_s)           # feed.py: the trajectory's time under the override
         c.x_d, c.v_d, c.a_d = scaled_reference(self.reference.sample(tau), s, sdot)
         c.v_d, c.a_d = self.kernels.twists(c.x_d, c.v_d, c.a_d)
-        if self.encoders is not None and not self._check_encoders(c):
+        problem = self.encoder_checks.check_cycle(c, self.supervisor.forces_mismatched, self.failed)
+        if problem is not None:
             self._cycle = None
+            self.trip(*problem)
             return False
         try:
             if self.strategy.feedback == Feedback.STRUTS:
@@ -445,58 +377,6 @@ class ControllerCore:
             self.trip(f"{self.strategy.name}: {exc}", TripCause.KINEMATICS)
             return False
         return True
-
-    def _check_encoders(self, c: "_Cycle") -> bool:
-        """encoder_check.EncoderMonitor on this cycle: the second difference of the
-        readings the dynamic model predicts from the forces the drives report,
-        J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
-        J_m v_d dt."""
-        applied = c.applied
-        if self.supervisor.forces_mismatched:       # the drive supervision saw it in this cycle
-            # a drive that does not apply its command (a brake engaging is an impulse the
-            # reported forces do not hold): the drive supervision's, not an encoder's
-            self.encoders.reset()
-            return True
-        drive, what = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
-                                          applied if applied is not None and len(applied) == self.n else
-                                          self._no_forces, c.v_d, c.dt, self.failed, setpoint_held=c.held)
-        if drive < 0:
-            return True
-        if self.gough_check is not None:
-            # judged with the Gough's view of the same cycle, at the next prepare
-            c.suspect = (drive, what, self.encoders.fault_size, self.encoders.fault_held)
-            return True
-        self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
-        return False
-
-    def _check_against_gough(self) -> bool:
-        """encoder_check.GoughCrossCheck on the last cycle's readings and Gough pose
-        (judged here, while the metrology of this cycle is on its way, not between it
-        and the command): each reading against q(x_g), the inverse kinematics of the
-        tool pose the Gough measured; then that cycle's suspect of the innovation
-        test, if any: a drive whose reading moved as the Gough saw the tool move has
-        stopped for real (a brake, a jam: the following error's and the drive
-        supervision's to name), not lost its encoder."""
-        (q, measured, suspect), self._gough_pending = self._gough_pending, None
-        check = self.gough_check
-        try:
-            q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
-        except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
-            q_gough = None
-        if q_gough is not None:
-            drive, what = check.check(q, q_gough, self.failed)
-            if drive >= 0:
-                self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
-                return False
-        if suspect is None:
-            return True
-        drive, what, size, held = suspect
-        if q_gough is not None and check.agrees(drive, size, held):
-            self.encoders.reset()
-            return True
-        # the Gough saw the drive move where its reading did not (or cannot tell): the encoder
-        self.trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
-        return False
 
     def complete(self, struts=None, metrology_pose=None) -> list:
         """The second half of the cycle ``prepare`` began: the feedback from the
@@ -517,17 +397,18 @@ class ControllerCore:
                 return list(self.last_command)
         try:
             if c.first:         # the PID laws start holding the load (a singular start pose trips here)
-                self.integral = self._holding_integral(c.pose, self.strategy.law, self.config.integral_time_s,
-                                                       c.active_rows)
+                self.integral = holding_integral(self.dynamics, self.model, c.pose, self.strategy.law,
+                                                 self.config.integral_time_s, self.active, c.active_rows)
             measured, error = self.estimator.measure(c.pose, c.x_d, struts, metrology_pose)
-            if self.gough_check is not None and not c.first:
-                self._gough_pending = (c.q_array, measured, c.suspect)    # judged in the next prepare
+            if not c.first:
+                self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)   # judged in the next prepare
             if not self.strategy.joint_space:
                 return self._cartesian_command(c, measured, error)
             problem, trans = self._check_limits(c.q_array, c.active_rows, measured, error)
             if problem:
                 return self.trip(*problem)
-            forces = self._joint_strategy(c)
+            forces, self.integral = joint_command(self.model, self.kernels, self.tuned, self.config,
+                                                  self.strategy.projection, self.active, self.n, self.integral, c)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             return self.trip(f"{self.config.strategy}: {exc}", TripCause.KINEMATICS)
         return self._finish(c, forces, trans, measured, error)
@@ -545,36 +426,7 @@ class ControllerCore:
             except ValueError as exc:              # refused, reported; the machine holds
                 self.faults.append(str(exc))
 
-    def _joint_strategy(self, c: "_Cycle") -> list:
-        """joint_pid (ARCHI §4.1), decentralized_projected (Sliding Star eq. 6-8) and
-        decentralized_integral_projected (its Fig. 9)."""
-        q, qdot, x_d, v_d, a_d, dt = c.q, c.qdot, c.x_d, c.v_d, c.a_d, c.dt
-        q_d, rows_d, qdot_d, bias_d = self.model.velocity_terms(x_d, v_d)
-        # acceleration feed-forward with the mass each drive sees, as industrial
-        # drives have: qddot_d = J a_d + Jdot v_d (ARCHI §3.4)
-        feedforward = self.kernels.joint_feedforward(self.tuned.joint_mass, rows_d, a_d, bias_d)
-        e = [a - b for a, b in zip(q_d, q)]
-        edot = [a - b for a, b in zip(qdot_d, qdot)]
-        limit = self.config.force_limit_n
-        integral = [min(limit, max(-limit, i + ki * ei * dt))
-                    for i, ki, ei in zip(self.integral, self.tuned.joint_ki, e)]
-        active_rows = c.active_rows
-        projection = self.strategy.projection
-        if projection != Projection.NONE:
-            # the integral state in range(J): no wind-up along ker(J^T) (Sliding Star
-            # Fig. 9 projects only this component; eq. 8 the whole command below)
-            sub = project_to_range(active_rows, [integral[k] for k in self.active])
-            integral = [0.0] * self.n
-            for k, f in zip(self.active, sub):
-                integral[k] = f
-        self.integral = integral
-        n_d = [f + ff for f, ff in zip(joint_pid(e, edot, integral, self.tuned.joint_kp, self.tuned.joint_kd), feedforward)]
-        if projection != Projection.FORCES:
-            return [n_d[k] if k in self.active else 0.0 for k in range(self.n)]
-        sub = project_to_range(active_rows, [n_d[k] for k in self.active])     # eq. 8
-        return self.expand(sub)
-
-    def _cartesian_command(self, c: "_Cycle", measured, error) -> list:
+    def _cartesian_command(self, c: "Cycle", measured, error) -> list:
         """The Cartesian strategies after the feedback: limits, integral, law (Sliding
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
         call (commands.py, by task space); the distributions it does not compile
@@ -586,7 +438,8 @@ class ControllerCore:
         if code == LIMITS_OK and out.distributed:
             return self._accept(c, out.forces, out.saturated, out.peak, value, measured, error)
         if code == LIMITS_OK:
-            forces = self._distribute(out.wrench, c.active_rows, c.pose) if len(self.active) == self.n else \
+            forces = distribute_wrench(cfg, self.dynamics, self.model, out.wrench, c.active_rows, c.pose) \
+                if len(self.active) == self.n else \
                 self.expand(distribute("pseudo_inverse", c.active_rows, out.wrench).tolist())
             return self._finish(c, forces, value, measured, error)
         if code > DISTRIBUTION_FAILED:
@@ -598,29 +451,11 @@ class ControllerCore:
                              TripCause.KINEMATICS)
         return self.trip(*self.supervisor.limit_trip(code, index, value))
 
-    def _distribute(self, wrench, active_rows, pose) -> list:
-        """The distributions that are not compiled (p_norm, two_arm, a prestress); all
-        drives active (a degraded machine uses the compiled pseudo-inverse)."""
-        c = self.config
-        internal = 0.0
-        if c.distribution == "two_arm_gravity":
-            p = self.dynamics.params
-            internal = two_arm_gravity_internal_force(p.platform_mass_kg, float(pose[2]), p.gravity_m_s2)
-        return distribute(c.distribution, active_rows, wrench, machine=self.model, pose=pose, p=c.p_norm,
-                          internal_force_n=internal, prestress_n=c.prestress_n,
-                          reference=[1.0] * len(active_rows),
-                          prestress_direction=c.prestress_direction or None).tolist()
-
     def expand(self, sub) -> list:
         """Forces of the active drives -> forces of every drive (0 for a dropped one)."""
-        if len(self.active) == self.n:
-            return list(sub)
-        out = [0.0] * self.n
-        for k, f in zip(self.active, sub):
-            out[k] = f
-        return out
+        return expand(sub, self.active, self.n)
 
-    def _finish(self, c: "_Cycle", forces, trans, measured, error) -> list:
+    def _finish(self, c: "Cycle", forces, trans, measured, error) -> list:
         """Clamp the forces of the strategies computed in Python, then ``_accept``."""
         clamped, saturated, peak, finite = clamp_forces_kernel(np.array(forces, dtype=float),
                                                                self.config.force_limit_n)
@@ -628,7 +463,7 @@ class ControllerCore:
             return self.trip(f"{self.config.strategy}: non-finite drive forces {forces}", TripCause.KINEMATICS)
         return self._accept(c, clamped.tolist(), saturated, peak, trans, measured, error)
 
-    def _accept(self, c: "_Cycle", forces, saturated, peak, trans, measured, error) -> list:
+    def _accept(self, c: "Cycle", forces, saturated, peak, trans, measured, error) -> list:
         """The clamped command of the cycle: the saturation supervisor, the statistics,
         the record."""
         problem = self.supervisor.check_saturation(c.t_s, saturated)

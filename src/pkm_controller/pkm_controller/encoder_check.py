@@ -36,9 +36,13 @@ import math
 
 import numpy as np
 
+from pkm_common.causes import TripCause
+from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.jit import kernel
 
-__all__ = ["EncoderMonitor", "GoughCrossCheck"]
+from .supervisor import Trip
+
+__all__ = ["EncoderChecks", "EncoderMonitor", "GoughCrossCheck"]
 
 BIAS_GAIN = 0.2             # of the unexplained acceleration's low-pass (time constant ~5 cycles)
 NOISE_GAIN = 0.01           # of the innovation's running mean square (~100 cycles)
@@ -310,3 +314,78 @@ class GoughCrossCheck:
             return -1, ""
         return i, (f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position the "
                    f"measured tool pose gives, {self.over[i]} cycles running (encoder_gough_m {self.jump_m:g})")
+
+
+class EncoderChecks:
+    """A controller's encoder checks, each returning a supervisor.Trip or None: the
+    innovation test of every cycle (:class:`EncoderMonitor`, when encoder_jump_m or
+    encoder_freeze_m is set) and, for a metrology strategy, the Gough's view of the
+    same cycle (:class:`GoughCrossCheck`, encoder_gough_m), judged at the next one."""
+
+    def __init__(self, model, names: list, config, uses_metrology: bool):
+        c, n = config, len(names)
+        self.model, self.names = model, names
+        self.encoders = EncoderMonitor(n, c.encoder_jump_m or math.inf, c.encoder_freeze_m or math.inf) \
+            if c.encoder_jump_m or c.encoder_freeze_m else None
+        self.gough_check = GoughCrossCheck(n, c.encoder_gough_m) \
+            if c.encoder_gough_m and uses_metrology else None
+        self.pending = None                # (q, Gough pose, suspect) of the last cycle, for the next prepare
+        self._no_forces = np.zeros(n)
+
+    def check_cycle(self, c, forces_mismatched: bool, failed: dict) -> Trip | None:
+        """EncoderMonitor on the prepared cycle ``c``: the second difference of the
+        readings the dynamic model predicts from the forces the drives report,
+        J_m A^-1 (J_m^T f - H) dt^2, and the displacement the reference asked for,
+        J_m v_d dt. With a Gough cross-check a suspect is kept on ``c`` for it."""
+        if self.encoders is None:
+            return None
+        applied = c.applied
+        if forces_mismatched:             # the drive supervision saw it in this cycle
+            # a drive that does not apply its command (a brake engaging is an impulse the
+            # reported forces do not hold): the drive supervision's, not an encoder's
+            self.encoders.reset()
+            return None
+        drive, what = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
+                                          applied if applied is not None and len(applied) == len(self.names) else
+                                          self._no_forces, c.v_d, c.dt, failed, setpoint_held=c.held)
+        if drive < 0:
+            return None
+        if self.gough_check is not None:
+            # judged with the Gough's view of the same cycle, at the next prepare
+            c.suspect = (drive, what, self.encoders.fault_size, self.encoders.fault_held)
+            return None
+        return Trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+
+    def keep_for_gough(self, q, measured, suspect) -> None:
+        """The readings of a cycle and the Gough's pose of it, judged at the next prepare."""
+        if self.gough_check is not None:
+            self.pending = (q, measured, suspect)
+
+    def check_against_gough(self, failed: dict) -> Trip | None:
+        """GoughCrossCheck on the last cycle's readings and Gough pose (judged while the
+        metrology of this cycle is on its way, not between it and the command): each
+        reading against q(x_g), the inverse kinematics of the tool pose the Gough
+        measured; then that cycle's suspect of the innovation test, if any: a drive
+        whose reading moved as the Gough saw the tool move has stopped for real (a
+        brake, a jam: the following error's and the drive supervision's to name), not
+        lost its encoder."""
+        if self.pending is None:
+            return None
+        (q, measured, suspect), self.pending = self.pending, None
+        check = self.gough_check
+        try:
+            q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
+        except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
+            q_gough = None
+        if q_gough is not None:
+            drive, what = check.check(q, q_gough, failed)
+            if drive >= 0:
+                return Trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+        if suspect is None:
+            return None
+        drive, what, size, held = suspect
+        if q_gough is not None and check.agrees(drive, size, held):
+            self.encoders.reset()
+            return None
+        # the Gough saw the drive move where its reading did not (or cannot tell): the encoder
+        return Trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)

@@ -1,0 +1,53 @@
+"""The records of one control cycle (pure core): :class:`Cycle`, what ``prepare``
+computed on the drive state for ``complete`` to finish (ControllerCore), and
+:class:`CycleRecord`, what the last cycle saw and did (status, recording, tests).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pkm_kinematics.distribution import internal_force, internal_force_rows
+
+
+@dataclass
+class CycleRecord:
+    """What the last cycle saw and did (status, recording, tests)."""
+
+    time_s: float = 0.0
+    reference: tuple = (0.0, 0.0, 0.0)
+    measured: tuple = (0.0, 0.0, 0.0)        # the pose the strategy feeds back (task coordinates)
+    error: tuple = (0.0, 0.0, 0.0)
+    forces: tuple = ()
+    saturated: int = 0
+    rows: tuple = ()                         # J_m of the cycle (nominal model), (n, 3) array once run
+
+    @property
+    def internal_force_norm_n(self) -> float:
+        """|null-space part of the commands| (nominal model); computed when asked (status,
+        every status_decimation answers), not in the 1-2 kHz loop."""
+        rows = self.rows
+        if not len(rows) or len(rows) <= len(rows[0]) or len(self.forces) != len(rows):   # not run, no redundancy
+            return 0.0
+        if len(rows[0]) != 3:              # a spatial machine's n x 6
+            return float(np.linalg.norm(internal_force(rows, self.forces)))
+        return math.sqrt(sum(f * f for f in internal_force_rows(rows, self.forces)))
+
+
+class Cycle:
+    """What ``prepare`` computed for the cycle ``complete`` finishes."""
+
+    __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
+                 "a_d", "a_model", "h_model", "applied", "suspect", "held")
+
+    def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
+        # q as floats (the joint PIDs) and as the array the compiled kernels take
+        self.t_s, self.dt, self.first, self.q, self.q_array, self.qdot = t_s, dt, first, q, q_array, qdot
+        # J_m as the (n, 3) array measured_state made, and the rows of the active drives
+        self.pose, self.rows, self.active_rows, self.v = pose, rows, active_rows, v
+        self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
+        self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
+        self.held = False          # the plant applied an older setpoint again in this period
