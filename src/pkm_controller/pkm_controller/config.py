@@ -7,7 +7,7 @@ machine can say is :mod:`pkm_controller.tuning`'s). Pure, no rclpy.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from pkm_kinematics.distribution import METHODS, TWO_ARM
 
@@ -108,6 +108,19 @@ class ControllerConfig:
             if not ok:
                 raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
 
+    def with_changes(self, changes: dict) -> "ControllerConfig":
+        """This configuration with ``changes`` of ``RUNTIME_SETTINGS`` (numbers as floats);
+        ValueError naming the field for a name that is not a runtime setting or a value
+        of the wrong kind. The ranges are checked by whoever applies it (validate, and
+        the machine's tuning.MachineTuning.check)."""
+        check_runtime_names(changes)
+        for name, value in changes.items():
+            default = getattr(ControllerConfig, name)
+            if isinstance(default, str) != isinstance(value, str) or isinstance(value, bool):
+                raise ValueError(f"{name}: must be a {'name' if isinstance(default, str) else 'number'}, "
+                                 f"got {value!r}")
+        return replace(self, **{k: (v if isinstance(v, str) else float(v)) for k, v in changes.items()})
+
     @classmethod
     def from_dict(cls, values: dict) -> "ControllerConfig":
         known = {f.name for f in fields(cls)}
@@ -115,3 +128,13 @@ class ControllerConfig:
         if unknown:
             raise ValueError(f"{unknown[0]}: unknown controller parameter (known: {sorted(known)})")
         return cls(**values)
+
+
+def check_runtime_names(changes) -> None:
+    """``changes`` is a non-empty mapping of runtime settings (ValueError naming the first
+    that is not one)."""
+    if not isinstance(changes, dict) or not changes:
+        raise ValueError("settings: expected a non-empty mapping of name: value")
+    unknown = sorted(set(changes) - set(RUNTIME_SETTINGS))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: cannot be changed while running (can: {list(RUNTIME_SETTINGS)})")

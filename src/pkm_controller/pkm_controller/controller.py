@@ -41,7 +41,6 @@ far enough from singular.
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 
@@ -54,16 +53,16 @@ from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel,
-                   error_norms, gram_condition, task_pose_error, tool_pose_floats)
+                   error_norms, gram_condition, tool_pose_floats)
 from .commands import distribute_wrench, expand, joint_command, kernels_for
-from .config import RUNTIME_SETTINGS, ControllerConfig
+from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
 from .cycle import Cycle, CycleRecord
 from .encoder_check import EncoderChecks
-from .feed import FeedClock, scaled_reference
 from .reference import Reference
 from .strategies import Feedback, strategy
 from .pose_estimation import PoseEstimator
 from .supervisor import Supervisor
+from .tracking import ReferenceTracker
 from .tuning import MachineTuning, holding_integral, zero_integral
 
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
@@ -135,19 +134,10 @@ class ControllerCore:
         PID with or without the projection), else restarts holding the load where the
         machine is (tuning.holding_integral; zero for a model-based law). Returns the
         settings changed; ValueError (naming the field and its range), nothing changed."""
-        if not isinstance(changes, dict) or not changes:
-            raise ValueError("settings: expected a non-empty mapping of name: value")
-        unknown = sorted(set(changes) - set(RUNTIME_SETTINGS))
-        if unknown:
-            raise ValueError(f"{unknown[0]}: cannot be changed while running (can: {list(RUNTIME_SETTINGS)})")
+        check_runtime_names(changes)
         if self.stopped:
             raise ValueError(f"settings refused: the controller is stopped ({self.stop_reason})")
-        for name, value in changes.items():
-            default = getattr(ControllerConfig, name)
-            if isinstance(default, str) != isinstance(value, str) or isinstance(value, bool):
-                raise ValueError(f"{name}: must be a {'name' if isinstance(default, str) else 'number'}, "
-                                 f"got {value!r}")
-        new = replace(self.config, **{k: (v if isinstance(v, str) else float(v)) for k, v in changes.items()})
+        new = self.config.with_changes(changes)
         self.tuning.check(new)
         new_strategy = strategy(new.strategy)
         if new_strategy.feedback != self.strategy.feedback:
@@ -179,9 +169,7 @@ class ControllerCore:
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
-        self.reference: Reference | None = None
-        self.feed = FeedClock()                  # the trajectory's time under the feed override
-        self.pending: Reference | None = None
+        self.tracker = ReferenceTracker(self.space, self.config.start_tolerance_m, self.config.start_tolerance_rad)
         self.estimator.reset()
         self.last_time_s = None
         self._cycle: Cycle | None = None        # prepared, waiting for complete()
@@ -239,12 +227,16 @@ class ControllerCore:
     # ------------------------------------------------------------ trajectory
     @property
     def mode(self) -> str:
-        if self.stopped:
-            return "stopped"
-        if self.reference is None or self.reference.duration_s == 0.0:
-            return "holding"
-        return "tracking" if self.last_time_s is not None and \
-            self.feed.peek(self.last_time_s) < self.reference.duration_s else "holding"
+        return "stopped" if self.stopped else self.tracker.mode(self.last_time_s)
+
+    @property
+    def reference(self) -> Reference | None:
+        return self.tracker.reference
+
+    @property
+    def feed(self):
+        """The trajectory's time under the feed override (feed.FeedClock)."""
+        return self.tracker.feed
 
     def set_trajectory(self, reference: Reference, now_s: float | None = None) -> None:
         """Start ``reference`` at ``now_s`` (the time of the next state; None: at the next
@@ -254,26 +246,7 @@ class ControllerCore:
             raise ValueError(f"trajectory refused: the controller is stopped ({self.stop_reason})")
         if self.mode == "tracking":
             raise ValueError("trajectory refused: another trajectory is running")
-        if self.reference is None:               # no state yet: checked at the first cycle
-            self.pending = reference
-            return
-        now = self.last_time_s if now_s is None else now_s
-        current, _, _ = self.reference.sample(self.feed.peek(now))
-        self._check_start(reference, current)
-        self.reference = reference
-        self.feed.restart(now)
-
-    def _check_start(self, reference: Reference, current) -> None:
-        if len(reference.start) != self.dof:
-            raise ValueError(f"trajectory refused: {len(reference.start)} task coordinates, this machine has "
-                             f"{self.dof} ({self.space.describe()})")
-        dist, angle = error_norms(task_pose_error(reference.start, current, self.space), self.space)
-        if dist > self.config.start_tolerance_m or angle > self.config.start_tolerance_rad:
-            raise ValueError(f"trajectory refused: it starts at {[round(v, 6) for v in reference.start]}, "
-                             f"{dist * 1e3:.3f} mm / {angle:.4f} rad from the "
-                             f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
-                             f"{self.config.start_tolerance_m:g}, start_tolerance_rad "
-                             f"{self.config.start_tolerance_rad:g})")
+        self.tracker.set_trajectory(reference, self.last_time_s if now_s is None else now_s)
 
     # ----------------------------------------------------------------- safety
     def trip(self, reason: str, cause: TripCause) -> list:
@@ -361,8 +334,7 @@ class ControllerCore:
     def _prepare_reference(self, c: "Cycle") -> bool:
         """The reference of the cycle and what the strategy derives from it before the
         metrology arrives (sensor_space: l_des and J_h)."""
-        tau, s, sdot = self.feed.advance(c.t_s)           # feed.py: the trajectory's time under the override
-        c.x_d, c.v_d, c.a_d = scaled_reference(self.reference.sample(tau), s, sdot)
+        c.x_d, c.v_d, c.a_d = self.tracker.sample(c.t_s)
         c.v_d, c.a_d = self.kernels.twists(c.x_d, c.v_d, c.a_d)
         problem = self.encoder_checks.check_cycle(c, self.supervisor.forces_mismatched, self.failed)
         if problem is not None:
@@ -415,16 +387,12 @@ class ControllerCore:
 
     def _start(self, pose, struts, metrology_pose) -> None:
         """First cycle: hold where the machine is (as the strategy measures it), then
-        start a trajectory that arrived before the first state."""
-        self.reference = Reference.hold(self.estimator.hold_pose(self.strategy.feedback, pose, struts,
-                                                                 metrology_pose))
-        self.feed.restart(self.last_time_s)
-        if self.pending is not None:
-            pending, self.pending = self.pending, None
-            try:
-                self.set_trajectory(pending, self.last_time_s)
-            except ValueError as exc:              # refused, reported; the machine holds
-                self.faults.append(str(exc))
+        start a trajectory that arrived before the first state (refused: reported,
+        the machine holds)."""
+        refused = self.tracker.hold(self.estimator.hold_pose(self.strategy.feedback, pose, struts, metrology_pose),
+                                    self.last_time_s)
+        if refused:
+            self.faults.append(refused)
 
     def _cartesian_command(self, c: "Cycle", measured, error) -> list:
         """The Cartesian strategies after the feedback: limits, integral, law (Sliding
