@@ -56,7 +56,7 @@ from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORC
                    error_norms, gram_condition, tool_pose_floats)
 from .commands import distribute_wrench, expand, joint_command, kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
-from .cycle import Cycle, CycleRecord
+from .cycle import AnswerLog, Cycle, CycleRecord
 from .encoder_check import EncoderChecks
 from .reference import Reference
 from .strategies import Feedback, strategy
@@ -180,7 +180,7 @@ class ControllerCore:
         self.last_command = [0.0] * self.n
         # the last answers by the stamp (ns) of their state: a realtime plant may apply
         # one of them again (a held setpoint) and report the forces of that one
-        self._answers: dict[int, list] = {}
+        self.answers = AnswerLog(ANSWERS_KEPT)
         self.cycles = 0
         self.peak_force_n = 0.0
         self.max_error_m = 0.0
@@ -314,7 +314,7 @@ class ControllerCore:
         if first:       # until a cycle has a reference of its own, the machine is asked to stay where it is
             self.record.reference = self.record.measured = tuple(float(v) for v in pose)
         self.supervisor.forces_mismatched = False
-        commanded = self.last_command if held is None else self._answers.get(held)
+        commanded = self.last_command if held is None else self.answers.get(held)
         if applied is not None and len(applied) and not first and commanded is not None:
             problem = self.supervisor.check_drives(list(applied), commanded, self.pose)
             if problem is not None:
@@ -439,19 +439,13 @@ class ControllerCore:
             return self.trip(*problem)
         self.cycles += 1
         self.last_command = forces
-        self._keep_answer(c.t_s, forces)
+        self.answers.keep(round(c.t_s * 1e9), forces)
         self.peak_force_n = max(self.peak_force_n, peak)
         self.max_error_m = max(self.max_error_m, trans)
         r = self.record
         r.time_s, r.reference, r.measured, r.error = c.t_s, tuple(c.x_d), tuple(measured), tuple(error)
         r.forces, r.saturated, r.rows = tuple(forces), saturated, c.rows
         return forces
-
-    def _keep_answer(self, t_s: float, forces) -> None:
-        answers = self._answers
-        if len(answers) >= ANSWERS_KEPT:
-            del answers[next(iter(answers))]          # the oldest (insertion order)
-        answers[round(t_s * 1e9)] = forces
 
     # ----------------------------------------------------------------- status
     def status(self) -> tuple[int, str, dict]:

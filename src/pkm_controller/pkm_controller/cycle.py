@@ -1,6 +1,7 @@
 """The records of one control cycle (pure core): :class:`Cycle`, what ``prepare``
-computed on the drive state for ``complete`` to finish (ControllerCore), and
-:class:`CycleRecord`, what the last cycle saw and did (status, recording, tests).
+computed on the drive state for ``complete`` to finish (ControllerCore);
+:class:`CycleRecord`, what the last cycle saw and did (status, recording, tests);
+:class:`AnswerLog`, the last answers by the stamp of their state.
 """
 
 from __future__ import annotations
@@ -51,3 +52,22 @@ class Cycle:
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
         self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
         self.held = False          # the plant applied an older setpoint again in this period
+
+
+class AnswerLog:
+    """The last ``size`` answers by the stamp (ns) of the state they answered: a realtime
+    plant may apply one of them again (a held setpoint) and report the forces of
+    that one (ControllerCore.prepare's ``held``)."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._answers: dict[int, list] = {}
+
+    def keep(self, stamp_ns: int, forces: list) -> None:
+        answers = self._answers
+        if len(answers) >= self.size:
+            del answers[next(iter(answers))]          # the oldest (insertion order)
+        answers[stamp_ns] = forces
+
+    def get(self, stamp_ns: int) -> list | None:
+        return self._answers.get(stamp_ns)
