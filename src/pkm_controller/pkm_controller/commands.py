@@ -35,13 +35,14 @@ class CartesianOutcome(NamedTuple):
     """What a Cartesian command kernel returned: its code (laws.LIMITS_OK, a limits
     code, FORCES_NOT_FINITE, WRENCH_NOT_FINITE, or DISTRIBUTION_FAILED + the
     distribution's), the index and value it names (the translation error when OK),
-    the new integral state, the wrench (list), the drive forces (list, every drive;
+    the new integral state, the wrench (the kernel's array: ``wrench_list`` of the
+    kernels reads it as the messages show it), the drive forces (list, every drive;
     meaningful when ``distributed``), the saturation count and the peak force."""
     code: int
     index: int
     value: float
     integral: object
-    wrench: list
+    wrench: np.ndarray
     forces: list
     distributed: bool          # the kernel distributed and clamped the forces itself
     saturated: int
@@ -59,6 +60,10 @@ class ThreeAxis:
         """The reference's rates as the laws take them: as they are."""
         return v_d, a_d
 
+    @staticmethod
+    def wrench_list(wrench) -> list:
+        return list(wrench)
+
     def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
         return limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows, tuple(error), self.planar,
                              config.max_condition, config.following_error_m, config.following_error_rad)
@@ -72,14 +77,14 @@ class ThreeAxis:
         """laws.cartesian_command_kernel on the prepared cycle ``c``; with a drive dropped
         the compiled pseudo-inverse distributes."""
         cfg, tuned = core.config, core.tuned
-        full = len(core.active) == core.n
+        full = len(core.supervisor.active) == core.n
         code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
             c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
             tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, tuned.law,
             tuned.law_gains, core.record.saturated == 0, core.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
             c.v, tuple(c.a_d), core.distribution_code if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
         distributed = bool(forces.shape[0])
-        return CartesianOutcome(code, index, value, integral, list(wrench),
+        return CartesianOutcome(code, index, value, integral, wrench,
                                 core.expand(forces.tolist()) if distributed else [], distributed, saturated, peak)
 
 
@@ -94,6 +99,10 @@ class SixAxis:
         """The rates of a, b, c -> the twist and its rate (w in the base frame)."""
         return task_twists(self.space, x_d, v_d, a_d)
 
+    @staticmethod
+    def wrench_list(wrench) -> list:
+        return wrench.tolist()
+
     def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
         return spatial_limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows,
                                      self.model.characteristic_length_m, config.max_condition, tuple(error),
@@ -106,14 +115,14 @@ class SixAxis:
         """laws.spatial_command_kernel on the prepared cycle ``c``: the pseudo-inverse
         compiled with every drive and no prestress, else the wrench only."""
         cfg, tuned = core.config, core.tuned
-        compiled = len(core.active) == core.n and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
+        compiled = len(core.supervisor.active) == core.n and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
         code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
             c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
             self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
             cfg.following_error_rad, tuned.law, tuned.law_gains, core.record.saturated == 0,
             np.asarray(core.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
             c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
-        return CartesianOutcome(code, index, value, tuple(integral.tolist()), wrench.tolist(), forces.tolist(),
+        return CartesianOutcome(code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
                                 compiled and code == LIMITS_OK, saturated, peak)
 
 

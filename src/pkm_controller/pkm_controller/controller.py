@@ -290,18 +290,20 @@ class ControllerCore:
         forces with the command of that stamp, and skips the cycle (its counts neither
         grow nor restart) when it does not know it (HELD_COMMAND_UNKNOWN, or older than
         the answers it keeps)."""
+        sup = self.supervisor
         self._cycle = None
-        if self.stopped:
-            self.trip(self.stop_reason, self.stop_cause)
+        if sup.stopped:
+            self.trip(sup.stop_reason, sup.stop_cause)
             return False
-        problem = self.supervisor.check_state(q, qdot, applied)
+        problem = sup.check_state(q, qdot, applied)
         if problem is not None:
             self.trip(*problem)
             return False
-        problem = self.encoder_checks.check_against_gough(self.failed)
-        if problem is not None:
-            self.trip(*problem)
-            return False
+        if self.encoder_checks.pending is not None:     # the last cycle's readings, for the Gough to judge
+            problem = self.encoder_checks.check_against_gough(sup.failed)
+            if problem is not None:
+                self.trip(*problem)
+                return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None
@@ -313,10 +315,10 @@ class ControllerCore:
             return False
         if first:       # until a cycle has a reference of its own, the machine is asked to stay where it is
             self.record.reference = self.record.measured = tuple(float(v) for v in pose)
-        self.supervisor.forces_mismatched = False
+        sup.forces_mismatched = False
         commanded = self.last_command if held is None else self.answers.get(held)
         if applied is not None and len(applied) and not first and commanded is not None:
-            problem = self.supervisor.check_drives(list(applied), commanded, self.pose)
+            problem = sup.check_drives(list(applied), commanded, self.estimator.pose)
             if problem is not None:
                 self.trip(*problem)
                 return False
@@ -326,7 +328,7 @@ class ControllerCore:
         except (KinematicsError, ValueError) as exc:
             self.trip(f"kinematics at the measured pose: {exc}", TripCause.KINEMATICS)
             return False
-        active_rows = rows_a if len(self.active) == self.n else rows_a[self.active]
+        active_rows = rows_a if len(sup.active) == self.n else rows_a[sup.active]
         self._cycle = c = Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
         c.a_model, c.h_model, c.applied, c.held = a_model, h_model, applied, held is not None
         return first or self._prepare_reference(c)
@@ -334,13 +336,15 @@ class ControllerCore:
     def _prepare_reference(self, c: "Cycle") -> bool:
         """The reference of the cycle and what the strategy derives from it before the
         metrology arrives (sensor_space: l_des and J_h)."""
+        sup = self.supervisor
         c.x_d, c.v_d, c.a_d = self.tracker.sample(c.t_s)
         c.v_d, c.a_d = self.kernels.twists(c.x_d, c.v_d, c.a_d)
-        problem = self.encoder_checks.check_cycle(c, self.supervisor.forces_mismatched, self.failed)
-        if problem is not None:
-            self._cycle = None
-            self.trip(*problem)
-            return False
+        if self.encoder_checks.encoders is not None:
+            problem = self.encoder_checks.check_cycle(c, sup.forces_mismatched, sup.failed)
+            if problem is not None:
+                self._cycle = None
+                self.trip(*problem)
+                return False
         try:
             if self.strategy.feedback == Feedback.STRUTS:
                 self.metrology.prepare(*tool_pose_floats(c.x_d, self.planar))
@@ -355,12 +359,13 @@ class ControllerCore:
         metrology (sensor_space: the strut lengths; measured_space: the Gough pose;
         ignored by the encoder strategies), the limits, the control law and the force
         distribution. Returns the drive forces (N) for the next period."""
+        sup = self.supervisor
         c, self._cycle = self._cycle, None
-        if self.stopped:
-            return self.trip(self.stop_reason, self.stop_cause)
+        if sup.stopped:
+            return self.trip(sup.stop_reason, sup.stop_cause)
         if c is None:
             raise RuntimeError("ControllerCore.complete: no cycle prepared (call prepare() first)")
-        problem = self.supervisor.check_metrology(self.strategy.feedback, struts, metrology_pose)
+        problem = sup.check_metrology(self.strategy.feedback, struts, metrology_pose)
         if problem is not None:
             return self.trip(*problem)
         if c.first:
@@ -370,7 +375,7 @@ class ControllerCore:
         try:
             if c.first:         # the PID laws start holding the load (a singular start pose trips here)
                 self.integral = holding_integral(self.dynamics, self.model, c.pose, self.strategy.law,
-                                                 self.config.integral_time_s, self.active, c.active_rows)
+                                                 self.config.integral_time_s, sup.active, c.active_rows)
             measured, error = self.estimator.measure(c.pose, c.x_d, struts, metrology_pose)
             if not c.first:
                 self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)   # judged in the next prepare
@@ -380,7 +385,7 @@ class ControllerCore:
             if problem:
                 return self.trip(*problem)
             forces, self.integral = joint_command(self.model, self.kernels, self.tuned, self.config,
-                                                  self.strategy.projection, self.active, self.n, self.integral, c)
+                                                  self.strategy.projection, sup.active, self.n, self.integral, c)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
             return self.trip(f"{self.config.strategy}: {exc}", TripCause.KINEMATICS)
         return self._finish(c, forces, trans, measured, error)
@@ -392,13 +397,14 @@ class ControllerCore:
         refused = self.tracker.hold(self.estimator.hold_pose(self.strategy.feedback, pose, struts, metrology_pose),
                                     self.last_time_s)
         if refused:
-            self.faults.append(refused)
+            self.supervisor.faults.append(refused)
 
     def _cartesian_command(self, c: "Cycle", measured, error) -> list:
         """The Cartesian strategies after the feedback: limits, integral, law (Sliding
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
         call (commands.py, by task space); the distributions it does not compile
         distribute the wrench it returns with numpy."""
+        sup = self.supervisor
         cfg = self.config
         out = self.kernels.cartesian(self, c, measured, error)
         self.integral = out.integral
@@ -406,22 +412,25 @@ class ControllerCore:
         if code == LIMITS_OK and out.distributed:
             return self._accept(c, out.forces, out.saturated, out.peak, value, measured, error)
         if code == LIMITS_OK:
-            forces = distribute_wrench(cfg, self.dynamics, self.model, out.wrench, c.active_rows, c.pose) \
-                if len(self.active) == self.n else \
+            forces = distribute_wrench(cfg, self.dynamics, self.model, self.kernels.wrench_list(out.wrench),
+                                       c.active_rows, c.pose) \
+                if len(sup.active) == self.n else \
                 self.expand(distribute("pseudo_inverse", c.active_rows, out.wrench).tolist())
             return self._finish(c, forces, value, measured, error)
         if code > DISTRIBUTION_FAILED:
-            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, out.wrench)
+            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, self.kernels.wrench_list(out.wrench))
         if code == FORCES_NOT_FINITE:
             return self.trip(f"{cfg.strategy}: non-finite drive forces {out.forces}", TripCause.KINEMATICS)
         if code == WRENCH_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: {out.wrench}",
+            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: "
+                             f"{self.kernels.wrench_list(out.wrench)}",
                              TripCause.KINEMATICS)
-        return self.trip(*self.supervisor.limit_trip(code, index, value))
+        return self.trip(*sup.limit_trip(code, index, value))
 
     def expand(self, sub) -> list:
         """Forces of the active drives -> forces of every drive (0 for a dropped one)."""
-        return expand(sub, self.active, self.n)
+        sup = self.supervisor
+        return expand(sub, sup.active, self.n)
 
     def _finish(self, c: "Cycle", forces, trans, measured, error) -> list:
         """Clamp the forces of the strategies computed in Python, then ``_accept``."""
@@ -434,7 +443,8 @@ class ControllerCore:
     def _accept(self, c: "Cycle", forces, saturated, peak, trans, measured, error) -> list:
         """The clamped command of the cycle: the saturation supervisor, the statistics,
         the record."""
-        problem = self.supervisor.check_saturation(c.t_s, saturated)
+        sup = self.supervisor
+        problem = sup.check_saturation(c.t_s, saturated)
         if problem is not None:
             return self.trip(*problem)
         self.cycles += 1
