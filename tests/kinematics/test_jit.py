@@ -117,7 +117,7 @@ def test_kernel_wrappers_check_shapes_and_accept_integers():
         dist.least_squares_rows([], [])
     with pytest.raises(ValueError, match="n: expected 4"):
         dist.min_inf_norm_1d([1.0, 2.0, 3.0, 4.0], [1.0, 0.0])
-    from pkm_controller.laws import gram_condition
+    from pkm_kinematics.distribution import gram_condition
     assert gram_condition([]) == 1.0
     assert gram_condition(np.eye(3)) == pytest.approx(1.0)
     assert gram_condition(np.diag([1.0, 1.0, 4.0])) == pytest.approx(4.0)

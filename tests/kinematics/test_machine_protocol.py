@@ -1,21 +1,54 @@
-"""The public machine interface (pkm_kinematics.machine.ParallelMachine): every seed
-machine satisfies it, and its bar geometry agrees with the machines' own definitions
-(each bar as long as its link, each carriage on its rail at the drive position)."""
+"""The public machine interface (pkm_kinematics.machine): every machine file of
+config/machines satisfies the Protocols its model's class claims, and no more; a
+sub-machine's condition number agrees with the machine's own measure; and the bar
+geometry of the rail machines agrees with their definitions (each bar as long as its
+link, each carriage on its rail at the drive position)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from pkm_kinematics import load_machine
-from pkm_kinematics.machine import ParallelMachine
+from pkm_kinematics import load_machine, machine_names
+from pkm_kinematics.machine import ControlledMachine, ParallelMachine, RailActuated, SpatialMachine
 
-MACHINES = ("archi", "sliding_star", "orthoglide", "mom3")
+ALL = machine_names()
+MACHINES = ("archi", "sliding_star", "orthoglide", "mom3")          # the rail machines of the seeds
+PROTOCOLS = (ParallelMachine, ControlledMachine, RailActuated, SpatialMachine)
+CLAIMS = {"RailMachine": {ParallelMachine, ControlledMachine, RailActuated},
+          "StrutMachine": {ParallelMachine, ControlledMachine, SpatialMachine},
+          "ParallelogramMachine": {ParallelMachine}}         # a plant's model: not controlled
 
 
-@pytest.mark.parametrize("name", MACHINES)
-def test_every_machine_has_the_public_interface(name):
-    assert isinstance(load_machine(name).model, ParallelMachine)
+def test_every_machine_file_is_checked():
+    assert len(ALL) >= 7 and {"genhexkins", "hexapod8", "mom3_imperfect"} <= set(ALL), ALL
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_every_machine_has_the_interface_of_its_kind(name):
+    model = load_machine(name).model
+    kind = type(model).__name__
+    assert kind in CLAIMS, f"{name}: a machine class no Protocol set is claimed for: {kind}"
+    has = {p for p in PROTOCOLS if isinstance(model, p)}
+    missing = {p.__name__ for p in CLAIMS[kind] - has}
+    assert not missing, f"{name} ({kind}) lacks what {sorted(missing)} ask"
+    assert has == CLAIMS[kind], f"{name} ({kind}) also satisfies {sorted(p.__name__ for p in has - CLAIMS[kind])}"
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_rows_condition_of_all_rows_is_the_machines_condition_number(name):
+    """Against numpy's SVD condition number where the machine has no weighting of its own
+    (the 3-DOF machines), and against condition_number where it has (a hexapod's
+    rotation columns weighted by its characteristic length)."""
+    model = load_machine(name).model
+    rng = np.random.default_rng(5)
+    home = np.asarray(model.home, dtype=float)
+    for _ in range(4):
+        x = home + rng.uniform(-0.003, 0.003, home.shape)
+        jac = model.jacobian(x)
+        reference = model.condition_number(x) if isinstance(model, SpatialMachine) else np.linalg.cond(jac)
+        assert model.rows_condition(jac) == pytest.approx(reference, rel=1e-7), (name, x)
+    assert model.rows_condition(jac[:model.task_dof - 1]) == math.inf     # rows that cannot span the task
 
 
 @pytest.mark.parametrize("name", MACHINES)

@@ -53,7 +53,7 @@ from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel,
-                   error_norms, gram_condition, tool_pose_floats)
+                   error_norms, tool_pose_floats)
 from .commands import distribute_wrench, expand, joint_command, kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
 from .cycle import AnswerLog, Cycle, CycleRecord
@@ -89,7 +89,7 @@ class ControllerCore:
         self.dynamics = dynamic_model(machine)
         # cond(J_m) of the active drives: the 3-DOF closed form, or the machine's own
         # (a spatial J_m's rotation columns weighted by the platform's size)
-        self._condition = self.model.rows_condition if self.spatial else gram_condition
+        self._condition = self.model.rows_condition
         self.tuning = MachineTuning(machine, self.dynamics)
         self.tuning.check(self.config)
         self.strategy = strategy(self.config.strategy)

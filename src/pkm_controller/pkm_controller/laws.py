@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel, rows_array, gram_rows,
+from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel, gram_condition_kernel,
                                         gram_solve_n_kernel, project_forces, project_rows)
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
 from pkm_kinematics.hexapod import weighted_condition_kernel
@@ -123,33 +123,6 @@ def project_to_range(rows, forces) -> list:
     return project_forces(rows, forces).tolist()
 
 
-def gram_condition(rows) -> float:
-    """2-norm condition number of J (n x 3, rows of 3 floats or an array) from the
-    eigenvalues of J^T J (closed form for a symmetric 3 x 3 matrix); inf when
-    singular. Compiled: ~1 us against ~20 us for ``np.linalg.cond``."""
-    return _gram_condition_kernel(rows_array(rows))
-
-
-@kernel("(float64[:, :],)")
-def _gram_condition_kernel(rows):
-    a00, a01, a02, a11, a12, a22 = gram_rows(rows)
-    p1 = a01 * a01 + a02 * a02 + a12 * a12
-    tr = (a00 + a11 + a22) / 3.0
-    p2 = (a00 - tr) ** 2 + (a11 - tr) ** 2 + (a22 - tr) ** 2 + 2.0 * p1
-    p = math.sqrt(p2 / 6.0)
-    if p <= 1e-300:
-        return 1.0                                   # a multiple of the identity
-    b00, b11, b22 = (a00 - tr) / p, (a11 - tr) / p, (a22 - tr) / p
-    b01, b02, b12 = a01 / p, a02 / p, a12 / p
-    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
-    phi = math.acos(max(-1.0, min(1.0, r))) / 3.0
-    lmax = tr + 2.0 * p * math.cos(phi)
-    lmin = tr + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
-    if not lmin > 1e-14 * lmax:
-        return math.inf
-    return math.sqrt(lmax / lmin)
-
-
 # ------------------------------------------------------------- safety limits
 # codes of limits_kernel and cartesian_command_kernel (the caller words the message)
 LIMITS_OK, JOINT_LIMIT, WORKSPACE_LIMIT, SINGULARITY_MARGIN, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD = range(6)
@@ -175,7 +148,7 @@ def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, pla
     for k in range(workspace_box.shape[0]):
         if not workspace_box[k, 0] <= measured[k] <= workspace_box[k, 1]:
             return WORKSPACE_LIMIT, k, measured[k]
-    cond = _gram_condition_kernel(active_rows)
+    cond = gram_condition_kernel(active_rows)
     if cond > max_condition:
         return SINGULARITY_MARGIN, -1, cond
     if planar:

@@ -105,6 +105,33 @@ def gram_rows(rows) -> tuple:
     return a00, a01, a02, a11, a12, a22
 
 
+def gram_condition(rows) -> float:
+    """2-norm condition number of J (n x 3, rows of 3 floats or an array) from the
+    eigenvalues of J^T J (closed form for a symmetric 3 x 3 matrix); inf when
+    singular. Compiled: ~1 us against ~20 us for ``np.linalg.cond``."""
+    return gram_condition_kernel(rows_array(rows))
+
+
+@kernel("(float64[:, :],)")
+def gram_condition_kernel(rows):
+    a00, a01, a02, a11, a12, a22 = gram_rows(rows)
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    tr = (a00 + a11 + a22) / 3.0
+    p2 = (a00 - tr) ** 2 + (a11 - tr) ** 2 + (a22 - tr) ** 2 + 2.0 * p1
+    p = math.sqrt(p2 / 6.0)
+    if p <= 1e-300:
+        return 1.0                                   # a multiple of the identity
+    b00, b11, b22 = (a00 - tr) / p, (a11 - tr) / p, (a22 - tr) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    phi = math.acos(max(-1.0, min(1.0, r))) / 3.0
+    lmax = tr + 2.0 * p * math.cos(phi)
+    lmin = tr + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    if not lmin > 1e-14 * lmax:
+        return math.inf
+    return math.sqrt(lmax / lmin)
+
+
 @kernel()
 def _gram_solve_kernel(rows, b0, b1, b2):
     """Solve (J^T J) y = b (closed-form symmetric 3x3 inverse): (y0, y1, y2, solvable)."""

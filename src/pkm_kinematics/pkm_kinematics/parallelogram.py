@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import bars as B
+from .distribution import gram_condition
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .measures import condition_numbers, cube_grid
 from .rotations import log_so3
@@ -175,6 +176,12 @@ class ParallelogramMachine:
 
     def condition_number(self, position) -> float:
         return float(np.linalg.cond(self.jacobian(position)))
+
+    def rows_condition(self, jac) -> float:
+        """2-norm condition number of given rows of J_m (n' x 3: a sub-machine's, the
+        drives still active), closed form (distribution.gram_condition); inf when
+        singular."""
+        return gram_condition(jac)
 
     def condition_number_batch(self, positions) -> np.ndarray:
         return condition_numbers(self.jacobian_batch(positions))

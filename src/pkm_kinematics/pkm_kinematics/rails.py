@@ -29,6 +29,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from . import bars as B
+from .distribution import gram_condition
 from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .measures import condition_numbers, cube_grid
 from .planar import PlanarLeastSquaresFK
@@ -337,6 +338,12 @@ class RailMachine:
     def condition_number(self, x) -> float:
         """2-norm condition number of J_m (ARCHI §3.3, Fig. 10)."""
         return float(np.linalg.cond(self.jacobian(x)))
+
+    def rows_condition(self, jac) -> float:
+        """2-norm condition number of given rows of J_m (n' x 3: a sub-machine's, the
+        drives still active), closed form (distribution.gram_condition); inf when
+        singular."""
+        return gram_condition(jac)
 
     def condition_number_batch(self, xs) -> np.ndarray:
         """Condition numbers of J_m at poses (N, 3): NaN where unreachable."""
