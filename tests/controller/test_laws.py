@@ -232,3 +232,29 @@ def test_reference_interpolates_and_holds_the_end():
 def test_reference_refuses_malformed_trajectories(times, positions, message):
     with pytest.raises(ValueError, match=message):
         Reference(times, positions)
+
+
+def test_every_kernel_outcome_is_described_and_every_limit_trips_with_its_own_cause():
+    """The outcome codes (laws.CycleCode, distribution.DistributionCode) each have their
+    description, and the supervisor words every limit code with its cause (an unknown
+    code falls back to a kinematics trip naming it)."""
+    from pkm_common.causes import TripCause
+    from pkm_controller.config import ControllerConfig
+    from pkm_controller.laws import CYCLE_CODES, CycleCode
+    from pkm_controller.supervisor import Supervisor
+    from pkm_kinematics.distribution import DISTRIBUTION_CODES, DistributionCode
+    assert set(CYCLE_CODES) == set(CycleCode) and all(CYCLE_CODES.values())
+    assert set(DISTRIBUTION_CODES) == set(DistributionCode) and all(DISTRIBUTION_CODES.values())
+    model = ARCHI.model
+    box = np.array([[-1.0, 1.0]] * 4)
+    sup = Supervisor(ControllerConfig(), list(model.leg_names), 3, model.task_space, box,
+                     np.array([[-1.0, 1.0]] * 3), lambda rows: 1.0, model)
+    causes = {code: sup.limit_trip(code, 0, 2.0).cause for code in
+              (CycleCode.JOINT_LIMIT, CycleCode.WORKSPACE_LIMIT, CycleCode.SINGULARITY_MARGIN,
+               CycleCode.FOLLOWING_ERROR_M, CycleCode.FOLLOWING_ERROR_RAD)}
+    assert causes == {CycleCode.JOINT_LIMIT: TripCause.JOINT_LIMIT, CycleCode.WORKSPACE_LIMIT: TripCause.WORKSPACE,
+                      CycleCode.SINGULARITY_MARGIN: TripCause.SINGULARITY,
+                      CycleCode.FOLLOWING_ERROR_M: TripCause.FOLLOWING_ERROR,
+                      CycleCode.FOLLOWING_ERROR_RAD: TripCause.FOLLOWING_ERROR}
+    unknown = sup.limit_trip(99, 1, 0.5)
+    assert unknown.cause == TripCause.KINEMATICS and "unknown supervisor code 99" in unknown.reason

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
@@ -124,10 +125,39 @@ def project_to_range(rows, forces) -> list:
 
 
 # ------------------------------------------------------------- safety limits
-# codes of limits_kernel and cartesian_command_kernel (the caller words the message)
-LIMITS_OK, JOINT_LIMIT, WORKSPACE_LIMIT, SINGULARITY_MARGIN, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD = range(6)
-WRENCH_NOT_FINITE, FORCES_NOT_FINITE = 6, 7
-DISTRIBUTION_FAILED = 10      # + the code of pkm_kinematics.distribution.distribute_kernel (1-3)
+class CycleCode(IntEnum):
+    """The outcome of limits_kernel, spatial_limits_kernel and the command kernels (as
+    Ruckig's Result): OK, the first limit violated, a non-finite wrench or command, or
+    DISTRIBUTION_FAILED + the distribution's code (distribution.DistributionCode).
+    The caller words the message (supervisor.Supervisor.limit_trip)."""
+    OK = 0
+    JOINT_LIMIT = 1
+    WORKSPACE_LIMIT = 2
+    SINGULARITY_MARGIN = 3
+    FOLLOWING_ERROR_M = 4
+    FOLLOWING_ERROR_RAD = 5
+    WRENCH_NOT_FINITE = 6
+    FORCES_NOT_FINITE = 7
+    DISTRIBUTION_FAILED = 10
+
+
+CYCLE_CODES = {
+    CycleCode.OK: "every limit kept; the value is the translation error",
+    CycleCode.JOINT_LIMIT: "a drive outside its joint limits (index: the drive, value: its position)",
+    CycleCode.WORKSPACE_LIMIT: "the measured pose outside the workspace box (index: the task axis, value: it)",
+    CycleCode.SINGULARITY_MARGIN: "cond(J of the active drives) above max_condition (value: the condition)",
+    CycleCode.FOLLOWING_ERROR_M: "the translation error above following_error_m (value: the error)",
+    CycleCode.FOLLOWING_ERROR_RAD: "the rotation error above following_error_rad (value: the error)",
+    CycleCode.WRENCH_NOT_FINITE: "the law's wrench has a NaN or infinite component",
+    CycleCode.FORCES_NOT_FINITE: "the distributed drive forces have a NaN or infinite value",
+    CycleCode.DISTRIBUTION_FAILED: "plus the distribution's code: the compiled distribution failed",
+}
+# the kernels' constants (a compiled kernel reads a module's ints)
+LIMITS_OK, JOINT_LIMIT, WORKSPACE_LIMIT, SINGULARITY_MARGIN, FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD = (
+    int(CycleCode.OK), int(CycleCode.JOINT_LIMIT), int(CycleCode.WORKSPACE_LIMIT), int(CycleCode.SINGULARITY_MARGIN),
+    int(CycleCode.FOLLOWING_ERROR_M), int(CycleCode.FOLLOWING_ERROR_RAD))
+WRENCH_NOT_FINITE, FORCES_NOT_FINITE = int(CycleCode.WRENCH_NOT_FINITE), int(CycleCode.FORCES_NOT_FINITE)
+DISTRIBUTION_FAILED = int(CycleCode.DISTRIBUTION_FAILED)
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from pkm_common.causes import TripCause
 
-from .laws import FOLLOWING_ERROR_M, FOLLOWING_ERROR_RAD, JOINT_LIMIT, SINGULARITY_MARGIN, WORKSPACE_LIMIT
+from .laws import CycleCode
 from .strategies import Feedback
 
 __all__ = ["Supervisor", "Trip"]
@@ -126,25 +126,25 @@ class Supervisor:
         return None
 
     def limit_trip(self, code: int, index: int, value: float) -> Trip:
-        """The trip of a limits code of laws.limits_kernel (not LIMITS_OK)."""
+        """The trip of a limits code (laws.CycleCode, not OK) of the limits kernels."""
         c = self.config
-        if code == JOINT_LIMIT:
+        if code == CycleCode.JOINT_LIMIT:
             lo, hi = self.joint_box[index].tolist()
             return Trip(f"joint limit: drive {self.names[index]} at {value:.6g} m outside [{lo:g}, {hi:g}] m",
                         TripCause.JOINT_LIMIT)
-        if code == WORKSPACE_LIMIT:
+        if code == CycleCode.WORKSPACE_LIMIT:
             lo, hi = self.workspace_box[index].tolist()
             unit, margin = ("m", "workspace_margin_m") if index < self.space.translation_axes else \
                 ("rad", "workspace_margin_rad")
             return Trip(f"workspace: {self.space.axes[index]} = {value:.6g} {unit} outside [{lo:.6g}, {hi:.6g}] "
                         f"{unit} ({margin} {getattr(c, margin):g})", TripCause.WORKSPACE)
-        if code == SINGULARITY_MARGIN:
+        if code == CycleCode.SINGULARITY_MARGIN:
             return Trip(f"singularity margin: condition number {value:.6g} > max_condition {c.max_condition:g}",
                         TripCause.SINGULARITY)
-        if code == FOLLOWING_ERROR_M:
+        if code == CycleCode.FOLLOWING_ERROR_M:
             return Trip(f"following error {value * 1e3:.3f} mm > following_error_m {c.following_error_m:g}",
                         TripCause.FOLLOWING_ERROR)
-        if code == FOLLOWING_ERROR_RAD:
+        if code == CycleCode.FOLLOWING_ERROR_RAD:
             return Trip(f"following error {value:.4f} rad > following_error_rad {c.following_error_rad:g}",
                         TripCause.FOLLOWING_ERROR)
         return Trip(f"{c.strategy}: unknown supervisor code {code} (index {index}, value {value:g})",

@@ -21,6 +21,7 @@ with J^T f = F checked (DistributionError otherwise).
 from __future__ import annotations
 
 import math
+from enum import IntEnum
 
 import numpy as np
 
@@ -604,11 +605,31 @@ def _distribute_floats(rows, wrench: list, inf_norm: bool, check: bool) -> list[
     return forces.tolist()
 
 
+class DistributionCode(IntEnum):
+    """The outcome of :func:`distribute_kernel` (as Ruckig's Result)."""
+    OK = 0
+    SINGULAR_GRAM = 1          # J^T J singular
+    NULL_SPACE_NOT_1D = 2      # inf_norm: ker(J^T) is not one-dimensional
+    WRENCH_MISSED = 3          # J^T f does not give the wrench (component k, achieved)
+
+
+DISTRIBUTION_CODES = {
+    DistributionCode.OK: "distributed; J^T f gives the wrench",
+    DistributionCode.SINGULAR_GRAM: SINGULAR_GRAM,
+    DistributionCode.NULL_SPACE_NOT_1D: SINGULAR_NULL,
+    DistributionCode.WRENCH_MISSED: "J^T f does not reproduce the wrench",
+}
+_OK_CODE = int(DistributionCode.OK)           # the kernels' constants (a compiled kernel reads a module's ints)
+_SINGULAR_GRAM_CODE, _NULL_NOT_1D_CODE, _WRENCH_MISSED_CODE = (int(DistributionCode.SINGULAR_GRAM),
+                                                              int(DistributionCode.NULL_SPACE_NOT_1D),
+                                                              int(DistributionCode.WRENCH_MISSED))
+
+
 def raise_distribution_error(code: int, k: int, achieved: float, wrench) -> None:
     """The DistributionError of a non-zero code of :func:`distribute_kernel`."""
-    if code == 1:
+    if code == DistributionCode.SINGULAR_GRAM:
         raise DistributionError(SINGULAR_GRAM)
-    if code == 2:
+    if code == DistributionCode.NULL_SPACE_NOT_1D:
         raise DistributionError(SINGULAR_NULL)
     _raise_wrench_mismatch(k, achieved, wrench)
 
@@ -617,22 +638,22 @@ def raise_distribution_error(code: int, k: int, achieved: float, wrench) -> None
 def distribute_kernel(rows, w0, w1, w2, inf_norm, check):
     """(forces, code, k, achieved): f = J (J^T J)^-1 F (ARCHI §4.4.1), for inf_norm
     moved along ker(J^T) to the least peak (§4.4.2, :func:`min_inf_norm_1d`), then
-    J^T f = F checked. code 0 ok, 1 J^T J singular, 2 ker(J^T) not 1-D, 3 the check
-    failed on component k (J^T f gave ``achieved``)."""
+    J^T f = F checked. code: a DistributionCode (WRENCH_MISSED: on component k, J^T f
+    gave ``achieved``)."""
     y0, y1, y2, ok = _gram_solve_kernel(rows, w0, w1, w2)
     if not ok:
-        return np.zeros(rows.shape[0]), 1, -1, 0.0
+        return np.zeros(rows.shape[0]), _SINGULAR_GRAM_CODE, -1, 0.0
     forces = rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2
     if inf_norm:
         n, ok = _null_direction_kernel(rows)
         if not ok:
-            return forces, 2, -1, 0.0
+            return forces, _NULL_NOT_1D_CODE, -1, 0.0
         forces = _min_inf_norm_1d_kernel(forces, n)
     if check:
         k, achieved = check_wrench_kernel(rows, forces, np.array([w0, w1, w2]), 1e-9)
         if k >= 0:
-            return forces, 3, k, achieved
-    return forces, 0, -1, 0.0
+            return forces, _WRENCH_MISSED_CODE, k, achieved
+    return forces, _OK_CODE, -1, 0.0
 
 
 def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 4.0,
