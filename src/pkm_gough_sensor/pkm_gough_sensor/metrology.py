@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
-from pkm_kinematics.bars import STRUT, bar_rows, strut_lengths_kernel
+from pkm_kinematics.bars import COL_A, COL_B, STRUT, bar_rows, strut_lengths_kernel
 from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
 from pkm_kinematics.rotations import mul3
 from pkm_kinematics.validation import finite_floats
@@ -203,7 +203,7 @@ class GoughSensorModel:
         p = np.asarray(finite_floats(tool_position, 3, 'tool_position'))
         r = np.asarray(rotation_floats(tool_rotation, 'tool_rotation')).reshape(3, 3)
         bars = self._true_bars
-        return [(a.tolist(), (p + r @ b).tolist()) for a, b in zip(bars[:, 0:3], bars[:, 6:9])]
+        return [(a.tolist(), (p + r @ b).tolist()) for a, b in zip(bars[:, COL_A:COL_A + 3], bars[:, COL_B:COL_B + 3])]
 
     def measure(self, tool_position, tool_rotation) -> np.ndarray:
         """Strut readings (6,) for a tool pose in world: true lengths + N(0, noise_std),

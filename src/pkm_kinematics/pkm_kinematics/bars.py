@@ -151,23 +151,23 @@ def bar_vector(bars, k, px, py, pz, r, q):
     """e_k = B_k - A_k = p + R b_k - a_k - q_j u_k (no rail term for a strut or a
     fixed base joint) at the pose (p, R row-major 9-tuple) and actuators ``q``.
     Returns (e_x, e_y, e_z, (R b_k)_x, (R b_k)_y, (R b_k)_z)."""
-    bx, by, bz = bars[k, 6], bars[k, 7], bars[k, 8]
+    bx, by, bz = bars[k, COL_B], bars[k, COL_B + 1], bars[k, COL_B + 2]
     rbx = r[0] * bx + r[1] * by + r[2] * bz
     rby = r[3] * bx + r[4] * by + r[5] * bz
     rbz = r[6] * bx + r[7] * by + r[8] * bz
-    ex, ey, ez = px + rbx - bars[k, 0], py + rby - bars[k, 1], pz + rbz - bars[k, 2]
-    j = int(bars[k, 10])
-    if j >= 0 and bars[k, 11] == 0.0:            # on a rail: A_k = a_k + q_j u_k
-        ex, ey, ez = ex - q[j] * bars[k, 3], ey - q[j] * bars[k, 4], ez - q[j] * bars[k, 5]
+    ex, ey, ez = px + rbx - bars[k, COL_A], py + rby - bars[k, COL_A + 1], pz + rbz - bars[k, COL_A + 2]
+    j = int(bars[k, COL_ACTUATOR])
+    if j >= 0 and bars[k, COL_TYPE] == 0.0:            # on a rail: A_k = a_k + q_j u_k
+        ex, ey, ez = ex - q[j] * bars[k, COL_U], ey - q[j] * bars[k, COL_U + 1], ez - q[j] * bars[k, COL_U + 2]
     return ex, ey, ez, rbx, rby, rbz
 
 
 @kernel()
 def bar_length(bars, k, q):
     """l_k: the bar's fixed length, or its actuator's value for a strut."""
-    if bars[k, 11] == 1.0:
-        return q[int(bars[k, 10])]
-    return bars[k, 9]
+    if bars[k, COL_TYPE] == 1.0:
+        return q[int(bars[k, COL_ACTUATOR])]
+    return bars[k, COL_LENGTH]
 
 
 @kernel()
@@ -297,15 +297,15 @@ def actuator_of_bar(bars, k, px, py, pz, r, zero):
     joint (a strut's disc is 0). ``zero``: actuator values of 0 (n,)."""
     # w = B_k - a_k: the bar vector with the actuator at zero
     wx, wy, wz, _, _, _ = bar_vector(bars, k, px, py, pz, r, zero)
-    if bars[k, 11] == 1.0:
+    if bars[k, COL_TYPE] == 1.0:
         return 0.0, math.sqrt(wx * wx + wy * wy + wz * wz)
-    uw = bars[k, 3] * wx + bars[k, 4] * wy + bars[k, 5] * wz
+    uw = bars[k, COL_U] * wx + bars[k, COL_U + 1] * wy + bars[k, COL_U + 2] * wz
     # summed in this order so that a planar machine's (wz = 0) is bit for bit the
     # per-pose and batched planar IK's: at the edge of reach disc is exactly 0 there
-    disc = bars[k, 9] * bars[k, 9] - wx * wx - wy * wy - wz * wz + uw * uw
+    disc = bars[k, COL_LENGTH] * bars[k, COL_LENGTH] - wx * wx - wy * wy - wz * wz + uw * uw
     if not disc >= 0.0:
         return disc, math.nan
-    return disc, uw + bars[k, 12] * math.sqrt(disc)
+    return disc, uw + bars[k, COL_BRANCH] * math.sqrt(disc)
 
 
 @kernel()
@@ -315,7 +315,7 @@ def actuators_into(bars, px, py, pz, r, q):
     IK_UNREACHABLE with the bar whose rail cannot reach its platform joint."""
     q[:] = math.nan                        # NaN: the actuator's first bar not met yet
     for k in range(bars.shape[0]):
-        j = int(bars[k, 10])
+        j = int(bars[k, COL_ACTUATOR])
         if j < 0 or not math.isnan(q[j]):
             continue
         q[j] = 0.0                         # bar k reads only its own actuator: w = B - a
@@ -345,7 +345,7 @@ def inverse_kinematics_batch_kernel(bars, positions, rotations, q, reachable):
         done[:] = False
         reachable[i] = True
         for k in range(bars.shape[0]):
-            j = int(bars[k, 10])
+            j = int(bars[k, COL_ACTUATOR])
             if j < 0 or done[j]:
                 continue
             done[j] = True
@@ -371,7 +371,7 @@ def rail_row_terms(bars, k, px, py, pz, r, q, t, with_rate):
     else the row again); code VT_SINGULAR (e perpendicular to the rail: s = 0, J_m
     unbounded)."""
     ex, ey, ez, rbx, rby, rbz = bar_vector(bars, k, px, py, pz, r, q)
-    ux, uy, uz, length = bars[k, 3], bars[k, 4], bars[k, 5], bars[k, 9]
+    ux, uy, uz, length = bars[k, COL_U], bars[k, COL_U + 1], bars[k, COL_U + 2], bars[k, COL_LENGTH]
     sv = ex * ux + ey * uy + ez * uz
     g = (ex, ey, ez, rby * ez - rbz * ey, rbz * ex - rbx * ez, rbx * ey - rby * ex)
     if sv * sv <= 1e-18 * length * length:
@@ -439,7 +439,7 @@ def rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qdot, bia
     first bar that fails, in bar order."""
     q[:] = math.nan                        # NaN: the actuator's first bar not met yet
     for k in range(bars.shape[0]):
-        j = int(bars[k, 10])
+        j = int(bars[k, COL_ACTUATOR])
         if j < 0 or not math.isnan(q[j]):
             continue
         q[j] = 0.0                         # bar k reads only its own actuator: w = B - a
@@ -569,7 +569,7 @@ def three_rail_forward_kinematics_kernel(bars, q0, q1, q2, side):
     q = np.array([q0, q1, q2])
     for i in range(3):
         ex, ey, ez, _, _, _ = bar_vector(bars, i, px, py, pz, identity, q)
-        if (ex * bars[i, 3] + ey * bars[i, 4] + ez * bars[i, 5]) * bars[i, 12] > 0.0:
+        if (ex * bars[i, COL_U] + ey * bars[i, COL_U + 1] + ez * bars[i, COL_U + 2]) * bars[i, COL_BRANCH] > 0.0:
             return px, py, pz, TRI_OTHER_BRANCH, i
     return px, py, pz, TRI_OK, -1
 
@@ -797,9 +797,9 @@ def rail_closure_rows_into(bars, px, py, pz, r, q, out) -> bool:
             return False
         for j in range(m):
             out[k, 3 + j] = 0.0
-        j = int(bars[k, 10])
-        if j >= 0 and bars[k, 11] == 0.0:
-            out[k, 3 + j] = -(ux * bars[k, 3] + uy * bars[k, 4] + uz * bars[k, 5])
+        j = int(bars[k, COL_ACTUATOR])
+        if j >= 0 and bars[k, COL_TYPE] == 0.0:
+            out[k, 3 + j] = -(ux * bars[k, COL_U] + uy * bars[k, COL_U + 1] + uz * bars[k, COL_U + 2])
     return True
 
 
@@ -937,7 +937,7 @@ def forward_kinematics_stream_kernel(bars, lengths, state, flags, tol_m, max_ite
         poses[k, 3:12] = rot
 
 
-__all__ = ["BAR_COLUMNS", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
+__all__ = ["BAR_COLUMNS", "COL_A", "COL_ACTUATOR", "COL_B", "COL_BRANCH", "COL_LENGTH", "COL_TYPE", "COL_U", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
            "IK_OK", "IK_UNREACHABLE", "actuators_into", "inverse_kinematics_batch_kernel", "RAIL", "STRUT", "VT_OK", "VT_SINGULAR", "VT_UNREACHABLE", "actuator_of_bar",
            "TRI_COLLINEAR", "TRI_NOT_MEETING", "TRI_OK", "TRI_OTHER_BRANCH", "inverse_kinematics_kernel",
            "three_rail_forward_kinematics_batch_kernel", "three_rail_forward_kinematics_kernel",

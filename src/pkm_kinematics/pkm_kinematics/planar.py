@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bars as B
+from .bars import COL_A, COL_BRANCH, COL_LENGTH, COL_U
 from .errors import KinematicsError, UnreachablePoseError
 from .jit import kernel
 from .rotations import unwrap_to_kernel
@@ -111,13 +112,13 @@ def _closed_form_kernel(bars, pairs, sides, q):
     px0 = py0 = px1 = py1 = 0.0
     for k in range(2):
         i, j, side = pairs[k, 0], pairs[k, 1], sides[k]
-        aix, aiy = bars[i, 0] + q[i] * bars[i, 3], bars[i, 1] + q[i] * bars[i, 4]
-        dx = bars[j, 0] + q[j] * bars[j, 3] - aix
-        dy = bars[j, 1] + q[j] * bars[j, 4] - aiy
+        aix, aiy = bars[i, COL_A] + q[i] * bars[i, COL_U], bars[i, COL_A + 1] + q[i] * bars[i, COL_U + 1]
+        dx = bars[j, COL_A] + q[j] * bars[j, COL_U] - aix
+        dy = bars[j, COL_A + 1] + q[j] * bars[j, COL_U + 1] - aiy
         d2 = dx * dx + dy * dy
         d = math.sqrt(d2)
-        along = ((bars[i, 9] * bars[i, 9]) - (bars[j, 9] * bars[j, 9]) + d2) / (2.0 * d) if d > 0.0 else math.inf
-        h2 = (bars[i, 9] * bars[i, 9]) - along * along
+        along = ((bars[i, COL_LENGTH] * bars[i, COL_LENGTH]) - (bars[j, COL_LENGTH] * bars[j, COL_LENGTH]) + d2) / (2.0 * d) if d > 0.0 else math.inf
+        h2 = (bars[i, COL_LENGTH] * bars[i, COL_LENGTH]) - along * along
         if not h2 >= 0.0:
             return 0.0, 0.0, 0.0, FK_UNREACHABLE, i, j, d
         h = side * math.sqrt(h2)
@@ -220,7 +221,7 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
         ex, ey, _, _, _, _ = B.bar_vector(bars, k, x, y, 0.0, r, q)
         e[k, 0], e[k, 1] = ex, ey
         residual = max(residual, abs(math.sqrt(ex * ex + ey * ey) - B.bar_length(bars, k, q)))
-        if (ex * bars[k, 3] + ey * bars[k, 4]) * bars[k, 12] > 0.0:
+        if (ex * bars[k, COL_U] + ey * bars[k, COL_U + 1]) * bars[k, COL_BRANCH] > 0.0:
             return 0.0, 0.0, 0.0, FK_ASSEMBLY, iteration, residual, 0, 0, 0.0
     for k in range(pairs.shape[0]):
         # the side of carriage i's link its pair's carriage j is on: a pair shares its
