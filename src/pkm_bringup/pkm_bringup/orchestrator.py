@@ -687,7 +687,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
                 if last.get(connection.topic) != stamp:
                     last[connection.topic] = stamp
                     steps[connection.topic] = steps.get(connection.topic, 0) + 1
-        summary_path.write_text(json.dumps({"recorded_stamps": steps, "recovered": True}), encoding="utf-8")
+        write_json(summary_path, {"recorded_stamps": steps, "recovered": True})
     return {"messages": sum(counts.values()) if isinstance(counts, dict) else counts}
 
 

@@ -10,7 +10,6 @@ same stamp has arrived too (the sensor in the loop, as the real controller does)
 
 from __future__ import annotations
 
-import json
 import time
 
 from geometry_msgs.msg import PoseStamped
@@ -18,6 +17,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from pkm_common.conversions import stamp_to_ns
+from pkm_common.files import write_summary
 from pkm_common.params import declare_bool, declare_float, declare_str
 from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.timing import DurationHistogram, percentiles_us
@@ -87,8 +87,8 @@ class HoldControllerNode(Node):
 
     def destroy_node(self):
         if self.summary_path and self.latencies_s:
-            with open(self.summary_path, "w", encoding="utf-8") as fh:
-                json.dump({"answered": self.answered, **percentiles_us("latency", self.latencies_s)}, fh, indent=2)
+            write_summary(self.summary_path, {"answered": self.answered, **percentiles_us("latency", self.latencies_s)},
+                          self.get_logger().error)
         return super().destroy_node()
 
 
