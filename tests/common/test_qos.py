@@ -29,3 +29,16 @@ def test_latched_message_reaches_a_late_subscriber(ros_graph):
     listener.create_subscription(String, 'trajectory', got.append, LATCHED_QOS)
     assert ros_graph.spin_until(lambda: got, timeout_sec=10.0)
     assert got[0].data == 'plan'
+
+
+def test_the_topic_catalogue_names_real_message_types_and_profiles():
+    """pkm_common.topics: every type imports (rosidl), every topic has its profile."""
+    import importlib
+
+    from pkm_common.topics import CATALOGUE, QOS_KINDS
+    assert {"drives/state", "trajectory", "controller/events", "estop", "/clock"} <= set(CATALOGUE)
+    for name, topic in CATALOGUE.items():
+        package, _, kind = topic.type.split("/")
+        assert hasattr(importlib.import_module(f"{package}.msg"), kind), topic
+        assert topic.qos in QOS_KINDS and name in TOPIC_QOS, topic
+    assert TOPIC_QOS["controller/events"] is not STREAM_QOS and TOPIC_QOS["run/start"] is LATCHED_QOS

@@ -42,6 +42,8 @@ The commands (`goal`, `program`, `trajectory`, `load`, `controller/feed_override
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from pkm_common.topics import CATALOGUE
+
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=10,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
@@ -79,28 +81,10 @@ TAP_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=50,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-# topic (relative name) -> profile, for code that wires topics generically
-TOPIC_QOS = {
-    'drives/state': STREAM_QOS,
-    'drives/command': STREAM_QOS,
-    'platform/true_pose': STREAM_QOS,
-    'metrology/struts': STREAM_QOS,
-    'metrology/pose': STREAM_QOS,
-    'controller/reference': STREAM_QOS,
-    'controller/status': STREAM_QOS,
-    'goal': STREAM_QOS,
-    'program': STREAM_QOS,
-    'load': STREAM_QOS,
-    'diagnostics': STREAM_QOS,
-    'trajectory': LATCHED_QOS,
-    'markers': LATCHED_QOS,
-    'estop': LATCHED_QOS,
-    'controller/feed_override': STREAM_QOS,
-    'controller/settings': STREAM_QOS,
-    'run/start': LATCHED_QOS,
-    'controller/events': EVENTS_QOS,
-    '/clock': CLOCK_QOS,
-}
+# topic (relative name) -> profile, for code that wires topics generically (the
+# catalogue of pkm_common.topics: names, types, kinds)
+PROFILES = {"stream": STREAM_QOS, "latched": LATCHED_QOS, "events": EVENTS_QOS, "clock": CLOCK_QOS}
+TOPIC_QOS = {name: PROFILES[topic.qos] for name, topic in CATALOGUE.items()}
 
 
 

@@ -45,6 +45,7 @@ from pathlib import Path
 
 import yaml
 
+from pkm_common import topics
 from pkm_common.cdr import JointStateDecoder, decode_bool, decode_string, stamp_ns_of
 from pkm_common.causes import TripCause
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
@@ -82,7 +83,7 @@ def controller_config(run_dir: Path) -> tuple[str, ControllerConfig]:
     return params["machine"], ControllerConfig(**{k: v for k, v in params.items() if k in names})
 
 
-LOOP_TOPICS = ("drives/state", "drives/command", "metrology/struts", "metrology/pose", "estop")
+LOOP_TOPICS = (topics.DRIVES_STATE, topics.DRIVES_COMMAND, topics.METROLOGY_STRUTS, topics.METROLOGY_POSE, topics.ESTOP)
 MAX_WAITING = 2000              # recorded commands a missing input may lag behind (2 s at 1 kHz)
 # applied by the loop between a state and its answer (its inbox): handed to it before that state
 BEFORE_ANSWER = (Action.TRAJECTORY, Action.FEED_OVERRIDE, Action.SETTINGS)
@@ -342,8 +343,8 @@ def replay_controller(run_dir: str | Path) -> ReplayResult:
     replay = _Replay(*replay_loop(run_dir))
     namespace = run.get("namespace", "/pkm")
     events = [json.loads(decode_string(raw, "controller/events"))
-              for _, _, raw in recorded_bytes(run_dir / "bag", namespace, ("controller/events",))]
-    trajectories = (raw for _, _, raw in recorded_bytes(run_dir / "bag", namespace, ("trajectory",)))
+              for _, _, raw in recorded_bytes(run_dir / "bag", namespace, (topics.CONTROLLER_EVENTS,))]
+    trajectories = (raw for _, _, raw in recorded_bytes(run_dir / "bag", namespace, (topics.TRAJECTORY,)))
     if events:
         replay.operator_events(events, trajectories)
     else:

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from pkm_recording.bag import check_complete
+from pkm_common import topics
 from pkm_common.cdr import CDR_LE_HEADER, JointStateDecoder, decode_joint_state, decode_pose_stamped
 from pkm_kinematics.rotations import yaw_of_quaternion, yaw_of_quaternions
 
@@ -42,15 +43,15 @@ BLOCK_ROWS = 2048                   # stamps per block handed to the analysis
 LOOKBACK_NS = 2 * NS_PER_S          # sim time a stamp stays open for more messages
 _CHECK_EVERY = 4096                 # messages between two looks for final stamps
 
-# topics relative to the machine namespace (DESIGN.md, "The graph")
-STATE, COMMAND = "drives/state", "drives/command"
-TRUE_POSE, REFERENCE = "platform/true_pose", "controller/reference"
-STRUTS, METROLOGY_POSE = "metrology/struts", "metrology/pose"
-STATUS, DIAGNOSTICS = "controller/status", "diagnostics"
-TRAJECTORY, LOAD, ESTOP = "trajectory", "load", "estop"
+# topics relative to the machine namespace (pkm_common.topics, the graph's catalogue)
+STATE, COMMAND = topics.DRIVES_STATE, topics.DRIVES_COMMAND
+TRUE_POSE, REFERENCE = topics.TRUE_POSE, topics.CONTROLLER_REFERENCE
+STRUTS, METROLOGY_POSE = topics.METROLOGY_STRUTS, topics.METROLOGY_POSE
+STATUS, DIAGNOSTICS = topics.CONTROLLER_STATUS, topics.DIAGNOSTICS
+TRAJECTORY, LOAD, ESTOP = topics.TRAJECTORY, topics.LOAD, topics.ESTOP
 KNOWN_SUFFIXES = (STATE, COMMAND, TRUE_POSE, REFERENCE, STRUTS, METROLOGY_POSE, STATUS,
                   DIAGNOSTICS, TRAJECTORY, LOAD, ESTOP)
-CLOCK_TOPIC = "/clock"
+CLOCK_TOPIC = topics.CLOCK
 
 JOINT, POSE, CLOCK = "joint", "pose", "clock"
 # per-step stream -> (topic suffix, or the absolute /clock; message kind)
