@@ -60,3 +60,14 @@ def test_the_layer_contract_names_every_package_once():
     placed = [name.strip() for layer in layers for name in layer.split("|")]
     assert sorted(roots) == PACKAGES, f"root_packages {sorted(roots)} != the packages of src/ {PACKAGES}"
     assert sorted(placed) == PACKAGES, f"the layers place {sorted(placed)}, the packages of src/ are {PACKAGES}"
+
+
+def test_no_module_over_600_lines_without_its_reason():
+    """A module of src/ over ~600 lines says at its top why it is one piece."""
+    long = []
+    for path in sorted((REPO / "src").glob("pkm_*/pkm_*/*.py")):
+        text = path.read_text(encoding="utf-8")
+        doc = ast.get_docstring(ast.parse(text)) or ""
+        if text.count("\n") > 600 and "Why over 600 lines" not in doc:
+            long.append(f"{path.relative_to(REPO)} ({text.count(chr(10))} lines)")
+    assert not long, f"modules over 600 lines without a reason at their top: {long}"

@@ -29,6 +29,10 @@ Run directory::
     runs/<date>-<time>_<scenario>/
       credential.key  scenario.yaml  params/<node>.yaml  logs/<node>.log  summaries/<node>.json
       bag/ (rosbag2: metadata.yaml + .mcap)  run.json  report/ (metrics.json, *.png)
+
+Why over 600 lines: one run's life from the scenario to run.json (set-up, the graph as
+processes or in one executor, start, progress, the end and its summaries) shares its
+state across those steps; the in-process executor is the first part to move out.
 """
 
 from __future__ import annotations

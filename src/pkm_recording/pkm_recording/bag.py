@@ -41,6 +41,10 @@ compress worse (zstd works per chunk); larger chunks lose more on a crash and ho
 more memory. 1 MiB (the MCAP C++ writer used by rosbag2 defaults to 768 KiB) keeps the
 overhead negligible and the worst-case loss small; a shorter flush period is the knob
 for losing less.
+
+Why over 600 lines: the writer, the recovery of a killed recorder's file and the
+counting share the rosbag2 metadata and MCAP helpers written here once; the recovery
+(reading, recovery, completeness) is the part to move out with them made public.
 """
 
 from __future__ import annotations

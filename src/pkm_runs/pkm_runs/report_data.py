@@ -21,6 +21,10 @@ others one by one (``pkm_common.cdr``, rosbags' deserializer for another encodin
 * :class:`RunReader`   ``with RunReader(bag) as r: for block in r.blocks(): ...``; ``r.info``
 * :func:`load_run`     the whole run in memory (:class:`RunData`, per-topic arrays): for
   analyses and tests of short runs; the report itself streams.
+
+Why over 600 lines: it is the one streamed reader of a run (the bag's connections,
+the per-stamp assembly of every stream into blocks, their decoders, the whole-run
+view built on it); its parts are private to that one job.
 """
 
 from __future__ import annotations

@@ -14,6 +14,10 @@ For lines and pure rotations x'' = 0, so |x'_i| udot <= v_i, |x'_i| uddot <= a_i
 part of the acceleration and jerk budget is kept for the normal terms: the speed is
 capped at sqrt(a_n R) (a_n: half the acceleration limit) and the tangential
 acceleration and jerk get the other half; the sampled profile is then checked.
+
+Why over 600 lines: the geometric segments, their time law, sampling and the
+validation against the machine are one planner; the G-code reader and the program's
+chaining live beside it (gcode.py, program.py, plan_chain.py).
 """
 
 from __future__ import annotations
