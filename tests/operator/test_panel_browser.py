@@ -22,7 +22,7 @@ import yaml
 from pkm_kinematics.config import config_dir
 
 from panel_helpers import (realtime_profile_permitted, snapshot, wait_for, wait_for_a_holding_graph, ws_url,
-                           without_sync_counter)     # tests/bringup/panel_helpers.py
+                           without_sync_counter)     # tests/operator/panel_helpers.py
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # how long the page may take to show an outcome: the suite's other worker, chromium and

@@ -16,7 +16,7 @@ import yaml
 from pkm_kinematics.config import config_dir
 
 from panel_helpers import (base, realtime_profile_permitted, snapshot, ws_url, wait_for, wait_for_a_holding_graph,
-                           without_sync_counter)     # tests/bringup/panel_helpers.py
+                           without_sync_counter)     # tests/operator/panel_helpers.py
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not realtime_profile_permitted(),

@@ -1,7 +1,7 @@
 """The realtime profile of a run (``pkm-run --rt-profile``, or ``realtime_profile: true``
 in a scenario): how each node process is scheduled, and whether the OS allows it.
 
-What each node gets (``PROFILE``; docs/architecture.md, Bringup, has the measurements):
+What each node gets (``PROFILE``; docs/decisions.md, Bringup, has the measurements):
 
 =============  ==============  =================================================
 node           scheduling      memory
@@ -23,7 +23,7 @@ wait for the rest of the plant's step), and sim_hw lowest (its wall timer still 
 a free core). The opposite order (the plant first, as the machine's clock) left the
 sensor waiting behind the plant and the controller; CPU pinning did not help on two
 cores and is not applied; the memory lock is kept although no gain showed here, with
-its resident-memory cost (the measurements: docs/architecture.md, Bringup). The
+its resident-memory cost (the measurements: docs/decisions.md, Bringup). The
 trajectory node publishes its latched trajectory once; the recorder works on batches
 every 0.2 s and may fall behind harmlessly (50 batches of history): both stay below
 every SCHED_FIFO thread.

@@ -101,7 +101,7 @@ def _check_space(space) -> None:
 
 
 def machine_to_tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
-    """Machine pose -> tool pose in world (docs/architecture.md, mounting;
+    """Machine pose -> tool pose in world (docs/architecture.md, Conventions;
     ``task_space.tool_pose``): planar (x, y, theta) -> ((x, y, 0), Rz(theta)); position
     p -> (p, I); spatial (x, y, z, a, b, c) -> (p, Rz(c) Ry(b) Rx(a))."""
     _check_space(space)

@@ -12,7 +12,7 @@ Two geometries:
 * the NOMINAL geometry (the machine file) solves the DKM, as a real controller only
   knows its calibration.
 
-Frames (docs/architecture.md, mounting): the Gough base sits in the machine's world
+Frames (docs/architecture.md, Conventions): the Gough base sits in the machine's world
 frame at (p_wb, R_wb); the Gough plate sits in the tool frame at (p_tp, R_tp). So
 T_base_plate = T_world_base^-1 T_world_tool T_tool_plate:
   R_bp = R_wb^T R_t R_tp,   p_bp = R_wb^T (p_t + R_t p_tp - p_wb)

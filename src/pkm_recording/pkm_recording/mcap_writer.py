@@ -19,7 +19,7 @@ chunk indexes, statistics, summary, footer: all unchanged) with two parts replac
   pass (pkm_recording.tap_records) and appends them per batch.
 
 It reaches into the writer's private attributes (``_Writer__...``); mcap is pinned in
-requirements.txt, and tests/bringup/test_mcap_writer.py compares the output with the
+requirements.txt, and tests/recording/test_mcap_writer.py compares the output with the
 stock writer byte for byte, so an mcap upgrade that changes them fails there first.
 With an mcap whose Writer lacks one of them (another install), it falls back to the
 stock path. An mcap that kept the names but changed what they mean would not be
