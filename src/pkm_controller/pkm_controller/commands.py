@@ -49,6 +49,11 @@ class CartesianOutcome(NamedTuple):
     peak: float
 
 
+def _outcome(fields: tuple) -> CartesianOutcome:
+    """A CartesianOutcome made without NamedTuple's Python-level __new__ (once a cycle)."""
+    return tuple.__new__(CartesianOutcome, fields)
+
+
 class ThreeAxis:
     """Planar and translational machines (3 task coordinates)."""
 
@@ -84,8 +89,9 @@ class ThreeAxis:
             tuned.law_gains, core.record.saturated == 0, core.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
             c.v, tuple(c.a_d), core.distribution_code if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
         distributed = bool(forces.shape[0])
-        return CartesianOutcome(code, index, value, integral, wrench,
-                                core.expand(forces.tolist()) if distributed else [], distributed, saturated, peak)
+        return _outcome((code, index, value, integral, wrench,
+                         expand(forces.tolist(), core.supervisor.active, core.n) if distributed else [], distributed,
+                         saturated, peak))
 
 
 class SixAxis:
@@ -122,8 +128,8 @@ class SixAxis:
             cfg.following_error_rad, tuned.law, tuned.law_gains, core.record.saturated == 0,
             np.asarray(core.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
             c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
-        return CartesianOutcome(code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
-                                compiled and code == LIMITS_OK, saturated, peak)
+        return _outcome((code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
+                         compiled and code == LIMITS_OK, saturated, peak))
 
 
 def kernels_for(model) -> ThreeAxis | SixAxis:

@@ -377,7 +377,7 @@ class ControllerCore:
                 self.integral = holding_integral(self.dynamics, self.model, c.pose, self.strategy.law,
                                                  self.config.integral_time_s, sup.active, c.active_rows)
             measured, error = self.estimator.measure(c.pose, c.x_d, struts, metrology_pose)
-            if not c.first:
+            if not c.first and self.encoder_checks.gough_check is not None:
                 self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)   # judged in the next prepare
             if not self.strategy.joint_space:
                 return self._cartesian_command(c, measured, error)
@@ -406,24 +406,23 @@ class ControllerCore:
         distribute the wrench it returns with numpy."""
         sup = self.supervisor
         cfg = self.config
-        out = self.kernels.cartesian(self, c, measured, error)
-        self.integral = out.integral
-        code, index, value = out.code, out.index, out.value
-        if code == LIMITS_OK and out.distributed:
-            return self._accept(c, out.forces, out.saturated, out.peak, value, measured, error)
+        code, index, value, self.integral, wrench, forces, distributed, saturated, peak = \
+            self.kernels.cartesian(self, c, measured, error)              # a commands.CartesianOutcome
+        if code == LIMITS_OK and distributed:
+            return self._accept(c, forces, saturated, peak, value, measured, error)
         if code == LIMITS_OK:
-            forces = distribute_wrench(cfg, self.dynamics, self.model, self.kernels.wrench_list(out.wrench),
+            forces = distribute_wrench(cfg, self.dynamics, self.model, self.kernels.wrench_list(wrench),
                                        c.active_rows, c.pose) \
                 if len(sup.active) == self.n else \
-                self.expand(distribute("pseudo_inverse", c.active_rows, out.wrench).tolist())
+                self.expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
             return self._finish(c, forces, value, measured, error)
         if code > DISTRIBUTION_FAILED:
-            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, self.kernels.wrench_list(out.wrench))
+            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, self.kernels.wrench_list(wrench))
         if code == FORCES_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: non-finite drive forces {out.forces}", TripCause.KINEMATICS)
+            return self.trip(f"{cfg.strategy}: non-finite drive forces {forces}", TripCause.KINEMATICS)
         if code == WRENCH_NOT_FINITE:
             return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: "
-                             f"{self.kernels.wrench_list(out.wrench)}",
+                             f"{self.kernels.wrench_list(wrench)}",
                              TripCause.KINEMATICS)
         return self.trip(*sup.limit_trip(code, index, value))
 
@@ -444,9 +443,10 @@ class ControllerCore:
         """The clamped command of the cycle: the saturation supervisor, the statistics,
         the record."""
         sup = self.supervisor
-        problem = sup.check_saturation(c.t_s, saturated)
-        if problem is not None:
-            return self.trip(*problem)
+        if saturated or sup.saturated_since is not None:      # (else nothing to count or clear)
+            problem = sup.check_saturation(c.t_s, saturated)
+            if problem is not None:
+                return self.trip(*problem)
         self.cycles += 1
         self.last_command = forces
         self.answers.keep(round(c.t_s * 1e9), forces)
