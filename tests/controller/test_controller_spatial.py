@@ -214,3 +214,76 @@ def test_the_gough_metrology_removes_strut_errors_the_encoders_cannot_see(strate
                        * Rotation.from_euler("ZYX", tool[[5, 4, 3]]).inv()).magnitude())
     assert ends["computed_torque"][0] > 500e-6
     assert ends[strategy][0] < 3e-6 and ends[strategy][1] < 20e-6
+
+
+# ------------------------------------------------------ the spatial kernels alone
+def _spatial_inputs(seed=4):
+    """A hexapod's J_m at a pose near home, with boxes that hold it, and random law inputs."""
+    from pkm_kinematics import load_machine
+    model = load_machine("genhexkins").model
+    rng = np.random.default_rng(seed)
+    x = np.asarray(model.home, dtype=float) + rng.uniform(-0.002, 0.002, 6)
+    q = model.inverse_kinematics(x)
+    rows = np.asarray(model.jacobian(x), dtype=float)
+    joint_box = np.column_stack([q - 0.1, q + 0.1])
+    workspace_box = np.column_stack([x - 0.1, x + 0.1])
+    return model, rng, x, q, rows, joint_box, workspace_box
+
+
+def test_spatial_limits_kernel_names_each_limit_in_order():
+    """Against the definitions: the first drive out of its box, the first axis out of
+    the workspace, the weighted condition number, |e_p| and |e_w| (a rotation vector's
+    angle), in that order."""
+    from pkm_controller.laws import CycleCode, spatial_limits_kernel
+    model, rng, x, q, rows, joint_box, workspace_box = _spatial_inputs()
+    length = model.characteristic_length_m
+    cond = np.linalg.cond(np.hstack([rows[:, :3], rows[:, 3:] / length]))   # rotation columns weighted
+    error = (0.001, -0.002, 0.0005, 0.01, 0.0, -0.02)
+
+    def limits(q_, measured, max_condition=1e6, err=error, fe_m=0.01, fe_rad=0.05):
+        return spatial_limits_kernel(q_, joint_box, tuple(measured), workspace_box, rows, length, max_condition,
+                                     tuple(err), fe_m, fe_rad)
+    code, index, value = limits(q, x)
+    assert code == CycleCode.OK and value == pytest.approx(np.linalg.norm(error[:3]), rel=1e-12)
+    bad_q = q.copy(); bad_q[4] = joint_box[4, 1] + 1e-6
+    assert limits(bad_q, x)[:2] == (CycleCode.JOINT_LIMIT, 4)
+    bad_x = x.copy(); bad_x[5] = workspace_box[5, 0] - 1e-6
+    assert limits(q, bad_x)[:2] == (CycleCode.WORKSPACE_LIMIT, 5)
+    code, _, value = limits(q, x, max_condition=0.5 * cond)
+    assert code == CycleCode.SINGULARITY_MARGIN and value == pytest.approx(cond, rel=1e-9)
+    assert limits(q, x, fe_m=1e-4)[0] == CycleCode.FOLLOWING_ERROR_M
+    code, index, value = limits(q, x, fe_rad=1e-3)
+    assert (code, index) == (CycleCode.FOLLOWING_ERROR_RAD, 3) and value == pytest.approx(np.linalg.norm(error[3:]))
+
+
+def test_spatial_command_kernel_is_computed_torque_and_the_pseudo_inverse():
+    """F = A (a_d + Kd (v_d - v) + Kp e + I) + H and f = J (J^T J)^-1 F, against numpy;
+    the integral grows by Ki e dt; the wrench comes back alone without distribution."""
+    from pkm_controller.laws import LAW_COMPUTED_TORQUE, CycleCode, spatial_command_kernel
+    model, rng, x, q, rows, joint_box, workspace_box = _spatial_inputs(9)
+    kp, kd, ki = 400.0, 40.0, 2000.0
+    gains = np.array([[kp] * 6, [kd] * 6, [ki] * 6, [0.0] * 6])
+    error = rng.uniform(-1e-4, 1e-4, 6)
+    integral = rng.uniform(-0.1, 0.1, 6)
+    a_model = np.diag(rng.uniform(5.0, 20.0, 6)) + 0.1
+    h_model = rng.uniform(-50.0, 50.0, 6)
+    v_d, v, a_d = rng.uniform(-0.01, 0.01, 6), rng.uniform(-0.01, 0.01, 6), rng.uniform(-0.1, 0.1, 6)
+    dt = 0.001
+
+    def command(distribute):
+        return spatial_command_kernel(q, joint_box, tuple(x), workspace_box, rows, model.characteristic_length_m,
+                                      1e6, tuple(error), 0.01, 0.05, LAW_COMPUTED_TORQUE, gains, True, integral, dt,
+                                      a_model, h_model, v_d, v, a_d, distribute, 1e9)
+    code, _, _, i_new, wrench, forces, saturated, peak = command(True)
+    i_ref = integral + ki * error * dt
+    wrench_ref = a_model @ (a_d + kd * (v_d - v) + kp * error + i_ref) + h_model
+    forces_ref = rows @ np.linalg.solve(rows.T @ rows, wrench_ref)
+    assert code == CycleCode.OK and saturated == 0
+    np.testing.assert_allclose(i_new, i_ref, rtol=1e-12)
+    np.testing.assert_allclose(wrench, wrench_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(forces, forces_ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rows.T @ forces, wrench_ref, rtol=1e-9, atol=1e-9)
+    assert peak == pytest.approx(np.abs(forces_ref).max(), rel=1e-9)
+    code, _, _, _, wrench_only, forces_none, _, _ = command(False)
+    assert code == CycleCode.OK and forces_none.shape == (0,)
+    np.testing.assert_allclose(wrench_only, wrench_ref, rtol=1e-12, atol=1e-12)
