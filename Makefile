@@ -40,7 +40,10 @@ $(STAMP): requirements.txt
 # The project's own packages (a few seconds). setuptools warns at length that
 # a flat-layout editable install may be shadowed by same-named folders in the
 # cwd: harmless here, silenced.
+# The old ones are uninstalled first: a package that gave a console script to a new
+# one (pkm_bringup's pkm-report went to pkm_runs) removed it when pip replaced it.
 $(PKG_STAMP): $(STAMP) $(PKG_META)
+	-@$(PIP) uninstall $(PIP_FLAGS) -y $(notdir $(PKG_DIRS)) 2>/dev/null
 	PYTHONWARNINGS='ignore:Editable installation' \
 		$(PIP) install $(PIP_FLAGS) --no-deps --no-build-isolation $(addprefix -e ,$(PKG_DIRS))
 	@touch $(PKG_STAMP)
