@@ -121,7 +121,8 @@ class SixAxis:
         """laws.spatial_command_kernel on the prepared cycle ``c``: the pseudo-inverse
         compiled with every drive and no prestress, else the wrench only."""
         cfg, tuned = core.config, core.tuned
-        compiled = len(core.supervisor.active) == core.n and cfg.distribution == "pseudo_inverse" and cfg.prestress_n == 0.0
+        compiled = (len(core.supervisor.active) == core.n and cfg.distribution == "pseudo_inverse"
+                    and cfg.prestress_n == 0.0)
         code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
             c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
             self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,

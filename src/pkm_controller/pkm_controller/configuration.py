@@ -6,8 +6,9 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from pkm_common.poses import pose_from_components
+from pkm_common.poses import machine_pose_components, pose_from_components
 from pkm_common.timing import percentiles_us
+from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 
 from .config import ControllerConfig
@@ -63,8 +64,6 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
     zeros = [0.0] * core.n
     struts = pose = None
     if core.metrology is not None:
-        from pkm_common.poses import machine_pose_components
-        from pkm_gough_sensor.metrology import GoughSensorModel
         sensor = GoughSensorModel(core.machine.metrology)
         position, orientation = machine_pose_components(core.space, [float(v) for v in home])
         p, r = pose_from_components(position, orientation)

@@ -41,26 +41,27 @@ far enough from singular.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from pkm_common.causes import TripCause
+from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import (distribute, raise_distribution_error)
+from pkm_kinematics.distribution import distribute, raise_distribution_error
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel,
-                   error_norms, tool_pose_floats)
 from .commands import distribute_wrench, expand, joint_command, kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
 from .cycle import AnswerLog, Cycle, CycleRecord
 from .encoder_check import EncoderChecks
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK,
+                   NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel, error_norms,
+                   tool_pose_floats)
+from .pose_estimation import PoseEstimator
 from .reference import Reference
 from .strategies import Feedback, strategy
-from .pose_estimation import PoseEstimator
 from .supervisor import Supervisor
 from .tracking import ReferenceTracker
 from .tuning import MachineTuning, holding_integral, zero_integral
@@ -98,7 +99,7 @@ class ControllerCore:
             if machine.metrology is None:
                 raise ValueError(f"strategy: {self.strategy.name} needs a machine with a 'metrology' section, "
                                  f"{machine.name!r} has none")
-            from pkm_gough_sensor.metrology import GoughSensorModel   # nominal geometry only
+            # the Gough's nominal geometry only (the true one is the plant's)
             self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar,
                                                  at_estimate=self.config.sensor_jacobian == "estimated",
                                                  spatial=self.spatial)

@@ -54,6 +54,7 @@ from pkm_common.poses import machine_pose_components, pose_from_components, tool
 from pkm_controller.config import RUNTIME_SETTINGS, ControllerConfig
 from pkm_controller.controller import ControllerCore
 from pkm_controller.strategies import REGISTRY as STRATEGIES
+from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.distribution import METHODS
 from pkm_sim_hw.plant import leg_segments
@@ -114,7 +115,6 @@ class PanelModel:
         self.home = [float(v) for v in self.model.home]
         self.gough = None
         if machine.metrology is not None:
-            from pkm_gough_sensor.metrology import GoughSensorModel
             self.gough = GoughSensorModel(machine.metrology)
 
     def describe(self) -> dict:

@@ -24,12 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pkm_runs.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, rpy_of, yaw_of
-from pkm_runs.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
+import pkm_kinematics
 from pkm_common.causes import TripCause
+from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 from pkm_kinematics.distribution import GRAM_RTOL
 from pkm_kinematics.rotations import wrap_angles
 from pkm_kinematics.task_space import PLANAR, POSITION
+from pkm_runs.report_data import COMMAND, STATE, JointRows, RunInfo, StatusRecord, StepBlock, rpy_of, yaw_of
+from pkm_runs.report_plots import MAX_PLOT_POINTS, FigureCurves, FigureSpec
 
 UNKNOWN_CAUSE = "unknown"           # a stop whose status names no cause (recorded before causes were)
 
@@ -234,9 +236,6 @@ def resolve_machine(names: list, machine_name: str | None):
     """(MachineConfig or None, how it was found: "given", "drive names" or "unknown").
     By drive names only among the machines a graph runs (a recording comes from one):
     mom3_imperfect has mom3's drives but is not run yet."""
-    import pkm_kinematics
-    from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
-
     if machine_name:
         return pkm_kinematics.load_machine(machine_name), "given"
     if not names:
