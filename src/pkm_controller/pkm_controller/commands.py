@@ -9,8 +9,8 @@ cycle):
   twist, laws.spatial_limits_kernel and laws.spatial_command_kernel (the
   pseudo-inverse compiled, the other distributions from the wrench it returns).
 
-Each answers the same four questions (``twists``, ``limits``, ``joint_feedforward``,
-``cartesian``); the controller core (controller.py) acts on the answers. The joint
+Each answers the same four questions (``twists``: the reference's rates as the laws
+take them, None when they are; ``limits``, ``joint_feedforward``, ``cartesian``); the controller core (controller.py) acts on the answers. The joint
 strategies (``joint_command``) and the distributions that are not compiled
 (``distribute_wrench``) are written once for both.
 """
@@ -61,9 +61,7 @@ class ThreeAxis:
         self.model = model
         self.planar = model.task_space is PLANAR
 
-    def twists(self, x_d, v_d, a_d):
-        """The reference's rates as the laws take them: as they are."""
-        return v_d, a_d
+    twists = None        # the reference's rates are what the laws take: nothing to convert
 
     @staticmethod
     def wrench_list(wrench) -> list:

@@ -170,7 +170,8 @@ class ControllerCore:
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
-        self.tracker = ReferenceTracker(self.space, self.config.start_tolerance_m, self.config.start_tolerance_rad)
+        self.tracker = ReferenceTracker(self.space, self.config.start_tolerance_m, self.config.start_tolerance_rad,
+                                        self.kernels.twists)
         self.estimator.reset()
         self.last_time_s = None
         self._cycle: Cycle | None = None        # prepared, waiting for complete()
@@ -339,7 +340,6 @@ class ControllerCore:
         metrology arrives (sensor_space: l_des and J_h)."""
         sup = self.supervisor
         c.x_d, c.v_d, c.a_d = self.tracker.sample(c.t_s)
-        c.v_d, c.a_d = self.kernels.twists(c.x_d, c.v_d, c.a_d)
         if self.encoder_checks.encoders is not None:
             problem = self.encoder_checks.check_cycle(c, sup.forces_mismatched, sup.failed)
             if problem is not None:

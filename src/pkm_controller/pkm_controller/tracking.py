@@ -16,10 +16,12 @@ __all__ = ["ReferenceTracker"]
 
 class ReferenceTracker:
     """``space``: the machine's task space; a trajectory must start within
-    ``start_tolerance_m`` and ``start_tolerance_rad`` of the current reference."""
+    ``start_tolerance_m`` and ``start_tolerance_rad`` of the current reference;
+    ``twists(x, v, a)``: the rates as the laws take them (commands.SixAxis.twists), None
+    when they are the coordinates' own."""
 
-    def __init__(self, space, start_tolerance_m: float, start_tolerance_rad: float):
-        self.space = space
+    def __init__(self, space, start_tolerance_m: float, start_tolerance_rad: float, twists=None):
+        self.space, self.twists = space, twists
         self.start_tolerance_m, self.start_tolerance_rad = start_tolerance_m, start_tolerance_rad
         self.reference: Reference | None = None  # None before the first cycle
         self.feed = FeedClock()
@@ -72,6 +74,9 @@ class ReferenceTracker:
 
     def sample(self, t_s: float):
         """(x_d, v_d, a_d) of the cycle at ``t_s``: the feed clock advanced, the
-        reference sampled at its time and its rates scaled."""
+        reference sampled at its time, its rates scaled (and made twists)."""
         tau, s, sdot = self.feed.advance(t_s)
-        return scaled_reference(self.reference.sample(tau), s, sdot)
+        x_d, v_d, a_d = scaled_reference(self.reference.sample(tau), s, sdot)
+        if self.twists is None:
+            return x_d, v_d, a_d
+        return (x_d, *self.twists(x_d, v_d, a_d))
