@@ -241,10 +241,10 @@ def test_workspace_and_singularity_margin_trip():
 ])
 def test_a_bad_state_is_refused_and_the_controller_stops(q, qdot, message):
     core = ControllerCore(ARCHI, ControllerConfig())
-    forces = core.update(0.0, q, qdot)
+    forces = core.update(0, q, qdot)
     assert forces == [0.0] * 4 and core.stopped
     assert re.search(message, core.stop_reason), core.stop_reason
-    assert core.update(0.001, [0.0] * 4, [0.0] * 4) == [0.0] * 4        # stays stopped
+    assert core.update(1_000_000, [0.0] * 4, [0.0] * 4) == [0.0] * 4        # stays stopped
 
 
 def test_a_singular_measured_pose_stops_the_controller_naming_it(monkeypatch):
@@ -256,7 +256,7 @@ def test_a_singular_measured_pose_stops_the_controller_naming_it(monkeypatch):
         raise SingularityError("leg q2 is perpendicular to its rail (serial singularity)")
 
     monkeypatch.setattr(core.dynamics, "measured_state", singular)
-    assert core.update(0.0, *_state_at(ARCHI_HOME)) == [0.0] * 4
+    assert core.update(0, *_state_at(ARCHI_HOME)) == [0.0] * 4
     assert core.stopped
     assert core.stop_reason == "kinematics at the measured pose: leg q2 is perpendicular to its rail (serial singularity)"
 
@@ -267,17 +267,17 @@ def test_a_drive_beyond_its_joint_limit_trips_naming_it(strategy):
     and the compiled (Cartesian) path alike."""
     core = ControllerCore(MOM3, ControllerConfig(strategy=strategy))
     q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()
-    core.update(0.0, q, [0.0] * 3)
+    core.update(0, q, [0.0] * 3)
     assert not core.stopped
     q[1] = 1.86                                           # limits [1.15, 1.85] m
-    assert core.update(0.001, q, [0.0] * 3) == [0.0] * 3
+    assert core.update(1_000_000, q, [0.0] * 3) == [0.0] * 3
     assert core.stop_reason == "joint limit: drive q2 at 1.86 m outside [1.15, 1.85] m"
 
 
 def test_a_non_finite_model_wrench_stops_the_controller_naming_it(monkeypatch):
     """A NaN from the dynamic model reaches the wrench: refused before any drive moves."""
     core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
-    core.update(0.0, *_state_at(ARCHI_HOME))
+    core.update(0, *_state_at(ARCHI_HOME))
     measured_state = core.dynamics.measured_state
 
     def nan_gravity(x, qdot):
@@ -285,7 +285,7 @@ def test_a_non_finite_model_wrench_stops_the_controller_naming_it(monkeypatch):
         return a, (h[0], math.nan, h[2]), rows, v
 
     monkeypatch.setattr(core.dynamics, "measured_state", nan_gravity)
-    assert core.update(0.001, *_state_at(ARCHI_HOME)) == [0.0] * 4
+    assert core.update(1_000_000, *_state_at(ARCHI_HOME)) == [0.0] * 4
     assert core.stop_reason.startswith("computed_torque: wrench: contains NaN or infinite values: [")
 
 
@@ -294,7 +294,7 @@ def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypa
     component), distributed, and the drives get the clamped forces, saturation
     counted, the machine not tripped for it."""
     core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque"))
-    core.update(0.0, *_state_at(ARCHI_HOME))
+    core.update(0, *_state_at(ARCHI_HOME))
     measured_state = core.dynamics.measured_state
 
     def huge(x, qdot):
@@ -302,7 +302,7 @@ def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypa
         return a, (1e308, 1e308, 0.0), rows, v
 
     monkeypatch.setattr(core.dynamics, "measured_state", huge)
-    forces = core.update(0.001, *_state_at(ARCHI_HOME))
+    forces = core.update(1_000_000, *_state_at(ARCHI_HOME))
     assert not core.stopped, core.stop_reason
     assert max(abs(f) for f in forces) == core.config.force_limit_n and core.saturation_count == 1
 
@@ -310,7 +310,7 @@ def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypa
 def test_missing_metrology_stops_the_measured_space_controller():
     core = ControllerCore(MOM3, ControllerConfig(strategy="measured_space"))
     q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()
-    core.update(0.0, q, [0.0] * 3, metrology_pose=None)
+    core.update(0, q, [0.0] * 3, metrology_pose=None)
     assert core.stopped and "metrology/pose: missing" in core.stop_reason
 
 
@@ -325,15 +325,15 @@ def test_a_cycle_prepared_on_the_state_completes_on_the_struts():
     cycle is a programming error; a stopped controller answers zeros at prepare."""
     q = MOM3.model.inverse_kinematics(MOM3_HOME).tolist()
     core = ControllerCore(MOM3, ControllerConfig(strategy="sensor_space"))
-    assert core.prepare(0.0, q, [0.0] * 3) is True
+    assert core.prepare(0, q, [0.0] * 3) is True
     forces = core.complete(struts=_mom3_struts(MOM3_HOME))
     assert not core.stopped and len(forces) == 3 and core.cycles == 1
     with pytest.raises(RuntimeError, match="no cycle prepared"):
         core.complete(struts=_mom3_struts(MOM3_HOME))
-    assert core.prepare(0.001, q, [0.0] * 3) is True
+    assert core.prepare(1_000_000, q, [0.0] * 3) is True
     assert core.complete(struts=[0.8] * 5) == [0.0] * 3
     assert core.stopped and core.stop_reason.startswith("metrology/struts: expected 6 finite strut lengths")
-    assert core.prepare(0.002, q, [0.0] * 3) is False and core.last_command == [0.0] * 3
+    assert core.prepare(2_000_000, q, [0.0] * 3) is False and core.last_command == [0.0] * 3
     assert core.complete(struts=_mom3_struts(MOM3_HOME)) == [0.0] * 3
 
 
@@ -344,7 +344,7 @@ def test_trajectories_must_start_at_the_current_reference():
         core.set_trajectory(far)
     near = Reference([0.0, 1.0], [ARCHI_HOME, [1.01, -0.4, 0.785]])
     core.set_trajectory(near)
-    core.update(0.006, *_state_at(ARCHI_HOME))
+    core.update(6_000_000, *_state_at(ARCHI_HOME))
     with pytest.raises(ValueError, match="another trajectory is running"):
         core.set_trajectory(near)
 
@@ -354,11 +354,11 @@ def test_a_trajectory_received_before_the_first_state_is_checked_then():
     a far one is refused there (reported in the faults), the machine holds."""
     core = ControllerCore(ARCHI, ControllerConfig())
     core.set_trajectory(Reference([0.0, 1.0], [[1.1, -0.4, 0.785], [1.2, -0.4, 0.785]]))
-    core.update(0.0, *_state_at(ARCHI_HOME))
+    core.update(0, *_state_at(ARCHI_HOME))
     assert not core.stopped and core.mode == "holding" and "trajectory refused" in core.faults[0]
     core = ControllerCore(ARCHI, ControllerConfig())
     core.set_trajectory(Reference([0.0, 1.0], [ARCHI_HOME, [1.01, -0.4, 0.785]]))
-    core.update(0.0, *_state_at(ARCHI_HOME))
+    core.update(0, *_state_at(ARCHI_HOME))
     assert core.mode == "tracking" and core.reference.duration_s == 1.0
 
 
@@ -417,8 +417,8 @@ def _late_commands_loop(flag_held: bool, steps: int = 400, late=lambda k: 2 <= k
     core.set_trajectory(reference or step_reference(ARCHI_HOME, 0, 0.001))
     out, latest, latest_stamp, held = plant.output(), [0.0] * 4, 0, False
     for k in range(steps):
-        stamp = round(out.time_s * 1e9)
-        forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+        stamp = out.stamp_ns
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces,
                              held=latest_stamp if held and flag_held else None)
         held = late(k)                               # this command misses its tick...
         if not held:
@@ -471,7 +471,7 @@ def test_two_arm_with_gravity_sets_the_nacelle_internal_force_of_archi_4_3_2():
     for distribution in ("two_arm", "two_arm_gravity"):
         core = ControllerCore(ARCHI, ControllerConfig(strategy="computed_torque", distribution=distribution))
         q = model.inverse_kinematics(pose).tolist()
-        forces = np.array(core.update(0.0, q, [0.0] * 4))
+        forces = np.array(core.update(0, q, [0.0] * 4))
         assert not core.stopped, core.stop_reason
         out[distribution] = (jf @ np.linalg.solve(force_map, forces), model.jacobian(pose).T @ forces)
     assert out["two_arm"][0][3] == pytest.approx(0.0, abs=1e-6)
@@ -515,7 +515,7 @@ def test_fk_resync_cycles_puts_a_newton_solution_every_n_cycles():
         pose = [ARCHI_HOME[0] + 2e-6 * k, ARCHI_HOME[1] + 1e-6 * k * k, ARCHI_HOME[2] + 1e-5 * k]
         q = model.inverse_kinematics(pose).tolist()
         previous = core.pose
-        core.update(0.001 * k, q, [0.0] * 4)
+        core.update(1_000_000 * k, q, [0.0] * 4)
         assert not core.stopped, core.stop_reason
         newton = list(model.forward_kinematics_floats(q, previous))
         exact.append(core.pose == newton)

@@ -143,7 +143,7 @@ def test_a_frozen_strut_encoder_is_named():
 
 def test_what_a_spatial_machine_cannot_take_is_refused_by_name():
     core = ControllerCore(GENHEXKINS, ControllerConfig())
-    core.update(0.0, GENHEXKINS.model.inverse_kinematics(GENHEXKINS.model.home).tolist(), [0.0] * 6)
+    core.update(0, GENHEXKINS.model.inverse_kinematics(GENHEXKINS.model.home).tolist(), [0.0] * 6)
     with pytest.raises(ValueError, match=r"3 task coordinates, this machine has 6 \(x, y, z, a, b, c\)"):
         core.set_trajectory(Reference.hold([0.0, 0.0, 0.5]))
     with pytest.raises(ValueError, match="forward_kinematics: must be newton on a 6-DOF machine"):

@@ -29,7 +29,7 @@ def excursion_under_delay(bandwidth_hz: float, delay_steps: int, settle: int = 4
     plant = Plant(ARCHI, PlantParameters(dt_s=0.004))
     out, sent, settled, worst, held = plant.output(), [], None, 0.0, None
     for k in range(settle + 2 * window):
-        sent.append(core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+        sent.append(core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces,
                                 held=held))
         if core.stopped:
             assert core.stop_cause == TripCause.FOLLOWING_ERROR, core.stop_reason
@@ -37,7 +37,7 @@ def excursion_under_delay(bandwidth_hz: float, delay_steps: int, settle: int = 4
         applied = k - delay_steps if settle <= k < settle + window else k
         # the state says which command the drives applied, as sim_hw's status word does
         # (setpoint_held): the drive supervision compares the forces with that one
-        held = None if applied == k else round(applied * 0.004 * 1e9)
+        held = None if applied == k else applied * 4_000_000
         out = plant.step(sent[applied])
         position = np.array(out.tool_pose[:2])
         if k == settle:
@@ -66,13 +66,13 @@ def trips_under_delay(bandwidth_hz: float, delay_steps: int, window: int = 50) -
     plant = PLANTS[HEXAPOD.kind](HEXAPOD, PlantParameters(dt_s=0.004), initial_pose=start.tolist())
     out, sent, held = plant.output(), [], None
     for k in range(2 * window):
-        sent.append(core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+        sent.append(core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces,
                                 held=held))
         if core.stopped:
             assert core.stop_cause == TripCause.FOLLOWING_ERROR, core.stop_reason
             return True
         applied = max(0, k - delay_steps) if k < window else k
-        held = None if applied == k else round(applied * 0.004 * 1e9)
+        held = None if applied == k else applied * 4_000_000
         out = plant.step(sent[applied])
     return False
 

@@ -183,8 +183,8 @@ def test_a_safe_stop_is_recorded_with_its_cause_and_replays_from_the_record():
     from pkm_controller.operator_actions import Action, apply_action, recorded_payload
     core = ControllerCore(ARCHI, ControllerConfig(strategy="joint_pid"))
     q = ARCHI.model.inverse_kinematics(ARCHI.model.home).tolist()
-    core.prepare(0.004, q, [0.0] * 4, [0.0] * 4)
-    assert not core.stopped and core.last_time_s == 0.004
+    core.prepare(4_000_000, q, [0.0] * 4, [0.0] * 4)
+    assert not core.stopped and core.last_stamp_ns == 4_000_000
     event = apply_action(core, Action.SAFE_STOP, {"reason": "drives/state: none for 0.5 s",
                                                   "cause": TripCause.WATCHDOG}, after_ns=None)
     assert event == {"kind": "safe_stop", "after_ns": None, "ok": True, "message": "",

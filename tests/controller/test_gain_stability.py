@@ -119,7 +119,7 @@ def hold_with_a_kick(name: str, strategy: str, configured_dt: float, dt: float, 
     out = plant.output()
     home, worst = np.array(out.tool_pose[:3]), 0.0
     for k in range(round(seconds / dt)):
-        forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces)
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces)
         if core.stopped:
             return math.inf, core.stop_reason
         if k < 5:

@@ -36,7 +36,7 @@ def hold(machine, core: ControllerCore, steps: int, switch_at: int | None = None
     for k in range(steps):
         if k == switch_at:
             core.change_settings({"strategy": to})
-        forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces)
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces)
         assert not core.stopped, core.stop_reason
         out = plant.step(forces)
         first = np.array(forces) if first is None else first

@@ -70,7 +70,7 @@ def run(machine: MachineConfig, controller: ControllerConfig | ControllerCore, p
                 position, rotation, result = sensor.estimate(struts)
                 pose = (position.tolist(), rotation) if result.converged else None
             struts = struts.tolist()
-        forces = core.update(out.time_s, out.encoder_positions, out.encoder_velocities, out.applied_forces,
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces,
                              struts=struts, metrology_pose=pose)
         log.time_s.append(out.time_s)
         log.reference.append(list(core.record.reference))

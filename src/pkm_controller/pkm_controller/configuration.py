@@ -6,13 +6,14 @@ from __future__ import annotations
 
 from dataclasses import fields
 
+import numpy as np
+
 from pkm_common.poses import machine_pose_components, pose_from_components
 from pkm_common.timing import percentiles_us
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 
 from .config import ControllerConfig
-
 from .controller import ControllerCore
 
 # the controller node's own parameters, beside ControllerConfig's (the scenario checks both)
@@ -56,7 +57,6 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
     graph answered its state 14-17 ms late (65 ms beside a browser drawing the panel),
     and the drives, holding their setpoint meanwhile, drifted 11 mm; warmed, 0.5 ms.
     ``core`` itself is not touched."""
-    import numpy as np
     scratch = ControllerCore(core.machine, core.config)
     model = core.model
     home = model.home
@@ -70,8 +70,9 @@ def warm_up(core: ControllerCore, cycles: int = 3) -> None:
         struts = sensor.measure(p, r).tolist()
         estimate = sensor.estimate(np.asarray(struts))
         pose = (estimate[0].tolist(), estimate[1])
+    dt_ns = round(core.config.dt_s * 1e9)
     for k in range(cycles):
-        if scratch.prepare(k * core.config.dt_s, q, zeros, zeros):
+        if scratch.prepare(k * dt_ns, q, zeros, zeros):
             scratch.complete(struts=struts, metrology_pose=pose)
     scratch.status()
 

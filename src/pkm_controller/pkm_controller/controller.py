@@ -1,11 +1,11 @@
 """The redundant-actuation controller (pure core, no rclpy): strategies, force
 distribution and the safety supervisor, one ``update`` per control cycle.
 
-``ControllerCore.update(t_s, q, qdot, applied, struts=None, metrology_pose=None)``
-takes one drive state (encoder positions and velocities, the forces the drives
+``ControllerCore.update(stamp_ns, q, qdot, applied, struts=None, metrology_pose=None)``
+takes one drive state (its stamp in integer nanoseconds, as it travels) (encoder positions and velocities, the forces the drives
 report applying) and, for the metrology strategies, the Gough strut readings or the
 Gough pose of the same instant, and returns the drive forces to apply until the next
-state. A node splits it in two: ``prepare(t_s, q, qdot, applied)`` as soon as the
+state. A node splits it in two: ``prepare(stamp_ns, q, qdot, applied)`` as soon as the
 drive state arrives (FK, supervision, reference, l_des, J_h, A(x), H(x, v)) and
 ``complete(struts, metrology_pose)`` when the metrology of that instant does, so the
 readings wait only for the feedback, the law and the distribution. Strategies
@@ -173,7 +173,8 @@ class ControllerCore:
         self.tracker = ReferenceTracker(self.space, self.config.start_tolerance_m, self.config.start_tolerance_rad,
                                         self.kernels.twists)
         self.estimator.reset()
-        self.last_time_s = None
+        self.last_stamp_ns: int | None = None   # the stamp of the last state (the answers' key)
+        self.last_time_s: float | None = None   # the same in seconds (the reference's time)
         self._cycle: Cycle | None = None        # prepared, waiting for complete()
         self.supervisor.reset()
         self.integral = zero_integral(self.strategy.law, self.n, self.dof)
@@ -271,16 +272,18 @@ class ControllerCore:
         return (None, value) if code == LIMITS_OK else (self.supervisor.limit_trip(code, index, value), value)
 
     # ------------------------------------------------------------------ cycle
-    def update(self, t_s: float, q, qdot, applied=None, struts=None, metrology_pose=None,
+    def update(self, stamp_ns: int, q, qdot, applied=None, struts=None, metrology_pose=None,
                held: int | None = None) -> list:
-        """One control cycle; returns the drive forces (N) for the next period.
-        The same as ``prepare`` on the drive state, then ``complete`` on the metrology."""
-        if not self.prepare(t_s, q, qdot, applied, held):
+        """One control cycle on the state stamped ``stamp_ns`` (int ns); returns the
+        drive forces (N) for the next period. The same as ``prepare`` on the drive
+        state, then ``complete`` on the metrology."""
+        if not self.prepare(stamp_ns, q, qdot, applied, held):
             return list(self.last_command)
         return self.complete(struts, metrology_pose)
 
-    def prepare(self, t_s: float, q, qdot, applied=None, held: int | None = None) -> bool:
-        """The first half of a cycle, on the drive state alone: the input checks, the
+    def prepare(self, stamp_ns: int, q, qdot, applied=None, held: int | None = None) -> bool:
+        """The first half of a cycle, on the drive state stamped ``stamp_ns`` (int ns,
+        the key of its answer; seconds are derived here once) alone: the input checks, the
         encoder FK, the drive supervision, J_m and the task velocity, the reference
         and what the strategy computes from them (the Gough's l_des and J_h, the
         model A(x), H(x, v)). A node runs it while the metrology of the same instant
@@ -307,9 +310,10 @@ class ControllerCore:
                 self.trip(*problem)
                 return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
+        t_s = stamp_ns * 1e-9
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None
-        self.last_time_s = t_s
+        self.last_stamp_ns, self.last_time_s = stamp_ns, t_s
         try:
             pose = self.estimator.encoder_pose(q_array)
         except (KinematicsError, ValueError) as exc:
@@ -331,7 +335,7 @@ class ControllerCore:
             self.trip(f"kinematics at the measured pose: {exc}", TripCause.KINEMATICS)
             return False
         active_rows = rows_a if len(sup.active) == self.n else rows_a[sup.active]
-        self._cycle = c = Cycle(t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
+        self._cycle = c = Cycle(stamp_ns, t_s, dt, first, q, q_array, qdot, pose, rows_a, active_rows, v)
         c.a_model, c.h_model, c.applied, c.held = a_model, h_model, applied, held is not None
         return first or self._prepare_reference(c)
 
@@ -450,7 +454,7 @@ class ControllerCore:
                 return self.trip(*problem)
         self.cycles += 1
         self.last_command = forces
-        self.answers.keep(round(c.t_s * 1e9), forces)
+        self.answers.keep(c.stamp_ns, forces)
         self.peak_force_n = max(self.peak_force_n, peak)
         self.max_error_m = max(self.max_error_m, trans)
         r = self.record

@@ -41,10 +41,11 @@ class CycleRecord:
 class Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
-    __slots__ = ("t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
+    __slots__ = ("stamp_ns", "t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
                  "a_d", "a_model", "h_model", "applied", "suspect", "held")
 
-    def __init__(self, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
+    def __init__(self, stamp_ns, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
+        self.stamp_ns = stamp_ns   # the state's stamp (int ns): the key of the cycle's answer
         # q as floats (the joint PIDs) and as the array the compiled kernels take
         self.t_s, self.dt, self.first, self.q, self.q_array, self.qdot = t_s, dt, first, q, q_array, qdot
         # J_m as the (n, 3) array measured_state made, and the rows of the active drives

@@ -364,7 +364,7 @@ class ControllerLoop:
             msg = in_order(msg, self.names, "drives/state")
         except ValueError as exc:
             core.trip(str(exc), TripCause.INPUT_REFUSED)
-        return core.prepare(msg.stamp_ns * 1e-9, msg.position, msg.velocity, msg.effort,
+        return core.prepare(msg.stamp_ns, msg.position, msg.velocity, msg.effort,
                             held=setpoint_held(msg.frame_id))
 
     def answer(self, stamp: int, start: float) -> None:
@@ -406,7 +406,7 @@ class ControllerLoop:
         level, message, values = self.core.status()
         if extra:
             level, message = max(level, 1), f"{message}; {extra}"
-        self.ports.publish_status(round((self.core.last_time_s or 0.0) * 1e9), level, message, values)
+        self.ports.publish_status(self.core.last_stamp_ns or 0, level, message, values)
 
     def safe_stop_plant(self, cause: TripCause) -> None:
         """The plant stopped on its own (its status word in drives/state): the

@@ -41,7 +41,7 @@ def apply_action(core, action: Action, payload, after_ns=LAST_CYCLE) -> dict:
     applied. A ValueError as the payload: the message could not be read; refused with
     its message."""
     if after_ns is LAST_CYCLE:
-        after_ns = None if core.last_time_s is None else round(core.last_time_s * 1e9)
+        after_ns = core.last_stamp_ns
     after = after_ns
     event = {"kind": action.value, "after_ns": after, "ok": True, "message": ""}
     if isinstance(payload, ValueError):          # the message itself could not be read

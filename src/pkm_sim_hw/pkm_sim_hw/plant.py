@@ -147,6 +147,7 @@ class PlantOutput:
 
     time_s: float
     step: int
+    stamp_ns: int                  # the step's stamp: step * dt (int ns), as published
     encoder_positions: list        # quantised drive positions (m), frozen ones held
     encoder_velocities: list       # backward difference of the encoder positions (m/s)
     applied_forces: list           # forces the drives actually apply (N); locked: brake reaction
@@ -201,6 +202,7 @@ class Plant:
         self.v = [0.0, 0.0, 0.0]
         self.t = 0.0
         self.k = 0
+        self.dt_ns = round(self.params.dt_s * 1e9)      # a step's stamp is k * dt_ns
         self.load = [0.0, 0.0, 0.0]
         self.frame_load = [0.0, 0.0, 0.0]
         self._schedule: list = []          # [(step, wrench)] (schedule_load)
@@ -386,8 +388,8 @@ class Plant:
         fint = internal_force_rows(rows, applied) if self.n > 3 else [0.0] * self.n
         c, cf = self.params.compliance, self.params.frame_compliance
         tool = [xi + ci * li + cfi * fi for xi, ci, li, cfi, fi in zip(self.x, c, self.load, cf, self.frame_load)]
-        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(self.x),
-                           fint, math.sqrt(sum(f * f for f in fint)),
+        return PlantOutput(self.t, self.k, self.k * self.dt_ns, reading, velocity, list(applied), saturated, tool,
+                           list(self.x), fint, math.sqrt(sum(f * f for f in fint)),
                            [f"{f.drive}:{f.kind}" for f in faults], self.stopped, rotation)
 
     def output(self) -> PlantOutput:

@@ -81,7 +81,6 @@ class SimLoop:
         self.streams, self.ports = streams, ports
         self.run = RunRecord(self.config.name, self.lockstep)     # counters, intruder, steps: the summary's
         self.counts = self.run.counts
-        self.dt_ns = round(self.plant.params.dt_s * 1e9)
         self.command_matches = 1                # publishers matched to drives/command (the matched event)
         self.started = False
         # the command watchdog does not count this process's own stalls (another node's
@@ -96,7 +95,7 @@ class SimLoop:
 
     # ------------------------------------------------------------- publishing
     def now_ns(self) -> int:
-        return self.plant.k * self.dt_ns
+        return self.plant.k * self.plant.dt_ns
 
     def publish_state(self) -> None:
         """Clock, drives/state and platform/true_pose of the current step."""

@@ -83,6 +83,7 @@ class StrutPlant:
         self._schedule: list = []          # [(step, load)] (schedule_load)
         self._frame_schedule: list = []    # [(step, load)] (schedule_frame_load)
         self.t, self.k = 0.0, 0
+        self.dt_ns = round(self.params.dt_s * 1e9)      # a step's stamp is k * dt_ns
         self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
         self._faults = [Fault.parse(f, self.n) if isinstance(f, str) else f for f in self.params.faults]
         q = self.machine.strut_lengths(self.p, self.rotation)
@@ -177,7 +178,8 @@ class StrutPlant:
             # the tool deflected by C f_load and carried by the frame's C_frame f_frame: unseen by the struts
             tool = (np.asarray(x) + self._compliance * self.load + self._frame_compliance * self.frame_load).tolist()
             rotation = rotation_from_rpy(*tool[3:])
-        return PlantOutput(self.t, self.k, reading, velocity, list(applied), saturated, tool, list(x),
+        return PlantOutput(self.t, self.k, self.k * self.dt_ns, reading, velocity, list(applied), saturated, tool,
+                           list(x),
                            fint, math.sqrt(sum(f * f for f in fint)), [f"{f.drive}:{f.kind}" for f in faults],
                            self.stopped, tuple(rotation.ravel().tolist()))
 
