@@ -2,7 +2,7 @@
 authority decided on bytes, with the node's ports replaced by a recorder of calls.
 The node's own tests (test_sim_hw_node.py) run the same code through DDS."""
 
-from pkm_common.causes import TripCause, plant_stop_cause
+from pkm_common.causes import TripCause, plant_status
 from pkm_common.cdr import JointStateDecoder, JointStateEncoder
 from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_common.sources import AllowedSenders
@@ -101,7 +101,7 @@ def test_a_command_ahead_of_the_plant_is_refused_and_the_plant_brakes():
     assert loop.plant.stopped and loop.plant.stop_cause == TripCause.INPUT_REFUSED
     assert "ahead of the plant's step" in ports.refusals[0].reason
     loop.publish_state()
-    assert plant_stop_cause(JointStateDecoder("drives/state").decode(state.sent[-1]).frame_id) \
+    assert plant_status(JointStateDecoder("drives/state").decode(state.sent[-1]).frame_id).cause \
         == TripCause.INPUT_REFUSED                          # the status word says why
 
 

@@ -12,9 +12,11 @@ commands: that is ``plant_safe_stop``, not ``drive_failure``).
 from __future__ import annotations
 
 import enum
+import functools
+from dataclasses import dataclass
 
-__all__ = ["TripCause", "parse_cause", "run_status", "plant_status_word", "plant_stop_cause",
-           "SETPOINT_HELD", "HELD_COMMAND_UNKNOWN", "setpoint_held", "setpoint_held_word"]
+__all__ = ["TripCause", "parse_cause", "run_status", "PlantState", "PlantStatus", "RUNNING", "plant_status",
+           "safe_stop_status", "setpoint_held_status", "SETPOINT_HELD", "HELD_COMMAND_UNKNOWN"]
 
 STATUS_PREFIX = "safe_stop:"
 # The status word of a running plant's step that applied an earlier setpoint again,
@@ -60,38 +62,73 @@ def parse_cause(text: str) -> TripCause:
         raise ValueError(f"cause: must be one of {[c.value for c in TripCause]}, got {text!r}") from None
 
 
-def plant_status_word(cause: TripCause) -> str:
-    """The plant's status in ``drives/state``'s ``header.frame_id`` once braked (empty
-    while running): in band, like a drive's status word."""
-    return f"{STATUS_PREFIX}{TripCause(cause).value}"
+class PlantState(enum.IntEnum):
+    """What the plant's step did (``PlantStatus.state``)."""
+
+    RUNNING = 0          # a fresh setpoint applied
+    SETPOINT_HELD = 1    # an earlier setpoint applied again (realtime: the answer missed its tick)
+    SAFE_STOP = 2        # braked, for ``PlantStatus.cause``
 
 
-def plant_stop_cause(frame_id: str) -> TripCause | None:
-    """The cause in a drive state's status word, None while the plant runs (an unknown
-    cause from a newer plant: ``PLANT_SAFE_STOP``)."""
-    if not frame_id.startswith(STATUS_PREFIX):
-        return None
-    try:
-        return TripCause(frame_id[len(STATUS_PREFIX):])
-    except ValueError:
-        return TripCause.PLANT_SAFE_STOP
+@dataclass(frozen=True, slots=True)
+class PlantStatus:
+    """The plant's status on one drive state, as a drive's status word would give it.
+
+    On the wire it rides in ``drives/state``'s ``header.frame_id`` (sensor_msgs/JointState
+    has no status field and these wheels cannot generate a message of our own:
+    docs/decisions.md): ``""`` running, ``setpoint_held:<stamp ns>`` (a step that
+    applied the command of that stamp again), ``safe_stop:<cause>`` once braked. The
+    text lives here only: ``word`` writes it, ``plant_status`` reads it back."""
+
+    state: PlantState = PlantState.RUNNING
+    cause: TripCause = TripCause.NONE          # SAFE_STOP: why the plant braked
+    held_ns: int | None = None                 # SETPOINT_HELD: the stamp of the command applied again
+
+    @property
+    def stopped(self) -> bool:
+        return self.state is PlantState.SAFE_STOP
+
+    def word(self) -> str:
+        """The status word in ``header.frame_id``."""
+        if self.state is PlantState.SAFE_STOP:
+            return f"{STATUS_PREFIX}{TripCause(self.cause).value}"
+        if self.state is PlantState.SETPOINT_HELD:
+            return f"{SETPOINT_HELD}:{int(self.held_ns)}"
+        return ""
 
 
-def setpoint_held_word(command_stamp_ns: int) -> str:
-    """The status word of a step that applied the command of ``command_stamp_ns`` again."""
-    return f"{SETPOINT_HELD}:{int(command_stamp_ns)}"
+RUNNING = PlantStatus()
 
 
-def setpoint_held(frame_id: str) -> int | None:
-    """None when a drive state's step applied a fresh setpoint; else the stamp (ns) of
-    the command it applied again (``HELD_COMMAND_UNKNOWN`` when the word does not say)."""
-    if not frame_id.startswith(SETPOINT_HELD):
-        return None
-    _, _, stamp = frame_id.partition(":")
-    try:
-        return int(stamp)
-    except ValueError:
-        return HELD_COMMAND_UNKNOWN
+def safe_stop_status(cause: TripCause) -> PlantStatus:
+    """The status of a braked plant."""
+    return PlantStatus(PlantState.SAFE_STOP, TripCause(cause))
+
+
+def setpoint_held_status(command_stamp_ns: int) -> PlantStatus:
+    """The status of a step that applied the command of ``command_stamp_ns`` again."""
+    return PlantStatus(PlantState.SETPOINT_HELD, held_ns=int(command_stamp_ns))
+
+
+@functools.lru_cache(maxsize=64)
+def plant_status(word: str) -> PlantStatus:
+    """The status in a drive state's ``header.frame_id`` (read once per distinct word: a
+    running plant sends the same one every step). A word this version does not know
+    reads as running; a stop with an unknown cause (a newer plant) as
+    ``PLANT_SAFE_STOP``; a held setpoint that does not say which as
+    ``HELD_COMMAND_UNKNOWN``."""
+    if word.startswith(STATUS_PREFIX):
+        try:
+            return safe_stop_status(TripCause(word[len(STATUS_PREFIX):]))
+        except ValueError:
+            return safe_stop_status(TripCause.PLANT_SAFE_STOP)
+    if word.startswith(SETPOINT_HELD):
+        _, _, stamp = word.partition(":")
+        try:
+            return setpoint_held_status(int(stamp))
+        except ValueError:
+            return setpoint_held_status(HELD_COMMAND_UNKNOWN)
+    return RUNNING
 
 
 def run_status(error: str, cause: TripCause) -> str:

@@ -291,7 +291,7 @@ class ControllerCore:
         False when the controller is (now) stopped: ``last_command`` (zeros) answers.
         ``held``: the plant says this step applied an older setpoint again (our last
         command missed its cycle), the stamp (ns) of that command
-        (pkm_common.causes.setpoint_held): the drive supervision compares the reported
+        (pkm_common.causes.PlantStatus): the drive supervision compares the reported
         forces with the command of that stamp, and skips the cycle (its counts neither
         grow nor restart) when it does not know it (HELD_COMMAND_UNKNOWN, or older than
         the answers it keeps)."""

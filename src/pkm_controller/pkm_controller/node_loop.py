@@ -35,7 +35,7 @@ from __future__ import annotations
 import time
 from typing import Protocol
 
-from pkm_common.causes import TripCause, plant_stop_cause, setpoint_held
+from pkm_common.causes import PlantStatus, TripCause, plant_status
 from pkm_common.cdr import (JointStateDecoder, JointStateEncoder, PoseStampedEncoder, decode_multidof_trajectory,
                             decode_pose_stamped, decode_string, in_order, stamp_ns_of)
 from pkm_common.credential import Verifier, split_text
@@ -172,9 +172,9 @@ class ControllerLoop:
         if not self.sources_connected:
             self.sources_connected = True            # the first state answered: its source is ours
             self.check_sources()
-        plant_cause = plant_stop_cause(msg.frame_id)
-        if plant_cause is not None and not self.core.stopped:
-            self.safe_stop_plant(plant_cause)      # the drives' status word: the plant braked
+        status = plant_status(msg.frame_id)
+        if status.stopped and not self.core.stopped:
+            self.safe_stop_plant(status.cause)     # the drives' status word: the plant braked
         if not self.pairing.state_arrived(msg.stamp_ns, now):
             # a repeat: sim_hw republishes a state it has no answer for (step 0 until the
             # graph is connected; later a lost message); our answer was lost: again
@@ -184,7 +184,7 @@ class ControllerLoop:
                 self.commands_resent += 1
             return
         start = time.perf_counter()
-        prepared = self.prepare(msg)
+        prepared = self.prepare(msg, status)
         self.prepare_s = time.perf_counter() - start
         if prepared and self.pairing.wait_for_reading(msg):
             return                     # complete() when the metrology of this stamp arrives
@@ -355,9 +355,10 @@ class ControllerLoop:
             self.safe_stop(fault, TripCause.WATCHDOG)
 
     # ----------------------------------------------------------------- output
-    def prepare(self, msg) -> bool:
-        """First half of the cycle on a drive state (pkm_common.cdr.JointStateData);
-        False when the controller is stopped (the answer is zero forces)."""
+    def prepare(self, msg, status: PlantStatus) -> bool:
+        """First half of the cycle on a drive state (pkm_common.cdr.JointStateData) and
+        the plant's status on it; False when the controller is stopped (the answer is
+        zero forces)."""
         core = self.core
         self.was_stopped = core.stopped
         try:
@@ -365,7 +366,7 @@ class ControllerLoop:
         except ValueError as exc:
             core.trip(str(exc), TripCause.INPUT_REFUSED)
         return core.prepare(msg.stamp_ns, msg.position, msg.velocity, msg.effort,
-                            held=setpoint_held(msg.frame_id))
+                            held=status.held_ns)
 
     def answer(self, stamp: int, start: float) -> None:
         """Complete the prepared cycle with the metrology of ``stamp`` and publish the

@@ -49,7 +49,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from pkm_common.causes import plant_stop_cause
+from pkm_common.causes import plant_status
 from pkm_common.poses import machine_pose_components, pose_from_components, tool_pose_to_machine
 from pkm_controller.config import RUNTIME_SETTINGS, ControllerConfig
 from pkm_controller.controller import ControllerCore
@@ -210,15 +210,15 @@ class Panel:
             self.state = (stamp_ns, list(names), list(position), list(velocity), list(effort), word)
             self.state_clock = self.clock()
             self.counts["drives/state"] += 1
-            cause = plant_stop_cause(word)
-            if cause is None:
+            status = plant_status(word)
+            if not status.stopped:
                 return
             if "estop" in self.sent and "estop" not in self.latency_ms:
                 self.latency_ms["estop"] = 1e3 * (self.clock() - self.sent["estop"])   # press -> drives braked
             # the drives' own word latches too: the controller's status saying so can be
             # missed (a volatile topic, a panel matched late), the word is on every state
             if not self.estop_latched:
-                self.estop_latched, self.estop_why = True, f"the drives braked: {cause.value}"
+                self.estop_latched, self.estop_why = True, f"the drives braked: {status.cause.value}"
 
     def on_struts(self) -> None:
         """The Gough sensor publishes (its struts are drawn)."""

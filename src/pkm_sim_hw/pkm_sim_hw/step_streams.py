@@ -1,16 +1,16 @@
 """The plant's per-step streams as bytes (pkm_common.cdr), without rclpy: one step's
 ``platform/true_pose``, ``drives/state`` and ``/clock``, all stamped t_k.
 
-``drives/state`` carries the plant's status word in its ``header.frame_id``, as a
-drive does: empty while running, ``setpoint_held:<stamp>`` on a step that applied
-the command of that stamp again (realtime), ``safe_stop:<cause>`` once braked.
+``drives/state`` carries the plant's status (pkm_common.causes.PlantStatus) in its
+``header.frame_id``, in band as a drive's status word: running, the command of a
+stamp applied again (realtime), or braked and why.
 rclpy's message objects cost ~13 us to publish and ~30 us to take each, the bytes
 1-4 us.
 """
 
 from __future__ import annotations
 
-from pkm_common.causes import plant_status_word, setpoint_held_word
+from pkm_common.causes import safe_stop_status, setpoint_held_status
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, encode_clock
 
 from .run_record import true_pose_components
@@ -34,7 +34,7 @@ class StepStreams:
         """The next steps applied the command of ``held_stamp_ns`` again (None: a fresh
         one): said in the status word (~20 us, a miss only)."""
         self.held = None if held_stamp_ns is None else \
-            JointStateEncoder(self.plant.names, setpoint_held_word(held_stamp_ns))
+            JointStateEncoder(self.plant.names, setpoint_held_status(held_stamp_ns).word())
 
     def publish(self, ns: int) -> None:
         """Clock, drives/state and platform/true_pose of the plant's current step."""
@@ -45,7 +45,7 @@ class StepStreams:
         encoder = self.held or self.running
         if self.plant.stopped:                     # the status word: braked, and why (also before a step)
             if self.stopped is None:
-                self.stopped = JointStateEncoder(self.plant.names, plant_status_word(self.plant.stop_cause))
+                self.stopped = JointStateEncoder(self.plant.names, safe_stop_status(self.plant.stop_cause).word())
             encoder = self.stopped
         self.state.publish(encoder.encode(ns, out.encoder_positions, out.encoder_velocities, out.applied_forces))
         self.clock.publish(encode_clock(ns))
