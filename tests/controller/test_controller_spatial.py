@@ -234,15 +234,16 @@ def test_spatial_limits_kernel_names_each_limit_in_order():
     """Against the definitions: the first drive out of its box, the first axis out of
     the workspace, the weighted condition number, |e_p| and |e_w| (a rotation vector's
     angle), in that order."""
-    from pkm_controller.laws import CycleCode, spatial_limits_kernel
+    from pkm_controller.laws import CycleCode, kernel_settings, spatial_limits_kernel
     model, rng, x, q, rows, joint_box, workspace_box = _spatial_inputs()
     length = model.characteristic_length_m
     cond = np.linalg.cond(np.hstack([rows[:, :3], rows[:, 3:] / length]))   # rotation columns weighted
     error = (0.001, -0.002, 0.0005, 0.01, 0.0, -0.02)
 
     def limits(q_, measured, max_condition=1e6, err=error, fe_m=0.01, fe_rad=0.05):
-        return spatial_limits_kernel(q_, joint_box, tuple(measured), workspace_box, rows, length, max_condition,
-                                     tuple(err), fe_m, fe_rad)
+        return spatial_limits_kernel(q_, rows, np.asarray(measured, dtype=float), np.asarray(err),
+                                     (joint_box, workspace_box),
+                                     kernel_settings(max_condition, fe_m, fe_rad, 1e9, length))
     code, index, value = limits(q, x)
     assert code == CycleCode.OK and value == pytest.approx(np.linalg.norm(error[:3]), rel=1e-12)
     bad_q = q.copy(); bad_q[4] = joint_box[4, 1] + 1e-6
@@ -259,7 +260,8 @@ def test_spatial_limits_kernel_names_each_limit_in_order():
 def test_spatial_command_kernel_is_computed_torque_and_the_pseudo_inverse():
     """F = A (a_d + Kd (v_d - v) + Kp e + I) + H and f = J (J^T J)^-1 F, against numpy;
     the integral grows by Ki e dt; the wrench comes back alone without distribution."""
-    from pkm_controller.laws import LAW_COMPUTED_TORQUE, CycleCode, spatial_command_kernel
+    from pkm_controller.laws import (DIST_PSEUDO_INVERSE, LAW_COMPUTED_TORQUE, NUMPY_DISTRIBUTION, CycleCode,
+                                     kernel_settings, spatial_command_kernel)
     model, rng, x, q, rows, joint_box, workspace_box = _spatial_inputs(9)
     kp, kd, ki = 400.0, 40.0, 2000.0
     gains = np.array([[kp] * 6, [kd] * 6, [ki] * 6, [0.0] * 6])
@@ -271,9 +273,11 @@ def test_spatial_command_kernel_is_computed_torque_and_the_pseudo_inverse():
     dt = 0.001
 
     def command(distribute):
-        return spatial_command_kernel(q, joint_box, tuple(x), workspace_box, rows, model.characteristic_length_m,
-                                      1e6, tuple(error), 0.01, 0.05, LAW_COMPUTED_TORQUE, gains, True, integral, dt,
-                                      a_model, h_model, v_d, v, a_d, distribute, 1e9)
+        task = np.array([x, error, v_d, v, a_d])                       # laws.TASK_* rows
+        modes = (0, LAW_COMPUTED_TORQUE, DIST_PSEUDO_INVERSE if distribute else NUMPY_DISTRIBUTION)
+        return spatial_command_kernel(q, rows, task, (a_model, h_model), integral, True, dt,
+                                      (joint_box, workspace_box), gains,
+                                      kernel_settings(1e6, 0.01, 0.05, 1e9, model.characteristic_length_m), modes)
     code, _, _, i_new, wrench, forces, saturated, peak = command(True)
     i_ref = integral + ki * error * dt
     wrench_ref = a_model @ (a_d + kd * (v_d - v) + kp * error + i_ref) + h_model

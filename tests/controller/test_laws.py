@@ -16,7 +16,7 @@ from pkm_controller.laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, FOLLOWING_E
                                  FOLLOWING_ERROR_RAD, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE,
                                  LAW_VELOCITY_CASCADE, LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN,
                                  WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains, SensorSpaceFeedback,
-                                 cartesian_command_kernel, clamp_forces_kernel, limits_kernel,
+                                 cartesian_command_kernel, clamp_forces_kernel, kernel_settings, limits_kernel,
                                  pose_error, project_to_range, tool_pose_floats, wrap_angle)
 from pkm_controller.reference import Reference, unwrap_angles
 
@@ -72,8 +72,8 @@ TASK_BOX = np.array([[0.0, 2.0], [-1.0, 1.0]])
 
 def _limits(q=(0.0, 0.1, -0.2, 0.3), measured=(1.0, 0.0, 0.5), error=(1e-4, -2e-4, 1e-3), rows=JAC4,
             planar=True):
-    return limits_kernel(np.array(q), JOINT_BOX, tuple(measured), TASK_BOX, rows, tuple(error), planar, 100.0,
-                         0.01, 0.05)
+    return limits_kernel(np.array(q), rows, tuple(measured), tuple(error), (JOINT_BOX, TASK_BOX),
+                         kernel_settings(100.0, 0.01, 0.05, 1e6), planar)
 
 
 def test_limits_kernel_reports_the_first_limit_violated():
@@ -107,10 +107,11 @@ def _command(law, distribution=DIST_PSEUDO_INVERSE, integrate=True, rows=JAC4, l
     error = 1e-3 * rng.normal(size=3)
     gains = np.abs(rng.normal(size=(4, 3))) * [[1e4], [1e2], [1e5], [10.0]]
     integral = rng.normal(size=3)
-    out = cartesian_command_kernel(np.zeros(rows.shape[0]), np.array([[-1.0, 1.0]] * rows.shape[0]),
-                                   (1.0, 0.0, 0.0), TASK_BOX, rows, tuple(error), True, 1e3, 1.0, 1.0, law, gains,
-                                   integrate, tuple(integral), 1e-3, tuple(map(tuple, a_model)), tuple(h), tuple(v_d),
-                                   tuple(v), tuple(a_d), distribution, limit)
+    task = ((1.0, 0.0, 0.0), tuple(error), tuple(v_d), tuple(v), tuple(a_d))     # laws.TASK_* rows
+    out = cartesian_command_kernel(np.zeros(rows.shape[0]), rows, task, (tuple(map(tuple, a_model)), tuple(h)),
+                                   tuple(integral), integrate, 1e-3,
+                                   (np.array([[-1.0, 1.0]] * rows.shape[0]), TASK_BOX), gains,
+                                   kernel_settings(1e3, 1.0, 1.0, limit), (1, law, distribution))
     i_ref = integral + gains[2] * error * 1e-3 if integrate else integral
     kp, kd, mass = gains[0], gains[1], gains[3]
     if law == LAW_CARTESIAN_PID:        # Sliding Star eq. 9 with the mass feed-forward

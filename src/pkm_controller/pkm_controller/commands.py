@@ -9,8 +9,10 @@ cycle):
   twist, laws.spatial_limits_kernel and laws.spatial_command_kernel (the
   pseudo-inverse compiled, the other distributions from the wrench it returns).
 
-Each answers the same four questions (``twists``: the reference's rates as the laws
-take them, None when they are; ``limits``, ``joint_feedforward``, ``cartesian``); the controller core (controller.py) acts on the answers. The joint
+Each answers the same five questions (``setup``: the kernels' packed inputs of a
+configuration, a :class:`CommandSetup`; ``twists``: the reference's rates as the laws
+take them, None when they are; ``limits``, ``joint_feedforward``, ``cartesian``); the
+controller core (controller.py) acts on the answers. The joint
 strategies (``joint_command``) and the distributions that are not compiled
 (``distribute_wrench``) are written once for both.
 """
@@ -24,11 +26,13 @@ import numpy as np
 from pkm_kinematics.distribution import distribute, two_arm_gravity_internal_force
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
-from .laws import (DIST_PSEUDO_INVERSE, LIMITS_OK, cartesian_command_kernel, joint_pid, limits_kernel,
-                   project_to_range, spatial_command_kernel, spatial_limits_kernel)
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, LIMITS_OK, MODE_DISTRIBUTION, NUMPY_DISTRIBUTION,
+                   cartesian_command_kernel, joint_pid, kernel_settings, limits_kernel, project_to_range,
+                   spatial_command_kernel, spatial_limits_kernel)
 from .strategies import Projection
 
-__all__ = ["CartesianOutcome", "SixAxis", "ThreeAxis", "distribute_wrench", "expand", "joint_command", "kernels_for"]
+__all__ = ["CartesianOutcome", "CommandSetup", "SixAxis", "ThreeAxis", "distribute_wrench", "expand", "joint_command",
+           "kernels_for"]
 
 
 class CartesianOutcome(NamedTuple):
@@ -49,6 +53,17 @@ class CartesianOutcome(NamedTuple):
     peak: float
 
 
+class CommandSetup(NamedTuple):
+    """The packed inputs of the limits and command kernels that one configuration
+    fixes (laws.py: ``boxes``, ``settings``, ``modes``), made when the controller is
+    configured and when its settings change, not in the cycle."""
+    boxes: tuple               # (joint_box, workspace_box)
+    gains: np.ndarray          # the law's rows kp, kd, ki, mass per task axis (tuning.ScaledGains.law_gains)
+    settings: tuple            # laws.kernel_settings
+    modes: tuple               # (planar, law, distribution) with every drive active
+    degraded_modes: tuple      # the same with a drive dropped
+
+
 def _outcome(fields: tuple) -> CartesianOutcome:
     """A CartesianOutcome made without NamedTuple's Python-level __new__ (once a cycle)."""
     return tuple.__new__(CartesianOutcome, fields)
@@ -63,13 +78,26 @@ class ThreeAxis:
 
     twists = None        # the reference's rates are what the laws take: nothing to convert
 
+    def setup(self, config, tuned, boxes: tuple, n: int) -> CommandSetup:
+        """The compiled distributions where they apply (no prestress; the pseudo-inverse,
+        or ARCHI's inf-norm on 4 drives), else numpy's from the returned wrench; a
+        drive dropped: the compiled pseudo-inverse."""
+        distribution = NUMPY_DISTRIBUTION
+        if config.prestress_n == 0.0 and (config.distribution == "pseudo_inverse" or (
+                config.distribution == "inf_norm" and n == 4)):
+            distribution = DIST_PSEUDO_INVERSE if config.distribution == "pseudo_inverse" else DIST_INF_NORM
+        planar = int(self.planar)
+        return CommandSetup(boxes, tuned.law_gains,
+                            kernel_settings(config.max_condition, config.following_error_m,
+                                            config.following_error_rad, config.force_limit_n),
+                            (planar, tuned.law, distribution), (planar, tuned.law, DIST_PSEUDO_INVERSE))
+
     @staticmethod
     def wrench_list(wrench) -> list:
         return list(wrench)
 
-    def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
-        return limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows, tuple(error), self.planar,
-                             config.max_condition, config.following_error_m, config.following_error_rad)
+    def limits(self, q, active_rows, measured, error, setup: CommandSetup) -> tuple[int, int, float]:
+        return limits_kernel(q, active_rows, tuple(measured), tuple(error), setup.boxes, setup.settings, self.planar)
 
     def joint_feedforward(self, joint_mass, rows_d, a_d, bias_d) -> list:
         """m_i (J a_d + Jdot v_d)_i per drive (ARCHI §3.4)."""
@@ -79,13 +107,11 @@ class ThreeAxis:
     def cartesian(self, core, c, measured, error) -> CartesianOutcome:
         """laws.cartesian_command_kernel on the prepared cycle ``c``; with a drive dropped
         the compiled pseudo-inverse distributes."""
-        cfg, tuned = core.config, core.tuned
-        full = len(core.supervisor.active) == core.n
+        s = core.setup
         code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
-            c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
-            tuple(error), self.planar, cfg.max_condition, cfg.following_error_m, cfg.following_error_rad, tuned.law,
-            tuned.law_gains, core.record.saturated == 0, core.integral, c.dt, c.a_model, c.h_model, tuple(c.v_d),
-            c.v, tuple(c.a_d), core.distribution_code if full else DIST_PSEUDO_INVERSE, cfg.force_limit_n)
+            c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
+            (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains, s.settings,
+            s.modes if len(core.supervisor.active) == core.n else s.degraded_modes)
         distributed = bool(forces.shape[0])
         return _outcome((code, index, value, integral, wrench,
                          expand(forces.tolist(), core.supervisor.active, core.n) if distributed else [], distributed,
@@ -99,6 +125,17 @@ class SixAxis:
         self.model = model
         self.space = model.task_space
 
+    def setup(self, config, tuned, boxes: tuple, n: int) -> CommandSetup:
+        """The pseudo-inverse compiled with every drive and no prestress; the other
+        distributions, and a machine with a drive dropped, from the returned wrench."""
+        compiled = config.distribution == "pseudo_inverse" and config.prestress_n == 0.0
+        return CommandSetup(boxes, tuned.law_gains,
+                            kernel_settings(config.max_condition, config.following_error_m,
+                                            config.following_error_rad, config.force_limit_n,
+                                            self.model.characteristic_length_m),
+                            (0, tuned.law, DIST_PSEUDO_INVERSE if compiled else NUMPY_DISTRIBUTION),
+                            (0, tuned.law, NUMPY_DISTRIBUTION))
+
     def twists(self, x_d, v_d, a_d):
         """The rates of a, b, c -> the twist and its rate (w in the base frame)."""
         return task_twists(self.space, x_d, v_d, a_d)
@@ -107,10 +144,9 @@ class SixAxis:
     def wrench_list(wrench) -> list:
         return wrench.tolist()
 
-    def limits(self, q, joint_box, measured, workspace_box, active_rows, error, config) -> tuple[int, int, float]:
-        return spatial_limits_kernel(q, joint_box, tuple(measured), workspace_box, active_rows,
-                                     self.model.characteristic_length_m, config.max_condition, tuple(error),
-                                     config.following_error_m, config.following_error_rad)
+    def limits(self, q, active_rows, measured, error, setup: CommandSetup) -> tuple[int, int, float]:
+        return spatial_limits_kernel(q, active_rows, np.asarray(measured, dtype=float), np.asarray(error, dtype=float),
+                                     setup.boxes, setup.settings)
 
     def joint_feedforward(self, joint_mass, rows_d, a_d, bias_d) -> list:
         return (np.asarray(joint_mass) * (rows_d @ np.asarray(a_d) + bias_d)).tolist()
@@ -118,17 +154,14 @@ class SixAxis:
     def cartesian(self, core, c, measured, error) -> CartesianOutcome:
         """laws.spatial_command_kernel on the prepared cycle ``c``: the pseudo-inverse
         compiled with every drive and no prestress, else the wrench only."""
-        cfg, tuned = core.config, core.tuned
-        compiled = (len(core.supervisor.active) == core.n and cfg.distribution == "pseudo_inverse"
-                    and cfg.prestress_n == 0.0)
+        s = core.setup
+        modes = s.modes if len(core.supervisor.active) == core.n else s.degraded_modes
         code, index, value, integral, wrench, forces, saturated, peak = spatial_command_kernel(
-            c.q_array, core.joint_box, tuple(measured), core.workspace_box, c.active_rows,
-            self.model.characteristic_length_m, cfg.max_condition, tuple(error), cfg.following_error_m,
-            cfg.following_error_rad, tuned.law, tuned.law_gains, core.record.saturated == 0,
-            np.asarray(core.integral, dtype=float), c.dt, c.a_model, c.h_model, np.asarray(c.v_d, dtype=float),
-            c.v, np.asarray(c.a_d, dtype=float), compiled, cfg.force_limit_n)
+            c.q_array, c.active_rows, np.array((measured, error, c.v_d, c.v, c.a_d), dtype=float),
+            (c.a_model, c.h_model), np.asarray(core.integral, dtype=float), core.record.saturated == 0, c.dt,
+            s.boxes, s.gains, s.settings, modes)
         return _outcome((code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
-                         compiled and code == LIMITS_OK, saturated, peak))
+                         modes[MODE_DISTRIBUTION] == DIST_PSEUDO_INVERSE and code == LIMITS_OK, saturated, peak))
 
 
 def kernels_for(model) -> ThreeAxis | SixAxis:

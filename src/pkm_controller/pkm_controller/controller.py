@@ -56,9 +56,8 @@ from .commands import distribute_wrench, expand, joint_command, kernels_for
 from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
 from .cycle import AnswerLog, Cycle, CycleRecord
 from .encoder_check import EncoderChecks
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK,
-                   NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, SensorSpaceFeedback, clamp_forces_kernel, error_norms,
-                   tool_pose_floats)
+from .laws import (DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, WRENCH_NOT_FINITE, SensorSpaceFeedback,
+                   clamp_forces_kernel, error_norms, tool_pose_floats)
 from .pose_estimation import PoseEstimator
 from .reference import Reference
 from .strategies import Feedback, strategy
@@ -120,11 +119,8 @@ class ControllerCore:
         self.supervisor.config = self.estimator.config = c
         self.strategy = strategy(c.strategy)
         self.tuned = self.tuning.scaled(c)
-        # the compiled distributions (laws.cartesian_command_kernel) where they apply, else numpy's
-        self.distribution_code = NUMPY_DISTRIBUTION
-        if c.prestress_n == 0.0 and not self.spatial and (c.distribution == "pseudo_inverse" or (
-                c.distribution == "inf_norm" and self.n == 4)):
-            self.distribution_code = DIST_PSEUDO_INVERSE if c.distribution == "pseudo_inverse" else DIST_INF_NORM
+        # the kernels' packed inputs of this configuration (commands.CommandSetup)
+        self.setup = self.kernels.setup(c, self.tuned, (self.joint_box, self.workspace_box), self.n)
 
     def change_settings(self, changes: dict) -> dict:
         """Change the strategy, the distribution or the gains of a running controller
@@ -267,8 +263,7 @@ class ControllerCore:
 
     def _check_limits(self, q, active_rows, measured, error) -> tuple[tuple | None, float]:
         """(the Trip or None, the translation error) of the task space's limits kernel."""
-        code, index, value = self.kernels.limits(q, self.joint_box, measured, self.workspace_box, active_rows, error,
-                                                 self.config)
+        code, index, value = self.kernels.limits(q, active_rows, measured, error, self.setup)
         return (None, value) if code == LIMITS_OK else (self.supervisor.limit_trip(code, index, value), value)
 
     # ------------------------------------------------------------------ cycle

@@ -160,18 +160,43 @@ WRENCH_NOT_FINITE, FORCES_NOT_FINITE = int(CycleCode.WRENCH_NOT_FINITE), int(Cyc
 DISTRIBUTION_FAILED = int(CycleCode.DISTRIBUTION_FAILED)
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 
+# The packed inputs of the limits and command kernels: typed tuples that numba unboxes
+# without an array, made once per configuration (``boxes``, ``settings``, ``modes``) or
+# once per cycle (``task``, ``model``); their fields by these indices:
+# boxes:    (joint_box, workspace_box), each (lower, upper) per drive / task axis
+# settings: float64 x 5
+SET_MAX_CONDITION, SET_FOLLOWING_ERROR_M, SET_FOLLOWING_ERROR_RAD, SET_FORCE_LIMIT, SET_LENGTH = range(5)
+# modes:    int64 x 3 (MODE_PLANAR: 1 for a planar machine's theta error; the law
+#           LAW_*; the distribution DIST_* or NUMPY_DISTRIBUTION)
+MODE_PLANAR, MODE_LAW, MODE_DISTRIBUTION = range(3)
+# task:     the cycle's task-space rows, 3-DOF five triples, 6-DOF a (5, 6) array
+TASK_MEASURED, TASK_ERROR, TASK_V_D, TASK_V, TASK_A_D = range(5)
+# model:    (A(x), H(x, v)) of the model-based laws
+_BOXES = "UniTuple(float64[:, :], 2)"
+_SETTINGS = "UniTuple(float64, 5)"
+_MODES = "UniTuple(int64, 3)"
 
-@kernel(f"(float64[:], float64[:, :], {_TRIPLE}, float64[:, :], float64[:, :], {_TRIPLE}, boolean, float64, "
-        "float64, float64)")
-def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar, max_condition,
-                  following_error_m, following_error_rad):
+
+def kernel_settings(max_condition: float, following_error_m: float, following_error_rad: float,
+                    force_limit_n: float, length_m: float = 0.0) -> tuple:
+    """The ``settings`` tuple of the kernels (``length_m``: a spatial machine's
+    characteristic length, weighting its rotation columns in cond(J_m))."""
+    return (float(max_condition), float(following_error_m), float(following_error_rad), float(force_limit_n),
+            float(length_m))
+
+
+@kernel(f"(float64[:], float64[:, :], {_TRIPLE}, {_TRIPLE}, {_BOXES}, {_SETTINGS}, boolean)")
+def limits_kernel(q, active_rows, measured, error, boxes, settings, planar):
     """(code, index, value): the supervisor's per-cycle limits in order, the first one
-    violated. JOINT_LIMIT: drive ``index`` at q = value outside its row of
-    ``joint_box`` (lower, upper); WORKSPACE_LIMIT: task axis ``index`` of the measured
-    pose at ``value`` outside its row of ``workspace_box``; SINGULARITY_MARGIN:
-    cond(J of the active drives) = value > max_condition; FOLLOWING_ERROR_M: the
-    translation error ``value``; FOLLOWING_ERROR_RAD: |rotation error| = value
-    (planar). LIMITS_OK: ``value`` is the translation error. NaN fails every range."""
+    violated (``boxes`` and ``settings``: the packed tuples above). JOINT_LIMIT:
+    drive ``index`` at q = value outside its row of ``joint_box`` (lower, upper);
+    WORKSPACE_LIMIT: task axis ``index`` of the measured pose at ``value`` outside
+    its row of ``workspace_box``; SINGULARITY_MARGIN: cond(J of the active drives) =
+    value > max_condition; FOLLOWING_ERROR_M: the translation error ``value``;
+    FOLLOWING_ERROR_RAD: |rotation error| = value (planar). LIMITS_OK: ``value`` is the translation error. NaN fails every range."""
+    joint_box, workspace_box = boxes
+    max_condition = settings[SET_MAX_CONDITION]
+    following_error_m, following_error_rad = settings[SET_FOLLOWING_ERROR_M], settings[SET_FOLLOWING_ERROR_RAD]
     for i in range(q.shape[0]):
         if not joint_box[i, 0] <= q[i] <= joint_box[i, 1]:
             return JOINT_LIMIT, i, q[i]
@@ -192,15 +217,16 @@ def limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, pla
     return LIMITS_OK, -1, trans
 
 
-@kernel(f"(float64[:], float64[:, :], {_SEXTUPLE}, float64[:, :], float64[:, :], float64, float64, {_SEXTUPLE}, "
-        "float64, float64)")
-def spatial_limits_kernel(q, joint_box, measured, workspace_box, active_rows, length, max_condition, error,
-                          following_error_m, following_error_rad):
+@kernel(f"(float64[:], float64[:, :], float64[:], float64[:], {_BOXES}, {_SETTINGS})")
+def spatial_limits_kernel(q, active_rows, measured, error, boxes, settings):
     """:func:`limits_kernel` for a spatial machine (6 task coordinates): the same limits
     in the same order, the same codes; the condition number of the active drives' J_m
-    the machine's own (rotation columns divided by its characteristic ``length``,
-    ``hexapod.weighted_condition_kernel``); the rotation error is |e_w|, the angle of
-    the rotation vector."""
+    the machine's own (rotation columns divided by its characteristic length,
+    ``settings[SET_LENGTH]``, ``hexapod.weighted_condition_kernel``); the rotation
+    error is |e_w|, the angle of the rotation vector."""
+    joint_box, workspace_box = boxes
+    length, max_condition = settings[SET_LENGTH], settings[SET_MAX_CONDITION]
+    following_error_m, following_error_rad = settings[SET_FOLLOWING_ERROR_M], settings[SET_FOLLOWING_ERROR_RAD]
     for i in range(q.shape[0]):
         if not joint_box[i, 0] <= q[i] <= joint_box[i, 1]:
             return JOINT_LIMIT, i, q[i]
@@ -269,15 +295,15 @@ DIST_PSEUDO_INVERSE, DIST_INF_NORM, NUMPY_DISTRIBUTION = 0, 1, -1
 _MATRIX3 = f"UniTuple({_TRIPLE}, 3)"
 
 
-@kernel(f"(float64[:], float64[:, :], {_TRIPLE}, float64[:, :], float64[:, :], {_TRIPLE}, boolean, float64, "
-        f"float64, float64, int64, float64[:, :], boolean, {_TRIPLE}, float64, {_MATRIX3}, {_TRIPLE}, {_TRIPLE}, "
-        f"{_TRIPLE}, {_TRIPLE}, int64, float64)")
-def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar, max_condition,
-                             following_error_m, following_error_rad, law, gains, integrate, integral, dt, a_model,
-                             h_model, v_d, v, a_d, distribution, force_limit):
+@kernel(f"(float64[:], float64[:, :], UniTuple({_TRIPLE}, 5), Tuple(({_MATRIX3}, {_TRIPLE})), {_TRIPLE}, boolean, "
+        f"float64, {_BOXES}, float64[:, :], {_SETTINGS}, {_MODES})")
+def cartesian_command_kernel(q, active_rows, task, model, integral, integrate, dt, boxes, gains, settings, modes):
     """The second half of a Cartesian cycle in one compiled call, after the feedback:
     the limits (:func:`limits_kernel`), the integral, the law, the distribution and the
-    clamp. Returns (code, index, value, integral, wrench, forces, saturated, peak):
+    clamp. The inputs packed (the indices above): ``task`` the cycle's measured pose,
+    error, v_d, v and a_d; ``model`` (A(x), H(x, v)); ``gains`` rows kp, kd, ki, mass
+    per axis; ``boxes``, ``settings`` and ``modes`` of the configuration. Returns
+    (code, index, value, integral, wrench, forces, saturated, peak):
 
     - code LIMITS_OK: ``forces`` clamped (``saturated`` beyond the limit, ``peak``
       the largest), ``value`` the translation error; empty with NUMPY_DISTRIBUTION,
@@ -295,8 +321,11 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
     The distribution: f = J (J^T J)^-1 F, moved along ker(J^T) to the least peak for
     DIST_INF_NORM (ARCHI §4.4.1-4.4.2)."""
     empty = np.zeros(0)
-    code, index, value = limits_kernel(q, joint_box, measured, workspace_box, active_rows, error, planar,
-                                       max_condition, following_error_m, following_error_rad)
+    error, v_d, v, a_d = task[TASK_ERROR], task[TASK_V_D], task[TASK_V], task[TASK_A_D]
+    a_model, h_model = model
+    law, distribution = modes[MODE_LAW], modes[MODE_DISTRIBUTION]
+    code, index, value = limits_kernel(q, active_rows, task[TASK_MEASURED], error, boxes, settings,
+                                       modes[MODE_PLANAR] != 0)
     if code != LIMITS_OK:
         return code, index, value, integral, (0.0, 0.0, 0.0), empty, 0, 0.0
     i0, i1, i2 = integral
@@ -327,29 +356,30 @@ def cartesian_command_kernel(q, joint_box, measured, workspace_box, active_rows,
                                                     True)
     if dcode != 0:
         return DISTRIBUTION_FAILED + dcode, k, achieved, i_new, wrench, empty, 0, 0.0
-    clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)
+    clamped, saturated, peak, finite = clamp_forces_kernel(forces, settings[SET_FORCE_LIMIT])
     if not finite:
         return FORCES_NOT_FINITE, -1, value, i_new, wrench, forces, 0, 0.0
     return LIMITS_OK, -1, value, i_new, wrench, clamped, saturated, peak
 
 
-@kernel(f"(float64[:], float64[:, :], {_SEXTUPLE}, float64[:, :], float64[:, :], float64, float64, {_SEXTUPLE}, "
-        "float64, float64, int64, float64[:, :], boolean, float64[:], float64, float64[:, :], float64[:], float64[:], "
-        "float64[:], float64[:], boolean, float64)")
-def spatial_command_kernel(q, joint_box, measured, workspace_box, active_rows, length, max_condition, error,
-                           following_error_m, following_error_rad, law, gains, integrate, integral, dt, a_model,
-                           h_model, v_d, v, a_d, distribute, force_limit):
-    """:func:`cartesian_command_kernel` of a spatial machine: the limits
+@kernel(f"(float64[:], float64[:, :], float64[:, :], Tuple((float64[:, :], float64[:])), float64[:], boolean, "
+        f"float64, {_BOXES}, float64[:, :], {_SETTINGS}, {_MODES})")
+def spatial_command_kernel(q, active_rows, task, model, integral, integrate, dt, boxes, gains, settings, modes):
+    """:func:`cartesian_command_kernel` of a spatial machine (the same packed inputs,
+    ``task`` a (5, 6) array of the twists' rows): the limits
     (:func:`spatial_limits_kernel`), the integral, the law of each of the six axes (the
     twist's error and rate; the same named laws), F = A(x) u + H(x, t) for the
-    model-based ones, and, with ``distribute``, f = J (J^T J)^-1 F on the n x 6 J_m of
-    the active drives (``gram_solve_n_kernel``), checked and clamped; without, the
-    caller distributes ``wrench`` (inf-norm LP, p-norm). Returns (code, index, value,
-    integral, wrench, forces, saturated, peak) with the codes of the 3-DOF kernel."""
+    model-based ones, and, with the distribution DIST_PSEUDO_INVERSE,
+    f = J (J^T J)^-1 F on the n x 6 J_m of the active drives (``gram_solve_n_kernel``),
+    checked and clamped; with NUMPY_DISTRIBUTION the caller distributes ``wrench``
+    (inf-norm LP, p-norm). Returns (code, index, value, integral, wrench, forces,
+    saturated, peak) with the codes of the 3-DOF kernel."""
     empty = np.zeros(0)
     wrench = np.zeros(6)
-    code, index, value = spatial_limits_kernel(q, joint_box, measured, workspace_box, active_rows, length,
-                                               max_condition, error, following_error_m, following_error_rad)
+    error, v_d, v, a_d = task[TASK_ERROR], task[TASK_V_D], task[TASK_V], task[TASK_A_D]
+    a_model, h_model = model
+    law = modes[MODE_LAW]
+    code, index, value = spatial_limits_kernel(q, active_rows, task[TASK_MEASURED], error, boxes, settings)
     if code != LIMITS_OK:
         return code, index, value, integral, wrench, empty, 0, 0.0
     i_new = integral.copy()
@@ -374,7 +404,7 @@ def spatial_command_kernel(q, joint_box, measured, workspace_box, active_rows, l
     for k in range(6):
         if not math.isfinite(wrench[k]):
             return WRENCH_NOT_FINITE, -1, 0.0, i_new, wrench, empty, 0, 0.0
-    if not distribute:
+    if modes[MODE_DISTRIBUTION] != DIST_PSEUDO_INVERSE:
         return LIMITS_OK, -1, value, i_new, wrench, empty, 0, 0.0
     y, ok = gram_solve_n_kernel(active_rows, wrench)
     if not ok:
@@ -383,7 +413,7 @@ def spatial_command_kernel(q, joint_box, measured, workspace_box, active_rows, l
     k, achieved = check_wrench_kernel(active_rows, forces, wrench, 1e-9)
     if k >= 0:
         return DISTRIBUTION_FAILED + 3, k, achieved, i_new, wrench, empty, 0, 0.0
-    clamped, saturated, peak, finite = clamp_forces_kernel(forces, force_limit)
+    clamped, saturated, peak, finite = clamp_forces_kernel(forces, settings[SET_FORCE_LIMIT])
     if not finite:
         return FORCES_NOT_FINITE, -1, value, i_new, wrench, forces, 0, 0.0
     return LIMITS_OK, -1, value, i_new, wrench, clamped, saturated, peak
