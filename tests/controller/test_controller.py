@@ -132,7 +132,7 @@ def test_the_fig9_variant_stops_the_windup_but_not_the_proportional_fight():
     internal = np.array(log.internal_force_norm_n)
     assert abs(internal[-500:].mean() - internal[-1000:-500].mean()) < 5.0
     assert 0.3 * CONTROL_LIMIT_N < internal[-500:].mean() < 0.8 * CONTROL_LIMIT_N
-    assert core.saturation_count == 0
+    assert core.supervisor.saturation_count == 0
 
 
 @pytest.fixture(scope="module")
@@ -186,7 +186,7 @@ def test_a_drive_without_force_is_dropped_and_the_sub_machine_goes_on():
     ref = Reference([0.0, 0.4, 0.401], [ARCHI_HOME, ARCHI_HOME, [ARCHI_HOME[0] + 0.001, *ARCHI_HOME[1:]]])
     core, log = closed_loop(ARCHI, "computed_torque", 900, ref, plant_params=params, distribution="inf_norm")
     assert not core.stopped, core.stop_reason
-    assert core.active == [0, 1, 3] and "continuing on J_124" in " ".join(core.faults)
+    assert core.supervisor.active == [0, 1, 3] and "continuing on J_124" in " ".join(core.supervisor.faults)
     assert all(f[2] == 0.0 for f in log.forces[215:])
     assert log.tool_error(True)[-1] < 2e-6
     level, message, values = core.status()
@@ -304,7 +304,7 @@ def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypa
     monkeypatch.setattr(core.dynamics, "measured_state", huge)
     forces = core.update(1_000_000, *_state_at(ARCHI_HOME))
     assert not core.stopped, core.stop_reason
-    assert max(abs(f) for f in forces) == core.config.force_limit_n and core.saturation_count == 1
+    assert max(abs(f) for f in forces) == core.config.force_limit_n and core.supervisor.saturation_count == 1
 
 
 def test_missing_metrology_stops_the_measured_space_controller():
@@ -355,7 +355,7 @@ def test_a_trajectory_received_before_the_first_state_is_checked_then():
     core = ControllerCore(ARCHI, ControllerConfig())
     core.set_trajectory(Reference([0.0, 1.0], [[1.1, -0.4, 0.785], [1.2, -0.4, 0.785]]))
     core.update(0, *_state_at(ARCHI_HOME))
-    assert not core.stopped and core.mode == "holding" and "trajectory refused" in core.faults[0]
+    assert not core.stopped and core.mode == "holding" and "trajectory refused" in core.supervisor.faults[0]
     core = ControllerCore(ARCHI, ControllerConfig())
     core.set_trajectory(Reference([0.0, 1.0], [ARCHI_HOME, [1.01, -0.4, 0.785]]))
     core.update(0, *_state_at(ARCHI_HOME))
@@ -514,11 +514,11 @@ def test_fk_resync_cycles_puts_a_newton_solution_every_n_cycles():
     for k in range(12):
         pose = [ARCHI_HOME[0] + 2e-6 * k, ARCHI_HOME[1] + 1e-6 * k * k, ARCHI_HOME[2] + 1e-5 * k]
         q = model.inverse_kinematics(pose).tolist()
-        previous = core.pose
+        previous = core.estimator.pose
         core.update(1_000_000 * k, q, [0.0] * 4)
         assert not core.stopped, core.stop_reason
         newton = list(model.forward_kinematics_floats(q, previous))
-        exact.append(core.pose == newton)
+        exact.append(core.estimator.pose == newton)
     assert exact == [k % 5 == 0 for k in range(12)]
 
 
@@ -542,6 +542,6 @@ def test_a_trajectory_too_far_from_the_machine_is_refused_and_it_holds_where_it_
     core, log = run(machine, ControllerConfig(strategy="joint_pid"), plant, 3,
                     reference=Reference(samples.time_s, samples.position, samples.velocity, samples.acceleration))
     assert not core.stopped and core.mode == "holding", core.stop_reason
-    assert any("trajectory refused" in f and "11.6" in f and "start_tolerance_m 0.005" in f for f in core.faults), \
-        core.faults
+    assert any("trajectory refused" in f and "11.6" in f and "start_tolerance_m 0.005" in f for f in core.supervisor.faults), \
+        core.supervisor.faults
     assert np.allclose(log.reference[0][:2], home[:2], atol=0.05) and abs(log.reference[0][0]) > 0.5

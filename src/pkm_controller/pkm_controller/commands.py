@@ -23,16 +23,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pkm_kinematics.distribution import distribute, two_arm_gravity_internal_force
+from pkm_common.causes import TripCause
+from pkm_kinematics.distribution import distribute, raise_distribution_error, two_arm_gravity_internal_force
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
-from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, LIMITS_OK, MODE_DISTRIBUTION, NUMPY_DISTRIBUTION,
-                   cartesian_command_kernel, joint_pid, kernel_settings, limits_kernel, project_to_range,
-                   spatial_command_kernel, spatial_limits_kernel)
+from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK,
+                   MODE_DISTRIBUTION, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, cartesian_command_kernel, joint_pid,
+                   kernel_settings, limits_kernel, project_to_range, spatial_command_kernel, spatial_limits_kernel)
 from .strategies import Projection
+from .supervisor import Trip
 
-__all__ = ["CartesianOutcome", "CommandSetup", "SixAxis", "ThreeAxis", "distribute_wrench", "expand", "joint_command",
-           "kernels_for"]
+__all__ = ["CartesianOutcome", "CommandSetup", "SixAxis", "ThreeAxis", "cartesian_failure", "distribute_wrench",
+           "expand", "joint_command", "kernels_for"]
 
 
 class CartesianOutcome(NamedTuple):
@@ -208,9 +210,11 @@ def expand(sub, active: list, n: int) -> list:
     return out
 
 
-def distribute_wrench(config, dynamics, model, wrench, active_rows, pose) -> list:
-    """The distributions that are not compiled (p_norm, two_arm, a prestress); all
-    drives active (a degraded machine uses the compiled pseudo-inverse)."""
+def distribute_wrench(config, dynamics, model, wrench, active_rows, pose, active: list, n: int) -> list:
+    """The distributions that are not compiled (p_norm, two_arm, a prestress); with a
+    drive dropped, the pseudo-inverse over the ``active`` ones (0 for the others)."""
+    if len(active) < n:
+        return expand(distribute("pseudo_inverse", active_rows, wrench).tolist(), active, n)
     internal = 0.0
     if config.distribution == "two_arm_gravity":
         p = dynamics.params
@@ -219,3 +223,16 @@ def distribute_wrench(config, dynamics, model, wrench, active_rows, pose) -> lis
                       internal_force_n=internal, prestress_n=config.prestress_n,
                       reference=[1.0] * len(active_rows),
                       prestress_direction=config.prestress_direction or None).tolist()
+
+
+def cartesian_failure(code: int, index: int, value: float, wrench: list, forces, strategy: str, supervisor) -> Trip:
+    """The trip of a Cartesian kernel's outcome other than LIMITS_OK: a limit's (the
+    supervisor names it), a non-finite wrench or forces; a compiled distribution that
+    failed raises the DistributionError numpy's would (its caller trips on it)."""
+    if code > DISTRIBUTION_FAILED:
+        raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, wrench)
+    if code == FORCES_NOT_FINITE:
+        return Trip(f"{strategy}: non-finite drive forces {forces}", TripCause.KINEMATICS)
+    if code == WRENCH_NOT_FINITE:
+        return Trip(f"{strategy}: wrench: contains NaN or infinite values: {wrench}", TripCause.KINEMATICS)
+    return supervisor.limit_trip(code, index, value)

@@ -44,22 +44,20 @@ from __future__ import annotations
 import numpy as np
 
 from pkm_common.causes import TripCause
-from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
-from pkm_kinematics.distribution import distribute, raise_distribution_error
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
-from pkm_kinematics.task_space import PLANAR, SPATIAL
+from pkm_kinematics.task_space import PLANAR
 
-from .commands import distribute_wrench, expand, joint_command, kernels_for
-from .config import RUNTIME_SETTINGS, ControllerConfig, check_runtime_names
+from .commands import cartesian_failure, distribute_wrench, joint_command, kernels_for
+from .config import ControllerConfig, check_runtime_names
 from .cycle import AnswerLog, Cycle, CycleRecord
 from .encoder_check import EncoderChecks
-from .laws import (DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK, WRENCH_NOT_FINITE, SensorSpaceFeedback,
-                   clamp_forces_kernel, error_norms, tool_pose_floats)
-from .pose_estimation import PoseEstimator
+from .laws import LIMITS_OK, clamp_forces_kernel, tool_pose_floats
+from .pose_estimation import PoseEstimator, sensor_feedback
 from .reference import Reference
+from .status import controller_status
 from .strategies import Feedback, strategy
 from .supervisor import Supervisor
 from .tracking import ReferenceTracker
@@ -80,7 +78,7 @@ class ControllerCore:
         # feeds back twists and the rotation vector (laws.spatial_command_kernel)
         self.space = self.model.task_space
         self.dof = self.space.dof
-        self.planar, self.spatial = self.space is PLANAR, self.space is SPATIAL
+        self.planar = self.space is PLANAR
         self.n = self.model.n_legs
         self.names = list(self.model.leg_names)
         if machine.dynamics is None:
@@ -93,18 +91,12 @@ class ControllerCore:
         self.tuning = MachineTuning(machine, self.dynamics)
         self.tuning.check(self.config)
         self.strategy = strategy(self.config.strategy)
-        self.metrology = None
-        if self.strategy.uses_metrology:
-            if machine.metrology is None:
-                raise ValueError(f"strategy: {self.strategy.name} needs a machine with a 'metrology' section, "
-                                 f"{machine.name!r} has none")
-            # the Gough's nominal geometry only (the true one is the plant's)
-            self.metrology = SensorSpaceFeedback(GoughSensorModel(machine.metrology), self.planar,
-                                                 at_estimate=self.config.sensor_jacobian == "estimated",
-                                                 spatial=self.spatial)
+        self.metrology = sensor_feedback(machine, self.strategy, self.config)     # the Gough's, or None
         # per drive (lower, upper) and per task axis (lower, upper): laws.limits_kernel
         self.joint_box = np.column_stack([self.model.joint_lower, self.model.joint_upper]).astype(float)
-        self.workspace_box = self._task_box()
+        # the translation box, and a spatial machine's angles within their ranges about home
+        self.workspace_box = np.array(task_box(self.model, self.config.workspace_margin_m,
+                                               self.config.workspace_margin_rad), dtype=float)
         self.kernels = kernels_for(self.model)          # the task space's compiled kernels (commands.py)
         self.supervisor = Supervisor(self.config, self.names, self.dof, self.space, self.joint_box,
                                      self.workspace_box, self._condition, self.model)
@@ -125,44 +117,18 @@ class ControllerCore:
     def change_settings(self, changes: dict) -> dict:
         """Change the strategy, the distribution or the gains of a running controller
         (an operator's panel; Sliding Star Fig. 12: regulator gains, projection ON/OFF),
-        between two cycles. Only ``RUNTIME_SETTINGS``; a strategy only to one fed by the
-        same measurement (the graph's topics stay); the whole set validated like a
-        start-up configuration. The integral state is kept when the law stays (a joint
-        PID with or without the projection), else restarts holding the load where the
-        machine is (tuning.holding_integral; zero for a model-based law). Returns the
-        settings changed; ValueError (naming the field and its range), nothing changed."""
+        between two cycles: only ``RUNTIME_SETTINGS``, validated and taken over as
+        ``MachineTuning.takeover`` says. Returns the settings changed; ValueError
+        (naming the field and its range), nothing changed."""
         check_runtime_names(changes)
         if self.stopped:
             raise ValueError(f"settings refused: the controller is stopped ({self.stop_reason})")
-        new = self.config.with_changes(changes)
-        self.tuning.check(new)
-        new_strategy = strategy(new.strategy)
-        if new_strategy.feedback != self.strategy.feedback:
-            raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
-                             f"{self.strategy.name} {self.strategy.feedback.value}: only a strategy on the same "
-                             f"measurement can take over without a restart")
-        integral = None                            # kept when the law stays
-        if new_strategy.law != self.strategy.law:
-            try:                                   # computed before anything changes
-                integral = holding_integral(self.dynamics, self.model, self.pose, new_strategy.law, new.integral_time_s,
-                                            self.active)
-            except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
-                raise ValueError(f"strategy: {new.strategy} cannot take over holding at the measured pose: "
-                                 f"{exc}") from None
-        self.config = new
+        self.config, integral = self.tuning.takeover(self.config, changes, self.estimator.pose,
+                                                     self.supervisor.active)
         self._apply_config()
         if integral is not None:
             self.integral = integral
         return dict(changes)
-
-    def _home(self) -> list:
-        return self.model.home.tolist()
-
-    def _task_box(self) -> np.ndarray:
-        """(lower, upper) per task axis the measured pose must stay in: the translation
-        box, and a spatial machine's angles within their ranges about home."""
-        return np.array(task_box(self.model, self.config.workspace_margin_m, self.config.workspace_margin_rad),
-                        dtype=float)
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
@@ -200,28 +166,6 @@ class ControllerCore:
     @property
     def stop_cause(self) -> TripCause:
         return self.supervisor.stop_cause
-
-    @property
-    def faults(self) -> list[str]:
-        return self.supervisor.faults
-
-    @property
-    def active(self) -> list[int]:
-        """The drives that take part (a failed one dropped: Supervisor.check_drives)."""
-        return self.supervisor.active
-
-    @property
-    def failed(self) -> dict[int, str]:
-        return self.supervisor.failed
-
-    @property
-    def saturation_count(self) -> int:
-        return self.supervisor.saturation_count
-
-    @property
-    def pose(self):
-        """The last encoder pose (PoseEstimator.encoder_pose), None before the first cycle."""
-        return self.estimator.pose
 
     # ------------------------------------------------------------ trajectory
     @property
@@ -277,19 +221,14 @@ class ControllerCore:
         return self.complete(struts, metrology_pose)
 
     def prepare(self, stamp_ns: int, q, qdot, applied=None, held: int | None = None) -> bool:
-        """The first half of a cycle, on the drive state stamped ``stamp_ns`` (int ns,
-        the key of its answer; seconds are derived here once) alone: the input checks, the
-        encoder FK, the drive supervision, J_m and the task velocity, the reference
-        and what the strategy computes from them (the Gough's l_des and J_h, the
-        model A(x), H(x, v)). A node runs it while the metrology of the same instant
-        is on its way, so only ``complete`` lies between the readings and the command.
-        False when the controller is (now) stopped: ``last_command`` (zeros) answers.
-        ``held``: the plant says this step applied an older setpoint again (our last
-        command missed its cycle), the stamp (ns) of that command
-        (pkm_common.causes.PlantStatus): the drive supervision compares the reported
-        forces with the command of that stamp, and skips the cycle (its counts neither
-        grow nor restart) when it does not know it (HELD_COMMAND_UNKNOWN, or older than
-        the answers it keeps)."""
+        """The first half of a cycle, on the drive state stamped ``stamp_ns`` (int ns, the
+        key of its answer) alone: the input checks, the encoder FK, the drive
+        supervision, J_m and the task velocity, the reference and what the strategy
+        derives from them (l_des and J_h, A(x), H(x, v)), while the metrology of the
+        same instant is on its way. False when the controller is (now) stopped:
+        ``last_command`` (zeros) answers. ``held``: the stamp of the older command the
+        plant applied again (causes.PlantStatus); the drive supervision compares the
+        forces with that one, or skips the cycle when it does not know it."""
         sup = self.supervisor
         self._cycle = None
         if sup.stopped:
@@ -404,32 +343,16 @@ class ControllerCore:
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
         call (commands.py, by task space); the distributions it does not compile
         distribute the wrench it returns with numpy."""
-        sup = self.supervisor
-        cfg = self.config
         code, index, value, self.integral, wrench, forces, distributed, saturated, peak = \
             self.kernels.cartesian(self, c, measured, error)              # a commands.CartesianOutcome
         if code == LIMITS_OK and distributed:
             return self._accept(c, forces, saturated, peak, value, measured, error)
         if code == LIMITS_OK:
-            forces = distribute_wrench(cfg, self.dynamics, self.model, self.kernels.wrench_list(wrench),
-                                       c.active_rows, c.pose) \
-                if len(sup.active) == self.n else \
-                self.expand(distribute("pseudo_inverse", c.active_rows, wrench).tolist())
+            forces = distribute_wrench(self.config, self.dynamics, self.model, self.kernels.wrench_list(wrench),
+                                       c.active_rows, c.pose, self.supervisor.active, self.n)
             return self._finish(c, forces, value, measured, error)
-        if code > DISTRIBUTION_FAILED:
-            raise_distribution_error(code - DISTRIBUTION_FAILED, index, value, self.kernels.wrench_list(wrench))
-        if code == FORCES_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: non-finite drive forces {forces}", TripCause.KINEMATICS)
-        if code == WRENCH_NOT_FINITE:
-            return self.trip(f"{cfg.strategy}: wrench: contains NaN or infinite values: "
-                             f"{self.kernels.wrench_list(wrench)}",
-                             TripCause.KINEMATICS)
-        return self.trip(*sup.limit_trip(code, index, value))
-
-    def expand(self, sub) -> list:
-        """Forces of the active drives -> forces of every drive (0 for a dropped one)."""
-        sup = self.supervisor
-        return expand(sub, sup.active, self.n)
+        return self.trip(*cartesian_failure(code, index, value, self.kernels.wrench_list(wrench), forces,
+                                            self.config.strategy, self.supervisor))
 
     def _finish(self, c: "Cycle", forces, trans, measured, error) -> list:
         """Clamp the forces of the strategies computed in Python, then ``_accept``."""
@@ -460,20 +383,4 @@ class ControllerCore:
     # ----------------------------------------------------------------- status
     def status(self) -> tuple[int, str, dict]:
         """(level 0 OK / 1 WARN / 2 ERROR, message, values) for controller/status."""
-        r = self.record
-        trans, angle = error_norms(r.error, self.space)
-        values = {"mode": self.mode, "strategy": self.config.strategy, "distribution": self.config.distribution,
-                  "active_drives": ",".join(self.names[k] for k in self.active),
-                  "tracking_error_m": trans, "max_tracking_error_m": self.max_error_m,
-                  "internal_force_norm_n": r.internal_force_norm_n, "peak_drive_force_n": self.peak_force_n,
-                  "saturation_count": self.saturation_count, "cycles": self.cycles,
-                  "faults": "; ".join(self.faults) or "none", "cause": str(self.stop_cause),
-                  "feed_override": self.feed.target, "feed_scale": self.feed.scale, "dt_s": self.config.dt_s,
-                  **{name: getattr(self.config, name) for name in RUNTIME_SETTINGS}}
-        if self.space.translation_axes < self.dof:
-            values["tracking_error_rad"] = angle
-        if self.stopped:
-            return 2, f"stopped: {self.stop_reason}", values
-        if self.failed:
-            return 1, f"degraded: {'; '.join(self.faults)}", values
-        return 0, self.mode, values
+        return controller_status(self)

@@ -12,12 +12,13 @@ import math
 
 import numpy as np
 
+from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.rotations import exp_so3, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
 from .config import FORWARD_KINEMATICS
-from .laws import task_pose_error, tool_pose_floats
+from .laws import SensorSpaceFeedback, task_pose_error, tool_pose_floats
 from .strategies import Feedback
 
 __all__ = ["PoseEstimator"]
@@ -49,6 +50,20 @@ def _minus_spatial(x, e) -> list:
     _, r = tool_pose_floats(x, False)
     rot = exp_so3(np.array([-e[3], -e[4], -e[5]])) @ np.array(r).reshape(3, 3)
     return [x[0] - e[0], x[1] - e[1], x[2] - e[2], *rpy_from_rotation(rot)]
+
+
+def sensor_feedback(machine, strategy, config) -> SensorSpaceFeedback | None:
+    """The Gough's feedback of a metrology ``strategy`` (strategies.Strategy) on its
+    nominal geometry (the true one is the plant's); None for an encoder strategy.
+    ValueError when the machine has no 'metrology' section."""
+    if not strategy.uses_metrology:
+        return None
+    if machine.metrology is None:
+        raise ValueError(f"strategy: {strategy.name} needs a machine with a 'metrology' section, "
+                         f"{machine.name!r} has none")
+    space = machine.model.task_space
+    return SensorSpaceFeedback(GoughSensorModel(machine.metrology), space is PLANAR,
+                               at_estimate=config.sensor_jacobian == "estimated", spatial=space is SPATIAL)
 
 
 class PoseEstimator:

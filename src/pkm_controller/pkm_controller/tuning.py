@@ -21,7 +21,7 @@ import numpy as np
 
 from pkm_kinematics.distribution import TWO_ARM, prestress_direction
 from pkm_kinematics.dynamics import holding_forces
-from pkm_kinematics.errors import DistributionError
+from pkm_kinematics.errors import DistributionError, KinematicsError
 from pkm_kinematics.planar import pair_force_map
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
@@ -155,6 +155,31 @@ class MachineTuning:
             code, rows = LAW_VELOCITY_CASCADE, np.array([[g.outer_kp] * d, [g.kd] * d, [g.outer_ki] * d, [0.0] * d])
         return ScaledGains(g, m_task, task_kp, task_kd, task_ki, m_joint, [g.kp * m for m in m_joint],
                            [g.kd * m for m in m_joint], [g.ki * m for m in m_joint], code, rows)
+
+
+    def takeover(self, running: ControllerConfig, changes: dict, pose, active: list):
+        """(the configuration, the integral state) of a running controller's settings
+        change (ControllerCore.change_settings): ``changes`` applied to ``running`` and
+        validated like a start-up configuration; a strategy only to one fed by the same
+        measurement (the graph's topics stay). The integral is None when the law stays
+        (the state is kept: a joint PID with or without the projection), else the one
+        that holds the load at the measured ``pose`` (holding_integral; zero for a
+        model-based law). ValueError naming the field and its range."""
+        new = running.with_changes(changes)
+        self.check(new)
+        old_strategy, new_strategy = strategy(running.strategy), strategy(new.strategy)
+        if new_strategy.feedback != old_strategy.feedback:
+            raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
+                             f"{old_strategy.name} {old_strategy.feedback.value}: only a strategy on the same "
+                             f"measurement can take over without a restart")
+        if new_strategy.law == old_strategy.law:
+            return new, None
+        try:
+            return new, holding_integral(self.dynamics, self.model, pose, new_strategy.law, new.integral_time_s,
+                                         active)
+        except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
+            raise ValueError(f"strategy: {new.strategy} cannot take over holding at the measured pose: "
+                             f"{exc}") from None
 
 
 def zero_integral(law: Law, n: int, dof: int):
