@@ -42,3 +42,36 @@ def test_the_topic_catalogue_names_real_message_types_and_profiles():
         assert hasattr(importlib.import_module(f"{package}.msg"), kind), topic
         assert topic.qos in QOS_KINDS and name in TOPIC_QOS, topic
     assert TOPIC_QOS["controller/events"] is not STREAM_QOS and TOPIC_QOS["run/start"] is LATCHED_QOS
+
+
+@pytest.mark.ros
+def test_endpoints_take_type_and_qos_from_the_catalogue(ros_graph):
+    """pkm_common.endpoints: a publisher offers publisher_qos (the streams' deeper
+    history), a subscription asks for TOPIC_QOS, both of the catalogue's type; a name
+    outside the catalogue is refused by name."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Bool
+
+    from pkm_common.endpoints import publisher, subscription
+    from pkm_common.qos import EVENTS_QOS, STREAM_PUBLISHER_QOS
+    node = ros_graph.create_node('endpoints_test', namespace='/pkm_endpoints_test')
+    state = publisher(node, 'drives/state')
+    assert state.msg_type is JointState and state.qos_profile.depth == STREAM_PUBLISHER_QOS.depth == 500
+    estop = subscription(node, 'estop', lambda m: None)
+    assert estop.msg_type is Bool and estop.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    assert publisher(node, 'controller/events').qos_profile.depth == EVENTS_QOS.depth
+    with pytest.raises(KeyError, match="'drives/other' is not in pkm_common.topics.CATALOGUE"):
+        publisher(node, 'drives/other')
+
+
+def test_nodes_open_the_graphs_topics_through_the_catalogue():
+    """No node names a topic of the graph in a create_publisher / create_subscription
+    of its own: they go through pkm_common.endpoints (the recorder, the player and the
+    tap, which wire topics they discover, read from a bag or keep private, excepted)."""
+    from pathlib import Path
+    src = Path(__file__).resolve().parents[2] / "src"
+    generic = {"endpoints.py", "recorder_node.py", "player_node.py", "node_tap.py"}
+    offenders = [f"{path.relative_to(src)}:{n}" for path in sorted(src.rglob("*.py")) if path.name not in generic
+                 for n, line in enumerate(path.read_text().splitlines(), 1)
+                 if "create_publisher(" in line or "create_subscription(" in line]
+    assert not offenders, offenders

@@ -51,6 +51,7 @@ from pathlib import Path
 from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
                                   load_scenario, node_parameters, params_file_text)
 from pkm_bringup.run_files import DiskReserve
+from pkm_common import topics
 from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_common.credential import KEY_FILE, RunKey
 from pkm_common.files import disk_full, summary_written, write_json
@@ -157,10 +158,9 @@ def _monitor(context, namespace: str):
     loop and graph checks. It follows the sim's diagnostics (1 Hz and a last one when
     it finishes) and the controller's status (every 100 answers), never a per-step
     stream: one more reader of /clock cost the loop 5-15 % (measured)."""
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.node import Node
 
-    from pkm_common.qos import STREAM_QOS
+    from pkm_common.endpoints import subscription
     node = Node("bringup_monitor", namespace=namespace, context=context)
     node.sim_time_s = 0.0
     node.sim_finished = False
@@ -180,8 +180,8 @@ def _monitor(context, namespace: str):
         on_time(msg)
         node.controller_stopped = node.controller_stopped or any(
             kv.key == "mode" and kv.value == "stopped" for status in msg.status for kv in status.values)
-    node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, STREAM_QOS)
-    node.create_subscription(DiagnosticArray, "controller/status", on_status, STREAM_QOS)
+    subscription(node, topics.DIAGNOSTICS, on_diagnostics)
+    subscription(node, topics.CONTROLLER_STATUS, on_status)
     return node
 
 
@@ -267,11 +267,9 @@ def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 
 def _publish_start(node, credential: Path) -> None:
     """The latched start signal of a scenario without a program (controller
     wait_for_start), with the run's credential (pkm_common.credential)."""
-    from std_msgs.msg import String
-
     from pkm_common.credential import RunKey, Signer
-    from pkm_common.qos import LATCHED_QOS
-    node.start_publisher = node.create_publisher(String, START_TOPIC, LATCHED_QOS)
+    from pkm_common.endpoints import publisher
+    node.start_publisher = publisher(node, START_TOPIC)
     signer = Signer(RunKey.read(credential), node.get_fully_qualified_name())
     node.start_publisher.publish(signer.text(START_TOPIC, "start"))
 
@@ -332,11 +330,9 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
     executor = EventsExecutor(context=context)
     monitor = _monitor(context, s.namespace)
     executor.add_node(monitor)
-    from std_msgs.msg import Bool
-
-    from pkm_common.qos import LATCHED_QOS
+    from pkm_common.endpoints import publisher
     # matched with the controller from the start: an interrupt's E-stop goes out at once
-    monitor.estop_publisher = monitor.create_publisher(Bool, "estop", LATCHED_QOS)
+    monitor.estop_publisher = publisher(monitor, topics.ESTOP)
     nodes = {}
 
     def check_alive(allowed_done=()):

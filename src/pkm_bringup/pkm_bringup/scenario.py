@@ -55,6 +55,7 @@ from pathlib import Path
 
 import yaml
 
+from pkm_common import topics
 from pkm_common.credential import KEY_FILE
 from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
@@ -571,7 +572,7 @@ TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"),
                   "gough_sensor": ("metrology/struts", "metrology/pose"),
                   "controller": ("drives/command", "controller/reference")}
 
-START_TOPIC = "run/start"      # latched String "start" with its credential: the orchestrator's start signal
+START_TOPIC = topics.RUN_START    # latched String "start" with its credential: the orchestrator's start signal
                                # (scenarios without a program)
 
 

@@ -21,7 +21,7 @@ class Topic(NamedTuple):
 
 
 CLOCK = "/clock"
-DRIVES_STATE, DRIVES_COMMAND = "drives/state", "drives/command"
+DRIVES_STATE, DRIVES_COMMAND, DRIVES_REFUSED = "drives/state", "drives/command", "drives/refused"
 TRUE_POSE = "platform/true_pose"
 METROLOGY_STRUTS, METROLOGY_POSE = "metrology/struts", "metrology/pose"
 CONTROLLER_REFERENCE, CONTROLLER_STATUS = "controller/reference", "controller/status"
@@ -34,6 +34,7 @@ CATALOGUE: dict[str, Topic] = {t.name: t for t in (
     Topic(CLOCK, "rosgraph_msgs/msg/Clock", "clock"),
     Topic(DRIVES_STATE, "sensor_msgs/msg/JointState", "stream"),
     Topic(DRIVES_COMMAND, "sensor_msgs/msg/JointState", "stream"),
+    Topic(DRIVES_REFUSED, "diagnostic_msgs/msg/DiagnosticArray", "stream"),
     Topic(TRUE_POSE, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(METROLOGY_STRUTS, "sensor_msgs/msg/JointState", "stream"),
     Topic(METROLOGY_POSE, "geometry_msgs/msg/PoseStamped", "stream"),

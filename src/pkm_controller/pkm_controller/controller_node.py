@@ -26,24 +26,23 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
-from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from pkm_common.files import reserve_file, write_summary
+from pkm_common import topics
 from pkm_common.causes import TripCause
-from pkm_common.credential import Verifier
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
                                     publisher_names)
-from pkm_recording.node_tap import NodeTap
+from pkm_common.credential import Verifier
+from pkm_common.endpoints import publisher, subscription
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.params import declare_bool, declare_like
-from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_recording.node_tap import NodeTap
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, warm_up
 from pkm_controller.config import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
@@ -94,45 +93,41 @@ class ControllerNode(LifecycleNode):
             reserve_file(values["summary_path"])    # a disk the bag fills cannot take the summary's place
         loop = self.loop = ControllerLoop(core, values, self, credentials)
         strategy = core.strategy
-        self.pub_command = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
-        self.pub_reference = self.create_publisher(PoseStamped, "controller/reference", STREAM_PUBLISHER_QOS)
+        self.pub_command = publisher(self, topics.DRIVES_COMMAND)
+        self.pub_reference = publisher(self, topics.CONTROLLER_REFERENCE)
         self.publish_command = self.tap.wrap(self.pub_command, JointState).publish
         self.publish_reference_bytes = self.tap.wrap(self.pub_reference, PoseStamped).publish
-        self.pub_status = self.create_publisher(DiagnosticArray, "controller/status", STREAM_PUBLISHER_QOS)
-        self.pub_estop = self.create_publisher(Bool, "estop", LATCHED_QOS)
-        self.pub_events = self.create_publisher(String, "controller/events", EVENTS_QOS)
+        self.pub_status = publisher(self, topics.CONTROLLER_STATUS)
+        self.pub_estop = publisher(self, topics.ESTOP)
+        self.pub_events = publisher(self, topics.CONTROLLER_EVENTS)
         self.entities = [self.pub_command, self.pub_reference, self.pub_status, self.pub_estop, self.pub_events,
-                         self._command(String, "controller/feed_override", lambda b: loop.on_command(
-                             "controller/feed_override", Action.FEED_OVERRIDE, b), STREAM_QOS),
-                         self._command(String, "controller/settings", lambda b: loop.on_command(
-                             "controller/settings", Action.SETTINGS, b), STREAM_QOS),
-                         self._input(JointState, "drives/state", loop.on_state),
-                         self._command(MultiDOFJointTrajectory, "trajectory", loop.on_trajectory, LATCHED_QOS),
-                         self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS),
-                         self._command(String, "run/start", loop.on_start, LATCHED_QOS),
+                         self._command(topics.FEED_OVERRIDE, lambda b: loop.on_command(
+                             topics.FEED_OVERRIDE, Action.FEED_OVERRIDE, b)),
+                         self._command(topics.SETTINGS, lambda b: loop.on_command(
+                             topics.SETTINGS, Action.SETTINGS, b)),
+                         self._input(topics.DRIVES_STATE, loop.on_state),
+                         self._command(topics.TRAJECTORY, loop.on_trajectory),
+                         subscription(self, topics.ESTOP, lambda m: loop.on_estop(bool(m.data))),
+                         self._command(topics.RUN_START, loop.on_start),
                          self.create_timer(0.01, loop.on_watchdog)]
         if strategy.uses_metrology:
-            struts = strategy.feedback == Feedback.STRUTS
-            self.entities.append(self._input(JointState if struts else PoseStamped, strategy.metrology_topic,
-                                             loop.on_metrology))
+            self.entities.append(self._input(strategy.metrology_topic, loop.on_metrology))
         self.get_logger().info(f"configured: {values['machine']}, {config.strategy}, {config.distribution}")
         return TransitionCallbackReturn.SUCCESS
 
-    def _input(self, msg_type, topic: str, callback):
+    def _input(self, topic: str, callback):
         """A per-step input (raw bytes) whose publishers are watched (node_loop: one source)."""
-        subscription = self.create_subscription(
-            msg_type, topic, callback, STREAM_QOS, raw=True,
+        self.inputs[topic] = subscription(
+            self, topic, callback, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s, loop=self.loop: loop.on_matched(
                 topic, s.current_count)))
-        self.inputs[topic] = subscription
-        return subscription
+        return self.inputs[topic]
 
-    def _command(self, msg_type, topic: str, callback, qos):
+    def _command(self, topic: str, callback):
         """A command input (raw bytes: its credential covers them), whose publishers are
         asked for at each message (node_loop)."""
-        subscription = self.create_subscription(msg_type, topic, callback, qos, raw=True)
-        self.inputs[topic] = subscription
-        return subscription
+        self.inputs[topic] = subscription(self, topic, callback, raw=True)
+        return self.inputs[topic]
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.loop.active = True

@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+from pkm_common import topics
+
 __all__ = ["Feedback", "Law", "Projection", "Strategy", "REGISTRY", "NAMES", "strategy"]
 
 
@@ -43,7 +45,7 @@ class Projection(str, Enum):
 
 
 # what the node subscribes to for each metrology feedback, and the key of its pairing
-_METROLOGY_TOPICS = {Feedback.STRUTS: "metrology/struts", Feedback.GOUGH_POSE: "metrology/pose"}
+_METROLOGY_TOPICS = {Feedback.STRUTS: topics.METROLOGY_STRUTS, Feedback.GOUGH_POSE: topics.METROLOGY_POSE}
 _READINGS = {Feedback.STRUTS: "struts", Feedback.GOUGH_POSE: "pose"}
 
 

@@ -22,21 +22,21 @@ from __future__ import annotations
 
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from pkm_common.files import reserve_file, write_summary
+from pkm_common import topics
 from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.conversions import diagnostic_array, diagnostic_status
-from pkm_common.poses import pose_components, pose_from_components
-from pkm_recording.node_tap import NodeTap
-from pkm_common.timing import Cadence
+from pkm_common.endpoints import publisher, subscription
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_int, declare_str
-from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
+from pkm_common.poses import pose_components, pose_from_components
 from pkm_common.runner import main_exit, run_node
+from pkm_common.timing import Cadence
+from pkm_recording.node_tap import NodeTap
 from pkm_gough_sensor.metrology import MAX_RESOLUTION_M, STRUT_NAMES, GoughSensorModel
 from pkm_kinematics import load_machine, machine_names
 
@@ -81,14 +81,12 @@ class GoughSensorNode(Node):
 
         self.tap = NodeTap(self, declare_bool(self, 'tap', False, 'copy the per-step streams to a recorder '
                                               'in batches (pkm_recording.tap)'))
-        self.pub_struts = self.tap.wrap(self.create_publisher(JointState, 'metrology/struts', STREAM_PUBLISHER_QOS),
-                                        JointState)
-        self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, 'metrology/pose', STREAM_PUBLISHER_QOS),
-                                      PoseStamped)
-        self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
+        self.pub_struts = self.tap.wrap(publisher(self, topics.METROLOGY_STRUTS), JointState)
+        self.pub_pose = self.tap.wrap(publisher(self, topics.METROLOGY_POSE), PoseStamped)
+        self.pub_diag = publisher(self, topics.DIAGNOSTICS)
         # the per-step stream as bytes (pkm_common.cdr): an rclpy PoseStamped costs ~50 us
         # to take, a JointState ~13 us to publish; the bytes 1-3 us
-        self.create_subscription(PoseStamped, 'platform/true_pose', self.on_true_pose, STREAM_QOS, raw=True)
+        subscription(self, topics.TRUE_POSE, self.on_true_pose, raw=True)
         self._struts_encoder = JointStateEncoder(STRUT_NAMES, 'gough_base', fields=('position',))
         self._pose_encoder = PoseStampedEncoder('world')
         # the summary on the wall clock (in lockstep, simulated time may crawl or race),

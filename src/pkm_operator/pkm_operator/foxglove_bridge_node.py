@@ -9,16 +9,15 @@ subscribes; nothing it does reaches the machine.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from pkm_operator.foxglove_live import LiveChannels, joint_json, machine_scene, pose_in_frame
+from pkm_common import topics
 from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
+from pkm_common.endpoints import subscription
 from pkm_common.params import declare_float, declare_int
-from pkm_common.qos import LATCHED_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_operator.foxglove_live import LiveChannels, joint_json, machine_scene, pose_in_frame
 
 
 class FoxgloveBridgeNode(Node):
@@ -29,17 +28,15 @@ class FoxgloveBridgeNode(Node):
                                 unit="Hz")
         self.live = LiveChannels(self.get_namespace(), port=port, rate_hz=rate_hz)
         self.port = self.live.server.port
-        self.state_decoder = JointStateDecoder("drives/state")
+        self.state_decoder = JointStateDecoder(topics.DRIVES_STATE)
         self._read = ShownReader(self.get_logger().error)       # a message it cannot read: dropped
-        self.struts_decoder = JointStateDecoder("metrology/struts")
-        self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS, raw=True)
-        self.create_subscription(JointState, "metrology/struts", self.on_struts, STREAM_QOS, raw=True)
-        self.create_subscription(PoseStamped, "platform/true_pose", lambda b: self.on_pose(b, "tool/true_pose"),
-                                 STREAM_QOS, raw=True)
-        self.create_subscription(PoseStamped, "controller/reference", lambda b: self.on_pose(b, "tool/reference"),
-                                 STREAM_QOS, raw=True)
-        self.create_subscription(MarkerArray, "markers", self.on_markers, LATCHED_QOS)
-        self.create_subscription(DiagnosticArray, "controller/status", self.on_status, STREAM_QOS)
+        self.struts_decoder = JointStateDecoder(topics.METROLOGY_STRUTS)
+        subscription(self, topics.DRIVES_STATE, self.on_state, raw=True)
+        subscription(self, topics.METROLOGY_STRUTS, self.on_struts, raw=True)
+        subscription(self, topics.TRUE_POSE, lambda b: self.on_pose(b, "tool/true_pose"), raw=True)
+        subscription(self, topics.CONTROLLER_REFERENCE, lambda b: self.on_pose(b, "tool/reference"), raw=True)
+        subscription(self, topics.MARKERS, self.on_markers)
+        subscription(self, topics.CONTROLLER_STATUS, self.on_status)
         self.get_logger().info(f"Foxglove: ws://127.0.0.1:{self.port}")
 
     def on_state(self, buf: bytes) -> None:

@@ -15,14 +15,14 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 
+from pkm_common import topics
 from pkm_common.cdr import JointStateDecoder, ShownReader, decode_pose_stamped
 from pkm_common.conversions import signed_message
-from pkm_common.poses import machine_pose_components
 from pkm_common.credential import Signer
-from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
+from pkm_common.endpoints import publisher, subscription
+from pkm_common.poses import machine_pose_components
 
 WATCHDOG_PERIOD_S = 0.05
 
@@ -35,22 +35,19 @@ class PanelNode(Node):
         # sets ``signer.key``
         self.signer = Signer(key, self.get_fully_qualified_name()) if key is not None else None
         self.publish_lock = threading.Lock()
-        self.state_decoder = JointStateDecoder("drives/state")
+        self.state_decoder = JointStateDecoder(topics.DRIVES_STATE)
         self._read = ShownReader(self.get_logger().error)       # a message it cannot read: dropped
-        self.pubs = {"estop": self.create_publisher(Bool, "estop", LATCHED_QOS),
-                     "program": self.create_publisher(String, "program", STREAM_QOS),
-                     "goal": self.create_publisher(PoseStamped, "goal", STREAM_QOS),
-                     "controller/feed_override": self.create_publisher(String, "controller/feed_override",
-                                                                       STREAM_QOS),
-                     "controller/settings": self.create_publisher(String, "controller/settings", STREAM_QOS)}
-        self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS, raw=True)
-        self.create_subscription(PoseStamped, "platform/true_pose", self.on_true_pose, STREAM_QOS, raw=True)
-        self.create_subscription(JointState, "metrology/struts", lambda _: panel.on_struts(), STREAM_QOS, raw=True)
-        self.create_subscription(PoseStamped, "controller/reference", self.on_reference, STREAM_QOS, raw=True)
-        self.create_subscription(DiagnosticArray, "controller/status", self.on_status, STREAM_QOS)
-        self.create_subscription(DiagnosticArray, "diagnostics", self.on_status, STREAM_QOS)
-        self.create_subscription(Bool, "estop", lambda m: panel.on_estop(bool(m.data)), LATCHED_QOS)
-        self.create_subscription(String, "controller/events", lambda m: panel.on_event(m.data), EVENTS_QOS)
+        # the commands it sends, by topic
+        self.pubs = {topic: publisher(self, topic) for topic in (topics.ESTOP, topics.PROGRAM, topics.GOAL,
+                                                                 topics.FEED_OVERRIDE, topics.SETTINGS)}
+        subscription(self, topics.DRIVES_STATE, self.on_state, raw=True)
+        subscription(self, topics.TRUE_POSE, self.on_true_pose, raw=True)
+        subscription(self, topics.METROLOGY_STRUTS, lambda _: panel.on_struts(), raw=True)
+        subscription(self, topics.CONTROLLER_REFERENCE, self.on_reference, raw=True)
+        subscription(self, topics.CONTROLLER_STATUS, self.on_status)
+        subscription(self, topics.DIAGNOSTICS, self.on_status)
+        subscription(self, topics.ESTOP, lambda m: panel.on_estop(bool(m.data)))
+        subscription(self, topics.CONTROLLER_EVENTS, lambda m: panel.on_event(m.data))
         self.create_timer(WATCHDOG_PERIOD_S, self.on_watchdog)
         panel.connect(self.receivers)
 

@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from std_srvs.srv import Trigger
 
-from pkm_recording.recording import message_class
+from pkm_common.endpoints import message_class
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_str
 from pkm_common.qos import TOPIC_QOS, publisher_qos
 from pkm_common.runner import main_exit, run_node

@@ -31,16 +31,17 @@ from pathlib import Path
 from rclpy.node import Node
 from std_msgs.msg import UInt8MultiArray
 
-from pkm_recording.bag import BagWriter
-from pkm_recording.recording import lower_cpu_priority, message_class, qos_dict, subscription_qos
-from pkm_recording.tap_records import StampCounter
-from pkm_common.files import reserve_file, write_summary
 from pkm_common.conversions import graph_senders
+from pkm_common.endpoints import message_class
+from pkm_common.files import reserve_file, write_summary
 from pkm_common.params import declare_float, declare_int, declare_str
 from pkm_common.qos import TAP_QOS
 from pkm_common.runner import main_exit, run_node
 from pkm_common.sources import AllowedSenders, node_names
+from pkm_recording.bag import BagWriter
+from pkm_recording.recording import lower_cpu_priority, qos_dict, subscription_qos
 from pkm_recording.tap import TAP_TOPIC, split_batch
+from pkm_recording.tap_records import StampCounter
 
 EXCLUDED = ("/parameter_events",)
 TAPPED = "tapped"           # subscriptions_by_topic: recorded through the tap, not subscribed

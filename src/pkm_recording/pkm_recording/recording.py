@@ -4,27 +4,13 @@ every publisher, and the process's CPU priority."""
 
 from __future__ import annotations
 
-import importlib
 import os
-import re
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from pkm_recording.bag import qos_profile
 
 _NS_MAX = 9223372036854775807
-
-
-_MSGTYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
-
-
-def message_class(msgtype: str):
-    """'sensor_msgs/msg/JointState' -> the rclpy message class; ValueError for a
-    string that is not a message type name (nothing else is imported)."""
-    if not isinstance(msgtype, str) or not _MSGTYPE.fullmatch(msgtype):
-        raise ValueError(f"{msgtype!r} is not a message type name (package/msg/Name)")
-    package, _, name = msgtype.rpartition("/")
-    return getattr(importlib.import_module(package.replace("/", ".")), name)
 
 
 def qos_dict(qos: QoSProfile) -> dict:

@@ -16,12 +16,13 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from pkm_common import topics
 from pkm_common.conversions import stamp_to_ns
+from pkm_common.endpoints import publisher, subscription
 from pkm_common.files import write_summary
 from pkm_common.params import declare_bool, declare_float, declare_str
-from pkm_common.qos import STREAM_PUBLISHER_QOS, STREAM_QOS
-from pkm_common.timing import DurationHistogram, percentiles_us
 from pkm_common.runner import main_exit, run_node
+from pkm_common.timing import DurationHistogram, percentiles_us
 from pkm_kinematics import load_machine
 from pkm_kinematics.dynamics import dynamic_model, holding_forces
 
@@ -45,10 +46,10 @@ class HoldControllerNode(Node):
         self.metrology_stamps: set[int] = set()
         self.answered = 0
         self.msg_command = JointState()
-        self.pub = self.create_publisher(JointState, "drives/command", STREAM_PUBLISHER_QOS)
-        self.create_subscription(JointState, "drives/state", self.on_state, STREAM_QOS)
+        self.pub = publisher(self, topics.DRIVES_COMMAND)
+        subscription(self, topics.DRIVES_STATE, self.on_state)
         if self.wait_for_metrology:
-            self.create_subscription(PoseStamped, "metrology/pose", self.on_metrology, STREAM_QOS)
+            subscription(self, topics.METROLOGY_POSE, self.on_metrology)
 
     def on_state(self, msg: JointState) -> None:
         stamp = stamp_to_ns(msg.header.stamp)

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
-
+from pkm_common import topics
 from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp
-from pkm_common.qos import STREAM_QOS
+from pkm_common.endpoints import publisher
 from pkm_common.ratelimit import RateLimit
 from pkm_sim_hw.authority import Refusal
 
@@ -22,7 +21,7 @@ class RefusalReport:
 
     def __init__(self, node, counts: dict):
         self.node, self.counts = node, counts
-        self.publisher = node.create_publisher(DiagnosticArray, "drives/refused", STREAM_QOS)
+        self.publisher = publisher(node, topics.DRIVES_REFUSED)
         self.record_limit = RateLimit(REFUSALS_PER_S)
         self.log_limit = RateLimit(1)
 

@@ -32,21 +32,19 @@ drive's status word: empty while running, ``safe_stop:<cause>`` once braked.
 from __future__ import annotations
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
-from visualization_msgs.msg import MarkerArray
 
+from pkm_common import topics
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, line_list_markers,
                                     ns_to_stamp, publisher_names)
-from pkm_recording.node_tap import NodeTap
+from pkm_common.endpoints import publisher, subscription
 from pkm_common.params import declare_bool
-from pkm_common.qos import CLOCK_PUBLISHER_QOS, LATCHED_QOS, STREAM_PUBLISHER_QOS, STREAM_QOS
 from pkm_common.runner import main_exit, run_node
+from pkm_recording.node_tap import NodeTap
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.refusals import RefusalReport
 from pkm_sim_hw.sim_loop import SimLoop
@@ -64,22 +62,20 @@ class SimHwNode(Node):
         self.shutdown_on_finish = settings.shutdown_on_finish
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
                                               "in batches (pkm_recording.tap) instead of its subscribing to them"))
-        self.pub_clock = self.tap.wrap(self.create_publisher(Clock, "/clock", CLOCK_PUBLISHER_QOS), Clock)
-        self.pub_state = self.tap.wrap(self.create_publisher(JointState, "drives/state", STREAM_PUBLISHER_QOS),
-                                       JointState)
-        self.pub_pose = self.tap.wrap(self.create_publisher(PoseStamped, "platform/true_pose",
-                                                            STREAM_PUBLISHER_QOS), PoseStamped)
+        self.pub_clock = self.tap.wrap(publisher(self, topics.CLOCK), Clock)
+        self.pub_state = self.tap.wrap(publisher(self, topics.DRIVES_STATE), JointState)
+        self.pub_pose = self.tap.wrap(publisher(self, topics.TRUE_POSE), PoseStamped)
         streams = StepStreams(self.plant, self.config.model.task_space, self.pub_pose, self.pub_state, self.pub_clock)
         self.loop = loop = SimLoop(settings, streams, self)
         self.run, self.counts = loop.run, loop.counts
-        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        self.pub_diag = publisher(self, topics.DIAGNOSTICS)
         self.refusals = RefusalReport(self, self.counts)
-        self.pub_markers = self.create_publisher(MarkerArray, "markers", LATCHED_QOS)
-        self.command_sub = self.create_subscription(
-            JointState, "drives/command", loop.on_command, STREAM_QOS, raw=True,
+        self.pub_markers = publisher(self, topics.MARKERS)
+        self.command_sub = subscription(
+            self, topics.DRIVES_COMMAND, loop.on_command, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s: loop.on_command_matched(s.current_count)))
-        self.load_sub = self.create_subscription(WrenchStamped, "load", loop.on_load_message, STREAM_QOS, raw=True)
-        self.create_subscription(Bool, "estop", lambda m: loop.on_estop(bool(m.data)), LATCHED_QOS)
+        self.load_sub = subscription(self, topics.LOAD, loop.on_load_message, raw=True)
+        subscription(self, topics.ESTOP, lambda m: loop.on_estop(bool(m.data)))
         self.create_timer(0.1, loop.on_watchdog)
         for cadence, work in loop.cadences:
             self.create_timer(cadence.period_s, lambda c=cadence, w=work: c.on_timer() and w())

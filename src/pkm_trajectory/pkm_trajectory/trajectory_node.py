@@ -17,20 +17,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from pkm_common import topics
 from pkm_common.cdr import decode_string
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, pose_from_msg,
                                     signed_message, trajectory_msg)
-from pkm_common.poses import tool_pose_to_machine
 from pkm_common.credential import RunKey, Signer, Verifier, split_text
+from pkm_common.endpoints import publisher, subscription
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
-from pkm_common.qos import EVENTS_QOS, LATCHED_QOS, STREAM_QOS
+from pkm_common.poses import tool_pose_to_machine
 from pkm_common.runner import main_exit, run_node
 from pkm_common.sources import AllowedSenders, CommandGuard, node_names
 from pkm_kinematics import load_machine
@@ -73,8 +73,8 @@ class TrajectoryNode(Node):
         # plans start where the controller's accepted trajectories end (plan_chain)
         self.chain = PlanChain(self.model.home)
         self.accepted = self.rejected = 0
-        self.pub = self.create_publisher(MultiDOFJointTrajectory, "trajectory", LATCHED_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        self.pub = publisher(self, topics.TRAJECTORY)
+        self.pub_diag = publisher(self, topics.DIAGNOSTICS)
         # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
         operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
@@ -84,15 +84,14 @@ class TrajectoryNode(Node):
         key = RunKey.read(path) if path else None
         self.signer = Signer(key, self.get_fully_qualified_name()) if key else None
         self.command_guards = {topic: CommandGuard(AllowedSenders(topic, operators, "operator_sources"), Verifier(key))
-                       for topic in ("goal", "program")}
+                       for topic in (topics.GOAL, topics.PROGRAM)}
         self.refused_senders = 0
-        self.inputs = {"goal": self.create_subscription(PoseStamped, "goal", self.on_goal, STREAM_QOS, raw=True),
-                       "program": self.create_subscription(String, "program", self.on_program, STREAM_QOS,
-                                                           raw=True)}
-        self.controller = AllowedSenders("controller/events", node_names(declare_str(
+        self.inputs = {topics.GOAL: subscription(self, topics.GOAL, self.on_goal, raw=True),
+                       topics.PROGRAM: subscription(self, topics.PROGRAM, self.on_program, raw=True)}
+        self.controller = AllowedSenders(topics.CONTROLLER_EVENTS, node_names(declare_str(
             self, "controller_source", "", "the controller's full node name: its verdicts move where plans start "
             "(empty: anyone's)", allow_empty=True)), "controller_source")
-        self.events_sub = self.create_subscription(String, "controller/events", self.on_event, EVENTS_QOS)
+        self.events_sub = subscription(self, topics.CONTROLLER_EVENTS, self.on_event)
         if program_file:
             self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
 
@@ -131,7 +130,7 @@ class TrajectoryNode(Node):
         return True
 
     def on_goal(self, buf: bytes) -> None:
-        if self.sender_refused("goal", buf):
+        if self.sender_refused(topics.GOAL, buf):
             return
 
         def segments():
@@ -143,7 +142,7 @@ class TrajectoryNode(Node):
         self.submit("goal", segments)
 
     def on_program(self, buf: bytes) -> None:
-        if self.sender_refused("program", buf):
+        if self.sender_refused(topics.PROGRAM, buf):
             return
         self.submit("program", lambda: gcode_segments(split_text(decode_string(buf, "program"))[1],
                                                       **self._options()))
