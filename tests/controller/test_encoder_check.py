@@ -79,10 +79,10 @@ def test_a_slip_is_confirmed_by_its_return_and_a_load_step_is_not_a_slip():
     q = [0.0, 0.0]
     for _ in range(5):
         q = [q[0] + 1e-5, q[1] + 1e-5]
-        assert check(monitor, q, [1e-2, 1e-2]) == (-1, "")
+        assert check(monitor, q, [1e-2, 1e-2]) is None
     # drive 0: 15 um once (under the threshold); drive 1: a 30 um slip
     q = [q[0] + 1e-5 + 1.5e-5, q[1] + 1e-5 + 3e-5]
-    assert check(monitor, q, [1e-2, 1e-2]) == (-1, "")      # judged next cycle
+    assert check(monitor, q, [1e-2, 1e-2]) is None      # judged next cycle
     q = [q[0] + 1e-5, q[1] + 1e-5]
     drive, what = check(monitor, q, [1e-2, 1e-2])
     assert drive == 1 and what.startswith("slipped") and "+30.0 um" in what
@@ -92,7 +92,7 @@ def test_a_slip_is_confirmed_by_its_return_and_a_load_step_is_not_a_slip():
     for k in range(40):
         v += 2.5e-5 if k >= 5 else 0.0
         q = [q[0] + v]
-        assert check(monitor, q, [v / 1e-3]) == (-1, ""), k
+        assert check(monitor, q, [v / 1e-3]) is None, k
 
 
 def test_encoder_noise_raises_the_threshold_and_a_slip_over_it_is_still_seen():
@@ -103,7 +103,7 @@ def test_encoder_noise_raises_the_threshold_and_a_slip_over_it_is_still_seen():
     for k in range(20000):                     # 20 s at 0.1 m/s, 3 um noise, 1 um counts
         true += 1e-4
         reading = round((true + rng.gauss(0.0, 3e-6)) / 1e-6) * 1e-6
-        assert check(monitor, [reading], [0.1]) == (-1, ""), k
+        assert check(monitor, [reading], [0.1]) is None, k
     assert monitor.threshold(0) > 2e-5
     true += 1e-4
     check(monitor, [round(true / 1e-6) * 1e-6 + 2e-4], [0.1])
@@ -126,10 +126,10 @@ def test_a_slow_freeze_is_seen_when_the_reference_has_moved_the_drive_freeze_m()
     monitor = EncoderMonitor(1, jump_m=2e-5, freeze_m=2e-4)
     check(monitor, [0.0], [0.0])
     for k in range(1, 300):                  # 1 mm/s: 1 um a cycle, the reading frozen at 0
-        drive, what = check(monitor, [0.0], [1e-3])
-        if drive >= 0:
+        fault = check(monitor, [0.0], [1e-3])
+        if fault is not None:
             break
-    assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202
+    assert fault is not None and fault.drive == 0 and fault.what.startswith("frozen") and 199 <= k <= 202, (k, fault)
 
 
 def test_a_plant_standing_still_on_held_setpoints_is_not_a_frozen_encoder():
@@ -141,12 +141,12 @@ def test_a_plant_standing_still_on_held_setpoints_is_not_a_frozen_encoder():
     check(monitor, [0.0], [0.0])
     for k in range(1, 301):                  # as above, but every tenth period held (the last one too)
         assert monitor.check([0.0], np.eye(3), np.zeros(3), np.eye(3)[:1], np.zeros(1), [1e-3, 0.0, 0.0], 1e-3,
-                             setpoint_held=k % 10 == 0) == (-1, ""), k
+                             setpoint_held=k % 10 == 0) is None, k
     for k in range(1, 300):                  # then fresh setpoints only: the freeze is found as before
-        drive, what = check(monitor, [0.0], [1e-3])
-        if drive >= 0:
+        fault = check(monitor, [0.0], [1e-3])
+        if fault is not None:
             break
-    assert drive == 0 and what.startswith("frozen") and 199 <= k <= 202
+    assert fault is not None and fault.drive == 0 and fault.what.startswith("frozen") and 199 <= k <= 202, (k, fault)
 
 
 # ---- the Gough cross-check (metrology strategies): each reading against q(x_g)

@@ -50,6 +50,7 @@ import time
 from dataclasses import dataclass
 
 from pkm_common.runner import MEMORY_LOCK_ENV, lock_memory, unlock_memory
+from pkm_kinematics.errors import FieldError
 
 FIFO, OTHER = "fifo", "other"
 _POLICIES = {FIFO: os.SCHED_FIFO, OTHER: os.SCHED_OTHER}
@@ -67,10 +68,10 @@ class Scheduling:
 
     def __post_init__(self):
         if self.policy not in _POLICIES:
-            raise ValueError(f"policy: must be one of {list(_POLICIES)}, got {self.policy!r}")
+            raise FieldError("policy", f"must be one of {list(_POLICIES)}, got {self.policy!r}")
         low, high = (1, 99) if self.policy == FIFO else (0, 0)
         if not low <= self.priority <= high:
-            raise ValueError(f"priority: must be in [{low}, {high}] for {self.policy}, got {self.priority}")
+            raise FieldError("priority", f"must be in [{low}, {high}] for {self.policy}, got {self.priority}")
 
 
 PROFILE: dict[str, Scheduling] = {
@@ -93,7 +94,7 @@ def scheduling(node: str, in_process: bool = False) -> Scheduling:
     try:
         return PROFILE[node]
     except KeyError:
-        raise ValueError(f"node: must be one of {sorted(PROFILE)}, got {node!r}") from None
+        raise FieldError("node", f"must be one of {sorted(PROFILE)}, got {node!r}") from None
 
 
 def highest_priority(in_process: bool = False) -> int:

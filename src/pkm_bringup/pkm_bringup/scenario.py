@@ -64,6 +64,7 @@ from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
 from pkm_sim_hw.plant import Fault, PlantParameters, check_load
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated
@@ -367,8 +368,8 @@ def _check_plant(p: dict, config) -> None:
     for name in ("compliance", "frame_compliance"):
         values = getattr(params, name)
         if any(values) and len(values) != len(loads):
-            raise ValueError(f"{name}: must be {len(loads)} values on {config.name} (one per load component "
-                             f"{', '.join(loads)}), got {list(values)}")
+            raise FieldError(name, f"must be {len(loads)} values on {config.name} (one per load component "
+                                   f"{', '.join(loads)}), got {list(values)}")
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
     for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
@@ -378,8 +379,8 @@ def _check_plant(p: dict, config) -> None:
         for i in range(0, len(schedule), size + 1):
             try:
                 check_load(schedule[i + 1:i + 1 + size], space, params, key)
-            except ValueError as exc:
-                raise ValueError(f"{exc} at t_s = {schedule[i]:g} s") from None
+            except FieldError as exc:
+                raise FieldError(exc.name, f"{exc.detail} at t_s = {schedule[i]:g} s") from None
 
 
 def _check_sensor(p: dict, config) -> None:
@@ -395,7 +396,7 @@ def _check_trajectory(p: dict, config) -> None:
     lo, hi = RATE_HZ_RANGE
     rate = p.get("rate_hz", 1000.0)
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
-        raise ValueError(f"rate_hz: must be in [{lo:g}, {hi:g}] Hz, got {rate!r}")
+        raise FieldError("rate_hz", f"must be in [{lo:g}, {hi:g}] Hz, got {rate!r}")
     PlanBudget(p.get("max_points", 200_000), p.get("max_segments", 10_000), float(p.get("max_planning_s", 10.0)))
 
 
@@ -425,12 +426,11 @@ def _check_nodes(s: Scenario, config) -> None:
 
 
 def _owner_refusal(s: Scenario, key: str, exc: ValueError) -> ScenarioError:
-    """An owner's ValueError ("<parameter>: <allowed, got>", or controller_node's
-    "parameter '<name>': ...") as a ScenarioError naming the scenario key; a value the
-    scenario did not set is said to be the node's default."""
+    """An owner's refusal (a FieldError naming the parameter; any other ValueError names
+    none) as a ScenarioError naming the scenario key; a value the scenario did not set
+    is said to be the node's default."""
     message = str(exc)
-    quoted = re.match(r"parameter '(\w+)': (.*)", message, re.S)
-    name, rest = quoted.groups() if quoted else message.partition(": ")[::2]
+    name, rest = (exc.name, exc.detail) if isinstance(exc, FieldError) else ("", message)
     if name not in node_parameter_names(SECTIONS[key]):
         # a top-level key of the scenario (machine, load) or a message naming none
         return ScenarioError(f"{name}: {rest}" if name in KEYS else f"{key}: {message}")

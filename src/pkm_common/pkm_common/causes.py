@@ -15,6 +15,8 @@ import enum
 import functools
 from dataclasses import dataclass
 
+from pkm_kinematics.errors import FieldError
+
 __all__ = ["TripCause", "parse_cause", "run_status", "PlantState", "PlantStatus", "RUNNING", "plant_status",
            "safe_stop_status", "setpoint_held_status", "SETPOINT_HELD", "HELD_COMMAND_UNKNOWN"]
 
@@ -59,7 +61,7 @@ def parse_cause(text: str) -> TripCause:
     try:
         return TripCause(text)
     except ValueError:
-        raise ValueError(f"cause: must be one of {[c.value for c in TripCause]}, got {text!r}") from None
+        raise FieldError("cause", f"must be one of {[c.value for c in TripCause]}, got {text!r}") from None
 
 
 class PlantState(enum.IntEnum):

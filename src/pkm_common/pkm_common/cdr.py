@@ -28,6 +28,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pkm_kinematics.errors import FieldError
+
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 _HEADER_AND_STAMP = struct.Struct("<4siI")          # encapsulation, stamp.sec, stamp.nanosec
 _UINT32 = struct.Struct("<I")
@@ -63,7 +65,7 @@ def in_order(msg: JointStateData, names, what: str = "JointState") -> JointState
     if not got or got == names:
         return msg
     if sorted(got) != sorted(names):
-        raise ValueError(f"{what}: names {got} are not {names}")
+        raise FieldError(what, f"names {got} are not {names}")
     order = [got.index(n) for n in names]
 
     def pick(values):
@@ -81,15 +83,15 @@ def _stamp_ns(sec: int, nanosec: int, what: str) -> int:
     """A received stamp as nanoseconds; before 1970 or a nanosec of a second or more is
     refused (ValueError): it is no time of a run, and answered it cannot be encoded."""
     if sec < 0 or nanosec >= NS_PER_S:
-        raise ValueError(f"{what}: header.stamp must be at or after 0 s with nanosec < 1e9, got sec {sec}, "
-                         f"nanosec {nanosec}")
+        raise FieldError(what, f"header.stamp must be at or after 0 s with nanosec < 1e9, got sec {sec}, "
+                               f"nanosec {nanosec}")
     return sec * NS_PER_S + nanosec
 
 
 def _split_stamp(stamp_ns: int) -> tuple[int, int]:
     sec, nanosec = divmod(stamp_ns, NS_PER_S)
     if not 0 <= sec < 2**31:
-        raise ValueError(f"stamp: must be in [0, 2^31 s) as nanoseconds, got {stamp_ns}")
+        raise FieldError("stamp", f"must be in [0, 2^31 s) as nanoseconds, got {stamp_ns}")
     return sec, nanosec
 
 
@@ -109,8 +111,8 @@ class _Reader:
 
     def __init__(self, buf, what: str, minimum: int = 12):
         if len(buf) < minimum or bytes(buf[:4]) != CDR_LE_HEADER:
-            raise ValueError(f"{what}: not a little-endian CDR message "
-                             f"(header {bytes(buf[:4]).hex()}, {len(buf)} bytes)")
+            raise FieldError(what, f"not a little-endian CDR message "
+                                   f"(header {bytes(buf[:4]).hex()}, {len(buf)} bytes)")
         self.buf, self.pos, self.what = buf, 4, what
 
     def _need(self, size: int, field: str) -> None:
@@ -173,7 +175,7 @@ def decode_joint_state(buf, what: str = "JointState") -> JointStateData:
     frame_id = r.string("header.frame_id")
     count = r.uint32("name count")
     if count > len(buf):
-        raise ValueError(f"{what}: name count {count} exceeds the message size")
+        raise FieldError(what, f"name count {count} exceeds the message size")
     name = tuple(r.string(f"name[{i}]") for i in range(count))
     return JointStateData(stamp, frame_id, name, r.double_sequence("position"),
                           r.double_sequence("velocity"), r.double_sequence("effort"))
@@ -233,11 +235,11 @@ def decode_multidof_trajectory(buf, what: str = "trajectory") -> TrajectoryData:
     frame_id = r.string("header.frame_id")
     count = r.uint32("joint_names count")
     if count > len(buf):
-        raise ValueError(f"{what}: joint_names count {count} exceeds the message size")
+        raise FieldError(what, f"joint_names count {count} exceeds the message size")
     names = tuple(r.string(f"joint_names[{i}]") for i in range(count))
     n = r.uint32("points count")
     if n > len(buf) // 8:
-        raise ValueError(f"{what}: points count {n} exceeds the message size")
+        raise FieldError(what, f"points count {n} exceeds the message size")
     j = len(names)
     t, tf, vel, acc = np.zeros(n), np.zeros((n, j, 7)), np.zeros((n, j, 6)), np.zeros((n, j, 6))
     first = r.pos
@@ -317,7 +319,7 @@ class JointStateEncoder:
         names = [str(n) for n in names]
         unknown = set(fields) - set(self.FIELDS)
         if unknown:
-            raise ValueError(f"fields: must be among {list(self.FIELDS)}, got {sorted(unknown)}")
+            raise FieldError("fields", f"must be among {list(self.FIELDS)}, got {sorted(unknown)}")
         self.names, self.frame_id, self.n = tuple(names), frame_id, len(names)
         self.fields = tuple(f for f in self.FIELDS if f in fields)
         offset = 8                                        # body offset after the stamp
@@ -398,7 +400,7 @@ def decode_string(buf, what: str = "String") -> str:
 def decode_bool(buf, what: str = "Bool") -> bool:
     """``data`` of a serialized std_msgs/Bool."""
     if len(buf) < 5 or bytes(buf[:4]) != CDR_LE_HEADER:
-        raise ValueError(f"{what}: not a little-endian CDR std_msgs/Bool ({len(buf)} bytes)")
+        raise FieldError(what, f"not a little-endian CDR std_msgs/Bool ({len(buf)} bytes)")
     return buf[4] != 0
 
 

@@ -18,6 +18,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
 from pkm_common.poses import pose_components, pose_from_components
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import motion_fields
 
 NS_PER_S = 1_000_000_000
@@ -29,10 +30,10 @@ _LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus
 def ns_to_stamp(ns: int) -> Time:
     """Integer nanoseconds (>= 0) -> builtin_interfaces/Time."""
     if isinstance(ns, bool) or not isinstance(ns, (int, np.integer)):
-        raise ValueError(f'stamp: expected integer nanoseconds, got {ns!r}')
+        raise FieldError('stamp', f'expected integer nanoseconds, got {ns!r}')
     ns = int(ns)
     if ns < 0 or ns >= (2**31) * NS_PER_S:
-        raise ValueError(f'stamp: must be in [0, 2^31 s) as nanoseconds, got {ns}')
+        raise FieldError('stamp', f'must be in [0, 2^31 s) as nanoseconds, got {ns}')
     return Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
 
 
@@ -137,7 +138,7 @@ def diagnostic_status(name: str, level, message: str, values: dict | None = None
     if isinstance(level, (bytes, bytearray)):
         level = int.from_bytes(level, 'little')
     if level not in _LEVELS:
-        raise ValueError(f'level: must be 0 (OK), 1 (WARN), 2 (ERROR) or 3 (STALE), got {level!r}')
+        raise FieldError('level', f'must be 0 (OK), 1 (WARN), 2 (ERROR) or 3 (STALE), got {level!r}')
     status = DiagnosticStatus()
     status.level = _LEVELS[level]
     status.name = name

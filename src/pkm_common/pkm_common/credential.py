@@ -60,6 +60,7 @@ from hashlib import sha256
 from pathlib import Path
 
 from pkm_common.cdr import encode_string, first_string_span
+from pkm_kinematics.errors import FieldError
 
 __all__ = ["COMMAND_TOPICS", "KEY_FILE", "CredentialRefused", "RunKey", "SCHEME", "Signer", "Verifier", "split_text"]
 
@@ -115,14 +116,14 @@ class RunKey:
             mode = path.stat().st_mode
             text = path.read_text(encoding="ascii").strip()
         except (OSError, UnicodeDecodeError) as exc:
-            raise ValueError(f"credential_file: cannot read {path}: {exc}") from None
+            raise FieldError("credential_file", f"cannot read {path}: {exc}") from None
         if mode & (stat.S_IRWXG | stat.S_IRWXO):
-            raise ValueError(f"credential_file: {path} may be read by others (mode {stat.S_IMODE(mode):o}); "
-                             "it must be 600")
+            raise FieldError("credential_file", f"{path} may be read by others (mode {stat.S_IMODE(mode):o}); "
+                                                "it must be 600")
         try:
             return cls(bytes.fromhex(text))
         except ValueError:
-            raise ValueError(f"credential_file: {path} does not hold {KEY_BYTES} bytes in hex") from None
+            raise FieldError("credential_file", f"{path} does not hold {KEY_BYTES} bytes in hex") from None
 
     def mac(self, topic: str, buf, mac_at: int | None = None, size: int | None = None) -> bytes:
         """HMAC-SHA256 over the topic, a NUL and ``buf[:size]``, the 64 bytes at

@@ -22,15 +22,14 @@ import math
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.exceptions import ParameterException
 
+from pkm_kinematics.errors import ParameterError
+
 INT64_MIN, INT64_MAX = -2**63, 2**63 - 1
 
 
-class ParameterError(ValueError):
-    """A parameter value is missing, of the wrong type or out of its range."""
-
-    def __init__(self, name: str, message: str):
-        self.name = name
-        super().__init__(f"parameter '{name}': {message}")
+# ParameterError (pkm_kinematics.errors, a FieldError): a parameter value is missing,
+# of the wrong type or out of its range; raised here, and by the pure cores that name
+# a node's parameters
 
 
 def _fmt(v) -> str:

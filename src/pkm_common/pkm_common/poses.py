@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import TASK_SPACES, TaskSpace, pose_fields, task_pose, tool_pose
 
 QUATERNION_NORM_TOL = 1e-6
@@ -51,17 +52,17 @@ def pose_components(position, rotation) -> tuple[tuple, tuple]:
         px, py, pz = (position.tolist() if isinstance(position, np.ndarray) else position)
         px, py, pz = float(px), float(py), float(pz)
     except (TypeError, ValueError):
-        raise ValueError(f'position: expected 3 numbers, got {position!r}') from None
+        raise FieldError('position', f'expected 3 numbers, got {position!r}') from None
     try:
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (
             rotation.tolist() if isinstance(rotation, np.ndarray) else rotation)
         r = (float(r00), float(r01), float(r02), float(r10), float(r11), float(r12),
              float(r20), float(r21), float(r22))
     except (TypeError, ValueError):
-        raise ValueError(f'rotation: expected a 3 x 3 matrix, got {rotation!r}') from None
+        raise FieldError('rotation', f'expected a 3 x 3 matrix, got {rotation!r}') from None
     if not math.isfinite(px + py + pz + r[0] + r[1] + r[2] + r[3] + r[4] + r[5] + r[6] + r[7] + r[8]):
-        raise ValueError(f'pose: contains NaN or infinite values: position {[px, py, pz]}, '
-                         f'rotation {list(r)}')
+        raise FieldError('pose', f'contains NaN or infinite values: position {[px, py, pz]}, '
+                                 f'rotation {list(r)}')
     return (px, py, pz), _quaternion(r)
 
 
@@ -97,7 +98,7 @@ def pose_from_components(position, orientation) -> tuple[np.ndarray, np.ndarray]
 # message boundary: a machine's model names its task space (``model.task_space``).
 def _check_space(space) -> None:
     if not isinstance(space, TaskSpace):
-        raise ValueError(f'space: must be a task space (one of {sorted(TASK_SPACES)}), got {space!r}')
+        raise FieldError('space', f'must be a task space (one of {sorted(TASK_SPACES)}), got {space!r}')
 
 
 def machine_to_tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +108,7 @@ def machine_to_tool_pose(space: TaskSpace, x) -> tuple[np.ndarray, np.ndarray]:
     _check_space(space)
     x = np.asarray(x, dtype=float)
     if x.shape != (space.dof,) or not np.isfinite(x).all():
-        raise ValueError(f'x: expected {space.dof} finite numbers ({space.describe()}), got {x.tolist()}')
+        raise FieldError('x', f'expected {space.dof} finite numbers ({space.describe()}), got {x.tolist()}')
     return tool_pose(space, x)
 
 
@@ -129,5 +130,5 @@ def tool_pose_to_machine(space: TaskSpace, position, rotation, reference_theta: 
         raise ValueError(f'tool pose: expected a finite position (3,) and rotation (3, 3), '
                          f'got {p.tolist()}, {rot.tolist()}')
     if reference_theta is not None and not math.isfinite(float(reference_theta)):
-        raise ValueError(f'reference_theta: must be finite, got {reference_theta!r}')
+        raise FieldError('reference_theta', f'must be finite, got {reference_theta!r}')
     return task_pose(space, p, rot, None if reference_theta is None else float(reference_theta))

@@ -29,6 +29,8 @@ import rclpy
 import rclpy.signals
 from rclpy.executors import ExternalShutdownException
 
+from pkm_kinematics.errors import FieldError
+
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
 EXECUTORS = ('single', 'events')
 # "1": run_node locks the process's memory once the node is built (lock_memory)
@@ -65,7 +67,7 @@ def make_executor(kind: str, context):
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
-    raise ValueError(f'executor: must be one of {list(EXECUTORS)}, got {kind!r}')
+    raise FieldError('executor', f'must be one of {list(EXECUTORS)}, got {kind!r}')
 
 
 @contextlib.contextmanager

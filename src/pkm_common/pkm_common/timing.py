@@ -7,6 +7,8 @@ import time
 
 import numpy as np
 
+from pkm_kinematics.errors import FieldError
+
 __all__ = ["Cadence", "DurationHistogram", "percentiles_us"]
 
 
@@ -26,7 +28,7 @@ class Cadence:
 
     def __init__(self, period_s: float, clock=time.monotonic):
         if not period_s > 0.0:
-            raise ValueError(f"period_s: must be > 0 s, got {period_s!r}")
+            raise FieldError("period_s", f"must be > 0 s, got {period_s!r}")
         self.period_s, self._clock = period_s, clock
         self._last = -math.inf
 

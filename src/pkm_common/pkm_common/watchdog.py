@@ -13,6 +13,8 @@ Both ends of the lockstep loop use it: the controller for the drive states
 
 from __future__ import annotations
 
+from pkm_kinematics.errors import FieldError
+
 __all__ = ["SilenceWatchdog"]
 
 
@@ -28,7 +30,7 @@ class SilenceWatchdog:
 
     def __init__(self, own_stall_s: float):
         if not own_stall_s > 0.0:
-            raise ValueError(f"own_stall_s: must be > 0 s, got {own_stall_s!r}")
+            raise FieldError("own_stall_s", f"must be > 0 s, got {own_stall_s!r}")
         self.own_stall_s = own_stall_s
         self.last_fed_s: float | None = None
         self.last_check_s: float | None = None

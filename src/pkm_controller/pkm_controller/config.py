@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from pkm_kinematics.distribution import METHODS, TWO_ARM
+from pkm_kinematics.errors import FieldError
 
 from .strategies import NAMES
 
@@ -106,7 +107,7 @@ class ControllerConfig:
                            f"0, or in ({low:.4g}, inf) s (stability: T_i > 1 / (2 zeta omega))"))
         for name, ok, allowed in checks:
             if not ok:
-                raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
+                raise FieldError.out_of_range(name, allowed, getattr(self, name))
 
     def with_changes(self, changes: dict) -> "ControllerConfig":
         """This configuration with ``changes`` of ``RUNTIME_SETTINGS`` (numbers as floats);
@@ -117,8 +118,7 @@ class ControllerConfig:
         for name, value in changes.items():
             default = getattr(ControllerConfig, name)
             if isinstance(default, str) != isinstance(value, str) or isinstance(value, bool):
-                raise ValueError(f"{name}: must be a {'name' if isinstance(default, str) else 'number'}, "
-                                 f"got {value!r}")
+                raise FieldError.out_of_range(name, "a name" if isinstance(default, str) else "a number", value)
         return replace(self, **{k: (v if isinstance(v, str) else float(v)) for k, v in changes.items()})
 
     @classmethod
@@ -126,7 +126,7 @@ class ControllerConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise ValueError(f"{unknown[0]}: unknown controller parameter (known: {sorted(known)})")
+            raise FieldError(unknown[0], f"unknown controller parameter (known: {sorted(known)})")
         return cls(**values)
 
 
@@ -134,7 +134,7 @@ def check_runtime_names(changes) -> None:
     """``changes`` is a non-empty mapping of runtime settings (ValueError naming the first
     that is not one)."""
     if not isinstance(changes, dict) or not changes:
-        raise ValueError("settings: expected a non-empty mapping of name: value")
+        raise FieldError("settings", "expected a non-empty mapping of name: value")
     unknown = sorted(set(changes) - set(RUNTIME_SETTINGS))
     if unknown:
-        raise ValueError(f"{unknown[0]}: cannot be changed while running (can: {list(RUNTIME_SETTINGS)})")
+        raise FieldError(unknown[0], f"cannot be changed while running (can: {list(RUNTIME_SETTINGS)})")

@@ -12,9 +12,12 @@ from pkm_common.poses import machine_pose_components, pose_from_components
 from pkm_common.timing import percentiles_us
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
+from pkm_kinematics.errors import FieldError, ParameterError
 
 from .config import ControllerConfig
 from .controller import ControllerCore
+
+CONFIG_FIELDS = frozenset(f.name for f in fields(ControllerConfig))
 
 # the controller node's own parameters, beside ControllerConfig's (the scenario checks both)
 NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeout_s": 0.5,
@@ -30,24 +33,22 @@ NODE_PARAMETERS = {"machine": "archi", "state_timeout_s": 0.5, "metrology_timeou
 
 def core_from_parameters(machine_name: str, config: ControllerConfig) -> ControllerCore:
     """The controller core of the machine ``machine_name`` (config/machines, or a
-    machine file). A bad value raises ValueError "parameter '<name>': <what is
-    allowed>", the name being the node's parameter (``machine`` or a ControllerConfig
-    field); what the core refuses about the machine itself (no dynamics section) is
-    named ``machine``."""
+    machine file). A bad value raises ParameterError "parameter '<name>': <what is
+    allowed>", the name being the node's parameter: a ControllerConfig field the core
+    names (its FieldError), else ``machine`` (the file, or what the core refuses about
+    the machine itself: no dynamics section)."""
     try:
-        try:
-            machine = load_machine(machine_name)
-        except ValueError as exc:
-            raise ValueError(f"machine: {exc}") from None
-        return ControllerCore(machine, config)
+        machine = load_machine(machine_name)
     except ValueError as exc:
-        message = str(exc)
-        if message.startswith("parameter '"):
-            raise
-        name, _, rest = message.partition(": ")        # "<field>: must be ..." from the core
-        if name != "machine" and name not in {f.name for f in fields(ControllerConfig)}:
-            name, rest = "machine", message
-        raise ValueError(f"parameter '{name}': {rest}") from None
+        raise ParameterError("machine", str(exc)) from None
+    try:
+        return ControllerCore(machine, config)
+    except FieldError as exc:
+        if exc.name in CONFIG_FIELDS:
+            raise ParameterError(exc.name, exc.detail) from None
+        raise ParameterError("machine", str(exc)) from None
+    except ValueError as exc:
+        raise ParameterError("machine", str(exc)) from None
 
 
 def warm_up(core: ControllerCore, cycles: int = 3) -> None:

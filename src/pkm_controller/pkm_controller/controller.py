@@ -335,7 +335,7 @@ class ControllerCore:
         the machine holds)."""
         refused = self.tracker.hold(self.estimator.hold_pose(self.strategy.feedback, pose, struts, metrology_pose),
                                     self.last_time_s)
-        if refused:
+        if refused is not None:
             self.supervisor.faults.append(refused)
 
     def _cartesian_command(self, c: "Cycle", measured, error) -> list:

@@ -47,7 +47,6 @@ from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, 
 from pkm_controller.config import ControllerConfig
 from pkm_controller.node_loop import ControllerLoop
 from pkm_controller.operator_actions import Action
-from pkm_controller.strategies import Feedback
 
 
 class ControllerNode(LifecycleNode):

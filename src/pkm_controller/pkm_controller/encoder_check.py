@@ -33,16 +33,17 @@ Gough, so it covers every machine; it cannot see a freeze while nothing moves.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from pkm_common.causes import TripCause
-from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.errors import FieldError, KinematicsError
 from pkm_kinematics.jit import kernel
 
 from .supervisor import Trip
 
-__all__ = ["EncoderChecks", "EncoderMonitor", "GoughCrossCheck"]
+__all__ = ["EncoderChecks", "EncoderFault", "EncoderMonitor", "GoughCrossCheck"]
 
 BIAS_GAIN = 0.2             # of the unexplained acceleration's low-pass (time constant ~5 cycles)
 NOISE_GAIN = 0.01           # of the innovation's running mean square (~100 cycles)
@@ -129,6 +130,12 @@ def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, 
     return ENC_OK, -1, 0.0
 
 
+class EncoderFault(NamedTuple):
+    """What a check found: the drive whose reading is wrong, and how."""
+    drive: int
+    what: str
+
+
 class EncoderMonitor:
     """Per-drive innovation test (module docstring; innovation_kernel), ``check`` once
     per cycle. ``jump_m`` or ``freeze_m`` infinite: that test is off."""
@@ -155,8 +162,9 @@ class EncoderMonitor:
         noisy load): NOISE_SIGMAS times its running RMS."""
         return max(self.jump_m, NOISE_SIGMAS * math.sqrt(self.mean_square[i]))
 
-    def check(self, q, a, h, rows, applied, v_d, dt: float, skip=(), setpoint_held: bool = False) -> tuple[int, str]:
-        """(drive, what) of this cycle's encoder fault, (-1, "") if none: ``q`` the
+    def check(self, q, a, h, rows, applied, v_d, dt: float, skip=(),
+              setpoint_held: bool = False) -> EncoderFault | None:
+        """This cycle's encoder fault (drive, what), None if none: ``q`` the
         readings; the dynamic model at the measured pose, ``a`` = A (d x d, d the task
         DOF), ``h`` = H, ``rows`` = J_m (n x d); ``applied`` the forces the drives report for the last
         period ``dt``; ``v_d`` the reference velocity; ``skip`` drives not to judge
@@ -176,7 +184,7 @@ class EncoderMonitor:
         if not self.started:
             self.started, self.last_dt = True, dt
             self.last_q[:] = q
-            return -1, ""
+            return None
         second = self.second and abs(dt - self.last_dt) <= 1e-3 * self.last_dt
         self.second, self.last_dt = True, dt
         self.skip[:] = False
@@ -188,17 +196,17 @@ class EncoderMonitor:
             float(dt), self.bias, self.mean_square, self.held, self.candidate, self.skip, self.jump_m,
             self.freeze_m, self.n > len(h))
         if code == ENC_OK:
-            return -1, ""
+            return None
         self.fault_size = abs(value)
         self.fault_held = code != ENC_SLIPPED
         if code == ENC_FROZEN_SLOW:
-            return drive, (f"frozen: reading unchanged at {q[drive]:.6f} m while the reference moved it "
-                           f"{value * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
+            return EncoderFault(drive, f"frozen: reading unchanged at {q[drive]:.6f} m while the reference moved "
+                                       f"it {value * 1e6:.1f} um (encoder_freeze_m {self.freeze_m:g})")
         if code == ENC_FROZEN:
-            return drive, (f"frozen: reading held after a jump of {value * 1e6:+.1f} um off the motion its force "
-                           f"explains (encoder_jump_m {self.jump_m:g})")
-        return drive, (f"slipped: reading {value * 1e6:+.1f} um off the motion its force explains in one cycle, "
-                       f"and back (encoder_jump_m {self.jump_m:g})")
+            return EncoderFault(drive, f"frozen: reading held after a jump of {value * 1e6:+.1f} um off the motion "
+                                       f"its force explains (encoder_jump_m {self.jump_m:g})")
+        return EncoderFault(drive, f"slipped: reading {value * 1e6:+.1f} um off the motion its force explains in "
+                                   f"one cycle, and back (encoder_jump_m {self.jump_m:g})")
 
 
 GOUGH_BIAS_GAIN = 0.02      # of the encoder-Gough difference's low-pass (time constant ~50 cycles)
@@ -258,7 +266,7 @@ class GoughCrossCheck:
 
     def __init__(self, n: int, jump_m: float):
         if not jump_m > 0.0:
-            raise ValueError(f"encoder_gough_m: must be > 0 m (inf: off), got {jump_m}")
+            raise FieldError("encoder_gough_m", f"must be > 0 m (inf: off), got {jump_m}")
         self.n, self.jump_m = n, jump_m
         self.reset()
 
@@ -289,9 +297,9 @@ class GoughCrossCheck:
             mismatch = (self.history_q[2, i] - self.history_q[0, i]) - (self.history_g[2, i] - self.history_g[0, i])
         return abs(mismatch) < 0.5 * size and 4.0 * math.sqrt(self.mean_square[i]) < 0.5 * size
 
-    def check(self, q, q_gough, skip=()) -> tuple[int, str]:
-        """(drive, what) when one drive's reading has left the Gough's (class
-        docstring), (-1, "") otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
+    def check(self, q, q_gough, skip=()) -> EncoderFault | None:
+        """The fault (drive, what) when one drive's reading has left the Gough's (class
+        docstring), None otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
         ``skip``: drives not to judge (dropped ones)."""
         q, g = np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float)
         changed = q != self.history_q[2]
@@ -304,16 +312,17 @@ class GoughCrossCheck:
             self.hold_g[:] = g
             self.bias[:] = d
             self.last_d = d
-            return -1, ""
+            return None
         self.skip[:] = False
         for i in skip:
             self.skip[i] = True
         i = gough_kernel(d, self.last_d, self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m)
         self.last_d = d
         if i < 0:
-            return -1, ""
-        return i, (f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position the "
-                   f"measured tool pose gives, {self.over[i]} cycles running (encoder_gough_m {self.jump_m:g})")
+            return None
+        return EncoderFault(i, f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position "
+                               f"the measured tool pose gives, {self.over[i]} cycles running (encoder_gough_m "
+                               f"{self.jump_m:g})")
 
 
 class EncoderChecks:
@@ -345,11 +354,12 @@ class EncoderChecks:
             # reported forces do not hold): the drive supervision's, not an encoder's
             self.encoders.reset()
             return None
-        drive, what = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
-                                          applied if applied is not None and len(applied) == len(self.names) else
-                                          self._no_forces, c.v_d, c.dt, failed, setpoint_held=c.held)
-        if drive < 0:
+        fault = self.encoders.check(c.q_array, c.a_model, c.h_model, c.rows,
+                                    applied if applied is not None and len(applied) == len(self.names) else
+                                    self._no_forces, c.v_d, c.dt, failed, setpoint_held=c.held)
+        if fault is None:
             return None
+        drive, what = fault
         if self.gough_check is not None:
             # judged with the Gough's view of the same cycle, at the next prepare
             c.suspect = (drive, what, self.encoders.fault_size, self.encoders.fault_held)
@@ -378,9 +388,9 @@ class EncoderChecks:
         except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
             q_gough = None
         if q_gough is not None:
-            drive, what = check.check(q, q_gough, failed)
-            if drive >= 0:
-                return Trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+            fault = check.check(q, q_gough, failed)
+            if fault is not None:
+                return Trip(f"encoder of drive {self.names[fault.drive]} {fault.what}", TripCause.ENCODER_FAULT)
         if suspect is None:
             return None
         drive, what, size, held = suspect

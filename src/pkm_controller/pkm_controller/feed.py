@@ -17,6 +17,8 @@ exactly, so a run without an override samples bit for bit as it always did.
 
 from __future__ import annotations
 
+from pkm_kinematics.errors import FieldError
+
 MAX_RATE_PER_S = 10.0         # |ds/dt|: from full speed to a hold in 0.1 s
 MAX_OVERRIDE = 1.0            # the planner's limits hold up to the planned feed
 
@@ -26,9 +28,9 @@ def check_override(value) -> float:
     try:
         s = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"feed_override: must be a number in [0, {MAX_OVERRIDE:g}], got {value!r}") from None
+        raise FieldError("feed_override", f"must be a number in [0, {MAX_OVERRIDE:g}], got {value!r}") from None
     if not 0.0 <= s <= MAX_OVERRIDE:        # (False for NaN)
-        raise ValueError(f"feed_override: must be in [0, {MAX_OVERRIDE:g}] (0: feed hold), got {value!r}")
+        raise FieldError("feed_override", f"must be in [0, {MAX_OVERRIDE:g}] (0: feed hold), got {value!r}")
     return s
 
 

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.online_fk import integrate_forward_kinematics
 from pkm_kinematics.rotations import exp_so3, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL
@@ -59,8 +60,8 @@ def sensor_feedback(machine, strategy, config) -> SensorSpaceFeedback | None:
     if not strategy.uses_metrology:
         return None
     if machine.metrology is None:
-        raise ValueError(f"strategy: {strategy.name} needs a machine with a 'metrology' section, "
-                         f"{machine.name!r} has none")
+        raise FieldError("strategy", f"{strategy.name} needs a machine with a 'metrology' section, "
+                                     f"{machine.name!r} has none")
     space = machine.model.task_space
     return SensorSpaceFeedback(GoughSensorModel(machine.metrology), space is PLANAR,
                                at_estimate=config.sensor_jacobian == "estimated", spatial=space is SPATIAL)

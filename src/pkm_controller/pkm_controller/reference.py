@@ -16,6 +16,7 @@ import bisect
 import numpy as np
 
 from pkm_common.cdr import TrajectoryData
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to, yaw_of_quaternion
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates
 
@@ -28,22 +29,22 @@ class Reference:
         x = np.asarray(position, dtype=float)
         self.stamp_ns = None           # the trajectory message's header stamp, when it came as one
         if t.ndim != 1 or t.size < 1 or x.ndim != 2 or x.shape[0] != t.size or x.shape[1] not in (3, 6):
-            raise ValueError(f"trajectory: expected N times and N x 3 (or N x 6) positions, got shapes "
-                             f"{t.shape}, {x.shape}")
+            raise FieldError("trajectory", f"expected N times and N x 3 (or N x 6) positions, got shapes "
+                                           f"{t.shape}, {x.shape}")
         v = np.zeros_like(x) if velocity is None else np.asarray(velocity, dtype=float)
         a = np.zeros_like(x) if acceleration is None else np.asarray(acceleration, dtype=float)
         if v.shape != x.shape or a.shape != x.shape:
-            raise ValueError(f"trajectory: velocities and accelerations must be N x {x.shape[1]} like the "
-                             f"positions, got {v.shape}, {a.shape}")
+            raise FieldError("trajectory", f"velocities and accelerations must be N x {x.shape[1]} like the "
+                                           f"positions, got {v.shape}, {a.shape}")
         for name, arr in (("time_from_start", t), ("positions", x), ("velocities", v), ("accelerations", a)):
             if not np.isfinite(arr).all():
-                raise ValueError(f"trajectory: {name} contain NaN or infinite values")
+                raise FieldError("trajectory", f"{name} contain NaN or infinite values")
         if t.size > 1 and not (np.diff(t) > 0.0).all():
             k = int(np.argmax(np.diff(t) <= 0.0)) + 1
-            raise ValueError(f"trajectory: time_from_start must increase strictly, point {k} is at "
-                             f"{t[k]:.9g} s after {t[k - 1]:.9g} s")
+            raise FieldError("trajectory", f"time_from_start must increase strictly, point {k} is at "
+                                           f"{t[k]:.9g} s after {t[k - 1]:.9g} s")
         if t[0] < 0.0:
-            raise ValueError(f"trajectory: time_from_start must be >= 0, got {t[0]:.9g} s")
+            raise FieldError("trajectory", f"time_from_start must be >= 0, got {t[0]:.9g} s")
         self.time_s = t.tolist()
         self.position = x.tolist()
         self.velocity = v.tolist()
@@ -118,8 +119,8 @@ def check_consistent(reference: Reference) -> None:
     for k, where in ((0, "starts"), (len(t) - 1, "ends")):
         i = int(np.argmax(np.abs(v[k])))
         if abs(v[k, i]) > REST_TOLERANCE:
-            raise ValueError(f"trajectory: it {where} moving (point {k}, task axis {i} at {v[k, i]:.6g} per s); "
-                             f"a trajectory starts and ends at rest (within {REST_TOLERANCE:g})")
+            raise FieldError("trajectory", f"it {where} moving (point {k}, task axis {i} at {v[k, i]:.6g} per s); "
+                                           f"a trajectory starts and ends at rest (within {REST_TOLERANCE:g})")
     if len(t) < 2:
         return
     dt = np.diff(t)[:, None]
@@ -131,9 +132,10 @@ def check_consistent(reference: Reference) -> None:
         if bad.any():
             k, i = (int(n) for n in np.argwhere(bad)[0])
             given = 0.5 * (rates[k + 1, i] + rates[k, i]) * dt[k, 0]
-            raise ValueError(f"trajectory: point {k + 1} (t = {t[k + 1]:.4f} s), task axis {i}: its {name} changes "
-                             f"by {step[k, i]:.6g} where its {'velocities' if name == 'position' else 'accelerations'}"
-                             f" give {given:.6g}: not a motion")
+            rates_name = "velocities" if name == "position" else "accelerations"
+            raise FieldError("trajectory", f"point {k + 1} (t = {t[k + 1]:.4f} s), task axis {i}: its {name} "
+                                           f"changes by {step[k, i]:.6g} where its {rates_name} give "
+                                           f"{given:.6g}: not a motion")
 
 
 def unwrap_angles(angles) -> list:
@@ -155,8 +157,8 @@ def reference_from_trajectory(data, space: TaskSpace) -> "Reference":
     pose's roll, pitch and yaw, roll and yaw unwrapped, and their rates from the
     twists (``task_space.angle_rates``, the inverse of what trajectory_node wrote)."""
     if len(data.joint_names) != 1 or not len(data.time_s):
-        raise ValueError(f"trajectory: expected one joint 'tool' and at least one point, got "
-                         f"{list(data.joint_names)} with {len(data.time_s)} points")
+        raise FieldError("trajectory", f"expected one joint 'tool' and at least one point, got "
+                                       f"{list(data.joint_names)} with {len(data.time_s)} points")
     tf, vel, acc = data.transform[:, 0], data.velocity[:, 0], data.acceleration[:, 0]
     if space is PLANAR:  # (x, y, yaw about z); the yaw per point in Python floats, as the recorded runs had it
         yaw = unwrap_angles([yaw_of_quaternion(*q) for q in tf[:, 3:7].tolist()])

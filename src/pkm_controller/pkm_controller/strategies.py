@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from pkm_common import topics
+from pkm_kinematics.errors import FieldError
 
 __all__ = ["Feedback", "Law", "Projection", "Strategy", "REGISTRY", "NAMES", "strategy"]
 
@@ -101,4 +102,4 @@ def strategy(name: str) -> Strategy:
     try:
         return REGISTRY[name]
     except (KeyError, TypeError):
-        raise ValueError(f"strategy: must be one of {list(NAMES)}, got {name!r}") from None
+        raise FieldError("strategy", f"must be one of {list(NAMES)}, got {name!r}") from None

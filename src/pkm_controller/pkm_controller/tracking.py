@@ -57,20 +57,20 @@ class ReferenceTracker:
                              f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
                              f"{self.start_tolerance_m:g}, start_tolerance_rad {self.start_tolerance_rad:g})")
 
-    def hold(self, pose, now_s: float) -> str:
+    def hold(self, pose, now_s: float) -> str | None:
         """The first cycle: hold at ``pose`` from ``now_s``, then start a trajectory
-        given before it. Returns why that one was refused ("" when none was, or it
-        started): the machine holds."""
+        given before it. Returns why that one was refused (the machine holds), None
+        when none was or it started."""
         self.reference = Reference.hold(pose)
         self.feed.restart(now_s)
         if self.pending is None:
-            return ""
+            return None
         pending, self.pending = self.pending, None
         try:
             self.set_trajectory(pending, now_s)
         except ValueError as exc:
             return str(exc)
-        return ""
+        return None
 
     def sample(self, t_s: float):
         """(x_d, v_d, a_d) of the cycle at ``t_s``: the feed clock advanced, the

@@ -21,7 +21,7 @@ import numpy as np
 
 from pkm_kinematics.distribution import TWO_ARM, prestress_direction
 from pkm_kinematics.dynamics import holding_forces
-from pkm_kinematics.errors import DistributionError, KinematicsError
+from pkm_kinematics.errors import DistributionError, FieldError, KinematicsError
 from pkm_kinematics.planar import pair_force_map
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
@@ -87,33 +87,33 @@ class MachineTuning:
         ratios = self.mode_ratios.get(strategy(config.strategy).law, (1.0,))
         ratio = ratios[0]
         if ratio <= 0.0:
-            raise ValueError(f"strategy: {config.strategy} on {name}: its gains leave a mode of the "
-                             f"machine at home without stiffness (mass ratio {ratio:.3g})")
+            raise FieldError("strategy", f"{config.strategy} on {name}: its gains leave a mode of the "
+                                         f"machine at home without stiffness (mass ratio {ratio:.3g})")
         if config.integral_time_s != 0.0 and ratio < 1.0:
             low = 1.0 / (2.0 * config.damping_ratio * 2.0 * math.pi * config.bandwidth_hz * ratio)
             if config.integral_time_s <= low:
-                raise ValueError(f"integral_time_s: must be 0, or in ({low:.4g}, inf) s for {config.strategy} on "
-                                 f"{name} (stability of its weakest mode, mass ratio {ratio:.3g}: "
-                                 f"T_i > 1 / (2 zeta omega r)), got {config.integral_time_s!r}")
+                raise FieldError("integral_time_s", f"must be 0, or in ({low:.4g}, inf) s for {config.strategy} on "
+                                                    f"{name} (stability of its weakest mode, mass ratio {ratio:.3g}: "
+                                                    f"T_i > 1 / (2 zeta omega r)), got {config.integral_time_s!r}")
         self._check_sampled(config, ratios)
         if config.prestress_n != 0.0 and self.n <= self.dof:
-            raise ValueError(f"prestress_n: must be 0 on a machine without redundant drives ({self.n} drives for "
-                             f"{self.dof} DOF: no internal force exists)")
+            raise FieldError("prestress_n", f"must be 0 on a machine without redundant drives ({self.n} drives for "
+                                            f"{self.dof} DOF: no internal force exists)")
         if config.prestress_direction:
             try:                       # at home: a pattern with no internal part would trip the first cycle
                 prestress_direction(self.model.jacobian(self.model.home), config.prestress_direction)
             except DistributionError as exc:
-                raise ValueError(f"prestress_direction: {exc} at home") from None
+                raise FieldError("prestress_direction", f"{exc} at home") from None
         if self.spatial and config.forward_kinematics != "newton":
-            raise ValueError(f"forward_kinematics: must be newton on a {self.dof}-DOF machine "
-                             f"(the integrated forms are written for 3 task coordinates), got "
-                             f"{config.forward_kinematics!r}")
+            raise FieldError("forward_kinematics", f"must be newton on a {self.dof}-DOF machine "
+                                                   f"(the integrated forms are written for 3 task coordinates), got "
+                                                   f"{config.forward_kinematics!r}")
         if config.distribution in TWO_ARM:
             try:                       # a planar machine of 4 drives whose legs do not pair up (Sliding Star)
                 pair_force_map(self.model, self.model.home)
             except ValueError as exc:
-                raise ValueError(f"distribution: {config.distribution} needs two pairs of legs sharing a "
-                                 f"platform point (ARCHI §4.3): {exc}") from None
+                raise FieldError("distribution", f"{config.distribution} needs two pairs of legs sharing a "
+                                                 f"platform point (ARCHI §4.3): {exc}") from None
 
     def _check_sampled(self, config: ControllerConfig, ratios) -> None:
         """Refuse gains whose hold is unstable as sampled every ``config.dt_s``
@@ -131,11 +131,12 @@ class MachineTuning:
         where = (f"stable for bandwidth_hz in [{min(stable):.3g}, {max(stable):.3g}] Hz" if stable else
                  "no bandwidth is stable with this damping and integral time (a longer integral_time_s or "
                  "a higher damping_ratio widens the range)")
-        raise ValueError(f"bandwidth_hz: {config.strategy} on {self.machine.name} sampled at "
-                         f"{1.0 / config.dt_s:g} Hz is unstable at {config.bandwidth_hz:g} Hz (damping_ratio "
-                         f"{config.damping_ratio:g}, integral_time_s {config.integral_time_s:g}): its mode of mass "
-                         f"ratio {ratios[worst]:.3g} grows {now[worst]:.4f}x per cycle; {where} (or a faster "
-                         f"control rate), got {config.bandwidth_hz!r}")
+        raise FieldError("bandwidth_hz",
+                         f"{config.strategy} on {self.machine.name} sampled at {1.0 / config.dt_s:g} Hz is unstable "
+                         f"at {config.bandwidth_hz:g} Hz (damping_ratio {config.damping_ratio:g}, integral_time_s "
+                         f"{config.integral_time_s:g}): its mode of mass ratio {ratios[worst]:.3g} grows "
+                         f"{now[worst]:.4f}x per cycle; {where} (or a faster control rate), got "
+                         f"{config.bandwidth_hz!r}")
 
     def scaled(self, config: ControllerConfig) -> ScaledGains:
         """The gains of ``config`` on this machine. The law's gain rows: the scaled task
@@ -169,17 +170,17 @@ class MachineTuning:
         self.check(new)
         old_strategy, new_strategy = strategy(running.strategy), strategy(new.strategy)
         if new_strategy.feedback != old_strategy.feedback:
-            raise ValueError(f"strategy: {new.strategy} feeds back {new_strategy.feedback.value}, the running "
-                             f"{old_strategy.name} {old_strategy.feedback.value}: only a strategy on the same "
-                             f"measurement can take over without a restart")
+            raise FieldError("strategy", f"{new.strategy} feeds back {new_strategy.feedback.value}, the running "
+                                         f"{old_strategy.name} {old_strategy.feedback.value}: only a strategy on the "
+                                         f"same measurement can take over without a restart")
         if new_strategy.law == old_strategy.law:
             return new, None
         try:
             return new, holding_integral(self.dynamics, self.model, pose, new_strategy.law, new.integral_time_s,
                                          active)
         except (KinematicsError, ValueError, np.linalg.LinAlgError) as exc:
-            raise ValueError(f"strategy: {new.strategy} cannot take over holding at the measured pose: "
-                             f"{exc}") from None
+            raise FieldError("strategy", f"{new.strategy} cannot take over holding at the measured pose: "
+                                         f"{exc}") from None
 
 
 def zero_integral(law: Law, n: int, dof: int):

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import load_scenario
 from pkm_kinematics import load_machine
+from pkm_kinematics.errors import FieldError
 from pkm_runs.report_data import RunReader, rpy_of, yaw_of
 from pkm_runs.report_metrics import internal_force_rows
 
@@ -76,7 +77,7 @@ class Experiment:
 
     def __post_init__(self):
         if self.paper not in PAPERS:
-            raise ValueError(f"paper: must be one of {list(PAPERS)}, got {self.paper!r}")
+            raise FieldError("paper", f"must be one of {list(PAPERS)}, got {self.paper!r}")
 
 
 @dataclass

@@ -30,6 +30,7 @@ import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
 from pkm_kinematics.bars import COL_A, COL_B, STRUT, bar_rows, strut_lengths_kernel
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
 from pkm_kinematics.rotations import mul3
 from pkm_kinematics.validation import finite_floats
@@ -44,9 +45,9 @@ def _nonneg(value, name: str) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected a number >= 0 m, got {value!r}') from None
+        raise FieldError(name, f'expected a number >= 0 m, got {value!r}') from None
     if not math.isfinite(v) or v < 0.0:
-        raise ValueError(f'{name}: must be in [0, inf) m, got {value!r}')
+        raise FieldError(name, f'must be in [0, inf) m, got {value!r}')
     return v
 
 
@@ -71,16 +72,16 @@ def rotation_floats(value, name: str) -> tuple:
             raise TypeError
         a, b, c, d, e, f, g, h, i = flat = tuple(map(float, rows[0] + rows[1] + rows[2]))
     except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected a 3 x 3 rotation matrix, got {value!r}') from None
+        raise FieldError(name, f'expected a 3 x 3 rotation matrix, got {value!r}') from None
     if not math.isfinite(a + b + c + d + e + f + g + h + i):
-        raise ValueError(f'{name}: contains NaN or infinite values: {list(flat)}')
+        raise FieldError(name, f'contains NaN or infinite values: {list(flat)}')
     # columns orthonormal (R^T R = I) and det = +1
     err = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
               abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
               abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if err > ROTATION_TOL or det <= 0.0:
-        raise ValueError(f'{name}: not a rotation matrix (|R^T R - I| = {err:.3g}, det = {det:.6g})')
+        raise FieldError(name, f'not a rotation matrix (|R^T R - I| = {err:.3g}, det = {det:.6g})')
     return flat
 
 
@@ -99,18 +100,18 @@ class GoughSensorModel:
     def __init__(self, metrology: GoughMetrologyConfig, noise_std_m: float = 0.0, seed: int = 0,
                  calibration_error_m: float = 0.0, resolution_m: float | None = None):
         if not isinstance(metrology, GoughMetrologyConfig):
-            raise ValueError(f'metrology: expected a GoughMetrologyConfig (the machine file\'s '
-                             f'metrology section), got {type(metrology).__name__}')
+            raise FieldError('metrology', f'expected a GoughMetrologyConfig (the machine file\'s '
+                                          f'metrology section), got {type(metrology).__name__}')
         self.noise_std_m = _nonneg(noise_std_m, 'noise_std_m')
         self.calibration_error_m = _nonneg(calibration_error_m, 'calibration_error_m')
         if resolution_m is None:
             resolution_m = metrology.encoder_resolution_m
         res = _nonneg(resolution_m, 'resolution_m')
         if not 0.0 < res <= MAX_RESOLUTION_M:
-            raise ValueError(f'resolution_m: must be in (0, {MAX_RESOLUTION_M:g}] m, got {resolution_m!r}')
+            raise FieldError('resolution_m', f'must be in (0, {MAX_RESOLUTION_M:g}] m, got {resolution_m!r}')
         self.resolution_m = res
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f'seed: expected an integer >= 0, got {seed!r}')
+            raise FieldError('seed', f'expected an integer >= 0, got {seed!r}')
         self.seed = int(seed)
         self.metrology = metrology
         self.nominal: GoughPlatform = metrology.platform

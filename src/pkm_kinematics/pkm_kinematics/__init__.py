@@ -12,17 +12,33 @@ is the interface they share):
 Force distribution: ``pkm_kinematics.distribution``; analyses: ``pkm_kinematics.analysis``.
 """
 
-from .config import MachineConfig, config_dir, load_machine, load_machine_data, machine_names
-from .errors import (ConfigError, DistributionError, JointLimitError, KinematicsError,
+import importlib
+
+from .errors import (ConfigError, DistributionError, FieldError, JointLimitError, KinematicsError, ParameterError,
                      SingularityError, UnreachablePoseError)
-from .gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, mom3_points
-from .planar import ForwardKinematicsResult
-from .rails import RailLeg, RailMachine
+
+# The package's names, each imported from its module when first asked for (PEP 562):
+# ``import pkm_kinematics.errors`` (every package's error classes) loads no model and
+# no compiled kernel
+_LAZY = {"MachineConfig": "config", "config_dir": "config", "load_machine": "config",
+         "load_machine_data": "config", "machine_names": "config",
+         "GoughDKMResult": "gough", "GoughDKMSolver": "gough", "GoughPlatform": "gough", "mom3_points": "gough",
+         "ForwardKinematicsResult": "planar", "RailLeg": "rails", "RailMachine": "rails"}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'pkm_kinematics' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
-    "ConfigError", "DistributionError", "ForwardKinematicsResult",
+    "ConfigError", "DistributionError", "FieldError", "ForwardKinematicsResult",
     "GoughDKMResult", "GoughDKMSolver", "GoughPlatform", "JointLimitError", "KinematicsError",
-    "MachineConfig", "RailLeg", "RailMachine", "SingularityError",
+    "MachineConfig", "ParameterError", "RailLeg", "RailMachine", "SingularityError",
     "UnreachablePoseError", "config_dir", "load_machine", "load_machine_data", "machine_names",
     "mom3_points",
 ]

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+from .errors import FieldError
 from .gough import GoughPlatform, mom3_points
 from .measures import condition_numbers
 from .rails import RailLeg, RailMachine
@@ -318,7 +319,7 @@ def orthoglide_size(cube_m: float, psi_min: float, psi_max: float, check_points:
     if not (0.0 < psi_min < 1.0 < psi_max):
         raise ValueError(f"psi bounds: need 0 < psi_min < 1 < psi_max, got [{psi_min}, {psi_max}]")
     if not cube_m > 0.0:
-        raise ValueError(f"cube: must be > 0 m, got {cube_m}")
+        raise FieldError("cube", f"must be > 0 m, got {cube_m}")
     unit = orthoglide_model(1.0)
 
     def excess(t: float) -> float:
@@ -360,9 +361,9 @@ def degree_of_sensor_redundancy(c: int, m: int, o: int, d: int) -> int:
     of freedom. < 0 under-measured, 0 iso-measured, > 0 over-measured."""
     for name, value in (("C", c), ("M", m), ("O", o), ("D", d)):
         if not (isinstance(value, int) and value >= 0):
-            raise ValueError(f"dosr: {name} must be an integer >= 0, got {value!r}")
+            raise FieldError("dosr", f"{name} must be an integer >= 0, got {value!r}")
     if not 1 <= o <= m <= 6:
-        raise ValueError(f"dosr: needs 1 <= O <= M <= 6, got O = {o}, M = {m}")
+        raise FieldError("dosr", f"needs 1 <= O <= M <= 6, got O = {o}, M = {m}")
     return c - (m - o + d)
 
 

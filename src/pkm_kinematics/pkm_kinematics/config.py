@@ -383,7 +383,7 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
         dynamics = (DYNAMICS.get(kind, _dynamics)(r.sub("dynamics"), model.n_legs, kind)
                     if r.has("dynamics") else None)
     except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc.field}", str(exc).split(": ", 1)[1]) from None
+        raise ConfigError(f"{source}: {exc.field}", exc.detail) from None
     return MachineConfig(name, kind, model, metrology, data, dynamics)
 
 

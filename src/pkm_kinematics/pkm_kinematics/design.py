@@ -40,6 +40,7 @@ import numpy as np
 
 from .analysis import workspace_grid
 from .distribution import gram_rows
+from .errors import FieldError
 from .jit import kernel
 from . import bars as B
 from .rails import PLANAR_COLUMNS, RailMachine
@@ -71,7 +72,7 @@ def check_parameters(kind: str, names) -> None:
     known = PARAMETERS[kind]
     for name in names:
         if name not in known:
-            raise ValueError(f"{name}: not a {kind} design parameter; known: {', '.join(known)}")
+            raise FieldError(name, f"not a {kind} design parameter; known: {', '.join(known)}")
 
 
 # ------------------------------------------------------------------ conditioning
@@ -305,10 +306,10 @@ def pareto_front(objectives, senses) -> np.ndarray:
     best-first by their rank sum, each checked against the front so far: O(N F)."""
     x = np.asarray(objectives, dtype=float)
     if x.ndim != 2 or x.shape[1] != len(senses):
-        raise ValueError(f"objectives: expected (N, {len(senses)}), got {x.shape}")
+        raise FieldError("objectives", f"expected (N, {len(senses)}), got {x.shape}")
     for s in senses:
         if s not in ("min", "max"):
-            raise ValueError(f"senses: 'min' or 'max', got {s!r}")
+            raise FieldError("senses", f"'min' or 'max', got {s!r}")
     x = np.where(np.array([s == "max" for s in senses]), -x, x)       # all minimised
     valid = ~np.isnan(x).any(axis=1)
     mask = np.zeros(len(x), dtype=bool)

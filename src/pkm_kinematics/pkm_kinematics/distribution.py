@@ -29,7 +29,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from .errors import DistributionError
+from .errors import DistributionError, FieldError
 from .jit import kernel
 from .planar import pair_force_map
 from .validation import finite_floats
@@ -52,7 +52,7 @@ def check_wrench(jac, forces, wrench, rtol: float = 1e-9) -> None:
     w = _floats(wrench)
     rows, f = rows_array(jac, len(w)), np.asarray(forces, dtype=float).ravel()
     if len(f) != rows.shape[0]:
-        raise ValueError(f"forces: expected {rows.shape[0]} values (one per row of J), got {len(f)}")
+        raise FieldError("forces", f"expected {rows.shape[0]} values (one per row of J), got {len(f)}")
     k, achieved = check_wrench_kernel(rows, f, np.array(w, dtype=float), rtol)
     if k >= 0:
         _raise_wrench_mismatch(k, achieved, w)
@@ -91,7 +91,7 @@ def rows_array(rows, columns: int = 3) -> np.ndarray:
         return arr
     if arr.size == 0:
         return arr.reshape(0, columns)
-    raise ValueError(f"jac: expected n rows of {columns} values, got shape {arr.shape}")
+    raise FieldError("jac", f"expected n rows of {columns} values, got shape {arr.shape}")
 
 
 @kernel("(float64[:, :],)")
@@ -229,7 +229,7 @@ def _rows_and_values(rows, values) -> tuple[np.ndarray, np.ndarray]:
     mismatch."""
     rows, v = rows_array(rows), np.asarray(values, dtype=float).ravel()
     if len(v) != rows.shape[0]:
-        raise ValueError(f"values: expected {rows.shape[0]} (one per row of J), got {len(v)}")
+        raise FieldError("values", f"expected {rows.shape[0]} (one per row of J), got {len(v)}")
     return rows, v
 
 
@@ -266,7 +266,7 @@ def _validate(jac, wrench) -> tuple[np.ndarray, list[float]]:
     """J as an (n, m) float array with n >= m, and the wrench as m floats."""
     jac = np.asarray(jac, dtype=float)
     if jac.ndim != 2 or jac.shape[0] < jac.shape[1] or jac.shape[1] == 0:
-        raise ValueError(f"jac: expected an n x m Jacobian with n >= m drives, got shape {jac.shape}")
+        raise FieldError("jac", f"expected an n x m Jacobian with n >= m drives, got shape {jac.shape}")
     return jac, finite_floats(wrench, jac.shape[1], "wrench")
 
 
@@ -305,7 +305,7 @@ def null_space(jac) -> np.ndarray:
 def _null_direction_rows(rows) -> list[float]:
     """Unit null vector of J^T for J given as 4 rows of 3 floats (sign not fixed)."""
     if len(rows) != 4 or len(rows[0]) != 3:
-        raise ValueError(f"jac: null_direction needs a 4 x 3 Jacobian, got {len(rows)} x {len(rows[0])}")
+        raise FieldError("jac", f"null_direction needs a 4 x 3 Jacobian, got {len(rows)} x {len(rows[0])}")
     out, ok = _null_direction_kernel(rows_array(rows))
     if not ok:
         raise DistributionError(SINGULAR_NULL)
@@ -423,7 +423,7 @@ def min_inf_norm_1d(f0, n) -> np.ndarray:
     """
     f0, n = np.array(f0, dtype=float).ravel(), np.array(n, dtype=float).ravel()
     if len(f0) != len(n):
-        raise ValueError(f"n: expected {len(f0)} values (as many as f0), got {len(n)}")
+        raise FieldError("n", f"expected {len(f0)} values (as many as f0), got {len(n)}")
     return _min_inf_norm_1d_kernel(f0, n)
 
 
@@ -471,7 +471,7 @@ def min_p_norm(jac, wrench, p: float = 4.0, check: bool = True, tol: float = 1e-
     and the infinity norm, ARCHI §4.5). Newton's method along the null space, started
     from the pseudo-inverse solution; scipy BFGS when the null space is multi-dimensional."""
     if not 2.0 <= p <= P_NORM_MAX:
-        raise ValueError(f"p: must be in [2, {P_NORM_MAX:g}] (use inf_norm beyond), got {p}")
+        raise FieldError("p", f"must be in [2, {P_NORM_MAX:g}] (use inf_norm beyond), got {p}")
     jac, wrench = _validate(jac, wrench)
     f0 = min_two_norm(jac, wrench, check=False)
     basis = null_space(jac)
@@ -550,8 +550,8 @@ def add_prestress(jac, forces, prestress_n: float, reference=None, direction=Non
         return np.asarray(forces, dtype=float) + prestress_n * prestress_direction(jac, direction)
     shape = np.shape(jac)
     if shape != (4, 3):
-        raise ValueError(f"prestress: the {shape[0]} x {shape[1]} Jacobian's internal forces are not one line: "
-                         f"give direction (the {shape[0]} drive forces to preload along)")
+        raise FieldError("prestress", f"the {shape[0]} x {shape[1]} Jacobian's internal forces are not one line: "
+                                      f"give direction (the {shape[0]} drive forces to preload along)")
     return np.asarray(forces, dtype=float) + prestress_n * null_direction(jac, reference)
 
 
@@ -676,7 +676,7 @@ def distribute(method: str, jac, wrench, *, machine=None, pose=None, p: float = 
             raise ValueError(f"{method}: needs machine= and pose=")
         forces = two_arm(machine, pose, wrench, internal_force_n)
     else:
-        raise ValueError(f"distribution: must be one of {list(METHODS)}, got {method!r}")
+        raise FieldError("distribution", f"must be one of {list(METHODS)}, got {method!r}")
     if prestress_n:
         forces = add_prestress(jac, forces, prestress_n, reference, prestress_direction)
     return forces

@@ -28,7 +28,7 @@ import numpy as np
 
 from . import bars as B
 from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
-from .errors import DistributionError
+from .errors import DistributionError, FieldError
 from .jit import kernel
 from .planar import solve3
 from .task_space import PLANAR
@@ -57,7 +57,7 @@ class DynamicModel:
         self.params = params
         n = machine.n_legs
         if len(params.drive_mass_kg) != n or len(params.friction_ns_per_m) != n:
-            raise ValueError(f"dynamics: drive_mass_kg and friction_ns_per_m need {n} entries")
+            raise FieldError("dynamics", f"drive_mass_kg and friction_ns_per_m need {n} entries")
         self.planar = machine.task_space is PLANAR       # the platform turns: M_n has an inertia
         m = params.platform_mass_kg
         g = tuple(float(v) for v in params.gravity_m_s2)
@@ -90,7 +90,7 @@ class DynamicModel:
         has rank < 3."""
         qdot = np.array(drive_velocities, dtype=float)
         if qdot.shape != (self.machine.n_legs,):
-            raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
+            raise FieldError("drive_velocities", f"expected {self.machine.n_legs} values, got shape {qdot.shape}")
         rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg = _measured_state_kernel(
             self.machine.bars, self.machine.twist_columns, x[0], x[1], x[2], qdot, *self._mass_args)
         if code == VT_LEAST_SQUARES_SINGULAR:

@@ -6,19 +6,56 @@ bad input is refused before anything moves.
 """
 
 
+_UNSET = object()
+
+
+class FieldError(ValueError):
+    """A value refused by the name of its field (a controller setting, a scenario's or
+    a node's parameter): ``name``, and ``detail``, what is wrong with it. Made by
+    ``out_of_range`` it carries what is ``allowed`` and what it ``got``, and says
+    "must be <allowed>, got <got>". ``str()``: "<name>: <detail>". A caller that
+    reports it under another name (a node's ``parameter 'x'``) reads the fields,
+    never the text."""
+
+    def __init__(self, name: str, detail: str, allowed: str | None = None, got=_UNSET):
+        self.name, self.detail, self.allowed = name, detail, allowed
+        self.got = None if got is _UNSET else got
+        super().__init__(f"{name}: {detail}")
+
+    @classmethod
+    def out_of_range(cls, name: str, allowed: str, got) -> "FieldError":
+        return cls(name, f"must be {allowed}, got {got!r}", allowed, got)
+
+
+class ParameterError(FieldError):
+    """A node's or a scenario's parameter refused: missing, of the wrong type or out of
+    its range. ``str()``: "parameter '<name>': <detail>" (as a ROS user reads it)."""
+
+    def __init__(self, name: str, detail: str, allowed: str | None = None, got=_UNSET):
+        super().__init__(name, detail, allowed, got)
+        self.args = (f"parameter '{name}': {detail}",)
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
 class KinematicsError(ValueError):
     """Base class of every error of the kinematics core."""
 
 
-class ConfigError(KinematicsError):
+class ConfigError(FieldError, KinematicsError):
     """A machine configuration field is missing, mistyped or out of range.
 
-    ``field`` is the dotted path of the offending field (``legs[2].link_length``).
+    ``field`` (its ``name``) is the dotted path of the offending field
+    (``legs[2].link_length``); ``detail`` what is wrong with it.
     """
 
     def __init__(self, field: str, message: str):
-        self.field = field
-        super().__init__(f"{field}: {message}")
+        super().__init__(field, message)
+
+    @property
+    def field(self) -> str:
+        return self.name
 
 
 class UnreachablePoseError(KinematicsError):

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import bars as B
+from .errors import FieldError
 from .jit import direct_call, kernel
 from .rotations import first_improper_rotation_kernel
 from .validation import finite_array, finite_floats
@@ -42,9 +43,9 @@ def validate_rotation(value, name: str) -> list[float]:
     strut lengths cannot see a non-rigid plate, so a distorted guess would survive."""
     rot = np.asarray(value, dtype=float)
     if rot.shape != (3, 3) or not np.isfinite(rot).all():
-        raise ValueError(f"{name}: expected a finite 3 x 3 rotation matrix, got {value!r}")
+        raise FieldError(name, f"expected a finite 3 x 3 rotation matrix, got {value!r}")
     if np.abs(rot.T @ rot - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) <= 0.0:
-        raise ValueError(f"{name}: not a rotation matrix (R^T R != I or det(R) <= 0): {rot.tolist()}")
+        raise FieldError(name, f"not a rotation matrix (R^T R != I or det(R) <= 0): {rot.tolist()}")
     return rot.ravel().tolist()
 
 
@@ -233,8 +234,8 @@ class GoughPlatform:
         self.plate_points = finite_array(self.plate_points, "plate_points", (6, 3))
         self.home_position = finite_array(self.home_position, "home_position", (3,))
         if not self.home_position[2] > 0.0:
-            raise ValueError("home_position: the plate must be above the base plane (z > 0), "
-                             f"got z = {self.home_position[2]}")
+            raise FieldError("home_position", "the plate must be above the base plane (z > 0), "
+                                              f"got z = {self.home_position[2]}")
         self._lo, self._hi = float(self.strut_limits[0]), float(self.strut_limits[1])
         self._divergence_limit = 10.0 * max(1.0, self._hi - self._lo if math.isfinite(self._hi) else 1.0)
         # the six passive struts as a bar model (``bars``): strut i is measurement i

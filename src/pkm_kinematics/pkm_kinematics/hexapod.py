@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import bars as B
-from .errors import JointLimitError, KinematicsError, SingularityError
+from .errors import FieldError, JointLimitError, KinematicsError, SingularityError
 from .jit import direct_call, kernel
 from .rotations import rate_matrix, rotation_from_rpy, rpy_kernel, rpy_rotation_kernel
 from .task_space import SPATIAL, task_pose
@@ -105,7 +105,7 @@ class StrutMachine:
         """(p, R) of task coordinates x = (x, y, z, a, b, c)."""
         x = np.asarray(x, dtype=float)
         if x.shape != (6,):
-            raise ValueError(f"x: expected 6 task coordinates (x, y, z, a, b, c), got shape {x.shape}")
+            raise FieldError("x", f"expected 6 task coordinates (x, y, z, a, b, c), got shape {x.shape}")
         return x[:3].copy(), rotation_from_rpy(x[3], x[4], x[5])
 
     @staticmethod
@@ -162,7 +162,7 @@ class StrutMachine:
         default: home), Newton / Gauss-Newton (``bars.forward_kinematics_kernel``)."""
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_legs,) or not np.isfinite(q).all() or not (q > 0.0).all():
-            raise ValueError(f"q: expected {self.n_legs} finite positive strut lengths, got {q}")
+            raise FieldError("q", f"expected {self.n_legs} finite positive strut lengths, got {q}")
         p, rot = self.pose(self._home if guess is None else guess)
         return self.solve_from(q, p, rot.reshape(9).copy(), tol_m, max_iterations, divergence_limit_m)
 
@@ -178,7 +178,7 @@ class StrutMachine:
         naming how the solve ended when it fails."""
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_legs,) or not np.isfinite(q).all() or not (q > 0.0).all():
-            raise ValueError(f"q: expected {self.n_legs} finite positive strut lengths, got {q}")
+            raise FieldError("q", f"expected {self.n_legs} finite positive strut lengths, got {q}")
         g = self._home if guess is None else guess
         code, iterations, misfit, x = task_forward_kinematics_kernel(self.bars, q, tuple(float(v) for v in g[:6]),
                                                                      1e-12, 30, 1.0)

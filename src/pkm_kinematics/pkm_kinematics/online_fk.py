@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import FieldError
 from .validation import finite_floats
 
 
@@ -26,7 +27,7 @@ def integrate_forward_kinematics(machine, pose, dq, order: int = 2) -> np.ndarra
     carried (planar: (x, y, theta); translational: the position); x* = x_k (``order``
     1, explicit Euler) or x_k + J_m^+(x_k) dq / 2 (``order`` 2, the midpoint rule)."""
     if order not in (1, 2):
-        raise ValueError(f"order: must be 1 or 2, got {order!r}")
+        raise FieldError("order", f"must be 1 or 2, got {order!r}")
     pose = np.asarray(finite_floats(pose, 3, "pose"))
     dq = np.asarray(finite_floats(dq, machine.n_legs, "dq"))
     step, *_ = np.linalg.lstsq(machine.jacobian(pose), dq, rcond=None)

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import bars as B
 from .distribution import gram_condition
-from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
+from .errors import FieldError, JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .measures import condition_numbers, cube_grid
 from .rotations import log_so3
 from .task_space import POSITION
@@ -47,9 +47,9 @@ class ParallelogramMachine:
     def __init__(self, name: str, legs, half_width_m: float, bar_length_errors_m, home, workspace: dict,
                  description: str = ""):
         if len(legs) != 3:
-            raise ValueError(f"legs: a parallelogram Delta has exactly 3 legs, got {len(legs)}")
+            raise FieldError("legs", f"a parallelogram Delta has exactly 3 legs, got {len(legs)}")
         if not half_width_m > 0.0:
-            raise ValueError(f"half_width: must be > 0 m, got {half_width_m}")
+            raise FieldError("half_width", f"must be > 0 m, got {half_width_m}")
         errors = np.asarray(bar_length_errors_m, dtype=float).reshape(3, 2)
         self.name, self.description, self.workspace = name, description, workspace
         self.legs = list(legs)

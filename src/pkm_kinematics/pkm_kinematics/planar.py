@@ -40,7 +40,7 @@ import numpy as np
 
 from . import bars as B
 from .bars import COL_A, COL_BRANCH, COL_LENGTH, COL_U
-from .errors import KinematicsError, UnreachablePoseError
+from .errors import FieldError, KinematicsError, UnreachablePoseError
 from .jit import kernel
 from .rotations import unwrap_to_kernel
 from .task_space import PLANAR
@@ -256,8 +256,8 @@ class PlanarLeastSquaresFK:
 
     def __init__(self, machine):
         if machine.task_space is not PLANAR:
-            raise ValueError(f"forward: least_squares solves a planar machine (x, y, theta), not a "
-                             f"{machine.task_space.name} one")
+            raise FieldError("forward", f"least_squares solves a planar machine (x, y, theta), not a "
+                                        f"{machine.task_space.name} one")
         self.machine = machine
         self.pairs = machine.leg_pairs
         self.bars = machine.bars
@@ -333,7 +333,7 @@ class PlanarLeastSquaresFK:
         raises KinematicsError with the result's reason (UnreachablePoseError for
         legs that cannot close)."""
         if len(q) != self.machine.n_legs:
-            raise ValueError(f"q: expected {self.machine.n_legs} drive positions, got {len(q)}")
+            raise FieldError("q", f"expected {self.machine.n_legs} drive positions, got {len(q)}")
         ref = self.machine.home if guess is None else guess
         x, y, th, code, _, _, i, j, d = _forward_kinematics_kernel(
             self.bars, self.pairs_array, self.sides, np.asarray(q, dtype=float), float(ref[0]), float(ref[1]),

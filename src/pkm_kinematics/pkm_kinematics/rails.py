@@ -30,7 +30,7 @@ import numpy as np
 
 from . import bars as B
 from .distribution import gram_condition
-from .errors import JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
+from .errors import FieldError, JointLimitError, KinematicsError, SingularityError, UnreachablePoseError
 from .measures import condition_numbers, cube_grid
 from .planar import PlanarLeastSquaresFK
 from .task_space import PLANAR, POSITION, TaskSpace
@@ -121,12 +121,12 @@ class RailMachine:
     def __post_init__(self):
         task = RAIL_TASKS.get(self.task_space)
         if task is None:
-            raise ValueError(f"task_space: a rail machine moves in one of "
-                             f"{[s.name for s in RAIL_TASKS]}, got {getattr(self.task_space, 'name', self.task_space)!r}")
+            raise FieldError("task_space", f"a rail machine moves in one of {[s.name for s in RAIL_TASKS]}, got "
+                                           f"{getattr(self.task_space, 'name', self.task_space)!r}")
         if self.forward not in FORWARD_SOLVERS:
-            raise ValueError(f"forward: one of {sorted(FORWARD_SOLVERS)}, got {self.forward!r}")
+            raise FieldError("forward", f"one of {sorted(FORWARD_SOLVERS)}, got {self.forward!r}")
         if len(self.legs) < 3:
-            raise ValueError(f"legs: a rail machine needs at least 3 legs, got {len(self.legs)}")
+            raise FieldError("legs", f"a rail machine needs at least 3 legs, got {len(self.legs)}")
         self.home = finite_array(self.home, "home", (3,))
         self.task_dof = self.spatiality = task.columns.size
         self.twist_columns, self.dimension = task.columns, task.dimension

@@ -28,7 +28,7 @@ import numpy as np
 
 from . import bars as B
 from .distribution import least_squares_n_kernel
-from .errors import SingularityError
+from .errors import FieldError, SingularityError
 from .hexapod import StrutMachine
 from .jit import kernel
 from .rotations import exp_so3_kernel, mul3_kernel, rpy_rotation_kernel
@@ -52,7 +52,7 @@ class StrutDynamics:
     def __init__(self, machine: StrutMachine, params: RigidBodyParameters):
         n = machine.n_legs
         if len(params.drive_mass_kg) != n or len(params.friction_ns_per_m) != n:
-            raise ValueError(f"dynamics: drive_mass_kg and friction_ns_per_m need {n} entries")
+            raise FieldError("dynamics", f"drive_mass_kg and friction_ns_per_m need {n} entries")
         inertia = np.asarray(params.platform_inertia_kgm2, dtype=float).reshape(3, 3)
         if not np.allclose(inertia, inertia.T) or np.linalg.eigvalsh(inertia).min() <= 0.0:
             raise ValueError(f"dynamics.platform_inertia_kgm2: must be symmetric positive definite, got {inertia}")
@@ -91,7 +91,7 @@ class StrutDynamics:
         of the rail machines). SingularityError when J_m has rank < 6."""
         qdot = np.asarray(drive_velocities, dtype=float)
         if qdot.shape != (self.machine.n_legs,):
-            raise ValueError(f"drive_velocities: expected {self.machine.n_legs} values, got shape {qdot.shape}")
+            raise FieldError("drive_velocities", f"expected {self.machine.n_legs} values, got shape {qdot.shape}")
         code, a, h, jac, twist = strut_measured_state_kernel(
             self.machine.bars, np.asarray(x, dtype=float), qdot, self._md, self._k, self._inertia.ravel(),
             float(self.params.platform_mass_kg), self._g)

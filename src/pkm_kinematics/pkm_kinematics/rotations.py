@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from .errors import FieldError
 from .jit import kernel
 
 
@@ -253,7 +254,7 @@ def rotation_from_quaternion(q) -> np.ndarray:
     x, y, z, w = (float(c) for c in q)
     n = math.sqrt(x * x + y * y + z * z + w * w)
     if not n > 0.0 or not math.isfinite(n):
-        raise ValueError(f"quaternion: must be finite and non-zero, got {q!r}")
+        raise FieldError("quaternion", f"must be finite and non-zero, got {q!r}")
     x, y, z, w = x / n, y / n, z / n, w / n
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],

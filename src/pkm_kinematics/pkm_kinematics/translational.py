@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from . import bars as B
-from .errors import KinematicsError, SingularityError, UnreachablePoseError
+from .errors import FieldError, KinematicsError, SingularityError, UnreachablePoseError
 from .planar import ForwardKinematicsResult
 from .task_space import POSITION
 from .validation import finite_array, finite_floats
@@ -44,8 +44,8 @@ class ThreeSpheresFK:
 
     def __init__(self, machine):
         if machine.task_space is not POSITION or machine.n_legs != 3:
-            raise ValueError(f"forward: three_spheres solves a translating machine of exactly 3 legs, got "
-                             f"{machine.n_legs} legs in {machine.task_space.name} coordinates")
+            raise FieldError("forward", f"three_spheres solves a translating machine of exactly 3 legs, got "
+                                        f"{machine.n_legs} legs in {machine.task_space.name} coordinates")
         self.machine, self.bars = machine, machine.bars
         # Forward branch: the platform lies on one side of the plane through the three
         # sphere centres; that side only changes through a parallel singularity
@@ -72,7 +72,7 @@ class ThreeSpheresFK:
         meet or when the point found needs a leg on its other assembly branch,
         SingularityError when the centres are collinear."""
         if len(rho) != 3:
-            raise ValueError(f"rho: expected 3 actuator positions, got {len(rho)}")
+            raise FieldError("rho", f"expected 3 actuator positions, got {len(rho)}")
         px, py, pz, code, leg = B.three_rail_forward_kinematics_kernel(self.bars, float(rho[0]), float(rho[1]),
                                                                        float(rho[2]), self.side)
         if code == B.TRI_OK:

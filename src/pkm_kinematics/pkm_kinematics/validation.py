@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from .errors import FieldError
+
 
 def finite_array(value, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
     """Return ``value`` as a float array, refusing NaN/inf and a wrong shape.
@@ -15,14 +17,14 @@ def finite_array(value, name: str, shape: tuple[int, ...] | None = None) -> np.n
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected numbers, got {value!r}") from exc
+        raise FieldError(name, f"expected numbers, got {value!r}") from exc
     if shape is not None:
         ok = arr.ndim == len(shape) and all(s in (-1, a) for s, a in zip(shape, arr.shape))
         if not ok:
             want = "x".join("N" if s == -1 else str(s) for s in shape) or "scalar"
-            raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+            raise FieldError(name, f"expected shape {want}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: contains NaN or infinite values: {arr}")
+        raise FieldError(name, f"contains NaN or infinite values: {arr}")
     return arr
 
 
@@ -37,11 +39,11 @@ def finite_floats(value, size: int, name: str) -> list[float]:
         floats = [float(v) for v in items]
     except (TypeError, ValueError) as exc:
         shape = np.shape(value) if not isinstance(value, (str, bytes)) else "a string"
-        raise ValueError(f"{name}: expected shape {size}, got {shape}") from exc
+        raise FieldError(name, f"expected shape {size}, got {shape}") from exc
     if len(floats) != size:
-        raise ValueError(f"{name}: expected shape {size}, got ({len(floats)},)")
+        raise FieldError(name, f"expected shape {size}, got ({len(floats)},)")
     # fast path: NaN and +-inf propagate through the sum; a finite sum that overflowed
     # is told apart by the slow check
     if not math.isfinite(sum(floats)) and not all(map(math.isfinite, floats)):
-        raise ValueError(f"{name}: contains NaN or infinite values: {floats}")
+        raise FieldError(name, f"contains NaN or infinite values: {floats}")
     return floats

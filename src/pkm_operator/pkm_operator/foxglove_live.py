@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import math
 
+from pkm_kinematics.errors import FieldError
+
 STREAMS = ("drives/state", "metrology/struts", "tool/true_pose", "tool/reference", "machine", "controller/status")
 
 
@@ -37,7 +39,7 @@ class Decimator:
 
     def __init__(self, rate_hz: float):
         if not (math.isfinite(rate_hz) and 0.1 <= rate_hz <= 1000.0):
-            raise ValueError(f"rate_hz: must be in [0.1, 1000] Hz, got {rate_hz}")
+            raise FieldError("rate_hz", f"must be in [0.1, 1000] Hz, got {rate_hz}")
         self.period_ns = int(1e9 / rate_hz)
         self.last: dict[str, int] = {}
 
@@ -84,7 +86,7 @@ class LiveChannels:
         import foxglove
         from foxglove.channels import PoseInFrameChannel, SceneUpdateChannel
         if not 0 <= port <= 65535:
-            raise ValueError(f"port: must be in [0, 65535], got {port}")
+            raise FieldError("port", f"must be in [0, 65535], got {port}")
         self.decimator = Decimator(rate_hz)
         self.context = foxglove.Context()
         ns = namespace.rstrip("/")

@@ -57,6 +57,7 @@ from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.analysis import workspace_box
 from pkm_kinematics.distribution import METHODS
+from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.plant import leg_segments
 from pkm_trajectory.program import gcode_segments
 
@@ -84,14 +85,14 @@ def check_setting(name, value) -> None:
     ValueError naming the field and the allowed values."""
     choices = {"strategy": list(STRATEGIES), "distribution": list(METHODS)}
     if name not in RUNTIME_SETTINGS:
-        raise ValueError(f"settings: {_shown(name)} is not a runtime setting; one of {list(RUNTIME_SETTINGS)}")
+        raise FieldError("settings", f"{_shown(name)} is not a runtime setting; one of {list(RUNTIME_SETTINGS)}")
     if name in choices:
         if value not in choices[name]:
-            raise ValueError(f"settings: {name} must be one of {choices[name]}, got {_shown(value)}")
+            raise FieldError("settings", f"{name} must be one of {choices[name]}, got {_shown(value)}")
         return
     lo, hi = SETTING_RANGES[name]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
-        raise ValueError(f"settings: {name} must be a number in [{lo:g}, {hi:g}], got {_shown(value)}")
+        raise FieldError("settings", f"{name} must be a number in [{lo:g}, {hi:g}], got {_shown(value)}")
 
 
 def _shown(value, limit: int = 40) -> str:
@@ -193,13 +194,13 @@ class Panel:
         action is published."""
         self.receivers = receivers
 
-    def _unreached(self, kind: str) -> str:
-        """Why ``kind`` cannot be sent now ("" if it can)."""
+    def _unreached(self, kind: str) -> str | None:
+        """Why ``kind`` cannot be sent now (None if it can)."""
         if kind not in RECEIVERS or self.receivers is None:
-            return ""
+            return None
         topic, node, who = RECEIVERS[kind]
         if self.receivers(topic, node) > 0:
-            return ""
+            return None
         return f"{kind}: not sent: {who} does not read {topic} yet (not discovered, or not matched); try again"
 
     # ------------------------------------------------------------ from the graph
@@ -295,7 +296,8 @@ class Panel:
 
     # ------------------------------------------------------------------ the page
     def snapshot(self) -> dict:
-        unreached = [kind for kind in RECEIVERS if self._unreached(kind)]    # graph queries: outside the lock
+        # graph queries: outside the lock
+        unreached = [kind for kind in RECEIVERS if self._unreached(kind) is not None]
         with self.lock:
             level, message, values = self.status
             out = {"machine": self.model.machine.name, "wall_s": time.time(),
@@ -375,7 +377,7 @@ class Panel:
         if self.estop_latched and kind != "reset":
             return self._refuse(client, kind, f"E-stop latched ({self.estop_why}): reset first")
         unreached = self._unreached(kind)
-        if unreached:
+        if unreached is not None:
             return self._refuse(client, kind, unreached)
         try:
             message, publish, restart = handler(action, client)
@@ -394,8 +396,8 @@ class Panel:
     # -------------------------------------------------------------- the actions
     def _reset(self, action, client):
         if not self.can_reset:
-            raise ValueError("reset: the E-stop is latched in the controller and the drives of this run; "
-                             "start a new run (pkm-run), or let pkm-panel start the graph (--start)")
+            raise FieldError("reset", "the E-stop is latched in the controller and the drives of this run; "
+                                      "start a new run (pkm-run), or let pkm-panel start the graph (--start)")
         with self.lock:
             self.estop_latched, self.estop_why, self.jog = False, "", None
             self.latency_ms.clear()
@@ -424,14 +426,14 @@ class Panel:
     def _program(self, action, client):
         text, name = action.get("text"), action.get("name") or "program"
         if not isinstance(text, str) or not text.strip():
-            raise ValueError("program: text must be non-empty G-code")
+            raise FieldError("program", "text must be non-empty G-code")
         if len(text.encode()) > PROGRAM_MAX_BYTES:
-            raise ValueError(f"program: at most {PROGRAM_MAX_BYTES} bytes, got {len(text.encode())}")
+            raise FieldError("program", f"at most {PROGRAM_MAX_BYTES} bytes, got {len(text.encode())}")
         with self.lock:
             start = self.reference or self.model.home
         segments = gcode_segments(text, self.model.space, start)   # ValueError: the line and the word
         if not segments:
-            raise ValueError("program: no motion in it")
+            raise FieldError("program", "no motion in it")
         with self.lock:
             self.program = (str(name)[:80], text, len(segments))
         return f"program {name!s:.80} loaded: {len(segments)} moves (start sends it to the planner)", [], False
@@ -440,14 +442,14 @@ class Panel:
         level, message, values = self.status
         mode = values.get("mode")
         if mode != "holding" or self.jog is not None:
-            raise ValueError(f"{what}: the machine must be holding still, it is "
-                             f"{'jogging' if self.jog is not None else mode or 'not reporting yet'}")
+            raise FieldError(what, f"the machine must be holding still, it is "
+                                   f"{'jogging' if self.jog is not None else mode or 'not reporting yet'}")
 
     def _start(self, action, client):
         with self.lock:
             self._holding("start")
             if self.program is None:
-                raise ValueError("start: load a program first")
+                raise FieldError("start", "load a program first")
             name, text, moves = self.program
             self.sent["trajectory"] = self.clock()
         return f"program {name} sent to the planner ({moves} moves)", [("program", text)], False
@@ -455,7 +457,7 @@ class Panel:
     def _feed(self, action, client):
         value = action.get("percent")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 100.0:
-            raise ValueError(f"feed: percent must be a number in [0, 100], got {value!r}")
+            raise FieldError("feed", f"percent must be a number in [0, 100], got {value!r}")
         with self.lock:
             self.sent["feed_override"] = self.clock()
         return f"feed override {value:g} %", [("controller/feed_override", float(value) / 100.0)], False
@@ -464,23 +466,23 @@ class Panel:
         axis, step = action.get("axis"), action.get("step")
         axes = self.model.axes
         if axis not in axes:
-            raise ValueError(f"jog: axis must be one of {list(axes)}, got {axis!r}")
+            raise FieldError("jog", f"axis must be one of {list(axes)}, got {axis!r}")
         k = axes.index(axis)
         bound = JOG_MAX_RAD if axis in self.model.angular else JOG_MAX_M
         unit = "rad" if axis in self.model.angular else "m"
         if isinstance(step, bool) or not isinstance(step, (int, float)) or not (0.0 < abs(step) <= bound):
-            raise ValueError(f"jog: step must be a number with 0 < |step| <= {bound:g} {unit}, got {step!r}")
+            raise FieldError("jog", f"step must be a number with 0 < |step| <= {bound:g} {unit}, got {step!r}")
         with self.lock:
             self._holding("jog")
             if self.reference is None:
-                raise ValueError("jog: no reference from the controller yet")
+                raise FieldError("jog", "no reference from the controller yet")
             target = list(self.reference)
             target[k] += float(step)
             if k < len(self.model.box):
                 lo, hi = self.model.box[k]
                 if not lo <= target[k] <= hi:
-                    raise ValueError(f"jog: {axis} would reach {target[k]:.4f} {unit}, outside the workspace "
-                                     f"[{lo:g}, {hi:g}] {unit}")
+                    raise FieldError("jog", f"{axis} would reach {target[k]:.4f} {unit}, outside the workspace "
+                                            f"[{lo:g}, {hi:g}] {unit}")
             self.jog = {"client": client, "target": target, "since": self.clock()}
             self.heartbeats.setdefault(client, self.clock())
             self.sent["trajectory"] = self.clock()
@@ -489,13 +491,13 @@ class Panel:
     def _settings(self, action, client):
         changes = action.get("changes")
         if not isinstance(changes, dict) or not changes:
-            raise ValueError("settings: changes must be a non-empty object {name: value}")
+            raise FieldError("settings", "changes must be a non-empty object {name: value}")
         for name, value in changes.items():
             check_setting(name, value)
         with self.lock:
             values = self.status[2]
         if "strategy" not in values:
-            raise ValueError("settings: the controller has not reported its settings yet")
+            raise FieldError("settings", "the controller has not reported its settings yet")
         current = ControllerConfig(**{k: values[k] for k in RUNTIME_SETTINGS}, dt_s=values["dt_s"])
         # the rule of the running controller itself, on a scratch core with its settings
         ControllerCore(self.model.machine, current).change_settings(changes)

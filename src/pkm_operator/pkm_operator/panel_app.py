@@ -52,6 +52,8 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketDisconnected
 
+from pkm_kinematics.errors import FieldError
+
 LOG = logging.getLogger("pkm-panel")
 STATIC = Path(__file__).with_name("panel_static")
 AHEAD = 8          # snapshots a page may have in flight, not yet drawn (module doc)
@@ -103,8 +105,8 @@ class SameOriginGuard:
     def __init__(self, app, hosts, open_paths=OPEN_ROUTES, on_refused=None):
         self.app, self.hosts, self.open_paths, self.on_refused = app, frozenset(hosts), open_paths, on_refused
 
-    def refusal(self, scope) -> str:
-        """Why ``scope`` is refused ("" when it is not)."""
+    def refusal(self, scope) -> str | None:
+        """Why ``scope`` is refused (None when it is not)."""
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", ())}
         host = headers.get("host", "")
         if host_name(host) not in self.hosts:
@@ -115,13 +117,13 @@ class SameOriginGuard:
         if checked and origin is not None and origin.lower() not in (f"http://{host}".lower(),
                                                                      f"https://{host}".lower()):
             return f"Origin {origin!r} is not this panel's"
-        return ""
+        return None
 
     async def __call__(self, scope, receive, send):
         if scope["type"] not in ("http", "websocket"):
             return await self.app(scope, receive, send)
         why = self.refusal(scope)
-        if not why:
+        if why is None:
             return await self.app(scope, receive, send)
         if self.on_refused is not None:
             client = scope.get("client")
@@ -169,9 +171,9 @@ def create_app(panel, publish, token: str, rate_hz: float = 25.0, on_restart=Non
     (create_estop_app), given to the pages; ``hosts``: the names it serves
     (served_hosts). An ASGI app: the Starlette app behind a SameOriginGuard."""
     if not 1.0 <= rate_hz <= 100.0:
-        raise ValueError(f"rate_hz: must be in [1, 100] Hz, got {rate_hz}")
+        raise FieldError("rate_hz", f"must be in [1, 100] Hz, got {rate_hz}")
     if not isinstance(token, str) or len(token) < 8:
-        raise ValueError("token: the panel needs one of at least 8 characters (control is never open)")
+        raise FieldError("token", "the panel needs one of at least 8 characters (control is never open)")
 
     def authorized(given: str | None) -> bool:
         return given is not None and hmac.compare_digest(given.encode(), token.encode())

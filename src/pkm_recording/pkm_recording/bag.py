@@ -67,6 +67,7 @@ from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from pkm_kinematics.errors import FieldError
 from pkm_recording.mcap_writer import FastWriter
 from pkm_recording.tap_records import PACK_ERRORS, PACK_OK, pack_tap_records
 from pkm_common.files import atomic_write
@@ -170,7 +171,7 @@ def _as_time(value, name: str) -> int:
     try:
         return operator.index(value)  # int-like (numpy integers too), never float
     except TypeError:
-        raise ValueError(f"{name}: expected integer nanoseconds, got {value!r}") from None
+        raise FieldError(name, f"expected integer nanoseconds, got {value!r}") from None
 
 
 def _normalize_qos(profiles) -> list[dict]:
@@ -338,7 +339,7 @@ def _check_writer_args(chunk_size: int, compression: str) -> None:
     if compression == "lz4" and _mcap_writer.lz4 is None:
         raise ValueError("compression 'lz4' needs the 'lz4' package (mcap's dependency)")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
-        raise ValueError(f"chunk_size: expected a positive int (bytes), got {chunk_size!r}")
+        raise FieldError("chunk_size", f"expected a positive int (bytes), got {chunk_size!r}")
 
 
 def _make_writer(stream, chunk_size: int, compression: str) -> Writer:

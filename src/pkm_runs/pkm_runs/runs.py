@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from pkm_kinematics.errors import FieldError
 from pkm_runs.report_data import JOINT, JOINT_FIELDS, POSE, STEP_STREAMS, JointRows, PoseRows, RunReader, yaw_of
 
 STREAMS = tuple(STEP_STREAMS)
@@ -66,7 +67,7 @@ class Run:
     def frame(self, stream: str) -> pd.DataFrame:
         """The per-step stream ``stream`` (module docstring)."""
         if stream not in STREAMS:
-            raise ValueError(f"stream: one of {', '.join(STREAMS)}, got {stream!r}")
+            raise FieldError("stream", f"one of {', '.join(STREAMS)}, got {stream!r}")
         frames = self._read()
         if stream not in frames:
             raise KeyError(f"{stream}: not recorded in {self.path} (recorded: {', '.join(frames) or 'none'})")

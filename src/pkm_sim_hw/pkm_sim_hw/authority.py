@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from pkm_common.causes import TripCause
 from pkm_common.sources import Intrusion, SourceGate
+from pkm_kinematics.errors import FieldError
 
 __all__ = ["CommandGate", "Refusal", "STALE", "APPLY"]
 
@@ -51,7 +52,7 @@ class CommandGate:
 
     def __init__(self, command_source: str, lockstep: bool, max_age_ns: int):
         if max_age_ns <= 0:
-            raise ValueError(f"command_max_age_s: must be > 0, got {max_age_ns * 1e-9:g} s")
+            raise FieldError("command_max_age_s", f"must be > 0, got {max_age_ns * 1e-9:g} s")
         self.sources = SourceGate("drives/command", command_source, "command_source")
         self.lockstep = lockstep
         self.max_age_ns = max_age_ns

@@ -10,6 +10,7 @@ from pkm_common.params import ParameterError, declare_bool, declare_float, decla
 from pkm_common.credential import Verifier
 from pkm_common.sources import AllowedSenders, node_names
 from pkm_kinematics import MachineConfig, load_machine
+from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_sim_hw.strut_plant import StrutPlant
@@ -102,7 +103,7 @@ def declare_settings(node) -> SimHwSettings:
             schedule_into([(schedule[i], schedule[i + 1:i + 1 + size])
                            for i in range(0, len(schedule), size + 1)])
         except ValueError as exc:
-            raise ParameterError(name, str(exc).partition(": ")[2]) from None
+            raise ParameterError(name, exc.detail if isinstance(exc, FieldError) else str(exc)) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
     duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
     load_senders = AllowedSenders("load", node_names(declare_str(
@@ -113,6 +114,6 @@ def declare_settings(node) -> SimHwSettings:
     try:
         credentials = Verifier.from_file(path)
     except ValueError as exc:
-        raise ParameterError("credential_file", str(exc).partition(": ")[2]) from None
+        raise ParameterError("credential_file", exc.detail if isinstance(exc, FieldError) else str(exc)) from None
     return SimHwSettings(machine, plant, lockstep, timeout_s, sync_error_limit, gate, publish_markers, duration_s,
                          duration_steps, summary_path, shutdown_on_finish, load_senders, credentials)

@@ -44,7 +44,7 @@ from pkm_common.causes import TripCause
 from pkm_common.cdr import in_order
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force_rows
-from pkm_kinematics.errors import KinematicsError
+from pkm_kinematics.errors import FieldError, KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.parallelogram import ParallelogramMachine
 from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
@@ -76,17 +76,17 @@ class Fault:
             at_s = float(parts[2]) if len(parts) > 2 else 0.0
             size = float(parts[3]) if len(parts) > 3 else (DEFAULT_SLIP_M if kind == "encoder_slip" else 0.0)
         except (IndexError, ValueError):
-            raise ValueError(f"faults: expected '<drive>:<kind>[:<at_s>[:<size>]]', got {text!r}") from None
+            raise FieldError("faults", f"expected '<drive>:<kind>[:<at_s>[:<size>]]', got {text!r}") from None
         if len(parts) > 4 or (len(parts) > 3 and kind != "encoder_slip"):
-            raise ValueError(f"faults: only encoder_slip takes a size, got {text!r}")
+            raise FieldError("faults", f"only encoder_slip takes a size, got {text!r}")
         if not 0 <= drive < n_drives:
-            raise ValueError(f"faults: drive must be in [0, {n_drives - 1}], got {drive} in {text!r}")
+            raise FieldError("faults", f"drive must be in [0, {n_drives - 1}], got {drive} in {text!r}")
         if kind not in FAULT_KINDS:
-            raise ValueError(f"faults: kind must be one of {list(FAULT_KINDS)}, got {kind!r}")
+            raise FieldError("faults", f"kind must be one of {list(FAULT_KINDS)}, got {kind!r}")
         if not (at_s >= 0.0 and math.isfinite(at_s)):
-            raise ValueError(f"faults: start time must be in [0, inf) s, got {at_s}")
+            raise FieldError("faults", f"start time must be in [0, inf) s, got {at_s}")
         if not (math.isfinite(size) and abs(size) <= 0.01):
-            raise ValueError(f"faults: slip size must be in [-0.01, 0.01] m, got {size}")
+            raise FieldError("faults", f"slip size must be in [-0.01, 0.01] m, got {size}")
         return Fault(drive, kind, at_s, size)
 
 
@@ -138,7 +138,7 @@ class PlantParameters:
                   ("parallelogram_half_width_m", 0.0 < self.parallelogram_half_width_m <= 1.0, "(0, 1] m")]
         for name, ok, allowed in checks:
             if not ok:
-                raise ValueError(f"{name}: must be {allowed}, got {getattr(self, name)!r}")
+                raise FieldError(name, f"must be {allowed}, got {getattr(self, name)!r}")
 
 
 @dataclass
@@ -185,7 +185,7 @@ class Plant:
         self.params.validate(n, config.model.task_space)
         for name in ("compliance", "frame_compliance"):
             if len(getattr(self.params, name)) != 3:
-                raise ValueError(f"{name}: must be 3 values on a 3-DOF machine, got {list(getattr(self.params, name))}")
+                raise FieldError(name, f"must be 3 values on a 3-DOF machine, got {list(getattr(self.params, name))}")
         self.config = config
         self.n = n
         self.names = list(config.model.leg_names)
@@ -406,7 +406,7 @@ def check_load(wrench, space: TaskSpace, params: PlantParameters, what: str = "l
         bound, unit, name = (params.max_load_nm, "N m", "max_load_nm") if label[0] == "m" else \
             (params.max_load_n, "N", "max_load_n")
         if abs(value) > bound:
-            raise ValueError(f"{what}: {label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
+            raise FieldError(what, f"{label} must be in [-{bound:g}, {bound:g}] {unit} ({name}), got {value:g}")
     return values
 
 
@@ -417,7 +417,7 @@ def load_steps(rows, dt_s: float, check, what: str) -> list:
     schedule, last_t = [], 0.0
     for t, wrench in rows:
         if not (math.isfinite(t) and t >= 0.0) or t < last_t - 1e-12:
-            raise ValueError(f"{what}: times must be finite, >= 0 and non-decreasing, got {t}")
+            raise FieldError(what, f"times must be finite, >= 0 and non-decreasing, got {t}")
         schedule.append((math.ceil(t / dt_s - 1e-6), check(wrench, what)))
         last_t = t
     return schedule

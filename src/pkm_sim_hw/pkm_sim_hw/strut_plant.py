@@ -37,7 +37,7 @@ import numpy as np
 from pkm_common.causes import TripCause
 from pkm_kinematics.config import MachineConfig
 from pkm_kinematics.distribution import internal_force
-from pkm_kinematics.errors import KinematicsError, SingularityError
+from pkm_kinematics.errors import FieldError, KinematicsError, SingularityError
 from pkm_kinematics.rigid_body import StrutDynamics
 from pkm_kinematics.rotations import rotation_from_rpy
 from pkm_kinematics.task_space import load_components
@@ -61,18 +61,18 @@ class StrutPlant:
         self.params.validate(self.n, config.model.task_space)
         for name in _NOT_YET:
             if any(getattr(self.params, name)):
-                raise ValueError(f"{name}: not simulated on a strut machine yet (leave it empty or zero)")
+                raise FieldError(name, f"not simulated on a strut machine yet (leave it empty or zero)")
         for name in ("compliance", "frame_compliance"):
             values = getattr(self.params, name)
             if any(values) and len(values) != 6:
-                raise ValueError(f"{name}: must be 6 values on a 6-DOF machine (m/N for fx fy fz, rad/(N m) for "
-                                 f"mx my mz), got {list(values)}")
+                raise FieldError(name, f"must be 6 values on a 6-DOF machine (m/N for fx fy fz, rad/(N m) for "
+                                       f"mx my mz), got {list(values)}")
         self._compliance = np.array(self.params.compliance if any(self.params.compliance) else [0.0] * 6)
         self._frame_compliance = np.array(self.params.frame_compliance if any(self.params.frame_compliance)
                                           else [0.0] * 6)
         if self.params.integrator != "semi_implicit":
-            raise ValueError(f"integrator: a strut machine integrates semi_implicit only, got "
-                             f"{self.params.integrator!r}")
+            raise FieldError("integrator", f"a strut machine integrates semi_implicit only, got "
+                                           f"{self.params.integrator!r}")
         self.names = list(self.machine.leg_names)
         self.dynamics = StrutDynamics(self.machine, config.dynamics)
         x0 = finite_floats(self.machine.home if initial_pose is None else initial_pose, 6, "initial_pose")
@@ -88,7 +88,7 @@ class StrutPlant:
         self._faults = [Fault.parse(f, self.n) if isinstance(f, str) else f for f in self.params.faults]
         q = self.machine.strut_lengths(self.p, self.rotation)
         if not self.machine.within_joint_limits(q):
-            raise ValueError(f"initial_pose: struts outside their limits: {np.round(q, 6).tolist()} m")
+            raise FieldError("initial_pose", f"struts outside their limits: {np.round(q, 6).tolist()} m")
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
                                  self.params.dt_s)
         self._reading_scale = 1.0 / (1.0 + np.asarray(self.params.link_length_errors or [0.0] * self.n, dtype=float))

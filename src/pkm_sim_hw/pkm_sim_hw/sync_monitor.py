@@ -17,6 +17,7 @@ command timeout).
 from __future__ import annotations
 
 from pkm_common.causes import TripCause
+from pkm_kinematics.errors import FieldError
 
 MISS_WEIGHT, ON_TIME_CREDIT = 3, 1       # ETG.1020 0x10F1:02
 
@@ -28,7 +29,7 @@ class SyncErrorCounter:
 
     def __init__(self, limit: int):
         if not 0 <= limit <= 1_000_000:
-            raise ValueError(f"sync_error_limit: must be in [0, 1000000], got {limit}")
+            raise FieldError("sync_error_limit", f"must be in [0, 1000000], got {limit}")
         self.limit = limit
         self.count = 0
         self.missed = 0                  # held setpoints since the count last was 0

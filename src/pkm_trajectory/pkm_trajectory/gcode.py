@@ -57,6 +57,8 @@ import math
 import re
 from dataclasses import dataclass
 
+from pkm_kinematics.errors import FieldError
+
 __all__ = ['Move', 'GcodeError', 'parse_gcode', 'MM', 'INCH']
 
 MM = 1e-3       # m per mm (G21)
@@ -180,9 +182,9 @@ def _check_point(start, name: str) -> tuple:
     try:
         values = tuple(float(v) for v in start)
     except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected 3 finite numbers (x, y, z) in m, got {start!r}') from None
+        raise FieldError(name, f'expected 3 finite numbers (x, y, z) in m, got {start!r}') from None
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f'{name}: expected 3 finite numbers (x, y, z) in m, got {start!r}')
+        raise FieldError(name, f'expected 3 finite numbers (x, y, z) in m, got {start!r}')
     return values
 
 
@@ -198,7 +200,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0)) 
     pos = list(_check_point(start, 'start'))
     angles = [float(a) for a in start_angles]
     if len(angles) != 3 or not all(math.isfinite(a) for a in angles):
-        raise ValueError(f'start_angles: expected 3 finite angles (A, B, C) in rad, got {start_angles!r}')
+        raise FieldError('start_angles', f'expected 3 finite angles (A, B, C) in rad, got {start_angles!r}')
 
     unit = MM            # G21
     absolute = True      # G90

@@ -30,6 +30,7 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from pkm_kinematics.analysis import task_box
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
 
@@ -174,7 +175,7 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
     speed = getattr(segment, "speed", None)
     if speed is not None:
         if not speed > 0.0:
-            raise ValueError(f"speed: must be > 0 m/s, got {speed}")
+            raise FieldError("speed", f"must be > 0 m/s, got {speed}")
         norm = math.sqrt(sum(v * v for v in d[:translation_axes]))
         if norm > 0.0:
             vmax = min(vmax, speed / norm)
@@ -235,7 +236,7 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
     """Time every segment (exact stop between them) and sample at ``rate_hz``; the
     last sample is exactly the end of the last segment."""
     if not rate_hz > 0.0:
-        raise ValueError(f"rate_hz: must be > 0, got {rate_hz}")
+        raise FieldError("rate_hz", f"must be > 0, got {rate_hz}")
     timed = [t for t in (time_law(s, limits, translation_axes) for s in segments) if t.duration_s > 0.0]
     if not timed:
         raise TrajectoryRejected("nothing to do: every segment has zero length and duration")
@@ -271,9 +272,9 @@ class PlanBudget:
         for name, lo in (("max_points", 2), ("max_segments", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-                raise ValueError(f"{name}: must be an integer >= {lo}, got {value!r}")
+                raise FieldError(name, f"must be an integer >= {lo}, got {value!r}")
         if not 0.0 < self.max_planning_s < math.inf:
-            raise ValueError(f"max_planning_s: must be in (0, inf) s, got {self.max_planning_s!r}")
+            raise FieldError("max_planning_s", f"must be in (0, inf) s, got {self.max_planning_s!r}")
 
 
 def _where(segment) -> str:
@@ -500,12 +501,12 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
     acceleration limit by 1.9-8.1x (LinuxCNC issue #3773). ``deadline``
     (time.monotonic): a corner reached after it refuses the plan (TrajectoryRejected)."""
     if not all(isinstance(s, Line) for s in lines):
-        raise ValueError("plan_blended: blends straight lines only (arcs and dwells stop exactly)")
+        raise FieldError("plan_blended", "blends straight lines only (arcs and dwells stop exactly)")
     lines = [s for s in lines if max(abs(v) for v in s.first(0.0)) >= 1e-12]
     if not lines:
         raise TrajectoryRejected("nothing to do: every line has zero length")
     if not tolerance >= 0.0:
-        raise ValueError(f"tolerance: must be >= 0 m, got {tolerance}")
+        raise FieldError("tolerance", f"must be >= 0 m, got {tolerance}")
     timed = [time_law(s, limits, translation_axes) for s in lines]
     caps = [np.array(limits.velocity), np.array(limits.acceleration), np.array(limits.jerk)]
     starts = [0.0]

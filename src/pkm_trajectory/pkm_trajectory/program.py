@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 
+from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import TaskSpace
 
 from .gcode import Move, parse_gcode
@@ -34,14 +35,14 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
     """Segments of a parsed program starting at ``start_pose`` (task coordinates of ``space``)."""
     lo, hi = FEED_OVERRIDE_RANGE
     if not lo < feed_override <= hi:
-        raise ValueError(f"feed_override: must be in (0, 2] (0-200 %), got {feed_override}")
+        raise FieldError("feed_override", f"must be in (0, 2] (0-200 %), got {feed_override}")
     if not scale > 0.0 or not math.isfinite(scale):
-        raise ValueError(f"scale: must be a positive number, got {scale}")
+        raise FieldError("scale", f"must be a positive number, got {scale}")
     if not (isinstance(repeat, int) and repeat >= 1):
-        raise ValueError(f"repeat: must be an integer >= 1, got {repeat}")
+        raise FieldError("repeat", f"must be an integer >= 1, got {repeat}")
     origin = [float(v) for v in start_pose]
     if len(origin) != space.dof:
-        raise ValueError(f"start_pose: expected {space.dof} task coordinates ({space.describe()}), got {origin}")
+        raise FieldError("start_pose", f"expected {space.dof} task coordinates ({space.describe()}), got {origin}")
     missing = "".join(w for w in "XYZABC" if w not in space.words)
 
     def refuse_missing(move: Move) -> None:
@@ -96,11 +97,11 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
             segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed, line=move.line))
         pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
     if len(segments) * repeat > MAX_SEGMENTS:       # before the list is made (a 1 MB program x 10,000)
-        raise ValueError(f"repeat: {len(segments)} segments x {repeat} exceed {MAX_SEGMENTS} segments")
+        raise FieldError("repeat", f"{len(segments)} segments x {repeat} exceed {MAX_SEGMENTS} segments")
     if repeat > 1:
         if max(abs(a - b) for a, b in zip(pose, origin)) > 1e-9:
-            raise ValueError(f"repeat: the program ends at {pose}, not at its start {origin}: "
-                             "it cannot be repeated")
+            raise FieldError("repeat", f"the program ends at {pose}, not at its start {origin}: "
+                                       "it cannot be repeated")
         segments = segments * repeat
     return segments
 

@@ -1,0 +1,52 @@
+"""One error vocabulary for refused values (pkm_kinematics.errors.FieldError): the
+field's name, what is allowed and what came travel as attributes, so that whoever
+reports the error under another name (a node's parameter, a scenario key) reads them
+instead of splitting the message."""
+
+import subprocess
+import sys
+
+import pytest
+
+from pkm_controller.config import ControllerConfig
+from pkm_controller.configuration import core_from_parameters
+from pkm_kinematics import load_machine
+from pkm_kinematics.errors import ConfigError, FieldError, KinematicsError, ParameterError
+
+
+def test_a_field_error_carries_its_field_and_says_it():
+    exc = FieldError.out_of_range("bandwidth_hz", "in (0, 250] Hz", -3.0)
+    assert (exc.name, exc.allowed, exc.got) == ("bandwidth_hz", "in (0, 250] Hz", -3.0)
+    assert str(exc) == "bandwidth_hz: must be in (0, 250] Hz, got -3.0" and isinstance(exc, ValueError)
+    exc = ParameterError("dt_s", "must be in (0, 0.1] s, got 0.5")
+    assert str(exc) == "parameter 'dt_s': must be in (0, 0.1] s, got 0.5" and isinstance(exc, FieldError)
+    assert (exc.name, exc.detail) == ("dt_s", "must be in (0, 0.1] s, got 0.5")
+    exc = ConfigError("legs[2].link_length", "must be > 0")
+    assert isinstance(exc, KinematicsError) and isinstance(exc, FieldError) and exc.field == exc.name
+
+
+def test_the_controllers_refusals_name_their_field():
+    with pytest.raises(FieldError) as info:
+        ControllerConfig(bandwidth_hz=-1.0).validate(4, True)
+    assert info.value.name == "bandwidth_hz" and info.value.got == -1.0, info.value
+    # the node names the ControllerConfig field as its parameter, read from the error
+    with pytest.raises(ParameterError) as info:
+        core_from_parameters("archi", ControllerConfig(damping_ratio=-0.5))
+    assert info.value.name == "damping_ratio" and "got -0.5" in info.value.detail, info.value
+    # what the machine cannot do with a setting is named by the setting
+    with pytest.raises(ParameterError) as info:
+        core_from_parameters("sliding_star", ControllerConfig(strategy="sensor_space"))
+    assert info.value.name == "strategy" and "metrology" in info.value.detail, info.value
+    with pytest.raises(ParameterError) as info:
+        core_from_parameters("no_such_machine", ControllerConfig())
+    assert info.value.name == "machine", info.value
+
+
+def test_the_errors_load_no_model():
+    """Every package raises these: importing them loads no machine model and no
+    compiled kernel (pkm_kinematics' names are imported when first used)."""
+    code = ("import sys, pkm_kinematics.errors; "
+            "print(sorted(m for m in sys.modules if m.startswith(('pkm_kinematics.', 'numba'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['pkm_kinematics.errors']", out
+    assert load_machine("archi").name == "archi"
