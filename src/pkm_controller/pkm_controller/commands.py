@@ -66,9 +66,8 @@ class CommandSetup(NamedTuple):
     degraded_modes: tuple      # the same with a drive dropped
 
 
-def _outcome(fields: tuple) -> CartesianOutcome:
-    """A CartesianOutcome made without NamedTuple's Python-level __new__ (once a cycle)."""
-    return tuple.__new__(CartesianOutcome, fields)
+# a CartesianOutcome is made with tuple.__new__ (NamedTuple's own __new__ is a Python call, once a cycle)
+_NEW = tuple.__new__
 
 
 class ThreeAxis:
@@ -109,15 +108,17 @@ class ThreeAxis:
     def cartesian(self, core, c, measured, error) -> CartesianOutcome:
         """laws.cartesian_command_kernel on the prepared cycle ``c``; with a drive dropped
         the compiled pseudo-inverse distributes."""
-        s = core.setup
+        s, active = core.setup, core.supervisor.active
+        full = len(active) == core.n
         code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
             c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
             (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains, s.settings,
-            s.modes if len(core.supervisor.active) == core.n else s.degraded_modes)
+            s.modes if full else s.degraded_modes)
         distributed = bool(forces.shape[0])
-        return _outcome((code, index, value, integral, wrench,
-                         expand(forces.tolist(), core.supervisor.active, core.n) if distributed else [], distributed,
-                         saturated, peak))
+        if distributed:
+            forces = forces.tolist() if full else expand(forces.tolist(), active, core.n)
+        return _NEW(CartesianOutcome, (code, index, value, integral, wrench, forces if distributed else [],
+                                       distributed, saturated, peak))
 
 
 class SixAxis:
@@ -162,8 +163,9 @@ class SixAxis:
             c.q_array, c.active_rows, np.array((measured, error, c.v_d, c.v, c.a_d), dtype=float),
             (c.a_model, c.h_model), np.asarray(core.integral, dtype=float), core.record.saturated == 0, c.dt,
             s.boxes, s.gains, s.settings, modes)
-        return _outcome((code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
-                         modes[MODE_DISTRIBUTION] == DIST_PSEUDO_INVERSE and code == LIMITS_OK, saturated, peak))
+        return _NEW(CartesianOutcome, (code, index, value, tuple(integral.tolist()), wrench, forces.tolist(),
+                                       modes[MODE_DISTRIBUTION] == DIST_PSEUDO_INVERSE and code == LIMITS_OK,
+                                       saturated, peak))
 
 
 def kernels_for(model) -> ThreeAxis | SixAxis:
