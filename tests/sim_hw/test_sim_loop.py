@@ -8,9 +8,8 @@ from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_common.sources import AllowedSenders
 from pkm_kinematics import load_machine
 from pkm_sim_hw.authority import CommandGate
-from pkm_sim_hw.parameters import SimHwSettings
 from pkm_sim_hw.plant import Plant, PlantParameters
-from pkm_sim_hw.sim_loop import SimLoop
+from pkm_sim_hw.sim_loop import SimHwSettings, SimLoop
 from pkm_sim_hw.step_streams import StepStreams
 
 ARCHI = load_machine("archi")

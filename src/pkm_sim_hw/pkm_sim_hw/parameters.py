@@ -4,38 +4,19 @@ plant's configuration (plant.PlantParameters) and the node's settings."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.credential import Verifier
 from pkm_common.sources import AllowedSenders, node_names
-from pkm_kinematics import MachineConfig, load_machine
+from pkm_kinematics import load_machine
 from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.plant import Plant, PlantParameters
+from pkm_sim_hw.sim_loop import SimHwSettings
 from pkm_sim_hw.strut_plant import StrutPlant
 
 # the plant of a machine kind (the rail machines': plant.Plant)
 PLANTS = {"struts": StrutPlant}
-
-
-@dataclass
-class SimHwSettings:
-    """What the node runs with; ``plant`` is built and loaded with its schedule."""
-
-    machine: MachineConfig
-    plant: Plant
-    lockstep: bool
-    command_timeout_s: float
-    sync_error_limit: int            # realtime: the drives' sync error counter limit (sync_monitor)
-    gate: CommandGate
-    publish_markers: bool
-    duration_s: float
-    duration_steps: int              # simulated time as a step count (plant.t accumulates dt)
-    summary_path: str
-    shutdown_on_finish: bool
-    load_senders: AllowedSenders = AllowedSenders("load", ())    # who may send a load (empty: anyone)
-    credentials: Verifier = Verifier(None)     # the run's key: a load carries its credential (none: not needed)
 
 
 def declare_settings(node) -> SimHwSettings:

@@ -11,28 +11,49 @@ from __future__ import annotations
 
 import json
 import time
-from typing import TYPE_CHECKING, Protocol
+from dataclasses import dataclass
+from typing import Protocol
 
 from pkm_common.causes import TripCause
 from pkm_common.cdr import JointStateDecoder, decode_wrench_stamped
+from pkm_common.credential import Verifier
 from pkm_common.files import reserve_file, write_summary as write_summary_file
-from pkm_common.sources import CommandGuard
+from pkm_common.sources import AllowedSenders, CommandGuard
 from pkm_common.timing import Cadence
 from pkm_common.watchdog import SilenceWatchdog
+from pkm_kinematics.config import MachineConfig
 
-from .authority import APPLY, STALE, Refusal
-from .plant import command_efforts, leg_segments
+from .authority import APPLY, STALE, CommandGate, Refusal
+from .plant import Plant, command_efforts, leg_segments
 from .run_record import RunRecord
 from .step_streams import StepStreams
 from .sync_monitor import SetpointHold
 
-if TYPE_CHECKING:                   # parameters.py declares ROS parameters: rclpy
-    from .parameters import SimHwSettings
-
-__all__ = ["REPEAT_AFTER_S", "SimLoop"]
+__all__ = ["REPEAT_AFTER_S", "SimHwSettings", "SimLoop", "SimPorts"]
 
 NAMING_CHECKS = 20           # watchdog ticks (0.1 s) to name a load's sender refused before the graph knew it
 REPEAT_AFTER_S = 0.1         # lockstep: the state is published again when no command came for this long
+
+
+@dataclass
+class SimHwSettings:
+    """What the loop runs with (sim_hw_node: parameters.declare_settings from its ROS
+    parameters; without ROS, made directly); ``plant`` is built and loaded with its
+    schedule."""
+
+    machine: MachineConfig
+    plant: Plant
+    lockstep: bool
+    command_timeout_s: float
+    sync_error_limit: int            # realtime: the drives' sync error counter limit (sync_monitor)
+    gate: CommandGate
+    publish_markers: bool
+    duration_s: float
+    duration_steps: int              # simulated time as a step count (plant.t accumulates dt)
+    summary_path: str
+    shutdown_on_finish: bool
+    load_senders: AllowedSenders = AllowedSenders("load", ())    # who may send a load (empty: anyone)
+    credentials: Verifier = Verifier(None)     # the run's key: a load carries its credential (none: not needed)
 
 
 class SimPorts(Protocol):
