@@ -21,7 +21,7 @@ from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import load_scenario
 from pkm_kinematics import load_machine
 from pkm_kinematics.errors import FieldError
-from pkm_runs.report_data import RunReader, rpy_of, yaw_of
+from pkm_runs.report_data import load_run, rpy_of, yaw_of
 from pkm_runs.report_metrics import internal_force_rows
 
 PAPERS = {   # the references of README.md (References), by their short names
@@ -123,35 +123,31 @@ def step_arrays(run_dir: Path) -> dict:
     ``position`` (N, 3), ``yaw`` (N,) and ``orientation`` (N, 4: x, y, z, w) of the true
     pose, ``ref_position`` ... of the controller's reference, ``gough_position`` ... of
     the Gough metrology's DKM pose (NaN where a stream has no message of the stamp).
-    A gallery run is a few thousand steps: held whole."""
-    parts: dict = {k: [] for k in ("stamp", "q", "applied", "command", "position", "yaw", "orientation",
-                                   "ref_position", "ref_yaw", "ref_orientation", "gough_position", "gough_yaw",
-                                   "gough_orientation")}
-    with RunReader(run_dir) as reader:
-        for block in reader.blocks():
-            state = block.rows.get("state")
-            if state is None:
-                continue
-            keep = state.present
-            parts["stamp"].append(block.stamp_ns[keep])
-            parts["q"].append(state.position[keep])
-            parts["applied"].append(state.effort[keep])
-            command = block.rows.get("command")
-            parts["command"].append(command.effort[keep] if command is not None
-                                    else np.full_like(state.effort[keep], np.nan))
-            for key, prefix in (("true_pose", ""), ("reference", "ref_"), ("metrology_pose", "gough_")):
-                pose = block.rows.get(key)
-                if pose is not None:
-                    position, orientation = pose.position[keep], pose.orientation[keep].copy()
-                    orientation[~pose.present[keep]] = np.nan
-                else:
-                    position, orientation = np.full((int(keep.sum()), 3), np.nan), np.full((int(keep.sum()), 4), np.nan)
-                parts[prefix + "position"].append(position)
-                parts[prefix + "yaw"].append(yaw_of(orientation))
-                parts[prefix + "orientation"].append(orientation)
-    out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
-    stamp = out.pop("stamp")
-    out["t_s"] = (stamp - stamp[0]) * 1e-9 if len(stamp) else np.zeros(0)
+    A gallery run is a few thousand steps: held whole (report_data.load_run, the one
+    in-memory view of a run)."""
+    steps = load_run(run_dir).steps
+    state = steps.rows.get("state")
+    if state is None:
+        empty = {k: np.zeros(0) for k in ("t_s", "q", "applied", "command")}
+        for prefix in ("", "ref_", "gough_"):
+            empty.update({prefix + "position": np.zeros(0), prefix + "yaw": np.zeros(0),
+                          prefix + "orientation": np.zeros(0)})
+        return empty
+    keep = state.present
+    stamp = steps.stamp_ns[keep]
+    command = steps.rows.get("command")
+    out = {"t_s": (stamp - stamp[0]) * 1e-9 if len(stamp) else np.zeros(0), "q": state.position[keep],
+           "applied": state.effort[keep],
+           "command": command.effort[keep] if command is not None else np.full_like(state.effort[keep], np.nan)}
+    for key, prefix in (("true_pose", ""), ("reference", "ref_"), ("metrology_pose", "gough_")):
+        pose = steps.rows.get(key)
+        if pose is not None:
+            position, orientation = pose.position[keep], pose.orientation[keep].copy()
+            orientation[~pose.present[keep]] = np.nan
+        else:
+            position, orientation = np.full((len(stamp), 3), np.nan), np.full((len(stamp), 4), np.nan)
+        out[prefix + "position"], out[prefix + "yaw"], out[prefix + "orientation"] = \
+            position, yaw_of(orientation), orientation
     return out
 
 

@@ -17,8 +17,10 @@ z); ``clock`` only its index. Every column also has ``log_s``, when the recorder
 the message (wall clock, s).
 
 A frame holds its whole stream in memory (~100 bytes per step and drive): for runs of
-minutes. The report itself streams the bag block by block (bounded memory however long
-the run); both read it through RunReader, so they see the same values.
+minutes. The frames are made from the one in-memory view of a run
+(report_data.load_run, also the gallery's); the report streams the bag block by block
+instead (report_data.RunReader, bounded memory however long the run), and load_run
+reads through the same reader, so all see the same values.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import pandas as pd
 import yaml
 
 from pkm_kinematics.errors import FieldError
-from pkm_runs.report_data import JOINT, JOINT_FIELDS, POSE, STEP_STREAMS, JointRows, PoseRows, RunReader, yaw_of
+from pkm_runs.report_data import JOINT, JOINT_FIELDS, POSE, STEP_STREAMS, JointRows, PoseRows, load_run, yaw_of
 
 STREAMS = tuple(STEP_STREAMS)
 
@@ -80,15 +82,14 @@ class Run:
 
     def _read(self) -> dict:
         if self._frames is None:
-            parts: dict = {}
-            with RunReader(self.path, namespace=self.info.get("namespace")) as reader:
-                for block in reader.blocks():
-                    for key, rows in block.rows.items():
-                        if rows is not None and rows.present.any():
-                            keep = rows.present
-                            parts.setdefault(key, []).append((block.stamp_ns[keep], rows.take(keep)))
-                names = {k: s.names for k, s in reader.info.streams.items()}
-            self._frames = {key: _frame(key, chunks, names.get(key) or []) for key, chunks in parts.items()}
+            data = load_run(self.path, namespace=self.info.get("namespace"))
+            steps = data.steps
+            self._frames = {}
+            for key, rows in steps.rows.items():
+                if rows is not None and rows.present.any():
+                    keep = rows.present
+                    self._frames[key] = _frame(key, [(steps.stamp_ns[keep], rows.take(keep))],
+                                               data.info.streams[key].names or [])
         return self._frames
 
 
