@@ -227,7 +227,7 @@ def recorder_beside(tmp: Path, node_name: str, recorder_params: dict, make_publi
     import rclpy
     from rclpy.experimental import EventsExecutor
 
-    from pkm_bringup.orchestrator import init_context
+    from pkm_bringup.graph import init_context
     from pkm_bringup.processes import start_node, stop_nodes, use_ros_environment
     from pkm_bringup.scenario import params_file_text
     env = use_ros_environment()

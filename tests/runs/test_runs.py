@@ -540,7 +540,8 @@ def test_an_in_process_run_leaves_no_dds_participant_behind(tmp_path):
 
 
 def test_a_node_that_died_is_the_runs_cause_unless_the_machine_stopped_first():
-    from pkm_bringup.orchestrator import node_died, run_cause
+    from pkm_bringup.graph import node_died
+    from pkm_bringup.orchestrator import run_cause
     from pkm_common.causes import TripCause
     failed = node_died("sim_hw", -9, "last words")
     assert failed.cause == TripCause.NODE_DIED

@@ -30,67 +30,41 @@ Run directory::
       credential.key  scenario.yaml  params/<node>.yaml  logs/<node>.log  summaries/<node>.json
       bag/ (rosbag2: metadata.yaml + .mcap)  run.json  report/ (metrics.json, *.png)
 
-Why over 600 lines: one run's life from the scenario to run.json (set-up, the graph as
-processes or in one executor, start, progress, the end and its summaries) shares its
-state across those steps; the in-process executor is the first part to move out.
+The graph's side (rclpy: the checks before the start, the nodes as processes) is
+graph.py, the nodes in one executor in_process.py; this module sequences a run around
+them: the run directory, the run lock, run.json, a dead recorder's bag recovered, the
+report.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import fcntl
 import json
-import math
 import os
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-from pkm_bringup.scenario import (START_TOPIC, Scenario, ScenarioError, controller_node_name, expected_topics,
-                                  load_scenario, node_parameters, params_file_text)
-from pkm_bringup.run_files import DiskReserve
-from pkm_common import topics
-from pkm_common.causes import TripCause, parse_cause, run_status
-from pkm_common.credential import KEY_FILE, RunKey
-from pkm_common.files import disk_full, summary_written, write_json
-from pkm_controller.strategies import REGISTRY as STRATEGIES
+from rosbags.highlevel import AnyReader
 
-# start order; the stop order is the reverse of the run order with the recorder last
-START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
-# after the sim's last step, how long the loop's nodes keep running (see run_processes)
-LOOP_END_GRACE_S = 0.15
-STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "recorder")
-CONNECT_TIMEOUT_S = 60.0
-DRAIN_S = 0.5
-DRAIN_IN_PROCESS_S = 0.2
+from pkm_bringup.graph import Progress, RunFailed, StopSignals, run_processes
+from pkm_bringup.processes import use_ros_environment
+from pkm_bringup.rt_profile import RealtimeProfileRefused, applied_to_this_process, check_permitted
+from pkm_bringup.run_files import DiskReserve
+from pkm_bringup.scenario import Scenario, ScenarioError, load_scenario, node_parameters, params_file_text
+from pkm_common.causes import TripCause, parse_cause, run_status
+from pkm_common.cdr import stamp_ns_of
+from pkm_common.credential import KEY_FILE, RunKey
+from pkm_common.files import disk_full, write_json
+from pkm_recording.bag import recover
+from pkm_runs.report import summary, write_report
 
 
 # pkm-run's exit code per run status (2: the scenario or the arguments were refused)
 EXIT_CODES = {"completed": 0, "failed": 1, "tripped": 3}
-
-
-class RunFailed(RuntimeError):
-    """The run could not complete (crash, timeout, no connection); the message says why,
-    ``cause`` what started it when it is the machine's (a node that died: NODE_DIED)."""
-
-    def __init__(self, message: str, cause: TripCause = TripCause.NONE):
-        super().__init__(message)
-        self.cause = cause
-
-
-def node_died(name: str, code: int, tail: str) -> RunFailed:
-    """A node's process ended unbidden: its exit code, the signal that killed it, its last output."""
-    how = ""
-    if code < 0:
-        try:
-            how = f" (killed by {signal.Signals(-code).name})"
-        except ValueError:
-            how = f" (killed by signal {-code})"
-    if "No space left on device" in tail or "Disk quota exceeded" in tail:
-        how += ": the disk is full"
-    return RunFailed(f"node {name} exited with code {code}{how}; its last output:\n{tail}", TripCause.NODE_DIED)
 
 
 def run_cause(summaries: dict, failure: TripCause = TripCause.NONE, error: str = "") -> tuple[TripCause, str]:
@@ -112,109 +86,6 @@ def make_run_dir(s: Scenario, root: Path) -> Path:
     return run_dir
 
 
-class Progress:
-    def __init__(self, total_s: float, stream=sys.stderr, enabled: bool = True):
-        self.total, self.stream, self.enabled = total_s, stream, enabled
-        self.tty = enabled and hasattr(stream, "isatty") and stream.isatty()
-        self.shown = -1
-
-    def update(self, t_s: float) -> None:
-        if not self.enabled:
-            return
-        frac = min(max(t_s / self.total, 0.0), 1.0) if self.total > 0 else 0.0
-        pct = int(frac * 100)
-        if self.tty:
-            bar = "#" * (pct // 4) + "-" * (25 - pct // 4)
-            self.stream.write(f"\r[{bar}] {pct:3d}%  t = {t_s:7.3f} / {self.total:.3f} s")
-            self.stream.flush()
-        elif pct // 10 > self.shown:
-            self.shown = pct // 10
-            self.stream.write(f"  {pct:3d}%  t = {t_s:.3f} / {self.total:.3f} s\n")
-            self.stream.flush()
-
-    def done(self) -> None:
-        if self.tty:
-            self.stream.write("\n")
-
-
-def end_context(context) -> None:
-    """Shut ``context`` down, destroy it and collect what held it: its DDS participant
-    (threads, sockets) goes with the run. Shut down only, it lived on until a garbage
-    collection, in a process of many runs (a gallery, a study, a test worker) the one
-    at the next run's start, after the next run's participant had met it. That overlap
-    is the likely cause of a suite's in-process run whose plant refused "a second
-    /pkm/controller" on drives/command at its first command (not reproduced in 17
-    runs of the same pair of experiments)."""
-    import gc
-
-    import rclpy
-    rclpy.try_shutdown(context=context)
-    context.destroy()
-    gc.collect()
-
-
-def _monitor(context, namespace: str):
-    """A small node of the orchestrator: simulated time (progress), the end of the
-    loop and graph checks. It follows the sim's diagnostics (1 Hz and a last one when
-    it finishes) and the controller's status (every 100 answers), never a per-step
-    stream: one more reader of /clock cost the loop 5-15 % (measured)."""
-    from rclpy.node import Node
-
-    from pkm_common.endpoints import subscription
-    node = Node("bringup_monitor", namespace=namespace, context=context)
-    node.sim_time_s = 0.0
-    node.sim_finished = False
-    node.controller_stopped = False
-
-    def on_diagnostics(msg):
-        for status in msg.status:
-            if status.name == "sim_hw":
-                values = {kv.key: kv.value for kv in status.values}
-                node.sim_finished = node.sim_finished or values.get("finished") == "True"
-                on_time(msg)
-
-    def on_time(msg):
-        node.sim_time_s = max(node.sim_time_s, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
-
-    def on_status(msg):                 # a safe stop publishes its status at once
-        on_time(msg)
-        node.controller_stopped = node.controller_stopped or any(
-            kv.key == "mode" and kv.value == "stopped" for status in msg.status for kv in status.values)
-    subscription(node, topics.DIAGNOSTICS, on_diagnostics)
-    subscription(node, topics.CONTROLLER_STATUS, on_status)
-    return node
-
-
-def _estop_before_stop(executor, monitor, nodes: dict, wait_s: float = 1.0) -> None:
-    """An interrupted run stops the machine before its processes, as the panel's E-stop
-    does: the controller brakes the plant and names the stop (cause estop). Stopped
-    first, the controller would leave a realtime plant to its watchdog, and the run would
-    name that consequence ("watchdog") as its cause. Waits up to ``wait_s`` for the
-    controller's stopped status. Whatever fails here, the ordered stop that follows runs."""
-    from std_msgs.msg import Bool
-    controller = nodes.get("controller")
-    if controller is None or not controller.running() or monitor.controller_stopped:
-        return
-    try:
-        monitor.estop_publisher.publish(Bool(data=True))
-        end = time.monotonic() + wait_s
-        while time.monotonic() < end and not monitor.controller_stopped:
-            executor.spin_once(timeout_sec=0.02)
-    except Exception as exc:              # noqa: BLE001 - the processes must still be stopped in order
-        print(f"pkm-run: the E-stop before the stop failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-
-
-def init_context():
-    """An rclpy context without rclpy's signal handlers: Ctrl-C / SIGTERM stay Python's
-    KeyboardInterrupt, so the ordered stop always runs (rclpy's handlers shut the
-    context down under a running spin_once)."""
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[], signal_handler_options=SignalHandlerOptions.NO)
-    return context
-
-
 LOCK_DIR = Path(os.environ.get("PKM_RUN_LOCK_DIR", "/tmp/pkm-run-locks"))
 
 
@@ -230,7 +101,6 @@ class RunLock:
         self.domain, self.namespace, self.fh = domain, namespace, None
 
     def __enter__(self):
-        import fcntl
         LOCK_DIR.mkdir(parents=True, exist_ok=True)
         self.fh = open(self.path, "a+", encoding="utf-8")
         try:
@@ -251,278 +121,13 @@ class RunLock:
         self.fh.close()                       # closing releases the lock
 
 
-def _refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 1.0) -> None:
-    """Two runs in one DDS domain and namespace would answer each other's states. Runs of
-    this machine are refused by RunLock at once; this looks for any other (a graph
-    started by hand) for ``discovery_s``."""
-    end = time.monotonic() + discovery_s
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.05)
-    for topic in ("/clock", s.topic("drives/state")):
-        if monitor.count_publishers(topic):
-            raise RunFailed(f"another run is active: {topic} already has a publisher in ROS_DOMAIN_ID="
-                            f"{os.environ.get('ROS_DOMAIN_ID', '0')}; use another domain (export ROS_DOMAIN_ID=...)")
-
-
-def _publish_start(node, credential: Path) -> None:
-    """The latched start signal of a scenario without a program (controller
-    wait_for_start), with the run's credential (pkm_common.credential)."""
-    from pkm_common.credential import RunKey, Signer
-    from pkm_common.endpoints import publisher
-    node.start_publisher = publisher(node, START_TOPIC)
-    signer = Signer(RunKey.read(credential), node.get_fully_qualified_name())
-    node.start_publisher.publish(signer.text(START_TOPIC, "start"))
-
-
-def _refuse_intruders(monitor, s: Scenario) -> None:
-    """Only the run's controller may publish drives/command (sim_hw stops on any other:
-    refused here before the run starts, naming the node)."""
-    from pkm_common.conversions import publisher_names
-    topic = s.topic("drives/command")
-    names = publisher_names(monitor.get_publishers_info_by_topic(topic))
-    others = sorted(set(names) - {controller_node_name(s)})
-    if names.count(controller_node_name(s)) > 1:          # an orphan of an earlier run, of the same name
-        others.append(f"a second {controller_node_name(s)}")
-    if others:
-        raise RunFailed(f"intruder: {', '.join(others)} publishes on {topic}, where only {controller_node_name(s)} "
-                        "may; stop it or use another domain")
-
-
-def _connected(monitor, s: Scenario) -> bool:
-    """Every stream has its publisher; every edge of the loop its subscriber too."""
-    edges = ["drives/state", "drives/command"]
-    if s.metrology:
-        edges.append("platform/true_pose")
-    topic = STRATEGIES[s.strategy].metrology_topic
-    if topic:
-        edges.append(topic)
-    for topic in expected_topics(s):
-        name = s.topic(topic)
-        if monitor.count_publishers(name) < 1 or (topic in edges and monitor.count_subscribers(name) < 1):
-            return False
-    return True
-
-
-def _scheduling(s: Scenario, node: str):
-    """The realtime profile's scheduling of ``node`` when the scenario asks for it."""
-    from pkm_bringup.rt_profile import scheduling
-    return scheduling(node) if s.realtime_profile else None
-
-
 def _in_process_profile(s: Scenario, in_process: bool):
     """One process with the realtime profile: the whole orchestrator at the loop's
     priority with its memory locked for the run (the recorder, on the loop's thread,
     with it), then as before; a no-op otherwise."""
     if not (in_process and s.realtime_profile):
         return contextlib.nullcontext()
-    from pkm_bringup.rt_profile import applied_to_this_process
     return applied_to_this_process()
-
-
-def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
-                  interruption=None, reserve=None) -> dict:
-    """The scenario as separate processes; fills and returns ``codes`` (exit codes).
-    Raises RunFailed. ``interruption``: the run's _Interruption (signalled: an E-stop
-    before the ordered stop)."""
-    from pkm_bringup.processes import start_node, stop_nodes
-    context = init_context()
-    from rclpy.experimental import EventsExecutor
-    executor = EventsExecutor(context=context)
-    monitor = _monitor(context, s.namespace)
-    executor.add_node(monitor)
-    from pkm_common.endpoints import publisher
-    # matched with the controller from the start: an interrupt's E-stop goes out at once
-    monitor.estop_publisher = publisher(monitor, topics.ESTOP)
-    nodes = {}
-
-    def check_alive(allowed_done=()):
-        for node in nodes.values():
-            if not node.running() and node.name not in allowed_done:
-                raise node_died(node.name, node.popen.returncode, node.tail())
-    try:
-        _refuse_if_another_run(executor, monitor, s)
-        # a planner for an operator (realtime, no program) starts with the loop's nodes and
-        # is up before the start: its start-up (imports, ~1 s of CPU) stalled a running loop
-        operator_planner = "trajectory" in params and s.program is None
-        for name in START_ORDER + (("trajectory",) if operator_planner else ()):
-            if name in params:
-                nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
-                                         run_dir / "logs", os.environ.copy(), _scheduling(s, name))
-        ready = run_dir / "recorder.ready"
-        deadline = time.monotonic() + CONNECT_TIMEOUT_S
-        while not (_connected(monitor, s) and (not s.record or ready.exists()) and
-                   (not operator_planner or monitor.count_publishers(s.topic("trajectory")) > 0)):
-            check_alive()
-            _refuse_intruders(monitor, s)
-            if time.monotonic() > deadline:
-                raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
-            executor.spin_once(timeout_sec=0.05)
-        if "trajectory" in params and not operator_planner:   # the run starts when the controller has its trajectory
-            nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
-                                             run_dir / "logs", os.environ.copy(), _scheduling(s, "trajectory"))
-        if s.program is None:               # ... or at the start signal (realtime: the planner waits for goals)
-            _publish_start(monitor, Path(params["controller"]["credential_file"]))
-        deadline = time.monotonic() + s.timeout_s
-        sim = nodes["sim_hw"]
-        # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it finished
-        # (its last diagnostics, or its summary file, written before it shuts down: the
-        # exit of a process with compiled kernels takes ~0.4 s, close to the
-        # controller's state watchdog; the grace lets the last state be answered)
-        sim_summary = run_dir / "summaries" / "sim_hw.json"
-        finished_wall = math.inf
-        while sim.running() and time.monotonic() < finished_wall + LOOP_END_GRACE_S:
-            check_alive(allowed_done=("sim_hw",))
-            if time.monotonic() > deadline:
-                raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
-            executor.spin_once(timeout_sec=0.02)
-            progress.update(monitor.sim_time_s)
-            if finished_wall == math.inf and (monitor.sim_finished or summary_written(sim_summary)):
-                finished_wall = time.monotonic()
-        progress.update(s.duration_s)
-        if "recorder" in nodes:       # the loop is over: its idle priority would starve the last batches
-            from pkm_recording.recording import normal_cpu_priority
-            normal_cpu_priority(nodes["recorder"].popen.pid)
-        # stop the loop's nodes at once (their watchdogs would report the silent
-        # plant), then give the recorder time for the last messages
-        codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n not in ("recorder", "sim_hw")],
-                                together=True))
-        with contextlib.suppress(subprocess.TimeoutExpired):     # the sim ends by itself
-            sim.popen.wait(timeout=10.0)
-        if sim.popen.returncode is None:
-            raise RunFailed(f"node sim_hw finished but did not exit within 10 s; its last output:\n{sim.tail()}")
-        if sim.popen.returncode != 0:
-            raise node_died("sim_hw", sim.popen.returncode, sim.tail())
-        end = time.monotonic() + DRAIN_S
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        progress.done()
-        if reserve is not None:               # the nodes' summaries and run.json get the space kept for them
-            reserve.release()
-        with _signals_ignored():              # a second Ctrl-C must not abandon the ordered stop
-            if interruption is not None and interruption.signalled:
-                _estop_before_stop(executor, monitor, nodes)
-            codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes]))
-        executor.shutdown()
-        monitor.destroy_node()
-        end_context(context)
-    return codes
-
-
-def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress, codes: dict,
-                   interruption=None, reserve=None) -> dict:
-    """The scenario with every node in one EventsExecutor (same parameters); an
-    interruption stops every node at once (no plant runs on without its controller)."""
-    from rclpy.experimental import EventsExecutor
-    from rclpy.parameter import Parameter
-
-    from pkm_recording.recorder_node import RecorderNode
-    from pkm_common.runner import start_up_frozen
-    from pkm_controller.controller_node import ControllerNode
-    from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
-    from pkm_sim_hw.sim_hw_node import SimHwNode
-    from pkm_trajectory.trajectory_node import TrajectoryNode
-    classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
-               "controller": ControllerNode, "trajectory": TrajectoryNode}
-    context = init_context()
-    executor = EventsExecutor(context=context)
-    nodes = {}
-
-    def create(name):
-        values = dict(params[name])
-        if name == "sim_hw":
-            values["shutdown_on_finish"] = False
-        if name == "recorder":
-            values["cpu_priority"] = "normal"     # idle would demote the whole loop with it
-        overrides = [Parameter(k, value=v) for k, v in values.items()]
-        try:
-            nodes[name] = classes[name](context=context, namespace=s.namespace, parameter_overrides=overrides)
-        except Exception as exc:                  # noqa: BLE001 - a refused configuration is the run's failure
-            raise RunFailed(f"node {name} refused its configuration: {exc}") from None
-        executor.add_node(nodes[name])
-        tap = getattr(nodes[name], "tap", None)
-        if "recorder" in nodes and tap is not None and tap.tap is not None:
-            tap.sink = nodes["recorder"].write_records    # one process: no batch messages
-
-    def close(names):
-        for name in names:
-            node = nodes.pop(name, None)
-            if node is not None:
-                executor.remove_node(node)
-                node.destroy_node()
-    try:
-        monitor = _monitor(context, s.namespace)
-        executor.add_node(monitor)
-        _refuse_if_another_run(executor, monitor, s, discovery_s=0.5)
-        executor.remove_node(monitor)
-        monitor.destroy_node()
-        for name in START_ORDER:
-            if name in params:
-                create(name)
-        deadline = time.monotonic() + CONNECT_TIMEOUT_S
-        while s.record and not nodes["recorder"].ready:
-            if time.monotonic() > deadline:
-                raise RunFailed(f"recorder not ready within {CONNECT_TIMEOUT_S:g} s")
-            executor.spin_once(timeout_sec=0.05)
-        if "trajectory" in params:
-            create("trajectory")
-        if s.program is None:
-            starter = _monitor(context, s.namespace)
-            executor.add_node(starter)
-            nodes["starter"] = starter
-            _publish_start(starter, Path(params["controller"]["credential_file"]))
-        deadline = time.monotonic() + s.timeout_s
-        sim = nodes["sim_hw"]
-        last = 0.0
-        with start_up_frozen():
-            while not sim.finished:
-                if time.monotonic() > deadline:
-                    raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
-                executor.spin_once(timeout_sec=0.05)
-                if time.monotonic() - last > 0.1:
-                    last = time.monotonic()
-                    progress.update(sim.plant.t)
-        progress.update(s.duration_s)
-        # no node may be destroyed while the executor still runs (a queued callback would
-        # publish on it); the drain is shorter than the controller's state watchdog
-        end = time.monotonic() + DRAIN_IN_PROCESS_S
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        progress.done()
-        if reserve is not None:
-            reserve.release()
-        with _signals_ignored():
-            close(STOP_ORDER)
-        executor.shutdown()
-        end_context(context)
-    codes.update({name: 0 for name in params})
-    return codes
-
-
-class _stop_signals:
-    """SIGINT and SIGTERM handled by ``handler`` inside the block, the handlers before
-    put back after it (main thread only; elsewhere nothing changes)."""
-
-    def __init__(self, handler):
-        self.handler = handler
-
-    def __enter__(self):
-        import threading
-        self.saved = {}
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.saved[sig] = signal.signal(sig, self.handler)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, handler in self.saved.items():
-            signal.signal(sig, handler)
-
-
-def _signals_ignored() -> _stop_signals:
-    """SIGINT/SIGTERM ignored inside the block (main thread only)."""
-    return _stop_signals(signal.SIG_IGN)
 
 
 def _read_json(path: Path) -> dict:
@@ -597,7 +202,6 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
     when the scenario asks for the realtime profile and the OS does not allow it."""
     if s.realtime_profile:
-        from pkm_bringup.rt_profile import check_permitted
         check_permitted(in_process)
     mode = "in_process" if in_process else "processes"
     reserves = []
@@ -627,12 +231,14 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         if not isinstance(exc, OSError):
             raise
         return collect(s, run_dir, mode, 0.0, {}, f"the run directory cannot be written, nothing started: {exc}")
-    from pkm_bringup.processes import use_ros_environment
     use_ros_environment()
     start = time.monotonic()
     error, codes, interruption, failure = "", {}, _Interruption(), TripCause.NONE
     try:
-        run = run_in_process if in_process else run_processes
+        if in_process:       # (imported for this mode only: it loads every node's module, seconds)
+            from pkm_bringup.in_process import run_in_process as run
+        else:
+            run = run_processes
         with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
             run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0])
     except RunFailed as exc:
@@ -652,7 +258,6 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         result["recovered"] = recovered
         _write_run(run_dir, result)
     if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
-        from pkm_runs.report import write_report
         try:
             result["metrics"] = write_report(run_dir)
         except (ValueError, OSError) as exc:      # an unreadable bag (IncompleteBagError, ...): said, no traceback
@@ -670,15 +275,12 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
     bag = run_dir / "bag"
     if not s.record or not bag.is_dir() or (bag / "metadata.yaml").exists() or not any(bag.glob("*.mcap")):
         return {}
-    from pkm_recording.bag import recover
-    from pkm_common.cdr import stamp_ns_of
     try:
         counts = recover(bag)
     except (OSError, ValueError) as exc:
         return {"error": f"bag could not be recovered: {exc}"}
     summary_path = run_dir / "summaries" / "recorder.json"
     if not _read_json(summary_path):          # the recorder was killed (its reserved file holds zeros): the bag's count
-        from rosbags.highlevel import AnyReader
         last: dict[str, int] = {}
         steps: dict[str, int] = {}
         with AnyReader([bag]) as reader:         # new stamps per topic, as the recorder counts
@@ -717,7 +319,6 @@ def format_summary(run: dict, run_dir: Path) -> str:
     if run.get("report_error"):
         lines.append(f"  no report: {run['report_error']}")
     if run.get("metrics"):
-        from pkm_runs.report import summary
         lines.append("  " + summary(run["metrics"]).replace("\n", "\n  "))
     lines.append(f"  run directory: {run_dir}")
     return "\n".join(lines)
@@ -730,7 +331,7 @@ def _interrupt(*_):
     raise KeyboardInterrupt
 
 
-class _Interruption(_stop_signals):
+class _Interruption(StopSignals):
     """Ctrl-C and SIGTERM raise KeyboardInterrupt inside the block, as
     ``signalled`` records (main thread only; elsewhere the handlers stay as they are
     and nothing is recorded)."""
@@ -770,7 +371,6 @@ def main(argv=None) -> int:
         print(f"pkm-run: {exc}", file=sys.stderr)
         return 2
     if s.realtime_profile:                  # refused before anything is made or started
-        from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
         try:
             check_permitted(args.in_process)
         except RealtimeProfileRefused as exc:
@@ -781,7 +381,6 @@ def main(argv=None) -> int:
         print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, _interrupt)
-    from pkm_bringup.processes import use_ros_environment
     domain = use_ros_environment()["ROS_DOMAIN_ID"]     # this shell's, or one claimed: said, to join it
     print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated, "
           f"ROS_DOMAIN_ID={domain})", flush=True)
