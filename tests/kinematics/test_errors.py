@@ -50,3 +50,20 @@ def test_the_errors_load_no_model():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "['pkm_kinematics.errors']", out
     assert load_machine("archi").name == "archi"
+
+
+def test_every_kernel_code_has_its_description():
+    """Each compiled kernel family's outcomes are an IntEnum with a description per
+    member (Ruckig's Result), and the ints the kernels read are those members."""
+    from pkm_controller.laws import CYCLE_CODES, CycleCode
+    from pkm_kinematics import bars, planar
+    from pkm_kinematics.distribution import DISTRIBUTION_CODES, DistributionCode
+    for enum, table in ((CycleCode, CYCLE_CODES), (DistributionCode, DISTRIBUTION_CODES), (bars.IKCode, bars.IK_CODES),
+                        (bars.VelocityTermsCode, bars.VELOCITY_TERMS_CODES),
+                        (bars.ThreeSpheresCode, bars.THREE_SPHERES_CODES)):
+        assert set(table) == set(enum) and all(table.values()), enum
+    assert set(planar.FK_REASONS) == set(planar.PlanarFKCode) - {planar.PlanarFKCode.CONVERGED,
+                                                                   planar.PlanarFKCode.UNREACHABLE}
+    assert (bars.IK_UNREACHABLE, bars.VT_SINGULAR, bars.TRI_OTHER_BRANCH, planar.FK_PAIR) == (
+        bars.IKCode.UNREACHABLE, bars.VelocityTermsCode.SINGULAR, bars.ThreeSpheresCode.OTHER_BRANCH,
+        planar.PlanarFKCode.PAIR)

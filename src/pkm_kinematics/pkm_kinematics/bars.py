@@ -53,6 +53,7 @@ they wrap; the kernels call each other, and one file keeps the model readable as
 from __future__ import annotations
 
 import math
+from enum import IntEnum
 
 import numpy as np
 
@@ -65,8 +66,17 @@ RAIL, STRUT = 0.0, 1.0
 
 # forward_kinematics_kernel's codes (hexapod.FKCode names them)
 FK_CONVERGED, FK_NO_CONVERGENCE, FK_DIVERGED, FK_SINGULAR, FK_STALLED = range(5)
-# inverse_kinematics_into's codes
-IK_OK, IK_UNREACHABLE = 0, 1
+
+
+class IKCode(IntEnum):
+    """inverse_kinematics_into's outcome (IK_* below: the ints the kernels read)."""
+    OK = 0
+    UNREACHABLE = 1         # a bar cannot reach its actuator's line (a negative discriminant)
+
+
+IK_CODES = {IKCode.OK: "every actuator position found",
+            IKCode.UNREACHABLE: "a bar cannot reach its actuator's line (the pose is out of reach)"}
+IK_OK, IK_UNREACHABLE = int(IKCode.OK), int(IKCode.UNREACHABLE)
 
 
 @kernel()
@@ -359,8 +369,18 @@ def inverse_kinematics_batch_kernel(bars, positions, rotations, q, reachable):
                 reachable[i] = False
 
 
-# rail_velocity_terms_kernel's codes
-VT_OK, VT_UNREACHABLE, VT_SINGULAR = 0, 1, 2
+class VelocityTermsCode(IntEnum):
+    """rail_velocity_terms_kernel's outcome per bar (VT_* below: the kernels' ints)."""
+    OK = 0
+    UNREACHABLE = 1         # the bar cannot close at the pose: its row is NaN
+    SINGULAR = 2            # s = e . u = 0 (a serial singularity): its row is infinite
+
+
+VELOCITY_TERMS_CODES = {VelocityTermsCode.OK: "the bar's row, rate and bias",
+                        VelocityTermsCode.UNREACHABLE: "the bar cannot close at the pose (row NaN)",
+                        VelocityTermsCode.SINGULAR: "e . u = 0: a serial singularity of the bar (row infinite)"}
+VT_OK, VT_UNREACHABLE, VT_SINGULAR = (int(VelocityTermsCode.OK), int(VelocityTermsCode.UNREACHABLE),
+                                      int(VelocityTermsCode.SINGULAR))
 
 
 @kernel()
@@ -533,8 +553,19 @@ def rail_jacobian_batch_kernel(bars, positions, rotations, columns, q, rows, ok)
             rows[i] = math.inf
 
 
-# three_rail_forward_kinematics_kernel's codes
-TRI_OK, TRI_COLLINEAR, TRI_NOT_MEETING, TRI_OTHER_BRANCH = range(4)
+class ThreeSpheresCode(IntEnum):
+    """three_rail_forward_kinematics_kernel's outcome (TRI_* below: the kernels' ints)."""
+    OK = 0
+    COLLINEAR = 1           # the three sphere centres are collinear: no unique intersection
+    NOT_MEETING = 2         # the three spheres do not meet (the strut lengths cannot close)
+    OTHER_BRANCH = 3        # they meet, but a bar is on its other assembly branch (the bar named)
+
+
+THREE_SPHERES_CODES = {ThreeSpheresCode.OK: "the platform point on the working-mode side",
+                       ThreeSpheresCode.COLLINEAR: "the sphere centres are collinear (a singular configuration)",
+                       ThreeSpheresCode.NOT_MEETING: "the three spheres do not meet (out of reach)",
+                       ThreeSpheresCode.OTHER_BRANCH: "a bar on its other assembly branch (bar: which)"}
+TRI_OK, TRI_COLLINEAR, TRI_NOT_MEETING, TRI_OTHER_BRANCH = (int(c) for c in ThreeSpheresCode)
 
 
 @kernel("(float64[:, :], float64, float64, float64, float64)")
@@ -551,7 +582,8 @@ def three_rail_forward_kinematics_kernel(bars, q0, q1, q2, side):
     for i in range(3):
         for k in range(3):
             s[i, k] = bars[i, COL_A + k] + qs[i] * bars[i, COL_U + k] - bars[i, COL_B + k]
-    sq1, sq2, sq3 = bars[0, 9] * bars[0, 9], bars[1, 9] * bars[1, 9], bars[2, 9] * bars[2, 9]
+    sq1, sq2, sq3 = (bars[0, COL_LENGTH] * bars[0, COL_LENGTH], bars[1, COL_LENGTH] * bars[1, COL_LENGTH],
+                     bars[2, COL_LENGTH] * bars[2, COL_LENGTH])
     ux, uy, uz = s[1, 0] - s[0, 0], s[1, 1] - s[0, 1], s[1, 2] - s[0, 2]
     vx, vy, vz = s[2, 0] - s[0, 0], s[2, 1] - s[0, 1], s[2, 2] - s[0, 2]
     nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
@@ -941,7 +973,8 @@ def forward_kinematics_stream_kernel(bars, lengths, state, flags, tol_m, max_ite
         poses[k, 3:12] = rot
 
 
-__all__ = ["BAR_COLUMNS", "COL_A", "COL_ACTUATOR", "COL_B", "COL_BRANCH", "COL_LENGTH", "COL_TYPE", "COL_U", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
+__all__ = ["IK_CODES", "IKCode", "THREE_SPHERES_CODES", "ThreeSpheresCode", "VELOCITY_TERMS_CODES", "VelocityTermsCode",
+           "BAR_COLUMNS", "COL_A", "COL_ACTUATOR", "COL_B", "COL_BRANCH", "COL_LENGTH", "COL_TYPE", "COL_U", "FK_CONVERGED", "FK_DIVERGED", "FK_NO_CONVERGENCE", "FK_SINGULAR", "FK_STALLED",
            "IK_OK", "IK_UNREACHABLE", "actuators_into", "inverse_kinematics_batch_kernel", "RAIL", "STRUT", "VT_OK", "VT_SINGULAR", "VT_UNREACHABLE", "actuator_of_bar",
            "TRI_COLLINEAR", "TRI_NOT_MEETING", "TRI_OK", "TRI_OTHER_BRANCH", "inverse_kinematics_kernel",
            "three_rail_forward_kinematics_batch_kernel", "three_rail_forward_kinematics_kernel",

@@ -35,11 +35,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
 from . import bars as B
-from .bars import COL_A, COL_BRANCH, COL_LENGTH, COL_U
+from .bars import COL_A, COL_B, COL_BRANCH, COL_LENGTH, COL_U
 from .errors import FieldError, KinematicsError, UnreachablePoseError
 from .jit import kernel
 from .rotations import unwrap_to_kernel
@@ -77,14 +78,24 @@ def solve3(a, b):
     return x0, x1, x2
 
 
-# forward_kinematics outcome codes (the compiled kernel returns a code, the method
-# turns it into the result's reason)
-FK_CONVERGED, FK_UNREACHABLE, FK_SINGULAR, FK_NO_CONVERGENCE, FK_ASSEMBLY, FK_PAIR = range(6)
+class PlanarFKCode(IntEnum):
+    """How a planar machine's forward kinematics ended (the compiled kernel returns it,
+    the method turns it into the result's reason; FK_* below: the kernels' ints)."""
+    CONVERGED = 0
+    UNREACHABLE = 1         # two legs' carriages too far apart to close (the message names them)
+    SINGULAR = 2
+    NO_CONVERGENCE = 3
+    ASSEMBLY = 4            # converged to another working mode
+    PAIR = 5
+
+
+FK_CONVERGED, FK_UNREACHABLE, FK_SINGULAR, FK_NO_CONVERGENCE, FK_ASSEMBLY, FK_PAIR = (int(c) for c in PlanarFKCode)
 FK_TOL, FK_MAX_ITERATIONS = 1e-12, 50        # forward_kinematics' defaults: step (m, rad), iterations
-FK_REASONS = {FK_SINGULAR: "singular configuration: Jacobian rank < 3",
-              FK_NO_CONVERGENCE: "no convergence in {} iterations",
-              FK_ASSEMBLY: "converged to another working mode (assembly branch)",
-              FK_PAIR: "converged to another working mode (leg pair)"}
+# the description of each code but CONVERGED and UNREACHABLE (whose message names the legs)
+FK_REASONS = {PlanarFKCode.SINGULAR: "singular configuration: Jacobian rank < 3",
+              PlanarFKCode.NO_CONVERGENCE: "no convergence in {} iterations",
+              PlanarFKCode.ASSEMBLY: "converged to another working mode (assembly branch)",
+              PlanarFKCode.PAIR: "converged to another working mode (leg pair)"}
 
 
 @kernel()
@@ -128,7 +139,7 @@ def _closed_form_kernel(bars, pairs, sides, q):
         else:
             px1, py1 = px, py
     i1, i2 = pairs[0, 0], pairs[1, 0]
-    b1x, b1y, b2x, b2y = bars[i1, 6], bars[i1, 7], bars[i2, 6], bars[i2, 7]
+    b1x, b1y, b2x, b2y = bars[i1, COL_B], bars[i1, COL_B + 1], bars[i2, COL_B], bars[i2, COL_B + 1]
     theta = math.atan2(py1 - py0, px1 - px0) - math.atan2(b2y - b1y, b2x - b1x)
     c, s = math.cos(theta), math.sin(theta)
     return px0 - (c * b1x - s * b1y), py0 - (s * b1x + c * b1y), theta, FK_CONVERGED, 0, 0, 0.0
