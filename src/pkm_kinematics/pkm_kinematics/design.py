@@ -38,7 +38,7 @@ import math
 
 import numpy as np
 
-from .analysis import workspace_grid
+from .analysis import cube_points, gough_design_figures, workspace_grid
 from .distribution import gram_rows
 from .errors import FieldError
 from .jit import kernel
@@ -281,7 +281,6 @@ def planar_metrics(machine: RailMachine, names, values, poses) -> dict[str, np.n
 def gough_metrics(metrology, names, values, points_per_axis: int = 3) -> dict[str, np.ndarray]:
     """GOUGH_METRICS of MoM3-parametrised Gough platforms, one per row of ``values``
     (V, len(names)); parameters not named keep ``metrology``'s design values."""
-    from .analysis import cube_points, gough_design_figures
     check_parameters("gough", names)
     values = np.atleast_2d(np.asarray(values, dtype=float))
     base = dict(zip(GOUGH_PARAMETERS, metrology.design_parameters()))

@@ -31,6 +31,7 @@ from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError, FieldError
 from .jit import kernel
 from .planar import solve3
+from .rigid_body import RigidBodyParameters, StrutDynamics
 from .task_space import PLANAR
 
 VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after bars.VT_*)
@@ -143,7 +144,6 @@ def dynamic_model(config):
     wrench that holds x still."""
     if config.dynamics is None:
         raise ValueError(f"machine {config.name!r}: no 'dynamics' section")
-    from .rigid_body import RigidBodyParameters, StrutDynamics     # it imports the strut model
     if isinstance(config.dynamics, RigidBodyParameters):
         return StrutDynamics(config.model, config.dynamics)
     return DynamicModel(config.model, config.dynamics)

@@ -31,7 +31,19 @@ import tempfile
 import threading
 from pathlib import Path
 
+import rclpy
+import uvicorn
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from pkm_bringup.processes import die_with_parent, use_ros_environment
+from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
+from pkm_bringup.scenario import ScenarioError, load_scenario
+from pkm_common.credential import RunKey
 from pkm_common.poses import MACHINE_KINDS
+from pkm_kinematics import load_machine
+from pkm_operator.panel import Panel, PanelModel
+from pkm_operator.panel_app import MAX_MESSAGE_BYTES, create_app, create_estop_app, served_hosts
+from pkm_operator.panel_node import PanelNode
 
 LOG = logging.getLogger("pkm-panel")
 
@@ -56,8 +68,6 @@ class Graph:
 
     def start(self) -> None:
         """A new run, with a new key (``on_key(key)``: the panel signs with it)."""
-        from pkm_bringup.processes import die_with_parent
-        from pkm_common.credential import RunKey
         with self.lock:
             if self.key_file is not None:
                 key = RunKey.create(self.key_file)
@@ -133,16 +143,6 @@ def main(argv=None) -> int:
     if args.start and args.credential:
         parser.error("--credential joins a running graph; with --start the panel makes each run's key")
 
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    import uvicorn
-
-    from pkm_operator.panel import Panel, PanelModel
-    from pkm_operator.panel_app import MAX_MESSAGE_BYTES, create_app, create_estop_app, served_hosts
-    from pkm_operator.panel_node import PanelNode
-    from pkm_bringup.scenario import ScenarioError, load_scenario
-    from pkm_kinematics import load_machine
-
     machine, namespace = args.machine or "archi", args.namespace or "/pkm"
     if args.start:
         try:
@@ -155,11 +155,9 @@ def main(argv=None) -> int:
                   f"can and ends), got {s.mode}", file=sys.stderr)
             return 2
         machine, namespace = args.machine or s.machine, args.namespace or s.namespace
-        from pkm_bringup.processes import use_ros_environment
         domain = use_ros_environment()["ROS_DOMAIN_ID"]       # the panel's and its graph's (this shell's, or claimed)
         LOG.info("the graph runs in ROS_DOMAIN_ID=%s", domain)
         if args.rt_profile or s.realtime_profile:
-            from pkm_bringup.rt_profile import RealtimeProfileRefused, check_permitted
             try:
                 check_permitted()
             except RealtimeProfileRefused as exc:
@@ -186,7 +184,6 @@ def main(argv=None) -> int:
             log_file.write(json.dumps(entry) + "\n")
             log_file.flush()
 
-    from pkm_common.credential import RunKey
     key, key_dir = None, None
     if args.credential:
         try:
