@@ -34,6 +34,7 @@ from pkm_recording.bag import (
     qos_profile,
     qos_profiles_yaml,
     read_counts,
+    recorded_stamps,
     recover,
     recover_bag,
 )
@@ -800,3 +801,30 @@ def test_kill_9_loses_at_most_the_open_chunk(ts, tmp_path, chunk_size):
     assert positions == [float(i) for i in range(counts['/joint_states'])]
     assert (bag / 'killed_0.mcap.truncated').exists()
     shutil.rmtree(bag)
+
+
+def test_recorded_stamps_count_new_stamps_as_the_recorder_does(ts, tmp_path):
+    """A killed recorder's summary is rebuilt from its recovered bag: per topic, the
+    number of new header stamps in log-time order (a message sent again with its
+    stamp, as sim_hw repeats a state, counts once), against rosbags' reader and the
+    messages' deserialized stamps."""
+    with BagWriter(tmp_path / 'b') as writer:
+        state = writer.add_topic('/pkm/drives/state', JS, [qos_profile('reliable', 'volatile', 10)])
+        pose = writer.add_topic('/pkm/platform/true_pose', POSE, [qos_profile('reliable', 'volatile', 10)])
+        t = T0
+        for k in range(300):
+            for _ in range(1 + (k % 7 == 0)):                 # every seventh state repeated
+                t += 1000
+                writer.write(state, t, ts.serialize_cdr(make_msg(ts, JS, k), JS))
+            t += 1000
+            writer.write(pose, t, ts.serialize_cdr(make_msg(ts, POSE, k), POSE))
+    expected: dict = {}
+    with AnyReader([tmp_path / 'b'], default_typestore=ts) as reader:
+        last = {}
+        for conn, _, raw in reader.messages():
+            stamp = reader.deserialize(raw, conn.msgtype).header.stamp
+            stamp = (stamp.sec, stamp.nanosec)
+            if last.get(conn.topic) != stamp:
+                last[conn.topic] = stamp
+                expected[conn.topic] = expected.get(conn.topic, 0) + 1
+    assert recorded_stamps(tmp_path / 'b') == expected == {'/pkm/drives/state': 300, '/pkm/platform/true_pose': 300}

@@ -48,18 +48,15 @@ import sys
 import time
 from pathlib import Path
 
-from rosbags.highlevel import AnyReader
-
 from pkm_bringup.graph import Progress, RunFailed, StopSignals, run_processes
 from pkm_bringup.processes import use_ros_environment
 from pkm_bringup.rt_profile import RealtimeProfileRefused, applied_to_this_process, check_permitted
 from pkm_bringup.run_files import DiskReserve
 from pkm_bringup.scenario import Scenario, ScenarioError, load_scenario, node_parameters, params_file_text
 from pkm_common.causes import TripCause, parse_cause, run_status
-from pkm_common.cdr import stamp_ns_of
 from pkm_common.credential import KEY_FILE, RunKey
 from pkm_common.files import disk_full, write_json
-from pkm_recording.bag import recover
+from pkm_recording.bag import recorded_stamps, recover
 from pkm_runs.report import summary, write_report
 
 
@@ -281,15 +278,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
         return {"error": f"bag could not be recovered: {exc}"}
     summary_path = run_dir / "summaries" / "recorder.json"
     if not _read_json(summary_path):          # the recorder was killed (its reserved file holds zeros): the bag's count
-        last: dict[str, int] = {}
-        steps: dict[str, int] = {}
-        with AnyReader([bag]) as reader:         # new stamps per topic, as the recorder counts
-            for connection, _, data in reader.messages():
-                stamp = stamp_ns_of(data) if len(data) >= 12 else -1
-                if last.get(connection.topic) != stamp:
-                    last[connection.topic] = stamp
-                    steps[connection.topic] = steps.get(connection.topic, 0) + 1
-        write_json(summary_path, {"recorded_stamps": steps, "recovered": True})
+        write_json(summary_path, {"recorded_stamps": recorded_stamps(bag), "recovered": True})
     return {"messages": sum(counts.values()) if isinstance(counts, dict) else counts}
 
 

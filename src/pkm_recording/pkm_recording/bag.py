@@ -63,6 +63,7 @@ import yaml
 
 import mcap.writer as _mcap_writer
 from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import make_reader
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -70,6 +71,7 @@ from mcap.writer import CompressionType, Writer
 from pkm_kinematics.errors import FieldError
 from pkm_recording.mcap_writer import FastWriter
 from pkm_recording.tap_records import PACK_ERRORS, PACK_OK, pack_tap_records
+from pkm_common.cdr import stamp_ns_of
 from pkm_common.files import atomic_write
 
 try:  # mcap's own version string, for the Header's library field
@@ -84,6 +86,7 @@ __all__ = [
     "Recovery",
     "check_complete",
     "qos_profile",
+    "recorded_stamps",
     "qos_profiles_yaml",
     "recover",
     "recover_bag",
@@ -912,6 +915,23 @@ class Recovery:
         else:
             lost = "the messages of the unfinished chunk are lost (nothing recorded how many)"
         return f"recovered {kept}; {lost}; {self.dropped_bytes} bytes dropped after the last complete record"
+
+
+def recorded_stamps(path) -> dict[str, int]:
+    """The new header stamps per topic of a bag directory's messages, in log-time order,
+    as the recorder counts them (recorder_node's ``recorded_stamps``): what a recovered
+    bag of a killed recorder holds, said where its summary could not be written. A
+    message without a header counts at each change of its first bytes' reading."""
+    last: dict[str, int] = {}
+    steps: dict[str, int] = {}
+    for file in sorted(Path(path).glob("*.mcap")):
+        with open(file, "rb") as fh:
+            for _, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+                stamp = stamp_ns_of(message.data) if len(message.data) >= 12 else -1
+                if last.get(channel.topic) != stamp:
+                    last[channel.topic] = stamp
+                    steps[channel.topic] = steps.get(channel.topic, 0) + 1
+    return steps
 
 
 def recover_bag(path) -> Recovery:
