@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from pkm_kinematics import GoughDKMSolver, load_machine
-from pkm_kinematics.hexapod import StrutFK, StrutMachine
+from pkm_kinematics.struts import StrutFK, StrutMachine
 from pkm_kinematics.rotations import rotation_from_rpy
 
 HERE = Path(__file__).resolve().parent

@@ -24,7 +24,7 @@ import numpy as np
 from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel, gram_condition_kernel,
                                         gram_solve_n_kernel, project_forces, project_rows)
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
-from pkm_kinematics.hexapod import weighted_condition_kernel
+from pkm_kinematics.struts import weighted_condition_kernel
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, log_so3_kernel, mul3_kernel, rpy_rotation_kernel, wrap_angle
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace
@@ -222,7 +222,7 @@ def spatial_limits_kernel(q, active_rows, measured, error, boxes, settings):
     """:func:`limits_kernel` for a spatial machine (6 task coordinates): the same limits
     in the same order, the same codes; the condition number of the active drives' J_m
     the machine's own (rotation columns divided by its characteristic length,
-    ``settings[SET_LENGTH]``, ``hexapod.weighted_condition_kernel``); the rotation
+    ``settings[SET_LENGTH]``, ``struts.weighted_condition_kernel``); the rotation
     error is |e_w|, the angle of the rotation vector."""
     joint_box, workspace_box = boxes
     length, max_condition = settings[SET_LENGTH], settings[SET_MAX_CONDITION]

@@ -23,7 +23,7 @@ from .errors import (ConfigError, DistributionError, FieldError, JointLimitError
 _LAZY = {"MachineConfig": "config", "config_dir": "config", "load_machine": "config",
          "load_machine_data": "config", "machine_names": "config",
          "GoughDKMResult": "gough", "GoughDKMSolver": "gough", "GoughPlatform": "gough", "mom3_points": "gough",
-         "ForwardKinematicsResult": "planar", "RailLeg": "rails", "RailMachine": "rails"}
+         "ForwardKinematicsResult": "machine", "RailLeg": "rails", "RailMachine": "rails"}
 
 
 def __getattr__(name: str):

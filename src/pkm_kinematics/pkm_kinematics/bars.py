@@ -40,7 +40,7 @@ The kernels:
 - ``three_rail_forward_kinematics_kernel``: a translating platform on three rails in
   closed form (the three spheres, Orthoglide §3.1).
 
-The machine classes wrap them: ``hexapod.StrutMachine``, ``rails.RailMachine`` (its
+The machine classes wrap them: ``struts.StrutMachine``, ``rails.RailMachine`` (its
 forward kinematics by configuration: ``planar.PlanarLeastSquaresFK``,
 ``translational.ThreeSpheresFK``), ``parallelogram.ParallelogramMachine`` and the
 Gough metrology (``gough.GoughPlatform``: six passive struts).
@@ -64,7 +64,7 @@ BAR_COLUMNS = 13
 COL_A, COL_U, COL_B, COL_LENGTH, COL_ACTUATOR, COL_TYPE, COL_BRANCH = 0, 3, 6, 9, 10, 11, 12
 RAIL, STRUT = 0.0, 1.0
 
-# forward_kinematics_kernel's codes (hexapod.FKCode names them)
+# forward_kinematics_kernel's codes (struts.FKCode names them)
 FK_CONVERGED, FK_NO_CONVERGENCE, FK_DIVERGED, FK_SINGULAR, FK_STALLED = range(5)
 
 

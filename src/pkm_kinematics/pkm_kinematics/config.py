@@ -18,7 +18,7 @@ import numpy as np
 from .errors import ConfigError, JointLimitError, KinematicsError, UnreachablePoseError
 from .dynamics import DynamicsParameters
 from .gough import GoughPlatform, mom3_points
-from .hexapod import StrutMachine
+from .struts import StrutMachine
 from .parallelogram import ParallelogramMachine
 from .rails import FORWARD_SOLVERS, RailLeg, RailMachine
 from .rigid_body import RigidBodyParameters

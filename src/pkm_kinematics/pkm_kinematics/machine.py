@@ -22,11 +22,27 @@ config/machines against the Protocols its class claims.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .task_space import TaskSpace
+
+
+@dataclass
+class ForwardKinematicsResult:
+    """Outcome of an iterative forward kinematic solve.
+
+    ``pose`` is NaN when ``converged`` is False, so a failed solve can never be used
+    as a pose by mistake; ``reason`` says why it failed.
+    """
+
+    pose: np.ndarray
+    converged: bool
+    iterations: int
+    residual_m: float
+    reason: str = ""
 
 
 @runtime_checkable
@@ -108,7 +124,7 @@ class RailActuated(ControlledMachine, Protocol):
 
 @runtime_checkable
 class SpatialMachine(ControlledMachine, Protocol):
-    characteristic_length_m: float   # rotations against translations in cond(J_m) (hexapod.weighted_condition)
+    characteristic_length_m: float   # rotations against translations in cond(J_m) (struts.weighted_condition)
 
 
 __all__ = ["ControlledMachine", "ParallelMachine", "RailActuated", "SpatialMachine"]

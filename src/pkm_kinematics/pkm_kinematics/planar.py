@@ -34,7 +34,6 @@ Hessian, the working-mode checks) reads the same bars.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
@@ -43,6 +42,7 @@ from . import bars as B
 from .bars import COL_A, COL_B, COL_BRANCH, COL_LENGTH, COL_U
 from .errors import FieldError, KinematicsError, UnreachablePoseError
 from .jit import kernel
+from .machine import ForwardKinematicsResult
 from .rotations import unwrap_to_kernel
 from .task_space import PLANAR
 from .validation import finite_array, finite_floats
@@ -51,21 +51,6 @@ from .validation import finite_array, finite_floats
 # Forward kinematics switches from Gauss-Newton to Newton steps (exact Hessian) once a
 # Gauss-Newton step is shorter than this (m + rad): inside the quadratic basin.
 NEWTON_RADIUS = 1e-2
-
-
-@dataclass
-class ForwardKinematicsResult:
-    """Outcome of an iterative forward kinematic solve.
-
-    ``pose`` is NaN when ``converged`` is False, so a failed solve can never be used
-    as a pose by mistake; ``reason`` says why it failed.
-    """
-
-    pose: np.ndarray
-    converged: bool
-    iterations: int
-    residual_m: float
-    reason: str = ""
 
 
 def solve3(a, b):

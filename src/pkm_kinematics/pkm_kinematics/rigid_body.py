@@ -29,7 +29,7 @@ import numpy as np
 from . import bars as B
 from .distribution import least_squares_n_kernel
 from .errors import FieldError, SingularityError
-from .hexapod import StrutMachine
+from .struts import StrutMachine
 from .jit import kernel
 from .rotations import exp_so3_kernel, mul3_kernel, rpy_rotation_kernel
 

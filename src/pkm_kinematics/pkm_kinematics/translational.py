@@ -31,7 +31,7 @@ import numpy as np
 
 from . import bars as B
 from .errors import FieldError, KinematicsError, SingularityError, UnreachablePoseError
-from .planar import ForwardKinematicsResult
+from .machine import ForwardKinematicsResult
 from .task_space import POSITION
 from .validation import finite_array, finite_floats
 

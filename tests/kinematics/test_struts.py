@@ -1,4 +1,4 @@
-"""The strut machines (pkm_kinematics.hexapod on the bar kernels of
+"""The strut machines (pkm_kinematics.struts on the bar kernels of
 pkm_kinematics.bars): the Gough-Stewart hexapod of LinuxCNC's genhexkins and the
 redundant 8-strut hexapod, as configurations only.
 
@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from pkm_kinematics import ConfigError, JointLimitError, load_machine, load_machine_data
 from pkm_kinematics import bars as B
-from pkm_kinematics.hexapod import FKCode, StrutFK, rate_matrix
+from pkm_kinematics.struts import FKCode, StrutFK, rate_matrix
 from pkm_kinematics.rotations import exp_so3, rotation_from_rpy
 
 INCH = 0.0254
