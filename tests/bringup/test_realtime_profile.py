@@ -59,7 +59,7 @@ def test_child_environment_asks_run_node_for_the_lock_only_where_the_profile_loc
 
 
 def test_refusal_names_what_is_missing_in_one_line():
-    assert refusal(PERMITTED) == ""
+    assert refusal(PERMITTED) is None
     no_fifo = Permissions(80, errno.EPERM, 0, False, None, 8 * 2**20, False)
     message = refusal(no_fifo)
     assert message == ("realtime profile: SCHED_FIFO priority 80 not permitted (EPERM; needs root or CAP_SYS_NICE "
@@ -69,8 +69,8 @@ def test_refusal_names_what_is_missing_in_one_line():
     assert refusal(no_lock) == ("realtime profile: memory locking not permitted (mlockall needs root or "
                                 "CAP_IPC_LOCK, or an unlimited memlock limit: ulimit -l is 8192 KiB); run without "
                                 "--rt-profile (scenario: realtime_profile: false)")
-    assert refusal(no_lock, lock=False) == ""
-    assert refusal(Permissions(80, None, 0, True, None, None, False)) == ""          # ulimit -l unlimited
+    assert refusal(no_lock, lock=False) is None
+    assert refusal(Permissions(80, None, 0, True, None, None, False)) is None          # ulimit -l unlimited
     assert "EPERM on mlock" in refusal(Permissions(80, None, 0, True, errno.EPERM, None, True))
     assert all("\n" not in m for m in (message, refusal(no_lock)))
 

@@ -131,8 +131,8 @@ def _limit(value: int | None, unit: str = "") -> str:
     return f"{value // 1024} KiB" if unit == "KiB" else str(value)
 
 
-def refusal(p: Permissions, lock: bool = True) -> str:
-    """The one-line reason the profile cannot run with permissions ``p`` ("" when it
+def refusal(p: Permissions, lock: bool = True) -> str | None:
+    """The one-line reason the profile cannot run with permissions ``p`` (None when it
     can). ``lock``: the profile locks memory (mlockall needs CAP_IPC_LOCK, or a memlock
     limit above the process's whole mapped memory: a node maps over 1 GiB)."""
     if p.fifo_errno is not None:
@@ -147,7 +147,7 @@ def refusal(p: Permissions, lock: bool = True) -> str:
         return (f"realtime profile: memory locking not permitted (mlockall needs root or CAP_IPC_LOCK, or an "
                 f"unlimited memlock limit: ulimit -l is {_limit(p.memlock_limit_bytes, 'KiB')}); "
                 f"{HOW_TO_RUN_WITHOUT}")
-    return ""
+    return None
 
 
 # --- shell: the real calls ---------------------------------------------------------
@@ -216,7 +216,7 @@ def probe_permissions(in_process: bool = False) -> Permissions:
 def check_permitted(in_process: bool = False) -> None:
     """Raises RealtimeProfileRefused when this OS does not allow the profile."""
     message = refusal(probe_permissions(in_process), lock=locks_memory(in_process))
-    if message:
+    if message is not None:
         raise RealtimeProfileRefused(message)
 
 
