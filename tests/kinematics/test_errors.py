@@ -3,6 +3,7 @@ field's name, what is allowed and what came travel as attributes, so that whoeve
 reports the error under another name (a node's parameter, a scenario key) reads them
 instead of splitting the message."""
 
+import pickle
 import subprocess
 import sys
 
@@ -23,6 +24,17 @@ def test_a_field_error_carries_its_field_and_says_it():
     assert (exc.name, exc.detail) == ("dt_s", "must be in (0, 0.1] s, got 0.5")
     exc = ConfigError("legs[2].link_length", "must be > 0")
     assert isinstance(exc, KinematicsError) and isinstance(exc, FieldError) and exc.field == exc.name
+
+
+@pytest.mark.parametrize("error", [FieldError.out_of_range("dt_s", "in (0, 0.1] s", 0.5),
+                                   ParameterError("dt_s", "must be in (0, 0.1] s, got 0.5"),
+                                   ConfigError("legs[2].link_length", "must be > 0")])
+def test_a_field_error_crosses_a_process_boundary_whole(error):
+    """A study's worker raises it on one process and the client reads it on another
+    (Dask pickles it): the class, the message and the fields come across."""
+    back = pickle.loads(pickle.dumps(error))
+    assert type(back) is type(error) and str(back) == str(error)
+    assert (back.name, back.detail, back.allowed, back.got) == (error.name, error.detail, error.allowed, error.got)
 
 
 def test_the_controllers_refusals_name_their_field():

@@ -26,6 +26,17 @@ class FieldError(ValueError):
     def out_of_range(cls, name: str, allowed: str, got) -> "FieldError":
         return cls(name, f"must be {allowed}, got {got!r}", allowed, got)
 
+    def __reduce__(self):
+        # pickled with its fields (a Dask worker's error reaches the client, a process
+        # pool's its parent); the default pickles args only, which __init__ cannot take
+        return _rebuilt, (type(self), self.args, self.name, self.detail, self.allowed, self.got)
+
+
+def _rebuilt(cls, args, name, detail, allowed, got):
+    error = cls.__new__(cls)
+    error.args, error.name, error.detail, error.allowed, error.got = args, name, detail, allowed, got
+    return error
+
 
 class ParameterError(FieldError):
     """A node's or a scenario's parameter refused: missing, of the wrong type or out of
