@@ -13,6 +13,8 @@ from pkm_controller.config import ControllerConfig
 from pkm_controller.configuration import core_from_parameters
 from pkm_kinematics import load_machine
 from pkm_kinematics.errors import ConfigError, FieldError, KinematicsError, ParameterError
+from pkm_kinematics.yaml_files import UnreadableFileError
+from pkm_trajectory.gcode import GcodeError
 
 
 def test_a_field_error_carries_its_field_and_says_it():
@@ -28,13 +30,15 @@ def test_a_field_error_carries_its_field_and_says_it():
 
 @pytest.mark.parametrize("error", [FieldError.out_of_range("dt_s", "in (0, 0.1] s", 0.5),
                                    ParameterError("dt_s", "must be in (0, 0.1] s, got 0.5"),
-                                   ConfigError("legs[2].link_length", "must be > 0")])
-def test_a_field_error_crosses_a_process_boundary_whole(error):
+                                   ConfigError("legs[2].link_length", "must be > 0"),
+                                   GcodeError(12, "G18: arcs in the XZ plane are refused"),
+                                   UnreadableFileError("archi.yaml", "not UTF-8")])
+def test_an_error_crosses_a_process_boundary_whole(error):
     """A study's worker raises it on one process and the client reads it on another
     (Dask pickles it): the class, the message and the fields come across."""
     back = pickle.loads(pickle.dumps(error))
     assert type(back) is type(error) and str(back) == str(error)
-    assert (back.name, back.detail, back.allowed, back.got) == (error.name, error.detail, error.allowed, error.got)
+    assert vars(back) == vars(error)
 
 
 def test_the_controllers_refusals_name_their_field():

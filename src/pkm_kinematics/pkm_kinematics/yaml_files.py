@@ -25,6 +25,9 @@ class YamlFileError(ValueError):
         super().__init__(f"{where}: {reason}")
         self.where, self.reason = where, reason
 
+    def __reduce__(self):            # pickled with its fields (a study worker's error reaches its client)
+        return type(self), (self.where, self.reason)
+
 
 class UnreadableFileError(YamlFileError):
     """A file that is no text to read: too large, not UTF-8, binary."""

@@ -108,8 +108,11 @@ class GcodeError(ValueError):
     """A G-code program is refused; the message starts with ``line N: ``."""
 
     def __init__(self, line: int, message: str):
-        self.line = line
+        self.line, self.detail = line, message
         super().__init__(f'line {line}: {message}')
+
+    def __reduce__(self):            # pickled with its fields (a study worker's error reaches its client)
+        return type(self), (self.line, self.detail)
 
 
 @dataclass
