@@ -70,7 +70,7 @@ from mcap.writer import CompressionType, Writer
 
 from pkm_kinematics.errors import FieldError
 from pkm_recording.mcap_writer import FastWriter
-from pkm_recording.tap_records import PACK_ERRORS, PACK_OK, pack_tap_records
+from pkm_recording.tap_records import PACK_ERRORS, PACK_OK, StampCounter, pack_tap_records
 from pkm_common.cdr import stamp_ns_of
 from pkm_common.files import atomic_write
 
@@ -922,16 +922,15 @@ def recorded_stamps(path) -> dict[str, int]:
     as the recorder counts them (recorder_node's ``recorded_stamps``): what a recovered
     bag of a killed recorder holds, said where its summary could not be written. A
     message without a header counts at each change of its first bytes' reading."""
-    last: dict[str, int] = {}
-    steps: dict[str, int] = {}
+    counter, ids = StampCounter(), {}
     for file in sorted(Path(path).glob("*.mcap")):
         with open(file, "rb") as fh:
             for _, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-                stamp = stamp_ns_of(message.data) if len(message.data) >= 12 else -1
-                if last.get(channel.topic) != stamp:
-                    last[channel.topic] = stamp
-                    steps[channel.topic] = steps.get(channel.topic, 0) + 1
-    return steps
+                if channel.topic not in ids:
+                    ids[channel.topic] = len(ids)
+                    counter.reserve(ids[channel.topic])
+                counter.add_one(ids[channel.topic], stamp_ns_of(message.data) if len(message.data) >= 12 else -1)
+    return {topic: counter.count(i) for topic, i in ids.items()}
 
 
 def recover_bag(path) -> Recovery:

@@ -31,6 +31,7 @@ from pathlib import Path
 from rclpy.node import Node
 from std_msgs.msg import UInt8MultiArray
 
+from pkm_common.cdr import stamp_ns_of
 from pkm_common.conversions import graph_senders
 from pkm_common.endpoints import message_class
 from pkm_common.files import reserve_file, write_summary
@@ -90,9 +91,9 @@ class RecorderNode(Node):
         self.writer = BagWriter(output, compression=compression)
         self.subscriptions_by_topic = {}     # topic -> subscription, TAPPED, or None (not recordable)
         self.channels = {}                   # topic -> channel id
-        self.raw_steps = {}        # topic -> messages with a new stamp (repeats of a stamp not counted)
-        self.last_stamp = {}
-        self.tapped_steps = StampCounter()   # the same per channel id, for the tapped topics
+        # per channel id, the messages with a new stamp (repeats of a stamp not counted),
+        # subscribed or tapped
+        self.stamps = StampCounter()
         self.tap_errors = 0
         self.tap_batches = 0                 # tap batches received as messages
         self.tap_lists = 0                   # ... payloads handed over in the same process (NodeTap.sink)
@@ -109,17 +110,10 @@ class RecorderNode(Node):
         topic = topic.strip()
         return topic if topic.startswith("/") else f"{self.get_namespace().rstrip('/')}/{topic}"
 
-    def _count(self, name: str, data: bytes) -> None:
-        stamp = data[4:12]                   # the header stamp (or Clock's time): CDR bytes 4-12
-        if stamp != self.last_stamp.get(name):
-            self.last_stamp[name] = stamp
-            self.raw_steps[name] = self.raw_steps.get(name, 0) + 1
-
     @property
     def steps(self) -> dict[str, int]:
         """Per topic recorded, the messages with a new header stamp."""
-        return {name: self.raw_steps.get(name, 0) + self.tapped_steps.count(channel)
-                for name, channel in self.channels.items()}
+        return {name: self.stamps.count(channel) for name, channel in self.channels.items()}
 
     def _add_channel(self, name: str, msgtype: str, infos) -> int | None:
         try:
@@ -129,7 +123,7 @@ class RecorderNode(Node):
             self.get_logger().warning(f"{name}: not recorded ({exc})")
             return None
         self.channels[name] = channel
-        self.tapped_steps.reserve(channel)
+        self.stamps.reserve(channel)
         return channel
 
     def in_scope(self, name: str) -> bool:
@@ -150,11 +144,11 @@ class RecorderNode(Node):
             if channel is None or name in self.tapped:
                 self.subscriptions_by_topic[name] = None if channel is None else TAPPED
                 continue
-            write, count = self.writer.write, self._count
+            write, count = self.writer.write, self.stamps.add_one
 
-            def callback(data: bytes, channel=channel, name=name):
+            def callback(data: bytes, channel=channel):
                 write(channel, time.time_ns(), data)
-                count(name, data)
+                count(channel, stamp_ns_of(data) if len(data) >= 12 else -1)
 
             self.subscriptions_by_topic[name] = self.create_subscription(
                 message_class(types[0]), name, callback,
@@ -208,7 +202,7 @@ class RecorderNode(Node):
             self.tap_errors += 1
             self.get_logger().error(f"tap batch refused: {exc}")
             return False
-        self.tapped_steps.add(written, stamps)
+        self.stamps.add(written, stamps)
         return True
 
     def _tapped_channel(self, name: str, msgtype: str) -> int:

@@ -203,5 +203,12 @@ class StampCounter:
         if outside >= 0:
             raise ValueError(f"channel {outside}: not reserved in the stamp counter (0..{len(self.counts) - 1})")
 
+    def add_one(self, channel: int, stamp: int) -> None:
+        """One message of ``channel`` (reserved) stamped ``stamp``: a subscription's,
+        outside a tap batch."""
+        if not self.seen[channel] or self.last[channel] != stamp:
+            self.seen[channel], self.last[channel] = True, stamp
+            self.counts[channel] += 1
+
     def count(self, channel: int) -> int:
         return int(self.counts[channel]) if 0 <= channel < len(self.counts) else 0
