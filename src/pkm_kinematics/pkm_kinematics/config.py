@@ -52,8 +52,10 @@ def machine_names() -> list[str]:
 
 
 # --------------------------------------------------------------------- readers
-class _Reader:
-    """Typed access to a YAML mapping with dotted-path error messages."""
+class FieldReader:
+    """Typed access to a YAML mapping with dotted-path error messages (ConfigError naming
+    the field); public so that a package owning a section of the machine file (pkm_drives:
+    ``drives``) reads it the same way."""
 
     def __init__(self, data: Any, path: str):
         if not isinstance(data, dict):
@@ -61,28 +63,28 @@ class _Reader:
         self.data = data
         self.path = path
 
-    def _name(self, key: str) -> str:
+    def field_name(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key
 
     def has(self, key: str) -> bool:
         return key in self.data
 
-    def sub(self, key: str) -> "_Reader":
+    def sub(self, key: str) -> "FieldReader":
         if key not in self.data:
-            raise ConfigError(self._name(key), "missing section")
-        return _Reader(self.data[key], self._name(key))
+            raise ConfigError(self.field_name(key), "missing section")
+        return FieldReader(self.data[key], self.field_name(key))
 
     def raw(self, key: str, default: Any = ...) -> Any:
         if key not in self.data:
             if default is ...:
-                raise ConfigError(self._name(key), "missing field")
+                raise ConfigError(self.field_name(key), "missing field")
             return default
         return self.data[key]
 
     def number(self, key: str, default: Any = ..., lo: float = -math.inf, hi: float = math.inf,
                lo_open: bool = False, unit: str = "") -> float:
         value = self.raw(key, default)
-        name = self._name(key)
+        name = self.field_name(key)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(name, f"expected a number{' in ' + unit if unit else ''}, got {value!r}")
         value = float(value)
@@ -95,7 +97,7 @@ class _Reader:
 
     def vector(self, key: str, size: int, default: Any = ..., unit: str = "") -> np.ndarray:
         value = self.raw(key, default)
-        name = self._name(key)
+        name = self.field_name(key)
         if not isinstance(value, (list, tuple)) or len(value) != size:
             raise ConfigError(name, f"expected a list of {size} numbers{' (' + unit + ')' if unit else ''}, got {value!r}")
         out = []
@@ -108,33 +110,33 @@ class _Reader:
     def interval(self, key: str, default: Any = ..., unit: str = "") -> tuple[float, float]:
         lo, hi = self.vector(key, 2, default, unit)
         if not lo < hi:
-            raise ConfigError(self._name(key), f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
+            raise ConfigError(self.field_name(key), f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
         return float(lo), float(hi)
 
     def choice(self, key: str, options: tuple, default: Any = ...) -> Any:
         value = self.raw(key, default)
         if value not in options:
-            raise ConfigError(self._name(key), f"must be one of {list(options)}, got {value!r}")
+            raise ConfigError(self.field_name(key), f"must be one of {list(options)}, got {value!r}")
         return value
 
     def string(self, key: str, default: Any = ...) -> str:
         value = self.raw(key, default)
         if not isinstance(value, str) or not value:
-            raise ConfigError(self._name(key), f"expected a non-empty string, got {value!r}")
+            raise ConfigError(self.field_name(key), f"expected a non-empty string, got {value!r}")
         return value
 
-    def items(self, key: str, min_len: int = 1) -> list["_Reader"]:
+    def items(self, key: str, min_len: int = 1) -> list["FieldReader"]:
         value = self.raw(key)
-        name = self._name(key)
+        name = self.field_name(key)
         if not isinstance(value, list) or len(value) < min_len:
             raise ConfigError(name, f"expected a list of at least {min_len} entries, got {value!r}")
-        return [_Reader(v, f"{name}[{k}]") for k, v in enumerate(value)]
+        return [FieldReader(v, f"{name}[{k}]") for k, v in enumerate(value)]
 
 
-def _assembly(r: _Reader) -> int:
+def _assembly(r: FieldReader) -> int:
     value = r.raw("assembly")
     if value not in (-1, 1) or isinstance(value, bool):
-        raise ConfigError(r._name("assembly"), f"must be -1 or +1 (assembly branch), got {value!r}")
+        raise ConfigError(r.field_name("assembly"), f"must be -1 or +1 (assembly branch), got {value!r}")
     return int(value)
 
 
@@ -176,25 +178,25 @@ class GoughMetrologyConfig:
         return g["r_base"], g["r_plate"], g["alpha_base_deg"], g["alpha_plate_deg"]
 
 
-def _legs(r: _Reader, dim: int, attachment: str) -> list[RailLeg]:
+def _legs(r: FieldReader, dim: int, attachment: str) -> list[RailLeg]:
     """The ``legs`` list: prismatic rail + link to a platform attachment point, in
     ``dim`` dimensions (``attachment`` is platform_point or platform_offset)."""
     legs = []
     for lr in r.items("legs", min_len=3):
         direction = lr.vector("rail_direction", dim)
         if np.linalg.norm(direction) < 1e-9:
-            raise ConfigError(lr._name("rail_direction"), "must be a non-zero vector")
+            raise ConfigError(lr.field_name("rail_direction"), "must be a non-zero vector")
         legs.append(RailLeg(
             lr.string("name"), tuple(lr.vector("rail_origin", dim, unit="m")), tuple(direction),
             lr.number("link_length", lo=0.0, lo_open=True, unit="m"),
             tuple(lr.vector(attachment, dim, unit="m")), _assembly(lr), lr.interval("joint_limits", unit="m")))
     names = [leg.name for leg in legs]
     if len(set(names)) != len(names):           # the drives' names: the messages' joint names
-        raise ConfigError(r._name("legs"), f"leg names must be unique, got {names}")
+        raise ConfigError(r.field_name("legs"), f"leg names must be unique, got {names}")
     return legs
 
 
-def _planar(r: _Reader, name: str, description: str) -> RailMachine:
+def _planar(r: FieldReader, name: str, description: str) -> RailMachine:
     legs = _legs(r, 2, "platform_point")
     home = r.vector("home_pose", 3, unit="x m, y m, theta rad")
     workspace = _workspace(r, planar=True)
@@ -203,21 +205,21 @@ def _planar(r: _Reader, name: str, description: str) -> RailMachine:
         model = RailMachine(name, legs, home, PLANAR, solver, workspace, description)
         model.inverse_kinematics(home)          # reachable and inside the joint limits
     except (UnreachablePoseError, JointLimitError) as exc:
-        raise ConfigError(r._name("home_pose"), str(exc)) from None
+        raise ConfigError(r.field_name("home_pose"), str(exc)) from None
     except ValueError as exc:                   # a solver for another task space
-        raise ConfigError(r._name("forward_solver"), str(exc)) from None
+        raise ConfigError(r.field_name("forward_solver"), str(exc)) from None
     return model
 
 
-def _forward_solver(r: _Reader, default: str) -> str:
+def _forward_solver(r: FieldReader, default: str) -> str:
     """``forward_solver``: a rail machine's forward kinematics, a key of
     ``rails.FORWARD_SOLVERS`` (default: its kind's)."""
     return r.choice("forward_solver", tuple(sorted(FORWARD_SOLVERS)), default)
 
 
-def _workspace(r: _Reader, planar: bool) -> dict:
+def _workspace(r: FieldReader, planar: bool) -> dict:
     if not r.has("workspace"):
-        raise ConfigError(r._name("workspace"), "missing section")
+        raise ConfigError(r.field_name("workspace"), "missing section")
     w = r.sub("workspace")
     if planar:
         return {"x": w.interval("x", unit="m"), "y": w.interval("y", unit="m"),
@@ -226,15 +228,15 @@ def _workspace(r: _Reader, planar: bool) -> dict:
             "size": w.number("size", lo=0.0, lo_open=True, unit="m")}
 
 
-def _translational(r: _Reader, name: str, description: str) -> RailMachine:
+def _translational(r: FieldReader, name: str, description: str) -> RailMachine:
     legs = _legs(r, 3, "platform_offset")
     if len(legs) != 3:
-        raise ConfigError(r._name("legs"), f"a translational machine has exactly 3 legs, got {len(legs)}")
+        raise ConfigError(r.field_name("legs"), f"a translational machine has exactly 3 legs, got {len(legs)}")
     bounds = None
     if r.has("transmission_bounds"):
         lo, hi = r.interval("transmission_bounds")
         if lo <= 0.0:
-            raise ConfigError(r._name("transmission_bounds"), f"must be > 0, got [{lo:g}, {hi:g}]")
+            raise ConfigError(r.field_name("transmission_bounds"), f"must be > 0, got [{lo:g}, {hi:g}]")
         bounds = (lo, hi)
     home = r.vector("home_position", 3, unit="m")
     workspace = _workspace(r, planar=False)
@@ -244,17 +246,17 @@ def _translational(r: _Reader, name: str, description: str) -> RailMachine:
         model = RailMachine(name, legs, home, POSITION, solver, workspace, description, bounds, margin)
         model.inverse_kinematics(home)
     except (UnreachablePoseError, JointLimitError) as exc:
-        raise ConfigError(r._name("home_position"), str(exc)) from None
+        raise ConfigError(r.field_name("home_position"), str(exc)) from None
     except ValueError as exc:
-        raise ConfigError(r._name("forward_solver"), str(exc)) from None
+        raise ConfigError(r.field_name("forward_solver"), str(exc)) from None
     try:
         model.check_parallel_singularity(home)
     except KinematicsError as exc:
-        raise ConfigError(r._name("home_position"), str(exc)) from None
+        raise ConfigError(r.field_name("home_position"), str(exc)) from None
     return model
 
 
-def _struts(r: _Reader, name: str, description: str) -> StrutMachine:
+def _struts(r: FieldReader, name: str, description: str) -> StrutMachine:
     """A machine on actuated struts (the hexapods): ``struts`` (at least 6, each with
     its base and platform joint and its length limits), ``home`` (position and the
     A, B, C rotations in degrees), ``workspace`` (a box about a centre, half-ranges of
@@ -268,19 +270,19 @@ def _struts(r: _Reader, name: str, description: str) -> StrutMachine:
         platform.append(sr.vector("platform", 3, unit=unit_name) * scale)
         lo, hi = sr.interval("limits", unit=unit_name)
         if lo <= 0.0:
-            raise ConfigError(sr._name("limits"), f"strut lengths must be > 0, got [{lo:g}, {hi:g}] {unit_name}")
+            raise ConfigError(sr.field_name("limits"), f"strut lengths must be > 0, got [{lo:g}, {hi:g}] {unit_name}")
         limits.append((lo * scale, hi * scale))
     if len(set(names)) != len(names):
-        raise ConfigError(r._name("struts"), f"strut names must be unique, got {names}")
+        raise ConfigError(r.field_name("struts"), f"strut names must be unique, got {names}")
     h, w = r.sub("home"), r.sub("workspace")
     home = np.concatenate((h.vector("position", 3, unit=unit_name) * scale,
                            np.radians(h.vector("abc_deg", 3, [0.0, 0.0, 0.0], unit="deg"))))
     half = w.vector("half_size", 3, unit=unit_name) * scale
     if not (half > 0.0).all():
-        raise ConfigError(w._name("half_size"), f"must be > 0 on every axis, got {half / scale}")
+        raise ConfigError(w.field_name("half_size"), f"must be > 0 on every axis, got {half / scale}")
     abc = w.vector("abc_half_range_deg", 3, [0.0, 0.0, 0.0], unit="deg")
     if not ((abc >= 0.0) & (abc < 90.0)).all():
-        raise ConfigError(w._name("abc_half_range_deg"), f"must be in [0, 90) deg, got {abc}")
+        raise ConfigError(w.field_name("abc_half_range_deg"), f"must be in [0, 90) deg, got {abc}")
     workspace = {"center": w.vector("center", 3, unit=unit_name) * scale, "half_size": half,
                  "abc_half_range_deg": abc}
     model = StrutMachine(name, names, base, platform, limits, home, workspace, description)
@@ -288,42 +290,42 @@ def _struts(r: _Reader, name: str, description: str) -> StrutMachine:
         model.inverse_kinematics(home)
         cond = model.condition_number(home)
     except KinematicsError as exc:
-        raise ConfigError(r._name("home"), str(exc)) from None
+        raise ConfigError(r.field_name("home"), str(exc)) from None
     if not cond < 1e6:
-        raise ConfigError(r._name("struts"), f"the struts do not hold the platform at home: J_m is singular "
+        raise ConfigError(r.field_name("struts"), f"the struts do not hold the platform at home: J_m is singular "
                                              f"(condition number {cond:.3g})")
     return model
 
 
-def _parallelograms(r: _Reader, name: str, description: str) -> ParallelogramMachine:
+def _parallelograms(r: FieldReader, name: str, description: str) -> ParallelogramMachine:
     """A Delta whose legs are parallelograms of two bars each (``parallelogram.py``):
     the translational machine's ``legs``, and ``parallelogram``: its ``half_width``
     (m) and each bar's length error (``bar_length_errors``, m, two per leg: MoM3
     §4.1's imperfect case; zeros make a translating platform)."""
     legs = _legs(r, 3, "platform_offset")
     if len(legs) != 3:
-        raise ConfigError(r._name("legs"), f"a parallelogram Delta has exactly 3 legs, got {len(legs)}")
+        raise ConfigError(r.field_name("legs"), f"a parallelogram Delta has exactly 3 legs, got {len(legs)}")
     pr = r.sub("parallelogram")
     half_width = pr.number("half_width", lo=0.0, lo_open=True, unit="m")
     errors = pr.raw("bar_length_errors", [[0.0, 0.0]] * 3)
     if not isinstance(errors, list) or len(errors) != 3:
-        raise ConfigError(pr._name("bar_length_errors"), f"expected 3 pairs (two bars per leg), got {errors!r}")
-    pairs = [_Reader({"pair": e}, pr._name(f"bar_length_errors[{i}]")).vector("pair", 2, unit="m")
+        raise ConfigError(pr.field_name("bar_length_errors"), f"expected 3 pairs (two bars per leg), got {errors!r}")
+    pairs = [FieldReader({"pair": e}, pr.field_name(f"bar_length_errors[{i}]")).vector("pair", 2, unit="m")
              for i, e in enumerate(errors)]
     for i, (pair, leg) in enumerate(zip(pairs, legs)):
         if not (np.abs(pair) < 0.1 * leg.link_length).all():
-            raise ConfigError(pr._name(f"bar_length_errors[{i}]"),
+            raise ConfigError(pr.field_name(f"bar_length_errors[{i}]"),
                               f"must be below a tenth of the link length ({0.1 * leg.link_length:g} m), got {pair}")
     home = r.vector("home_position", 3, unit="m")
     try:
         model = ParallelogramMachine(name, legs, half_width, pairs, home, _workspace(r, planar=False), description)
         model.inverse_kinematics(home)
     except KinematicsError as exc:
-        raise ConfigError(r._name("home_position"), str(exc)) from None
+        raise ConfigError(r.field_name("home_position"), str(exc)) from None
     return model
 
 
-def _gough(r: _Reader) -> GoughMetrologyConfig:
+def _gough(r: FieldReader) -> GoughMetrologyConfig:
     g = r.sub("geometry")
     geometry = {"r_base": g.number("r_base", lo=0.0, lo_open=True, unit="m"),
                 "r_plate": g.number("r_plate", lo=0.0, lo_open=True, unit="m"),
@@ -336,16 +338,16 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
                               math.radians(geometry["plate_line_offset_deg"]))
     limits = r.interval("strut_limits", unit="m")
     if limits[0] <= 0.0:
-        raise ConfigError(r._name("strut_limits"), f"min must be > 0 m, got {limits[0]:g}")
+        raise ConfigError(r.field_name("strut_limits"), f"min must be > 0 m, got {limits[0]:g}")
     home = r.vector("home_position", 3, unit="m")
     if home[2] <= 0.0:
-        raise ConfigError(r._name("home_position"), f"z must be > 0 m (plate above the base), got {home[2]:g}")
+        raise ConfigError(r.field_name("home_position"), f"z must be > 0 m (plate above the base), got {home[2]:g}")
     box = r.sub("tool_box")
     tool_box = np.array([box.interval("x", unit="m"), box.interval("y", unit="m"), box.interval("z", unit="m")])
     platform = GoughPlatform(base, plate, limits, home, name="gough")
     home_struts = platform.strut_lengths(home, np.eye(3))
     if not platform.within_strut_limits(home_struts):
-        raise ConfigError(r._name("home_position"),
+        raise ConfigError(r.field_name("home_position"),
                           f"strut lengths at home {np.round(home_struts, 4).tolist()} m leave strut_limits "
                           f"[{limits[0]:g}, {limits[1]:g}] m")
     w = r.sub("workspace")
@@ -373,7 +375,7 @@ def _gough(r: _Reader) -> GoughMetrologyConfig:
 def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
     """Build a MachineConfig from an already-parsed mapping (``source`` names it in errors)."""
     try:
-        r = _Reader(data, "")
+        r = FieldReader(data, "")
         name = r.string("name")
         kind = r.choice("kind", MACHINE_KINDS)
         description = str(r.raw("description", ""))
@@ -387,22 +389,22 @@ def load_machine_data(data: dict, source: str = "<dict>") -> MachineConfig:
     return MachineConfig(name, kind, model, metrology, data, dynamics)
 
 
-def _per_drive(r: _Reader, key: str, n_legs: int, lo_open: bool) -> list:
+def _per_drive(r: FieldReader, key: str, n_legs: int, lo_open: bool) -> list:
     """A value per drive, or one number for all of them (>= 0; > 0 with ``lo_open``)."""
     value = r.raw(key)
     if isinstance(value, list):
         if len(value) != n_legs:
-            raise ConfigError(r._name(key), f"expected one number or a list of {n_legs}, got {value!r}")
-        return [_Reader({key: v}, r.path).number(key, lo=0.0, lo_open=lo_open) for v in value]
+            raise ConfigError(r.field_name(key), f"expected one number or a list of {n_legs}, got {value!r}")
+        return [FieldReader({key: v}, r.path).number(key, lo=0.0, lo_open=lo_open) for v in value]
     return [r.number(key, lo=0.0, lo_open=lo_open)] * n_legs
 
 
-def _rigid_body(r: _Reader, n_legs: int, kind: str) -> RigidBodyParameters:
+def _rigid_body(r: FieldReader, n_legs: int, kind: str) -> RigidBodyParameters:
     """A strut machine's platform in SE(3) and its drives (rigid_body.py): the inertia
     about the platform point as its diagonal in the platform's frame."""
     inertia = r.vector("platform_inertia_kgm2", 3, unit="kg m^2 (Ixx, Iyy, Izz)")
     if not (inertia > 0.0).all():
-        raise ConfigError(r._name("platform_inertia_kgm2"), f"must be 3 positive numbers, got {inertia.tolist()}")
+        raise ConfigError(r.field_name("platform_inertia_kgm2"), f"must be 3 positive numbers, got {inertia.tolist()}")
     return RigidBodyParameters(
         platform_mass_kg=r.number("platform_mass_kg", lo=0.0, lo_open=True, unit="kg"),
         platform_inertia_kgm2=tuple(np.diag(inertia).ravel().tolist()),
@@ -411,7 +413,7 @@ def _rigid_body(r: _Reader, n_legs: int, kind: str) -> RigidBodyParameters:
         gravity_m_s2=tuple(r.vector("gravity_m_s2", 3, unit="m/s^2").tolist()))
 
 
-def _dynamics(r: _Reader, n_legs: int, kind: str) -> DynamicsParameters:
+def _dynamics(r: FieldReader, n_legs: int, kind: str) -> DynamicsParameters:
     """ARCHI §3.4 parameters; per-drive values may be one number for all drives."""
     planar = kind == "planar"
     return DynamicsParameters(
