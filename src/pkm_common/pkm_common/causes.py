@@ -50,6 +50,11 @@ class TripCause(str, enum.Enum):
     KINEMATICS = "kinematics"                # FK/IK failed, a law produced non-finite forces
     DEACTIVATED = "deactivated"              # lifecycle deactivate
     NODE_DIED = "node_died"                  # a process of the graph ended unbidden (a signal, a crash)
+    # the servo drives' own (pkm_drives): each names the drive and its error code
+    DRIVE_FAULT = "drive_fault"              # a drive in fault (its statusword or its EMCY), with its code
+    DRIVE_DISABLED = "drive_disabled"        # a drive left operation enabled without a fault (its own quick stop)
+    HEARTBEAT_LOST = "heartbeat_lost"        # a drive's heartbeat missed for its consumer time
+    PDO_MISSED = "pdo_missed"                # a drive's TPDO did not come for a SYNC
 
     def __str__(self) -> str:
         return self.value

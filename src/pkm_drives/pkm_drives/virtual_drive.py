@@ -120,8 +120,8 @@ class VirtualDrive:
     def _on_sdo_write(self, index: int, subindex: int, od, data: bytes) -> None:
         value = od.decode_raw(data)
         with self.lock:
-            if index == 0x6040:
-                self.received_controlword = value
+            if index == 0x6040:             # by SDO a controlword acts as it comes (not at a SYNC)
+                self._controlword(value)
             elif index == 0x6071:
                 self.received_target = value
             elif index == 0x6060:
@@ -228,6 +228,7 @@ class VirtualDrive:
             elif fault is InjectedFault.SILENT:
                 self.silent = True
                 self.node.nmt.stop_heartbeat()
+                self.node.remove_network()       # no SDO, NMT, PDO or EMCY any more
                 self.machine.fault(0x8130)       # its own watchdog: no more RPDOs
             else:
                 if fault is InjectedFault.ENCODER:
@@ -287,16 +288,20 @@ class MassAxes:
 
 
 class VirtualMachine:
-    """The drives of one machine on one network and the physics they move: each SYNC
-    (COB-ID 0x80) steps ``axes`` once with the drives' forces and has every drive
-    report. The first SYNC only samples (the machine starts there)."""
+    """The drives of one machine on one network and the physics they move. The
+    machine starts at the first SYNC after which every drive is in operation enabled
+    (its step 0, as the master's: canopen_master.CanopenMaster.enable); before it a
+    SYNC only samples (the brakes hold, no time passes for the physics), from it on
+    each SYNC (COB-ID 0x80) steps ``axes`` once with the drives' forces and has every
+    drive report. ``on_step(k)``, if given, is called after step k (0 at the start)."""
 
     def __init__(self, network: canopen.Network, axes: Axes, node_ids, scaling, eds: str | Path = DEFAULT_EDS,
-                 names=()):
-        self.axes = axes
+                 names=(), on_step=None):
+        self.axes, self.on_step = axes, on_step
         self.drives = [VirtualDrive(network, nid, sc, eds, name=names[k] if names else "")
                        for k, (nid, sc) in enumerate(zip(node_ids, scaling))]
         self.syncs = 0
+        self.steps: int | None = None           # the machine's step count from its start (None: not started)
         self.errors: list[str] = []
         network.subscribe(0x80, self._on_sync)
 
@@ -306,13 +311,18 @@ class VirtualMachine:
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         try:
-            if self.syncs == 0:
+            if self.steps is None:
                 samples = self.axes.samples()
             else:
                 samples = self.axes.step([d.force() for d in self.drives])
+                self.steps += 1
             self.syncs += 1
             for drive, sample in zip(self.drives, samples):
                 drive.after_step(sample)
+            if self.steps is None and all(d.machine.torque_enabled for d in self.drives):
+                self.steps = 0
+            if self.steps is not None and self.on_step is not None:
+                self.on_step(self.steps)
         except Exception as exc:                 # canopen's listener would log and drop it
             self.errors.append(f"{type(exc).__name__}: {exc}")
             raise

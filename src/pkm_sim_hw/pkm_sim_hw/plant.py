@@ -259,8 +259,11 @@ class Plant:
         return [f for f in self._faults if f.at_s <= self.t + 1e-12]
 
     # ------------------------------------------------------------------- step
-    def step(self, forces) -> PlantOutput:
-        """Apply the commanded drive forces for one period and advance the state."""
+    def step(self, forces, hold: bool = False) -> PlantOutput:
+        """Apply the commanded drive forces for one period and advance the state;
+        ``hold``: the drives' holding brakes are closed for this period (a drive whose
+        power stage is off: pkm_drives.virtual_drive), the platform stays where it is,
+        without latching a stop."""
         cmd = finite_floats(forces, self.n, "drive forces")
         while self._schedule and self.k >= self._schedule[0][0]:
             self.load = self._schedule.pop(0)[1]
@@ -284,7 +287,9 @@ class Plant:
         h = self.params.dt_s / self.params.substeps
         reaction = [0.0] * self.n
         terms = None
-        if not self.stopped:
+        if hold:
+            self.v = [0.0, 0.0, 0.0]
+        if not (self.stopped or hold):
             saved = (self.x, self.v)
             try:
                 for _ in range(self.params.substeps):
@@ -305,7 +310,7 @@ class Plant:
         self.k += 1
         for i in self._locked:
             applied[i] += reaction[i]                # command + brake reaction act together
-        if self.stopped:
+        if self.stopped or hold:
             applied = [0.0] * self.n
         self._last = self._output(applied, saturated, faults, terms)
         return self._last

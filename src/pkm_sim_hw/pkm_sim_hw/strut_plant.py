@@ -133,8 +133,9 @@ class StrutPlant:
         return [f for f in self._faults if f.at_s <= self.t + 1e-12]
 
     # ------------------------------------------------------------------- step
-    def step(self, forces) -> PlantOutput:
-        """Apply the commanded strut forces for one period and advance the state."""
+    def step(self, forces, hold: bool = False) -> PlantOutput:
+        """Apply the commanded strut forces for one period and advance the state;
+        ``hold``: the holding brakes are closed for this period (plant.Plant.step)."""
         cmd = finite_floats(forces, self.n, "drive forces")
         while self._schedule and self.k >= self._schedule[0][0]:
             self.load = np.array(self._schedule.pop(0)[1])
@@ -146,7 +147,9 @@ class StrutPlant:
         if locked and not self.stopped:
             self.safe_stop(f"drive {self.names[locked[0].drive]} locked (a brake on a strut: the machine holds)")
         q = None
-        if not self.stopped:
+        if hold:
+            self.twist = np.zeros(6)
+        if not (self.stopped or hold):
             try:        # semi-implicit Euler on SE(3): t += h t'; p += h v; R = exp(h w) R (compiled)
                 p, rotation, twist = self.dynamics.step(self.p, self.rotation, self.twist, applied, self.load,
                                                         self.params.dt_s / self.params.substeps,
@@ -160,7 +163,7 @@ class StrutPlant:
                 self.safe_stop(f"left the workspace: {exc}")
         self.t += self.params.dt_s
         self.k += 1
-        if self.stopped:
+        if self.stopped or hold:
             applied = [0.0] * self.n
         self._last = self._output(applied, saturated, faults, q)
         return self._last
