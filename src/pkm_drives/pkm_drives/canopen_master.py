@@ -3,8 +3,11 @@ protocol (NMT, SDO, PDO, SYNC, EMCY, heartbeats), this module the sequence.
 
 - ``boot``: every drive answers an SDO (device type: a CiA 402 drive), is configured
   by SDO (heartbeat 0x1017, quick stop option 0x605A, torque limit 0x6072, mode 0x6060
-  = cyclic synchronous torque, the PDO mapping of ``RPDO_MAP``/``TPDO_MAPS``, all
-  synchronous), then NMT start.
+  = cyclic synchronous torque, the PDO mapping of ``RPDO_MAP``/``TPDO_MAPS``: TPDOs
+  sent at each SYNC, RPDOs acting at the SYNC after them (``rpdo: synchronous``, the
+  standard's cyclic synchronous use: every drive applies its target at the same
+  instant, one cycle after the master sent it) or as they come (``on_arrival``: no
+  cycle of delay, the drives a little apart in time)), then NMT start.
 - ``enable``: the controlwords of cia402.MasterSequencer, one SYNC per cycle, until
   every drive is in "operation enabled".
 - ``cycle(forces)``: one exchange: each drive's RPDO (controlword, target torque), a
@@ -41,6 +44,7 @@ __all__ = ["RPDO_MAP", "TPDO_MAPS", "REQUIRED_OBJECTS", "check_dictionary", "pdo
 RPDO_MAP = (0x6040, 0x6071)                        # controlword, target torque
 TPDO_MAPS = ((0x6041, 0x6064, 0x6077), (0x606C,))  # statusword, position, torque actual; velocity
 SYNCHRONOUS = 1                                    # transmission type: act on / send at every SYNC
+ON_ARRIVAL = 255                                   # an RPDO acts as it comes (asynchronous, CiA 301)
 # what the master reads or writes by SDO, besides the PDOs' objects
 REQUIRED_OBJECTS = {0x1000: "device type", 0x1017: "producer heartbeat time", 0x603F: "error code",
                     0x605A: "quick stop option code", 0x6060: "modes of operation", 0x6072: "max torque",
@@ -185,6 +189,7 @@ class CanopenMaster:
 
     def _configure(self, node, k: int) -> None:
         s = self.settings
+        rpdo_type = SYNCHRONOUS if s.rpdo_synchronous else ON_ARRIVAL
         node.sdo[0x1017].raw = round(s.heartbeat_s * 1000.0)
         node.sdo[0x605A].raw = int(QuickStopOption.QUICK_STOP_RAMP_THEN_DISABLED)
         node.sdo[0x6072].raw = s.scaling[k].max_per_mille
@@ -198,29 +203,36 @@ class CanopenMaster:
                 if pdo_map.enabled:
                     for index in layout[number - 1]:
                         pdo_map.add_variable(index)
-                    pdo_map.trans_type = SYNCHRONOUS
+                    pdo_map.trans_type = rpdo_type if maps is node.rpdo else SYNCHRONOUS
             maps.save()
         for j, pdo_map in enumerate(node.tpdo[n] for n in range(1, len(TPDO_MAPS) + 1)):
             pdo_map.add_callback(lambda m, k=k, j=j: self._on_tpdo(k, j, m))
 
-    def enable(self, max_cycles: int = 20) -> Reading:
-        """SYNC cycles with zero torque until every drive is in operation enabled; the
-        reading of the first such SYNC. DriveStartError naming the drives that did not
-        get there (their states, error codes)."""
+    def enable(self, target: State = State.OPERATION_ENABLED, max_cycles: int = 20) -> Reading:
+        """SYNC cycles with zero torque until every drive is in ``target`` (operation
+        enabled, or switched on: powered, brake closed, for ``release``); the reading of
+        the first such SYNC. DriveStartError naming the drives that did not get there
+        (their states, error codes)."""
         reading = None
         for _ in range(max_cycles):
-            if reading is not None and all(st is State.OPERATION_ENABLED for st in reading.states):
+            if reading is not None and all(st is target for st in reading.states):
                 return reading
             states = reading.states if reading else [None] * self.settings.n
-            self.controlwords = [seq.next(st, State.OPERATION_ENABLED) if st is not None else
+            self.controlwords = [seq.next(st, target) if st is not None else
                                  CONTROLWORD[Command.DISABLE_VOLTAGE] for seq, st in zip(self.sequencers, states)]
             reading = self.exchange([0] * self.settings.n)
             if reading.missed:
                 raise DriveStartError("; ".join(self._trip_pdo(k).text() for k in reading.missed))
         late = [f"{self.settings.names[k]} {st.label if st else 'unknown'}"
                 + (f" ({error_text(self.emcy[k])})" if self.emcy[k] else "")
-                for k, st in enumerate(reading.states) if st is not State.OPERATION_ENABLED]
-        raise DriveStartError(f"drives not enabled after {max_cycles} cycles: {', '.join(late)}")
+                for k, st in enumerate(reading.states) if st is not target]
+        raise DriveStartError(f"drives not {target.label} after {max_cycles} cycles: {', '.join(late)}")
+
+    def release(self) -> None:
+        """From the next cycle on, every drive switched on is enabled with the target
+        of that cycle: its brake opens as its first force acts (no cycle at zero
+        torque on a loaded machine)."""
+        self.controlwords = [CONTROLWORD[Command.ENABLE_OPERATION]] * self.settings.n
 
     # -------------------------------------------------------------------- cycle
     def cycle(self, forces) -> Reading:

@@ -276,11 +276,17 @@ _TOWARDS_ENABLED = {
 }
 
 
+# towards switched on (power on, brake closed): the same path, stopping there
+_TOWARDS_SWITCHED_ON = {**_TOWARDS_ENABLED, State.SWITCHED_ON: Command.SWITCH_ON,
+                        State.OPERATION_ENABLED: Command.SWITCH_ON}                  # 5: disable operation
+
+
 class MasterSequencer:
     """The master's side for one drive: ``next(state, target)``, the controlword to
     send this cycle to bring a drive in ``state`` towards ``target`` (operation
-    enabled, switch on disabled or quick stop active). From a fault it sends the
-    fault reset's rising edge (a word without bit 7 first when the last one had it)."""
+    enabled, switched on, switch on disabled or quick stop active). From a fault it
+    sends the fault reset's rising edge (a word without bit 7 first when the last one
+    had it)."""
 
     def __init__(self):
         self.last = 0
@@ -295,14 +301,15 @@ class MasterSequencer:
             return CONTROLWORD[Command.QUICK_STOP]
         if target is State.SWITCH_ON_DISABLED:
             return CONTROLWORD[Command.DISABLE_VOLTAGE]
-        if target is not State.OPERATION_ENABLED:
-            raise ValueError(f"target: must be operation enabled, switch on disabled or quick stop active, "
-                             f"got {target.label}")
+        if target not in (State.OPERATION_ENABLED, State.SWITCHED_ON):
+            raise ValueError(f"target: must be operation enabled, switched on, switch on disabled or quick stop "
+                             f"active, got {target.label}")
         if state is State.FAULT:
             return CONTROLWORD[Command.DISABLE_VOLTAGE] if self.last & CW.FAULT_RESET \
                 else CONTROLWORD[Command.FAULT_RESET]
-        if state in _TOWARDS_ENABLED:
-            return CONTROLWORD[_TOWARDS_ENABLED[state]]
+        path = _TOWARDS_ENABLED if target is State.OPERATION_ENABLED else _TOWARDS_SWITCHED_ON
+        if state in path:
+            return CONTROLWORD[path[state]]
         return CONTROLWORD[Command.DISABLE_VOLTAGE]       # not ready, fault reaction, unknown: wait safely
 
 

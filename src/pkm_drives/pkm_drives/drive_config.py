@@ -5,6 +5,8 @@ between SI and drive units, its homing, and the bus.
 drives:
   bus: {interface: socketcan, channel: can0, bitrate: 1000000}
   heartbeat_ms: 100               # each drive's producer heartbeat (0x1017); 3 missed: lost
+  rpdo: synchronous               # RPDOs act at the next SYNC (all drives at once, one cycle late)
+                                  # or on_arrival (as they come: no cycle of delay)
   node_ids: [1, 2, 3, 4]          # one per leg, in the legs' order, 1-127, unique
   counts_per_unit: 1.0e6          # encoder counts per m (rail, strut) or rad; one, or one per drive
   rated_force: 700.0              # N (N m): the drive's 1000 per mille (0x6076); one or one per drive
@@ -102,6 +104,7 @@ class DriveSettings:
     home_positions: tuple[float, ...]
     heartbeat_s: float
     bus: BusSettings
+    rpdo_synchronous: bool = True    # RPDOs act at the SYNC after them (else as they come)
 
     @property
     def n(self) -> int:
@@ -176,6 +179,7 @@ def drive_settings(machine: MachineConfig, bus_override: dict | None = None) -> 
     bus_settings = BusSettings(b.string("interface", "socketcan"), str(b.raw("channel", "can0")),
                                int(b.number("bitrate", 1_000_000, lo=10_000, hi=1_000_000)))
     heartbeat_s = r.number("heartbeat_ms", 100.0, lo=0.0, lo_open=True, hi=65535.0, unit="ms") / 1000.0
+    rpdo = r.choice("rpdo", ("synchronous", "on_arrival"), "synchronous")
     return DriveSettings(names, _node_ids(r, n),
                          tuple(AxisScaling(c, rf, mf) for c, rf, mf in zip(counts, rated, max_force)),
-                         methods, order, home, heartbeat_s, bus_settings)
+                         methods, order, home, heartbeat_s, bus_settings, rpdo == "synchronous")

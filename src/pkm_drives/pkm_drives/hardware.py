@@ -50,10 +50,12 @@ class CanopenHardware:
         self._last: PlantOutput | None = None
 
     def start(self) -> None:
-        """Boot and enable the drives (DriveStartError naming a drive that cannot);
-        step 0 is the first SYNC with every drive in operation enabled."""
+        """Boot the drives and switch them on, brakes closed (DriveStartError naming a
+        drive that cannot); step 0 is the first SYNC with every drive switched on. The
+        first step enables them with its forces (canopen_master.CanopenMaster.release)."""
         self.master.boot()
-        self.reading = self.master.enable()
+        self.reading = self.master.enable(State.SWITCHED_ON)
+        self.master.release()
         self._last = self._output(self.reading)
 
     def step(self, forces, hold: bool = False) -> PlantOutput:
@@ -91,7 +93,7 @@ class CanopenHardware:
 
     def _output(self, r: Reading) -> PlantOutput:
         faults = [f"{k}:{st.label if st else 'unknown'}" for k, st in enumerate(r.states)
-                  if st is not State.OPERATION_ENABLED]
+                  if st is not State.OPERATION_ENABLED and (self.k or st is not State.SWITCHED_ON)]
         return PlantOutput(self.t, self.k, self.k * self.dt_ns, list(r.positions), list(r.velocities),
                            list(r.forces), list(r.limited), None, None, [], 0.0, faults, self.stopped)
 

@@ -63,6 +63,7 @@ FAULT_CODES = {
 }
 HEARTBEAT_CONSUMER_FAULT = (0x8130, 0x10)      # the master's heartbeat lost (0x1016)
 GENERIC_ERROR = 0x01
+POWERED = (State.SWITCHED_ON, State.OPERATION_ENABLED)      # the machine's clock runs from here on
 
 
 @dataclass
@@ -148,6 +149,9 @@ class VirtualDrive:
                     self.received_target = var.raw
                 elif var.index == 0x6060:
                     self.mode = Mode(var.raw)
+            if not self.sync_rpdo:               # an asynchronous RPDO acts as it comes
+                self._controlword(self.received_controlword)
+                self.latched_target = self.received_target
 
     def start_pdos(self) -> None:
         """Read the PDO configuration the master wrote (or the EDS's) and listen to the RPDOs."""
@@ -196,9 +200,6 @@ class VirtualDrive:
         """The force this drive applies over the period ending at this SYNC; None: its
         brake holds. Called once per SYNC, before the physics steps."""
         with self.lock:
-            if not self.sync_rpdo:
-                self._controlword(self.received_controlword)
-                self.latched_target = self.received_target
             target = self.latched_target
         if not (self.machine.torque_enabled and self.mode is Mode.CYCLIC_SYNC_TORQUE):
             return None
@@ -289,8 +290,8 @@ class MassAxes:
 
 class VirtualMachine:
     """The drives of one machine on one network and the physics they move. The
-    machine starts at the first SYNC after which every drive is in operation enabled
-    (its step 0, as the master's: canopen_master.CanopenMaster.enable); before it a
+    machine starts at the first SYNC after which every drive is switched on or enabled
+    (its step 0, as the master's: hardware.CanopenHardware.start); before it a
     SYNC only samples (the brakes hold, no time passes for the physics), from it on
     each SYNC (COB-ID 0x80) steps ``axes`` once with the drives' forces and has every
     drive report. ``on_step(k)``, if given, is called after step k (0 at the start)."""
@@ -319,7 +320,7 @@ class VirtualMachine:
             self.syncs += 1
             for drive, sample in zip(self.drives, samples):
                 drive.after_step(sample)
-            if self.steps is None and all(d.machine.torque_enabled for d in self.drives):
+            if self.steps is None and all(d.machine.state in POWERED for d in self.drives):
                 self.steps = 0
             if self.steps is not None and self.on_step is not None:
                 self.on_step(self.steps)

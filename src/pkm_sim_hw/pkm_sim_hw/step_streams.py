@@ -19,8 +19,9 @@ __all__ = ["StepStreams"]
 
 
 class StepStreams:
-    """Publishes a step of ``plant`` (a plant.Plant) on three publishers, each with a
-    ``publish(bytes)`` (the node's, tapped for the recorder)."""
+    """Publishes a step of ``plant`` (a plant.Plant, or hardware with the same
+    interface: pkm_drives.hardware) on three publishers, each with a ``publish(bytes)``
+    (the node's, tapped for the recorder; ``pose`` unused for hardware without ground truth)."""
 
     def __init__(self, plant, space, pose, state, clock):
         self.plant, self.space = plant, space
@@ -40,8 +41,10 @@ class StepStreams:
         """Clock, drives/state and platform/true_pose of the plant's current step."""
         out = self.plant.output()
         # the true pose first: the sensor's work is on the critical path of the step
-        # (state -> sensor -> controller), the drive state and the clock are not
-        self.pose.publish(self.pose_encoder.encode(ns, *true_pose_components(self.space, out)))
+        # (state -> sensor -> controller), the drive state and the clock are not; real
+        # drives (pkm_drives.hardware) know none
+        if out.tool_pose is not None:
+            self.pose.publish(self.pose_encoder.encode(ns, *true_pose_components(self.space, out)))
         encoder = self.held or self.running
         if self.plant.stopped:                     # the status word: braked, and why (also before a step)
             if self.stopped is None:
