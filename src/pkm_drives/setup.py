@@ -22,6 +22,9 @@ setup(
     ),
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'drives_node = pkm_drives.drives_node:main',
+            'virtual_drives_node = pkm_drives.virtual_drives_node:main',
+        ],
     },
 )

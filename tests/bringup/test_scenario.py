@@ -18,7 +18,8 @@ def test_shipped_scenarios_load(path, tmp_path):
     s = load_scenario(path)
     params = node_parameters(s, tmp_path)
     assert s.duration_s > 0
-    assert params["sim_hw"]["machine"] == params["controller"]["machine"] == s.machine
+    assert params[s.machine_node]["machine"] == params["controller"]["machine"] == s.machine
+    assert params["controller"]["state_source"] == f"{s.namespace}/{s.machine_node}"
     for name, values in params.items():   # every file is a valid --params-file
         data = yaml.safe_load(params_file_text(values))
         assert data["/**"]["ros__parameters"] == values, name
@@ -328,3 +329,43 @@ def test_the_planners_rate_and_budget_are_refused_before_anything_starts(traject
     """rate_hz 1e6 was refused only by trajectory_node, once the graph had started."""
     with pytest.raises(ScenarioError, match=words):
         load_scenario("archi_demo", {"trajectory": trajectory})
+
+
+def test_a_rate_the_can_bus_cannot_carry_is_refused_naming_the_figures():
+    """archi_canopen at 1 kHz: four drives' cycle takes 1355 bits at 1 Mbit/s, 1.358 ms with
+    their heartbeats' share (bus_timing)."""
+    with pytest.raises(ScenarioError) as info:
+        load_scenario("archi_canopen", {"dt_s": 0.001})
+    text = str(info.value)
+    assert text.startswith("dt_s: the CAN bus cannot carry the cycle") and "1355 bits" in text \
+        and "1.358 ms at 1 Mbit/s" in text and "asks for 1 ms" in text, text
+    # a slower bus needs a longer period still
+    with pytest.raises(ScenarioError, match=r"drives.can_bitrate|dt_s: the CAN bus"):
+        load_scenario("archi_canopen", {"drives": {"can_bitrate": 500000}})
+
+
+@pytest.mark.parametrize("drives,message", [
+    ({"drive_faults": "7:over_current"}, "drives.drive_faults: drive in [0, 3]"),
+    ({"drive_faults": "1:melted"}, "drives.drive_faults: expected '<drive>:<kind>"),
+    ({"pdo_timeout_s": "fast"}, "drives.pdo_timeout_s: must be a number"),
+    ({"node_ids": [1, 2]}, "drives.node_ids: not a drives parameter"),
+])
+def test_bad_drives_sections_are_refused(drives, message):
+    with pytest.raises(ScenarioError) as info:
+        load_scenario("archi_canopen", {"drives": drives})
+    assert str(info.value).startswith(message), str(info.value)
+
+
+def test_canopen_scenarios_wire_the_drive_interface_and_the_virtual_drives(tmp_path):
+    s = load_scenario("archi_canopen")
+    p = node_parameters(s, tmp_path)
+    assert "sim_hw" not in p and s.machine_node == "drives"
+    assert p["drives"]["can_interface"] == "remote" and p["drives"]["can_channel_file"] == \
+        p["virtual_drives"]["bridge_url_file"] == str(tmp_path / "can_bus.url")
+    assert p["virtual_drives"]["compliance"] == [5.0e-7, 5.0e-7, 2.0e-6]     # the scenario's plant section
+    assert p["drives"]["command_source"] == "/pkm/controller" and "virtual" not in p["drives"]
+    assert "mode" not in p["virtual_drives"] and p["virtual_drives"]["dt_s"] == 0.002
+    real = load_scenario("archi_canopen", {"drives": {"virtual": False}, "metrology": False, "load": [],
+                                           "controller": {"strategy": "computed_torque"}})
+    pr = node_parameters(real, tmp_path)
+    assert "virtual_drives" not in pr and "can_channel_file" not in pr["drives"]

@@ -38,10 +38,12 @@ from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_recording.recording import normal_cpu_priority
 
 # start order; the stop order is the reverse of the run order with the recorder last
-START_ORDER = ("recorder", "sim_hw", "gough_sensor", "controller")
+START_ORDER = ("recorder", "virtual_drives", "sim_hw", "drives", "gough_sensor", "controller")
 # after the sim's last step, how long the loop's nodes keep running (see run_processes)
 LOOP_END_GRACE_S = 0.15
-STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "recorder")
+STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "drives", "virtual_drives",
+              "recorder")
+MACHINE_NODES = ("sim_hw", "drives")     # the graph's machine: simulated, or the drive interface (one of them)
 CONNECT_TIMEOUT_S = 60.0
 DRAIN_S = 0.5
 DRAIN_IN_PROCESS_S = 0.2
@@ -96,7 +98,7 @@ def monitor_node(context, namespace: str):
 
     def on_diagnostics(msg):
         for status in msg.status:
-            if status.name == "sim_hw":
+            if status.name in MACHINE_NODES:
                 values = {kv.key: kv.value for kv in status.values}
                 node.sim_finished = node.sim_finished or values.get("finished") == "True"
                 on_time(msg)
@@ -259,15 +261,16 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         if s.program is None:               # ... or at the start signal (realtime: the planner waits for goals)
             publish_start(monitor, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
-        sim = nodes["sim_hw"]
+        machine = s.machine_node
+        sim = nodes[machine]
         # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it finished
         # (its last diagnostics, or its summary file, written before it shuts down: the
         # exit of a process with compiled kernels takes ~0.4 s, close to the
         # controller's state watchdog; the grace lets the last state be answered)
-        sim_summary = run_dir / "summaries" / "sim_hw.json"
+        sim_summary = run_dir / "summaries" / f"{machine}.json"
         finished_wall = math.inf
         while sim.running() and time.monotonic() < finished_wall + LOOP_END_GRACE_S:
-            check_alive(allowed_done=("sim_hw",))
+            check_alive(allowed_done=(machine,))
             if time.monotonic() > deadline:
                 raise RunFailed(f"timeout_s: the run did not end within {s.timeout_s:g} s (wall clock)")
             executor.spin_once(timeout_sec=0.02)
@@ -279,14 +282,15 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             normal_cpu_priority(nodes["recorder"].popen.pid)
         # stop the loop's nodes at once (their watchdogs would report the silent
         # plant), then give the recorder time for the last messages
-        codes.update(stop_nodes([nodes[n] for n in STOP_ORDER if n in nodes and n not in ("recorder", "sim_hw")],
-                                together=True))
+        # (the virtual drives, the machine's physics, stay until the machine's node has exited)
+        codes.update(stop_nodes([nodes[n] for n in STOP_ORDER
+                                 if n in nodes and n not in ("recorder", machine, "virtual_drives")], together=True))
         with contextlib.suppress(subprocess.TimeoutExpired):     # the sim ends by itself
             sim.popen.wait(timeout=10.0)
         if sim.popen.returncode is None:
-            raise RunFailed(f"node sim_hw finished but did not exit within 10 s; its last output:\n{sim.tail()}")
+            raise RunFailed(f"node {machine} finished but did not exit within 10 s; its last output:\n{sim.tail()}")
         if sim.popen.returncode != 0:
-            raise node_died("sim_hw", sim.popen.returncode, sim.tail())
+            raise node_died(machine, sim.popen.returncode, sim.tail())
         end = time.monotonic() + DRAIN_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)

@@ -19,6 +19,8 @@ from pkm_common.runner import start_up_frozen
 from pkm_controller.controller_node import ControllerNode
 from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
 from pkm_recording.recorder_node import RecorderNode
+from pkm_drives.drives_node import DrivesNode
+from pkm_drives.virtual_drives_node import VirtualDrivesNode
 from pkm_sim_hw.sim_hw_node import SimHwNode
 from pkm_trajectory.trajectory_node import TrajectoryNode
 
@@ -29,15 +31,21 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     interruption stops every node at once (no plant runs on without its controller)."""
 
     classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
-               "controller": ControllerNode, "trajectory": TrajectoryNode}
+               "controller": ControllerNode, "trajectory": TrajectoryNode, "drives": DrivesNode,
+               "virtual_drives": VirtualDrivesNode}
     context = init_context()
     executor = EventsExecutor(context=context)
     nodes = {}
 
     def create(name):
         values = dict(params[name])
-        if name == "sim_hw":
+        if name in ("sim_hw", "drives"):
             values["shutdown_on_finish"] = False
+        if name == "virtual_drives":          # one process: the drives' virtual channel, no bridge
+            values.pop("bridge_url_file", None)
+        if name == "drives" and "virtual_drives" in params:
+            values.update(can_interface="virtual", can_channel=params["virtual_drives"]["can_channel"])
+            values.pop("can_channel_file", None)
         if name == "recorder":
             values["cpu_priority"] = "normal"     # idle would demote the whole loop with it
         overrides = [Parameter(k, value=v) for k, v in values.items()]
@@ -78,7 +86,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
             nodes["starter"] = starter
             publish_start(starter, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
-        sim = nodes["sim_hw"]
+        sim = nodes[s.machine_node]
         last = 0.0
         with start_up_frozen():
             while not sim.finished:

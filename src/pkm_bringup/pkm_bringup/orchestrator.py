@@ -136,8 +136,10 @@ def _read_json(path: Path) -> dict:
 
 def trip_cause(summaries: dict) -> tuple[TripCause, str]:
     """The cause that started the run's stop, and its reason: the controller's (it takes
-    the plant's when the plant braked first), else the plant's."""
-    for node in ("controller", "sim_hw"):
+    the plant's when the plant braked first: then in the plant's own words, which name
+    what stopped it, a drive and its error code), else the plant's."""
+    machine = summaries.get("sim_hw") or summaries.get("drives") or {}
+    for node in ("controller", "sim_hw", "drives"):
         summary = summaries.get(node, {})
         if summary.get("stopped"):
             try:
@@ -145,7 +147,10 @@ def trip_cause(summaries: dict) -> tuple[TripCause, str]:
             except ValueError:
                 continue
             if cause != TripCause.NONE:
-                return cause, summary.get("stop_reason") or summary.get("message", "")
+                reason = summary.get("stop_reason") or summary.get("message", "")
+                if node == "controller" and machine.get("stopped") and machine.get("cause") == cause.value:
+                    reason = machine.get("stop_reason") or reason
+                return cause, reason
     return TripCause.NONE, ""
 
 
@@ -155,8 +160,10 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     the cause of the RunFailed that ended it (run_cause)."""
     summaries = {p.stem: _read_json(p) for p in sorted((run_dir / "summaries").glob("*.json"))}
     published = {}
-    for node in ("sim_hw", "controller", "gough_sensor"):
+    for node in (s.machine_node, "controller", "gough_sensor"):
         for topic, count in summaries.get(node, {}).get("published", {}).items():
+            if topic == "platform/true_pose" and node == "drives":
+                continue                     # the drive interface has no ground truth (the virtual drives do)
             published[s.topic(topic)] = count
     recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
     lost = {t: n - recorded.get(t, 0) for t, n in published.items()} if s.record else {}
@@ -166,7 +173,7 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     cause, reason = run_cause(summaries, failure, error)
     # DDS delivery to the sensor is not a recording loss, but a true pose it never
     # measured is a step the metrology missed: stated, not silent
-    sensor, sim = summaries.get("gough_sensor", {}), summaries.get("sim_hw", {})
+    sensor, sim = summaries.get("gough_sensor", {}), summaries.get(s.machine_node, {})
     sensor_missed = max(0, sim.get("published", {}).get("platform/true_pose", 0)
                         - sensor.get("published", {}).get("metrology/struts", 0)) if sensor and sim else 0
     run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
@@ -283,7 +290,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
 
 
 def format_summary(run: dict, run_dir: Path) -> str:
-    sims = run["summaries"].get("sim_hw", {})
+    sims = run["summaries"].get("sim_hw") or run["summaries"].get("drives", {})
     ctrl = run["summaries"].get("controller", {})
     lines = [f"scenario {run['scenario']} ({run['machine']}, {run['strategy']}"
              f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}"

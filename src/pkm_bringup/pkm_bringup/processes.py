@@ -28,6 +28,8 @@ from pkm_common.domains import claim_domain_id
 MODULES = {
     "recorder": "pkm_recording.recorder_node",
     "sim_hw": "pkm_sim_hw.sim_hw_node",
+    "drives": "pkm_drives.drives_node",
+    "virtual_drives": "pkm_drives.virtual_drives_node",
     "gough_sensor": "pkm_gough_sensor.gough_sensor_node",
     "controller": "pkm_controller.controller_node",
     "trajectory": "pkm_trajectory.trajectory_node",

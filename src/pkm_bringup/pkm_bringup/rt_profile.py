@@ -78,6 +78,8 @@ PROFILE: dict[str, Scheduling] = {
     "controller": Scheduling(FIFO, 80, lock_memory=True),
     "gough_sensor": Scheduling(FIFO, 70, lock_memory=True),
     "sim_hw": Scheduling(FIFO, 60, lock_memory=True),
+    "drives": Scheduling(FIFO, 60, lock_memory=True),          # the drive interface, in sim_hw's place
+    "virtual_drives": Scheduling(FIFO, 60, lock_memory=True),  # the simulated machine behind the bus
     "trajectory": Scheduling(),
     "recorder": Scheduling(),
 }

@@ -19,7 +19,8 @@ node runs by default. Keys (all optional but ``machine``)::
     metrology: true                   # run gough_sensor_node (the machine needs a metrology section)
     sensor: {...}                     # gough_sensor_node parameters (noise_std_m, calibration_error_m, ...)
     plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
-    recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...; config/recorder.yaml)
+    recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...;
+                                      # config/recorder.yaml)
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
                                       # (a 6-DOF machine: [fx, fy, fz, mx, my, mz])
     frame_load: [...]                 # the same on the machine's frame (plant frame_compliance)
@@ -31,6 +32,12 @@ node runs by default. Keys (all optional but ``machine``)::
                                       # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
                                       # (exit 2, nothing started) where the OS does not allow it.
                                       # pkm-run --rt-profile sets it.
+    hardware: sim                     # sim: sim_hw_node, the simulated machine; canopen: drives_node, the
+                                      # drive interface on CiA 402 drives over CANopen (pkm_drives)
+    drives: {...}                     # drives_node parameters (can_interface, pdo_timeout_s, ...), and
+                                      # virtual: true (default; virtual drives moving this scenario's
+                                      # simulated plant, virtual_drives_node) or false (the machine file's
+                                      # drives.bus: a real machine), drive_faults: "2:over_current:0.5"
     operators: [/pkm/my_script]       # nodes (full names) that may command the run beside pkm-run and
                                       # the panel (<namespace>/panel): goals, programs, settings, feed
                                       # override; a command while any other node publishes on its
@@ -47,7 +54,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import inspect
 import math
 import re
 from dataclasses import dataclass, field, fields
@@ -55,32 +61,39 @@ from pathlib import Path
 
 import yaml
 
+from pkm_bringup.owner_checks import OWNER_CHECKS
 from pkm_common import topics
 from pkm_common.credential import KEY_FILE
 from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
-from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
+from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.config import ControllerConfig
 from pkm_controller.strategies import REGISTRY as STRATEGIES
-from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_drives.virtual_drive import parse_drive_faults
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
-from pkm_sim_hw.plant import Fault, PlantParameters, check_load
-from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated
+from pkm_trajectory.planner import Limits, PlanBudget, plan_validated
 from pkm_trajectory.program import gcode_segments
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
-        "timeout_s", "realtime_profile", "operators")
+        "timeout_s", "realtime_profile", "operators", "hardware", "drives")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
-            "recorder": "recorder"}
+            "recorder": "recorder", "drives": "drives"}
+HARDWARE = ("sim", "canopen")
+# the scenario's drives section: keys that are the bringup's, not drives_node parameters
+DRIVES_BRINGUP_KEYS = ("virtual", "drive_faults")
+CAN_BUS_URL = "can_bus.url"          # in the run directory: the virtual drives' bridge (pkm_drives.bus)
 # parameters with a fixed set of values, checked when the scenario is loaded
 CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
 PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose")
+# sim_hw parameters of its loop, not of its plant (the virtual drives take the plant's only)
+LOOP_ONLY = ("mode", "command_timeout_s", "command_max_age_s", "sync_error_limit", "command_source", "duration_s",
+             "summary_path", "publish_markers")
 
 
 class ScenarioError(ValueError):
@@ -112,6 +125,30 @@ class Scenario:
     description: str = ""
     realtime_profile: bool = False
     operators: list = field(default_factory=list)     # more nodes that may command (full names)
+    hardware: str = "sim"
+    drives: dict = field(default_factory=dict)
+
+    @property
+    def machine_node(self) -> str:
+        """The graph's node of the machine: sim_hw (simulated) or drives (CANopen drives)."""
+        return "drives" if self.hardware == "canopen" else "sim_hw"
+
+    @property
+    def virtual_drives(self) -> bool:
+        """The drives are virtual ones on a simulated plant (virtual_drives_node)."""
+        return self.hardware == "canopen" and bool(self.drives.get("virtual", True))
+
+    @property
+    def ground_truth(self) -> bool:
+        """A simulated plant publishes platform/true_pose (not a real machine)."""
+        return self.hardware == "sim" or self.virtual_drives
+
+    def section_node(self, key: str) -> str:
+        """The node a scenario section parameterises (the plant: sim_hw's, or the
+        virtual drives' plant)."""
+        if key == "plant" and self.hardware == "canopen":
+            return "virtual_drives"
+        return SECTIONS[key]
 
     @property
     def strategy(self) -> str:
@@ -321,6 +358,17 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"operators: must be a list of full node names such as '/pkm/my_script', got "
                             f"{operators!r}")
     s.operators = list(operators)
+    s.hardware = data.get("hardware", s.hardware)
+    if s.hardware not in HARDWARE:
+        raise ScenarioError(f"hardware: must be one of {list(HARDWARE)}, got {s.hardware!r}")
+    if s.drives and s.hardware != "canopen":
+        raise ScenarioError("drives: only with hardware: canopen")
+    if s.hardware == "canopen" and not s.ground_truth and (s.metrology or data.get("load")):
+        raise ScenarioError("hardware: a real machine (drives.virtual: false) has no simulated metrology or load")
+    try:
+        parse_drive_faults(str(s.drives.get("drive_faults", "")), config.model.n_legs)
+    except FieldError as exc:
+        raise ScenarioError(f"drives.drive_faults: {exc.detail}") from None
     size = len(config.model.task_space.loads)
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
@@ -350,76 +398,22 @@ def controller_defaults(machine_name: str) -> dict:
     return _node_defaults(f"controller/{machine_name}")
 
 
-# The owners' validations of a node's parameters ``p`` (as node_parameters gives them)
-# on the scenario's machine ``config``; each raises the owner's ValueError.
-def _check_controller(p: dict, config) -> None:
-    known = {f.name for f in fields(ControllerConfig)}
-    core_from_parameters(p["machine"], ControllerConfig.from_dict({k: v for k, v in p.items() if k in known}))
-
-
-def _check_plant(p: dict, config) -> None:
-    known = {f.name for f in fields(PlantParameters)}
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in known}
-    if "faults" in values:          # one string to ROS; split as sim_hw_node does
-        values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
-    params = PlantParameters(**values)
-    params.validate(config.model.n_legs, config.model.task_space)
-    loads = config.model.task_space.loads
-    for name in ("compliance", "frame_compliance"):
-        values = getattr(params, name)
-        if any(values) and len(values) != len(loads):
-            raise FieldError(name, f"must be {len(loads)} values on {config.name} (one per load component "
-                                   f"{', '.join(loads)}), got {list(values)}")
-    for text in params.faults:
-        Fault.parse(text, config.model.n_legs)
-    for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
-        schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
-        space = config.model.task_space
-        size = len(space.loads)
-        for i in range(0, len(schedule), size + 1):
-            try:
-                check_load(schedule[i + 1:i + 1 + size], space, params, key)
-            except FieldError as exc:
-                raise FieldError(exc.name, f"{exc.detail} at t_s = {schedule[i]:g} s") from None
-
-
-def _check_sensor(p: dict, config) -> None:
-    known = set(inspect.signature(GoughSensorModel).parameters) - {"metrology"}
-    values = {k: v for k, v in p.items() if k in known}
-    if not values.get("resolution_m"):         # 0: the machine file's (gough_sensor_node)
-        values.pop("resolution_m", None)
-    GoughSensorModel(config.metrology, **values)
-
-
-def _check_trajectory(p: dict, config) -> None:
-    """trajectory_node's rate and plan budget (its other parameters: program_duration)."""
-    lo, hi = RATE_HZ_RANGE
-    rate = p.get("rate_hz", 1000.0)
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
-        raise FieldError("rate_hz", f"must be in [{lo:g}, {hi:g}] Hz, got {rate!r}")
-    PlanBudget(p.get("max_points", 200_000), p.get("max_segments", 10_000), float(p.get("max_planning_s", 10.0)))
-
-
-_OWNER_CHECKS = {"controller": _check_controller, "plant": _check_plant, "sensor": _check_sensor,
-                 "trajectory": _check_trajectory}
-
-
 def _check_nodes(s: Scenario, config) -> None:
     """Refuse what a node would refuse once started: the parameters each node gets
     (node_parameters; the run directory aside) through its owner's validation, then
     the scenario's non-finite doubles (pkm_common.params declares finite ones; after
     the owners, so that a NaN is told the owner's range where there is one)."""
     params = node_parameters(s, Path("run"))
-    for key, check in _OWNER_CHECKS.items():
-        node = SECTIONS[key]
+    for key, check in OWNER_CHECKS.items():
+        node = s.section_node(key)
         if node not in params:
             continue
         try:
             check(params[node], config)
         except ValueError as exc:
             raise _owner_refusal(s, key, exc) from None
-    for key, node in SECTIONS.items():
-        floats = _float_parameters(node)
+    for key in SECTIONS:
+        floats = _float_parameters(s.section_node(key))
         for name, value in getattr(s, key).items():
             if name in floats and not math.isfinite(value):
                 raise ScenarioError(f"{key}.{name}: must be a finite number, got {value!r}")
@@ -431,9 +425,11 @@ def _owner_refusal(s: Scenario, key: str, exc: ValueError) -> ScenarioError:
     is said to be the node's default."""
     message = str(exc)
     name, rest = (exc.name, exc.detail) if isinstance(exc, FieldError) else ("", message)
+    if name in KEYS and name not in getattr(s, key):
+        # a top-level key of the scenario the run wires into the node (machine, load, dt_s)
+        return ScenarioError(f"{name}: {rest}")
     if name not in node_parameter_names(SECTIONS[key]):
-        # a top-level key of the scenario (machine, load) or a message naming none
-        return ScenarioError(f"{name}: {rest}" if name in KEYS else f"{key}: {message}")
+        return ScenarioError(f"{key}: {message}")            # a message naming no parameter
     if name not in getattr(s, key):
         source = f"config/{SECTIONS[key]}.yaml"
         if key == "controller":
@@ -528,22 +524,35 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     key = str(credential or run_dir / KEY_FILE)
     flat_load = [v for t, w in s.load for v in (t, *w)]
     flat_frame_load = [v for t, w in s.frame_load for v in (t, *w)]
-    nodes = {
-        "sim_hw": {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant, "machine": s.machine, "mode": s.mode, "dt_s": s.dt_s,
-                   "duration_s": s.duration_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load,
-                   "command_source": controller_node_name(s),
-                   "load_sources": ",".join(operator_names(s)), "credential_file": key,
-                   "summary_path": str(summaries / "sim_hw.json")},
+    plant = {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant,
+             "machine": s.machine, "dt_s": s.dt_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load}
+    loop = {"machine": s.machine, "mode": s.mode, "dt_s": s.dt_s, "duration_s": s.duration_s,
+            "command_source": controller_node_name(s), "load_sources": ",".join(operator_names(s)),
+            "credential_file": key, "summary_path": str(summaries / f"{s.machine_node}.json")}
+    nodes = {}
+    if s.hardware == "sim":
+        nodes["sim_hw"] = {**plant, **loop}
+    else:
+        drives = {k: v for k, v in {**_node_defaults("drives"), **s.drives}.items() if k not in DRIVES_BRINGUP_KEYS}
+        nodes["drives"] = {**drives, **loop}
+        if s.virtual_drives:
+            # the bus: served by the virtual drives' process on the loopback (pkm_drives.bus); in one
+            # process (in_process) a virtual channel
+            nodes["drives"].update(can_interface="remote", can_channel_file=str(run_dir / CAN_BUS_URL))
+            nodes["virtual_drives"] = {**{k: v for k, v in plant.items() if k not in LOOP_ONLY},
+                                       "can_channel": f"pkm_{s.name}", "bridge_url_file": str(run_dir / CAN_BUS_URL),
+                                       "drive_faults": str(s.drives.get("drive_faults", ""))}
+    nodes.update({
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
                        "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
-                       "state_source": run_node_name(s, "sim_hw"),
+                       "state_source": run_node_name(s, s.machine_node),
                        "trajectory_source": run_node_name(s, "trajectory"),
                        "operator_sources": ",".join(operator_names(s)), "credential_file": key,
                        "metrology_source": run_node_name(s, "gough_sensor") if s.metrology else "",
                        "summary_path": str(summaries / "controller.json")},
-    }
+    })
     if s.metrology:
         nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
                                  "summary_path": str(summaries / "gough_sensor.json")}
@@ -568,7 +577,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
 
 
 # node -> the per-step streams it publishes through its recording tap when recorded
-TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"),
+TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"), "drives": ("drives/state", "/clock"),
                   "gough_sensor": ("metrology/struts", "metrology/pose"),
                   "controller": ("drives/command", "controller/reference")}
 
@@ -578,8 +587,11 @@ START_TOPIC = topics.RUN_START    # latched String "start" with its credential: 
 
 def expected_topics(s: Scenario) -> list[str]:
     """The streams that must be connected before a run starts (relative names)."""
-    topics = ["drives/state", "platform/true_pose", "drives/command", "controller/reference",
-              "controller/status", "/clock"]
+    topics = ["drives/state", "drives/command", "controller/reference", "controller/status", "/clock"]
+    if s.ground_truth:
+        topics.append("platform/true_pose")
+    if s.hardware == "canopen":
+        topics.append("drives/cia402")
     if s.metrology:
         topics += ["metrology/struts", "metrology/pose"]
     return topics

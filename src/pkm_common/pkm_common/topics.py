@@ -29,12 +29,14 @@ CONTROLLER_EVENTS = "controller/events"
 FEED_OVERRIDE, SETTINGS = "controller/feed_override", "controller/settings"
 TRAJECTORY, GOAL, PROGRAM, RUN_START = "trajectory", "goal", "program", "run/start"
 LOAD, ESTOP, MARKERS, DIAGNOSTICS = "load", "estop", "markers", "diagnostics"
+DRIVES_CIA402 = "drives/cia402"       # each servo drive's CiA 402 state and error code (pkm_drives)
 
 CATALOGUE: dict[str, Topic] = {t.name: t for t in (
     Topic(CLOCK, "rosgraph_msgs/msg/Clock", "clock"),
     Topic(DRIVES_STATE, "sensor_msgs/msg/JointState", "stream"),
     Topic(DRIVES_COMMAND, "sensor_msgs/msg/JointState", "stream"),
     Topic(DRIVES_REFUSED, "diagnostic_msgs/msg/DiagnosticArray", "stream"),
+    Topic(DRIVES_CIA402, "diagnostic_msgs/msg/DiagnosticArray", "stream"),
     Topic(TRUE_POSE, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(METROLOGY_STRUTS, "sensor_msgs/msg/JointState", "stream"),
     Topic(METROLOGY_POSE, "geometry_msgs/msg/PoseStamped", "stream"),

@@ -138,6 +138,7 @@ class CanopenMaster:
         self.nmt_states = [None] * n                         # from the heartbeats
         self.stopping = False
         self.syncs = 0
+        self.lost: set[int] = set()                           # drives that missed a TPDO
         for k, node in enumerate(self.nodes):
             node.emcy.add_callback(lambda error, k=k: self._on_emcy(k, error))
             network.subscribe(0x700 + node.id, lambda can_id, data, ts, k=k: self._on_heartbeat(k, data))
@@ -254,14 +255,16 @@ class CanopenMaster:
         self.network.sync.transmit()
         self.syncs += 1
         deadline = time.monotonic() + self.pdo_timeout_s
+        awaited = [k for k in range(len(self.arrived)) if k not in self.lost]
         with self.cond:
-            while not all(all(flags) for flags in self.arrived):
+            while not all(all(self.arrived[k]) for k in awaited):
                 left = deadline - time.monotonic()
                 if left <= 0.0:
                     break
                 self.cond.wait(left)
             missed = [k for k, flags in enumerate(self.arrived) if not all(flags)]
             values = [dict(v) for v in self.values]
+        self.lost.update(missed)                 # not waited for again: the machine stops on it
         s = self.settings.scaling
         words = [v[0x6041] for v in values]
         return Reading([sc.position_from_drive(v[0x6064]) for sc, v in zip(s, values)],
@@ -293,8 +296,9 @@ class CanopenMaster:
             silence = watchdog.silence_s(now)
             limit = self.heartbeat_factor * self.settings.heartbeat_s
             if silence is not None and silence > limit:
-                found.append(self._trip(k, TripCause.HEARTBEAT_LOST, f"sent no heartbeat for {silence * 1e3:.0f} ms "
-                                        f"(its period {self.settings.heartbeat_s * 1e3:g} ms, limit {limit * 1e3:g} ms)"))
+                found.append(self._trip(k, TripCause.HEARTBEAT_LOST,
+                                        f"sent no heartbeat for {silence * 1e3:.0f} ms (its period "
+                                        f"{self.settings.heartbeat_s * 1e3:g} ms, limit {limit * 1e3:g} ms)"))
             elif self.nmt_states[k] != NMT_OPERATIONAL:
                 found.append(self._trip(k, TripCause.DRIVE_DISABLED, f"left NMT operational (heartbeat state "
                                         f"{self.nmt_states[k]})"))

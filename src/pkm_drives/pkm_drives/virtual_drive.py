@@ -26,12 +26,14 @@ and has each drive report its encoder (0x6064, 0x606C) and torque (0x6077).
 Injectable faults (``VirtualDrive.inject``): ``over_current`` (0x2310),
 ``following_error`` (0x8611), ``encoder`` (0x7305; the position freezes),
 ``heartbeat_lost`` (the heartbeat stops, the drive works on), ``silent`` (the drive
-stops answering anything: a cut cable; its own communication watchdog brakes it).
+stops answering anything: a cut cable; its own communication watchdog brakes it),
+``local_stop`` (its own quick stop input: it leaves operation enabled without a fault).
 """
 
 from __future__ import annotations
 
 import enum
+import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,8 +43,10 @@ import canopen
 
 from .cia402 import DriveStateMachine, Mode, QuickStopOption, State, homing_bits, HomingStatus, statusword
 from .drive_config import AxisScaling
+from pkm_kinematics.errors import FieldError
 
-__all__ = ["DEFAULT_EDS", "InjectedFault", "FAULT_CODES", "VirtualDrive", "Axes", "MassAxes", "VirtualMachine"]
+__all__ = ["DEFAULT_EDS", "InjectedFault", "FAULT_CODES", "VirtualDrive", "Axes", "MassAxes", "VirtualMachine",
+           "parse_drive_faults"]
 
 DEFAULT_EDS = Path(__file__).with_name("eds") / "cia402_servo.eds"
 
@@ -53,6 +57,7 @@ class InjectedFault(str, enum.Enum):
     ENCODER = "encoder"
     HEARTBEAT_LOST = "heartbeat_lost"
     SILENT = "silent"
+    LOCAL_STOP = "local_stop"          # the drive's own quick stop input (no fault): it leaves operation enabled
 
 
 # the error code (0x603F, EMCY) and error register bit (0x1001) of each drive fault
@@ -226,6 +231,9 @@ class VirtualDrive:
         for fault in pending:
             if fault is InjectedFault.HEARTBEAT_LOST:
                 self.node.nmt.stop_heartbeat()
+            elif fault is InjectedFault.LOCAL_STOP:
+                with self.lock:
+                    self._controlword(0x02)      # as its quick stop input does
             elif fault is InjectedFault.SILENT:
                 self.silent = True
                 self.node.nmt.stop_heartbeat()
@@ -252,6 +260,23 @@ class VirtualDrive:
             for var in pdo_map:
                 var.raw = values.get(var.index, 0)
             pdo_map.transmit()
+
+
+def parse_drive_faults(text: str, n: int) -> list[tuple[int, InjectedFault, float]]:
+    """``drive_faults`` as (drive, fault, at_s); FieldError naming a bad entry."""
+    out = []
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        parts = item.split(":")
+        try:
+            drive, kind = int(parts[0]), InjectedFault(parts[1])
+            at_s = float(parts[2]) if len(parts) > 2 else 0.0
+        except (IndexError, ValueError):
+            raise FieldError("drive_faults", f"expected '<drive>:<kind>[:<at_s>]' with kind one of "
+                             f"{[f.value for f in InjectedFault]}, got {item!r}") from None
+        if not 0 <= drive < n or len(parts) > 3 or not (math.isfinite(at_s) and at_s >= 0.0):
+            raise FieldError("drive_faults", f"drive in [0, {n - 1}], at_s >= 0, got {item!r}")
+        out.append((drive, kind, at_s))
+    return sorted(out, key=lambda f: f[2])
 
 
 class Axes(Protocol):

@@ -23,6 +23,13 @@ def declare_settings(node) -> SimHwSettings:
     """Declare every parameter of sim_hw on ``node``; a bad value raises ParameterError
     naming it and its allowed range (the node does not start)."""
     machine = load_machine(declare_str(node, "machine", "archi", "config/machines/<name>.yaml"))
+    plant = declare_plant(node, machine)
+    return declare_loop(node, machine, plant, plant.params.dt_s)
+
+
+def declare_plant(node, machine):
+    """The simulated plant of ``machine`` from ``node``'s parameters, its load schedules
+    loaded (sim_hw; pkm_drives' virtual drives move one too)."""
     faults = declare_str(node, "faults", "", "comma-separated '<drive>:<kind>[:<at_s>[:<size_m>]]' (size: "
                          "encoder_slip)", allow_empty=True)
     params = PlantParameters(
@@ -55,6 +62,26 @@ def declare_settings(node) -> SimHwSettings:
                                                  lo_open=True, unit="m"))
     initial = declare_float_list(node, "initial_pose", [], "empty: the machine's home pose")
     plant = PLANTS.get(machine.kind, Plant)(machine, params, initial_pose=initial or None)
+    schedules = (("load_schedule", plant.schedule_load, "the load on the tool"),
+                 ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame"))
+    size = len(machine.model.task_space.loads)        # a load's components: 3, or 6 on a 6-DOF machine
+    for name, schedule_into, what in schedules:
+        schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
+                                      "from t_s on, in simulated time (deterministic, unlike the load topic)")
+        if len(schedule) % (size + 1):
+            raise ParameterError(name, f"must hold groups of {size + 1} numbers [t_s, "
+                                       f"{', '.join(machine.model.task_space.loads)}], got {len(schedule)} numbers")
+        try:
+            schedule_into([(schedule[i], schedule[i + 1:i + 1 + size])
+                           for i in range(0, len(schedule), size + 1)])
+        except ValueError as exc:
+            raise ParameterError(name, exc.detail if isinstance(exc, FieldError) else str(exc)) from None
+    return plant
+
+
+def declare_loop(node, machine, plant, dt_s: float) -> SimHwSettings:
+    """The loop's settings (pkm_sim_hw.sim_loop) around ``plant``: a simulated plant,
+    or hardware that steps as one (pkm_drives.hardware.CanopenHardware)."""
     lockstep = declare_str(node, "mode", "lockstep", choices=("lockstep", "realtime")) == "lockstep"
     timeout_s = declare_float(node, "command_timeout_s", 1.0, 0.0, 3600.0, lo_open=True, unit="s")
     sync_error_limit = declare_int(node, "sync_error_limit", 12, 0, 1_000_000, "realtime: brake when the "
@@ -71,22 +98,8 @@ def declare_settings(node) -> SimHwSettings:
     summary_path = declare_str(node, "summary_path", "", "write a JSON run summary here at exit", allow_empty=True)
     shutdown_on_finish = declare_bool(node, "shutdown_on_finish", True, "end the process when duration_s is "
                                       "reached (in-process runs: False)")
-    schedules = (("load_schedule", plant.schedule_load, "the load on the tool"),
-                 ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame"))
-    size = len(machine.model.task_space.loads)        # a load's components: 3, or 6 on a 6-DOF machine
-    for name, schedule_into, what in schedules:
-        schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
-                                      "from t_s on, in simulated time (deterministic, unlike the load topic)")
-        if len(schedule) % (size + 1):
-            raise ParameterError(name, f"must hold groups of {size + 1} numbers [t_s, "
-                                       f"{', '.join(machine.model.task_space.loads)}], got {len(schedule)} numbers")
-        try:
-            schedule_into([(schedule[i], schedule[i + 1:i + 1 + size])
-                           for i in range(0, len(schedule), size + 1)])
-        except ValueError as exc:
-            raise ParameterError(name, exc.detail if isinstance(exc, FieldError) else str(exc)) from None
     # 60 s at 1 kHz: 60000 steps (plant.t, a sum of dt, would make it 60001)
-    duration_steps = math.ceil(duration_s / params.dt_s - 1e-6) if duration_s else 0
+    duration_steps = math.ceil(duration_s / dt_s - 1e-6) if duration_s else 0
     load_senders = AllowedSenders("load", node_names(declare_str(
         node, "load_sources", "", "full node names allowed to publish a load, comma-separated (empty: anyone); "
         "another's load stops the machine (cause intruder)", allow_empty=True)), "load_sources")

@@ -53,28 +53,33 @@ from pkm_sim_hw.step_streams import StepStreams
 
 class SimHwNode(Node):
     """The middleware around a ``sim_loop.SimLoop`` (its ``ports``: the publishers,
-    the graph, the logger)."""
+    the graph, the logger). A subclass steps other hardware in the same loop
+    (pkm_drives.drives_node): its ``make_settings`` gives it, ``simulated`` False
+    (no ground truth, no simulated load, no markers)."""
 
-    def __init__(self, context=None, **kwargs):
-        super().__init__("sim_hw", context=context, **kwargs)
-        settings = declare_settings(self)
+    simulated = True
+
+    def __init__(self, context=None, node_name: str = "sim_hw", **kwargs):
+        super().__init__(node_name, context=context, **kwargs)
+        settings = self.make_settings()
         self.config, self.plant = settings.machine, settings.plant
         self.shutdown_on_finish = settings.shutdown_on_finish
         self.tap = NodeTap(self, declare_bool(self, "tap", False, "copy the per-step streams to a recorder "
                                               "in batches (pkm_recording.tap) instead of its subscribing to them"))
         self.pub_clock = self.tap.wrap(publisher(self, topics.CLOCK), Clock)
         self.pub_state = self.tap.wrap(publisher(self, topics.DRIVES_STATE), JointState)
-        self.pub_pose = self.tap.wrap(publisher(self, topics.TRUE_POSE), PoseStamped)
+        self.pub_pose = self.tap.wrap(publisher(self, topics.TRUE_POSE), PoseStamped) if self.simulated else None
         streams = StepStreams(self.plant, self.config.model.task_space, self.pub_pose, self.pub_state, self.pub_clock)
         self.loop = loop = SimLoop(settings, streams, self)
         self.run, self.counts = loop.run, loop.counts
         self.pub_diag = publisher(self, topics.DIAGNOSTICS)
         self.refusals = RefusalReport(self, self.counts)
-        self.pub_markers = publisher(self, topics.MARKERS)
+        self.pub_markers = publisher(self, topics.MARKERS) if self.simulated else None
         self.command_sub = subscription(
             self, topics.DRIVES_COMMAND, loop.on_command, raw=True,
             event_callbacks=SubscriptionEventCallbacks(matched=lambda s: loop.on_command_matched(s.current_count)))
-        self.load_sub = subscription(self, topics.LOAD, loop.on_load_message, raw=True)
+        if self.simulated:
+            self.load_sub = subscription(self, topics.LOAD, loop.on_load_message, raw=True)
         subscription(self, topics.ESTOP, lambda m: loop.on_estop(bool(m.data)))
         self.create_timer(0.1, loop.on_watchdog)
         for cadence, work in loop.cadences:
@@ -82,6 +87,10 @@ class SimHwNode(Node):
         if not loop.lockstep:
             self.create_timer(self.plant.params.dt_s, loop.on_realtime_tick)
         loop.publish_state()
+
+    def make_settings(self):
+        """The loop's settings from the node's parameters (parameters.declare_settings)."""
+        return declare_settings(self)
 
     @property
     def finished(self) -> bool:
@@ -97,7 +106,7 @@ class SimHwNode(Node):
     # ------------------------------------------------- the loop's ports (sim_loop)
     def publish_diagnostics(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
         self.pub_diag.publish(diagnostic_array(ns_to_stamp(stamp_ns),
-                                               [diagnostic_status("sim_hw", level, message, values)]))
+                                               [diagnostic_status(self.get_name(), level, message, values)]))
 
     def publish_markers(self, segments, stamp_ns: int) -> None:
         self.pub_markers.publish(line_list_markers(segments, stamp_ns))

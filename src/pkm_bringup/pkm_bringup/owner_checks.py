@@ -1,0 +1,90 @@
+"""The owners' validations of a node's parameters (pure): what each node would refuse
+once started, checked when a scenario is loaded (scenario._check_nodes), each by the
+owner's own code (ControllerConfig and the controller core, PlantParameters and Fault,
+GoughSensorModel, the planner's budget, the drives' settings and bus timing). Each
+``check_<section>(p, config)`` takes the node's parameters ``p`` (as
+scenario.node_parameters gives them) on the scenario's machine ``config`` and raises the
+owner's ValueError (a FieldError naming the parameter)."""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import fields
+
+import canopen
+
+from pkm_controller.configuration import core_from_parameters
+from pkm_controller.config import ControllerConfig
+from pkm_drives.bus_timing import check_rate, cycle_load
+from pkm_drives.canopen_master import pdo_bytes
+from pkm_drives.drive_config import drive_settings
+from pkm_drives.virtual_drive import DEFAULT_EDS
+from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_kinematics.errors import FieldError
+from pkm_sim_hw.plant import Fault, PlantParameters, check_load
+from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
+
+__all__ = ["OWNER_CHECKS"]
+
+
+def check_controller(p: dict, config) -> None:
+    known = {f.name for f in fields(ControllerConfig)}
+    core_from_parameters(p["machine"], ControllerConfig.from_dict({k: v for k, v in p.items() if k in known}))
+
+
+def check_plant(p: dict, config) -> None:
+    known = {f.name for f in fields(PlantParameters)}
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in known}
+    if "faults" in values:          # one string to ROS; split as sim_hw_node does
+        values["faults"] = tuple(f.strip() for f in values["faults"].split(",") if f.strip())
+    params = PlantParameters(**values)
+    params.validate(config.model.n_legs, config.model.task_space)
+    loads = config.model.task_space.loads
+    for name in ("compliance", "frame_compliance"):
+        values = getattr(params, name)
+        if any(values) and len(values) != len(loads):
+            raise FieldError(name, f"must be {len(loads)} values on {config.name} (one per load component "
+                                   f"{', '.join(loads)}), got {list(values)}")
+    for text in params.faults:
+        Fault.parse(text, config.model.n_legs)
+    for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
+        schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
+        space = config.model.task_space
+        size = len(space.loads)
+        for i in range(0, len(schedule), size + 1):
+            try:
+                check_load(schedule[i + 1:i + 1 + size], space, params, key)
+            except FieldError as exc:
+                raise FieldError(exc.name, f"{exc.detail} at t_s = {schedule[i]:g} s") from None
+
+
+def check_sensor(p: dict, config) -> None:
+    known = set(inspect.signature(GoughSensorModel).parameters) - {"metrology"}
+    values = {k: v for k, v in p.items() if k in known}
+    if not values.get("resolution_m"):         # 0: the machine file's (gough_sensor_node)
+        values.pop("resolution_m", None)
+    GoughSensorModel(config.metrology, **values)
+
+
+def check_trajectory(p: dict, config) -> None:
+    """trajectory_node's rate and plan budget (its other parameters: program_duration)."""
+    lo, hi = RATE_HZ_RANGE
+    rate = p.get("rate_hz", 1000.0)
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:
+        raise FieldError("rate_hz", f"must be in [{lo:g}, {hi:g}] Hz, got {rate!r}")
+    PlanBudget(p.get("max_points", 200_000), p.get("max_segments", 10_000), float(p.get("max_planning_s", 10.0)))
+
+
+def check_drives(p: dict, config) -> None:
+    """The machine file's drives section and the bus's time for one cycle at dt_s
+    (pkm_drives.drive_config, bus_timing): a rate the bus cannot carry is refused here."""
+    bus = {k: p[f"can_{k}"] for k in ("interface", "channel", "bitrate") if p.get(f"can_{k}")}
+    settings = drive_settings(config, bus)
+    eds = p.get("eds") or str(DEFAULT_EDS)
+    rpdo, tpdo = pdo_bytes(canopen.import_od(eds, settings.node_ids[0]))
+    check_rate(cycle_load(settings.bus.bitrate, p["dt_s"], [rpdo] * settings.n, [tpdo] * settings.n,
+                          settings.heartbeat_s))
+
+
+OWNER_CHECKS = {"controller": check_controller, "plant": check_plant, "sensor": check_sensor,
+                "trajectory": check_trajectory, "drives": check_drives}
