@@ -5,7 +5,6 @@ processes: tracked as the same scenario on sim_hw (within 10 %), replayed bit fo
 bit, the drives' CiA 402 states in the bag; each drive fault through the bus stops
 the machine with its cause and drive named, within a cycle."""
 
-import numpy as np
 import pytest
 
 from pkm_bringup.orchestrator import run_scenario
