@@ -57,6 +57,21 @@ def test_the_bag_shows_each_drive_switched_on_then_enabled(runs):
     assert tuple((n, "operation enabled") for n in names) in seen, seen
 
 
+def test_the_hexapod_on_six_virtual_drives_tracks_as_on_sim_hw(tmp_path):
+    """genhexkins at 400 Hz (six drives: 2005 bits a cycle), its RPDOs acting on arrival."""
+    bus = run_scenario(load_scenario("hexapod_canopen"), tmp_path / "canopen", in_process=True, progress=False)
+    sim = run_scenario(load_scenario("hexapod_canopen", {"hardware": "sim", "drives": {}}), tmp_path / "sim",
+                       in_process=True, progress=False)
+    assert bus["status"] == sim["status"] == "completed", (bus["error"], sim["error"])
+    b, s = bus["metrics"]["tracking_error"], sim["metrics"]["tracking_error"]
+    figures = f"rms {b['rms_m'] * 1e6:.2f} vs {s['rms_m'] * 1e6:.2f} um, max {b['max_m'] * 1e6:.2f} vs " \
+              f"{s['max_m'] * 1e6:.2f} um, rotation rms {b['rotation_rms_rad'] * 1e6:.2f} vs " \
+              f"{s['rotation_rms_rad'] * 1e6:.2f} urad"
+    assert b["rms_m"] <= 1.1 * s["rms_m"] and b["max_m"] <= 1.1 * s["max_m"], figures
+    assert b["rotation_rms_rad"] <= 1.15 * s["rotation_rms_rad"], figures
+    assert replay_controller(tmp_path / "canopen").ok
+
+
 @pytest.mark.slow
 def test_processes_over_the_loopback_bridge_compute_the_same_run(runs):
     root, _, _ = runs

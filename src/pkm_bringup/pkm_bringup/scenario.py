@@ -32,12 +32,10 @@ node runs by default. Keys (all optional but ``machine``)::
                                       # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
                                       # (exit 2, nothing started) where the OS does not allow it.
                                       # pkm-run --rt-profile sets it.
-    hardware: sim                     # sim: sim_hw_node, the simulated machine; canopen: drives_node, the
-                                      # drive interface on CiA 402 drives over CANopen (pkm_drives)
-    drives: {...}                     # drives_node parameters (can_interface, pdo_timeout_s, ...), and
-                                      # virtual: true (default; virtual drives moving this scenario's
-                                      # simulated plant, virtual_drives_node) or false (the machine file's
-                                      # drives.bus: a real machine), drive_faults: "2:over_current:0.5"
+    hardware: sim                     # sim: sim_hw_node; canopen: drives_node on CiA 402 drives (docs/drives.md)
+    drives: {...}                     # drives_node parameters (config/drives.yaml), virtual: true (virtual
+                                      # drives on this scenario's plant) | false (a real machine's bus),
+                                      # drive_faults: "2:over_current:0.5" (the virtual drives')
     operators: [/pkm/my_script]       # nodes (full names) that may command the run beside pkm-run and
                                       # the panel (<namespace>/panel): goals, programs, settings, feed
                                       # override; a command while any other node publishes on its
@@ -139,13 +137,11 @@ class Scenario:
         return self.hardware == "canopen" and bool(self.drives.get("virtual", True))
 
     @property
-    def ground_truth(self) -> bool:
-        """A simulated plant publishes platform/true_pose (not a real machine)."""
+    def ground_truth(self) -> bool:      # a simulated plant publishes platform/true_pose (not a real machine)
         return self.hardware == "sim" or self.virtual_drives
 
     def section_node(self, key: str) -> str:
-        """The node a scenario section parameterises (the plant: sim_hw's, or the
-        virtual drives' plant)."""
+        """The node a scenario section parameterises (the plant: sim_hw's, or the virtual drives')."""
         if key == "plant" and self.hardware == "canopen":
             return "virtual_drives"
         return SECTIONS[key]
@@ -367,7 +363,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError("hardware: a real machine (drives.virtual: false) has no simulated metrology or load")
     try:
         parse_drive_faults(str(s.drives.get("drive_faults", "")), config.model.n_legs)
-    except FieldError as exc:
+    except FieldError as exc:  # the virtual drives' (a scenario's drives section: pkm-run's keys and drives_node's)
         raise ScenarioError(f"drives.drive_faults: {exc.detail}") from None
     size = len(config.model.task_space.loads)
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
