@@ -20,6 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # benchmark -> (arguments that make it small, a line its output must have)
 SMALL = {
     "kinematics.py": (["--repeat", "1"], "benchmark"),
+    "drives.py": (["--cycles", "50"], "| archi | 4 |"),
     "hexapod.py": (["--repeat", "1", "--readings", "200"], "| genhexkins hexapod | ours, compiled stream"),
     "gough_sensor.py": (["--repeat", "1", "--cycles", "50"], "node callback"),
     "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),

@@ -74,3 +74,30 @@ def test_frames_listed_per_cycle():
     load = cycle_load(500_000, 0.004, [[4], [4]], [[8, 4], [8, 4]])
     assert load.frames == (0, 4, 4, 8, 4, 8, 4)
     assert sum(frame_bits(b) for b in load.frames) == load.bits
+
+
+def test_a_timed_virtual_bus_takes_each_frames_transmission_time():
+    """pkm_drives.bus.TimedBus: 60 frames of 8 bytes from two senders sharing one wire at
+    125 kbit/s take 60 x 135 bits = 64.8 ms at least; untimed they take ~1 ms."""
+    import time
+
+    import can
+
+    from pkm_drives.bus import TimedBus
+    channel = "test_timed_bus"
+    senders = [TimedBus(can.Bus(interface="virtual", channel=channel), channel, 125_000) for _ in range(2)]
+    reader = can.Bus(interface="virtual", channel=channel)
+    try:
+        start = time.perf_counter()
+        for k in range(30):
+            for bus in senders:
+                bus.send(can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False))
+        elapsed = time.perf_counter() - start
+        received = 0
+        while reader.recv(0.2) is not None:
+            received += 1
+    finally:
+        for bus in senders + [reader]:
+            bus.shutdown()
+    assert received == 60
+    assert 60 * 135 / 125_000 <= elapsed + 3e-4 < 0.5, elapsed

@@ -30,7 +30,7 @@ from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.parameters import declare_plant
 from pkm_sim_hw.run_record import true_pose_components
 
-from .bus import NOTIFIER_CYCLE_S, serve_bus
+from .bus import NOTIFIER_CYCLE_S, TimedBus, serve_bus
 from .drive_config import drive_settings
 from .hardware import PlantAxes
 from .virtual_drive import DEFAULT_EDS, VirtualMachine, parse_drive_faults
@@ -58,7 +58,9 @@ class VirtualDrivesNode(Node):
         self.pub_pose = publisher(self, topics.TRUE_POSE)
         self.pose_encoder = PoseStampedEncoder("world")
         self.server = serve_bus(channel, url_file) if url_file else None
-        self.network = canopen.Network(can.Bus(interface="virtual", channel=channel))
+        # the drives' frames take their time on the wire (the master's take theirs: drives_node)
+        self.network = canopen.Network(TimedBus(can.Bus(interface="virtual", channel=channel), channel,
+                                                settings.bus.bitrate))
         self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.network.connect()
         self.machine = VirtualMachine(self.network, PlantAxes(self.plant), settings.node_ids, settings.scaling,
