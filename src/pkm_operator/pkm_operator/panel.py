@@ -176,6 +176,7 @@ class Panel:
         self.last_plot_ns = None
         self.status = (0, "no controller yet", {})
         self.diagnostics: dict[str, tuple] = {}
+        self.cia402: dict[str, dict] = {}  # servo drives (drives/cia402): name -> state, statusword, error
         self.events = collections.deque(maxlen=20)
         self.actions = collections.deque(maxlen=20)
         self.estop_latched, self.estop_why = False, ""
@@ -271,6 +272,15 @@ class Panel:
             else:
                 self.diagnostics[name] = (level, message)
 
+    def on_drive_states(self, statuses) -> None:
+        """drives/cia402: each servo drive's (name, level, CiA 402 state, values) (pkm_drives)."""
+        with self.lock:
+            if self.restarting:
+                return
+            self.cia402 = {name: {"level": level, "state": message, "node_id": values.get("node_id"),
+                                  "statusword": values.get("statusword", ""), "error": values.get("error", "none")}
+                           for name, level, message, values in statuses}
+
     def on_estop(self, active: bool) -> None:
         with self.lock:
             if self.restarting:           # the ended run's last words (restarted())
@@ -303,6 +313,7 @@ class Panel:
             out = {"machine": self.model.machine.name, "wall_s": time.time(),
                    "controller": {"level": level, "message": message, "values": values},
                    "diagnostics": {k: list(v) for k, v in self.diagnostics.items()},
+                   "cia402": {k: dict(v) for k, v in self.cia402.items()},
                    "estop": {"latched": self.estop_latched, "why": self.estop_why, "can_reset": self.can_reset},
                    "events": list(self.events)[-5:], "actions": list(self.actions)[-8:],
                    "program": None if self.program is None else {"name": self.program[0], "moves": self.program[2]},
@@ -420,6 +431,7 @@ class Panel:
         self.poses.clear()
         self.references.clear()
         self.diagnostics.clear()
+        self.cia402.clear()
         self.plot.clear()
         self.last_plot_ns = None
 

@@ -46,6 +46,7 @@ class PanelNode(Node):
         subscription(self, topics.CONTROLLER_REFERENCE, self.on_reference, raw=True)
         subscription(self, topics.CONTROLLER_STATUS, self.on_status)
         subscription(self, topics.DIAGNOSTICS, self.on_status)
+        subscription(self, topics.DRIVES_CIA402, self.on_drive_states)
         subscription(self, topics.ESTOP, lambda m: panel.on_estop(bool(m.data)))
         subscription(self, topics.CONTROLLER_EVENTS, lambda m: panel.on_event(m.data))
         self.create_timer(WATCHDOG_PERIOD_S, self.on_watchdog)
@@ -78,16 +79,11 @@ class PanelNode(Node):
             self.panel.on_reference(m.stamp_ns, m.position, m.orientation)
 
     def on_status(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:          # level is a byte in rclpy's messages
-            level = status.level[0] if isinstance(status.level, bytes) else int(status.level)
-            values = {}
-            for kv in status.values:        # numbers as numbers; "nan"/"inf" stay text (not JSON)
-                try:
-                    number = float(kv.value)
-                except ValueError:
-                    number = math.nan
-                values[kv.key] = number if math.isfinite(number) else kv.value
-            self.panel.on_status(status.name, level, status.message, values)
+        for status in msg.status:
+            self.panel.on_status(*_status_fields(status))
+
+    def on_drive_states(self, msg: DiagnosticArray) -> None:
+        self.panel.on_drive_states([_status_fields(status) for status in msg.status])
 
     def on_watchdog(self) -> None:
         result = self.panel.watchdog()
@@ -119,3 +115,17 @@ class PanelNode(Node):
         else:                             # a String: the program, the settings, the feed override
             body = repr(float(payload)) if topic == "controller/feed_override" else payload
             self.pubs[topic].publish(self.signer.text(topic, body) if self.signer else String(data=body))
+
+
+def _status_fields(status) -> tuple:
+    """(name, level, message, values) of a DiagnosticStatus: its level a byte in rclpy's
+    messages, numbers as numbers ("nan"/"inf" stay text: not JSON)."""
+    level = status.level[0] if isinstance(status.level, bytes) else int(status.level)
+    values = {}
+    for kv in status.values:
+        try:
+            number = float(kv.value)
+        except ValueError:
+            number = math.nan
+        values[kv.key] = number if math.isfinite(number) else kv.value
+    return status.name, level, status.message, values

@@ -112,6 +112,11 @@ function render(s) {
       `<tr><td>${n}</td><td id="drive-${n}">${fmt(s.drives.position[i], 1000)}</td>` +
       `<td>${s.drives.effort[i].toFixed(1)}</td></tr>`).join("");
   }
+  const servo = Object.entries(s.cia402 || {});
+  $("servo").hidden = servo.length === 0;
+  $("cia402").tBodies[0].innerHTML = servo.map(([n, d]) =>
+    `<tr class="${d.level >= 2 ? "refused" : ""}"><td>${n}</td><td>${d.node_id}</td>` +
+    `<td id="cia402-${n}">${d.state}</td><td>${d.statusword}</td><td>${d.error}</td></tr>`).join("");
   $("diagnostics").innerHTML = Object.entries(s.diagnostics || {}).map(([k, [lvl, msg]]) =>
     `<li class="${lvl >= 2 ? "refused" : ""}">${k}: ${msg}</li>`).join("");
   $("actions").innerHTML = (s.actions || []).slice().reverse().map((a) =>
