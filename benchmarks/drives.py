@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import time
 
@@ -70,8 +71,9 @@ def bench_cycle(n: int, cycles: int) -> tuple[float, float]:
     channel = f"bench_drives_{next(_channels)}"
     machine = load_machine("archi")
     settings = drive_settings(machine, {"interface": "virtual", "channel": channel})
-    settings = type(settings)(tuple(f"d{k}" for k in range(n)), tuple(range(1, n + 1)), (settings.scaling[0],) * n,
-                              (35,) * n, (tuple(range(n)),), (0.0,) * n, settings.heartbeat_s, settings.bus)
+    settings = dataclasses.replace(settings, names=tuple(f"d{k}" for k in range(n)), node_ids=tuple(range(1, n + 1)),
+                                   scaling=(settings.scaling[0],) * n, homing_methods=(), homing_order=(),
+                                   home_positions=())
     nets = networks(channel)
     try:
         VirtualMachine(nets[0], MassAxes(n, dt_s=0.002), settings.node_ids, settings.scaling).boot()
@@ -95,7 +97,8 @@ def bench_machine(name: str, dt_s: float, cycles: int, timed: bool) -> tuple[int
     ``timed``: the virtual bus takes the frames' transmission time."""
     config = load_machine(name)
     channel = f"bench_machine_{next(_channels)}"
-    settings = drive_settings(config, {"interface": "virtual", "channel": channel})
+    settings = dataclasses.replace(drive_settings(config, {"interface": "virtual", "channel": channel}),
+                                   homing_methods=(), homing_order=(), home_positions=())     # absolute encoders
     rpdo, tpdo = pdo_bytes(canopen.import_od(str(DEFAULT_EDS), 1))
     limit = cycle_load(settings.bus.bitrate, dt_s, [rpdo] * settings.n, [tpdo] * settings.n,
                        settings.heartbeat_s).max_rate_hz

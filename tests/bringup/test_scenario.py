@@ -369,3 +369,13 @@ def test_canopen_scenarios_wire_the_drive_interface_and_the_virtual_drives(tmp_p
                                            "controller": {"strategy": "computed_torque"}})
     pr = node_parameters(real, tmp_path)
     assert "virtual_drives" not in pr and "can_channel_file" not in pr["drives"]
+
+
+def test_incremental_encoders_need_the_machines_homing():
+    with pytest.raises(ScenarioError, match=r"plant.encoder_offsets_m: incremental encoders must be homed: "
+                                            r"machine 'sliding_star' has no drives.homing"):
+        load_scenario("archi_demo", {"machine": "sliding_star", "metrology": False, "program": None,
+                                     "duration_s": 0.1, "load": [], "controller": {"strategy": "computed_torque"},
+                                     "plant": {"encoder_offsets_m": [0.01, 0.02, 0.03, 0.04]}})
+    homed = load_scenario("archi_demo", {"plant": {"encoder_offsets_m": [0.01, 0.02, 0.03, 0.04]}})
+    assert homed.plant["encoder_offsets_m"] == [0.01, 0.02, 0.03, 0.04]

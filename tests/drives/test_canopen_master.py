@@ -3,6 +3,7 @@ four virtual drives on a bench (independent masses): boot (SDO configuration, PD
 mapping, NMT, heartbeats), enabling, the cycle's values against the physics, and each
 fault through the bus detected with its cause and drive named, within one cycle."""
 
+import dataclasses
 import itertools
 import time
 
@@ -25,7 +26,10 @@ _channels = itertools.count()
 class Rig:
     def __init__(self, node_ids=None, boot_drives=True):
         channel = f"test_canopen_master_{next(_channels)}"
-        self.settings = drive_settings(load_machine("archi"), {"interface": "virtual", "channel": channel})
+        # on a bench: absolute encoders, no homing (test_homing.py homes)
+        self.settings = dataclasses.replace(drive_settings(load_machine("archi"), {"interface": "virtual",
+                                                                                   "channel": channel}),
+                                            homing_methods=(), homing_order=(), home_positions=())
         self.nets = []
         for _ in range(2):
             net = canopen.Network(can.Bus(interface="virtual", channel=channel))

@@ -67,7 +67,8 @@ def test_archi_over_virtual_canopen_drives_tracks_as_on_the_simulated_plant(rpdo
 
     channel = f"test_canopen_run_{next(_channels)}"
     machine = dataclasses.replace(ARCHI, data={**ARCHI.data, "drives": {**ARCHI.data["drives"], "rpdo": rpdo}})
-    settings = drive_settings(machine, {"interface": "virtual", "channel": channel})
+    settings = dataclasses.replace(drive_settings(machine, {"interface": "virtual", "channel": channel}),
+                                   homing_methods=(), homing_order=(), home_positions=())   # absolute encoders
     nets = []
     for _ in range(2):
         net = canopen.Network(can.Bus(interface="virtual", channel=channel))

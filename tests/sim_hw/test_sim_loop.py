@@ -61,8 +61,8 @@ class Ports:
         self.errors.append(text)
 
 
-def lockstep_loop(duration_steps=0, load_sources=(), key=None):
-    plant = Plant(ARCHI, PlantParameters(dt_s=0.001))
+def lockstep_loop(duration_steps=0, load_sources=(), key=None, encoder_offsets_m=()):
+    plant = Plant(ARCHI, PlantParameters(dt_s=0.001, encoder_offsets_m=encoder_offsets_m))
     settings = SimHwSettings(ARCHI, plant, lockstep=True, command_timeout_s=1.0, sync_error_limit=12,
                              gate=CommandGate("", True, 20_000_000), publish_markers=False,
                              duration_s=duration_steps * 0.001, duration_steps=duration_steps, summary_path="",
@@ -91,6 +91,18 @@ def test_each_answer_steps_the_plant_once_and_publishes_the_next_state():
     assert ports.ended and loop.run.finished and not ports.refusals
     # the loop's start is logged once, at the first command (what a test or an operator waits for)
     assert [t for t in ports.infos if t.startswith("loop started")] == ["loop started: the first command, at step 0"]
+
+
+def test_commands_before_homing_are_refused_saying_so_and_nothing_moves():
+    """Incremental encoders (encoder_offsets_m) read the machine's positions only once it
+    is homed (pkm_sim_hw.homing.home): until then no drive command is applied."""
+    loop, state, ports = lockstep_loop(encoder_offsets_m=(0.01, 0.02, 0.03, 0.04))
+    loop.publish_state()
+    x = list(loop.plant.x)
+    loop.on_command(command(0, effort=(100.0, -100.0, 50.0, 0.0)))
+    assert loop.plant.k == 0 and loop.plant.x == x and not loop.plant.stopped
+    assert ports.refusals[0].reason.startswith("not homed: drive commands are refused until the machine is homed")
+    assert not ports.refusals[0].stop
 
 
 def test_a_command_ahead_of_the_plant_is_refused_and_the_plant_brakes():

@@ -21,6 +21,7 @@ from pkm_drives.drive_config import drive_settings
 from pkm_drives.virtual_drive import DEFAULT_EDS
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.errors import FieldError
+from pkm_sim_hw.homing import homing_plan
 from pkm_sim_hw.plant import Fault, PlantParameters, check_load
 from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
 
@@ -47,6 +48,9 @@ def check_plant(p: dict, config) -> None:
                                    f"{', '.join(loads)}), got {list(values)}")
     for text in params.faults:
         Fault.parse(text, config.model.n_legs)
+    if params.encoder_offsets_m and homing_plan(config) is None:
+        raise FieldError("encoder_offsets_m", f"incremental encoders must be homed: machine {config.name!r} has no "
+                                              "drives.homing section (methods, order, home positions)")
     for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
         schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
         space = config.model.task_space

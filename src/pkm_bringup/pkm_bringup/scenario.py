@@ -88,7 +88,7 @@ CAN_BUS_URL = "can_bus.url"          # in the run directory: the virtual drives'
 CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
-PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose")
+PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose", "encoder_offsets_m")
 # sim_hw parameters of its loop, not of its plant (the virtual drives take the plant's only)
 LOOP_ONLY = ("mode", "command_timeout_s", "command_max_age_s", "sync_error_limit", "command_source", "duration_s",
              "summary_path", "publish_markers")

@@ -35,7 +35,8 @@ from pkm_common.causes import TripCause
 from pkm_common.watchdog import SilenceWatchdog
 from pkm_kinematics.errors import FieldError
 
-from .cia402 import CONTROLWORD, Command, MasterSequencer, Mode, QuickStopOption, State, decode_state, error_text
+from .cia402 import (CONTROLWORD, CW, Command, HomingStatus, MasterSequencer, Mode, QuickStopOption, State,
+                     decode_state, error_text, homing_status)
 from .drive_config import DriveSettings
 
 __all__ = ["RPDO_MAP", "TPDO_MAPS", "REQUIRED_OBJECTS", "check_dictionary", "pdo_bytes", "DriveTrip", "Reading",
@@ -55,6 +56,7 @@ OBJECT_NAMES = {0x6040: "controlword", 0x6041: "statusword", 0x6064: "position a
                 0x606C: "velocity actual value", 0x6071: "target torque", 0x6077: "torque actual value"}
 PROFILE_402 = 402
 NMT_OPERATIONAL = 5                                # the state in a heartbeat (CiA 301)
+CW_HOMING_START = int(CW.MODE_SPECIFIC_4)          # controlword bit 4 in homing mode: start (rising edge)
 
 
 def check_dictionary(od: canopen.ObjectDictionary, source: str) -> None:
@@ -139,6 +141,7 @@ class CanopenMaster:
         self.stopping = False
         self.syncs = 0
         self.lost: set[int] = set()                           # drives that missed a TPDO
+        self.homed = not settings.homing_methods              # absolute encoders need no homing
         for k, node in enumerate(self.nodes):
             node.emcy.add_callback(lambda error, k=k: self._on_emcy(k, error))
             network.subscribe(0x700 + node.id, lambda can_id, data, ts, k=k: self._on_heartbeat(k, data))
@@ -229,6 +232,65 @@ class CanopenMaster:
                 for k, st in enumerate(reading.states) if st is not target]
         raise DriveStartError(f"drives not {target.label} after {max_cycles} cycles: {', '.join(late)}")
 
+    def home(self, max_s: float = 30.0) -> list[Reading]:
+        """Home the drives (the machine file's ``drives.homing``; nothing without one):
+        each group in its turn in CiA 402 homing mode (0x6098 method, 0x607C the position
+        at the mark, 0x6099 speed), started by controlword bit 4's rising edge, until
+        every drive of it reports homing completed (statusword bits 10, 12). A drive not
+        homed yet waits free (cyclic synchronous torque, 0), one homed holds (its homing
+        mode's position loop), so that a parallel machine stays assembled. Then every
+        drive switched on, brakes closed, in cyclic synchronous torque. The readings of
+        the homing cycles (what the drive interface records); DriveStartError naming a
+        drive that fails (its homing status, its trip)."""
+        s = self.settings
+        if not s.homing_methods:
+            return []
+        n, readings, homed = s.n, [], set()
+        first = set(s.homing_order[0])
+        for k, node in enumerate(self.nodes):
+            node.sdo[0x6060].raw = int(Mode.HOMING if k in first else Mode.CYCLIC_SYNC_TORQUE)
+        self.enable(State.SWITCHED_ON)                     # powered, brakes closed
+        for group in s.homing_order:
+            for k in group:
+                sc, node = s.scaling[k], self.nodes[k]
+                node.sdo[0x6098].raw = s.homing_methods[k]
+                node.sdo[0x607C].raw = sc.position_to_drive(s.home_positions[k])
+                speed = round(s.homing_speed * sc.counts_per_unit)
+                node.sdo[0x6099][1].raw = node.sdo[0x6099][2].raw = speed
+                node.sdo[0x6060].raw = int(Mode.HOMING)
+            # the group's bit 4 rises (enabling it at the same SYNC the first time)
+            self.controlwords = [CONTROLWORD[Command.ENABLE_OPERATION] | (CW_HOMING_START if k in homed or k in group
+                                                                          else 0) for k in range(n)]
+            deadline = time.monotonic() + max_s
+            while True:
+                reading = self.exchange([0] * n)
+                readings.append(reading)
+                trips = [t for t in self.check(reading) if t.cause is not TripCause.DRIVE_DISABLED or
+                         reading.states[t.drive] not in (State.SWITCHED_ON, State.OPERATION_ENABLED)]
+                if trips:
+                    raise DriveStartError(f"homing: {trips[0].text()}")
+                status = {k: homing_status(reading.statuswords[k]) for k in group}
+                failed = [k for k, st in status.items()
+                          if st in (HomingStatus.ERROR_MOVING, HomingStatus.ERROR_STOPPED)]
+                if failed:
+                    raise DriveStartError("homing: " + ", ".join(
+                        f"drive {s.names[k]} (node {s.node_ids[k]}) method {s.homing_methods[k]}: "
+                        f"{status[k].name.lower().replace('_', ' ')}" for k in failed))
+                if all(st is HomingStatus.COMPLETED for st in status.values()) and \
+                        all(reading.states[k] is State.OPERATION_ENABLED for k in group):
+                    break
+                if time.monotonic() > deadline:
+                    late = ", ".join(f"{s.names[k]} {st.name.lower()}" for k, st in status.items()
+                                     if st is not HomingStatus.COMPLETED)
+                    raise DriveStartError(f"homing: not complete within {max_s:g} s: {late}")
+            homed.update(group)
+        self.controlwords = [CONTROLWORD[Command.SWITCH_ON]] * n     # disable operation: brakes close
+        readings.append(self.exchange([0] * n))
+        for node in self.nodes:
+            node.sdo[0x6060].raw = int(Mode.CYCLIC_SYNC_TORQUE)
+        self.homed = True
+        return readings
+
     def release(self) -> None:
         """From the next cycle on, every drive switched on is enabled with the target
         of that cycle: its brake opens as its first force acts (no cycle at zero
@@ -238,7 +300,11 @@ class CanopenMaster:
     # -------------------------------------------------------------------- cycle
     def cycle(self, forces) -> Reading:
         """One exchange with the drives following ``forces`` (SI); quick stop after
-        ``quick_stop``."""
+        ``quick_stop``. Refused (FieldError) before the drives are homed: their
+        positions are not the machine's."""
+        if not self.homed:
+            raise FieldError("drives", "not homed: motion commands are refused until the drives are homed "
+                             "(CanopenMaster.home, the machine file's drives.homing)")
         targets = [sc.force_to_drive(f) for sc, f in zip(self.settings.scaling, forces)]
         return self.exchange([0] * len(targets) if self.stopping else targets)
 

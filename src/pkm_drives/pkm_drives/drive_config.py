@@ -11,10 +11,15 @@ drives:
   counts_per_unit: 1.0e6          # encoder counts per m (rail, strut) or rad; one, or one per drive
   rated_force: 700.0              # N (N m): the drive's 1000 per mille (0x6076); one or one per drive
   max_force: 2000.0               # N (N m): the drive's torque limit (0x6072); one or one per drive
-  homing:
-    method: 34                    # CiA 402 homing method (0x6098); one or one per drive
-    order: [[0, 1, 2], [3]]       # groups of drives homed together, one group after the other
-    home_position: 0.5            # m (rad): the drive's position at its home; one or one per drive
+  homing:                         # incremental encoders: homed before any motion (none: absolute ones)
+    method: [19, 19, 19, 35]      # CiA 402 homing method (0x6098); one or one per drive
+    order: [[0, 1, 2], [3]]       # groups homed one after the other (a drive not homed yet is free,
+                                  # one homed holds): three switches fix ARCHI's pose, the fourth drive
+                                  # then takes its position there (35: current position)
+    home_position: home_pose      # m (rad): each drive's position at its mark; one, one per drive, or
+                                  # home_pose: the drives' positions at the machine's home pose
+    speed: 0.005                  # m/s (rad/s) towards the marks
+    index_pitch: 0.005            # m (rad) between index pulses (methods 33, 34)
 ```
 
 Every value is checked when read; a bad one raises ``ConfigError`` naming its dotted
@@ -28,26 +33,13 @@ from dataclasses import dataclass
 
 from pkm_kinematics.config import FieldReader, MachineConfig
 from pkm_kinematics.errors import ConfigError
+from pkm_sim_hw.homing import HOMING_METHODS, HomingPlan, homing_plan, per_drive
 
+# HOMING_METHODS: pkm_sim_hw.homing's (one reader of drives.homing for both kinds of drives)
 __all__ = ["AxisScaling", "BusSettings", "DriveSettings", "HOMING_METHODS", "drive_settings"]
 
 INT16 = (-32768, 32767)
 INT32 = (-(1 << 31), (1 << 31) - 1)
-
-# CiA 402 homing methods (0x6098) the drives here know: what each homes on
-HOMING_METHODS = {
-    1: "negative limit switch and index pulse",
-    2: "positive limit switch and index pulse",
-    17: "negative limit switch",
-    18: "positive limit switch",
-    19: "home switch, positive direction",
-    21: "home switch, negative direction",
-    33: "index pulse, negative direction",
-    34: "index pulse, positive direction",
-    35: "current position",
-    37: "current position",
-}
-
 
 @dataclass(frozen=True)
 class AxisScaling:
@@ -99,28 +91,18 @@ class DriveSettings:
     names: tuple[str, ...]
     node_ids: tuple[int, ...]
     scaling: tuple[AxisScaling, ...]
-    homing_methods: tuple[int, ...]
+    homing_methods: tuple[int, ...]            # empty: no homing (absolute encoders)
     homing_order: tuple[tuple[int, ...], ...]
     home_positions: tuple[float, ...]
     heartbeat_s: float
     bus: BusSettings
     rpdo_synchronous: bool = True    # RPDOs act at the SYNC after them (else as they come)
+    homing_speed: float = 0.005
+    index_pitch: float = 0.005
 
     @property
     def n(self) -> int:
         return len(self.node_ids)
-
-
-def _per_drive(r: FieldReader, key: str, n: int, default=..., lo: float = 0.0, lo_open: bool = True,
-               hi: float = math.inf) -> list[float]:
-    """One number for every drive, or a list of ``n``."""
-    value = r.raw(key, default)
-    if isinstance(value, list):
-        if len(value) != n:
-            raise ConfigError(r.field_name(key), f"expected one number or a list of {n}, got {value!r}")
-        return [FieldReader({f"{key}[{k}]": v}, r.path).number(f"{key}[{k}]", lo=lo, lo_open=lo_open, hi=hi)
-                for k, v in enumerate(value)]
-    return [FieldReader({key: value}, r.path).number(key, lo=lo, lo_open=lo_open, hi=hi)] * n
 
 
 def _node_ids(r: FieldReader, n: int) -> tuple[int, ...]:
@@ -138,23 +120,6 @@ def _node_ids(r: FieldReader, n: int) -> tuple[int, ...]:
     return tuple(value)
 
 
-def _homing(r: FieldReader, n: int) -> tuple[tuple[int, ...], tuple[tuple[int, ...], ...], tuple[float, ...]]:
-    methods = _per_drive(r, "method", n, lo=-128, lo_open=False, hi=127)
-    for k, m in enumerate(methods):
-        if m not in HOMING_METHODS:
-            raise ConfigError(r.field_name("method") + (f"[{k}]" if isinstance(r.raw("method"), list) else ""),
-                              f"must be one of the CiA 402 methods {sorted(HOMING_METHODS)}, got {m:g}")
-    order = r.raw("order", [list(range(n))])
-    name = r.field_name("order")
-    if not isinstance(order, list) or not all(isinstance(g, list) and g for g in order):
-        raise ConfigError(name, f"expected a list of groups (lists of drive indices), got {order!r}")
-    flat = [d for g in order for d in g]
-    if sorted(flat) != list(range(n)):
-        raise ConfigError(name, f"must name each drive 0..{n - 1} once, got {order!r}")
-    home = _per_drive(r, "home_position", n, default=0.0, lo=-math.inf, lo_open=False)
-    return tuple(int(m) for m in methods), tuple(tuple(g) for g in order), tuple(home)
-
-
 def drive_settings(machine: MachineConfig, bus_override: dict | None = None) -> DriveSettings:
     """The machine file's ``drives`` section, checked; ``bus_override`` (a scenario's
     ``interface``/``channel``/``bitrate``) replaces fields of its ``bus``."""
@@ -164,15 +129,14 @@ def drive_settings(machine: MachineConfig, bus_override: dict | None = None) -> 
         raise ConfigError("drives", f"machine {machine.name!r} has no drives section (node IDs, scaling, "
                           f"homing): docs/drives.md")
     r = FieldReader(machine.data["drives"], "drives")
-    counts = _per_drive(r, "counts_per_unit", n)
-    rated = _per_drive(r, "rated_force", n)
-    max_force = _per_drive(r, "max_force", n)
+    counts = per_drive(r, "counts_per_unit", n)
+    rated = per_drive(r, "rated_force", n)
+    max_force = per_drive(r, "max_force", n)
     for k, (rf, mf) in enumerate(zip(rated, max_force)):
         if mf / rf * 1000.0 > INT16[1]:
             raise ConfigError("drives.max_force", f"drive {k}: {mf:g} is {mf / rf * 1000.0:.0f} per mille of the "
                               f"rated force {rf:g}, over INT16's {INT16[1]}")
-    methods, order, home = _homing(r.sub("homing"), n) if r.has("homing") else \
-        ((35,) * n, (tuple(range(n)),), (0.0,) * n)
+    plan = homing_plan(machine) or HomingPlan((), (), ())
     bus = dict(r.raw("bus", {}))
     bus.update(bus_override or {})
     b = FieldReader(bus, "drives.bus")
@@ -182,4 +146,5 @@ def drive_settings(machine: MachineConfig, bus_override: dict | None = None) -> 
     rpdo = r.choice("rpdo", ("synchronous", "on_arrival"), "synchronous")
     return DriveSettings(names, _node_ids(r, n),
                          tuple(AxisScaling(c, rf, mf) for c, rf, mf in zip(counts, rated, max_force)),
-                         methods, order, home, heartbeat_s, bus_settings, rpdo == "synchronous")
+                         plan.methods, plan.order, plan.home_positions, heartbeat_s, bus_settings,
+                         rpdo == "synchronous", plan.speed, plan.index_pitch)

@@ -100,7 +100,16 @@ class DrivesNode(SimHwNode):
         self.hardware = CanopenHardware(master, settings, dt_s)
         self.start_drives(boot_timeout_s)
         loop = declare_loop(self, machine, self.hardware, dt_s)
-        return dataclasses.replace(loop, publish_markers=False)
+        return dataclasses.replace(loop, publish_markers=False, homing=self.homing_text())
+
+    def homing_text(self) -> str:
+        """What the drives' homing did (its cycles, each drive's method and position)."""
+        hw = self.hardware
+        if not hw.homing:
+            return ""
+        s = hw.settings
+        return f"homed in {len(hw.homing)} cycles: " + ", ".join(
+            f"{n} method {m} at {p:.6f}" for n, m, p in zip(s.names, s.homing_methods, hw.reading.positions))
 
     def start_drives(self, timeout_s: float) -> None:
         """Boot and switch on the drives, retrying while they power up (DriveStartError

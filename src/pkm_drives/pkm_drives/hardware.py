@@ -47,16 +47,23 @@ class CanopenHardware:
         self.trips: list[DriveTrip] = []             # what the supervision found at the stop
         self.not_stopped: list[str] = []              # drives that did not confirm the quick stop
         self.reading: Reading | None = None
+        self.homing: list[Reading] = []               # the homing cycles' readings
         self._last: PlantOutput | None = None
 
     def start(self) -> None:
-        """Boot the drives and switch them on, brakes closed (DriveStartError naming a
-        drive that cannot); step 0 is the first SYNC with every drive switched on. The
-        first step enables them with its forces (canopen_master.CanopenMaster.release)."""
+        """Boot the drives, home them (the machine file's homing, if any: their
+        readings kept in ``homing``), and switch them on, brakes closed (DriveStartError
+        naming a drive that cannot); step 0 is the first SYNC with every drive switched
+        on. The first step enables them with its forces (CanopenMaster.release)."""
         self.master.boot()
+        self.homing = self.master.home()
         self.reading = self.master.enable(State.SWITCHED_ON)
         self.master.release()
         self._last = self._output(self.reading)
+
+    @property
+    def homed(self) -> bool:
+        return self.master.homed
 
     def step(self, forces, hold: bool = False) -> PlantOutput:
         """One bus cycle on ``forces`` (N or N m, one per drive)."""
@@ -107,10 +114,16 @@ class PlantAxes:
 
     def __init__(self, plant):
         self.plant, self.n = plant, plant.n
+        plant.pause_schedules()                        # its loads come with the run (restart)
 
     def samples(self, out: PlantOutput | None = None):
         out = out or self.plant.output()
-        return [Sample(p, v, f) for p, v, f in zip(out.encoder_positions, out.encoder_velocities, out.applied_forces)]
+        offsets = self.plant.encoders.offsets or [0.0] * self.n
+        return [Sample(p, v, f, p - o) for p, v, f, o in zip(out.encoder_positions, out.encoder_velocities,
+                                                             out.applied_forces, offsets)]
+
+    def restart(self) -> None:
+        self.plant.restart_clock()
 
     def step(self, forces):
         hold = any(f is None for f in forces)

@@ -41,12 +41,14 @@ from typing import Protocol
 
 import canopen
 
-from .cia402 import DriveStateMachine, Mode, QuickStopOption, State, homing_bits, HomingStatus, statusword
-from .drive_config import AxisScaling
 from pkm_kinematics.errors import FieldError
+from pkm_sim_hw.drives import HomingMotion
+
+from .cia402 import DriveStateMachine, HomingStatus, Mode, QuickStopOption, State, homing_bits, statusword
+from .drive_config import AxisScaling
 
 __all__ = ["DEFAULT_EDS", "InjectedFault", "FAULT_CODES", "VirtualDrive", "Axes", "MassAxes", "VirtualMachine",
-           "parse_drive_faults"]
+           "parse_drive_faults", "HomingSetup", "Sample"]
 
 DEFAULT_EDS = Path(__file__).with_name("eds") / "cia402_servo.eds"
 
@@ -68,6 +70,8 @@ FAULT_CODES = {
 }
 HEARTBEAT_CONSUMER_FAULT = (0x8130, 0x10)      # the master's heartbeat lost (0x1016)
 GENERIC_ERROR = 0x01
+HOMING_STATUS = {"in_progress": HomingStatus.IN_PROGRESS, "attained": HomingStatus.ATTAINED,
+                 "completed": HomingStatus.COMPLETED, "error": HomingStatus.ERROR_STOPPED}
 POWERED = (State.SWITCHED_ON, State.OPERATION_ENABLED)      # the machine's clock runs from here on
 
 
@@ -75,9 +79,23 @@ POWERED = (State.SWITCHED_ON, State.OPERATION_ENABLED)      # the machine's cloc
 class Sample:
     """What a drive reports at a SYNC, in SI units (the drive converts)."""
 
-    position: float
+    position: float              # the encoder's reading (its offset included, until the drive is homed)
     velocity: float
     force: float
+    true: float | None = None    # the reading without the offset, where homing marks are (None: = position)
+
+
+@dataclass(frozen=True)
+class HomingSetup:
+    """The drive's own tuning for its homing motion (pkm_sim_hw.drives.HomingMotion):
+    the mass it moves, its position loop's bandwidth, its encoder's index pitch, the
+    SYNC period; the method, home position and speed come from the master (SDO)."""
+
+    mass_kg: float = 10.0
+    bandwidth_hz: float = 5.0
+    pitch: float = 0.005
+    dt_s: float = 0.002
+    default_speed: float = 0.005         # m/s when 0x6099 says 0
 
 
 class VirtualDrive:
@@ -85,9 +103,12 @@ class VirtualDrive:
     connected to a python-can bus), scaling SI <-> drive units with ``scaling``."""
 
     def __init__(self, network: canopen.Network, node_id: int, scaling: AxisScaling, eds: str | Path = DEFAULT_EDS,
-                 name: str = ""):
+                 name: str = "", homing: HomingSetup = HomingSetup()):
         self.name = name or f"drive {node_id}"
-        self.scaling = scaling
+        self.scaling, self.homing_setup = scaling, homing
+        self.homing_motion: HomingMotion | None = None
+        self.homing_force = 0.0
+        self.shift = 0.0                        # added to the encoder's reading once homed (m or rad)
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         network.add_node(self.node)
         self.network = network
@@ -137,7 +158,7 @@ class VirtualDrive:
 
     def _on_sdo_read(self, index: int, subindex: int, od):
         live = {0x6041: self.statusword, 0x6061: lambda: int(self.mode), 0x603F: lambda: self.machine.error_code,
-                0x6064: lambda: self.scaling.position_to_drive(self.sample.position),
+                0x6064: lambda: self.scaling.position_to_drive(self.sample.position + self.shift),
                 0x606C: lambda: round(self.sample.velocity * self.scaling.counts_per_unit),
                 0x6077: lambda: self.scaling.force_to_drive(self.sample.force),
                 0x1001: self.error_register}
@@ -206,16 +227,40 @@ class VirtualDrive:
         brake holds. Called once per SYNC, before the physics steps."""
         with self.lock:
             target = self.latched_target
-        if not (self.machine.torque_enabled and self.mode is Mode.CYCLIC_SYNC_TORQUE):
+        if not self.machine.torque_enabled:
             return None
-        limit = self.scaling.max_per_mille
-        return self.scaling.force_from_drive(max(-limit, min(limit, target)))
+        limit = self.scaling.force_from_drive(self.scaling.max_per_mille)
+        if self.mode is Mode.HOMING:              # its own position loop (0 before the homing starts)
+            return max(-limit, min(limit, self.homing_force)) if self.homing_motion is not None else 0.0
+        if self.mode is not Mode.CYCLIC_SYNC_TORQUE:
+            return None
+        return self.scaling.force_from_drive(max(-self.scaling.max_per_mille, min(self.scaling.max_per_mille, target)))
 
     def _controlword(self, word: int) -> None:
+        previous = self.machine.last_controlword
         made = self.machine.on_controlword(word)
         if any(t.number == 15 for t in made) and not self.silent:
             self.encoder_frozen = None
             self.node.emcy.reset()             # fault reset: the error is gone
+        if not self.machine.torque_enabled:
+            if self.homing_motion is not None and self.homing is HomingStatus.IN_PROGRESS:
+                self.homing = HomingStatus.INTERRUPTED
+            self.homing_motion, self.homing_force = None, 0.0
+        elif self.mode is Mode.HOMING and word & 0x10 and not previous & 0x10:
+            self._start_homing()                 # bit 4's rising edge in operation enabled
+
+    def _start_homing(self) -> None:
+        """The method (0x6098), home offset (0x607C: the position at the mark) and
+        speed (0x6099 sub 2) the master wrote; the motion starts at the next sample."""
+        sc, setup = self.scaling, self.homing_setup
+        speed = sc.velocity_from_drive(self.node.sdo[0x6099][2].raw) or setup.default_speed
+        try:
+            self.homing_motion = HomingMotion(self.node.sdo[0x6098].raw,
+                                              sc.position_from_drive(self.node.sdo[0x607C].raw), speed,
+                                              setup.mass_kg, setup.dt_s, setup.bandwidth_hz, setup.pitch)
+            self.homing, self.homing_force = HomingStatus.IN_PROGRESS, 0.0
+        except ValueError:                       # a method this drive does not run
+            self.homing_motion, self.homing = None, HomingStatus.ERROR_STOPPED
 
     def after_step(self, sample: Sample) -> None:
         """The SYNC's instant: a quick stop or fault reaction of the period ends, the
@@ -246,12 +291,23 @@ class VirtualDrive:
         if self.encoder_frozen is not None:
             sample = Sample(self.encoder_frozen, 0.0, sample.force)
         self.sample = sample
+        if self.homing_motion is not None and self.mode is Mode.HOMING and self.machine.torque_enabled:
+            self._homing_step(sample)
         if self.operational:
             self._send_tpdos()
 
+    def _homing_step(self, sample: Sample) -> None:
+        motion = self.homing_motion
+        self.homing_force = motion.step(sample.position if sample.true is None else sample.true, sample.position,
+                                        sample.velocity)
+        self.homing = HOMING_STATUS[motion.status]
+        if motion.latched is not None:
+            self.shift = motion.shift
+
     def _send_tpdos(self) -> None:
         s = self.scaling
-        values = {0x6041: self.statusword(), 0x6061: int(self.mode), 0x6064: s.position_to_drive(self.sample.position),
+        values = {0x6041: self.statusword(), 0x6061: int(self.mode),
+                  0x6064: s.position_to_drive(self.sample.position + self.shift),
                   0x606C: round(self.sample.velocity * s.counts_per_unit), 0x6077: s.force_to_drive(self.sample.force),
                   0x603F: self.machine.error_code}
         for pdo_map in self.node.tpdo.values():
@@ -290,14 +346,19 @@ class Axes(Protocol):
 
     def samples(self) -> list[Sample]: ...
 
+    def restart(self) -> None:
+        """The run starts here: its clock at 0 (the state kept)."""
+
 
 class MassAxes:
     """Independent drives each moving a mass with viscous friction (a drive on a test
     bench), semi-implicit Euler, a braked one stopped where it is."""
 
-    def __init__(self, n: int, mass_kg: float = 5.0, friction_ns_per_m: float = 20.0, dt_s: float = 0.001):
+    def __init__(self, n: int, mass_kg: float = 5.0, friction_ns_per_m: float = 20.0, dt_s: float = 0.001,
+                 start=(), offsets=()):
         self.n, self.mass, self.friction, self.dt = n, mass_kg, friction_ns_per_m, dt_s
-        self.position, self.velocity, self.applied = [0.0] * n, [0.0] * n, [0.0] * n
+        self.position, self.velocity, self.applied = list(start) or [0.0] * n, [0.0] * n, [0.0] * n
+        self.offsets = list(offsets) or [0.0] * n          # the encoders' (until homed)
 
     def step(self, forces):
         for i, f in enumerate(forces):
@@ -310,24 +371,32 @@ class MassAxes:
         return self.samples()
 
     def samples(self):
-        return [Sample(p, v, f) for p, v, f in zip(self.position, self.velocity, self.applied)]
+        return [Sample(p + o, v, f, p) for p, v, f, o in zip(self.position, self.velocity, self.applied, self.offsets)]
+
+    def restart(self) -> None:
+        pass
 
 
 class VirtualMachine:
-    """The drives of one machine on one network and the physics they move. The
-    machine starts at the first SYNC after which every drive is switched on or enabled
-    (its step 0, as the master's: hardware.CanopenHardware.start); before it a
-    SYNC only samples (the brakes hold, no time passes for the physics), from it on
-    each SYNC (COB-ID 0x80) steps ``axes`` once with the drives' forces and has every
-    drive report. ``on_step(k)``, if given, is called after step k (0 at the start)."""
+    """The drives of one machine on one network and the physics they move. The physics
+    runs from the first SYNC after which every drive has been powered (switched on or
+    enabled): before it a SYNC only samples; from it on each SYNC (COB-ID 0x80) steps
+    ``axes`` once with the drives' forces and has every drive report. The run's clock,
+    ``steps``, restarts at 0 at every SYNC after which all drives are switched on (not
+    enabled) in cyclic synchronous torque: where the master leaves them for the
+    controller, after homing
+    (hardware.CanopenHardware.start: its step 0 is that SYNC too); the axes' clock with
+    it (``restart``). ``on_step(k)``, if given, is called after each step of the run in
+    cyclic synchronous torque (not while homing)."""
 
     def __init__(self, network: canopen.Network, axes: Axes, node_ids, scaling, eds: str | Path = DEFAULT_EDS,
-                 names=(), on_step=None):
+                 names=(), on_step=None, homing: HomingSetup = HomingSetup()):
         self.axes, self.on_step = axes, on_step
-        self.drives = [VirtualDrive(network, nid, sc, eds, name=names[k] if names else "")
+        self.drives = [VirtualDrive(network, nid, sc, eds, name=names[k] if names else "", homing=homing)
                        for k, (nid, sc) in enumerate(zip(node_ids, scaling))]
         self.syncs = 0
-        self.steps: int | None = None           # the machine's step count from its start (None: not started)
+        self.powered = False
+        self.steps: int | None = None           # the run's step count (None: not started)
         self.errors: list[str] = []
         network.subscribe(0x80, self._on_sync)
 
@@ -337,17 +406,23 @@ class VirtualMachine:
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         try:
-            if self.steps is None:
+            if not self.powered:
                 samples = self.axes.samples()
             else:
                 samples = self.axes.step([d.force() for d in self.drives])
-                self.steps += 1
             self.syncs += 1
             for drive, sample in zip(self.drives, samples):
                 drive.after_step(sample)
-            if self.steps is None and all(d.machine.state in POWERED for d in self.drives):
+            states = [d.machine.state for d in self.drives]
+            self.powered = self.powered or all(st in POWERED for st in states)
+            if all(st is State.SWITCHED_ON for st in states) and \
+                    all(d.mode is Mode.CYCLIC_SYNC_TORQUE for d in self.drives):
                 self.steps = 0
-            if self.steps is not None and self.on_step is not None:
+                self.axes.restart()
+            elif self.steps is not None:
+                self.steps += 1
+            if self.steps is not None and self.on_step is not None and \
+                    all(d.mode is Mode.CYCLIC_SYNC_TORQUE for d in self.drives):
                 self.on_step(self.steps)
         except Exception as exc:                 # canopen's listener would log and drop it
             self.errors.append(f"{type(exc).__name__}: {exc}")

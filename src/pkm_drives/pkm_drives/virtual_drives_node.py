@@ -33,7 +33,7 @@ from pkm_sim_hw.run_record import true_pose_components
 from .bus import NOTIFIER_CYCLE_S, TimedBus, serve_bus
 from .drive_config import drive_settings
 from .hardware import PlantAxes
-from .virtual_drive import DEFAULT_EDS, VirtualMachine, parse_drive_faults
+from .virtual_drive import DEFAULT_EDS, HomingSetup, VirtualMachine, parse_drive_faults
 
 __all__ = ["VirtualDrivesNode"]
 
@@ -63,8 +63,11 @@ class VirtualDrivesNode(Node):
                                                 settings.bus.bitrate))
         self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.network.connect()
+        dyn = machine.dynamics               # each drive moves its own mass and a share of the platform's
+        mass = dyn.drive_mass_kg[0] + dyn.platform_mass_kg / settings.n
+        homing = HomingSetup(mass_kg=mass, pitch=settings.index_pitch, dt_s=self.plant.params.dt_s)
         self.machine = VirtualMachine(self.network, PlantAxes(self.plant), settings.node_ids, settings.scaling,
-                                      DEFAULT_EDS, settings.names, on_step=self.on_step)
+                                      DEFAULT_EDS, settings.names, on_step=self.on_step, homing=homing)
         self.last_pose: bytes | None = None       # the last step's, published again while no step comes
         self.last_step_s = time.monotonic()
         self.create_timer(REPEAT_AFTER_S, self.repeat_pose)

@@ -1,11 +1,14 @@
 """What every simulated machine's drives do, whatever moves the platform (no rclpy):
-force saturation and the no-force fault (``applied_forces``), and the encoders
-(``Encoders``: quantised at the resolution, optional Gaussian noise, velocity by
-backward difference; ``encoder_freeze`` holds the last reading, ``encoder_slip``
-adds its constant offset). ``plant.Plant`` (rails) and ``strut_plant.StrutPlant``
-(struts) both use them."""
+force saturation and the no-force fault (``applied_forces``), the encoders
+(``Encoders``: an unknown offset until homed, quantised at the resolution, optional
+Gaussian noise, velocity by backward difference; ``encoder_freeze`` holds the last
+reading, ``encoder_slip`` adds its constant offset), and a drive's homing motion
+(``HomingMotion``). ``plant.Plant`` (rails) and ``strut_plant.StrutPlant`` (struts)
+both use them; pkm_drives' virtual CiA 402 drives run the homing motion."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -22,16 +25,22 @@ def applied_forces(commanded, limit: float, faults) -> tuple[list, list]:
 
 
 class Encoders:
-    """The drive encoders of one plant: ``read(q_true, faults)`` once per step."""
+    """The drive encoders of one plant: ``read(q_true, faults)`` once per step.
+    ``offsets``: incremental encoders count from where they were at power-up, not from
+    the machine's zero: each reads its drive's position plus its offset (unknown to the
+    controller until the drive is homed: HomingMotion)."""
 
-    def __init__(self, resolution_m: float, noise_m: float, seed: int, dt_s: float):
+    def __init__(self, resolution_m: float, noise_m: float, seed: int, dt_s: float, offsets=()):
         self.resolution_m, self.noise_m, self.dt_s = resolution_m, noise_m, dt_s
+        self.offsets = [float(o) for o in offsets]
         self._rng = np.random.default_rng(seed)
         self.last: list = []
 
     def quantise(self, q) -> list:
-        """Noise (one draw per drive), then the resolution."""
+        """The offset, noise (one draw per drive), then the resolution."""
         res, noise = self.resolution_m, self.noise_m
+        if self.offsets:
+            q = [qi + o for qi, o in zip(q, self.offsets)]
         if noise > 0.0:
             q = [qi + noise * self._rng.standard_normal() for qi in q]
         if res > 0.0:
@@ -53,3 +62,83 @@ class Encoders:
         velocity = [(r - p) / self.dt_s for r, p in zip(reading, self.last)]
         self.last = reading
         return reading, velocity
+
+
+# CiA 402 homing methods (0x6098) a simulated drive runs: what it homes on
+HOME_SWITCH, INDEX_NEGATIVE, INDEX_POSITIVE, CURRENT_POSITION = (19, 21), 33, 34, (35, 37)
+
+
+class HomingMotion:
+    """One drive's homing as a servo drive runs it in CiA 402 homing mode, on the
+    simulated machine: a position reference moving at ``speed`` towards the reference
+    mark, followed by the drive's own PID (bandwidth ``bandwidth_hz`` on ``mass_kg``),
+    until the mark is crossed; the encoder reading there is latched (interpolated
+    between the two samples around the crossing, as a drive's capture input latches
+    it), the drive goes back to the mark and holds there (completed: at rest within
+    ``tolerance`` of it). The drive's position is then ``reading + shift``,
+    ``shift = home_position - latched``.
+
+    The marks, in the drive's true position (its encoder without the offset):
+    methods 19 and 21, a home switch's edge at ``home_position`` (the drive moves
+    towards it from either side); 33 and 34, index pulses at ``home_position + k pitch``
+    (the next one in the negative or positive direction: the drive must start within a
+    pitch of its home index); 35 and 37, the current position (no motion).
+
+    ``step(true, reading, velocity)`` after each sample returns the force for the next
+    period; ``status``: "in_progress", "attained" (latched, stopping), "completed"
+    (stopped), "error" (no mark within ``max_travel``)."""
+
+    def __init__(self, method: int, home_position: float, speed: float, mass_kg: float, dt_s: float,
+                 bandwidth_hz: float = 5.0, pitch: float = 0.005, max_travel: float = 0.05, tolerance: float = 2e-6):
+        if method not in HOME_SWITCH + CURRENT_POSITION + (INDEX_NEGATIVE, INDEX_POSITIVE):
+            raise ValueError(f"homing method {method}: not simulated")
+        self.method, self.home, self.speed, self.dt = method, home_position, abs(speed), dt_s
+        self.pitch, self.max_travel, self.tolerance = pitch, max_travel, tolerance
+        w = 2.0 * math.pi * bandwidth_hz
+        self.kp, self.kd, self.ki = mass_kg * w * w, 2.0 * 0.7 * mass_kg * w, mass_kg * w * w * w / 5.0
+        self.status = "in_progress"
+        self.latched: float | None = None
+        self.shift = 0.0
+        self.target = None               # the mark's true position
+        self.reference = None            # the position reference (reading units), None until the first sample
+        self.direction = 0.0
+        self.integral = 0.0
+        self.previous = None             # (true, reading) of the last sample
+        self.start_reading = None
+
+    def _aim(self, true: float) -> None:
+        if self.method in CURRENT_POSITION:
+            self.target = true
+        elif self.method in HOME_SWITCH:
+            self.target, self.direction = self.home, (1.0 if self.home >= true else -1.0)
+        else:
+            k = (true - self.home) / self.pitch
+            k = math.floor(k) + 1 if self.method == INDEX_POSITIVE else math.ceil(k) - 1
+            self.target, self.direction = self.home + k * self.pitch, (1.0 if self.method == INDEX_POSITIVE else -1.0)
+
+    def step(self, true: float, reading: float, velocity: float) -> float:
+        if self.reference is None:                      # the first sample: aim, start from here
+            self._aim(true)
+            self.reference = self.start_reading = reading
+            if self.method in CURRENT_POSITION:
+                self._latch(reading)
+        elif self.latched is None:
+            self.reference += self.direction * self.speed * self.dt
+            t0, r0 = self.previous
+            if (t0 - self.target) * (true - self.target) <= 0.0 and true != t0:
+                self._latch(r0 + (reading - r0) * (self.target - t0) / (true - t0))
+                self.reference = self.latched           # back to the mark, and hold there
+            elif abs(reading - self.start_reading) > self.max_travel:
+                self.status, self.reference = "error", reading
+        elif self.status == "attained" and abs(velocity) < 1e-4 and abs(reading - self.reference) <= self.tolerance:
+            self.status = "completed"
+        self.previous = (true, reading)
+        error = self.reference - reading
+        self.integral += error * self.dt
+        v_ref = self.direction * self.speed if self.latched is None and self.status != "error" else 0.0
+        return self.kp * error + self.kd * (v_ref - velocity) + self.ki * self.integral
+
+    def _latch(self, reading: float) -> None:
+        self.latched = reading
+        self.shift = self.home - reading               # the drive's position at the mark: home_position
+        self.status = "attained"

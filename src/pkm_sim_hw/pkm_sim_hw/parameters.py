@@ -3,14 +3,16 @@ plant's configuration (plant.PlantParameters) and the node's settings."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from pkm_common.params import ParameterError, declare_bool, declare_float, declare_float_list, declare_int, declare_str
 from pkm_common.credential import Verifier
 from pkm_common.sources import AllowedSenders, node_names
 from pkm_kinematics import load_machine
-from pkm_kinematics.errors import FieldError
+from pkm_kinematics.errors import ConfigError, FieldError
 from pkm_sim_hw.authority import CommandGate
+from pkm_sim_hw.homing import home, homing_plan
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_sim_hw.sim_loop import SimHwSettings
 from pkm_sim_hw.strut_plant import StrutPlant
@@ -24,7 +26,28 @@ def declare_settings(node) -> SimHwSettings:
     naming it and its allowed range (the node does not start)."""
     machine = load_machine(declare_str(node, "machine", "archi", "config/machines/<name>.yaml"))
     plant = declare_plant(node, machine)
-    return declare_loop(node, machine, plant, plant.params.dt_s)
+    homing = home_incremental(plant, machine)
+    return dataclasses.replace(declare_loop(node, machine, plant, plant.params.dt_s), homing=homing)
+
+
+def home_incremental(plant, machine) -> str:
+    """Home a plant whose encoders are incremental (``encoder_offsets_m``) by the
+    machine file's ``drives.homing`` (pkm_sim_hw.homing); what it did, "" if nothing."""
+    if not plant.params.encoder_offsets_m:
+        return ""
+    try:
+        plan = homing_plan(machine)
+    except ConfigError as exc:
+        raise ParameterError("machine", str(exc)) from None
+    if plan is None:
+        raise ParameterError("encoder_offsets_m", f"incremental encoders must be homed: machine {machine.name!r} "
+                             "has no drives.homing section (methods, order, home positions)")
+    dyn = machine.dynamics
+    try:
+        record = home(plant, plan, dyn.drive_mass_kg[0] + dyn.platform_mass_kg / plant.n)
+    except ValueError as exc:
+        raise ParameterError("encoder_offsets_m", str(exc)) from None
+    return record.text(plant.names)
 
 
 def declare_plant(node, machine):
@@ -42,6 +65,8 @@ def declare_plant(node, machine):
         seed=declare_int(node, "seed", 0, 0, 2**31 - 1),
         link_length_errors=tuple(declare_float_list(node, "link_length_errors", [], "relative, one per "
                                                     "drive (empty: none)", lo=-0.49, hi=0.49)),
+        encoder_offsets_m=tuple(declare_float_list(node, "encoder_offsets_m", [], "incremental encoders' "
+                                                   "offsets until homed, one per drive (empty: none)", unit="m")),
         rail_offset_errors_m=tuple(declare_float_list(node, "rail_offset_errors_m", [], "one per drive "
                                                       "(empty: none)", unit="m")),
         compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], "the tool's deflection per unit "

@@ -103,6 +103,7 @@ class PlantParameters:
     seed: int = 0
     link_length_errors: tuple = ()        # relative, per leg, e.g. (0, 0, 0.02, 0)
     rail_offset_errors_m: tuple = ()      # shift of each rail origin along its rail
+    encoder_offsets_m: tuple = ()         # incremental encoders' offsets until homed, one per drive (drives.Encoders)
     compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C in task coordinates (m/N, m/N, m/N or rad/(N m))
     frame_compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C_frame: the actuation chain's frame under frame_load
     faults: tuple = ()
@@ -125,6 +126,8 @@ class PlantParameters:
                   ("link_length_errors", len(self.link_length_errors) in (0, n_drives)
                    and all(abs(e) < 0.5 for e in self.link_length_errors), f"{n_drives} values in (-0.5, 0.5)"),
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
+                  ("encoder_offsets_m", len(self.encoder_offsets_m) in (0, n_drives)
+                   and all(abs(o) <= 1.0 for o in self.encoder_offsets_m), f"{n_drives} values in [-1, 1] m"),
                   ("compliance", len(self.compliance) in (3, 6) and all(c >= 0.0 for c in self.compliance),
                    "3 values >= 0 (6 on a 6-DOF machine)"),
                   ("frame_compliance", len(self.frame_compliance) in (3, 6)
@@ -207,6 +210,9 @@ class Plant:
         self.frame_load = [0.0, 0.0, 0.0]
         self._schedule: list = []          # [(step, wrench)] (schedule_load)
         self._frame_schedule: list = []    # [(step, wrench)] (schedule_frame_load)
+        self._schedule_all, self._frame_schedule_all = [], []     # as loaded (restart_clock)
+        self.schedules_paused = False      # before the run (homing): no scheduled load
+        self.homed = not self.params.encoder_offsets_m    # incremental encoders: not until homing.home
         self.stopped = False
         self.stop_reason = ""
         self.stop_cause = TripCause.NONE
@@ -216,7 +222,7 @@ class Plant:
         self._locked: list[int] = []
         self._lock_positions: dict[int, float] = {}
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
-                                 self.params.dt_s)
+                                 self.params.dt_s, self.params.encoder_offsets_m)
         self.encoders.start(self._drive_positions(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
 
@@ -240,10 +246,12 @@ class Plant:
         """Loads on the tool in simulated time: [(t_s, wrench)], times non-decreasing;
         each applies from the first step at or after t_s (counted in steps: no float drift)."""
         self._schedule = self._steps(rows, "load_schedule")
+        self._schedule_all = list(self._schedule)
 
     def schedule_frame_load(self, rows) -> None:
         """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
         self._frame_schedule = self._steps(rows, "frame_load_schedule")
+        self._frame_schedule_all = list(self._frame_schedule)
 
     def _steps(self, rows, what: str) -> list:
         return load_steps(rows, self.params.dt_s, self.check_load, what)
@@ -258,6 +266,20 @@ class Plant:
     def active_faults(self) -> list[Fault]:
         return [f for f in self._faults if f.at_s <= self.t + 1e-12]
 
+    def restart_clock(self) -> None:
+        """Simulated time 0 here (the state kept): a run that starts after the machine's
+        homing counts its steps, load schedules and faults from its own start (no load
+        before it)."""
+        self.k, self.t = 0, 0.0
+        self._schedule, self._frame_schedule = list(self._schedule_all), list(self._frame_schedule_all)
+        self.load, self.frame_load = [0.0] * len(self.load), [0.0] * len(self.frame_load)
+        self.schedules_paused = False
+        self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
+
+    def pause_schedules(self) -> None:
+        """No scheduled load until restart_clock (the machine homes before its run)."""
+        self.schedules_paused = True
+
     # ------------------------------------------------------------------- step
     def step(self, forces, hold: bool = False) -> PlantOutput:
         """Apply the commanded drive forces for one period and advance the state;
@@ -265,9 +287,9 @@ class Plant:
         power stage is off: pkm_drives.virtual_drive), the platform stays where it is,
         without latching a stop."""
         cmd = finite_floats(forces, self.n, "drive forces")
-        while self._schedule and self.k >= self._schedule[0][0]:
+        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
             self.load = self._schedule.pop(0)[1]
-        while self._frame_schedule and self.k >= self._frame_schedule[0][0]:
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
             self.frame_load = self._frame_schedule.pop(0)[1]
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)

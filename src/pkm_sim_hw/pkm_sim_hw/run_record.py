@@ -21,8 +21,8 @@ class RunRecord:
     """Counters and events of one sim_hw run (``counts`` is shared with the refusal
     report, which counts what it could not publish)."""
 
-    def __init__(self, machine_name: str, lockstep: bool):
-        self.machine_name, self.lockstep = machine_name, lockstep
+    def __init__(self, machine_name: str, lockstep: bool, homing: str = ""):
+        self.machine_name, self.lockstep, self.homing = machine_name, lockstep, homing
         self.counts = dict.fromkeys(COUNTERS, 0)
         # the first intruder named (a node); UNNAMED while the graph has only counted a
         # second publisher (its name comes with discovery, later); "" while none
@@ -63,6 +63,8 @@ class RunRecord:
                   "mode": "lockstep" if self.lockstep else "realtime",
                   "internal_force_norm_n": out.internal_force_norm, "saturated_drives": sum(out.saturated),
                   "faults": ",".join(out.faults_active) or "none", **self.counts}
+        if self.homing:
+            values["homing"] = self.homing
         return level, message, values
 
     def summary(self, plant, now: float) -> dict:
@@ -73,7 +75,7 @@ class RunRecord:
                 "stopped": plant.stopped, "stop_reason": plant.stop_reason,
                 "cause": str(plant.stop_cause), "intruder": self.intruder, **self.counts,
                 "published": dict.fromkeys(STEP_TOPICS, self.steps_published),
-                "complete": self.finished}
+                "complete": self.finished, **({"homing": self.homing} if self.homing else {})}
 
 
 def true_pose_components(space, out) -> tuple:

@@ -54,6 +54,7 @@ class SimHwSettings:
     shutdown_on_finish: bool
     load_senders: AllowedSenders = AllowedSenders("load", ())    # who may send a load (empty: anyone)
     credentials: Verifier = Verifier(None)     # the run's key: a load carries its credential (none: not needed)
+    homing: str = ""                 # what the machine's homing did before the run ("": none)
 
 
 class SimPorts(Protocol):
@@ -100,7 +101,7 @@ class SimLoop:
         if self.summary_path:
             reserve_file(self.summary_path)       # a disk the bag fills cannot take the summary's place
         self.streams, self.ports = streams, ports
-        self.run = RunRecord(self.config.name, self.lockstep)     # counters, intruder, steps: the summary's
+        self.run = RunRecord(self.config.name, self.lockstep, settings.homing)   # counters, intruder, steps
         self.counts = self.run.counts
         self.command_matches = 1                # publishers matched to drives/command (the matched event)
         self.started = False
@@ -171,6 +172,10 @@ class SimLoop:
             return
         if verdict != APPLY:                       # not an answer; in real time the last valid one holds
             self.refuse(verdict)
+            return
+        if not self.plant.homed:                   # its positions are not the machine's yet
+            self.refuse(Refusal("not homed: drive commands are refused until the machine is homed "
+                                "(drives.homing)", TripCause.INPUT_REFUSED, stamp, stop=False))
             return
         effort, why = command_efforts(msg, self.plant.names)
         if effort is None:

@@ -82,6 +82,9 @@ class StrutPlant:
         self.frame_load = np.zeros(6)
         self._schedule: list = []          # [(step, load)] (schedule_load)
         self._frame_schedule: list = []    # [(step, load)] (schedule_frame_load)
+        self._schedule_all, self._frame_schedule_all = [], []     # as loaded (restart_clock)
+        self.schedules_paused = False      # before the run (homing): no scheduled load
+        self.homed = not self.params.encoder_offsets_m    # incremental encoders: not until homing.home
         self.t, self.k = 0.0, 0
         self.dt_ns = round(self.params.dt_s * 1e9)      # a step's stamp is k * dt_ns
         self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
@@ -90,7 +93,7 @@ class StrutPlant:
         if not self.machine.within_joint_limits(q):
             raise FieldError("initial_pose", f"struts outside their limits: {np.round(q, 6).tolist()} m")
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
-                                 self.params.dt_s)
+                                 self.params.dt_s, self.params.encoder_offsets_m)
         self._reading_scale = 1.0 / (1.0 + np.asarray(self.params.link_length_errors or [0.0] * self.n, dtype=float))
         self.encoders.start((q * self._reading_scale).tolist())
         self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
@@ -113,10 +116,12 @@ class StrutPlant:
     def schedule_load(self, rows) -> None:
         """Loads on the platform in simulated time: [(t_s, wrench)], as the rail plant's."""
         self._schedule = load_steps(rows, self.params.dt_s, self.check_load, "load_schedule")
+        self._schedule_all = list(self._schedule)
 
     def schedule_frame_load(self, rows) -> None:
         """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
         self._frame_schedule = load_steps(rows, self.params.dt_s, self.check_load, "frame_load_schedule")
+        self._frame_schedule_all = list(self._frame_schedule)
 
     def set_load(self, wrench) -> None:
         """External load on the platform (fx, fy, fz in N, mx, my, mz in N m, base
@@ -132,14 +137,27 @@ class StrutPlant:
     def active_faults(self) -> list[Fault]:
         return [f for f in self._faults if f.at_s <= self.t + 1e-12]
 
+    def restart_clock(self) -> None:
+        """Simulated time 0 here, the state kept, the load schedules from their start
+        (plant.Plant.restart_clock)."""
+        self.k, self.t = 0, 0.0
+        self._schedule, self._frame_schedule = list(self._schedule_all), list(self._frame_schedule_all)
+        self.load, self.frame_load = np.zeros(6), np.zeros(6)
+        self.schedules_paused = False
+        self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
+
+    def pause_schedules(self) -> None:
+        """No scheduled load until restart_clock (the machine homes before its run)."""
+        self.schedules_paused = True
+
     # ------------------------------------------------------------------- step
     def step(self, forces, hold: bool = False) -> PlantOutput:
         """Apply the commanded strut forces for one period and advance the state;
         ``hold``: the holding brakes are closed for this period (plant.Plant.step)."""
         cmd = finite_floats(forces, self.n, "drive forces")
-        while self._schedule and self.k >= self._schedule[0][0]:
+        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
             self.load = np.array(self._schedule.pop(0)[1])
-        while self._frame_schedule and self.k >= self._frame_schedule[0][0]:
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
             self.frame_load = np.array(self._frame_schedule.pop(0)[1])
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
