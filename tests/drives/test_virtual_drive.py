@@ -65,6 +65,15 @@ class Bench:
                 seen.append(hex(word))
         raise AssertionError(f"no {state.label} within {timeout_s} s; statuswords seen: {seen}")
 
+    def until(self, condition, what: str, timeout_s: float = 5.0) -> None:
+        """TPDOs until ``condition()`` holds (AssertionError saying ``what`` after ``timeout_s``)."""
+        end = time.monotonic() + timeout_s
+        while not condition():
+            if time.monotonic() > end:
+                raise AssertionError(f"not within {timeout_s} s: {what}; axes {self.axes.position} "
+                                     f"{self.axes.velocity}, TPDO values {self.node.tpdo_values}")
+            self.node.check_statusword()
+
     def command(self, word: int, state: State) -> int:
         self.node.controlword = word
         sw = self.wait_state(state)
@@ -105,9 +114,12 @@ def test_start_up_to_operation_enabled_and_torque_both_ways(bench):
     assert velocity > 0
     # the limit (0x6072: 3000 per mille) clamps and says so (internal limit, bit 11)
     node.rpdo[1]["Target torque"].raw = 5000
-    node.check_statusword()
+    # the periodic RPDO carries it, a SYNC latches it, the next step applies it: a few SYNCs
+    deadline = time.monotonic() + 5.0
     sw = node.check_statusword()
-    assert node.tpdo_values[0x6077] == 3000 and sw & 0x800, hex(sw)
+    while node.tpdo_values[0x6077] != 3000 and time.monotonic() < deadline:
+        sw = node.check_statusword()
+    assert node.tpdo_values[0x6077] == 3000 and sw & 0x800, (node.tpdo_values[0x6077], hex(sw))
 
 
 def test_every_transition_with_its_statusword():
@@ -158,8 +170,7 @@ def test_quick_stop_brakes_and_option_2_ends_disabled(bench):
     node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
     node.rpdo[1]["Target torque"].raw = 800
     node.state = "OPERATION ENABLED"
-    while bench.axes.velocity[0] < 0.05:
-        node.check_statusword()
+    bench.until(lambda: bench.axes.velocity[0] >= 0.05, "moving at 50 mm/s")
     bench.node.controlword = 0x02
     bench.wait_state(State.QUICK_STOP_ACTIVE)         # seen for a SYNC at least
     bench.wait_state(State.SWITCH_ON_DISABLED)        # option 2: then disabled
@@ -195,8 +206,7 @@ def test_homing_mode_is_shown_and_encoder_fault_freezes_the_position(bench):
     node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
     node.rpdo[1]["Target torque"].raw = 300
     node.state = "OPERATION ENABLED"
-    while bench.axes.position[0] < 1e-3:
-        node.check_statusword()
+    bench.until(lambda: bench.axes.position[0] >= 1e-3, "1 mm travelled")
     bench.drive.inject("encoder")
     bench.wait_state(State.FAULT)
     frozen = node.tpdo_values[0x6064]
