@@ -25,6 +25,8 @@ setup(
         'console_scripts': [
             'drives_node = pkm_drives.drives_node:main',
             'virtual_drives_node = pkm_drives.virtual_drives_node:main',
+            'ros2_control_node = pkm_drives.ros2_control_node:main',
+            'ros2_control_sim_node = pkm_drives.ros2_control_sim_node:main',
         ],
     },
 )

@@ -43,7 +43,7 @@ def test_the_loop_nodes_run_sched_fifo_in_the_order_of_the_critical_path_and_the
     for node in ("recorder", "trajectory"):                            # below every SCHED_FIFO thread anyway
         assert scheduling(node) == Scheduling(OTHER, 0, lock_memory=False)
     assert set(PROFILE) == {"sim_hw", "controller", "gough_sensor", "recorder", "trajectory", "drives",
-                            "virtual_drives"}
+                            "virtual_drives", "ros2_control", "ros2_control_sim"}
     assert scheduling("drives") == scheduling("virtual_drives") == sim     # the machine's place on the path
     one = scheduling("recorder", in_process=True)                      # one process: all of it at the loop's
     assert one.policy == FIFO and one.priority == ctrl.priority and one.lock_memory

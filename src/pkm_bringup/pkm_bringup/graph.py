@@ -38,12 +38,15 @@ from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_recording.recording import normal_cpu_priority
 
 # start order; the stop order is the reverse of the run order with the recorder last
-START_ORDER = ("recorder", "virtual_drives", "sim_hw", "drives", "gough_sensor", "controller")
+START_ORDER = ("recorder", "virtual_drives", "ros2_control_sim", "sim_hw", "drives", "ros2_control", "gough_sensor",
+               "controller")
 # after the sim's last step, how long the loop's nodes keep running (see run_processes)
 LOOP_END_GRACE_S = 0.15
-STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "drives", "virtual_drives",
-              "recorder")
-MACHINE_NODES = ("sim_hw", "drives")     # the graph's machine: simulated, or the drive interface (one of them)
+STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "drives", "ros2_control",
+              "virtual_drives", "ros2_control_sim", "recorder")
+# the graph's machine: simulated, or a drive interface (one of them); behind one, its simulated machine
+MACHINE_NODES = ("sim_hw", "drives", "ros2_control")
+BEHIND = ("virtual_drives", "ros2_control_sim")
 CONNECT_TIMEOUT_S = 60.0
 DRAIN_S = 0.5
 DRAIN_IN_PROCESS_S = 0.2
@@ -284,7 +287,7 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         # plant), then give the recorder time for the last messages
         # (the virtual drives, the machine's physics, stay until the machine's node has exited)
         codes.update(stop_nodes([nodes[n] for n in STOP_ORDER
-                                 if n in nodes and n not in ("recorder", machine, "virtual_drives")], together=True))
+                                 if n in nodes and n not in ("recorder", machine) + BEHIND], together=True))
         with contextlib.suppress(subprocess.TimeoutExpired):     # the sim ends by itself
             sim.popen.wait(timeout=10.0)
         if sim.popen.returncode is None:

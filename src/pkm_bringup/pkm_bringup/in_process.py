@@ -30,6 +30,9 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     """The scenario with every node in one EventsExecutor (same parameters); an
     interruption stops every node at once (no plant runs on without its controller)."""
 
+    if s.hardware == "ros2_control":
+        raise RunFailed("hardware ros2_control runs as processes: its system (or its stand-in) runs its own "
+                        "real-time loop, which one executor would stop while the interface waits for it")
     classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
                "controller": ControllerNode, "trajectory": TrajectoryNode, "drives": DrivesNode,
                "virtual_drives": VirtualDrivesNode}

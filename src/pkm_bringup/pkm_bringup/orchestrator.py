@@ -138,8 +138,8 @@ def trip_cause(summaries: dict) -> tuple[TripCause, str]:
     """The cause that started the run's stop, and its reason: the controller's (it takes
     the plant's when the plant braked first: then in the plant's own words, which name
     what stopped it, a drive and its error code), else the plant's."""
-    machine = summaries.get("sim_hw") or summaries.get("drives") or {}
-    for node in ("controller", "sim_hw", "drives"):
+    machine = summaries.get("sim_hw") or summaries.get("drives") or summaries.get("ros2_control") or {}
+    for node in ("controller", "sim_hw", "drives", "ros2_control"):
         summary = summaries.get(node, {})
         if summary.get("stopped"):
             try:
@@ -162,7 +162,7 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     published = {}
     for node in (s.machine_node, "controller", "gough_sensor"):
         for topic, count in summaries.get(node, {}).get("published", {}).items():
-            if topic == "platform/true_pose" and node == "drives":
+            if topic == "platform/true_pose" and node != "sim_hw":
                 continue                     # the drive interface has no ground truth (the virtual drives do)
             published[s.topic(topic)] = count
     recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
@@ -290,7 +290,7 @@ def _recover_bag(s: Scenario, run_dir: Path) -> dict:
 
 
 def format_summary(run: dict, run_dir: Path) -> str:
-    sims = run["summaries"].get("sim_hw") or run["summaries"].get("drives", {})
+    sims = run["summaries"].get("sim_hw") or run["summaries"].get("drives") or run["summaries"].get("ros2_control", {})
     ctrl = run["summaries"].get("controller", {})
     lines = [f"scenario {run['scenario']} ({run['machine']}, {run['strategy']}"
              f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}"

@@ -30,6 +30,8 @@ MODULES = {
     "sim_hw": "pkm_sim_hw.sim_hw_node",
     "drives": "pkm_drives.drives_node",
     "virtual_drives": "pkm_drives.virtual_drives_node",
+    "ros2_control": "pkm_drives.ros2_control_node",
+    "ros2_control_sim": "pkm_drives.ros2_control_sim_node",
     "gough_sensor": "pkm_gough_sensor.gough_sensor_node",
     "controller": "pkm_controller.controller_node",
     "trajectory": "pkm_trajectory.trajectory_node",

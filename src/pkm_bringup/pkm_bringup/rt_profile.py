@@ -80,6 +80,8 @@ PROFILE: dict[str, Scheduling] = {
     "sim_hw": Scheduling(FIFO, 60, lock_memory=True),
     "drives": Scheduling(FIFO, 60, lock_memory=True),          # the drive interface, in sim_hw's place
     "virtual_drives": Scheduling(FIFO, 60, lock_memory=True),  # the simulated machine behind the bus
+    "ros2_control": Scheduling(FIFO, 60, lock_memory=True),    # the interface to a ros2_control system
+    "ros2_control_sim": Scheduling(FIFO, 60, lock_memory=True),  # its stand-in in simulation
     "trajectory": Scheduling(),
     "recorder": Scheduling(),
 }

@@ -32,7 +32,8 @@ node runs by default. Keys (all optional but ``machine``)::
                                       # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
                                       # (exit 2, nothing started) where the OS does not allow it.
                                       # pkm-run --rt-profile sets it.
-    hardware: sim                     # sim: sim_hw_node; canopen: drives_node on CiA 402 drives (docs/drives.md)
+    hardware: sim                     # sim: sim_hw_node; canopen: drives_node on CiA 402 drives; ros2_control:
+                                      # a ros2_control system's effort controller (docs/drives.md)
     drives: {...}                     # drives_node parameters (config/drives.yaml), virtual: true (virtual
                                       # drives on this scenario's plant) | false (a real machine's bus),
                                       # drive_faults: "2:over_current:0.5" (the virtual drives')
@@ -59,6 +60,7 @@ from pathlib import Path
 
 import yaml
 
+from pkm_bringup.hardware import MACHINE_NODE, check_hardware, machine_nodes
 from pkm_bringup.owner_checks import OWNER_CHECKS
 from pkm_common import topics
 from pkm_common.credential import KEY_FILE
@@ -66,7 +68,6 @@ from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.config import ControllerConfig
 from pkm_controller.strategies import REGISTRY as STRATEGIES
-from pkm_drives.virtual_drive import parse_drive_faults
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import FieldError
@@ -80,18 +81,11 @@ KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program"
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder", "drives": "drives"}
-HARDWARE = ("sim", "canopen")
-# the scenario's drives section: keys that are the bringup's, not drives_node parameters
-DRIVES_BRINGUP_KEYS = ("virtual", "drive_faults")
-CAN_BUS_URL = "can_bus.url"          # in the run directory: the virtual drives' bridge (pkm_drives.bus)
 # parameters with a fixed set of values, checked when the scenario is loaded
 CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
 PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose", "encoder_offsets_m")
-# sim_hw parameters of its loop, not of its plant (the virtual drives take the plant's only)
-LOOP_ONLY = ("mode", "command_timeout_s", "command_max_age_s", "sync_error_limit", "command_source", "duration_s",
-             "summary_path", "publish_markers")
 
 
 class ScenarioError(ValueError):
@@ -128,13 +122,15 @@ class Scenario:
 
     @property
     def machine_node(self) -> str:
-        """The graph's node of the machine: sim_hw (simulated) or drives (CANopen drives)."""
-        return "drives" if self.hardware == "canopen" else "sim_hw"
+        """The graph's node of the machine: sim_hw (simulated), drives (CANopen drives) or
+        ros2_control (a ros2_control system's effort controller)."""
+        return MACHINE_NODE[self.hardware]
 
     @property
     def virtual_drives(self) -> bool:
-        """The drives are virtual ones on a simulated plant (virtual_drives_node)."""
-        return self.hardware == "canopen" and bool(self.drives.get("virtual", True))
+        """The machine behind the interface is simulated (virtual_drives_node, or the
+        ros2_control stand-in ros2_control_sim_node)."""
+        return self.hardware != "sim" and bool(self.drives.get("virtual", True))
 
     @property
     def ground_truth(self) -> bool:      # a simulated plant publishes platform/true_pose (not a real machine)
@@ -142,8 +138,8 @@ class Scenario:
 
     def section_node(self, key: str) -> str:
         """The node a scenario section parameterises (the plant: sim_hw's, or the virtual drives')."""
-        if key == "plant" and self.hardware == "canopen":
-            return "virtual_drives"
+        if key == "plant" and self.hardware != "sim":
+            return "virtual_drives" if self.hardware == "canopen" else "ros2_control_sim"
         return SECTIONS[key]
 
     @property
@@ -355,16 +351,10 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
                             f"{operators!r}")
     s.operators = list(operators)
     s.hardware = data.get("hardware", s.hardware)
-    if s.hardware not in HARDWARE:
-        raise ScenarioError(f"hardware: must be one of {list(HARDWARE)}, got {s.hardware!r}")
-    if s.drives and s.hardware != "canopen":
-        raise ScenarioError("drives: only with hardware: canopen")
-    if s.hardware == "canopen" and not s.ground_truth and (s.metrology or data.get("load")):
-        raise ScenarioError("hardware: a real machine (drives.virtual: false) has no simulated metrology or load")
     try:
-        parse_drive_faults(str(s.drives.get("drive_faults", "")), config.model.n_legs)
-    except FieldError as exc:  # the virtual drives' (a scenario's drives section: pkm-run's keys and drives_node's)
-        raise ScenarioError(f"drives.drive_faults: {exc.detail}") from None
+        check_hardware(s.hardware, s.drives, s.mode, s.ground_truth, bool(s.metrology or data.get("load")), config)
+    except FieldError as exc:
+        raise ScenarioError(f"{exc.name}: {exc.detail}") from None
     size = len(config.model.task_space.loads)
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
@@ -402,7 +392,7 @@ def _check_nodes(s: Scenario, config) -> None:
     params = node_parameters(s, Path("run"))
     for key, check in OWNER_CHECKS.items():
         node = s.section_node(key)
-        if node not in params:
+        if node not in params or (key == "drives" and s.hardware != "canopen"):
             continue
         try:
             check(params[node], config)
@@ -525,19 +515,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     loop = {"machine": s.machine, "mode": s.mode, "dt_s": s.dt_s, "duration_s": s.duration_s,
             "command_source": controller_node_name(s), "load_sources": ",".join(operator_names(s)),
             "credential_file": key, "summary_path": str(summaries / f"{s.machine_node}.json")}
-    nodes = {}
-    if s.hardware == "sim":
-        nodes["sim_hw"] = {**plant, **loop}
-    else:
-        drives = {k: v for k, v in {**_node_defaults("drives"), **s.drives}.items() if k not in DRIVES_BRINGUP_KEYS}
-        nodes["drives"] = {**drives, **loop}
-        if s.virtual_drives:
-            # the bus: served by the virtual drives' process on the loopback (pkm_drives.bus); in one
-            # process (in_process) a virtual channel
-            nodes["drives"].update(can_interface="remote", can_channel_file=str(run_dir / CAN_BUS_URL))
-            nodes["virtual_drives"] = {**{k: v for k, v in plant.items() if k not in LOOP_ONLY},
-                                       "can_channel": f"pkm_{s.name}", "bridge_url_file": str(run_dir / CAN_BUS_URL),
-                                       "drive_faults": str(s.drives.get("drive_faults", ""))}
+    nodes = machine_nodes(s, plant, loop, _node_defaults("drives"), run_dir)
     nodes.update({
         "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
@@ -574,6 +552,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
 
 # node -> the per-step streams it publishes through its recording tap when recorded
 TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"), "drives": ("drives/state", "/clock"),
+                  "ros2_control": ("drives/state", "/clock"),
                   "gough_sensor": ("metrology/struts", "metrology/pose"),
                   "controller": ("drives/command", "controller/reference")}
 

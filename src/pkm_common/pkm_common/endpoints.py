@@ -10,10 +10,13 @@ from __future__ import annotations
 import importlib
 import re
 
+from rclpy.qos import qos_profile_system_default
+
 from pkm_common.qos import TOPIC_QOS, publisher_qos
 from pkm_common.topics import CATALOGUE
 
-__all__ = ["message_class", "publisher", "subscription", "topic_message_class"]
+__all__ = ["message_class", "publisher", "subscription", "topic_message_class", "system_publisher",
+           "system_subscription"]
 
 _MSGTYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
 
@@ -46,3 +49,16 @@ def subscription(node, topic: str, callback, raw: bool = False, **kwargs):
     ``kwargs`` go to ``create_subscription`` (event_callbacks)."""
     return node.create_subscription(topic_message_class(topic), topic, callback, TOPIC_QOS[topic], raw=raw,
                                     **kwargs)
+
+
+def system_publisher(node, msg_class, name: str):
+    """A publisher on a topic of another system, not of the graph's catalogue (a
+    ros2_control system's controller commands, named by the machine file), with the
+    QoS ROS 2's own nodes use there: the system default (reliable, volatile, depth 10)."""
+    return node.create_publisher(msg_class, name, qos_profile_system_default)
+
+
+def system_subscription(node, msg_class, name: str, callback):
+    """A subscription to a topic of another system (``system_publisher``'s QoS): a
+    ros2_control system's joint_states."""
+    return node.create_subscription(msg_class, name, callback, qos_profile_system_default)

@@ -1,0 +1,95 @@
+"""The drive interface on a ros2_control system (pkm_drives.ros2_control): efforts sent
+to an effort controller in its joints' order, joint_states read by joint name, stale or
+incomplete samples stop the machine; and the graph through ros2_control_sim_node, a
+stand-in that behaves as ros2_control's JointGroupEffortController and
+joint_state_broadcaster do (its joints in another order, with one more joint)."""
+
+import copy
+import json
+
+import pytest
+
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import load_scenario
+from pkm_common.causes import TripCause
+from pkm_drives.ros2_control import Ros2ControlHardware, ros2_control_settings
+from pkm_kinematics.config import load_machine, load_machine_data
+from pkm_kinematics.errors import ConfigError
+from pkm_runs.replay import recorded_messages
+
+ARCHI = load_machine("archi")
+
+
+class Clock:
+    t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_efforts_go_out_in_the_controllers_order_and_joints_are_read_by_name():
+    settings = ros2_control_settings(ARCHI)
+    sent, clock = [], Clock()
+    hw = Ros2ControlHardware(settings, ARCHI.model.leg_names, 0.004, sent.append, clock)
+    with pytest.raises(ValueError, match="no sample on /joint_states"):
+        hw.start()
+    names = ["spindle_joint", "rail_4_joint", "rail_2_joint", "rail_3_joint", "rail_1_joint"]
+    hw.on_joint_states(names, [9.0, 0.4, 0.2, 0.3, 0.1], [0.0, 4.0, 2.0, 3.0, 1.0], [0.0, -4.0, -2.0, -3.0, -1.0])
+    hw.start()
+    out = hw.step([10.0, 20.0, 30.0, 40.0])
+    assert sent[-1] == [10.0, 20.0, 30.0, 40.0]                  # the controller's joints: rail_1..rail_4 = q1..q4
+    assert out.encoder_positions == [0.1, 0.2, 0.3, 0.4] and out.encoder_velocities == [1.0, 2.0, 3.0, 4.0]
+    assert out.applied_forces == [-1.0, -2.0, -3.0, -4.0] and out.tool_pose is None and not hw.stopped
+    clock.t = 0.06                                                # no sample for 60 ms (max_age_s 0.05)
+    hw.step([1.0, 1.0, 1.0, 1.0])
+    assert hw.stopped and hw.stop_cause is TripCause.WATCHDOG and "joint_states silent for 60 ms" in hw.stop_reason
+    assert sent[-1] == [0.0] * 4                                  # a stop sends zero efforts, and keeps them
+    hw.step([5.0, 5.0, 5.0, 5.0])
+    assert sent[-1] == [0.0] * 4
+
+
+def test_a_sample_without_a_legs_joint_stops_the_machine_naming_it():
+    sent = []
+    hw = Ros2ControlHardware(ros2_control_settings(ARCHI), ARCHI.model.leg_names, 0.004, sent.append, Clock())
+    hw.on_joint_states(["rail_1_joint", "rail_2_joint", "rail_3_joint", "rail_4_joint"], [0.1] * 4, [0.0] * 4,
+                       [0.0] * 4)
+    hw.on_joint_states(["rail_1_joint", "rail_2_joint", "rail_3_joint"], [0.1] * 3, [0.0] * 3, [0.0] * 3)
+    hw.step([0.0] * 4)
+    assert hw.stopped and hw.stop_cause is TripCause.INPUT_REFUSED
+    assert "joint_states has no joint 'rail_4_joint'" in hw.stop_reason
+
+
+@pytest.mark.parametrize("section,field", [(None, "drives.ros2_control"),
+                                           ({"joints": ["a", "b", "c", "d"]}, "drives.ros2_control.controller"),
+                                           ({"controller": "e", "joints": ["a", "b", "c"]},
+                                            "drives.ros2_control.joints"),
+                                           ({"controller": "e", "joints": ["a", "a", "c", "d"]},
+                                            "drives.ros2_control.joints"),
+                                           ({"controller": "e/x", "joints": ["a", "b", "c", "d"]},
+                                            "drives.ros2_control.controller")])
+def test_a_bad_ros2_control_section_is_refused_naming_the_field(section, field):
+    data = copy.deepcopy(ARCHI.data)
+    if section is None:
+        del data["drives"]["ros2_control"]
+    else:
+        data["drives"]["ros2_control"] = section
+    with pytest.raises(ConfigError) as info:
+        ros2_control_settings(load_machine_data(data, "archi.yaml"))
+    assert info.value.name == field, str(info.value)
+
+
+@pytest.mark.slow
+def test_archi_through_a_ros2_control_system_holds_and_the_joints_get_their_legs_forces(tmp_path):
+    run = run_scenario(load_scenario("archi_ros2_control"), tmp_path / "rc", in_process=False, progress=False)
+    assert run["status"] == "completed", (run["error"], run["cause"], run["trip_reason"])
+    m = run["metrics"]["tracking_error"]
+    assert m["max_m"] < 20e-6, m                                  # holding its home pose under gravity
+    stand_in = json.loads((tmp_path / "rc" / "summaries" / "ros2_control_sim.json").read_text())
+    assert stand_in["rejected"] == 0 and stand_in["commands"] > 400 and not stand_in["stopped"]
+    # the last command the system took is one the controller sent, each leg's effort on its joint
+    # (q1 -> rail_1_joint ...); the weight held by the drives
+    sent = [dict(zip(msg.name, msg.effort))
+            for _, _, msg in recorded_messages(tmp_path / "rc" / "bag", "/pkm", ("drives/command",))]
+    as_joints = [{f"rail_{k}_joint": float(c[f"q{k}"]) for k in range(1, 5)} for c in sent]
+    assert stand_in["last_command"] in as_joints, (stand_in["last_command"], as_joints[-3:])
+    assert max(abs(f) for f in stand_in["last_command"].values()) > 50.0
