@@ -54,6 +54,10 @@ def test_the_bag_shows_each_drive_switched_on_then_enabled(runs):
         seen.append(tuple((st.name, st.message) for st in msg.status))
     names = ("q1", "q2", "q3", "q4")
     assert seen[0] == tuple((n, "switched on") for n in names), seen[0]
+    for _, _, msg in recorded_messages(root / "canopen" / "bag", "/pkm", ("drives/cia402",)):
+        homing = [{kv.key: kv.value for kv in st.values}["homing"] for st in msg.status]
+        assert homing == ["homed (method 19)"] * 3 + ["homed (method 35)"], homing    # the homing, recorded
+        break
     assert tuple((n, "operation enabled") for n in names) in seen, seen
 
 
@@ -80,3 +84,13 @@ def test_processes_over_the_loopback_bridge_compute_the_same_run(runs):
     assert run["lost"] and all(v == 0 for v in run["lost"].values()), run["lost"]
     a, b = _commands(root / "canopen"), _commands(root / "processes")
     assert len(a) == STEPS + 1 and a == b
+
+
+@pytest.mark.slow
+def test_the_hexapod_homed_and_run_as_processes_computes_the_same_run(tmp_path):
+    runs = {mode: run_scenario(load_scenario("hexapod_canopen"), tmp_path / mode, in_process=mode == "one",
+                               progress=False) for mode in ("one", "processes")}
+    assert all(r["status"] == "completed" for r in runs.values()), {m: r["error"] for m, r in runs.items()}
+    assert runs["processes"]["summaries"]["drives"]["homing"].startswith("homed in")
+    a, b = _commands(tmp_path / "one"), _commands(tmp_path / "processes")
+    assert len(a) > 1000 and a == b

@@ -376,12 +376,13 @@ def test_the_servo_drives_cia402_states_and_error_codes_are_shown():
     code on the page; a sim_hw run has none (the table hidden); a reset forgets them."""
     panel, _ = live_panel()
     assert panel.snapshot()["cia402"] == {}
-    ok = {"node_id": 1.0, "statusword": "0x1237", "error_code": "0x0000", "error": "none"}
+    ok = {"node_id": 1.0, "statusword": "0x1237", "error_code": "0x0000", "error": "none",
+          "homing": "homed (method 19)"}
     fault = {"node_id": 3.0, "statusword": "0x0208", "error_code": "0x2310", "error": "0x2310 continuous over-current"}
     panel.on_drive_states([("q1", 0, "operation enabled", ok), ("q3", 2, "fault", fault)])
     shown = panel.snapshot()["cia402"]
     assert shown["q1"] == {"level": 0, "state": "operation enabled", "node_id": 1.0, "statusword": "0x1237",
-                           "error": "none"}
+                           "error": "none", "homing": "homed (method 19)"}
     assert shown["q3"]["state"] == "fault" and shown["q3"]["error"] == "0x2310 continuous over-current"
     assert shown["q3"]["level"] == 2
     json.dumps(panel.snapshot())                   # what the page gets

@@ -144,10 +144,11 @@ class DrivesNode(SimHwNode):
             code = hw.master.emcy[k] or 0
             level = 0 if state is State.OPERATION_ENABLED else 2 if state in (State.FAULT,
                                                                             State.FAULT_REACTION_ACTIVE) else 1
+            homing = f"homed (method {hw.settings.homing_methods[k]})" if hw.homing else "absolute encoder"
             statuses.append(diagnostic_status(hw.names[k], level, state.label if state else "unknown",
                                               {"node_id": hw.settings.node_ids[k], "statusword": f"0x{word:04X}",
                                                "error_code": f"0x{code:04X}",
-                                               "error": error_text(code) if code else "none"}))
+                                               "error": error_text(code) if code else "none", "homing": homing}))
         self.pub_cia402.publish(diagnostic_array(ns_to_stamp(self.now_ns()), statuses))
 
     def destroy_node(self):

@@ -278,7 +278,8 @@ class Panel:
             if self.restarting:
                 return
             self.cia402 = {name: {"level": level, "state": message, "node_id": values.get("node_id"),
-                                  "statusword": values.get("statusword", ""), "error": values.get("error", "none")}
+                                  "statusword": values.get("statusword", ""), "error": values.get("error", "none"),
+                                  "homing": values.get("homing", "")}
                            for name, level, message, values in statuses}
 
     def on_estop(self, active: bool) -> None:

@@ -116,7 +116,8 @@ function render(s) {
   $("servo").hidden = servo.length === 0;
   $("cia402").tBodies[0].innerHTML = servo.map(([n, d]) =>
     `<tr class="${d.level >= 2 ? "refused" : ""}"><td>${n}</td><td>${d.node_id}</td>` +
-    `<td id="cia402-${n}">${d.state}</td><td>${d.statusword}</td><td>${d.error}</td></tr>`).join("");
+    `<td id="cia402-${n}">${d.state}</td><td>${d.statusword}</td><td>${d.error}</td><td>${d.homing}</td></tr>`)
+    .join("");
   $("diagnostics").innerHTML = Object.entries(s.diagnostics || {}).map(([k, [lvl, msg]]) =>
     `<li class="${lvl >= 2 ? "refused" : ""}">${k}: ${msg}</li>`).join("");
   $("actions").innerHTML = (s.actions || []).slice().reverse().map((a) =>
