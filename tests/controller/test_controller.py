@@ -545,3 +545,35 @@ def test_a_trajectory_too_far_from_the_machine_is_refused_and_it_holds_where_it_
     assert any("trajectory refused" in f and "11.6" in f and "start_tolerance_m 0.005" in f for f in core.supervisor.faults), \
         core.supervisor.faults
     assert np.allclose(log.reference[0][:2], home[:2], atol=0.05) and abs(log.reference[0][0]) > 0.5
+
+
+def _one_cycle_late_loop(delay_cycles: int, faults=(), steps: int = 400):
+    """ARCHI on drives that apply each command a cycle after the state that follows it
+    (CiA 402 drives with synchronous RPDOs: the command answering state k acts from
+    state k+1 to k+2), following a 1 mm step; a drive's force 5 N off its command for
+    5 cycles is a failed drive (a tight drive_mismatch_n, so that the lag shows)."""
+    plant = Plant(ARCHI, PlantParameters(force_limit_n=CONTROL_LIMIT_N, faults=faults))
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", force_limit_n=CONTROL_LIMIT_N,
+                                                  drive_mismatch_n=5.0, actuation_delay_cycles=delay_cycles))
+    core.set_trajectory(step_reference(ARCHI_HOME, 0, 0.001))
+    out, pending = plant.output(), [0.0] * 4
+    for _ in range(steps):
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, out.applied_forces)
+        out = plant.step(pending)                    # the command of the state before
+        pending = forces
+        if core.stopped:
+            break
+    return core, out.time_s
+
+
+def test_the_drive_supervision_compares_with_the_command_a_delayed_drive_applied():
+    """actuation_delay_cycles: the forces a state reports answer the command before the
+    last; compared with the last, a moving machine's drives look failed; compared with
+    the right one, nothing trips, and a drive braked at 0.1 s is still found."""
+    core, _ = _one_cycle_late_loop(1)
+    assert not core.stopped, core.stop_reason
+    confused, _ = _one_cycle_late_loop(0)
+    assert confused.stopped and str(confused.stop_cause) == "drive_failure", confused.stop_reason
+    core, t_stop = _one_cycle_late_loop(1, faults=("2:locked:0.1",))
+    assert core.stopped and str(core.stop_cause) == "drive_failure" and "drive q3" in core.stop_reason
+    assert 0.1 < t_stop <= 0.1 + 0.010, t_stop

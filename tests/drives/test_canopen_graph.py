@@ -94,3 +94,4 @@ def test_the_hexapod_homed_and_run_as_processes_computes_the_same_run(tmp_path):
     assert runs["processes"]["summaries"]["drives"]["homing"].startswith("homed in")
     a, b = _commands(tmp_path / "one"), _commands(tmp_path / "processes")
     assert len(a) > 1000 and a == b
+

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pkm_drives.drive_config import drive_settings
 from pkm_drives.ros2_control import ros2_control_settings
 from pkm_drives.virtual_drive import parse_drive_faults
 from pkm_kinematics.errors import FieldError
 
 __all__ = ["HARDWARE", "MACHINE_NODE", "DRIVES_BRINGUP_KEYS", "CAN_BUS_URL", "LOOP_ONLY", "check_hardware",
-           "machine_nodes"]
+           "machine_nodes", "controller_wiring"]
 
 HARDWARE = ("sim", "canopen", "ros2_control")
 MACHINE_NODE = {"sim": "sim_hw", "canopen": "drives", "ros2_control": "ros2_control"}
@@ -71,3 +72,13 @@ def machine_nodes(s, plant: dict, loop: dict, drive_defaults: dict, run_dir: Pat
                                    "bridge_url_file": str(run_dir / CAN_BUS_URL),
                                    "drive_faults": str(s.drives.get("drive_faults", ""))}
     return nodes
+
+
+def controller_wiring(s, config) -> dict:
+    """The controller's parameters the machine side decides: CiA 402 drives with
+    synchronous RPDOs apply a command one cycle after the state that follows it
+    (``actuation_delay_cycles``: the drive supervision compares their forces with the
+    command they applied)."""
+    if s.hardware == "canopen" and drive_settings(config).rpdo_synchronous:
+        return {"actuation_delay_cycles": 1}
+    return {}

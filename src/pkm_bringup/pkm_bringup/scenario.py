@@ -60,7 +60,7 @@ from pathlib import Path
 
 import yaml
 
-from pkm_bringup.hardware import MACHINE_NODE, check_hardware, machine_nodes
+from pkm_bringup.hardware import MACHINE_NODE, check_hardware, controller_wiring, machine_nodes
 from pkm_bringup.owner_checks import OWNER_CHECKS
 from pkm_common import topics
 from pkm_common.credential import KEY_FILE
@@ -425,6 +425,12 @@ def _owner_refusal(s: Scenario, key: str, exc: ValueError) -> ScenarioError:
     return ScenarioError(f"{key}.{name}: {rest}")
 
 
+@functools.lru_cache(maxsize=16)
+def _machine(machine: str):
+    """The scenario's machine file, loaded once (node_parameters runs at load and at start)."""
+    return load_machine(machine)
+
+
 def _node_defaults(name: str) -> dict:
     """The ros__parameters of config/<name>.yaml (empty if there is none); a copy the
     caller may change."""
@@ -517,7 +523,8 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
             "credential_file": key, "summary_path": str(summaries / f"{s.machine_node}.json")}
     nodes = machine_nodes(s, plant, loop, _node_defaults("drives"), run_dir)
     nodes.update({
-        "controller": {**controller_defaults(s.machine_name or s.machine), **s.controller, "machine": s.machine,
+        "controller": {**controller_defaults(s.machine_name or s.machine), **controller_wiring(s, _machine(s.machine)),
+                       **s.controller, "machine": s.machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
                        "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,

@@ -50,6 +50,9 @@ class ControllerConfig:
     start_tolerance_rad: float = 0.04     # (each below its following-error bound: the reference jumps by it)
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
     drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
+    actuation_delay_cycles: int = 0       # the drives apply a command this many cycles after the next state
+                                          # (CiA 402 drives with synchronous RPDOs: 1); the drive supervision
+                                          # compares their forces with the command they applied
     continue_on_drive_failure: bool = True
     encoder_jump_m: float = 2e-5          # a reading off its expected motion by this much in one cycle (0: off)
     encoder_freeze_m: float = 2e-4        # a reading held while the reference moved its drive this much (0: off)
@@ -93,6 +96,7 @@ class ControllerConfig:
              f"in [0, {self.following_error_rad:g}) rad (below following_error_rad)"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
+            ("actuation_delay_cycles", 0 <= self.actuation_delay_cycles <= 8, "in [0, 8]"),
             ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_gough_m", 0.0 <= self.encoder_gough_m < math.inf, "in [0, inf) m (0: off)"),

@@ -256,7 +256,11 @@ class ControllerCore:
         if first:       # until a cycle has a reference of its own, the machine is asked to stay where it is
             self.record.reference = self.record.measured = tuple(float(v) for v in pose)
         sup.forces_mismatched = False
-        commanded = self.last_command if held is None else self.answers.get(held)
+        delay = self.config.actuation_delay_cycles      # drives that apply a command a cycle (or more) later
+        if held is not None:
+            commanded = self.answers.get(held)
+        else:
+            commanded = self.last_command if not delay else self.answers.before_last(delay)
         if applied is not None and len(applied) and not first and commanded is not None:
             problem = sup.check_drives(list(applied), commanded, self.estimator.pose)
             if problem is not None:

@@ -72,3 +72,10 @@ class AnswerLog:
 
     def get(self, stamp_ns: int) -> list | None:
         return self._answers.get(stamp_ns)
+
+    def before_last(self, cycles: int) -> list | None:
+        """The answer ``cycles`` answers before the last one (0: the last); None when
+        there were not that many yet."""
+        if cycles >= len(self._answers):
+            return None
+        return list(self._answers.values())[-1 - cycles]
