@@ -40,12 +40,31 @@ def test_efforts_go_out_in_the_controllers_order_and_joints_are_read_by_name():
     assert sent[-1] == [10.0, 20.0, 30.0, 40.0]                  # the controller's joints: rail_1..rail_4 = q1..q4
     assert out.encoder_positions == [0.1, 0.2, 0.3, 0.4] and out.encoder_velocities == [1.0, 2.0, 3.0, 4.0]
     assert out.applied_forces == [-1.0, -2.0, -3.0, -4.0] and out.tool_pose is None and not hw.stopped
-    clock.t = 0.06                                                # no sample for 60 ms (max_age_s 0.05)
-    hw.step([1.0, 1.0, 1.0, 1.0])
-    assert hw.stopped and hw.stop_cause is TripCause.WATCHDOG and "joint_states silent for 60 ms" in hw.stop_reason
+    for k in range(1, 40):                                        # cycles on time, no sample after the first
+        clock.t = 0.004 * k
+        hw.step([1.0, 1.0, 1.0, 1.0])
+        if hw.stopped:
+            break
+    # silent for more than max_age_s (0.1 s in archi.yaml): stopped at the first cycle past it
+    assert hw.stopped and hw.stop_cause is TripCause.WATCHDOG and 0.1 < clock.t <= 0.1041, (clock.t, hw.stop_reason)
+    assert "joint_states silent for 10" in hw.stop_reason
     assert sent[-1] == [0.0] * 4                                  # a stop sends zero efforts, and keeps them
     hw.step([5.0, 5.0, 5.0, 5.0])
     assert sent[-1] == [0.0] * 4
+
+
+def test_a_stall_of_the_interface_itself_is_not_the_systems_silence():
+    """A cycle 80 ms late (this process stalled: the samples wait in its queue) is not a
+    silent system; samples that stop while the cycles run on time are."""
+    clock = Clock()
+    hw = Ros2ControlHardware(ros2_control_settings(ARCHI), ARCHI.model.leg_names, 0.004, lambda efforts: None, clock)
+    names = ["rail_1_joint", "rail_2_joint", "rail_3_joint", "rail_4_joint"]
+    hw.on_joint_states(names, [0.1] * 4, [0.0] * 4, [0.0] * 4)
+    hw.step([0.0] * 4)
+    clock.t = 0.15                                                # the interface stalled for 150 ms
+    hw.step([0.0] * 4)
+    assert not hw.stopped, hw.stop_reason
+    hw.on_joint_states(names, [0.1] * 4, [0.0] * 4, [0.0] * 4)     # what waited in the queue
 
 
 def test_a_sample_without_a_legs_joint_stops_the_machine_naming_it():

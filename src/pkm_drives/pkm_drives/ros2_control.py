@@ -16,7 +16,8 @@ The machine file maps each leg to its ros2_control joint::
         controller: effort_controller      # its commands: /effort_controller/commands
         joints: [rail_1_joint, rail_2_joint, rail_3_joint, rail_4_joint]   # the legs' order
         joint_states: /joint_states
-        max_age_s: 0.05                    # a sample older than this at a cycle: silent (a trip)
+        max_age_s: 0.05                    # samples silent this long (this process's own stalls
+                                           # not counted): a trip
 
 ros2_control runs its own real-time loop: this mode is real time only (each cycle of
 the drive interface sends the command held and reads the newest sample; no lockstep).
@@ -32,6 +33,7 @@ import time
 from dataclasses import dataclass
 
 from pkm_common.causes import TripCause
+from pkm_common.watchdog import SilenceWatchdog
 from pkm_kinematics.config import FieldReader, MachineConfig
 from pkm_kinematics.errors import ConfigError, FieldError
 from pkm_sim_hw.plant import PlantOutput
@@ -93,7 +95,9 @@ class Ros2ControlHardware:
         self.k, self.t = 0, 0.0
         self.stopped, self.stop_reason, self.stop_cause = False, "", TripCause.NONE
         self.sample: tuple | None = None            # (positions, velocities, efforts) in the legs' order
-        self.sample_s: float | None = None          # clock() when it came
+        # the samples' silence, without this process's own stalls (a late cycle finds the
+        # samples still queued: not the system's silence): three of its periods
+        self.silence = SilenceWatchdog(own_stall_s=3.0 * dt_s)
         self.refused = ""                            # why the last sample was refused ("": it was not)
         self._index: dict[str, int] | None = None
 
@@ -107,7 +111,8 @@ class Ros2ControlHardware:
             self.refused = f"joint_states has no joint {exc.args[0]!r} (drives.ros2_control.joints)"
             return
         pick = lambda values: [float(values[i]) if i < len(values) else math.nan for i in rows]   # noqa: E731
-        self.sample, self.sample_s, self.refused = (pick(position), pick(velocity), pick(effort)), self.clock(), ""
+        self.sample, self.refused = (pick(position), pick(velocity), pick(effort)), ""
+        self.silence.feed(self.clock())
 
     def start(self) -> None:
         if self.sample is None:
@@ -121,7 +126,7 @@ class Ros2ControlHardware:
         self.send([0.0] * self.n if self.stopped else [float(f) for f in forces])
         self.k += 1
         self.t = self.k * self.params.dt_s
-        age = self.clock() - self.sample_s
+        age = self.silence.silence_s(self.clock()) or 0.0
         if not self.stopped and (self.refused or age > self.settings.max_age_s):
             why = self.refused or (f"joint_states silent for {age * 1e3:.0f} ms (max_age_s "
                                    f"{self.settings.max_age_s:g})")
