@@ -34,6 +34,8 @@ from pkm_kinematics.errors import FieldError
 from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
 
+from .time_optimal import DriveLimits, DriveModel, drive_excess, drive_rates, time_optimal_law
+
 
 RATE_HZ_RANGE = (1.0, 20000.0)      # a trajectory's sample rate (Hz)
 
@@ -150,7 +152,7 @@ class Dwell:
 class TimedSegment:
     segment: object
     duration_s: float
-    profile: Trajectory | None        # Ruckig 1-D profile of u(t); None for a dwell
+    profile: Trajectory | object | None   # u(t): Ruckig's 1-D profile or time_optimal.TimedPath; None: a dwell
 
 
 def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment:
@@ -232,12 +234,45 @@ class Samples:
         return float(self.time_s[-1]) if len(self.time_s) else 0.0
 
 
-def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: int = 3) -> Samples:
-    """Time every segment (exact stop between them) and sample at ``rate_hz``; the
-    last sample is exactly the end of the last segment."""
+def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
+    """A segment's sample times at ``rate_hz``: 0, dt, ..., and its end exactly."""
+    n = max(1, math.ceil(duration_s * rate_hz - 1e-9))
+    return np.minimum(np.arange(n + 1) / rate_hz, duration_s)
+
+
+def sampled(timed: TimedSegment, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, xdot, xddot) of a timed segment at ``times`` (each (N, dof))."""
+    return tuple(np.array(z, dtype=float) for z in zip(*(sample_segment(timed, t) for t in times)))
+
+
+def segment_law(segment, limits: Limits, translation_axes: int = 3, drives: DriveModel | None = None,
+                rate_hz: float = 1000.0) -> TimedSegment:
+    """The time law of one segment: Ruckig's jerk-limited one within the task limits
+    (time_law); with ``drives``, where that one would take a drive over its velocity,
+    acceleration or force limit at one of its samples, the fastest that keeps them all
+    (time_optimal.time_optimal_law: slowing down where the machine needs it instead of
+    refusing). ValueError where no speed keeps them."""
+    timed = time_law(segment, limits, translation_axes)
+    if drives is None or timed.profile is None or drive_excess(drives, *sampled(
+            timed, sample_times(timed.duration_s, rate_hz))) is None:
+        return timed
+    try:
+        law = time_optimal_law(segment, drives, limits.velocity, limits.acceleration, getattr(segment, "speed", None),
+                               translation_axes)
+    except ValueError as exc:
+        raise TrajectoryRejected(f"{_where(segment)}{exc}") from None
+    return TimedSegment(segment, law.duration, law)
+
+
+def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: int = 3,
+         drives: DriveModel | None = None) -> Samples:
+    """Time every segment (exact stop between them; with ``drives``, within the drives'
+    limits: segment_law) and sample at ``rate_hz``; the last sample is exactly the end
+    of the last segment."""
     if not rate_hz > 0.0:
         raise FieldError("rate_hz", f"must be > 0, got {rate_hz}")
-    timed = [t for t in (time_law(s, limits, translation_axes) for s in segments) if t.duration_s > 0.0]
+    timed = [t for t in (segment_law(s, limits, translation_axes, drives, rate_hz) for s in segments)
+             if t.duration_s > 0.0]
     if not timed:
         raise TrajectoryRejected("nothing to do: every segment has zero length and duration")
     dt = 1.0 / rate_hz
@@ -342,7 +377,8 @@ def check_workspace(segments, box, axes=None) -> None:
 # ----------------------------------------------------------------- validation
 def validate(samples: Samples, machine, joint_velocity_limit: float | None = None,
              joint_acceleration_limit: float | None = None, max_condition: float | None = None,
-             legs=None, transmission_bounds=None, task_limits: Limits | None = None, workspace=None) -> None:
+             legs=None, transmission_bounds=None, task_limits: Limits | None = None, workspace=None,
+             drives: DriveModel | None = None) -> None:
     """Every sample reachable, inside the joint limits and the joint velocity and
     acceleration limits (qdot = J xdot, qddot = J xddot + Jdot xdot), inside the task
     ``task_limits`` (velocity and acceleration per axis: a backstop for the planner's
@@ -350,7 +386,8 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
     conditioned than ``max_condition``; ``legs`` restricts the conditioning check to a
     sub-machine (e.g. a 3-leg ARCHI sub-machine, ARCHI §3.3); ``transmission_bounds``
     (psi_min, psi_max) checks the Orthoglide's velocity transmission factors (§4.3,
-    eq. 11). Vectorised over the samples. Raises TrajectoryRejected naming the first
+    eq. 11); ``drives`` with a force limit: the drive forces of the dynamic model
+    (time_optimal.drive_forces). Vectorised over the samples. Raises TrajectoryRejected naming the first
     offending sample (the earliest in time over all checks), the limit and by how much;
     returns None when accepted."""
     x, v = samples.position, samples.velocity
@@ -386,7 +423,7 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
     first(~reachable, 0, scalar_error(lambda k: machine.inverse_kinematics(x[k], check_limits=False)))
     first(reachable & ~machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0)), 1,
           scalar_error(lambda k: machine.check_joint_limits(q[k])))
-    jac = machine.task_jacobian_batch(x)                  # qdot = J xdot
+    jac, qdot, qddot = drive_rates(machine, x, v, samples.acceleration)     # qdot = J xdot, qddot = J xddot + ...
     ok = np.isfinite(jac).all(axis=(1, 2))
     if max_condition is not None:
         # the machine's own measure (a hexapod's weighs its rotations by its size)
@@ -410,14 +447,6 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
         measure = machine.parallel_singularity_measure_batch(x)
         first(reachable & ~(measure > machine.parallel_margin), 3,
               scalar_error(lambda k: machine.check_parallel_singularity(x[k])))
-    jac0 = np.where(np.isfinite(jac), jac, 0.0)
-    qdot = np.einsum("nij,nj->ni", jac0, v)
-    # qddot = J xddot + Jdot xdot, Jdot xdot by a central difference of J along xdot
-    h = 1e-6
-    with np.errstate(invalid="ignore"):
-        jdot = (machine.task_jacobian_batch(x + h * v) - machine.task_jacobian_batch(x - h * v)) / (2.0 * h)
-    qddot = np.einsum("nij,nj->ni", jac0, samples.acceleration) + np.einsum(
-        "nij,nj->ni", np.where(np.isfinite(jdot), jdot, 0.0), v)
     if task_limits is not None:
         caps = (np.array(task_limits.velocity), np.array(task_limits.acceleration))
         for order, (values, cap, what) in enumerate(((v, caps[0], "velocity"),
@@ -441,6 +470,10 @@ def validate(samples: Samples, machine, joint_velocity_limit: float | None = Non
             return (f"leg {machine.leg_names[i]} {what} {values[k, i]:.4g} {unit} exceeds {limit:g} {unit} "
                     f"by {abs(values[k, i]) - limit:.4g}")
         first(reachable & over.any(axis=1), order, message)
+    if drives is not None and drives.limits.force is not None:
+        excess = drive_excess(drives, x, v, samples.acceleration)
+        if excess is not None:
+            failures.append((excess[0], 8, lambda: excess[1]))
     if failures:
         k, _, message = min(failures, key=lambda f: (f[0], f[1]))
         raise TrajectoryRejected(f"sample {k} (t = {samples.time_s[k]:.4f} s, "
@@ -575,16 +608,25 @@ def plan_blended(lines: list, limits: Limits, tolerance: float, rate_hz: float =
 
 
 def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz: float = 1000.0,
-                       translation_axes: int = 3, deadline: float | None = None) -> Samples:
+                       translation_axes: int = 3, deadline: float | None = None,
+                       drives: DriveModel | None = None) -> Samples:
     """Runs of consecutive lines with the same tolerance are blended within it: a line's
     own ``blend_tolerance`` (G64 P, G61: 0) or else ``blend_tolerance``; arcs, dwells,
     the corners of lines under 0 and the corners where the tolerance changes stop
-    exactly. The pieces are joined in time at rest, so the limits hold across the joins."""
+    exactly. The pieces are joined in time at rest, so the limits hold across the joins.
+    With ``drives`` every piece keeps the drives' limits (plan); a blended run that would
+    exceed one stops exactly at its corners instead."""
+    def blended(run):
+        part = plan_blended(run, limits, tolerance(run[0]), rate_hz, translation_axes, deadline)
+        if drives is not None and drive_excess(drives, part.position, part.velocity, part.acceleration) is not None:
+            return plan(run, limits, rate_hz, translation_axes, drives)
+        return part
+
     def tolerance(seg) -> float:
         own = seg.blend_tolerance if isinstance(seg, Line) else None
         return blend_tolerance if own is None else own
     if all(tolerance(seg) <= 0.0 for seg in segments if isinstance(seg, Line)):
-        return plan(segments, limits, rate_hz, translation_axes)
+        return plan(segments, limits, rate_hz, translation_axes, drives)
     groups, run = [], []
     for seg in segments:
         if isinstance(seg, Line) and (not run or tolerance(seg) == tolerance(run[0])):
@@ -599,8 +641,8 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
             groups.append(("other", [seg]))
     if run:
         groups.append(("lines", run))
-    parts = [plan_blended(g, limits, tolerance(g[0]), rate_hz, translation_axes, deadline)
-             if kind == "lines" and tolerance(g[0]) > 0.0 else plan(g, limits, rate_hz, translation_axes)
+    parts = [blended(g) if kind == "lines" and tolerance(g[0]) > 0.0 else plan(g, limits, rate_hz, translation_axes,
+                                                                                  drives)
              for kind, g in groups]
     t0, out = 0.0, []
     for k, part in enumerate(parts):
@@ -612,13 +654,20 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
 
 def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, blend_tolerance: float = 0.0,
                    joint_velocity_limit: float | None = None, joint_acceleration_limit: float | None = None,
-                   max_condition: float | None = None, budget: PlanBudget | None = None) -> Samples:
+                   max_condition: float | None = None, budget: PlanBudget | None = None,
+                   drive_force_limit: float | None = None, dynamics=None) -> Samples:
     """What trajectory_node publishes: the segments planned (with corner blending) and
     sampled, then every sample checked against ``machine`` (:func:`validate`). With a
     ``budget`` its size is checked before anything is sampled (check_plan_size) and
     blending stops at its planning time. Raises TrajectoryRejected (or ValueError)
-    naming the sample (or line) and the limit."""
+    naming the sample (or line) and the limit. Where the joint velocity and acceleration
+    limits (and ``drive_force_limit``, N, with the machine's ``dynamics``) would be
+    exceeded the motion slows down (segment_law) rather than being refused."""
     axes = machine.task_space.translation_axes
+    drives = None
+    if joint_velocity_limit is not None and joint_acceleration_limit is not None:
+        drives = DriveModel(machine, DriveLimits(joint_velocity_limit, joint_acceleration_limit, drive_force_limit),
+                            dynamics)
     box = task_box(machine)
     check_workspace(segments, box, machine.task_space.axes)
     deadline = None
@@ -627,10 +676,12 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
                                                  else seg.blend_tolerance) > 0.0 for seg in segments)
         check_plan_size(segments, limits, rate_hz, budget, axes, blended)
         deadline = time.monotonic() + budget.max_planning_s
-    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz, translation_axes=axes, deadline=deadline)
+    samples = plan_with_blending(segments, limits, blend_tolerance, rate_hz, translation_axes=axes, deadline=deadline,
+                                 drives=drives)
     if budget is not None and len(samples.time_s) > budget.max_points:
         raise TrajectoryRejected(f"{len(samples.time_s)} points exceed max_points {budget.max_points} "
                                  f"({samples.duration_s:.1f} s at {rate_hz:g} Hz)")
     validate(samples, machine, joint_velocity_limit, joint_acceleration_limit, max_condition,
-             transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits, workspace=box)
+             transmission_bounds=getattr(machine, "transmission_bounds", None), task_limits=limits, workspace=box,
+             drives=drives)
     return samples
