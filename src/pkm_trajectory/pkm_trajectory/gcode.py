@@ -1,54 +1,34 @@
-"""G-code parser of the PKM controller: an RS274 subset turned into moves in SI units.
+"""G-code reader of the PKM controller: LinuxCNC's G-code as CAM post-processors write
+it, turned into moves in SI units.
 
 Pure Python (no rclpy, no numpy). ``parse_gcode(text)`` returns a list of ``Move``
 for the trajectory planner, or raises ``GcodeError`` (a ``ValueError``) whose message
 starts with ``line N:`` and names the offending word. Nothing is ignored silently:
 every word is either understood or refused.
 
-Supported subset
-----------------
-- ``G0`` rapid, ``G1`` linear, ``G2``/``G3`` arcs in the XY plane (centre form, ``I``
-  ``J`` relative to the start point, in the current length unit, whatever G90/G91),
-  ``G4 P<seconds>`` dwell, ``G17`` (XY plane, the only one), ``G20`` inch, ``G21`` mm
-  (default), ``G90`` absolute (default), ``G91`` incremental, ``F`` feed in units per
-  minute (modal, > 0), ``X Y Z`` coordinates, ``A B C`` rotations about x, y, z in
-  degrees (absolute under G90, incremental under G91; which of them a machine has is
-  its task space's business, ``pkm_trajectory.program``), ``M2``/``M30`` program end, ``N`` line
-  numbers (first word only, ignored), comments ``( ... )`` and after ``;``, ``%``
-  delimiter lines, blank lines.
-- Path control (LinuxCNC): ``G64 P<tolerance>`` blends the corners between line moves
-  within the tolerance (in the line's length unit), ``G64`` alone with the trajectory
-  node's ``blend_tolerance_m``, ``G61`` stops exactly at every corner. Modal; each move
-  carries the mode in force (``Move.blend_tolerance``: m, 0 for exact stop, None for
-  the node's setting, also before any G61/G64). ``G40`` (cutter compensation off, the
-  only state here) is accepted and does nothing; ``G64 Q`` (naive CAM tolerance),
-  ``G61.1`` and cutter compensation (``G41``/``G42``) are refused.
-- Motion is modal: a line with axis words (X Y Z A B C, or I J under G2/G3) and no motion
-  code repeats the last of G0/G1/G2/G3. A motion code without axis words only sets
-  the mode (``G1 F600``).
+This module reads a line into words (a word's value may be a number, a parameter, an
+expression or a function: ``gcode_expr``) and classifies them by modal group;
+``gcode_interp.Interpreter`` gives them their meaning in LinuxCNC's order of execution.
+What is supported and where it differs from LinuxCNC: README, "G-code compared with
+LinuxCNC". The tool table is LinuxCNC's ``tool.tbl`` (``tool_table``).
 
 Decisions where RS274 dialects differ (documented, tested)
 ----------------------------------------------------------
 - A modal word on a line applies to every number of that line: ``G20 G1 X1 F10``
-  reads X and F in inches.
+  reads X and F in inches (LinuxCNC reads F before it switches units).
 - ``F`` is converted to m/s when it is read, with the unit of its line. A later
-  G20/G21 does not change the physical feed (the number is not re-read in the new
-  unit).
-- Arcs: one of ``I``/``J`` may be omitted (it is 0, as in RS274/LinuxCNC); both
-  omitted is an error. End point equal to the start point is a full circle. A line
-  under G2/G3 with only ``I``/``J`` is such a full circle.
-- ``G4`` cannot share its line with a motion code or axis words (a dwell line does not
-  move); ``P`` and ``I``/``J`` are refused where they mean nothing.
-- After ``M2``/``M30`` any further word is an error (``after program end``); blank,
-  comment and ``%`` lines are allowed. Words on the M2/M30 line itself run first.
+  G20/G21 does not change the physical feed.
+- Arcs: an omitted centre offset is 0; no offset and no R is an error. End point equal
+  to the start point is a full circle (centre form only). An end radius differing from
+  the start radius by more than ``1e-6 m + 1e-4 r`` is refused (LinuxCNC: 0.0283 mm
+  and 0.1 %, or 2.83 mm). The A B C (or C) of an arc turn linearly along it.
+- ``G4`` cannot share its line with a motion code or axis words; words are refused
+  where they mean nothing (I J K off arcs, Q off G83, L off G10 and cycles, H off G43).
+- After ``M2``/``M30`` any further word is an error (``after program end``).
 - Nested ``(`` inside a comment and ``N`` after the first word are errors (RS274).
-- A motion to the current point is still returned as a move; the planner decides.
 - Numbers: optional sign, digits, optional decimal point (``X-.5``, ``X1.``); no
   exponents, no spaces inside a number (``X 1 0`` is an error, ``X 10`` is fine).
-
-Tolerances: an arc whose end radius differs from its start radius by more than
-``1e-6 m + 1e-4 r`` is refused; a radius below 1 nm is zero; a Z change beyond
-1 nm on an arc is a helix (refused).
+- O-words (subroutines, loops, conditionals) are refused with their line.
 """
 
 from __future__ import annotations
@@ -59,49 +39,76 @@ from dataclasses import dataclass
 
 from pkm_kinematics.errors import FieldError
 
+from .gcode_expr import ExprError, Parameters, read_assignment, read_real
+from .gcode_interp import AXES, SYSTEMS, Interpreter
+
 __all__ = ['Move', 'GcodeError', 'parse_gcode', 'MM', 'INCH']
 
 MM = 1e-3       # m per mm (G21)
 INCH = 0.0254   # m per inch (G20)
 
-ARC_ABS_TOL_M = 1e-6
-ARC_REL_TOL = 1e-4
-ZERO_RADIUS_M = 1e-9
-HELIX_TOL_M = 1e-9
-
 _NUMBER = re.compile(r'[+-]?(?:\d+(?:\.\d*)?|\.\d+)\Z')
 _NUMBER_CHARS = frozenset('0123456789.+-')
+_FUNCTION = re.compile(r'(?i)(ABS|ACOS|ASIN|ATAN|COS|EXP|FIX|FUP|ROUND|LN|SIN|SQRT|TAN|EXISTS)\s*\[')
 _LINE_SPLIT = re.compile(r'\r\n|\n|\r')
 
-_SUPPORTED_G = 'G0 G1 G2 G3 G4 G17 G20 G21 G40 G61 G64 G90 G91'
-_MOTION = {0.0: 0, 1.0: 1, 2.0: 2, 3.0: 3}
-_KIND = {0: 'rapid', 1: 'linear', 2: 'arc', 3: 'arc'}
-_VALUE_LETTERS = frozenset('XYZABCIJFP')
-_ANGLES = 'ABC'
+# G-codes by modal group (LinuxCNC "Modal Groups"); the group's name is in its errors
+_G_GROUPS = {
+    'motion code': (0.0, 1.0, 2.0, 3.0, 80.0, 81.0, 82.0, 83.0),
+    'non-modal code': (4.0, 10.0, 92.0, 92.1, 92.2, 92.3),
+    'plane': (17.0, 18.0, 19.0),
+    'unit code': (20.0, 21.0),
+    'distance mode': (90.0, 91.0),
+    'arc distance mode': (90.1, 91.1),
+    'feed mode': (93.0, 94.0),
+    'cutter compensation code': (40.0,),
+    'tool length code': (43.0, 43.1, 49.0),
+    'coordinate system': tuple(SYSTEMS),
+    'path control mode': (61.0, 64.0),
+    'retract mode': (98.0, 99.0),
+}
+_G_GROUP = {code: group for group, codes in _G_GROUPS.items() for code in codes}
+_M_GROUPS = {'stop': (2.0, 30.0), 'spindle': (3.0, 4.0, 5.0), 'tool change': (6.0,), 'coolant': (7.0, 8.0, 9.0)}
+_M_GROUP = {code: group for group, codes in _M_GROUPS.items() for code in codes}
+_SUPPORTED_G = ('G0 G1 G2 G3 G4 G10 G17 G18 G19 G20 G21 G40 G43 G43.1 G49 G53 G54-G59.3 G61 G64 G80 G81 G82 '
+                'G83 G90 G91 G90.1 G91.1 G92 G92.1 G92.2 G92.3 G93 G94 G98 G99')
+_SUPPORTED_M = 'M2 M3 M4 M5 M6 M7 M8 M9 M30'
+_VALUE_LETTERS = frozenset('XYZABCIJKRFPQSTHL')
+_KIND = {0: 'rapid', 1: 'linear'}
 _CHAR_HINTS = {
-    '#': 'parameters (#) are not supported',
-    '[': 'expressions ([ ]) are not supported',
-    ']': 'expressions ([ ]) are not supported',
+    '[': 'an expression ([ ]) must be the value of a word or of a parameter setting',
+    ']': "']' without a matching '['",
     '/': 'block delete (/) is not supported',
     ')': "')' without a matching '('",
     '%': "'%' is only allowed alone on its line (program delimiter)",
     '*': 'checksums (*) are not supported',
 }
+_REFUSED_G = {
+    (41.0, 42.0, 41.1, 42.1): 'cutter compensation is not supported (the planner follows the programmed path; '
+                              'G40 is accepted)',
+    (73.0, 76.0, 84.0, 85.0, 86.0, 87.0, 88.0, 89.0): 'this canned cycle is not supported (G81 G82 G83 are)',
+    (61.1,): 'exact path mode is not supported (G61, G64 are)',
+    (43.2,): 'additive tool length offsets are not supported (G43 H, G43.1, G49 are)',
+}
 
 
 @dataclass(frozen=True)
 class Move:
-    """One motion or dwell of the program, in SI units (m, rad, m/s, s)."""
+    """One motion, dwell or event of the program, in SI units (m, rad, m/s, s)."""
 
-    kind: str                      # "rapid" (G0), "linear" (G1), "arc" (G2/G3), "dwell" (G4)
+    kind: str                      # "rapid" (G0), "linear" (G1), "arc" (G2/G3), "dwell" (G4), "event"
     line: int                      # 1-based source line number
-    target: tuple                  # absolute end point (x, y, z), m; dwell: the current point
+    target: tuple                  # absolute end point of the tool tip (x, y, z), machine coordinates, m
     angles: tuple                  # absolute (A, B, C) angles, rad, each None unless the line gave it
     feed: float | None             # m/s for linear/arc; None for rapid/dwell
     center: tuple | None           # arc centre (x, y, z) absolute, m; arcs only
     clockwise: bool | None         # True for G2, False for G3, None otherwise
     dwell_s: float = 0.0           # G4 P, s
     blend_tolerance: float | None = None   # G64 P (m) / G61 (0) in force; None: the node's blend_tolerance_m
+    plane: int = 17                # an arc's plane: 17 (XY), 18 (ZX), 19 (YZ)
+    sweep: float | None = None     # an arc's signed angle (rad; positive from the plane's first axis to its second)
+    tool_offset: tuple = (0.0, 0.0, 0.0)   # the tool length offset in force (G43), m: the spindle is tip + it
+    event: tuple | None = None     # an event's (name, ((key, value), ...)): spindle, coolant, tool_change
 
 
 class GcodeError(ValueError):
@@ -144,13 +151,23 @@ def _strip_comments(raw: str, n: int) -> str:
     return ''.join(out)
 
 
-def _tokenize(code: str, n: int) -> list[_Word]:
-    words = []
+def _tokenize(code: str, n: int, params: Parameters) -> tuple[list[_Word], list]:
+    """The words of a line and its parameter settings (``#1 = [..]``, applied by the
+    caller after the line: LinuxCNC sets parameters after every read of the line). A
+    word's value is a number, a parameter, an expression or a function (gcode_expr)."""
+    words, settings = [], []
     i, size = 0, len(code)
     while i < size:
         c = code[i]
         if c.isspace():
             i += 1
+            continue
+        if c == '#':
+            try:
+                setting, i = read_assignment(code, i, params)
+            except ExprError as exc:
+                raise GcodeError(n, str(exc)) from None
+            settings.append(setting)
             continue
         if not ('A' <= c.upper() <= 'Z' and c.isascii()):
             if c in _NUMBER_CHARS:
@@ -162,23 +179,33 @@ def _tokenize(code: str, n: int) -> list[_Word]:
         i += 1
         while i < size and code[i].isspace():
             i += 1
+        if letter == 'O':          # before the rest of the line (o100 sub, o101 if [...]) is read as words
+            j = i
+            while j < size and code[j] in _NUMBER_CHARS:
+                j += 1
+            raise GcodeError(n, f'O{code[i:j]}: O-words (subroutines, loops, conditionals) are not supported')
+        if i >= size or not (code[i] in _NUMBER_CHARS or code[i] in '#[' or code[i].isalpha()):
+            raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
+        if code[i].isalpha() and not _FUNCTION.match(code, i):
+            raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
         j = i
         while j < size and code[j] in _NUMBER_CHARS:
             j += 1
-        text = code[i:j]
-        if letter == 'O':          # before the rest of the line (o100 sub, o101 if [...]) is read as words
-            raise GcodeError(n, f'O{text}: O-words (subroutines, loops, conditionals) are not supported')
-        if not text:
-            raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
-        if not _NUMBER.match(text):
-            raise GcodeError(n, f'{letter}{text}: malformed number {text!r}')
-        value = float(text)
+        plain = code[i:j]
+        if plain and (j >= size or code[j] not in '#[' and not code[j].isalpha() or code[j] in 'Ee'):
+            if not _NUMBER.match(plain):     # a plain number: the strict reader (no exponents, one sign)
+                raise GcodeError(n, f'{letter}{plain}: malformed number {plain!r}')
+        try:
+            value, j = read_real(code, i, params)
+        except ExprError as exc:
+            raise GcodeError(n, f'{letter}{code[i:i + 30].strip()}: {exc}') from None
+        text = code[i:j].strip()
         if not math.isfinite(value):           # 400 digits: a float's range ends near 1.8e308
             raise GcodeError(n, f'{letter}{text[:20]}{"..." if len(text) > 20 else ""}: number out of range '
                                 f'({len(text)} characters)')
         words.append(_Word(letter, value, letter + text))
         i = j
-    return words
+    return words, settings
 
 
 def _check_point(start, name: str) -> tuple:
@@ -191,211 +218,259 @@ def _check_point(start, name: str) -> tuple:
     return values
 
 
-def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0)) -> list[Move]:
+def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), tools: dict | None = None,
+                parameters: Parameters | None = None) -> list[Move]:
     """Parse a G-code program into moves in SI units.
 
     ``start`` is the machine point (m) and ``start_angles`` the A, B, C angles (rad)
-    before the first line; incremental words and arcs start from them. Raises ``GcodeError``
-    (``line N: <word>: <reason>``) for anything outside the supported subset.
-    """
+    before the first line; ``tools`` the tool table (``tool_table.parse_tool_table``)
+    that G43 H reads; ``parameters`` the numbered and named parameters (a fresh set by
+    default). Raises ``GcodeError`` (``line N: <word>: <reason>``) for anything outside
+    what is supported."""
     if not isinstance(text, str):
         raise TypeError(f'text: expected str, got {type(text).__name__}')
-    pos = list(_check_point(start, 'start'))
+    pos = _check_point(start, 'start')
     angles = [float(a) for a in start_angles]
     if len(angles) != 3 or not all(math.isfinite(a) for a in angles):
         raise FieldError('start_angles', f'expected 3 finite angles (A, B, C) in rad, got {start_angles!r}')
+    params = Parameters() if parameters is None else parameters
+    line_no = [0]
 
-    unit = MM            # G21
-    absolute = True      # G90
-    motion = None        # modal 0/1/2/3
-    feed = None          # m/s
+    def error(word: str, reason: str):
+        raise GcodeError(line_no[0], f'{word}: {reason}')
+
+    def make_move(kind, n, target, angles, feed, center=None, clockwise=None, **rest):
+        return Move(kind, n, target, angles, feed, center, clockwise, **rest)
+
+    interp = Interpreter(pos, angles, tools, params, make_move, error)
+    interp.sync_parameters()
     ended_at = None      # (line, word text) of M2/M30
-    blend = None         # modal G61 (0.0) / G64 P (m) / G64 (None: the node's setting)
-    moves: list[Move] = []
-
     for n, raw in enumerate(_LINE_SPLIT.split(text), start=1):
+        line_no[0] = n
         code = _strip_comments(raw, n).strip()
         if not code or code == '%':
             continue
-        words = _tokenize(code, n)
+        words, settings = _tokenize(code, n, params)
         if ended_at is not None:
-            first = next((w for w in words if w.letter != 'N'), words[0])
-            raise GcodeError(n, f'{first.text}: after program end ({ended_at[1]} on line {ended_at[0]})')
-
-        # --- classify the words of the line --------------------------------------
-        values: dict[str, _Word] = {}
-        motion_word = dwell_word = plane_word = units_word = distance_word = end_word = path_word = None
-        for k, w in enumerate(words):
-            L = w.letter
-            if L == 'N':
-                if k != 0:
-                    raise GcodeError(n, f'{w.text}: a line number (N) must be the first word of the line')
-                if w.value < 0 or w.value != int(w.value) or '.' in w.text:
-                    raise GcodeError(n, f'{w.text}: a line number must be a non-negative integer')
-                continue
-            if L in 'GM' and w.text[1] in '+-':
-                raise GcodeError(n, f'{w.text}: unsupported {L}-code (no sign allowed)')
-            if L == 'G':
-                v = w.value
-                if v in _MOTION:
-                    if motion_word is not None:
-                        raise GcodeError(n, f'{motion_word.text} and {w.text}: two motion codes on one line')
-                    motion_word = w
-                elif v == 4.0:
-                    if dwell_word is not None:
-                        raise GcodeError(n, f'{w.text}: G4 given twice on one line')
-                    dwell_word = w
-                elif v == 17.0:
-                    if plane_word is not None:
-                        raise GcodeError(n, f'{w.text}: G17 given twice on one line')
-                    plane_word = w
-                elif v in (18.0, 19.0):
-                    raise GcodeError(n, f'{w.text}: unsupported plane: only the XY plane (G17) is supported')
-                elif v in (20.0, 21.0):
-                    if units_word is not None:
-                        raise GcodeError(n, f'{units_word.text} and {w.text}: two unit codes on one line')
-                    units_word = w
-                elif v in (90.0, 91.0):
-                    if distance_word is not None:
-                        raise GcodeError(n, f'{distance_word.text} and {w.text}: two distance modes on one line')
-                    distance_word = w
-                elif v in (61.0, 64.0):
-                    if path_word is not None:
-                        raise GcodeError(n, f'{path_word.text} and {w.text}: two path control modes on one line')
-                    path_word = w
-                elif v == 40.0:
-                    pass                   # cutter compensation off: the only state the planner has
-                elif v in (41.0, 42.0, 41.1, 42.1):
-                    raise GcodeError(n, f'{w.text}: cutter compensation is not supported (the planner follows '
-                                        'the programmed path; G40 is accepted)')
-                else:
-                    raise GcodeError(n, f'{w.text}: unsupported G-code (supported: {_SUPPORTED_G})')
-            elif L == 'M':
-                if w.value not in (2.0, 30.0):
-                    raise GcodeError(n, f'{w.text}: unsupported M-code (supported: M2 M30)')
-                if end_word is not None:
-                    raise GcodeError(n, f'{end_word.text} and {w.text}: two M-codes on one line')
-                end_word = w
-            elif L in _VALUE_LETTERS:
-                if L in values:
-                    raise GcodeError(n, f'{w.text}: {L} given twice on one line '
-                                        f'(first {values[L].text})')
-                values[L] = w
-            elif L == 'K':
-                raise GcodeError(n, f'{w.text}: unsupported word: K is not part of the I J arc form '
-                                    '(arcs are in the XY plane only)')
-            elif L == 'R':
-                raise GcodeError(n, f'{w.text}: unsupported word: radius-form arcs (R) are not '
-                                    'supported; give the centre with I J')
-            else:
-                raise GcodeError(n, f'{w.text}: unsupported word {L} (supported: '
-                                    'G M N F X Y Z A B C I J P)')
-
-        # --- modal settings first: they apply to every number of the line ---------
-        if units_word is not None:
-            unit = INCH if units_word.value == 20.0 else MM
-        if distance_word is not None:
-            absolute = distance_word.value == 90.0
-        if 'F' in values:
-            w = values['F']
-            if not w.value > 0.0:
-                raise GcodeError(n, f'{w.text}: feed rate must be > 0')
-            feed = w.value * unit / 60.0
-
-        axes = [values[a] for a in 'XYZABC' if a in values]
-        offsets = [values[a] for a in 'IJ' if a in values]
-
-        # --- path control (G61 / G64 P) -------------------------------------------
-        if path_word is not None:
-            if path_word.value == 61.0:
-                if 'P' in values:
-                    raise GcodeError(n, f"{values['P'].text}: P is not allowed with G61 (exact stop)")
-                blend = 0.0
-            elif dwell_word is not None:
-                raise GcodeError(n, f'{dwell_word.text} and {path_word.text}: P would be both a dwell and a '
-                                    'blending tolerance; put them on separate lines')
-            elif 'P' in values:
-                p = values['P']
-                if p.value < 0.0:
-                    raise GcodeError(n, f'{p.text}: G64 blending tolerance must be >= 0')
-                blend = p.value * unit
-            else:
-                blend = None
-
-        # --- dwell ---------------------------------------------------------------
-        if dwell_word is not None:
-            if motion_word is not None:
-                raise GcodeError(n, f'{dwell_word.text} and {motion_word.text}: a dwell cannot share '
-                                    'its line with a motion code')
-            if axes or offsets:
-                w = (axes + offsets)[0]
-                raise GcodeError(n, f'{w.text}: axis word on a {dwell_word.text} (dwell) line; '
-                                    'put the move on its own line')
-            if 'P' not in values:
-                raise GcodeError(n, f'{dwell_word.text}: dwell needs P<seconds>')
-            p = values['P']
-            if p.value < 0.0:
-                raise GcodeError(n, f'{p.text}: dwell time must be >= 0 s')
-            moves.append(Move('dwell', n, tuple(pos), (None, None, None), None, None, None, p.value))
-        elif 'P' in values and (path_word is None or path_word.value != 64.0):
-            raise GcodeError(n, f"{values['P'].text}: P is only allowed with G4 (dwell) or G64 (blending tolerance)")
-
-        # --- motion --------------------------------------------------------------
-        if motion_word is not None:
-            motion = _MOTION[motion_word.value]
-        if offsets and motion not in (2, 3):
-            mode = 'no motion mode' if motion is None else f'G{motion}'
-            raise GcodeError(n, f'{offsets[0].text}: I and J are only allowed with G2/G3 '
-                                f'(active: {mode})')
-        if axes or offsets:
-            if motion is None:
-                raise GcodeError(n, f'{(axes + offsets)[0].text}: no motion mode active '
-                                    '(give G0, G1, G2 or G3 first)')
-            mname = motion_word.text if motion_word is not None else f'G{motion} (modal)'
-            if motion != 0 and feed is None:
-                raise GcodeError(n, f'{mname}: no feed rate: F must be given before a G1/G2/G3 move')
-
-            target = list(pos)
-            for a, i in (('X', 0), ('Y', 1), ('Z', 2)):
-                if a in values:
-                    d = values[a].value * unit
-                    target[i] = d if absolute else pos[i] + d
-            new_angles = [None, None, None]
-            for i, a in enumerate(_ANGLES):
-                if a in values:
-                    d = math.radians(values[a].value)
-                    angles[i] = d if absolute else angles[i] + d
-                    new_angles[i] = angles[i]
-
-            if motion in (0, 1):
-                moves.append(Move(_KIND[motion], n, tuple(target), tuple(new_angles),
-                                  feed if motion == 1 else None, None, None, blend_tolerance=blend))
-            else:
-                if not offsets:
-                    raise GcodeError(n, f'{mname}: arc without I and J: the centre is required '
-                                        '(I J form)')
-                named = ' '.join(w.text for w in offsets)
-                if abs(target[2] - pos[2]) > HELIX_TOL_M:
-                    raise GcodeError(n, f"{values['Z'].text}: Z change on an arc: helical arcs are "
-                                        'not supported')
-                target[2] = pos[2]
-                ci = values['I'].value * unit if 'I' in values else 0.0
-                cj = values['J'].value * unit if 'J' in values else 0.0
-                center = (pos[0] + ci, pos[1] + cj, pos[2])
-                r0 = math.hypot(ci, cj)
-                if r0 < ZERO_RADIUS_M:
-                    raise GcodeError(n, f'{mname} {named}: zero arc radius')
-                r1 = math.hypot(target[0] - center[0], target[1] - center[1])
-                tol = ARC_ABS_TOL_M + ARC_REL_TOL * r0
-                if abs(r1 - r0) > tol:
-                    raise GcodeError(n, f'{mname} {named}: end point not on the arc: radius '
-                                        f'{r0:.9g} m at the start, {r1:.9g} m at the end '
-                                        f'(differ by {abs(r1 - r0):.3g} m > {tol:.3g} m; '
-                                        'I J inconsistent with the end point)')
-                moves.append(Move('arc', n, tuple(target), tuple(new_angles), feed, center, motion == 2,
-                                  blend_tolerance=blend))
-            pos = target
-
+            first = next((w.text for w in words if w.letter != 'N'), words[0].text if words else '#')
+            raise GcodeError(n, f'{first}: after program end ({ended_at[1]} on line {ended_at[0]})')
+        end_word = _line(interp, n, words)
+        for key, value in settings:           # after every read of the line (LinuxCNC)
+            params.set(key, value)
         if end_word is not None:
             ended_at = (n, end_word.text)
-    return moves
+    return interp.moves
+
+
+def _classify(n: int, words: list):
+    """(values by letter, G-codes by group, M-codes by group, G53 word) of a line."""
+    values, g, m, g53 = {}, {}, {}, None
+    for k, w in enumerate(words):
+        L = w.letter
+        if L == 'N':
+            if k != 0:
+                raise GcodeError(n, f'{w.text}: a line number (N) must be the first word of the line')
+            if w.value < 0 or w.value != int(w.value) or '.' in w.text:
+                raise GcodeError(n, f'{w.text}: a line number must be a non-negative integer')
+            continue
+        if L in 'GM' and w.text[1] in '+-':
+            raise GcodeError(n, f'{w.text}: unsupported {L}-code (no sign allowed)')
+        if L == 'G':
+            v = round(w.value, 4)
+            if v == 53.0:
+                g53 = w
+                continue
+            group = _G_GROUP.get(v)
+            if group is None:
+                reason = next((r for codes, r in _REFUSED_G.items() if v in codes), None)
+                raise GcodeError(n, f'{w.text}: {reason or f"unsupported G-code (supported: {_SUPPORTED_G})"}')
+            if group in g:
+                if group == 'non-modal code' and g[group].value == v:
+                    raise GcodeError(n, f'{w.text}: G{v:g} given twice on one line')
+                raise GcodeError(n, f'{g[group].text} and {w.text}: two {group}s on one line')
+            g[group] = w
+        elif L == 'M':
+            group = _M_GROUP.get(w.value)
+            if group is None:
+                raise GcodeError(n, f'{w.text}: unsupported M-code (supported: {_SUPPORTED_M})')
+            if group in m:
+                raise GcodeError(n, f'{m[group].text} and {w.text}: two M-codes of one group ({group}) on one line')
+            m[group] = w
+        elif L in _VALUE_LETTERS:
+            if L in values:
+                raise GcodeError(n, f'{w.text}: {L} given twice on one line (first {values[L].text})')
+            values[L] = w
+        elif L == 'D':
+            raise GcodeError(n, f'{w.text}: unsupported word D (cutter compensation is not supported)')
+        else:
+            raise GcodeError(n, f'{w.text}: unsupported word {L} (supported: G M N {" ".join(sorted(_VALUE_LETTERS))})')
+    return values, g, m, g53
+
+
+def _only_with(n, values, letter: str, allowed: bool, where: str) -> None:
+    if letter in values and not allowed:
+        raise GcodeError(n, f'{values[letter].text}: {letter} is only allowed {where}')
+
+
+def _line(it: Interpreter, n: int, words: list):
+    """One line, in LinuxCNC's order of execution; returns the M2/M30 word or None."""
+    values, g, m, g53 = _classify(n, words)
+    gv = {group: round(w.value, 4) for group, w in g.items()}
+    non_modal = gv.get('non-modal code')
+    motion_word = g.get('motion code')
+    axes = [values[a] for a in AXES if a in values]
+    # modal settings first: they apply to every number of the line (the module's decision)
+    if 'unit code' in gv:
+        it.unit = INCH if gv['unit code'] == 20.0 else MM
+    if 'distance mode' in gv:
+        it.absolute = gv['distance mode'] == 90.0
+    if 'arc distance mode' in gv:
+        it.arc_absolute = gv['arc distance mode'] == 90.1
+    motion = it.motion if motion_word is None else int(gv['motion code'])
+    uses_axes = non_modal in (10.0, 92.0) or gv.get('tool length code') == 43.1
+    if uses_axes and motion_word is not None and axes:
+        raise GcodeError(n, f'{g["non-modal code"].text if non_modal else "G43.1"} and {motion_word.text}: '
+                            'both would use the axis words of the line')
+    cycle = motion in (81, 82, 83)
+    arc = motion in (2, 3)
+    _only_with(n, values, 'I', arc, 'with G2/G3 (active: ' + (f'G{motion})' if motion is not None else
+                                                           'no motion mode)'))
+    for letter in 'JK':
+        _only_with(n, values, letter, arc, 'with G2/G3')
+    _only_with(n, values, 'Q', cycle, 'with G83 (peck depth)')
+    _only_with(n, values, 'L', cycle or non_modal == 10.0, 'with G10 or a canned cycle (repeats)')
+    _only_with(n, values, 'H', gv.get('tool length code') == 43.0, 'with G43 (the tool of the offset)')
+    _only_with(n, values, 'R', arc or cycle or non_modal == 10.0, 'with G2/G3 (radius), G10 or a canned cycle')
+    # feed mode, F, S, T, M6, M3-M5, M7-M9 (steps 3-11)
+    if 'feed mode' in gv:
+        inverse = gv['feed mode'] == 93.0
+        if inverse != it.inverse_time:
+            it.feed = None                 # a new F is needed after a change of feed mode
+        it.inverse_time = inverse
+    if 'F' in values:
+        w = values['F']
+        if not w.value > 0.0:
+            raise GcodeError(n, f'{w.text}: feed rate must be > 0')
+        if not it.inverse_time:
+            it.feed = w.value * it.unit / 60.0
+    if 'S' in values:
+        if values['S'].value < 0.0:
+            raise GcodeError(n, f'{values["S"].text}: spindle speed must be >= 0 rpm')
+        it.spindle_rpm = values['S'].value
+        if 'spindle' not in m and it.spindle_on():
+            it.event(n, 'spindle', direction=it.spindle_direction, rpm=it.spindle_rpm)
+    if 'T' in values:
+        t = values['T']
+        if t.value < 0 or t.value != int(t.value):
+            raise GcodeError(n, f'{t.text}: a tool number is an integer >= 0')
+        if it.tools is not None and int(t.value) != 0 and int(t.value) not in it.tools:
+            raise GcodeError(n, f'{t.text}: tool {int(t.value)} is not in the tool table (tools: {sorted(it.tools)})')
+        it.selected_tool = int(t.value)
+    if 'tool change' in m:
+        if it.selected_tool is None:
+            raise GcodeError(n, f'{m["tool change"].text}: no tool selected (T) before the tool change')
+        it.event(n, 'tool_change', tool=it.selected_tool, previous=it.spindle_tool)
+        it.spindle_tool = it.selected_tool
+    if 'spindle' in m:
+        it.spindle_direction = {3.0: 'cw', 4.0: 'ccw', 5.0: 'stop'}[m['spindle'].value]
+        it.event(n, 'spindle', direction=it.spindle_direction, rpm=it.spindle_rpm)
+    if 'coolant' in m:
+        it.event(n, 'coolant', mode={7.0: 'mist', 8.0: 'flood', 9.0: 'off'}[m['coolant'].value])
+    # dwell (step 14)
+    if non_modal == 4.0:
+        dwell = g['non-modal code']
+        if motion_word is not None:
+            raise GcodeError(n, f'{dwell.text} and {motion_word.text}: a dwell cannot share its line with a motion '
+                                'code')
+        if axes:
+            raise GcodeError(n, f'{axes[0].text}: axis word on a {dwell.text} (dwell) line; put the move on its '
+                                'own line')
+        if 'P' not in values:
+            raise GcodeError(n, f'{dwell.text}: dwell needs P<seconds>')
+        if values['P'].value < 0.0:
+            raise GcodeError(n, f'{values["P"].text}: dwell time must be >= 0 s')
+        it.moves.append(Move('dwell', n, tuple(it.tip[:3]), (None, None, None), None, None, None,
+                             values['P'].value, tool_offset=it.tlo))
+    # plane, cutter compensation, tool length, coordinate system, path control, retract (steps 15-22)
+    if 'plane' in gv:
+        it.plane = int(gv['plane'])
+    if 'tool length code' in gv:
+        it.tool_length(n, words, values, gv['tool length code'])
+    if 'coordinate system' in gv:
+        it.system = SYSTEMS[gv['coordinate system']]
+        it.sync_parameters()
+    if 'path control mode' in gv:
+        path_word = g['path control mode']
+        if gv['path control mode'] == 61.0:
+            if 'P' in values:
+                raise GcodeError(n, f'{values["P"].text}: P is not allowed with G61 (exact stop)')
+            it.blend = 0.0
+        elif non_modal == 4.0:
+            raise GcodeError(n, f'{g["non-modal code"].text} and {path_word.text}: P would be both a dwell and a '
+                                'blending tolerance; put them on separate lines')
+        elif 'P' in values:
+            if values['P'].value < 0.0:
+                raise GcodeError(n, f'{values["P"].text}: G64 blending tolerance must be >= 0')
+            it.blend = values['P'].value * it.unit
+        else:
+            it.blend = None
+    if 'retract mode' in gv:
+        it.retract_old_z = gv['retract mode'] == 98.0
+    p_allowed = non_modal in (4.0, 10.0) or gv.get('path control mode') == 64.0 or arc or motion in (82, 83)
+    _only_with(n, values, 'P', p_allowed, 'with G4 (dwell), G64 (blending tolerance), G10, G2/G3 (turns), '
+                                          'G82 or G83')
+    # coordinate system data and axis offsets (step 23)
+    if non_modal == 10.0:
+        it.set_offsets(n, words, values, values.get('L'), values.get('P'))
+    elif non_modal in (92.0, 92.1, 92.2, 92.3):
+        it.axis_offsets(non_modal, values)
+    # motion (step 24)
+    if motion_word is not None:
+        it.motion = motion
+        if motion == 80:
+            it.cycle = {}
+            if axes:
+                raise GcodeError(n, f'{axes[0].text}: axis words with G80 (cancel the canned cycle)')
+    if g53 is not None:
+        if motion not in (0, 1) or uses_axes:
+            raise GcodeError(n, f'{g53.text}: G53 needs G0 or G1 (machine coordinates apply to a straight move)')
+        if not it.absolute:
+            raise GcodeError(n, f'{g53.text}: G53 cannot be used with incremental distance (G91)')
+    offsets = [values[c] for c in 'IJK' if c in values]
+    if (axes or offsets or (arc and 'R' in values)) and not uses_axes:
+        _motion(it, n, values, motion, motion_word, g53 is not None, axes + offsets)
+    if motion not in (81, 82, 83):
+        it.cycle = {}
+    return m.get('stop')
+
+
+def _motion(it: Interpreter, n: int, values: dict, motion, motion_word, machine: bool, given: list) -> None:
+    if motion is None or motion == 80:
+        mode = 'no motion mode active (give G0, G1, G2 or G3 first)' if motion is None else \
+            'no motion mode active: G80 cancelled the canned cycle'
+        raise GcodeError(n, f'{given[0].text}: {mode}')
+    mname = motion_word.text if motion_word is not None else f'G{motion} (modal)'
+    if motion in (81, 82, 83):
+        repeat = 1
+        if 'L' in values:
+            w = values['L']
+            if w.value < 1 or w.value != int(w.value):
+                raise GcodeError(n, f'{w.text}: L (repeats) must be an integer >= 1')
+            repeat = int(w.value)
+        it.canned_cycle(n, motion, values, repeat)
+        return
+    feed = None
+    if motion != 0:
+        feed = it.feed_rate(values, motion)
+        if feed is None and not it.inverse_time:
+            raise GcodeError(n, f'{mname}: no feed rate: F must be given before a G1/G2/G3 move')
+    if motion in (2, 3):
+        it.arc(n, mname, values, motion, feed)
+        return
+    target = it.target(values, machine)
+    if it.inverse_time and motion == 1:
+        length = math.dist(target[:3], it.tip[:3])
+        if length == 0.0:
+            raise GcodeError(n, f'{mname}: inverse time feed (G93) on a move without translation is not supported')
+        feed = length * values['F'].value / 60.0
+    it.emit(_KIND[motion], n, target, feed, ''.join(a for a in 'ABC' if a in values))

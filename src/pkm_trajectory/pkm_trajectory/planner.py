@@ -94,9 +94,11 @@ class Line:
 
 @dataclass(frozen=True)
 class Arc:
-    """Circular arc in the x-y plane about ``center`` (x, y); the coordinates after x
-    and y (theta; or z; or z, a, b, c) go linearly from the start's to ``end_rest``.
-    ``sweep`` is the signed angle (rad, positive counter-clockwise)."""
+    """Circular arc in the plane of the task coordinates ``axes`` (x, y by default; a
+    G18 arc's (z, x), a G19 arc's (y, z)) about ``center`` (its two coordinates there);
+    the other coordinates go linearly from the start's to ``end_rest`` (theta; or z, a
+    helix; or z, a, b, c), in their order. ``sweep`` is the signed angle (rad, positive
+    from the plane's first axis towards its second)."""
 
     start: tuple
     center: tuple
@@ -104,29 +106,42 @@ class Arc:
     end_rest: tuple
     speed: float | None = None
     line: int | None = field(default=None, compare=False)
+    axes: tuple = (0, 1)
 
     @property
     def r(self):
-        return math.hypot(self.start[0] - self.center[0], self.start[1] - self.center[1])
+        i, j = self.axes
+        return math.hypot(self.start[i] - self.center[0], self.start[j] - self.center[1])
 
     @property
     def phi0(self):
-        return math.atan2(self.start[1] - self.center[1], self.start[0] - self.center[0])
+        i, j = self.axes
+        return math.atan2(self.start[j] - self.center[1], self.start[i] - self.center[0])
+
+    def _rest(self):
+        return [k for k in range(len(self.start)) if k not in self.axes]
+
+    def _compose(self, circle, linear):
+        out = [0.0] * len(self.start)
+        out[self.axes[0]], out[self.axes[1]] = circle
+        for k, v in zip(self._rest(), linear):
+            out[k] = v
+        return out
 
     def point(self, u):
         a = self.phi0 + u * self.sweep
-        return [self.center[0] + self.r * math.cos(a), self.center[1] + self.r * math.sin(a),
-                *(s + u * (e - s) for s, e in zip(self.start[2:], self.end_rest))]
+        return self._compose((self.center[0] + self.r * math.cos(a), self.center[1] + self.r * math.sin(a)),
+                             [self.start[k] + u * (e - self.start[k]) for k, e in zip(self._rest(), self.end_rest)])
 
     def first(self, u):
         a = self.phi0 + u * self.sweep
-        return [-self.r * self.sweep * math.sin(a), self.r * self.sweep * math.cos(a),
-                *(e - s for s, e in zip(self.start[2:], self.end_rest))]
+        return self._compose((-self.r * self.sweep * math.sin(a), self.r * self.sweep * math.cos(a)),
+                             [e - self.start[k] for k, e in zip(self._rest(), self.end_rest)])
 
     def second(self, u):
         a = self.phi0 + u * self.sweep
-        return [-self.r * self.sweep**2 * math.cos(a), -self.r * self.sweep**2 * math.sin(a),
-                *(0.0 for _ in self.end_rest)]
+        return self._compose((-self.r * self.sweep**2 * math.cos(a), -self.r * self.sweep**2 * math.sin(a)),
+                             [0.0] * len(self.end_rest))
 
     def radius(self):
         return self.r
@@ -141,6 +156,7 @@ class Dwell:
     at: tuple
     duration_s: float
     line: int | None = field(default=None, compare=False)
+    event: tuple | None = field(default=None, compare=False)    # a program event here (gcode.Move.event)
 
     @property
     def end(self):
@@ -168,8 +184,9 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
         return TimedSegment(segment, 0.0, None)
     r = segment.radius()
     if math.isfinite(r):
-        # an arc's x and y rates reach R |phi| somewhere on the sweep, not only at u = 0
-        d[0] = d[1] = r * abs(segment.sweep)
+        # an arc's rates in its plane reach R |phi| somewhere on the sweep, not only at u = 0
+        for k in segment.axes:
+            d[k] = r * abs(segment.sweep)
     inf = math.inf
     vmax = min(v / di if di > 0 else inf for v, di in zip(limits.velocity, d))
     amax = min(a / di if di > 0 else inf for a, di in zip(limits.acceleration, d))
@@ -186,7 +203,8 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
         # and its jerk v^3/R^2 (+ 3 v a_t / R): v <= sqrt(a R / 2), v <= (j R^2 / 4)^(1/3),
         # a_t <= a / 2 and j_t <= j / 4 - 3 v a_t / R kept positive
         scale = r * abs(segment.sweep)
-        a_lin, j_lin = min(limits.acceleration[:2]), min(limits.jerk[:2])
+        a_lin = min(limits.acceleration[k] for k in segment.axes)
+        j_lin = min(limits.jerk[k] for k in segment.axes)
         v_cap = min(math.sqrt(0.5 * a_lin * r), (0.25 * j_lin * r * r) ** (1.0 / 3.0))
         a_t = min(0.5 * a_lin, j_lin * r / (12.0 * v_cap))
         vmax = min(vmax, v_cap / scale)

@@ -9,7 +9,8 @@ Axes: the machine's task space (``pkm_kinematics.task_space``) names the G-code 
 each task coordinate: X Y C (x, y, theta) for a planar machine (ARCHI, Sliding Star),
 X Y Z for a machine that positions a point (the Delta, the Orthoglide), X Y Z A B C for
 a hexapod. A word the machine has no coordinate for is refused with its line. The
-program's coordinates are machine coordinates (the work offset is the caller's).
+program's coordinates are the tool tip's, work offsets applied by the interpreter
+(gcode_interp); a tool length offset is added here (the spindle is the tip plus it).
 """
 
 from __future__ import annotations
@@ -56,45 +57,49 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
                 raise ValueError(f"line {move.line}: this machine has no {word} axis{value}: its task "
                                  f"coordinates are {space.describe()} (G-code {' '.join(space.words)})")
 
+    turns = space.dof == 6                  # the platform turns: a tool offset turns with it (the pivot)
+
     def to_task(move: Move, previous):
         refuse_missing(move)
         point = []
         for i, word in enumerate(space.words):
             if word in _POINT:
-                point.append(move.target[_POINT[word]])
+                point.append(move.target[_POINT[word]] + move.tool_offset[_POINT[word]])
             else:
                 angle = move.angles[_ANGLE[word]]
                 point.append(previous[i] if angle is None else angle)
+        if turns and any(move.tool_offset) and point[3:] != list(previous[3:]):
+            raise ValueError(f"line {move.line}: turning the platform with a tool length offset (the pivot "
+                             f"about the tool tip) is not supported yet: G49 before turning")
         # size adjustment about the program start (translation only)
         for i in range(space.translation_axes):
             point[i] = origin[i] + scale * (point[i] - origin[i])
         return point
 
+    def plane_axes(move: Move) -> tuple:
+        first, second = {17: "XY", 18: "ZX", 19: "YZ"}[move.plane]
+        missing = [w for w in (first, second) if w not in space.words]
+        if missing:
+            raise ValueError(f"line {move.line}: an arc in the G{move.plane} plane needs {missing[0]}: this "
+                             f"machine's task coordinates are {space.describe()}")
+        return space.words.index(first), space.words.index(second)
+
     segments, pose = [], list(origin)
     for move in moves:
-        if move.kind == "dwell":
-            segments.append(Dwell(tuple(pose), move.dwell_s, line=move.line))
+        if move.kind in ("dwell", "event"):
+            segments.append(Dwell(tuple(pose), move.dwell_s, line=move.line, event=move.event))
             continue
         target = to_task(move, pose)
         speed = None if move.feed is None else move.feed * feed_override
         if move.kind in ("rapid", "linear"):
             if target != pose:
                 segments.append(Line(tuple(pose), tuple(target), speed, move.blend_tolerance, line=move.line))
-        else:  # arc in the XY plane about the (scaled) centre
-            cx = origin[0] + scale * (move.center[0] - origin[0])
-            cy = origin[1] + scale * (move.center[1] - origin[1])
-            if target[0] == pose[0] and target[1] == pose[1]:
-                # a full circle: decided on the programmed points, never on angles that
-                # round-off can make 2 pi apart or equal
-                sweep = -2.0 * math.pi if move.clockwise else 2.0 * math.pi
-            else:
-                a0 = math.atan2(pose[1] - cy, pose[0] - cx)
-                a1 = math.atan2(target[1] - cy, target[0] - cx)
-                if move.clockwise:
-                    sweep = -((a0 - a1) % (2.0 * math.pi))
-                else:
-                    sweep = (a1 - a0) % (2.0 * math.pi)
-            segments.append(Arc(tuple(pose), (cx, cy), sweep, tuple(target[2:]), speed, line=move.line))
+        else:  # an arc in its plane about the (scaled) centre
+            i, j = plane_axes(move)
+            centre = [move.center[_POINT[space.words[k]]] + move.tool_offset[_POINT[space.words[k]]] for k in (i, j)]
+            centre = [origin[k] + scale * (c - origin[k]) for k, c in zip((i, j), centre)]
+            rest = tuple(target[k] for k in range(space.dof) if k not in (i, j))
+            segments.append(Arc(tuple(pose), tuple(centre), move.sweep, rest, speed, line=move.line, axes=(i, j)))
         pose = target            # the programmed point (an arc's computed end differs by ~1e-16)
     if len(segments) * repeat > MAX_SEGMENTS:       # before the list is made (a 1 MB program x 10,000)
         raise FieldError("repeat", f"{len(segments)} segments x {repeat} exceed {MAX_SEGMENTS} segments")
@@ -106,10 +111,11 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
     return segments
 
 
-def gcode_segments(text: str, space: TaskSpace, start_pose, **kwargs) -> list:
-    """Parse ``text`` from ``start_pose`` (task coordinates of ``space``) and return its
-    segments (see program_segments)."""
+def gcode_segments(text: str, space: TaskSpace, start_pose, tools: dict | None = None, **kwargs) -> list:
+    """Parse ``text`` from ``start_pose`` (task coordinates of ``space``) with the tool
+    table ``tools`` (tool_table.parse_tool_table) and return its segments (see
+    program_segments)."""
     start = dict(zip(space.words, (float(v) for v in start_pose)))
     moves = parse_gcode(text, start=tuple(start.get(w, 0.0) for w in "XYZ"),
-                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"))
+                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools)
     return program_segments(moves, space, start_pose, **kwargs)

@@ -34,9 +34,11 @@ from pkm_common.poses import tool_pose_to_machine
 from pkm_common.runner import main_exit, run_node
 from pkm_common.sources import AllowedSenders, CommandGuard, node_names
 from pkm_kinematics import load_machine
+from pkm_kinematics.dynamics import dynamic_model
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
 from pkm_trajectory.program import gcode_segments
+from pkm_trajectory.tool_table import load_tool_table
 
 
 class TrajectoryNode(Node):
@@ -69,6 +71,13 @@ class TrajectoryNode(Node):
             declare_int(self, "max_segments", 10_000, 1, 1_000_000, "programs of more segments are refused"),
             declare_float(self, "max_planning_s", 10.0, 0.0, 3600.0, "corner blending that takes longer is refused",
                           lo_open=True, unit="s"))
+        # drive forces kept by slowing down (the machine's dynamic model; 0: no force limit)
+        force = declare_float(self, "max_drive_force_n", 0.0, 0.0, 1e7, "drive force limit kept by the plan "
+                              "(0: none)", unit="N")
+        self.drive_force = force if force > 0.0 else None
+        self.dynamics = dynamic_model(self.config) if self.drive_force is not None else None
+        table = declare_str(self, "tool_table", "", "LinuxCNC tool.tbl (mm) that G43 H reads", allow_empty=True)
+        self.tools = load_tool_table(table) if table else None
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
         # plans start where the controller's accepted trajectories end (plan_chain)
         self.chain = PlanChain(self.model.home)
@@ -115,7 +124,7 @@ class TrajectoryNode(Node):
 
     def _options(self):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
-                "scale": self.scale, "repeat": self.repeat}
+                "scale": self.scale, "repeat": self.repeat, "tools": self.tools}
 
     def sender_refused(self, topic: str, buf: bytes) -> bool:
         """A goal or program without the run's credential of an allowed sender, or while
@@ -152,7 +161,7 @@ class TrajectoryNode(Node):
         try:
             samples = plan_validated(build(), self.model, self.limits, self.rate_hz, self.blend_tolerance,
                                      self.joint_velocity, self.joint_acceleration, self.max_condition,
-                                     self.budget)
+                                     self.budget, self.drive_force, self.dynamics)
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
