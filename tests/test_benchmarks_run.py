@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SMALL = {
     "kinematics.py": (["--repeat", "1"], "benchmark"),
     "drives.py": (["--cycles", "50"], "| archi | 4 |"),
+    "drive_limited.py": (["--segments", "60"], "| genhexkins tilt"),
     "hexapod.py": (["--repeat", "1", "--readings", "200"], "| genhexkins hexapod | ours, compiled stream"),
     "gough_sensor.py": (["--repeat", "1", "--cycles", "50"], "node callback"),
     "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),
