@@ -124,7 +124,15 @@ class Interpreter:
         return self.feed
 
     def tool_length(self, n, words, values, code) -> None:
-        """G43 H / G43.1 / G49 (step 18)."""
+        """G43 H / G43.1 / G49 (step 18): the spindle does not move, the tip is now the
+        offset away from it (LinuxCNC: "G43 does not cause any motion"; a later move
+        without Z keeps the machine's Z). The offset is taken along the machine's axes
+        here (a platform turned at this moment: program.py starts from its pose)."""
+        before = self.tlo
+        self._tool_length(values, code)
+        self.tip[:3] = [t - (a - b) for t, a, b in zip(self.tip[:3], self.tlo, before)]
+
+    def _tool_length(self, values, code) -> None:
         if code == 49.0:
             self.tlo = (0.0, 0.0, 0.0)
             return

@@ -179,7 +179,12 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
     the norm of their rate."""
     if isinstance(segment, Dwell):
         return TimedSegment(segment, segment.duration_s, None)
-    d = [abs(v) for v in segment.first(0.0)]
+    bounds = getattr(segment, "bounds", None)   # a curved path (pivot.PivotLine): its largest |x'|, |x''|
+    curvature = None
+    if bounds is not None:
+        d, curvature = (list(b) for b in bounds())
+    else:
+        d = [abs(v) for v in segment.first(0.0)]
     if max(d) < 1e-12:                          # a move to where we are (round-off from a goal)
         return TimedSegment(segment, 0.0, None)
     r = segment.radius()
@@ -195,7 +200,7 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
     if speed is not None:
         if not speed > 0.0:
             raise FieldError("speed", f"must be > 0 m/s, got {speed}")
-        norm = math.sqrt(sum(v * v for v in d[:translation_axes]))
+        norm = segment.tip_length if bounds is not None else math.sqrt(sum(v * v for v in d[:translation_axes]))
         if norm > 0.0:
             vmax = min(vmax, speed / norm)
     if math.isfinite(r):
@@ -210,6 +215,11 @@ def time_law(segment, limits: Limits, translation_axes: int = 3) -> TimedSegment
         vmax = min(vmax, v_cap / scale)
         amax = min(amax, a_t / scale)
         jmax = min(jmax, 0.25 * j_lin / scale)
+    if curvature is not None:
+        # half of each acceleration budget for x'' udot^2 (as an arc's normal terms), the other half for x' uddot
+        vmax = min([vmax] + [math.sqrt(0.5 * a / c) for a, c in zip(limits.acceleration, curvature) if c > 0.0])
+        amax = min([amax] + [0.5 * a / di for a, di in zip(limits.acceleration, d) if di > 0.0])
+        jmax = min([jmax] + [0.25 * j / di for j, di in zip(limits.jerk, d) if di > 0.0])
     inp = InputParameter(1)
     inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
     inp.target_position, inp.target_velocity, inp.target_acceleration = [1.0], [0.0], [0.0]

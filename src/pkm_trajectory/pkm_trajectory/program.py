@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from pkm_kinematics.errors import FieldError
+from pkm_kinematics.rotations import rotation_from_rpy
 from pkm_kinematics.task_space import TaskSpace
 
 from .gcode import Move, parse_gcode
+from .pivot import PivotLine, tip_of_pose
 from .planner import Arc, Dwell, Line
 
 FEED_OVERRIDE_RANGE = (0.0, 2.0)     # (exclusive, inclusive): 0-200 %, 0 does not plan
@@ -59,22 +63,40 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
 
     turns = space.dof == 6                  # the platform turns: a tool offset turns with it (the pivot)
 
+    def spindle_offset(move: Move, pose) -> tuple:
+        """The spindle (the pose) is the tip plus the tool offset, turned with the platform
+        (pivot.pivot_pose)."""
+        if turns and any(move.tool_offset):
+            return tuple((rotation_from_rpy(*pose[3:6]) @ np.asarray(move.tool_offset, dtype=float)).tolist())
+        return move.tool_offset
+
     def to_task(move: Move, previous):
         refuse_missing(move)
         point = []
         for i, word in enumerate(space.words):
             if word in _POINT:
-                point.append(move.target[_POINT[word]] + move.tool_offset[_POINT[word]])
+                point.append(move.target[_POINT[word]])
             else:
                 angle = move.angles[_ANGLE[word]]
                 point.append(previous[i] if angle is None else angle)
-        if turns and any(move.tool_offset) and point[3:] != list(previous[3:]):
-            raise ValueError(f"line {move.line}: turning the platform with a tool length offset (the pivot "
-                             f"about the tool tip) is not supported yet: G49 before turning")
+        offset = spindle_offset(move, point)
+        for i, word in enumerate(space.words[:space.translation_axes]):
+            point[i] += offset[_POINT[word]]
         # size adjustment about the program start (translation only)
         for i in range(space.translation_axes):
             point[i] = origin[i] + scale * (point[i] - origin[i])
         return point
+
+    def pivot(move: Move, pose, target, speed):
+        """A move that turns the platform with a tool offset: about the tip (pivot.PivotLine)."""
+        if move.kind == "arc":
+            raise ValueError(f"line {move.line}: an arc that turns the platform with a tool offset in force is not "
+                             "supported (turn on a straight move, or G49 first)")
+        if scale != 1.0:
+            raise ValueError(f"line {move.line}: size scaling of a move about the tool tip is not supported")
+        tip_start = tip_of_pose(pose, move.tool_offset)
+        return PivotLine(tuple(tip_start.tolist()), tuple(move.target), tuple(pose[3:6]), tuple(target[3:6]),
+                         tuple(move.tool_offset), speed, line=move.line)
 
     def plane_axes(move: Move) -> tuple:
         first, second = {17: "XY", 18: "ZX", 19: "YZ"}[move.plane]
@@ -91,12 +113,15 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
             continue
         target = to_task(move, pose)
         speed = None if move.feed is None else move.feed * feed_override
-        if move.kind in ("rapid", "linear"):
+        if turns and any(move.tool_offset) and target[3:] != pose[3:]:
+            segments.append(pivot(move, pose, target, speed))
+        elif move.kind in ("rapid", "linear"):
             if target != pose:
                 segments.append(Line(tuple(pose), tuple(target), speed, move.blend_tolerance, line=move.line))
         else:  # an arc in its plane about the (scaled) centre
             i, j = plane_axes(move)
-            centre = [move.center[_POINT[space.words[k]]] + move.tool_offset[_POINT[space.words[k]]] for k in (i, j)]
+            offset = spindle_offset(move, target)
+            centre = [move.center[_POINT[space.words[k]]] + offset[_POINT[space.words[k]]] for k in (i, j)]
             centre = [origin[k] + scale * (c - origin[k]) for k, c in zip((i, j), centre)]
             rest = tuple(target[k] for k in range(space.dof) if k not in (i, j))
             segments.append(Arc(tuple(pose), tuple(centre), move.sweep, rest, speed, line=move.line, axes=(i, j)))
