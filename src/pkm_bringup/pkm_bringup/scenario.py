@@ -69,11 +69,13 @@ from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.config import ControllerConfig
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
+from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
 from pkm_trajectory.planner import Limits, PlanBudget, plan_validated
 from pkm_trajectory.program import gcode_segments
+from pkm_trajectory.tool_table import load_tool_table
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
@@ -341,6 +343,11 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError("duration_s: required (> 0) when there is no program")
     for key, node in SECTIONS.items():
         setattr(s, key, _mapping(data, key, node))
+    if s.trajectory.get("tool_table"):         # a tool.tbl beside the programs, relative to the scenario file
+        table = (path.parent / str(s.trajectory["tool_table"])).resolve()
+        if not table.is_file():
+            raise ScenarioError(f"trajectory.tool_table: no such file {table}")
+        s.trajectory = {**s.trajectory, "tool_table": str(table)}
     s.metrology = _boolean(data, "metrology", False)
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
@@ -455,16 +462,19 @@ def program_duration(s: Scenario, model) -> float:
     p = {**_node_defaults("trajectory"), **s.trajectory}
     home = model.home
     try:
+        tools = load_tool_table(p["tool_table"]) if p.get("tool_table") else None
         segments = gcode_segments(s.program.read_text(encoding="utf-8"), model.task_space,
-                                  start_pose=[float(v) for v in home],
+                                  start_pose=[float(v) for v in home], tools=tools,
                                   feed_override=float(p.get("feed_override", 1.0)),
                                   scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))
+        force = float(p.get("max_drive_force_n", 0.0)) or None
         limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
         samples = plan_validated(segments, model, limits, float(p.get("rate_hz", 1000.0)),
                                  float(p.get("blend_tolerance_m", 0.0)), float(p.get("max_joint_velocity", 2.0)),
                                  float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
                                  PlanBudget(int(p.get("max_points", 200_000)), int(p.get("max_segments", 10_000)),
-                                            float(p.get("max_planning_s", 10.0))))
+                                            float(p.get("max_planning_s", 10.0))),
+                                 force, dynamic_model(load_machine(s.machine)) if force else None)
     except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
         raise ScenarioError(f"program: {exc}") from None
     return float(samples.duration_s)

@@ -30,6 +30,7 @@ FEED_OVERRIDE, SETTINGS = "controller/feed_override", "controller/settings"
 TRAJECTORY, GOAL, PROGRAM, RUN_START = "trajectory", "goal", "program", "run/start"
 LOAD, ESTOP, MARKERS, DIAGNOSTICS = "load", "estop", "markers", "diagnostics"
 DRIVES_CIA402 = "drives/cia402"       # each servo drive's CiA 402 state and error code (pkm_drives)
+PROGRAM_EVENTS = "program/events"     # a trajectory's spindle, coolant and tool-change events (pkm_trajectory)
 
 CATALOGUE: dict[str, Topic] = {t.name: t for t in (
     Topic(CLOCK, "rosgraph_msgs/msg/Clock", "clock"),
@@ -49,6 +50,7 @@ CATALOGUE: dict[str, Topic] = {t.name: t for t in (
     Topic(GOAL, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(PROGRAM, "std_msgs/msg/String", "stream"),
     Topic(RUN_START, "std_msgs/msg/String", "latched"),
+    Topic(PROGRAM_EVENTS, "std_msgs/msg/String", "latched"),
     Topic(LOAD, "geometry_msgs/msg/WrenchStamped", "stream"),
     Topic(ESTOP, "std_msgs/msg/Bool", "latched"),
     Topic(MARKERS, "visualization_msgs/msg/MarkerArray", "latched"),

@@ -256,6 +256,7 @@ class Samples:
     position: np.ndarray
     velocity: np.ndarray
     acceleration: np.ndarray
+    events: list = field(default_factory=list)     # (t_s, line, (name, ((key, value), ...))): the program's events
 
     @property
     def duration_s(self) -> float:
@@ -299,8 +300,14 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
     of the last segment."""
     if not rate_hz > 0.0:
         raise FieldError("rate_hz", f"must be > 0, got {rate_hz}")
-    timed = [t for t in (segment_law(s, limits, translation_axes, drives, rate_hz) for s in segments)
-             if t.duration_s > 0.0]
+    timed, events, t_event = [], [], 0.0
+    for seg in segments:
+        ts = segment_law(seg, limits, translation_axes, drives, rate_hz)
+        if getattr(seg, "event", None) is not None:        # at its place in time: between the moves around it
+            events.append((t_event, seg.line, seg.event))
+        if ts.duration_s > 0.0:
+            timed.append(ts)
+            t_event += ts.duration_s
     if not timed:
         raise TrajectoryRejected("nothing to do: every segment has zero length and duration")
     dt = 1.0 / rate_hz
@@ -317,7 +324,7 @@ def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: in
             vs.append(v)
             accs.append(a)
         t0 += ts.duration_s
-    return Samples(np.array(times), np.array(xs), np.array(vs), np.array(accs))
+    return Samples(np.array(times), np.array(xs), np.array(vs), np.array(accs), events)
 
 
 # ----------------------------------------------------------------- the budget
@@ -672,12 +679,13 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
     parts = [blended(g) if kind == "lines" and tolerance(g[0]) > 0.0 else plan(g, limits, rate_hz, translation_axes,
                                                                                   drives)
              for kind, g in groups]
-    t0, out = 0.0, []
+    t0, out, events = 0.0, [], []
     for k, part in enumerate(parts):
         skip = 0 if k == 0 else 1            # the first sample repeats the previous end
         out.append((part.time_s[skip:] + t0, part.position[skip:], part.velocity[skip:], part.acceleration[skip:]))
+        events += [(t + t0, line, event) for t, line, event in part.events]
         t0 += part.duration_s
-    return Samples(*(np.concatenate([o[i] for o in out]) for i in range(4)))
+    return Samples(*(np.concatenate([o[i] for o in out]) for i in range(4)), events)
 
 
 def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, blend_tolerance: float = 0.0,

@@ -15,6 +15,7 @@ program's coordinates are the tool tip's, work offsets applied by the interprete
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -144,3 +145,13 @@ def gcode_segments(text: str, space: TaskSpace, start_pose, tools: dict | None =
     moves = parse_gcode(text, start=tuple(start.get(w, 0.0) for w in "XYZ"),
                         start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools)
     return program_segments(moves, space, start_pose, **kwargs)
+
+
+def program_events_text(stamp_ns: int, events: list) -> str:
+    """The ``program/events`` record of a trajectory (JSON): its header stamp (the one the
+    controller's verdict names) and each event at its time from the trajectory's start
+    (planner.Samples.events), e.g. {"t_s": 1.2, "line": 7, "name": "spindle",
+    "direction": "cw", "rpm": 12000.0}. A spindle drive follows them from the moment the
+    controller starts the trajectory (its "trajectory" event)."""
+    return json.dumps({"stamp_ns": int(stamp_ns), "events": [
+        {"t_s": round(float(t), 9), "line": line, "name": name, **dict(data)} for t, line, (name, data) in events]})

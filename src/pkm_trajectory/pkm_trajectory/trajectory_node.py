@@ -37,7 +37,7 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
-from pkm_trajectory.program import gcode_segments
+from pkm_trajectory.program import gcode_segments, program_events_text
 from pkm_trajectory.tool_table import load_tool_table
 
 
@@ -84,6 +84,7 @@ class TrajectoryNode(Node):
         self.accepted = self.rejected = 0
         self.pub = publisher(self, topics.TRAJECTORY)
         self.pub_diag = publisher(self, topics.DIAGNOSTICS)
+        self.pub_events = publisher(self, topics.PROGRAM_EVENTS)
         # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
         operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
@@ -169,7 +170,10 @@ class TrajectoryNode(Node):
             return
         msg = self.to_msg(samples)
         self.pub.publish(signed_message(self.signer, "trajectory", msg))
-        self.chain.published(samples.position[-1].tolist(), msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        self.chain.published(samples.position[-1].tolist(), stamp_ns)
+        if samples.events:                 # spindle, coolant, tool changes at their times along it
+            self.pub_events.publish(String(data=program_events_text(stamp_ns, samples.events)))
         self.accepted += 1
         self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
