@@ -15,6 +15,7 @@ from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.task_space import task_twists
 from pkm_trajectory.planner import Line, Limits, TrajectoryRejected, plan, plan_validated, validate
 from pkm_trajectory.program import gcode_segments
+from pkm_trajectory.time_optimal import DriveLimits, DriveModel
 
 HEXAPOD_LIMITS = Limits((0.1,) * 3 + (0.5,) * 3, (1.0,) * 3 + (5.0,) * 3, (40.0,) * 3 + (200.0,) * 3)
 ARCHI_LIMITS = Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0))
@@ -175,3 +176,12 @@ def test_a_path_within_the_drive_limits_keeps_its_jerk_limited_cartesian_plan(he
     segment = tilt(machine)
     assert np.array_equal(plan([segment], HEXAPOD_LIMITS).position,
                           plan_validated([segment], machine, HEXAPOD_LIMITS, 1000.0, 0.0, 2.0, 50.0).position)
+
+
+def test_a_path_no_speed_can_keep_is_refused_with_its_line_and_reason(archi):
+    """Out of the legs' reach: refused naming the program's line and where on the path."""
+    machine = archi.model
+    home = np.array(machine.home, dtype=float)
+    far = Line(tuple(home), tuple(home + [0.0, 3.0, 0.0]), line=7)
+    with pytest.raises(TrajectoryRejected, match=r"line 7: the path leaves the machine's reach at s = 0\.\d+"):
+        plan([far], ARCHI_LIMITS, drives=DriveModel(machine, DriveLimits(0.02, 0.2)))

@@ -117,11 +117,15 @@ def drive_rates(machine, x, v, a) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def drive_excess(model: DriveModel, x, v, a) -> tuple[int, str] | None:
     """The first sample (index) where a drive exceeds its velocity, acceleration or
-    force limit, and what it exceeds by; None when every sample keeps every limit."""
+    force limit (or the pose is out of reach), and what it exceeds by; None when every
+    sample keeps every limit."""
     machine = model.machine
     n = machine.n_legs
-    _, qdot, qddot = drive_rates(machine, x, v, a)
+    jac, qdot, qddot = drive_rates(machine, x, v, a)
     found = []
+    reach = np.isfinite(jac).all(axis=(1, 2))
+    if not reach.all():
+        found.append((int(np.argmin(reach)), "out of the machine's reach"))
     for values, name, what in ((qdot, "velocity", "velocity"), (qddot, "acceleration", "acceleration")):
         cap = model.limits.per_drive(name, n)
         over = np.abs(values) > cap
