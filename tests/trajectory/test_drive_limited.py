@@ -185,3 +185,23 @@ def test_a_path_no_speed_can_keep_is_refused_with_its_line_and_reason(archi):
     far = Line(tuple(home), tuple(home + [0.0, 3.0, 0.0]), line=7)
     with pytest.raises(TrajectoryRejected, match=r"line 7: the path leaves the machine's reach at s = 0\.\d+"):
         plan([far], ARCHI_LIMITS, drives=DriveModel(machine, DriveLimits(0.02, 0.2)))
+
+
+def test_jerk_limited_where_asked_within_a_few_per_cent_of_the_acceleration_limited_optimum(hexapod):
+    """The time-optimal law's velocity profile averaged over a window (its steps of
+    acceleration become ramps): every task axis within its jerk and, asked for, every
+    drive within 2 m/s^3 (third differences of the inverse kinematics), still within its
+    velocity and acceleration limits; the price is the window."""
+    machine = hexapod.model
+    segment = tilt(machine)
+    optimum = plan_validated([segment], machine, HEXAPOD_LIMITS, 1000.0, 0.0, 0.02, 0.2)
+    samples = plan_validated([segment], machine, HEXAPOD_LIMITS, 1000.0, 0.0, 0.02, 0.2, joint_jerk_limit=2.0)
+    q, qdot, qddot = drive_motion(machine, samples)
+    dt = np.diff(samples.time_s)[:, None]
+    jerk = np.abs(np.diff(qddot, axis=0) / dt)[3:-3].max()
+    assert jerk <= 2.0 * 1.05, jerk
+    assert np.abs(qdot).max() <= 0.02 * 1.001 and np.abs(qddot[2:-2]).max() <= 0.2 * 1.01
+    task_jerk = np.abs(np.diff(samples.acceleration, axis=0) / dt).max(axis=0)
+    assert np.all(task_jerk <= np.array(HEXAPOD_LIMITS.jerk) * 1.02), task_jerk
+    ratio = samples.duration_s / optimum.duration_s
+    assert 1.0 < ratio < 1.10, (samples.duration_s, optimum.duration_s)

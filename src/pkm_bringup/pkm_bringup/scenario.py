@@ -474,7 +474,8 @@ def program_duration(s: Scenario, model) -> float:
                                  float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
                                  PlanBudget(int(p.get("max_points", 200_000)), int(p.get("max_segments", 10_000)),
                                             float(p.get("max_planning_s", 10.0))),
-                                 force, dynamic_model(load_machine(s.machine)) if force else None)
+                                 force, dynamic_model(load_machine(s.machine)) if force else None,
+                                 float(p.get("max_joint_jerk", 0.0)) or None)
     except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
         raise ScenarioError(f"program: {exc}") from None
     return float(samples.duration_s)

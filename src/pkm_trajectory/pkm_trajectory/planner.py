@@ -34,7 +34,7 @@ from pkm_kinematics.errors import FieldError
 from pkm_kinematics.measures import condition_numbers
 from pkm_kinematics.validation import finite_floats
 
-from .time_optimal import DriveLimits, DriveModel, drive_excess, drive_rates, time_optimal_law
+from .time_optimal import DriveLimits, DriveModel, drive_excess, drive_rates, jerk_window, smoothed, time_optimal_law
 
 
 RATE_HZ_RANGE = (1.0, 20000.0)      # a trajectory's sample rate (Hz)
@@ -285,12 +285,47 @@ def segment_law(segment, limits: Limits, translation_axes: int = 3, drives: Driv
     if drives is None or timed.profile is None or drive_excess(drives, *sampled(
             timed, sample_times(timed.duration_s, rate_hz))) is None:
         return timed
-    try:
-        law = time_optimal_law(segment, drives, limits.velocity, limits.acceleration, getattr(segment, "speed", None),
-                               translation_axes)
-    except ValueError as exc:
-        raise TrajectoryRejected(f"{_where(segment)}{exc}") from None
-    return TimedSegment(segment, law.duration, law)
+    found = "no margin kept them"
+    for margin in DRIVE_MARGINS:     # the smoothing's lag can cost a little: a tighter margin until they hold
+        try:
+            law = time_optimal_law(segment, drives, limits.velocity, limits.acceleration,
+                                   getattr(segment, "speed", None), translation_axes, margin=margin)
+            law = smoothed(law, jerk_window(segment, drives, law, limits.jerk, drives.jerk))
+        except ValueError as exc:
+            raise TrajectoryRejected(f"{_where(segment)}{exc}") from None
+        candidate = TimedSegment(segment, law.duration, law)
+        found = limits_exceeded(candidate, limits, drives, rate_hz)
+        if found is None:
+            return candidate
+    raise TrajectoryRejected(f"{_where(segment)}the drive-limited time law exceeds a limit: {found}")
+
+
+DRIVE_MARGINS = (0.99, 0.97, 0.93, 0.85, 0.7, 0.5)
+JERK_TOLERANCE = 0.02       # jerk by finite differences of the samples' accelerations
+
+
+def limits_exceeded(timed: TimedSegment, limits: Limits, drives: DriveModel, rate_hz: float) -> str | None:
+    """What a drive-limited segment's samples exceed, or None: every drive's velocity,
+    acceleration and force (and jerk with ``drives.jerk``), every task axis's velocity,
+    acceleration and jerk (finite differences of the sampled accelerations)."""
+    times = sample_times(timed.duration_s, rate_hz)
+    x, v, a = sampled(timed, times)
+    excess = drive_excess(drives, x, v, a)
+    if excess is not None:
+        return f"sample {excess[0]}: {excess[1]}"
+    dt = np.diff(times)[:, None]
+    rows = [(np.abs(v), limits.velocity, "velocity"), (np.abs(a), limits.acceleration, "acceleration"),
+            (np.abs(np.diff(a, axis=0) / dt), np.array(limits.jerk) * (1 + JERK_TOLERANCE), "jerk")]
+    if drives.jerk is not None:
+        _, _, qddot = drive_rates(drives.machine, x, v, a)
+        rows.append((np.abs(np.diff(qddot, axis=0) / dt), drives.jerk * (1 + JERK_TOLERANCE), "drive jerk"))
+    for values, cap, what in rows:
+        over = values > np.asarray(cap) * (1 + 1e-9)
+        if over.any():
+            k, i = np.unravel_index(int(np.argmax(over)), over.shape)
+            bound = np.ravel(cap)[min(i, np.size(cap) - 1)]
+            return f"sample {k}: {what} {values[k, i]:.4g} on axis {i} over {bound:.4g}"
+    return None
 
 
 def plan(segments, limits: Limits, rate_hz: float = 1000.0, translation_axes: int = 3,
@@ -691,19 +726,21 @@ def plan_with_blending(segments, limits: Limits, blend_tolerance: float, rate_hz
 def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, blend_tolerance: float = 0.0,
                    joint_velocity_limit: float | None = None, joint_acceleration_limit: float | None = None,
                    max_condition: float | None = None, budget: PlanBudget | None = None,
-                   drive_force_limit: float | None = None, dynamics=None) -> Samples:
+                   drive_force_limit: float | None = None, dynamics=None,
+                   joint_jerk_limit: float | None = None) -> Samples:
     """What trajectory_node publishes: the segments planned (with corner blending) and
     sampled, then every sample checked against ``machine`` (:func:`validate`). With a
     ``budget`` its size is checked before anything is sampled (check_plan_size) and
     blending stops at its planning time. Raises TrajectoryRejected (or ValueError)
     naming the sample (or line) and the limit. Where the joint velocity and acceleration
     limits (and ``drive_force_limit``, N, with the machine's ``dynamics``) would be
-    exceeded the motion slows down (segment_law) rather than being refused."""
+    exceeded the motion slows down (segment_law) rather than being refused, within
+    ``joint_jerk_limit`` too where given (the task axes' jerk always)."""
     axes = machine.task_space.translation_axes
     drives = None
     if joint_velocity_limit is not None and joint_acceleration_limit is not None:
         drives = DriveModel(machine, DriveLimits(joint_velocity_limit, joint_acceleration_limit, drive_force_limit),
-                            dynamics)
+                            dynamics, joint_jerk_limit)
     box = task_box(machine)
     check_workspace(segments, box, machine.task_space.axes)
     deadline = None

@@ -18,9 +18,12 @@ pseudo-inverse); a controller distributing by the infinity norm needs at most th
 The time-optimal s(t) under such constraints is TOPP-RA's (Pham & Pham, "A new approach
 to time-optimal path parameterization based on reachability analysis", IEEE T-RO
 2018), computed by ``toppra`` on a grid of the path; its sd^2 is linear in s between
-grid points (constant sdd), which is how it is sampled. Its acceleration is piecewise
-constant: the time law is not jerk-limited (planner.time_law's Ruckig profile is;
-planner.py uses this law only where that one would exceed a drive's limit).
+grid points (constant sdd). Its acceleration is piecewise constant; :func:`smoothed`
+averages its velocity profile over the window :func:`jerk_window` finds, which ramps
+those steps within every task axis's (and drive's) jerk limit, at the price of the
+window (planner.segment_law checks the samples and plans at a tighter margin if the
+averaging's lag took one over a limit). planner.py uses this law only where Ruckig's
+jerk-limited Cartesian one would exceed a drive's limit.
 """
 
 from __future__ import annotations
@@ -37,8 +40,8 @@ from toppra.interpolator import AbstractGeometricPath
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import SPATIAL, task_twists
 
-__all__ = ["DriveLimits", "DriveModel", "TimedPath", "drive_excess", "drive_forces", "drive_rates",
-           "time_optimal_law"]
+__all__ = ["DriveLimits", "DriveModel", "SmoothedPath", "TimedPath", "drive_excess", "drive_forces", "drive_rates",
+           "jerk_window", "smoothed", "time_optimal_law"]
 
 MARGIN = 0.99           # plan at 99 % of every limit: the samples between grid points stay inside
 GRID_POINTS = 201       # grid of a segment's path (TOPP-RA's stages + 1)
@@ -86,6 +89,7 @@ class DriveModel:
     machine: object
     limits: DriveLimits
     dynamics: object = None
+    jerk: float | None = None       # every drive's jerk limit (m/s^3 ...; None: the task axes' jerk only)
 
     def __post_init__(self):
         if self.limits.force is not None and self.dynamics is None:
@@ -234,11 +238,72 @@ class TimedPath:
                 [max(0.0, float(self.sd[i] + u * tau))], [u])
 
 
+@dataclass
+class SmoothedPath:
+    """s(t) on a fine time grid (``FINE_STEP_S``), linear between its points: TOPP-RA's
+    velocity profile averaged over a window (:func:`smoothed`)."""
+
+    times: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray
+    sdd: np.ndarray
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def at_time(self, t: float):
+        if t >= self.times[-1]:
+            return [1.0], [0.0], [0.0]
+        return tuple([float(np.interp(t, self.times, v))] for v in (self.s, self.sd, self.sdd))
+
+
+FINE_STEP_S = 1e-4      # the smoothed law's time grid
+
+
+def smoothed(law: TimedPath, window_s: float) -> SmoothedPath:
+    """The velocity profile sd(t) averaged over the last ``window_s`` (a moving average:
+    the FIR filter of jerk-limited CNC profiles, Biagiotti & Melchiorri, "Trajectory
+    Planning for Automatic Machines and Robots", 2008, §4.4). It keeps the distance (the
+    area under sd), lasts ``window_s`` longer, and turns the time-optimal law's steps of
+    sdd into ramps: |sddd| <= (largest change of sdd) / window_s."""
+    m = max(1, round(window_s / FINE_STEP_S))
+    times = np.arange(math.ceil(law.duration / FINE_STEP_S) + m + 1) * FINE_STEP_S
+    i = np.clip(np.searchsorted(law.times, times, side="right") - 1, 0, len(law.sdd) - 1)
+    tau = np.clip(times, 0.0, law.duration) - law.times[i]
+    sd = np.where(times < law.duration, law.sd[i] + law.sdd[i] * tau, 0.0)
+    total = np.concatenate(([0.0], np.cumsum(sd)))
+    k = np.arange(len(times))
+    sd_f = (total[k + 1] - total[np.maximum(0, k + 1 - m)]) / m          # the mean of the last m samples
+    s_f = np.concatenate(([0.0], np.cumsum(0.5 * (sd_f[1:] + sd_f[:-1]) * FINE_STEP_S)))
+    scale = 1.0 / s_f[-1]                   # the distance exactly 1 (the sums' round-off)
+    sdd_f = np.gradient(sd_f, FINE_STEP_S)
+    return SmoothedPath(times, np.minimum(s_f * scale, 1.0), sd_f * scale, sdd_f * scale)
+
+
+def jerk_window(segment, model: DriveModel, law: TimedPath, jerk, drive_jerk=None) -> float:
+    """The averaging window that brings every task axis's jerk (and with ``drive_jerk``
+    every drive's) within its limit: each one's acceleration changes by at most its
+    range over the time-optimal law, spread over the window."""
+    x, x1, x2 = path_derivatives(segment, law.grid)
+    sdd = np.concatenate((law.sdd, law.sdd[-1:]))
+    sdd_before = np.concatenate((law.sdd[:1], law.sdd))
+    rows = [(x1, x2, np.asarray(jerk, dtype=float))]
+    if drive_jerk is not None:
+        _, q1, q2 = drive_rates(model.machine, x, x1, x2)
+        rows.append((q1, q2, np.full(model.machine.n_legs, float(drive_jerk))))
+    window = 0.0
+    for d1, d2, cap in rows:
+        acc = np.vstack([d1 * u[:, None] + d2 * (law.sd ** 2)[:, None] for u in (sdd, sdd_before)])
+        window = max(window, float(np.max(np.ptp(acc, axis=0) / cap)))
+    return window
+
+
 def time_optimal_law(segment, model: DriveModel, velocity, acceleration, speed: float | None = None,
-                     translation_axes: int = 3, grid_points: int = GRID_POINTS) -> TimedPath:
+                     translation_axes: int = 3, grid_points: int = GRID_POINTS, margin: float = MARGIN) -> TimedPath:
     """The fastest s(t) from rest to rest along ``segment`` within the task axes'
     ``velocity`` and ``acceleration`` limits, the translation's ``speed`` (a feed, m/s,
-    or None) and every drive's limits (``model``), at ``MARGIN`` of each. ValueError
+    or None) and every drive's limits (``model``), at ``margin`` of each. ValueError
     naming the place on the path where no speed is feasible."""
     ss = np.linspace(0.0, 1.0, grid_points)
     x, x1, x2 = path_derivatives(segment, ss)
@@ -249,13 +314,16 @@ def time_optimal_law(segment, model: DriveModel, velocity, acceleration, speed: 
     if not reach.all():
         k = int(np.argmin(reach))
         raise ValueError(f"the path leaves the machine's reach at s = {ss[k]:.3f}, x = {np.round(x[k], 6).tolist()}")
-    vel_q, acc_q = (model.limits.per_drive(name, n) * MARGIN for name in ("velocity", "acceleration"))
-    task_v = np.asarray(velocity, dtype=float) * MARGIN
-    task_a = np.asarray(acceleration, dtype=float) * MARGIN
+    vel_q, acc_q = (model.limits.per_drive(name, n) * margin for name in ("velocity", "acceleration"))
+    task_v = np.asarray(velocity, dtype=float) * margin
+    task_a = np.asarray(acceleration, dtype=float) * margin
     with np.errstate(divide="ignore"):
         rate = np.hstack((np.abs(x1) / task_v, np.abs(q1) / vel_q))             # per unit sd
-        if speed is not None:
-            rate = np.hstack((rate, np.linalg.norm(x1[:, :translation_axes], axis=1, keepdims=True) / (speed * MARGIN)))
+        if speed is not None:       # the feed: of the translation, or of the tip turned about (pivot.PivotLine)
+            length = getattr(segment, "tip_length", None)
+            feed = np.linalg.norm(x1[:, :translation_axes], axis=1, keepdims=True) if length is None else \
+                np.full((len(ss), 1), length)
+            rate = np.hstack((rate, feed / (speed * margin)))
         x_upper = 1.0 / np.max(rate, axis=1) ** 2
     x_upper = np.minimum(x_upper, 1e12)                # a path of zero length moves in no time
     a = np.hstack((x1 / task_a, q1 / acc_q))
@@ -264,7 +332,7 @@ def time_optimal_law(segment, model: DriveModel, velocity, acceleration, speed: 
     force = model.limits.per_drive("force", n)
     if force is not None:
         fa, fb, fc, fd = force_terms(model, x, x1, x2)
-        room = force * MARGIN - np.abs(fd) * np.sqrt(x_upper)[:, None]      # friction at the largest speed
+        room = force * margin - np.abs(fd) * np.sqrt(x_upper)[:, None]      # friction at the largest speed
         if np.any(room <= np.abs(fc)):
             k, i = np.unravel_index(int(np.argmax(np.abs(fc) - room)), fc.shape)
             raise ValueError(f"leg {machine.leg_names[i]} cannot hold the platform at s = {ss[k]:.3f}, x = "

@@ -76,6 +76,9 @@ class TrajectoryNode(Node):
                               "(0: none)", unit="N")
         self.drive_force = force if force > 0.0 else None
         self.dynamics = dynamic_model(self.config) if self.drive_force is not None else None
+        jerk = declare_float(self, "max_joint_jerk", 0.0, 0.0, 1e7, "drive jerk limit of the motion slowed down for "
+                             "the drives (0: the task axes' jerk only)", unit="m/s^3")
+        self.drive_jerk = jerk if jerk > 0.0 else None
         table = declare_str(self, "tool_table", "", "LinuxCNC tool.tbl (mm) that G43 H reads", allow_empty=True)
         self.tools = load_tool_table(table) if table else None
         program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
@@ -162,7 +165,7 @@ class TrajectoryNode(Node):
         try:
             samples = plan_validated(build(), self.model, self.limits, self.rate_hz, self.blend_tolerance,
                                      self.joint_velocity, self.joint_acceleration, self.max_condition,
-                                     self.budget, self.drive_force, self.dynamics)
+                                     self.budget, self.drive_force, self.dynamics, self.drive_jerk)
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
