@@ -337,7 +337,7 @@ def test_a_linuxcnc_blend_program_header_is_accepted():
     ("G61.1", r"line 1: G61.1: exact path mode is not supported"),
     ("G41 D1", r"line 1: G41: cutter compensation is not supported"),
     ("G1 F10 X1 P2", r"line 1: P2: P is only allowed with G4 \(dwell\), G64"),
-    ("G1 F10 X1\no100 sub", r"line 2: O100: O-words \(subroutines, loops, conditionals\) are not supported"),
+    ("G1 F10 X1\no100 sub", r"line 2: O100 sub: no endsub for this sub"),
 ])
 def test_path_control_words_it_cannot_honour_are_refused_with_line_and_word(text, message):
     with pytest.raises(GcodeError, match=message):

@@ -237,8 +237,8 @@ def test_parameters_and_expressions():
     ('G1 X[1/0] F10', ['X[1/0]', 'division by zero']),
     ('#1 = [2 * [3]', ['unclosed']),
     ('G0 X#<nope>', ['#<nope> is not defined']),
-    ('o100 sub', ['O100', 'O-words']),
-    ('o100 if [1]\nG0 X1', ['O100', 'O-words']),
+    ('o100 sub', ['O100 sub', 'no endsub']),
+    ('o100 if [1]\nG0 X1', ['O100 if', 'no endif']),
 ])
 def test_expression_errors_name_the_word(text, fragments):
     with pytest.raises(GcodeError) as info:

@@ -28,7 +28,8 @@ Decisions where RS274 dialects differ (documented, tested)
 - Nested ``(`` inside a comment and ``N`` after the first word are errors (RS274).
 - Numbers: optional sign, digits, optional decimal point (``X-.5``, ``X1.``); no
   exponents, no spaces inside a number (``X 1 0`` is an error, ``X 10`` is fine).
-- O-words (subroutines, loops, conditionals) are refused with their line.
+- O-words (subroutines, loops, conditionals): ``gcode_flow``; one that is not alone at
+  the start of its line is refused.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from dataclasses import dataclass
 from pkm_kinematics.errors import FieldError
 
 from .gcode_expr import ExprError, Parameters, read_assignment, read_real
+from .gcode_flow import MAX_LINES, Flow, o_line
 from .gcode_interp import AXES, SYSTEMS, Interpreter
 
 __all__ = ['Move', 'GcodeError', 'parse_gcode', 'MM', 'INCH']
@@ -179,11 +181,11 @@ def _tokenize(code: str, n: int, params: Parameters) -> tuple[list[_Word], list]
         i += 1
         while i < size and code[i].isspace():
             i += 1
-        if letter == 'O':          # before the rest of the line (o100 sub, o101 if [...]) is read as words
+        if letter == 'O':          # an O-word line is the flow's (gcode_flow); here it is inside a line
             j = i
             while j < size and code[j] in _NUMBER_CHARS:
                 j += 1
-            raise GcodeError(n, f'O{code[i:j]}: O-words (subroutines, loops, conditionals) are not supported')
+            raise GcodeError(n, f'O{code[i:j]}: an O-word must begin its line, alone (o100 sub, o101 if [...])')
         if i >= size or not (code[i] in _NUMBER_CHARS or code[i] in '#[' or code[i].isalpha()):
             raise GcodeError(n, f'{letter}: malformed word: a number must follow the letter')
         if code[i].isalpha() and not _FUNCTION.match(code, i):
@@ -244,11 +246,26 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
 
     interp = Interpreter(pos, angles, tools, params, make_move, error)
     interp.sync_parameters()
+    codes = [_strip_comments(raw, n).strip() for n, raw in enumerate(_LINE_SPLIT.split(text), start=1)]
+
+    def flow_error(index: int, message: str):
+        raise GcodeError(index + 1, message)
+
+    flow = Flow(codes, params, flow_error) if any(c[:1] in 'oO' or c[:1] in 'nN' and o_line(c) for c in codes) \
+        else None
     ended_at = None      # (line, word text) of M2/M30
-    for n, raw in enumerate(_LINE_SPLIT.split(text), start=1):
+    i, run = 0, 0
+    while i < len(codes):
+        n, code = i + 1, codes[i]
         line_no[0] = n
-        code = _strip_comments(raw, n).strip()
+        run += 1
+        if run > MAX_LINES:
+            raise GcodeError(n, f'the program has run {MAX_LINES} lines: an endless loop?')
         if not code or code == '%':
+            i += 1
+            continue
+        if flow is not None and i in flow.lines and ended_at is None:
+            i = flow.step(i)
             continue
         words, settings = _tokenize(code, n, params)
         if ended_at is not None:
@@ -259,6 +276,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
             params.set(key, value)
         if end_word is not None:
             ended_at = (n, end_word.text)
+        i += 1
     return interp.moves
 
 
