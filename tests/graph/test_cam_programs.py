@@ -75,3 +75,31 @@ def test_the_hexapod_turns_about_the_true_tool_tip(runs):
     travel = np.ptp(np.array(origins), axis=0).max()
     assert deviation < 30e-6, deviation
     assert travel > 2e-3, travel
+
+
+def drive_forces(run_dir) -> tuple[np.ndarray, np.ndarray]:
+    stamps, forces = [], []
+    for _, _, c in recorded_messages(run_dir / "bag", "/pkm", ("drives/command",)):
+        stamps.append(c.header.stamp.sec + 1e-9 * c.header.stamp.nanosec)
+        forces.append(list(c.effort))
+    return np.array(stamps), np.array(forces)
+
+
+def test_a_spindle_load_the_scenario_models_follows_the_programs_spindle(runs, tmp_path):
+    """orthoglide_cam with spindle_load (40 N down at 12,000 rpm, scaled by S): the drives
+    push back with it while the spindle turns (T1 at 12,000 rpm, T2 at 8,000), not after
+    M5; the same run without it is the reference."""
+    spec = {"wrench": [0.0, 0.0, -40.0], "ramp_s": 0.05, "reference_rpm": 12000}
+    loaded = run_scenario(load_scenario("orthoglide_cam", {"spindle_load": spec}), tmp_path / "loaded",
+                          in_process=True, progress=False)
+    assert loaded["status"] == "completed", loaded["error"]
+    t, with_load = drive_forces(tmp_path / "loaded")
+    t0, without = drive_forces(runs["orthoglide_cam"][0])
+    assert np.array_equal(t - t[0], t0 - t0[0])
+    push = np.linalg.norm(with_load - without, axis=1)
+    rel = t - t[0]
+
+    def mean(lo, hi):
+        return float(push[(rel > lo) & (rel < hi)].mean())
+    t1, t2, after = mean(1.0, 16.5), mean(17.5, 26.3), mean(26.6, 26.67)
+    assert 30.0 < t1 < 60.0 and t2 == pytest.approx(t1 * 8000 / 12000, rel=0.1) and after < 0.1 * t1, (t1, t2, after)

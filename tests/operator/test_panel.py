@@ -90,7 +90,7 @@ def test_a_jog_moves_the_reference_by_its_step_inside_the_workspace():
     ({"type": "settings", "changes": {"strategy": "sensor_space"}}, r"strategy: sensor_space feeds back struts"),
     ({"type": "settings", "changes": {"force_limit_n": 1.0}}, r"'force_limit_n' is not a runtime setting"),
     ({"type": "settings", "changes": []}, r"settings: changes must be a non-empty object"),
-    ({"type": "program", "text": "G1 X10 Q4\n"}, r"line 1: Q4: unsupported word Q"),
+    ({"type": "program", "text": "G1 X10 E4\n"}, r"line 1: E4: unsupported word E"),
     ({"type": "program", "text": "  "}, r"program: text must be non-empty G-code"),
     ({"type": "start"}, r"start: load a program first"),
     ({"type": "teleport"}, r"type: must be one of estop, reset, program"),

@@ -73,7 +73,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loo
     scenario_path.write_text(yaml.safe_dump(scenario))
     programs = tmp_path / "programs"
     programs.mkdir()
-    (programs / "bad.nc").write_text("G90\nG1 X1000 Y-300 F6000\nG1 X1010 Q3\n")
+    (programs / "bad.nc").write_text("G90\nG1 X1000 Y-300 F6000\nG1 X1010 E3\n")
     (programs / "edge.nc").write_text("G90\nG1 X1000 Y-255 F6000\n")
     url_file, runs = tmp_path / "url", tmp_path / "runs"
     panel = subprocess.Popen([sys.executable, "-m", "pkm_operator.panel_main", "--start", str(scenario_path),
@@ -106,7 +106,7 @@ def test_the_panel_drives_a_realtime_graph_from_a_browser(tmp_path, realtime_loo
 
             # a malformed program: refused with its line and word, nothing moved
             page.set_input_files("#file", str(programs / "bad.nc"))
-            expect(page.locator("#message")).to_contain_text("REFUSED program: line 3: Q3: unsupported word Q")
+            expect(page.locator("#message")).to_contain_text("REFUSED program: line 3: E3: unsupported word E")
             page.click("#start")
             expect(page.locator("#message")).to_contain_text("REFUSED start: start: load a program first")
             assert [page.locator(f"#ref-{a}").text_content() for a in ("x", "y")] == start

@@ -71,7 +71,7 @@ def check_sensor(p: dict, config) -> None:
 
 
 def check_trajectory(p: dict, config) -> None:
-    """trajectory_node's rate and plan budget (its other parameters: program_duration)."""
+    """trajectory_node's rate and plan budget (its other parameters: program_plan.plan_program)."""
     lo, hi = RATE_HZ_RANGE
     rate = p.get("rate_hz", 1000.0)
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not lo <= rate <= hi:

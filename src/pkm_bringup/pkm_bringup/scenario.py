@@ -24,6 +24,8 @@ node runs by default. Keys (all optional but ``machine``)::
     load: [{t_s: 0.5, wrench: [fx, fy, mz | fz], ramp_s: 0.05}, ...]   # cutting load, simulated time
                                       # (a 6-DOF machine: [fx, fy, fz, mx, my, mz])
     frame_load: [...]                 # the same on the machine's frame (plant frame_compliance)
+    spindle_load: {wrench: [...], ramp_s: 0.05, reference_rpm: 12000}   # instead of load: the load while
+                                      # the program's spindle turns (program_plan; lockstep)
     record: true
     timeout_s: 600                    # wall-clock bound of the whole run
     realtime_profile: false           # SCHED_FIFO for the loop's nodes (controller 80, gough_sensor 70,
@@ -69,17 +71,14 @@ from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.config import ControllerConfig
 from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
-from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
-from pkm_trajectory.planner import Limits, PlanBudget, plan_validated
-from pkm_trajectory.program import gcode_segments
-from pkm_trajectory.tool_table import load_tool_table
+from pkm_bringup.program_plan import plan_program, spindle_load_entries
 
 KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
-        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "record",
-        "timeout_s", "realtime_profile", "operators", "hardware", "drives")
+        "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "spindle_load",
+        "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder", "drives": "drives"}
@@ -359,7 +358,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     s.operators = list(operators)
     s.hardware = data.get("hardware", s.hardware)
     try:
-        check_hardware(s.hardware, s.drives, s.mode, s.ground_truth, bool(s.metrology or data.get("load")), config)
+        check_hardware(s.hardware, s.drives, s.mode, s.ground_truth,
+                       bool(s.metrology or data.get("load") or data.get("spindle_load")), config)
     except FieldError as exc:
         raise ScenarioError(f"{exc.name}: {exc.detail}") from None
     size = len(config.model.task_space.loads)
@@ -377,8 +377,24 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"metrology: gough_sensor_node takes the name of a machine in config/machines "
                             f"({', '.join(machine_names())}), not a file: {machine}")
     _check_nodes(s, config)
+    spindle = data.get("spindle_load")
+    samples = None
+    if s.program is not None and (not s.duration_s or spindle is not None):
+        try:      # planned as trajectory_node will: a program it would refuse fails here
+            samples = plan_program(s.program.read_text(encoding="utf-8"), config.model, config,
+                                   {**_node_defaults("trajectory"), **s.trajectory})
+        except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
+            raise ScenarioError(f"program: {exc}") from None
+    if spindle is not None:      # the plant's load while the program's spindle turns (program_plan)
+        if s.mode != "lockstep" or samples is None or data.get("load"):
+            raise ScenarioError("spindle_load: needs a lockstep scenario with a program, and replaces load")
+        try:
+            s.load = _load_profile(spindle_load_entries(samples.events, spindle, size), s.dt_s, "spindle_load",
+                                   size)
+        except FieldError as exc:
+            raise ScenarioError(str(exc)) from None
     if s.program is not None and not s.duration_s:
-        s.duration_s = round(program_duration(s, config.model) + s.settle_s, 6)
+        s.duration_s = round(samples.duration_s + s.settle_s, 6)
     return s
 
 
@@ -453,32 +469,6 @@ def _ros_parameters(path: str, mtime_ns: int) -> dict:
     loading one scenario asked for them ~20 times, 0.3 s of pure-Python YAML each time."""
     data = read_yaml(path) or {}
     return dict(data.get("/**", {}).get("ros__parameters", {}))
-
-
-def program_duration(s: Scenario, model) -> float:
-    """The planned duration of the scenario's program on ``model`` (the scenario's
-    machine), planned and validated exactly as trajectory_node will (a program it would
-    refuse fails here, before anything starts)."""
-    p = {**_node_defaults("trajectory"), **s.trajectory}
-    home = model.home
-    try:
-        tools = load_tool_table(p["tool_table"]) if p.get("tool_table") else None
-        segments = gcode_segments(s.program.read_text(encoding="utf-8"), model.task_space,
-                                  start_pose=[float(v) for v in home], tools=tools,
-                                  feed_override=float(p.get("feed_override", 1.0)),
-                                  scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))
-        force = float(p.get("max_drive_force_n", 0.0)) or None
-        limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
-        samples = plan_validated(segments, model, limits, float(p.get("rate_hz", 1000.0)),
-                                 float(p.get("blend_tolerance_m", 0.0)), float(p.get("max_joint_velocity", 2.0)),
-                                 float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
-                                 PlanBudget(int(p.get("max_points", 200_000)), int(p.get("max_segments", 10_000)),
-                                            float(p.get("max_planning_s", 10.0))),
-                                 force, dynamic_model(load_machine(s.machine)) if force else None,
-                                 float(p.get("max_joint_jerk", 0.0)) or None)
-    except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
-        raise ScenarioError(f"program: {exc}") from None
-    return float(samples.duration_s)
 
 
 def _float_parameters(node: str) -> set[str]:
