@@ -48,6 +48,11 @@ def paths():
                               archi.model.home)
     yield ("genhexkins tilt 8/-6 deg + 30 mm", hexapod, [tilt],
            Limits((0.1,) * 3 + (0.5,) * 3, (1.0,) * 3 + (5.0,) * 3, (40.0,) * 3 + (200.0,) * 3), (0.02, 0.2, 60.0))
+    ortho = load_machine("orthoglide")
+    corner = gcode_segments("G21 G90\nG1 F72000 X126 Y126 Z126\nG1 X-73 Y-73 Z-73\nM2\n", ortho.model.task_space,
+                            ortho.model.home)
+    yield ("Orthoglide home -> Q2 -> Q1 (psi 0.5-2)", ortho, corner,
+           Limits((1.2,) * 3, (14.0,) * 3, (1400.0,) * 3), (1.2, 14.0, 150.0))
     yield ("ARCHI through J_234's singularity", archi, crossing,
            Limits((0.5, 0.5, 2.0), (5.0, 5.0, 20.0), (200.0, 200.0, 800.0)), (0.06, 1.0, 300.0))
 

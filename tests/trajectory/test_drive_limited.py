@@ -205,3 +205,30 @@ def test_jerk_limited_where_asked_within_a_few_per_cent_of_the_acceleration_limi
     assert np.all(task_jerk <= np.array(HEXAPOD_LIMITS.jerk) * 1.02), task_jerk
     ratio = samples.duration_s / optimum.duration_s
     assert 1.0 < ratio < 1.10, (samples.duration_s, optimum.duration_s)
+
+
+def test_archi_force_limit_kept_under_the_controllers_infinity_norm_distribution(archi):
+    """ARCHI distributes by the infinity norm (config/controller/archi.yaml): the plan keeps
+    the pseudo-inverse's forces within the limit, and the controller's own need no more
+    (the least largest force of all distributions), checked from the sampled poses."""
+    from pkm_kinematics.distribution import min_inf_norm
+    machine = archi.model
+    segments = gcode_segments("G21 G90\nG1 F30000 X1100 Y-500 C90\nM2\n", machine.task_space, machine.home)
+    free = plan_validated(segments, machine, ARCHI_LIMITS, 1000.0, 0.0, 2.0, 50.0)
+    dynamics = dynamic_model(archi)
+    peak_free = np.abs(forces_from_poses(archi, free)[3:-3]).max()
+    holding = max(np.abs(np.linalg.pinv(machine.task_jacobian_batch([xi])[0].T) @ dynamics.static_forces(xi)).max()
+                  for xi in free.position[::50])
+    limit = 0.5 * (holding + peak_free)
+    assert peak_free > limit > holding * 1.05, (peak_free, holding)
+    samples = plan_validated(segments, machine, ARCHI_LIMITS, 1000.0, 0.0, 2.0, 50.0, drive_force_limit=limit,
+                             dynamics=dynamics)
+    t, x = samples.time_s, samples.position
+    v = np.gradient(x, t, axis=0, edge_order=2)
+    a = np.gradient(v, t, axis=0)
+    inf_norm = np.array([np.abs(min_inf_norm(machine.task_jacobian_batch([xi])[0],
+                                             dynamics.inverse_dynamics(xi, vi, ai))).max()
+                         for xi, vi, ai in zip(x[3:-3], v[3:-3], a[3:-3])])
+    pinv = np.abs(forces_from_poses(archi, samples)[3:-3]).max()
+    assert pinv <= limit * 1.005 and inf_norm.max() <= pinv + 1e-6, (pinv, inf_norm.max(), limit)
+    assert samples.duration_s > free.duration_s
