@@ -75,3 +75,12 @@ def test_an_endless_loop_is_refused(monkeypatch):
     monkeypatch.setattr(gcode, 'MAX_LINES', 5000)
     with pytest.raises(GcodeError, match='run 5000 lines: an endless loop'):
         parse_gcode('G21\no1 while [1]\no1 endwhile\n')
+
+
+def test_a_loop_that_makes_too_many_moves_is_refused_as_it_gets_there():
+    """Memory stays flat: a million-iteration loop (or L repeats of a cycle) is refused at
+    the move over the limit, not after its moves have filled the memory."""
+    with pytest.raises(GcodeError, match=r'line 3: the program makes more than 1000 moves'):
+        parse_gcode('G21 G1 F600\no1 repeat [1000000]\nG1 X1\nG1 X0\no1 endrepeat\n', max_moves=1000)
+    with pytest.raises(GcodeError, match=r'line 2: the program makes more than 1000 moves'):
+        parse_gcode('G21 G0 Z5\nG81 X1 R1 Z-1 L1000000000 F100\n', max_moves=1000)

@@ -47,6 +47,7 @@ from .gcode_interp import AXES, SYSTEMS, Interpreter
 __all__ = ['Move', 'GcodeError', 'parse_gcode', 'MM', 'INCH']
 
 MM = 1e-3       # m per mm (G21)
+MAX_MOVES = 1_000_000   # a program's moves, dwells and events (program.MAX_SEGMENTS)
 INCH = 0.0254   # m per inch (G20)
 
 _NUMBER = re.compile(r'[+-]?(?:\d+(?:\.\d*)?|\.\d+)\Z')
@@ -221,14 +222,16 @@ def _check_point(start, name: str) -> tuple:
 
 
 def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), tools: dict | None = None,
-                parameters: Parameters | None = None) -> list[Move]:
+                parameters: Parameters | None = None, max_moves: int = MAX_MOVES) -> list[Move]:
     """Parse a G-code program into moves in SI units.
 
     ``start`` is the machine point (m) and ``start_angles`` the A, B, C angles (rad)
     before the first line; ``tools`` the tool table (``tool_table.parse_tool_table``)
     that G43 H reads; ``parameters`` the numbered and named parameters (a fresh set by
-    default). Raises ``GcodeError`` (``line N: <word>: <reason>``) for anything outside
-    what is supported."""
+    default); a program making more than ``max_moves`` moves, dwells and events (loops,
+    repeated cycles) is refused when it gets there, before its moves fill the memory.
+    Raises ``GcodeError`` (``line N: <word>: <reason>``) for anything outside what is
+    supported."""
     if not isinstance(text, str):
         raise TypeError(f'text: expected str, got {type(text).__name__}')
     pos = _check_point(start, 'start')
@@ -241,7 +244,12 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
     def error(word: str, reason: str):
         raise GcodeError(line_no[0], f'{word}: {reason}')
 
+    made = [0]
+
     def make_move(kind, n, target, angles, feed, center=None, clockwise=None, **rest):
+        made[0] += 1
+        if made[0] > max_moves:
+            raise GcodeError(n, f'the program makes more than {max_moves} moves (its loops and repeats included)')
         return Move(kind, n, target, angles, feed, center, clockwise, **rest)
 
     interp = Interpreter(pos, angles, tools, params, make_move, error)
@@ -407,8 +415,8 @@ def _line(it: Interpreter, n: int, words: list):
             raise GcodeError(n, f'{dwell.text}: dwell needs P<seconds>')
         if values['P'].value < 0.0:
             raise GcodeError(n, f'{values["P"].text}: dwell time must be >= 0 s')
-        it.moves.append(Move('dwell', n, tuple(it.tip[:3]), (None, None, None), None, None, None,
-                             values['P'].value, tool_offset=it.tlo))
+        it.moves.append(it.make_move('dwell', n, tuple(it.tip[:3]), (None, None, None), None,
+                                     dwell_s=values['P'].value, tool_offset=it.tlo))
     # plane, cutter compensation, tool length, coordinate system, path control, retract (steps 15-22)
     if 'plane' in gv:
         it.plane = int(gv['plane'])

@@ -137,13 +137,14 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
     return segments
 
 
-def gcode_segments(text: str, space: TaskSpace, start_pose, tools: dict | None = None, **kwargs) -> list:
+def gcode_segments(text: str, space: TaskSpace, start_pose, tools: dict | None = None,
+                   max_moves: int = MAX_SEGMENTS, **kwargs) -> list:
     """Parse ``text`` from ``start_pose`` (task coordinates of ``space``) with the tool
     table ``tools`` (tool_table.parse_tool_table) and return its segments (see
-    program_segments)."""
+    program_segments); more than ``max_moves`` moves are refused while it is read."""
     start = dict(zip(space.words, (float(v) for v in start_pose)))
     moves = parse_gcode(text, start=tuple(start.get(w, 0.0) for w in "XYZ"),
-                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools)
+                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools, max_moves=max_moves)
     return program_segments(moves, space, start_pose, **kwargs)
 
 

@@ -128,7 +128,8 @@ class TrajectoryNode(Node):
 
     def _options(self):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
-                "scale": self.scale, "repeat": self.repeat, "tools": self.tools}
+                "scale": self.scale, "repeat": self.repeat, "tools": self.tools,
+                "max_moves": self.budget.max_segments}
 
     def sender_refused(self, topic: str, buf: bytes) -> bool:
         """A goal or program without the run's credential of an allowed sender, or while
