@@ -577,3 +577,42 @@ def test_the_drive_supervision_compares_with_the_command_a_delayed_drive_applied
     core, t_stop = _one_cycle_late_loop(1, faults=("2:locked:0.1",))
     assert core.stopped and str(core.stop_cause) == "drive_failure" and "drive q3" in core.stop_reason
     assert 0.1 < t_stop <= 0.1 + 0.010, t_stop
+
+
+def _jittered_loop(window: int, faults=(), steps: int = 300):
+    """ARCHI under cartesian_pid where the forces a state reports are those of a command
+    0 to 6 cycles old, the lag varying (an asynchronous system: ros2_control's
+    joint_states), following a 1 mm step; a tight drive_mismatch_n so that the lag shows."""
+    import random
+    rng = random.Random(7)
+    plant = Plant(ARCHI, PlantParameters(force_limit_n=CONTROL_LIMIT_N, faults=faults))
+    core = ControllerCore(ARCHI, ControllerConfig(strategy="cartesian_pid", force_limit_n=CONTROL_LIMIT_N,
+                                                  drive_mismatch_n=5.0, actuation_window_cycles=window))
+    core.set_trajectory(step_reference(ARCHI_HOME, 0, 0.001))
+    out, sent = plant.output(), [[0.0] * 4]
+    for _ in range(steps):
+        reported = list(out.applied_forces)
+        lag = rng.randint(0, 6) % len(sent) if len(sent) > 6 else 0
+        if not any(str(f).startswith("2:locked") for f in faults) or out.time_s < 0.1:
+            reported = list(sent[-1 - lag])              # the system reports an older command's force
+        forces = core.update(out.stamp_ns, out.encoder_positions, out.encoder_velocities, reported)
+        sent.append(forces)
+        out = plant.step(forces)
+        if core.stopped:
+            break
+    return core, out.time_s
+
+
+def test_an_asynchronous_systems_lag_is_not_a_failed_drive():
+    """actuation_window_cycles: the forces reported belong to one of the last commands
+    (which one varies with the system's latency): compared with the last command alone a
+    moving machine's drives look failed; with the window nothing trips, and a drive
+    braked at 0.1 s (it reports what it really applies) is still found."""
+    core, _ = _jittered_loop(8)
+    assert not core.stopped, core.stop_reason
+    confused, _ = _jittered_loop(0)
+    assert confused.stopped and str(confused.stop_cause) == "drive_failure", confused.stop_reason
+    core, t_stop = _jittered_loop(8, faults=("2:locked:0.1",))
+    assert core.stopped and str(core.stop_cause) == "drive_failure" and "drive q3" in core.stop_reason, \
+        core.stop_reason
+    assert 0.1 < t_stop <= 0.1 + 0.020, t_stop      # the window's price: 15 ms here against 10 ms

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import re
+import time
 from dataclasses import dataclass
 
 from pkm_kinematics.errors import FieldError
@@ -48,6 +49,7 @@ __all__ = ['Move', 'GcodeError', 'parse_gcode', 'MM', 'INCH']
 
 MM = 1e-3       # m per mm (G21)
 MAX_MOVES = 1_000_000   # a program's moves, dwells and events (program.MAX_SEGMENTS)
+SYSTEM_PARAMETERS = (5161, 5390)     # LinuxCNC's G28/G30, G92 and G54-G59.3 data: read-only here
 INCH = 0.0254   # m per inch (G20)
 
 _NUMBER = re.compile(r'[+-]?(?:\d+(?:\.\d*)?|\.\d+)\Z')
@@ -222,14 +224,17 @@ def _check_point(start, name: str) -> tuple:
 
 
 def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), tools: dict | None = None,
-                parameters: Parameters | None = None, max_moves: int = MAX_MOVES) -> list[Move]:
+                parameters: Parameters | None = None, max_moves: int = MAX_MOVES, turning: bool = False,
+                deadline: float | None = None) -> list[Move]:
     """Parse a G-code program into moves in SI units.
 
     ``start`` is the machine point (m) and ``start_angles`` the A, B, C angles (rad)
     before the first line; ``tools`` the tool table (``tool_table.parse_tool_table``)
     that G43 H reads; ``parameters`` the numbered and named parameters (a fresh set by
     default); a program making more than ``max_moves`` moves, dwells and events (loops,
-    repeated cycles) is refused when it gets there, before its moves fill the memory.
+    repeated cycles) is refused when it gets there, before its moves fill the memory, and
+    so is one still running at ``deadline`` (time.monotonic()). ``turning``: A B C turn
+    the platform and a tool offset with it (a hexapod; gcode_interp.Interpreter).
     Raises ``GcodeError`` (``line N: <word>: <reason>``) for anything outside what is
     supported."""
     if not isinstance(text, str):
@@ -252,7 +257,7 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
             raise GcodeError(n, f'the program makes more than {max_moves} moves (its loops and repeats included)')
         return Move(kind, n, target, angles, feed, center, clockwise, **rest)
 
-    interp = Interpreter(pos, angles, tools, params, make_move, error)
+    interp = Interpreter(pos, angles, tools, params, make_move, error, turning)
     interp.sync_parameters()
     codes = [_strip_comments(raw, n).strip() for n, raw in enumerate(_LINE_SPLIT.split(text), start=1)]
 
@@ -269,6 +274,8 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
         run += 1
         if run > MAX_LINES:
             raise GcodeError(n, f'the program has run {MAX_LINES} lines: an endless loop?')
+        if deadline is not None and run % 64 == 0 and time.monotonic() > deadline:
+            raise GcodeError(n, 'reading the program passed the planning time limit (max_planning_s)')
         if not code or code == '%':
             i += 1
             continue
@@ -281,6 +288,9 @@ def parse_gcode(text: str, start=(0.0, 0.0, 0.0), start_angles=(0.0, 0.0, 0.0), 
             raise GcodeError(n, f'{first}: after program end ({ended_at[1]} on line {ended_at[0]})')
         end_word = _line(interp, n, words)
         for key, value in settings:           # after every read of the line (LinuxCNC)
+            if isinstance(key, int) and SYSTEM_PARAMETERS[0] <= key <= SYSTEM_PARAMETERS[1]:
+                raise GcodeError(n, f'#{key}: coordinate system data is read-only here (set it with G10 L2/L20 '
+                                    'or G92)')
             params.set(key, value)
         if end_word is not None:
             ended_at = (n, end_word.text)
@@ -348,6 +358,7 @@ def _line(it: Interpreter, n: int, words: list):
     # modal settings first: they apply to every number of the line (the module's decision)
     if 'unit code' in gv:
         it.unit = INCH if gv['unit code'] == 20.0 else MM
+        it.sync_parameters()                   # the offsets' parameters are in the program's unit
     if 'distance mode' in gv:
         it.absolute = gv['distance mode'] == 90.0
     if 'arc distance mode' in gv:
@@ -395,13 +406,17 @@ def _line(it: Interpreter, n: int, words: list):
     if 'tool change' in m:
         if it.selected_tool is None:
             raise GcodeError(n, f'{m["tool change"].text}: no tool selected (T) before the tool change')
+        if it.spindle_on():                    # the change stops the spindle (M3 after M6 starts it again)
+            it.spindle_direction = 'stop'
+            it.event(n, 'spindle', direction='stop', rpm=it.spindle_rpm)
         it.event(n, 'tool_change', tool=it.selected_tool, previous=it.spindle_tool)
         it.spindle_tool = it.selected_tool
     if 'spindle' in m:
         it.spindle_direction = {3.0: 'cw', 4.0: 'ccw', 5.0: 'stop'}[m['spindle'].value]
         it.event(n, 'spindle', direction=it.spindle_direction, rpm=it.spindle_rpm)
     if 'coolant' in m:
-        it.event(n, 'coolant', mode={7.0: 'mist', 8.0: 'flood', 9.0: 'off'}[m['coolant'].value])
+        it.coolant = {7.0: 'mist', 8.0: 'flood', 9.0: 'off'}[m['coolant'].value]
+        it.event(n, 'coolant', mode=it.coolant)
     # dwell (step 14)
     if non_modal == 4.0:
         dwell = g['non-modal code']
@@ -442,9 +457,9 @@ def _line(it: Interpreter, n: int, words: list):
             it.blend = None
     if 'retract mode' in gv:
         it.retract_old_z = gv['retract mode'] == 98.0
-    p_allowed = non_modal in (4.0, 10.0) or gv.get('path control mode') == 64.0 or arc or motion in (82, 83)
-    _only_with(n, values, 'P', p_allowed, 'with G4 (dwell), G64 (blending tolerance), G10, G2/G3 (turns), '
-                                          'G82 or G83')
+    p_allowed = non_modal in (4.0, 10.0) or gv.get('path control mode') == 64.0 or arc or motion == 82
+    _only_with(n, values, 'P', p_allowed, 'with G4 (dwell), G64 (blending tolerance), G10, G2/G3 (turns) '
+                                          'or G82 (dwell)')
     # coordinate system data and axis offsets (step 23)
     if non_modal == 10.0:
         it.set_offsets(n, words, values, values.get('L'), values.get('P'))
@@ -467,6 +482,13 @@ def _line(it: Interpreter, n: int, words: list):
         _motion(it, n, values, motion, motion_word, g53 is not None, axes + offsets)
     if motion not in (81, 82, 83):
         it.cycle = {}
+    if 'stop' in m:                            # M2/M30 end with the spindle stopped and the coolant off (M5, M9)
+        if it.spindle_on():
+            it.spindle_direction = 'stop'
+            it.event(n, 'spindle', direction='stop', rpm=it.spindle_rpm)
+        if it.coolant != 'off':
+            it.coolant = 'off'
+            it.event(n, 'coolant', mode='off')
     return m.get('stop')
 
 

@@ -62,7 +62,7 @@ class Flow:
         self.params, self.error = params, error
         self.lines: dict[int, OLine] = {}
         self.subs: dict[str, int] = {}
-        self.calls: list[int] = []           # return indices
+        self.calls: list[tuple] = []         # (the call's index, the caller's repeat counters)
         self.counts: dict[int, int] = {}     # repeat loops: iterations left, by their opening index
         stack: list[int] = []
         for i, code in enumerate(codes):
@@ -156,7 +156,8 @@ class Flow:
             self.params.push_locals()
             for n, v in enumerate(args, start=1):
                 self.params.set(n, v)
-            self.calls.append(i)
+            self.calls.append((i, self.counts))
+            self.counts = {}                        # each call its own repeat counters (a recursive call)
             return start + 1
         if kw in ('endsub', 'return'):
             if not self.calls:
@@ -166,7 +167,8 @@ class Flow:
                 self.params.set('_value', value)
                 self.params.set('_value_returned', 1.0)
             self.params.pop_locals()
-            return self.calls.pop() + 1
+            caller, self.counts = self.calls.pop()
+            return caller + 1
         if kw in ('while', 'if', 'elseif'):
             if kw == 'while' and o.block >= 0:         # the end of a do: again while true
                 return o.block + 1 if self.value(i, o.rest) else i + 1

@@ -17,7 +17,7 @@ import math
 
 from .gcode_expr import Parameters
 
-__all__ = ['Interpreter', 'PLANES']
+__all__ = ['Interpreter', 'PLANES', 'rotate_rpy']
 
 # plane -> (first axis, second axis, normal axis, offset letters (first, second)); G3 turns positively
 # from the first axis towards the second (memo: G18 is (Z, X), its G2 seen from +Y)
@@ -30,12 +30,24 @@ ARC_REL_TOL = 1e-4
 ZERO_RADIUS_M = 1e-9
 
 
+def rotate_rpy(angles, v) -> list:
+    """R v with R = Rz(c) Ry(b) Rx(a) (genhexkins; rotations.rotation_from_rpy), pure Python."""
+    a, b, c = angles
+    x, y, z = v
+    y, z = y * math.cos(a) - z * math.sin(a), y * math.sin(a) + z * math.cos(a)
+    x, z = x * math.cos(b) + z * math.sin(b), -x * math.sin(b) + z * math.cos(b)
+    x, y = x * math.cos(c) - y * math.sin(c), x * math.sin(c) + y * math.cos(c)
+    return [x, y, z]
+
+
 class Interpreter:
     """The modal state of a program and the moves it makes (``moves``). ``error(word,
     reason)`` raises the caller's GcodeError for the current line."""
 
-    def __init__(self, start, start_angles, tools: dict | None, params: Parameters, make_move, error):
+    def __init__(self, start, start_angles, tools: dict | None, params: Parameters, make_move, error,
+                 turning: bool = False):
         self.tip = list(start) + list(start_angles)           # x y z (m), a b c (rad)
+        self.turning = turning              # a platform whose A B C turn the tool offset with it (a hexapod)
         self.tools, self.params = tools, params
         self.make_move, self.error = make_move, error
         self.moves: list = []
@@ -58,6 +70,7 @@ class Interpreter:
         self.cycle = {}                     # sticky canned-cycle words (R Z P Q) and the initial level
         self.spindle_rpm = 0.0
         self.spindle_direction = 'stop'     # M3 cw, M4 ccw, M5 stop
+        self.coolant = 'off'                # M7 mist, M8 flood, M9 off
 
     def spindle_on(self) -> bool:
         return self.spindle_direction != 'stop'
@@ -76,15 +89,16 @@ class Interpreter:
 
     def target(self, values: dict, machine: bool = False) -> list:
         """The end point (machine coordinates of the tip) of the axis words of a line."""
-        prog = self.program()
         out = list(self.tip)
         for k, a in enumerate(AXES):
             if a in values:
                 v = self.value(values[a], k)
                 if machine:
                     out[k] = v
+                elif self.absolute:
+                    out[k] = v + self.offset(k)
                 else:
-                    out[k] = (v if self.absolute else prog[k] + v) + self.offset(k)
+                    out[k] = self.tip[k] + v          # exactly (a full circle's end is its start)
         return out
 
     def sync_parameters(self) -> None:
@@ -126,11 +140,14 @@ class Interpreter:
     def tool_length(self, n, words, values, code) -> None:
         """G43 H / G43.1 / G49 (step 18): the spindle does not move, the tip is now the
         offset away from it (LinuxCNC: "G43 does not cause any motion"; a later move
-        without Z keeps the machine's Z). The offset is taken along the machine's axes
-        here (a platform turned at this moment: program.py starts from its pose)."""
+        without Z keeps the machine's Z), the offset turned with a turning platform
+        (pivot.pivot_pose: the spindle is tip + R t)."""
         before = self.tlo
         self._tool_length(values, code)
-        self.tip[:3] = [t - (a - b) for t, a, b in zip(self.tip[:3], self.tlo, before)]
+        change = [a - b for a, b in zip(self.tlo, before)]
+        if self.turning:
+            change = rotate_rpy(self.tip[3:6], change)
+        self.tip[:3] = [t - d for t, d in zip(self.tip[:3], change)]
 
     def _tool_length(self, values, code) -> None:
         if code == 49.0:
@@ -138,6 +155,9 @@ class Interpreter:
             return
         if code == 43.1:
             given = [values[a] for a in 'XYZ' if a in values]
+            rotary = next((values[a] for a in 'ABC' if a in values), None)
+            if rotary is not None:
+                self.error(rotary.text, 'G43.1 takes a tool offset along X Y Z only')
             if not given:
                 self.error('G43.1', 'G43.1 needs the offset as axis words (X Y Z)')
             self.tlo = tuple(values[a].value * self.unit if a in values else 0.0 for a in 'XYZ')
@@ -224,14 +244,13 @@ class Interpreter:
             if not offsets:
                 self.error(mname, f'arc without its centre: give {" ".join(letters)} (centre form) or R')
             named = ' '.join(w.text for w in offsets)
-            prog = self.program()
+            if self.arc_absolute and len(offsets) < 2:
+                self.error(f'{mname} {named}', f'G90.1 (absolute centre) needs both {" ".join(letters)}')
             center = list(start)
             for axis, c in ((first, letters[0]), (second, letters[1])):
                 if c in values:
                     d = values[c].value * self.unit
                     center[axis] = d + self.offset(axis) if self.arc_absolute else start[axis] + d
-                elif self.arc_absolute:
-                    center[axis] = prog[axis] + self.offset(axis)
             r0 = math.hypot(start[first] - center[first], start[second] - center[second])
             if r0 < ZERO_RADIUS_M:
                 self.error(f'{mname} {named}', 'zero arc radius')
@@ -241,7 +260,9 @@ class Interpreter:
                 self.error(f'{mname} {named}', f'end point not on the arc: radius {r0:.9g} m at the start, '
                            f'{r1:.9g} m at the end (differ by {abs(r1 - r0):.3g} m > {tol:.3g} m; '
                            f'{" ".join(letters)} inconsistent with the end point)')
-        full = end[first] == start[first] and end[second] == start[second]
+        full = abs(end[first] - start[first]) < ZERO_RADIUS_M and abs(end[second] - start[second]) < ZERO_RADIUS_M
+        if full:
+            end[first], end[second] = start[first], start[second]
         a0 = math.atan2(start[second] - center[second], start[first] - center[first])
         a1 = math.atan2(end[second] - center[second], end[first] - center[first])
         clockwise = motion == 2
@@ -297,25 +318,26 @@ class Interpreter:
             self.error(name, 'no feed rate: F must be given before a canned cycle')
         same = self.cycle.get('code') == code
         if not self.cycle:
-            self.cycle = {'old_z': self.tip[2]}
+            self.cycle = {'old_z': self.tip[2]}        # the initial level: Z before this series of cycles
         self.cycle['code'] = code
-        prog = self.program()
         z_off = self.offset(2)
+        # R and Z sticky as written; under G91 R counts from the initial level and Z from R
+        # (LinuxCNC interp_cycles: r = R + initial level, z = r + Z), each line anew
         if 'R' in values:
-            r = values['R'].value * self.unit
-            self.cycle['r'] = (r if self.absolute else prog[2] + r) + z_off
+            self.cycle['r'] = values['R'].value * self.unit
         if 'r' not in self.cycle:
             self.error(name, 'R (the retract plane) is missing')
-        r_level = self.cycle['r']
+        r_level = self.cycle['r'] + (z_off if self.absolute else self.cycle['old_z'])
         if 'Z' in values:
-            z = values['Z'].value * self.unit
-            self.cycle['z'] = (z + z_off) if self.absolute else r_level + z
+            self.cycle['z'] = values['Z'].value * self.unit
         elif not same or 'z' not in self.cycle:
             self.error(name, 'Z (the bottom of the hole) is missing')
-        bottom = self.cycle['z']
+        bottom = self.cycle['z'] + (z_off if self.absolute else r_level)
         if r_level < bottom:
             self.error(name, f'the R plane ({(r_level - z_off) / self.unit:g}) is below the bottom Z '
                        f'({(bottom - z_off) / self.unit:g})')
+        if code != 82:
+            self.cycle.pop('P', None)           # a dwell belongs to G82 (P is refused on G81/G83 lines)
         for letter, needed in (('P', code == 82), ('Q', code == 83)):
             if letter in values:
                 w = values[letter]

@@ -282,14 +282,16 @@ def segment_law(segment, limits: Limits, translation_axes: int = 3, drives: Driv
     (time_optimal.time_optimal_law: slowing down where the machine needs it instead of
     refusing). ValueError where no speed keeps them."""
     timed = time_law(segment, limits, translation_axes)
-    if drives is None or timed.profile is None or drive_excess(drives, *sampled(
-            timed, sample_times(timed.duration_s, rate_hz))) is None:
+    if drives is None or timed.profile is None or keeps_drive_limits(timed, drives, rate_hz):
         return timed
     found = "no margin kept them"
     for margin in DRIVE_MARGINS:     # the smoothing's lag can cost a little: a tighter margin until they hold
         try:
             law = time_optimal_law(segment, drives, limits.velocity, limits.acceleration,
                                    getattr(segment, "speed", None), translation_axes, margin=margin)
+            if law.duration > drives.max_duration_s:     # before its samples are made (PlanBudget.max_points)
+                raise ValueError(f"slowed down for the drives, the move takes {law.duration:.4g} s: over the "
+                                 f"{drives.max_duration_s:.4g} s max_points allows")
             law = smoothed(law, jerk_window(segment, drives, law, limits.jerk, drives.jerk))
         except ValueError as exc:
             raise TrajectoryRejected(f"{_where(segment)}{exc}") from None
@@ -298,6 +300,19 @@ def segment_law(segment, limits: Limits, translation_axes: int = 3, drives: Driv
         if found is None:
             return candidate
     raise TrajectoryRejected(f"{_where(segment)}the drive-limited time law exceeds a limit: {found}")
+
+
+def keeps_drive_limits(timed: TimedSegment, drives: DriveModel, rate_hz: float) -> bool:
+    """Whether a segment's samples keep every drive's velocity, acceleration and force
+    (time_optimal.drive_excess) and, with ``drives.jerk``, its jerk (finite differences)."""
+    times = sample_times(timed.duration_s, rate_hz)
+    x, v, a = sampled(timed, times)
+    if drive_excess(drives, x, v, a) is not None:
+        return False
+    if drives.jerk is None:
+        return True
+    _, _, qddot = drive_rates(drives.machine, x, v, a)
+    return bool(np.all(np.abs(np.diff(qddot, axis=0) / np.diff(times)[:, None]) <= drives.jerk * (1 + JERK_TOLERANCE)))
 
 
 DRIVE_MARGINS = (0.99, 0.97, 0.93, 0.85, 0.7, 0.5)
@@ -739,8 +754,9 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
     axes = machine.task_space.translation_axes
     drives = None
     if joint_velocity_limit is not None and joint_acceleration_limit is not None:
+        longest = budget.max_points / rate_hz if budget is not None else math.inf
         drives = DriveModel(machine, DriveLimits(joint_velocity_limit, joint_acceleration_limit, drive_force_limit),
-                            dynamics, joint_jerk_limit)
+                            dynamics, joint_jerk_limit, longest)
     box = task_box(machine)
     check_workspace(segments, box, machine.task_space.axes)
     deadline = None

@@ -138,13 +138,15 @@ def program_segments(moves: list[Move], space: TaskSpace, start_pose, feed_overr
 
 
 def gcode_segments(text: str, space: TaskSpace, start_pose, tools: dict | None = None,
-                   max_moves: int = MAX_SEGMENTS, **kwargs) -> list:
+                   max_moves: int = MAX_SEGMENTS, deadline: float | None = None, **kwargs) -> list:
     """Parse ``text`` from ``start_pose`` (task coordinates of ``space``) with the tool
     table ``tools`` (tool_table.parse_tool_table) and return its segments (see
-    program_segments); more than ``max_moves`` moves are refused while it is read."""
+    program_segments); more than ``max_moves`` moves, or reading past ``deadline``
+    (time.monotonic()), are refused while it is read."""
     start = dict(zip(space.words, (float(v) for v in start_pose)))
     moves = parse_gcode(text, start=tuple(start.get(w, 0.0) for w in "XYZ"),
-                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools, max_moves=max_moves)
+                        start_angles=tuple(start.get(w, 0.0) for w in "ABC"), tools=tools, max_moves=max_moves,
+                        turning=space.dof == 6, deadline=deadline)
     return program_segments(moves, space, start_pose, **kwargs)
 
 

@@ -90,6 +90,7 @@ class DriveModel:
     limits: DriveLimits
     dynamics: object = None
     jerk: float | None = None       # every drive's jerk limit (m/s^3 ...; None: the task axes' jerk only)
+    max_duration_s: float = math.inf    # a slowed-down move longer than this is refused (the plan's budget)
 
     def __post_init__(self):
         if self.limits.force is not None and self.dynamics is None:
@@ -259,6 +260,7 @@ class SmoothedPath:
 
 
 FINE_STEP_S = 1e-4      # the smoothed law's time grid
+MAX_FINE_POINTS = 400_000   # and its size at most (a coarser grid for a move over 40 s)
 
 
 def smoothed(law: TimedPath, window_s: float) -> SmoothedPath:
@@ -267,17 +269,18 @@ def smoothed(law: TimedPath, window_s: float) -> SmoothedPath:
     Planning for Automatic Machines and Robots", 2008, §4.4). It keeps the distance (the
     area under sd), lasts ``window_s`` longer, and turns the time-optimal law's steps of
     sdd into ramps: |sddd| <= (largest change of sdd) / window_s."""
-    m = max(1, round(window_s / FINE_STEP_S))
-    times = np.arange(math.ceil(law.duration / FINE_STEP_S) + m + 1) * FINE_STEP_S
+    step = max(FINE_STEP_S, (law.duration + window_s) / MAX_FINE_POINTS)     # memory bounded on long moves
+    m = max(1, round(window_s / step))
+    times = np.arange(math.ceil(law.duration / step) + m + 1) * step
     i = np.clip(np.searchsorted(law.times, times, side="right") - 1, 0, len(law.sdd) - 1)
     tau = np.clip(times, 0.0, law.duration) - law.times[i]
     sd = np.where(times < law.duration, law.sd[i] + law.sdd[i] * tau, 0.0)
     total = np.concatenate(([0.0], np.cumsum(sd)))
     k = np.arange(len(times))
     sd_f = (total[k + 1] - total[np.maximum(0, k + 1 - m)]) / m          # the mean of the last m samples
-    s_f = np.concatenate(([0.0], np.cumsum(0.5 * (sd_f[1:] + sd_f[:-1]) * FINE_STEP_S)))
+    s_f = np.concatenate(([0.0], np.cumsum(0.5 * (sd_f[1:] + sd_f[:-1]) * step)))
     scale = 1.0 / s_f[-1]                   # the distance exactly 1 (the sums' round-off)
-    sdd_f = np.gradient(sd_f, FINE_STEP_S)
+    sdd_f = np.gradient(sd_f, step)
     return SmoothedPath(times, np.minimum(s_f * scale, 1.0), sd_f * scale, sdd_f * scale)
 
 

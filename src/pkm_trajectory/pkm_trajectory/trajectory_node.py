@@ -15,6 +15,7 @@ program without the run's credential is refused, and the trajectories carry it
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from geometry_msgs.msg import PoseStamped
@@ -129,7 +130,7 @@ class TrajectoryNode(Node):
     def _options(self):
         return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
                 "scale": self.scale, "repeat": self.repeat, "tools": self.tools,
-                "max_moves": self.budget.max_segments}
+                "max_moves": self.budget.max_segments, "deadline": time.monotonic() + self.budget.max_planning_s}
 
     def sender_refused(self, topic: str, buf: bytes) -> bool:
         """A goal or program without the run's credential of an allowed sender, or while
