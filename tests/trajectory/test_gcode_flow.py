@@ -84,3 +84,9 @@ def test_a_loop_that_makes_too_many_moves_is_refused_as_it_gets_there():
         parse_gcode('G21 G1 F600\no1 repeat [1000000]\nG1 X1\nG1 X0\no1 endrepeat\n', max_moves=1000)
     with pytest.raises(GcodeError, match=r'line 2: the program makes more than 1000 moves'):
         parse_gcode('G21 G0 Z5\nG81 X1 R1 Z-1 L1000000000 F100\n', max_moves=1000)
+
+
+def test_a_recursive_call_keeps_its_callers_repeat_count():
+    text = ('o1 sub\no2 repeat [3]\nG1 X1\no3 if [#1 GT 0]\no1 call [#1 - 1]\no3 endif\no2 endrepeat\no1 endsub\n'
+            'o1 call [1]\n')
+    assert len(xs(text)) == 3 + 3 * 3         # the outer three, each with an inner three

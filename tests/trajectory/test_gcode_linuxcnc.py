@@ -257,3 +257,44 @@ def test_a_cam_style_header_is_understood():
                                                                 'spindle']
     assert sum(m.kind == 'arc' for m in moves) == 3
     assert moves[-1].target[2] == 0.0 and moves[-1].tool_offset == (0.0, 0.0, approx(0.05))   # G53 before G49
+
+
+# ------------------------------------------------------------ found in review
+def test_g91_cycles_count_r_from_the_initial_level_and_z_from_r():
+    # LinuxCNC interp_cycles: under G91, r = R + the initial level, z = r + Z, on every line
+    text = 'G21\nG0 Z10\nG91 G99 G81 X5 R-2 Z-3 F100\nX5 R-2 Z-3\nX5\n'
+    bottoms = [round(m.target[2] * 1e3, 6) for m in parse_gcode(text) if m.kind == 'linear']
+    assert bottoms == [5.0, 5.0, 5.0]
+
+
+def test_full_circles_stay_full_under_g91_and_g92():
+    for text in ('G21\nG10 L2 P1 X16.249 Y8.1245\nG92 X0 Y0\nG2 X0 Y0 I5 F100',
+                 'G21\nG10 L2 P1 X34.743\nG91 G2 X0 I5 F100'):
+        arc = parse_gcode(text, start=(-0.219381, -6e-05, 0.1))[-1]
+        assert arc.sweep == approx(-2 * math.pi), text
+
+
+def test_coordinate_system_parameters_read_only_and_in_the_programs_unit():
+    with pytest.raises(GcodeError, match=r'line 2: #5221: coordinate system data is read-only'):
+        parse_gcode('G21\n#5221 = 10\n')
+    # G54 X 10 mm read in inches after G20: 0.3937
+    assert parse_gcode('G21\nG10 L2 P1 X10\nG20\nG0 X[#5221]\n')[-1].target[0] == approx(0.010 + 0.010)
+
+
+def test_program_end_and_tool_change_stop_the_spindle():
+    events = [(m.line, m.event[0], dict(m.event[1])) for m in
+              parse_gcode('G21\nS1000 M3 M8\nT1 M6\nM3\nM30\n', tools=TOOLS) if m.kind == 'event']
+    assert [(line, name, data.get('direction', data.get('mode'))) for line, name, data in events] == [
+        (2, 'spindle', 'cw'), (2, 'coolant', 'flood'), (3, 'spindle', 'stop'), (3, 'tool_change', None),
+        (4, 'spindle', 'cw'), (5, 'spindle', 'stop'), (5, 'coolant', 'off')]
+
+
+@pytest.mark.parametrize('text, fragments', [
+    ('G83 X1 R1 Z-1 Q1 P1 F100', ['P1', 'G82']),
+    ('G0 X10\nG90.1 G2 X20 I15 F100', ['G90.1', 'needs both I J']),
+    ('G43.1 Z10 A5', ['A5', 'X Y Z only']),
+])
+def test_words_that_would_be_dropped_are_refused(text, fragments):
+    with pytest.raises(GcodeError) as info:
+        parse_gcode('G21\n' + text)
+    assert all(f in str(info.value) for f in fragments), str(info.value)

@@ -66,3 +66,14 @@ def test_without_an_offset_the_platform_turns_about_its_origin(hexapod):
     samples = run(hexapod, "G21 G90\nG1 A5 F600\nM2\n")
     assert np.allclose(samples.position[:, :3], samples.position[0, :3])
     assert math.degrees(samples.position[-1, 3]) == pytest.approx(5.0)
+
+
+def test_a_tool_offset_changed_while_the_platform_is_turned_moves_nothing(hexapod):
+    """G43 and G49 at A 30: the next X move goes along X only (the tip is the offset away
+    from the spindle along the turned tool)."""
+    from pkm_kinematics.task_space import SPATIAL
+    tools = parse_tool_table("T1 P1 Z100\n")
+    start = [0.0, 0.0, 0.0, math.radians(30.0), 0.0, 0.0]
+    lines = [s for s in gcode_segments("G21\nT1 M6\nG43 H1\nG1 X10 F100\nG49\nG1 X20\n", SPATIAL, start,
+                                       tools=tools) if hasattr(s, "start")]
+    assert [np.round(np.subtract(s.end, s.start)[:3] * 1e3, 9).tolist() for s in lines] == [[10, 0, 0], [10, 0, 0]]
