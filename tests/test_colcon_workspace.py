@@ -24,7 +24,7 @@ SRC = REPO / 'src'
 EXPECTED_PACKAGES = {
     'pkm_kinematics', 'pkm_common', 'pkm_trajectory', 'pkm_controller', 'pkm_sim_hw',
     'pkm_gough_sensor', 'pkm_bringup', 'pkm_recording', 'pkm_runs', 'pkm_operator', 'pkm_studies',
-    'pkm_gallery', 'pkm_drives',
+    'pkm_gallery', 'pkm_drives', 'pkm_calibration',
 }
 COLCON = [sys.executable, '-m', 'colcon']
 BUILD_TIMEOUT_S = 600

@@ -1,0 +1,1 @@
+"""Kinematic calibration: a machine's real geometry identified from its own measurements."""
