@@ -44,6 +44,7 @@ class Identifiability:
 class Identification:
     theta: np.ndarray          # every parameter (the held ones at nominal: 0)
     std: np.ndarray            # their standard deviations (0 for the held ones)
+    covariance: np.ndarray     # of the identified ones (identifiable.identified's order), m^2 ...
     identifiable: Identifiability
     rms_before_m: float        # the readings' residuals with the nominal model
     rms_after_m: float         # and with the identified one
@@ -123,5 +124,5 @@ def identify(model, readings, measured, sigma_m: float, guesses=None, max_nfev: 
     cov = sigma_m ** 2 * np.linalg.inv(j_free.T @ j_free)
     std = np.zeros(model.size)
     std[free] = np.sqrt(np.diag(cov))
-    return Identification(theta, std, which, float(np.sqrt(np.mean(before ** 2))), float(np.sqrt(np.mean(after ** 2))),
-                          int(result.nfev))
+    return Identification(theta, std, cov, which, float(np.sqrt(np.mean(before ** 2))),
+                          float(np.sqrt(np.mean(after ** 2))), int(result.nfev))
