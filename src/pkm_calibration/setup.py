@@ -20,4 +20,9 @@ setup(
         'Jacobian, identifiability, and identification by nonlinear least squares.'
     ),
     license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'pkm-calibrate = pkm_calibration.cli:main',
+        ],
+    },
 )
