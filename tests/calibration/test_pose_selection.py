@@ -68,3 +68,11 @@ def test_pkm_calibrate_plan_writes_the_program_and_refuses_what_it_cannot(setup,
     assert "machines on struts" in capsys.readouterr().err
     with pytest.raises(FieldError, match="at least 15 poses"):
         select_poses(setup[2], 10)          # 45 parameters: 3 measurements a pose
+
+
+def test_a_workspace_outside_the_strut_limits_is_refused_not_drawn_forever():
+    from pkm_kinematics.struts import StrutMachine
+    m = load_machine("genhexkins").model
+    tight = StrutMachine(m.name, m.leg_names, m.base_joints, m.platform_joints, [[0.1, 0.2]] * 6, m.home, m.workspace)
+    with pytest.raises(FieldError, match="0 of 200 poses drawn in the workspace are within the strut limits"):
+        candidate_poses(tight, 10, 0)

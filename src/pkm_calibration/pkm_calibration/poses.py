@@ -27,6 +27,7 @@ from pkm_kinematics.errors import FieldError
 __all__ = ["candidate_poses", "observability_index", "select_poses", "calibration_program"]
 
 REGULARISATION = 1e-6       # times the identity in the information matrix while it is singular
+ROUNDS = 20                 # draws of candidates before a workspace outside the strut limits is refused
 
 
 def observability_index(jacobian) -> float:
@@ -46,11 +47,14 @@ def candidate_poses(machine, count: int, seed: int = 0) -> np.ndarray:
     lo = np.concatenate((ws["center"] - ws["half_size"], -np.radians(ws["abc_half_range_deg"])))
     hi = np.concatenate((ws["center"] + ws["half_size"], np.radians(ws["abc_half_range_deg"])))
     out = []
-    while len(out) < count:
+    for _ in range(ROUNDS):
         x = rng.uniform(lo, hi, size=(count, 6))
         q, ok = machine.inverse_kinematics_batch(x)
         out += list(x[ok & machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0))])
-    return np.array(out[:count])
+        if len(out) >= count:
+            return np.array(out[:count])
+    raise FieldError("workspace", f"{machine.name}: {len(out)} of {ROUNDS * count} poses drawn in the workspace "
+                                  f"are within the strut limits; {count} candidates needed")
 
 
 def select_poses(blocks: np.ndarray, count: int) -> list[int]:
