@@ -22,7 +22,7 @@ from scipy.optimize import least_squares
 
 from pkm_kinematics.errors import FieldError
 
-__all__ = ["Identifiability", "Identification", "identifiability", "identify", "RANK_TOLERANCE"]
+__all__ = ["Identifiability", "Identification", "holding", "identifiability", "identify", "RANK_TOLERANCE"]
 
 RANK_TOLERANCE = 1e-8
 
@@ -69,6 +69,22 @@ def identifiability(jacobian, names) -> Identifiability:
     return Identifiability(keep, tuple(sorted(int(k) for k in pivots[rank:])), tuple(names), float(s[0] / s[-1]))
 
 
+def holding(jacobian, names, held) -> Identifiability:
+    """The identifiability with the parameters named ``held`` held at nominal instead of
+    the pivoting's choice; FieldError naming an unknown name, or the parameters the rest
+    still cannot identify."""
+    unknown = [name for name in held if name not in names]
+    if unknown:
+        raise FieldError("held", f"{unknown[0]!r} is not a parameter (e.g. {names[0]})")
+    rest = tuple(k for k, name in enumerate(names) if name not in held)
+    check = identifiability(np.asarray(jacobian)[:, list(rest)], [names[k] for k in rest])
+    if check.held:
+        raise FieldError("held", f"with {len(held)} held, {', '.join(check.names[k] for k in check.held)} "
+                                 "still cannot be identified")
+    return Identifiability(rest, tuple(k for k, name in enumerate(names) if name in held), tuple(names),
+                           check.condition)
+
+
 def identify(model, readings, measured, sigma_m: float, guesses=None, max_nfev: int = 50,
              held=None) -> Identification:
     """The parameters of ``model`` (strut_errors.StrutErrorModel) that best explain the
@@ -89,16 +105,7 @@ def identify(model, readings, measured, sigma_m: float, guesses=None, max_nfev: 
     jacobian = model.jacobian(nominal, readings, prediction)
     which = identifiability(jacobian, model.names)
     if held is not None:
-        unknown = [name for name in held if name not in model.names]
-        if unknown:
-            raise FieldError("held", f"{unknown[0]!r} is not a parameter (e.g. {model.names[0]})")
-        rest = tuple(k for k, name in enumerate(model.names) if name not in held)
-        check = identifiability(jacobian[:, list(rest)], [model.names[k] for k in rest])
-        if check.held:
-            raise FieldError("held", f"with {len(held)} held, {', '.join(check.names[k] for k in check.held)} "
-                                     "still cannot be identified")
-        which = Identifiability(rest, tuple(k for k, name in enumerate(model.names) if name in held), model.names,
-                                check.condition)
+        which = holding(jacobian, model.names, held)
     free = list(which.identified)
 
     def full(x):

@@ -31,7 +31,7 @@ from scipy.optimize import least_squares
 from pkm_kinematics import bars as B
 from pkm_kinematics.errors import FieldError
 
-from .identify import Identifiability, identifiability
+from .identify import Identifiability, holding, identifiability
 
 __all__ = ["PlanarRailErrorModel", "SelfCalibration", "self_calibrate"]
 
@@ -100,11 +100,16 @@ class PlanarRailErrorModel:
                 d_theta[r, 5 * k + 4] = -e[i, k] @ normal[k]
         return d_pose, d_theta
 
-    def identifiability(self, poses, readings) -> Identifiability:
-        """What the readings at ``poses`` identify (module doc: the poses' span projected out)."""
+    def parameter_jacobian(self, poses, readings) -> np.ndarray:
+        """d r / d theta at nominal with the poses' span projected out: what a change of the
+        parameters does that no change of the poses explains (module doc)."""
         d_pose, d_theta = self.jacobian(np.zeros(self.size), poses, readings)
         q_pose, _ = np.linalg.qr(d_pose)
-        return identifiability(d_theta - q_pose @ (q_pose.T @ d_theta), self.names)
+        return d_theta - q_pose @ (q_pose.T @ d_theta)
+
+    def identifiability(self, poses, readings) -> Identifiability:
+        """What the readings at ``poses`` identify."""
+        return identifiability(self.parameter_jacobian(poses, readings), self.names)
 
 
 @dataclass(frozen=True)
@@ -132,18 +137,8 @@ def self_calibrate(model: PlanarRailErrorModel, readings, guesses, max_nfev: int
         least = -(-model.size // (model.machine.n_legs - 3))
         raise FieldError("readings", f"{len(readings)} readings over-measure the platform by {extra} for "
                                      f"{model.size} parameters: at least {least} poses")
-    which = model.identifiability(guesses, readings)
-    if held is not None:
-        rest = tuple(k for k, name in enumerate(model.names) if name not in held)
-        d_pose, d_theta = model.jacobian(np.zeros(model.size), guesses, readings)
-        q_pose, _ = np.linalg.qr(d_pose)
-        check = identifiability((d_theta - q_pose @ (q_pose.T @ d_theta))[:, list(rest)],
-                                [model.names[k] for k in rest])
-        if check.held:
-            raise FieldError("held", f"with {len(held)} held, {', '.join(check.names[k] for k in check.held)} "
-                                     "still cannot be identified")
-        which = Identifiability(rest, tuple(k for k in range(model.size) if k not in rest), model.names,
-                                check.condition)
+    jacobian = model.parameter_jacobian(guesses, readings)
+    which = identifiability(jacobian, model.names) if held is None else holding(jacobian, model.names, held)
     free = list(which.identified)
     N = len(readings)
 

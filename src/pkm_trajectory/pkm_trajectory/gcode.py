@@ -1,7 +1,7 @@
 """G-code reader of the PKM controller: LinuxCNC's G-code as CAM post-processors write
 it, turned into moves in SI units.
 
-Pure Python (no rclpy, no numpy). ``parse_gcode(text)`` returns a list of ``Move``
+No rclpy. ``parse_gcode(text)`` returns a list of ``Move``
 for the trajectory planner, or raises ``GcodeError`` (a ``ValueError``) whose message
 starts with ``line N:`` and names the offending word. Nothing is ignored silently:
 every word is either understood or refused.

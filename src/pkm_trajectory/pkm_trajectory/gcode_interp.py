@@ -1,4 +1,4 @@
-"""The G-code interpreter's state and the meaning of a line (pure Python): modal groups,
+"""The G-code interpreter's state and the meaning of a line (no rclpy): modal groups,
 coordinate systems, tool length, arcs in three planes, canned cycles, spindle and
 coolant events. LinuxCNC's G-code reference is the specification ("Order of
 Execution": the steps of :meth:`Interpreter.line` run in its order); where this
@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import math
 
+from pkm_kinematics.rotations import rotation_from_rpy
+
 from .gcode_expr import Parameters
 
-__all__ = ['Interpreter', 'PLANES', 'rotate_rpy']
+__all__ = ['Interpreter', 'PLANES']
 
 # plane -> (first axis, second axis, normal axis, offset letters (first, second)); G3 turns positively
 # from the first axis towards the second (memo: G18 is (Z, X), its G2 seen from +Y)
@@ -28,16 +30,6 @@ PECK_CLEARANCE_M = 0.254e-3     # G83: back down to the hole's bottom less 0.010
 ARC_ABS_TOL_M = 1e-6
 ARC_REL_TOL = 1e-4
 ZERO_RADIUS_M = 1e-9
-
-
-def rotate_rpy(angles, v) -> list:
-    """R v with R = Rz(c) Ry(b) Rx(a) (genhexkins; rotations.rotation_from_rpy), pure Python."""
-    a, b, c = angles
-    x, y, z = v
-    y, z = y * math.cos(a) - z * math.sin(a), y * math.sin(a) + z * math.cos(a)
-    x, z = x * math.cos(b) + z * math.sin(b), -x * math.sin(b) + z * math.cos(b)
-    x, y = x * math.cos(c) - y * math.sin(c), x * math.sin(c) + y * math.cos(c)
-    return [x, y, z]
 
 
 class Interpreter:
@@ -146,7 +138,7 @@ class Interpreter:
         self._tool_length(values, code)
         change = [a - b for a, b in zip(self.tlo, before)]
         if self.turning:
-            change = rotate_rpy(self.tip[3:6], change)
+            change = (rotation_from_rpy(*self.tip[3:6]) @ change).tolist()
         self.tip[:3] = [t - d for t, d in zip(self.tip[:3], change)]
 
     def _tool_length(self, values, code) -> None:
