@@ -10,8 +10,6 @@ the interface: default true) and ``drive_faults`` (the virtual drives' CiA 402 f
 
 from __future__ import annotations
 
-import math
-
 from pathlib import Path
 
 from pkm_drives.drive_config import drive_settings
@@ -80,10 +78,7 @@ def controller_wiring(s, config) -> dict:
     """The controller's parameters the machine side decides: CiA 402 drives with
     synchronous RPDOs apply a command one cycle after the state that follows it
     (``actuation_delay_cycles``: the drive supervision compares their forces with the
-    command they applied); a ros2_control system reports the effort of one of the
-    commands of its last max_age_s (``actuation_window_cycles``)."""
+    command they applied)."""
     if s.hardware == "canopen" and drive_settings(config).rpdo_synchronous:
         return {"actuation_delay_cycles": 1}
-    if s.hardware == "ros2_control":      # joint_states lag the commands by up to max_age_s: any of those
-        return {"actuation_window_cycles": min(40, math.ceil(ros2_control_settings(config).max_age_s / s.dt_s))}
     return {}

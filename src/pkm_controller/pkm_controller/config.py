@@ -53,9 +53,6 @@ class ControllerConfig:
     actuation_delay_cycles: int = 0       # the drives apply a command this many cycles after the next state
                                           # (CiA 402 drives with synchronous RPDOs: 1); the drive supervision
                                           # compares their forces with the command they applied
-    actuation_window_cycles: int = 0      # ... or with any of this many commands before it, the closest: an
-                                          # asynchronous system (ros2_control: its joint_states lag by up to
-                                          # max_age_s, by a number of cycles that varies with the load)
     continue_on_drive_failure: bool = True
     encoder_jump_m: float = 2e-5          # a reading off its expected motion by this much in one cycle (0: off)
     encoder_freeze_m: float = 2e-4        # a reading held while the reference moved its drive this much (0: off)
@@ -100,7 +97,6 @@ class ControllerConfig:
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
             ("actuation_delay_cycles", 0 <= self.actuation_delay_cycles <= 8, "in [0, 8]"),
-            ("actuation_window_cycles", 0 <= self.actuation_window_cycles <= 40, "in [0, 40]"),
             ("encoder_jump_m", 0.0 <= self.encoder_jump_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_freeze_m", 0.0 <= self.encoder_freeze_m < math.inf, "in [0, inf) m (0: off)"),
             ("encoder_gough_m", 0.0 <= self.encoder_gough_m < math.inf, "in [0, inf) m (0: off)"),

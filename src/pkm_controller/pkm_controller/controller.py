@@ -220,16 +220,6 @@ class ControllerCore:
             return list(self.last_command)
         return self.complete(struts, metrology_pose)
 
-    def closest_commands(self, applied: list, delay: int) -> list:
-        """Per drive, of the commands ``delay`` to ``delay + actuation_window_cycles``
-        answers before the last, the one closest to the force it reports (an
-        asynchronous system applies one of them, which one varying with its latency)."""
-        window = [c for c in (self.answers.before_last(delay + k)
-                              for k in range(self.config.actuation_window_cycles + 1)) if c is not None]
-        if not window:
-            return []
-        return [min((c[i] for c in window), key=lambda f: abs(f - applied[i])) for i in range(len(applied))]
-
     def prepare(self, stamp_ns: int, q, qdot, applied=None, held: int | None = None) -> bool:
         """The first half of a cycle, on the drive state stamped ``stamp_ns`` (int ns, the
         key of its answer) alone: the input checks, the encoder FK, the drive
@@ -271,8 +261,6 @@ class ControllerCore:
             commanded = self.answers.get(held)
         else:
             commanded = self.last_command if not delay else self.answers.before_last(delay)
-            if self.config.actuation_window_cycles and applied is not None and commanded is not None:
-                commanded = self.closest_commands(list(applied), delay) or commanded
         if applied is not None and len(applied) and not first and commanded is not None:
             problem = sup.check_drives(list(applied), commanded, self.estimator.pose)
             if problem is not None:
