@@ -28,14 +28,11 @@ jerk-limited Cartesian one would exceed a drive's limit.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-import toppra
-import toppra.algorithm
-import toppra.constraint
-from toppra.interpolator import AbstractGeometricPath
 
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import SPATIAL, task_twists
@@ -48,7 +45,6 @@ GRID_POINTS = 201       # grid of a segment's path (TOPP-RA's stages + 1)
 DERIVATIVE_STEP = 1e-6  # ds of the central difference of J along the path
 
 
-toppra.setup_logging("WARNING")
 
 
 @dataclass(frozen=True)
@@ -180,39 +176,50 @@ def force_terms(model: DriveModel, x, x1, x2) -> tuple[np.ndarray, ...]:
     return tuple(np.array(v) for v in zip(*out))
 
 
-class _Path(AbstractGeometricPath):
-    """The path interval toppra checks the grid against (the constraint has the rest)."""
+@functools.cache
+def _toppra():
+    """toppra and the two classes it is given, imported at the first drive-limited law
+    (0.5 s of imports: not at every planner's start)."""
+    import toppra
+    import toppra.algorithm
+    import toppra.constraint
+    from toppra.interpolator import AbstractGeometricPath
+    toppra.setup_logging("WARNING")
 
-    def __init__(self, dof: int):
-        self._dof = dof
+    class Path(AbstractGeometricPath):
+        """The path interval toppra checks the grid against (the constraint has the rest)."""
 
-    def __call__(self, path_positions, order=0):
-        raise NotImplementedError("the time law samples the segment itself")
+        def __init__(self, dof: int):
+            self._dof = dof
 
-    @property
-    def dof(self):
-        return self._dof
+        def __call__(self, path_positions, order=0):
+            raise NotImplementedError("the time law samples the segment itself")
 
-    @property
-    def path_interval(self):
-        return np.array([0.0, 1.0])
+        @property
+        def dof(self):
+            return self._dof
 
+        @property
+        def path_interval(self):
+            return np.array([0.0, 1.0])
 
-class _Bounds(toppra.constraint.LinearConstraint):
-    """Rows r(s) = a u + b x + c normalised so that each must stay in [-1, 1], and an upper
-    bound on x = sd^2 (toppra's canonical linear form)."""
+    class Bounds(toppra.constraint.LinearConstraint):
+        """Rows r(s) = a u + b x + c normalised so that each must stay in [-1, 1], and an
+        upper bound on x = sd^2 (toppra's canonical linear form)."""
 
-    def __init__(self, a, b, c, x_upper):
-        super().__init__()
-        self.a, self.b, self.c, self.x_upper = a, b, c, x_upper
-        self.identical = True
-        self.discretization_type = toppra.constraint.DiscretizationType.Interpolation
+        def __init__(self, a, b, c, x_upper):
+            super().__init__()
+            self.a, self.b, self.c, self.x_upper = a, b, c, x_upper
+            self.identical = True
+            self.discretization_type = toppra.constraint.DiscretizationType.Interpolation
 
-    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
-        m = self.a.shape[1]
-        f = np.vstack((np.eye(m), -np.eye(m)))
-        xbound = np.column_stack((np.zeros(len(gridpoints)), self.x_upper))
-        return self.a, self.b, self.c, f, np.ones(2 * m), None, xbound
+        def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+            m = self.a.shape[1]
+            f = np.vstack((np.eye(m), -np.eye(m)))
+            xbound = np.column_stack((np.zeros(len(gridpoints)), self.x_upper))
+            return self.a, self.b, self.c, f, np.ones(2 * m), None, xbound
+
+    return toppra.algorithm.TOPPRA, Path, Bounds
 
 
 @dataclass
@@ -342,7 +349,8 @@ def time_optimal_law(segment, model: DriveModel, velocity, acceleration, speed: 
                              f"{np.round(x[k], 6).tolist()}: it needs {abs(fc[k, i]):.4g} of its {force[i]:g} "
                              "force limit at rest")
         a, b, c = np.hstack((a, fa / room)), np.hstack((b, fb / room)), np.hstack((c, fc / room))
-    algo = toppra.algorithm.TOPPRA([_Bounds(a, b, c, x_upper)], _Path(x.shape[1]), gridpoints=ss,
+    topp, path, bounds = _toppra()
+    algo = topp([bounds(a, b, c, x_upper)], path(x.shape[1]), gridpoints=ss,
                                    solver_wrapper="seidel")
     sdd, sd, _, _ = algo.compute_parameterization(0.0, 0.0, return_data=True)
     if sd is None or not np.all(np.isfinite(sd)):
