@@ -379,3 +379,30 @@ def test_incremental_encoders_need_the_machines_homing():
                                      "plant": {"encoder_offsets_m": [0.01, 0.02, 0.03, 0.04]}})
     homed = load_scenario("archi_demo", {"plant": {"encoder_offsets_m": [0.01, 0.02, 0.03, 0.04]}})
     assert homed.plant["encoder_offsets_m"] == [0.01, 0.02, 0.03, 0.04]
+
+
+def test_a_calibrated_model_drives_the_controller_and_planner_while_the_plant_keeps_the_machine(tmp_path):
+    """``model``: the controller and the planner load the calibrated file (relative to
+    the scenario), the plant and the sensor the machine with its errors; the
+    controller's status names the model; a model of other legs is refused by name."""
+    data = yaml.safe_load((config_dir() / "machines" / "archi.yaml").read_text())
+    data["legs"][2]["link_length"] = 1.02
+    data["calibration"] = {"label": "test run"}
+    (tmp_path / "archi.calibrated.yaml").write_text(yaml.safe_dump(data))
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("machine: archi\nmodel: archi.calibrated.yaml\nprogram: "
+                        f"{config_dir() / 'programs' / 'archi_test_motion.nc'}\n"
+                        "plant: {link_length_errors: [0, 0, 0.02, 0]}\n")
+    s = load_scenario(scenario)
+    p = node_parameters(s, tmp_path)
+    model = str(tmp_path / "archi.calibrated.yaml")
+    assert (p["controller"]["machine"], p["trajectory"]["machine"]) == (model, model)
+    assert p["sim_hw"]["machine"] == "archi" and list(p["sim_hw"]["link_length_errors"]) == [0, 0, 0.02, 0]
+    from pkm_controller.controller import ControllerCore
+    from pkm_kinematics import load_machine
+    values = ControllerCore(load_machine(model)).status()[2]
+    assert values["model"] == "archi (calibrated: test run)", values["model"]
+    assert ControllerCore(load_machine("archi")).status()[2]["model"] == "archi (nominal)"
+    with pytest.raises(ScenarioError, match="^model: genhexkins is a struts machine with legs .* it does not "
+                                            "match the machine archi"):
+        load_scenario(scenario, {"model": "genhexkins"})

@@ -176,7 +176,8 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     sensor, sim = summaries.get("gough_sensor", {}), summaries.get(s.machine_node, {})
     sensor_missed = max(0, sim.get("published", {}).get("platform/true_pose", 0)
                         - sensor.get("published", {}).get("metrology/struts", 0)) if sensor and sim else 0
-    run = {"scenario": s.name, "machine": s.machine, "namespace": s.namespace, "mode": mode,
+    run = {"scenario": s.name, "machine": s.machine, "model": s.controller_machine, "namespace": s.namespace,
+           "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
            "metrology": s.metrology, "realtime_profile": s.realtime_profile, "duration_s": s.duration_s,
            "wall_s": wall_s,
@@ -295,6 +296,8 @@ def format_summary(run: dict, run_dir: Path) -> str:
     lines = [f"scenario {run['scenario']} ({run['machine']}, {run['strategy']}"
              f"{', ' + run['distribution'] if run.get('distribution') else ''}, {run['mode']}"
              f"{', realtime profile' if run.get('realtime_profile') else ''}): {run['status']}"]
+    if run.get("model", run["machine"]) != run["machine"]:
+        lines.append(f"  the controller's model: {run['model']}")
     if run["error"]:
         lines.append(f"  error: {run['error']}")
     if run.get("cause", "none") != "none":

@@ -7,6 +7,10 @@ node runs by default. Keys (all optional but ``machine``)::
     machine: archi                    # config/machines/<name>.yaml, or a machine file (a relative path
                                       # from the working directory); its `name` picks the controller
                                       # defaults (config/controller/<name>.yaml, if there is one)
+    model: ../machines/archi.calibrated.yaml   # the machine file the controller and the planner use (a
+                                      # calibrated one: pkm-calibrate identify), relative to the scenario
+                                      # file; the plant and the Gough sensor keep ``machine`` (and the
+                                      # plant its errors). Default: the machine. Same kind and legs.
     namespace: /pkm
     mode: lockstep | realtime
     dt_s: 0.001                       # exchange period of the plant and the controller
@@ -76,7 +80,7 @@ from pkm_kinematics.errors import FieldError
 from pkm_kinematics.yaml_files import YamlFileError, read_yaml
 from pkm_bringup.program_plan import plan_program, spindle_load_entries
 
-KEYS = ("name", "description", "machine", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
+KEYS = ("name", "description", "machine", "model", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "spindle_load",
         "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives")
 # scenario section -> node whose parameters it sets
@@ -99,6 +103,7 @@ class Scenario:
     machine: str                 # what the nodes load: a name in config/machines, or a file's absolute path
     source: Path
     machine_name: str = ""       # the machine file's `name` (picks the controller defaults)
+    model: str = ""              # the controller's and the planner's machine file (absolute), "" = machine
     namespace: str = "/pkm"
     mode: str = "lockstep"
     dt_s: float = 0.001
@@ -120,6 +125,12 @@ class Scenario:
     operators: list = field(default_factory=list)     # more nodes that may command (full names)
     hardware: str = "sim"
     drives: dict = field(default_factory=dict)
+
+    @property
+    def controller_machine(self) -> str:
+        """What the controller and the planner load: the ``model`` (a calibrated machine
+        file), else the machine."""
+        return self.model or self.machine
 
     @property
     def machine_node(self) -> str:
@@ -319,6 +330,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         machine = str(Path(machine).resolve())
     s = Scenario(name=str(data.get("name", path.stem)), machine=machine, source=path.resolve(),
                  machine_name=config.name, description=str(data.get("description", "")))
+    if data.get("model") is not None:
+        s.model = _model_file(data["model"], path, config)
     s.namespace = str(data.get("namespace", s.namespace))
     if not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", s.namespace):
         raise ScenarioError(f"namespace: must be an absolute ROS namespace such as '/pkm' (letters, digits, "
@@ -381,7 +394,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     samples = None
     if s.program is not None and (not s.duration_s or spindle is not None):
         try:      # planned as trajectory_node will: a program it would refuse fails here
-            samples = plan_program(s.program.read_text(encoding="utf-8"), config.model, config,
+            model = _machine(s.controller_machine)
+            samples = plan_program(s.program.read_text(encoding="utf-8"), model.model, model,
                                    {**_node_defaults("trajectory"), **s.trajectory})
         except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
             raise ScenarioError(f"program: {exc}") from None
@@ -396,6 +410,24 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     if s.program is not None and not s.duration_s:
         s.duration_s = round(samples.duration_s + s.settle_s, 6)
     return s
+
+
+def _model_file(value, scenario: Path, config) -> str:
+    """The ``model`` key: a machine file (relative to the scenario file, or a name in
+    config/machines) of the same kind and legs as the machine; its absolute path."""
+    if not isinstance(value, str) or not value:
+        raise ScenarioError(f"model: a machine file (the controller's model), got {value!r}")
+    path = value if value in machine_names() else str((scenario.parent / value).resolve())
+    try:
+        model = load_machine(path)
+    except (ValueError, FileNotFoundError) as exc:
+        raise ScenarioError(f"model: {exc}") from None
+    ours, theirs = config.model, model.model
+    if model.kind != config.kind or tuple(theirs.leg_names) != tuple(ours.leg_names):
+        raise ScenarioError(f"model: {value} is a {model.kind} machine with legs {', '.join(theirs.leg_names)}; "
+                            f"it does not match the machine {config.name} ({config.kind}, legs "
+                            f"{', '.join(ours.leg_names)})")
+    return path
 
 
 def controller_defaults(machine_name: str) -> dict:
@@ -525,7 +557,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     nodes = machine_nodes(s, plant, loop, _node_defaults("drives"), run_dir)
     nodes.update({
         "controller": {**controller_defaults(s.machine_name or s.machine), **controller_wiring(s, _machine(s.machine)),
-                       **s.controller, "machine": s.machine,
+                       **s.controller, "machine": s.controller_machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
                        "wait_for_trajectory": s.program is not None,
                        "wait_for_start": s.program is None,
@@ -539,7 +571,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
         nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
                                  "summary_path": str(summaries / "gough_sensor.json")}
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
-        nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.machine,
+        nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.controller_machine,
                                "program_file": str(s.program or ""),
                                "operator_sources": ",".join(operator_names(s)), "credential_file": key,
                                "controller_source": controller_node_name(s)}

@@ -19,7 +19,7 @@ def controller_status(core) -> tuple[int, str, dict]:
     when running on fewer drives (the faults), else OK with the mode."""
     r, sup, config = core.record, core.supervisor, core.config
     trans, angle = error_norms(r.error, core.space)
-    values = {"mode": core.mode, "strategy": config.strategy, "distribution": config.distribution,
+    values = {"mode": core.mode, "model": core.machine.model_label, "strategy": config.strategy, "distribution": config.distribution,
               "active_drives": ",".join(core.names[k] for k in sup.active),
               "tracking_error_m": trans, "max_tracking_error_m": core.max_error_m,
               "internal_force_norm_n": r.internal_force_norm_n, "peak_drive_force_n": core.peak_force_n,

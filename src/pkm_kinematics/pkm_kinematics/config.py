@@ -152,6 +152,14 @@ class MachineConfig:
     data: dict
     dynamics: "DynamicsParameters | RigidBodyParameters | None" = None
 
+    @property
+    def model_label(self) -> str:
+        """Which model this is, for reports and the panel: the machine's name, and the
+        calibration a calibrated file carries (its ``calibration.label``)."""
+        calibration = self.data.get("calibration")
+        label = calibration.get("label") if isinstance(calibration, dict) else None
+        return f"{self.name} (calibrated: {label})" if label else f"{self.name} (nominal)"
+
 
 @dataclass
 class GoughMetrologyConfig:

@@ -130,6 +130,8 @@ def write_report(run_dir, out_dir=None) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     result = metrics_dict(analysis, info.get("published"))
     result = {"scenario": info.get("scenario"), "run_dir": str(run_dir), **result}
+    # the controller's model when it is not the machine's file (a calibrated one)
+    result["model"] = info["model"] if info.get("model") not in (None, info.get("machine")) else None
     files = draw(analysis.figures, analysis.figure_spec(result.get("machine")), out_dir)
     result["plots"] = [f.name for f in files]
     with open(out_dir / "metrics.json", "w", encoding="utf-8") as fh:
@@ -159,6 +161,7 @@ def summary(m: dict) -> str:
     te, df, fi, tm = m["tracking_error"], m["drive_force"], m["internal_force"], m["timing"]
     rows = [("run", f"{m.get('scenario') or '-'}  machine {m.get('machine') or '?'} ({m['kind']}), "
                     f"namespace {m['namespace'] or '/'}"),
+            ("controller's model", m.get("model") or "the machine's file"),
             ("duration", f"{_fmt(m['duration_s'], digits=3, unit='s')} sim, {m['steps']} steps"),
             ("stopped by", stop_line(m)),
             ("timing", f"{_fmt(tm['loop_rate_hz'], unit='Hz')} loop, {_fmt(tm['sim_wall_ratio'], digits=3)} x real "

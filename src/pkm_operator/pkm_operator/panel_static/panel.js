@@ -88,6 +88,7 @@ function render(s) {
   $("estopwhy").textContent = s.estop ? `${s.estop.why} · controller: ${c.message || "–"}` : "";
   $("reset").disabled = !(s.estop && s.estop.can_reset);
   $("strategy").textContent = v.strategy || "–";
+  $("model").textContent = v.model || "–";
   $("distribution").textContent = v.distribution || "–";
   $("internal").textContent = v.internal_force_norm_n !== undefined ? Number(v.internal_force_norm_n).toFixed(1) : "–";
   // a setting the operator has edited is not overwritten until applied: a snapshot drawn
