@@ -406,3 +406,19 @@ def test_a_calibrated_model_drives_the_controller_and_planner_while_the_plant_ke
     with pytest.raises(ScenarioError, match="^model: genhexkins is a struts machine with legs .* it does not "
                                             "match the machine archi"):
         load_scenario(scenario, {"model": "genhexkins"})
+
+
+def test_a_lockstep_run_whose_program_the_controller_refused_is_not_completed(tmp_path):
+    """The controller held still (its program refused at the start): the run failed,
+    saying why, not 'completed' (archi_calibration without its initial pose did that)."""
+    import json
+    from pkm_bringup.orchestrator import collect
+    s = load_scenario("archi_demo")
+    (tmp_path / "summaries").mkdir()
+    fault = ("trajectory refused: it starts at [1.0, -0.4, 0.785398], 12.129 mm / 0.0463 rad from the current "
+             "reference [0.995043, -0.38893, 0.831722] (start_tolerance_m 0.005, start_tolerance_rad 0.04)")
+    (tmp_path / "summaries" / "controller.json").write_text(json.dumps({"faults": fault, "cause": "none"}))
+    run = collect(s, tmp_path, "lockstep", 1.0, {})
+    assert run["status"] == "failed" and run["error"] == f"the program did not run: the controller {fault}", run
+    (tmp_path / "summaries" / "controller.json").write_text(json.dumps({"faults": "none", "cause": "none"}))
+    assert collect(s, tmp_path, "lockstep", 1.0, {})["status"] == "completed"

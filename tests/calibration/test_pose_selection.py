@@ -74,5 +74,5 @@ def test_a_workspace_outside_the_strut_limits_is_refused_not_drawn_forever():
     from pkm_kinematics.struts import StrutMachine
     m = load_machine("genhexkins").model
     tight = StrutMachine(m.name, m.leg_names, m.base_joints, m.platform_joints, [[0.1, 0.2]] * 6, m.home, m.workspace)
-    with pytest.raises(FieldError, match="0 of 200 poses drawn in the workspace are within the strut limits"):
+    with pytest.raises(FieldError, match="0 of 200 poses drawn in the workspace are within the joint limits"):
         candidate_poses(tight, 10, 0)

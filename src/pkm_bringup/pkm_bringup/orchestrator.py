@@ -167,6 +167,10 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
             published[s.topic(topic)] = count
     recorded = summaries.get("recorder", {}).get("recorded_stamps", {})
     lost = {t: n - recorded.get(t, 0) for t, n in published.items()} if s.record else {}
+    refused = [f for f in str(summaries.get("controller", {}).get("faults", "")).split("; ")
+               if f.startswith("trajectory refused")]
+    if s.program is not None and s.mode == "lockstep" and refused and not error:
+        error = f"the program did not run: the controller {refused[0]}"     # it held still: not a completed run
     if any(v < 0 for v in lost.values()) and not error:
         error = (f"more messages recorded than published on {[t for t, v in lost.items() if v < 0]}: "
                  "another graph publishes in this domain and namespace")

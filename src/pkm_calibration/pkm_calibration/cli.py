@@ -1,11 +1,18 @@
-"""``pkm-calibrate``: calibrating a machine from the command line.
+"""``pkm-calibrate``: calibrating a machine in three commands (procedure.py).
 
-    pkm-calibrate plan genhexkins --poses 30 --out calibration.nc
+    pkm-calibrate plan archi --poses 30 --out archi_calibration.nc
+    pkm-run config/scenarios/archi_calibration.yaml        # runs and records the program
+    pkm-calibrate identify archi runs/archi_calibration --out archi.calibrated.yaml
 
-``plan`` chooses the poses (poses.select_poses: the observability index O1 over
-candidates drawn in the workspace) and writes them as a G-code program that pkm-run
-runs: a move and a dwell at each pose, where the instrument reads. Machines on struts
-for now (the rail machines' error model is to come).
+``plan`` chooses the poses (the observability index O1 over candidates drawn in the
+workspace) and writes them as a G-code program: a move and a dwell at each pose.
+``identify`` finds the dwells of the recorded run, identifies what the readings can
+identify (the rest named and held at nominal), prints the parameters with their
+standard deviations and the residuals before and after, and writes the calibrated
+machine file (default: beside the nominal one, ``<name>.calibrated.yaml``), which a
+scenario's ``model`` key gives the controller. Without ``--instrument``: self-calibration
+from the redundancy (ARCHI); ``--instrument laser`` on a strut machine: a laser tracker
+on the tool point (identification only; its machine file is to come).
 """
 
 from __future__ import annotations
@@ -14,34 +21,40 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from pkm_kinematics import load_machine
+from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import ConfigError, FieldError
-from pkm_kinematics.struts import StrutMachine
 
-from .identify import identifiability
-from .poses import calibration_program, candidate_poses, observability_index, select_poses
-from .strut_errors import StrutErrorModel
+from .machine_files import calibrated_path, write_machine_file
+from .procedure import calibrated_machine_data, identify_run, plan_calibration
+
+
+def _nominal_path(machine: str) -> Path:
+    return config_dir() / "machines" / f"{machine}.yaml" if machine in machine_names() else Path(machine)
 
 
 def plan(args) -> str:
     config = load_machine(args.machine)
-    machine = config.model
-    if not isinstance(machine, StrutMachine):
-        raise FieldError("machine", f"{args.machine}: calibration plans machines on struts for now "
-                                    f"(genhexkins, hexapod8), not {type(machine).__name__}")
-    model = StrutErrorModel(machine, tuple(args.tool))
-    candidates = candidate_poses(machine, args.candidates, args.seed)
-    q, _ = machine.inverse_kinematics_batch(candidates)
-    jac = model.jacobian(np.zeros(model.size), q)
-    which = identifiability(jac, model.names)
-    free = list(which.identified)
-    blocks = jac[:, free].reshape(len(candidates), 3, len(free))
-    chosen = select_poses(blocks, args.poses)
-    index = observability_index(blocks[chosen].reshape(-1, len(free)) / np.linalg.norm(jac[:, free], axis=0))
-    comment = f"{args.machine}, O1 {index:.4g} (Borm & Menq) of {len(free)} parameters, tool {list(args.tool)} m"
-    return calibration_program(machine.task_space, candidates[chosen], args.dwell_s, args.feed, comment)
+    result = plan_calibration(config, args.poses, args.instrument, args.candidates, args.seed, tuple(args.tool),
+                              args.angle_half_range_deg, args.dwell_s, args.feed)
+    print(f"{config.name}: {result.method}; {result.identifiable.describe()}; O1 {result.observability:.4g}",
+          file=sys.stderr)
+    return result.program
+
+
+def identify(args) -> str:
+    config = load_machine(args.machine)
+    result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m)
+    lines = [f"{config.name}: {result.method}, {result.dwells} dwells; {result.identifiable.describe()}",
+             f"residual RMS {1e6 * result.misfit_before_m:.3f} um (nominal) -> {1e6 * result.misfit_after_m:.3f} um"]
+    lines += [f"  {name:<18} {value:>16} {std:>10}" for name, value, std in result.table()]
+    if args.instrument is None or config.kind == "planar":
+        out = args.out or calibrated_path(_nominal_path(args.machine))
+        data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
+        write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
+                                      f"({result.method}); the nominal file: {_nominal_path(args.machine)}")
+        lines.append(f"{out}: the calibrated machine file (a scenario's model: {out})")
+    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
@@ -53,22 +66,34 @@ def main(argv=None) -> int:
     p.add_argument("--poses", type=int, default=30)
     p.add_argument("--candidates", type=int, default=400)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                   help="the point the instrument measures, platform frame (m)")
+    p.add_argument("--angle-half-range-deg", type=float, default=None,
+                   help="narrow the rotations drawn to +-this (default: the workspace's)")
     p.add_argument("--dwell-s", type=float, default=0.5)
     p.add_argument("--feed", type=float, default=600.0, help="mm/min")
     p.add_argument("--out", type=Path, help="the program file (default: standard output)")
+    i = sub.add_parser("identify", help="identify the geometry from a recorded calibration run")
+    i.add_argument("machine")
+    i.add_argument("run", type=Path, help="the run directory (pkm-run's)")
+    i.add_argument("--min-dwell-s", type=float, default=0.2)
+    i.add_argument("--sigma-m", type=float, default=None, help="the readings' noise (default: module doc)")
+    i.add_argument("--label", default="", help="the calibration's name (default: the run's directory)")
+    i.add_argument("--out", type=Path, help="the calibrated machine file (default: beside the nominal one)")
+    for q in (p, i):
+        q.add_argument("--instrument", choices=("laser",), default=None,
+                       help="the instrument read at the poses (default: none, self-calibration)")
+        q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                       help="the point the instrument measures, platform frame (m)")
     args = parser.parse_args(argv)
     try:
-        text = plan(args)
-    except (FieldError, ConfigError, ValueError) as exc:
+        text = plan(args) if args.command == "plan" else identify(args)
+    except (FieldError, ConfigError, ValueError, FileNotFoundError) as exc:
         print(f"pkm-calibrate: {exc}", file=sys.stderr)
         return 2
-    if args.out is None:
-        sys.stdout.write(text)
-    else:
+    if args.command == "plan" and args.out is not None:
         args.out.write_text(text, encoding="utf-8")
         print(f"{args.out}: {args.poses} poses")
+    else:
+        sys.stdout.write(text)
     return 0
 
 

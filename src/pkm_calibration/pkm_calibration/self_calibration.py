@@ -100,12 +100,22 @@ class PlanarRailErrorModel:
                 d_theta[r, 5 * k + 4] = -e[i, k] @ normal[k]
         return d_pose, d_theta
 
-    def parameter_jacobian(self, poses, readings) -> np.ndarray:
-        """d r / d theta at nominal with the poses' span projected out: what a change of the
-        parameters does that no change of the poses explains (module doc)."""
+    def pose_blocks(self, poses, readings) -> np.ndarray:
+        """Each reading's rows of d r / d theta at nominal with its pose's span projected
+        out (N, n, size): what a change of the parameters does at that reading that no
+        change of its pose explains (module doc; the closures' pose Jacobian is
+        block-diagonal, so the projection is reading by reading)."""
         d_pose, d_theta = self.jacobian(np.zeros(self.size), poses, readings)
-        q_pose, _ = np.linalg.qr(d_pose)
-        return d_theta - q_pose @ (q_pose.T @ d_theta)
+        n = self.machine.n_legs
+        N = d_pose.shape[1] // 3
+        pose = np.stack([d_pose[i * n:(i + 1) * n, 3 * i:3 * i + 3] for i in range(N)])
+        blocks = d_theta.reshape(N, n, self.size)
+        basis, _ = np.linalg.qr(pose)
+        return blocks - basis @ np.einsum("nkj,nkl->njl", basis, blocks)
+
+    def parameter_jacobian(self, poses, readings) -> np.ndarray:
+        """d r / d theta at nominal with the poses' span projected out (pose_blocks, stacked)."""
+        return self.pose_blocks(poses, readings).reshape(-1, self.size)
 
     def identifiability(self, poses, readings) -> Identifiability:
         """What the readings at ``poses`` identify."""
@@ -119,14 +129,18 @@ class SelfCalibration:
     identifiable: Identifiability
     misfit_before_m: float     # RMS of the closures at the nominal model (its best poses)
     misfit_after_m: float
+    std: np.ndarray            # the parameters' standard deviations from the encoders' noise (0: held)
 
 
 def self_calibrate(model: PlanarRailErrorModel, readings, guesses, max_nfev: int = 100,
-                   held=None) -> SelfCalibration:
+                   held=None, sigma_m: float = 1e-6 / np.sqrt(12.0)) -> SelfCalibration:
     """The parameters and poses that close every bar at every reading (module doc), from
     the poses ``guesses`` (the poses commanded, or the nominal forward kinematics of the
     readings). ``held``: the blind spots' names to hold instead of the pivoting's choice
-    (a convention: which parameter of a combination is held)."""
+    (a convention: which parameter of a combination is held). ``sigma_m``: the encoders'
+    noise (default a 1 um count's quantisation, 1/sqrt(12) um), for the standard
+    deviations: sigma^2 (J^T J)^-1 of the poses and parameters together, J at the
+    solution (a reading's closure moves with its encoder as dr/dq = -e . u)."""
     readings = np.atleast_2d(np.asarray(readings, dtype=float))
     guesses = np.atleast_2d(np.asarray(guesses, dtype=float))
     if readings.shape[1] != model.machine.n_legs or guesses.shape != (len(readings), 3):
@@ -163,5 +177,11 @@ def self_calibrate(model: PlanarRailErrorModel, readings, guesses, max_nfev: int
     result = least_squares(fun, np.concatenate((poses_only.x, np.zeros(len(free)))), jac=jac, xtol=1e-15,
                            ftol=1e-15, gtol=1e-15, max_nfev=max_nfev)
     poses, theta = unpack(result.x)
+    _, e, _, u, *_ = model._terms(theta, poses, readings)
+    gain = np.abs(np.einsum("nkd,kd->nk", e, u)).ravel()          # |dr/dq| per closure
+    full = jac(result.x) / gain[:, None]                           # in units of the encoders' noise
+    cov = sigma_m ** 2 * np.linalg.pinv(full.T @ full)
+    std = np.zeros(model.size)
+    std[free] = np.sqrt(np.diag(cov)[3 * N:])
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))      # noqa: E731
-    return SelfCalibration(theta, poses, which, rms(poses_only.fun), rms(result.fun))
+    return SelfCalibration(theta, poses, which, rms(poses_only.fun), rms(result.fun), std)

@@ -1,0 +1,71 @@
+"""A calibrated machine file: the nominal file with the identified geometry in place
+of the drawn one, and a ``calibration`` section saying where it comes from (the run,
+the method, every identified parameter with its standard deviation, the ones held at
+nominal, the residuals before and after). Scenarios use it as the controller's
+``model`` (or as the ``machine`` of a real machine); pkm-analyze, pkm-run's summary and
+the panel name it by its ``calibration.label``.
+
+A planar machine on rails (self_calibration.PlanarRailErrorModel's parameters per leg:
+length, zero, b.x, b.y, rail.across) is written in its own words: the link length
+L + dL, the platform point b + db, and the rail origin a + z u + across n (the
+encoder's zero moves the rail's origin along it, as the plant's rail_offset_errors_m).
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from pkm_kinematics import load_machine
+from pkm_kinematics.config import load_machine_data
+from pkm_kinematics.errors import FieldError
+
+__all__ = ["calibrated_rail_machine", "write_machine_file", "calibrated_path"]
+
+
+def calibrated_path(nominal: Path) -> Path:
+    """Beside the nominal file: ``archi.yaml`` -> ``archi.calibrated.yaml``."""
+    nominal = Path(nominal)
+    return nominal.with_name(nominal.stem + ".calibrated.yaml")
+
+
+def calibrated_rail_machine(config, names, theta, std, calibration: dict) -> dict:
+    """The machine file's data of planar rail machine ``config`` (a MachineConfig)
+    with the parameters ``theta`` (named ``names``, module doc) and their ``std``; the
+    ``calibration`` section's other entries (label, source, method, ...) as given."""
+    if config.kind != "planar":
+        raise FieldError("machine", f"{config.name}: a calibrated file of a planar machine on rails, not a "
+                                    f"{config.kind} machine")
+    data = copy.deepcopy(config.data)
+    theta = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
+    for leg in data["legs"]:
+        name = leg["name"]
+        u = np.asarray(leg["rail_direction"], dtype=float)
+        u = u / np.linalg.norm(u)
+        normal = np.array([-u[1], u[0]])
+        origin = (np.asarray(leg["rail_origin"], dtype=float) + theta[f"zero.{name}"] * u
+                  + theta[f"rail.across.{name}"] * normal)
+        leg["rail_origin"] = [float(v) for v in origin]
+        leg["link_length"] = float(leg["link_length"] + theta[f"length.{name}"])
+        leg["platform_point"] = [float(leg["platform_point"][0] + theta[f"b.x.{name}"]),
+                                 float(leg["platform_point"][1] + theta[f"b.y.{name}"])]
+    data["calibration"] = {**calibration,
+                           "written": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                           "parameters": {n: {"value": float(v), "std": float(s)}
+                                          for n, v, s in zip(names, theta.values(), std)}}
+    return data
+
+
+def write_machine_file(path: Path, data: dict, header: str = "") -> Path:
+    """Write ``data`` as a machine file (checked by loading it first: a file the loader
+    would refuse is not written); returns the path."""
+    load_machine_data(data, str(path))
+    text = "".join(f"# {line}\n" for line in header.splitlines()) + yaml.safe_dump(data, sort_keys=False)
+    path = Path(path)
+    path.write_text(text, encoding="utf-8")
+    load_machine(path)
+    return path

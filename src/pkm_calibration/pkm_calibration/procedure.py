@@ -1,0 +1,136 @@
+"""Calibrating a machine in three steps (pkm-calibrate's plan and identify; pkm-run runs
+the program in between):
+
+1. ``plan_calibration``: the error model the machine and the instrument call for, N
+   poses chosen from candidates in its workspace by the observability index O1
+   (poses.select_poses), written as a calibration program;
+2. pkm-run runs the program (its scenario: the machine's, ``program`` the plan's)
+   and records it;
+3. ``identify_run``: the dwells of the recorded run (recorded.read_calibration_run),
+   the identification (self-calibration from the redundancy: self_calibration; an
+   external instrument: identify), and the calibrated machine file's data
+   (machine_files).
+
+The models by machine and instrument (``MODELS``): a planar machine on rails with more
+drives than degrees of freedom, no instrument: self-calibration; a machine on struts,
+the laser tracker (its tool point): strut_errors.StrutErrorModel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pkm_kinematics.errors import FieldError
+from pkm_kinematics.struts import StrutMachine
+
+from .identify import Identifiability, identifiability, identify
+from .machine_files import calibrated_rail_machine
+from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
+from .recorded import read_calibration_run
+from .self_calibration import PlanarRailErrorModel, self_calibrate
+from .strut_errors import StrutErrorModel
+
+__all__ = ["CalibrationPlan", "RunIdentification", "error_model", "plan_calibration", "identify_run"]
+
+
+@dataclass(frozen=True)
+class CalibrationPlan:
+    program: str               # the G-code
+    poses: np.ndarray          # (N, dof) task coordinates
+    observability: float       # O1 of the chosen poses (their identifiable columns scaled)
+    identifiable: Identifiability
+    method: str
+
+
+@dataclass
+class RunIdentification:
+    names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    identifiable: Identifiability
+    misfit_before_m: float
+    misfit_after_m: float
+    dwells: int
+    method: str
+    extra: dict = field(default_factory=dict)
+
+    def table(self) -> list[list[str]]:
+        """Identified parameters (value and standard deviation in um), then the held ones."""
+        rows = [["parameter", "identified (um)", "std (um)"]]
+        rows += [[self.names[k], f"{1e6 * self.theta[k]:.2f}", f"{1e6 * self.std[k]:.2f}"]
+                 for k in self.identifiable.identified]
+        rows += [[self.names[k], "held at nominal", "-"] for k in self.identifiable.held]
+        return rows
+
+
+def error_model(config, instrument: str | None, tool=(0.0, 0.0, 0.0)):
+    """(model, method) for a machine and an instrument (module doc); FieldError naming a
+    combination not modelled yet."""
+    machine = config.model
+    if instrument is None:
+        return PlanarRailErrorModel(machine), "self-calibration from the redundancy, no instrument"
+    if instrument == "laser" and isinstance(machine, StrutMachine):
+        return StrutErrorModel(machine, tuple(tool)), "laser tracker on the tool point"
+    raise FieldError("instrument", f"{config.name}: {instrument} calibration of a {config.kind} machine is not "
+                                   "modelled yet (self-calibration: planar machines on rails; laser: strut machines)")
+
+
+def _blocks(model, poses: np.ndarray, readings: np.ndarray) -> np.ndarray:
+    """Each pose's rows of the identification Jacobian (N, rows, size)."""
+    if isinstance(model, PlanarRailErrorModel):
+        return model.pose_blocks(poses, readings)
+    jac = model.jacobian(np.zeros(model.size), readings)
+    return jac.reshape(len(poses), 3, model.size)
+
+
+def plan_calibration(config, count: int, instrument: str | None = None, candidates: int = 400, seed: int = 0,
+                     tool=(0.0, 0.0, 0.0), angle_half_range_deg: float | None = None, dwell_s: float = 0.5,
+                     feed_mm_min: float = 600.0) -> CalibrationPlan:
+    """Step 1 (module doc)."""
+    model, method = error_model(config, instrument, tool)
+    machine = config.model
+    pool = candidate_poses(machine, candidates, seed, angle_half_range_deg)
+    q, _ = machine.inverse_kinematics_batch(pool)
+    blocks = _blocks(model, pool, q)
+    which = identifiability(blocks.reshape(-1, model.size), model.names)
+    free = list(which.identified)
+    chosen = select_poses(blocks[:, :, free], count)
+    jac = blocks[:, :, free]
+    norms = np.linalg.norm(jac.reshape(-1, len(free)), axis=0)
+    index = observability_index(jac[chosen].reshape(-1, len(free)) / norms)
+    poses, is_pose = route(machine, machine.home, pool[chosen], pool)
+    comment = (f"{config.name}, {method}, O1 {index:.4g} by Borm & Menq, of {len(free)} parameters"
+               + (f", tool {list(tool)} m" if instrument else ""))
+    return CalibrationPlan(calibration_program(machine.task_space, poses, dwell_s, feed_mm_min, comment, is_pose),
+                           poses[is_pose], index, which, method)
+
+
+def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: float = 0.2, tool=(0.0, 0.0, 0.0),
+                 sigma_m: float | None = None, held=None) -> RunIdentification:
+    """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
+    ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
+    self-calibration; the instrument's spread at the dwells, at least 1 nm, otherwise)."""
+    model, method = error_model(config, instrument, tool)
+    need = 1 + (model.size // (config.model.n_legs - 3) if instrument is None else model.size // 3)
+    readings = read_calibration_run(run_dir, config, min_dwell_s, instrument, min_dwells=need)
+    if instrument is None:
+        result = self_calibrate(model, readings.readings, readings.poses, held=held,
+                                **({"sigma_m": sigma_m} if sigma_m else {}))
+        return RunIdentification(model.names, result.theta, result.std, result.identifiable,
+                                 result.misfit_before_m, result.misfit_after_m, len(readings.dwells), method,
+                                 {"poses": result.poses})
+    if sigma_m is None:
+        sigma_m = max(1e-9, float(np.median([d.spread.mean() for d in readings.dwells])))
+    result = identify(model, readings.readings, readings.instrument, sigma_m, held=held)
+    return RunIdentification(model.names, result.theta, result.std, result.identifiable, result.rms_before_m,
+                             result.rms_after_m, len(readings.dwells), method)
+
+
+def calibrated_machine_data(config, result: RunIdentification, label: str, source: str) -> dict:
+    """The calibrated machine file's data (machine_files) of an identification."""
+    calibration = {"label": label, "source": source, "method": result.method, "dwells": result.dwells,
+                   "held": [result.names[k] for k in result.identifiable.held],
+                   "misfit_before_m": result.misfit_before_m, "misfit_after_m": result.misfit_after_m}
+    return calibrated_rail_machine(config, result.names, result.theta, result.std, calibration)
