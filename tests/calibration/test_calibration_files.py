@@ -43,7 +43,8 @@ def test_the_dwells_are_found_and_averaged_over_their_settled_part():
     assert len(found) == 3, [(d.start_s, d.end_s) for d in found]
     for k, d in enumerate(found):
         assert np.allclose(d.pose, poses[k], atol=1e-12), (d.pose, poses[k])
-        assert np.abs(d.readings - k).max() < 1e-6 and d.samples == (250 if k == 0 else 150), (d.readings, d.samples)   # the first: no move before it
+        # the first: held before its move too
+        assert np.abs(d.readings - k).max() < 1e-6 and d.samples == (250 if k == 0 else 150), (d.readings, d.samples)
         assert 0.5e-6 < d.spread.mean() < 1.5e-6, d.spread
     assert len(dwells(steps, PLANAR, min_dwell_s=0.35)) == 1      # the first: 0.3 s held at the start too
     with pytest.raises(FieldError, match="settled"):

@@ -64,8 +64,8 @@ def test_pkm_calibrate_plan_writes_the_program_and_refuses_what_it_cannot(setup,
                  "--out", str(out)]) == 0
     text = out.read_text()
     assert "O1" in text and text.count("G4 P") == 20
-    assert main(["plan", "archi"]) == 2
-    assert "machines on struts" in capsys.readouterr().err
+    assert main(["plan", "orthoglide"]) == 2
+    assert "self-calibration of a planar machine on rails" in capsys.readouterr().err
     with pytest.raises(FieldError, match="at least 15 poses"):
         select_poses(setup[2], 10)          # 45 parameters: 3 measurements a pose
 

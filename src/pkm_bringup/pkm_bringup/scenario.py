@@ -53,6 +53,10 @@ the parameters each node will get (node defaults < scenario section < the run's 
 go through the node's own pure validation when the scenario is loaded
 (``ControllerConfig`` and the controller core, ``PlantParameters`` and ``Fault``,
 ``GoughSensorModel``; the program through the trajectory planner).
+
+Why over 600 lines: it is the one place every scenario key is read and checked against
+the node that takes it (the sections, the machine and its model, the program, the
+loads, the hardware); the checks of one key would otherwise sit in two files.
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ workspace) and writes them as a G-code program: a move and a dwell at each pose.
 identify (the rest named and held at nominal), prints the parameters with their
 standard deviations and the residuals before and after, and writes the calibrated
 machine file (default: beside the nominal one, ``<name>.calibrated.yaml``), which a
-scenario's ``model`` key gives the controller. Without ``--instrument``: self-calibration
-from the redundancy (ARCHI); ``--instrument laser`` on a strut machine: a laser tracker
-on the tool point (identification only; its machine file is to come).
+scenario's ``model`` key gives the controller. ``--instrument`` auto: self-calibration
+from the redundancy on a planar machine on rails (ARCHI), a laser tracker on the tool
+point of a strut machine (plan, and identification only: its machine file is to come).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def identify(args) -> str:
     lines = [f"{config.name}: {result.method}, {result.dwells} dwells; {result.identifiable.describe()}",
              f"residual RMS {1e6 * result.misfit_before_m:.3f} um (nominal) -> {1e6 * result.misfit_after_m:.3f} um"]
     lines += [f"  {name:<18} {value:>16} {std:>10}" for name, value, std in result.table()]
-    if args.instrument is None or config.kind == "planar":
+    if config.kind == "planar":
         out = args.out or calibrated_path(_nominal_path(args.machine))
         data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
         write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
@@ -79,8 +79,9 @@ def main(argv=None) -> int:
     i.add_argument("--label", default="", help="the calibration's name (default: the run's directory)")
     i.add_argument("--out", type=Path, help="the calibrated machine file (default: beside the nominal one)")
     for q in (p, i):
-        q.add_argument("--instrument", choices=("laser",), default=None,
-                       help="the instrument read at the poses (default: none, self-calibration)")
+        q.add_argument("--instrument", choices=("auto", "none", "laser"), default="auto",
+                       help="the instrument read at the poses (auto: a laser tracker on a strut machine, none "
+                            "otherwise: self-calibration from the redundancy)")
         q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
                        help="the point the instrument measures, platform frame (m)")
     args = parser.parse_args(argv)

@@ -24,7 +24,8 @@ import numpy as np
 
 from pkm_kinematics.errors import FieldError
 
-__all__ = ["workspace_bounds", "poses_clear", "route", "candidate_poses", "observability_index", "select_poses", "calibration_program"]
+__all__ = ["workspace_bounds", "poses_clear", "route", "candidate_poses", "observability_index", "select_poses",
+           "calibration_program"]
 
 REGULARISATION = 1e-6       # times the identity in the information matrix while it is singular
 ROUNDS = 20                 # draws of candidates before a workspace outside the strut limits is refused

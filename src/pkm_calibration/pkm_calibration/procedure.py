@@ -65,10 +65,19 @@ class RunIdentification:
         return rows
 
 
+def instrument_for(config, instrument: str | None) -> str | None:
+    """The instrument of ``instrument`` "auto": a laser tracker for a strut machine,
+    none (self-calibration) otherwise; "none" -> None."""
+    if instrument == "auto":
+        return "laser" if isinstance(config.model, StrutMachine) else None
+    return None if instrument == "none" else instrument
+
+
 def error_model(config, instrument: str | None, tool=(0.0, 0.0, 0.0)):
-    """(model, method) for a machine and an instrument (module doc); FieldError naming a
-    combination not modelled yet."""
+    """(model, method) for a machine and an instrument (instrument_for; module doc);
+    FieldError naming a combination not modelled yet."""
     machine = config.model
+    instrument = instrument_for(config, instrument)
     if instrument is None:
         return PlanarRailErrorModel(machine), "self-calibration from the redundancy, no instrument"
     if instrument == "laser" and isinstance(machine, StrutMachine):
@@ -102,7 +111,7 @@ def plan_calibration(config, count: int, instrument: str | None = None, candidat
     index = observability_index(jac[chosen].reshape(-1, len(free)) / norms)
     poses, is_pose = route(machine, machine.home, pool[chosen], pool)
     comment = (f"{config.name}, {method}, O1 {index:.4g} by Borm & Menq, of {len(free)} parameters"
-               + (f", tool {list(tool)} m" if instrument else ""))
+               + (f", tool {list(tool)} m" if instrument_for(config, instrument) else ""))
     return CalibrationPlan(calibration_program(machine.task_space, poses, dwell_s, feed_mm_min, comment, is_pose),
                            poses[is_pose], index, which, method)
 
@@ -112,6 +121,7 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
     ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
     self-calibration; the instrument's spread at the dwells, at least 1 nm, otherwise)."""
+    instrument = instrument_for(config, instrument)
     model, method = error_model(config, instrument, tool)
     need = 1 + (model.size // (config.model.n_legs - 3) if instrument is None else model.size // 3)
     readings = read_calibration_run(run_dir, config, min_dwell_s, instrument, min_dwells=need)

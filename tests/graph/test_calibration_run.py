@@ -1,0 +1,60 @@
+"""Calibrating ARCHI in three commands, end to end in the graph: the shipped calibration
+program (pkm-calibrate plan's, checked to be what plan writes today) run on the machine
+with archi_fig12's 2 % leg error, `pkm-calibrate identify` on the recording, and the
+calibrated file as the controller's model: archi_fig12's joint PIDs no longer fight.
+A run of another machine and a run without dwells are refused by name."""
+
+import numpy as np
+import pytest
+import yaml
+
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import load_scenario
+from pkm_calibration.cli import main
+from pkm_kinematics import load_machine
+from pkm_kinematics.config import config_dir
+from pkm_runs.report_data import load_run
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calibration")
+    run = run_scenario(load_scenario("archi_calibration"), root / "run", in_process=True, progress=False,
+                       report=False)
+    return root, run
+
+
+def test_the_shipped_program_is_what_plan_writes(tmp_path):
+    out = tmp_path / "plan.nc"
+    assert main(["plan", "archi", "--poses", "30", "--angle-half-range-deg", "180", "--dwell-s", "0.3",
+                 "--feed", "30000", "--out", str(out)]) == 0
+    shipped = (config_dir() / "programs" / "archi_calibration.nc").read_text()
+    assert out.read_text() == shipped
+
+
+def test_identify_finds_the_leg_error_and_the_calibrated_model_stops_the_fight(calibration, capsys):
+    root, run = calibration
+    assert run["status"] == "completed", run["error"]
+    out = root / "archi.calibrated.yaml"
+    assert main(["identify", "archi", str(root / "run"), "--out", str(out), "--label", "test"]) == 0
+    printed = capsys.readouterr().out
+    assert "30 dwells" in printed and "held at nominal" in printed, printed
+    data = yaml.safe_load(out.read_text())
+    length = data["legs"][2]["link_length"]
+    std = data["calibration"]["parameters"]["length.q3"]["std"]
+    assert abs(length - 1.02) < min(3 * std, 1e-5), (length, std)
+    assert load_machine(out).model_label == "archi (calibrated: test)"
+    with capsys.disabled():           # the run's nodes write to the real standard streams
+        fig12 = run_scenario(load_scenario("archi_fig12", {"model": str(out), "controller": {"strategy": "joint_pid"}}),
+                             root / "fig12", in_process=True, progress=False, report=False)
+    assert fig12["status"] == "completed" and fig12["model"] == str(out), (fig12["status"], fig12["error"])
+    applied = load_run(root / "fig12").steps.rows["state"].effort
+    assert np.abs(applied).max() < 400.0, np.abs(applied).max()       # nominal model: 2000 N, saturated
+
+
+def test_runs_that_are_not_this_machines_calibration_are_refused(calibration, capsys):
+    root, _ = calibration
+    assert main(["identify", "genhexkins", str(root / "run"), "--instrument", "laser"]) == 2
+    assert "the run has 4 drives, machine genhexkins 6" in capsys.readouterr().err
+    assert main(["identify", "archi", str(root / "fig12")]) == 2
+    assert "dwells of at least 0.2 s found, 21 needed" in capsys.readouterr().err
