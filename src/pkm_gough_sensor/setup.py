@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'gough_sensor_node = pkm_gough_sensor.gough_sensor_node:main',
+            'laser_tracker_node = pkm_gough_sensor.laser_tracker_node:main',
         ],
     },
 )

@@ -18,7 +18,8 @@ def test_shipped_scenarios_load(path, tmp_path):
     s = load_scenario(path)
     params = node_parameters(s, tmp_path)
     assert s.duration_s > 0
-    assert params[s.machine_node]["machine"] == params["controller"]["machine"] == s.machine
+    assert params[s.machine_node]["machine"] == s.machine
+    assert params["controller"]["machine"] == s.controller_machine       # the machine, or the scenario's model
     assert params["controller"]["state_source"] == f"{s.namespace}/{s.machine_node}"
     for name, values in params.items():   # every file is a valid --params-file
         data = yaml.safe_load(params_file_text(values))

@@ -73,3 +73,26 @@ def test_the_calibrated_file_gives_the_plants_true_geometry(tmp_path):
     with pytest.raises(ValueError, match="link_length"):
         write_machine_file(tmp_path / "bad.yaml", data)
     assert not (tmp_path / "bad.yaml").exists()
+
+
+def test_a_strut_machine_as_built_is_the_error_models_machine_in_the_files_unit(tmp_path):
+    """genhexkins (inches): the as-built file's struts are StrutErrorModel.machine_for
+    of its truth (a second path to the same geometry); the gauge is the same names
+    whatever generic poses it is found from."""
+    from pkm_calibration.as_built import as_built_struts, strut_gauge
+    from pkm_calibration.poses import candidate_poses
+    from pkm_calibration.strut_errors import StrutErrorModel
+    config = load_machine("genhexkins")
+    model = StrutErrorModel(config.model, (0.0, 0.0, -0.05))
+    gauges = {strut_gauge(model, config.model.inverse_kinematics_batch(candidate_poses(config.model, 40, seed))[0])
+              for seed in (1, 2)}
+    assert len(gauges) == 1 and len(next(iter(gauges))) == 9, gauges
+    held = next(iter(gauges))
+    data, truth, scales = as_built_struts(config, model, held, seed=7)
+    assert all(truth[model.names.index(name)] == 0.0 for name in held)
+    assert scales == [truth[model.names.index(f"scale.{leg}")] for leg in config.model.leg_names]
+    built = load_machine(write_machine_file(tmp_path / "built.yaml", data)).model
+    expected = model.machine_for(truth)
+    assert np.abs(built.base_joints - expected.base_joints).max() < 1e-12
+    assert np.abs(built.platform_joints - expected.platform_joints).max() < 1e-12
+    assert 1e-4 < np.abs(built.base_joints - config.model.base_joints).max() < 3e-3

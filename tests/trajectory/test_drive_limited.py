@@ -232,3 +232,14 @@ def test_archi_force_limit_kept_under_the_controllers_infinity_norm_distribution
     pinv = np.abs(forces_from_poses(archi, samples)[3:-3]).max()
     assert pinv <= limit * 1.005 and inf_norm.max() <= pinv + 1e-6, (pinv, inf_norm.max(), limit)
     assert samples.duration_s > free.duration_s
+
+
+def test_limits_of_another_task_space_are_refused_by_name():
+    """The trajectory defaults are a planar machine's three axes: a hexapod's program
+    with them was an obscure numpy broadcast error; now the limits are named."""
+    machine = load_machine("genhexkins").model
+    home = np.asarray(machine.home, dtype=float)
+    with pytest.raises(ValueError, match=r"limits: 3 values per limit .* for genhexkins's 6 task axes \(x, y, z, a, "
+                                         r"b, c\): give one per axis"):
+        plan_validated([Line(tuple(home), tuple(home + [0.001, 0, 0, 0, 0, 0]), 0.01)], machine,
+                       Limits((1.0,) * 3, (1.0,) * 3, (10.0,) * 3))

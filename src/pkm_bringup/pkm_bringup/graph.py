@@ -39,11 +39,11 @@ from pkm_recording.recording import normal_cpu_priority
 
 # start order; the stop order is the reverse of the run order with the recorder last
 START_ORDER = ("recorder", "virtual_drives", "ros2_control_sim", "sim_hw", "drives", "ros2_control", "gough_sensor",
-               "controller")
+               "laser_tracker", "controller")
 # after the sim's last step, how long the loop's nodes keep running (see run_processes)
 LOOP_END_GRACE_S = 0.15
-STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "sim_hw", "drives", "ros2_control",
-              "virtual_drives", "ros2_control_sim", "recorder")
+STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "laser_tracker", "sim_hw", "drives",
+              "ros2_control", "virtual_drives", "ros2_control_sim", "recorder")
 # the graph's machine: simulated, or a drive interface (one of them); behind one, its simulated machine
 MACHINE_NODES = ("sim_hw", "drives", "ros2_control")
 BEHIND = ("virtual_drives", "ros2_control_sim")
@@ -206,7 +206,7 @@ def refuse_intruders(monitor, s: Scenario) -> None:
 def connected(monitor, s: Scenario) -> bool:
     """Every stream has its publisher; every edge of the loop its subscriber too."""
     edges = ["drives/state", "drives/command"]
-    if s.metrology:
+    if s.metrology or s.laser_tracker is not None:
         edges.append("platform/true_pose")
     topic = STRATEGIES[s.strategy].metrology_topic
     if topic:

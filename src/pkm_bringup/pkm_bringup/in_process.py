@@ -18,6 +18,7 @@ from pkm_bringup.scenario import Scenario
 from pkm_common.runner import start_up_frozen
 from pkm_controller.controller_node import ControllerNode
 from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
+from pkm_gough_sensor.laser_tracker_node import LaserTrackerNode
 from pkm_recording.recorder_node import RecorderNode
 from pkm_drives.drives_node import DrivesNode
 from pkm_drives.virtual_drives_node import VirtualDrivesNode
@@ -35,7 +36,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
                         "real-time loop, which one executor would stop while the interface waits for it")
     classes = {"recorder": RecorderNode, "sim_hw": SimHwNode, "gough_sensor": GoughSensorNode,
                "controller": ControllerNode, "trajectory": TrajectoryNode, "drives": DrivesNode,
-               "virtual_drives": VirtualDrivesNode}
+               "virtual_drives": VirtualDrivesNode, "laser_tracker": LaserTrackerNode}
     context = init_context()
     executor = EventsExecutor(context=context)
     nodes = {}

@@ -160,7 +160,7 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     the cause of the RunFailed that ended it (run_cause)."""
     summaries = {p.stem: _read_json(p) for p in sorted((run_dir / "summaries").glob("*.json"))}
     published = {}
-    for node in (s.machine_node, "controller", "gough_sensor"):
+    for node in (s.machine_node, "controller", "gough_sensor", "laser_tracker"):
         for topic, count in summaries.get(node, {}).get("published", {}).items():
             if topic == "platform/true_pose" and node != "sim_hw":
                 continue                     # the drive interface has no ground truth (the virtual drives do)

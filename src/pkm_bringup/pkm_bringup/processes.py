@@ -33,6 +33,7 @@ MODULES = {
     "ros2_control": "pkm_drives.ros2_control_node",
     "ros2_control_sim": "pkm_drives.ros2_control_sim_node",
     "gough_sensor": "pkm_gough_sensor.gough_sensor_node",
+    "laser_tracker": "pkm_gough_sensor.laser_tracker_node",
     "controller": "pkm_controller.controller_node",
     "trajectory": "pkm_trajectory.trajectory_node",
 }

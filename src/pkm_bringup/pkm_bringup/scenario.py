@@ -4,9 +4,9 @@ A scenario says what to run; the node parameter files (config/*.yaml) say how ea
 node runs by default. Keys (all optional but ``machine``)::
 
     name, description
-    machine: archi                    # config/machines/<name>.yaml, or a machine file (a relative path
-                                      # from the working directory); its `name` picks the controller
-                                      # defaults (config/controller/<name>.yaml, if there is one)
+    machine: archi                    # config/machines/<name>.yaml, or a machine file (a path relative to
+                                      # the scenario file, else to the working directory); its `name`
+                                      # picks the controller defaults (config/controller/<name>.yaml)
     model: ../machines/archi.calibrated.yaml   # the machine file the controller and the planner use (a
                                       # calibrated one: pkm-calibrate identify), relative to the scenario
                                       # file; the plant and the Gough sensor keep ``machine`` (and the
@@ -21,6 +21,8 @@ node runs by default. Keys (all optional but ``machine``)::
     trajectory: {...}                 # trajectory_node parameters (limits, feed_override, ...)
     controller: {...}                 # controller_node parameters (strategy, distribution, ...)
     metrology: true                   # run gough_sensor_node (the machine needs a metrology section)
+    laser_tracker: {sigma_m: 2.0e-6, tool: [0, 0, -0.05]}   # run laser_tracker_node: the true tool point plus
+                                      # noise on instrument/laser, for calibration (config/laser_tracker.yaml)
     sensor: {...}                     # gough_sensor_node parameters (noise_std_m, calibration_error_m, ...)
     plant: {...}                      # sim_hw_node parameters (compliance, link_length_errors, faults, ...)
     recorder: {...}                   # recorder_node parameters (compression, flush_period_s, ...;
@@ -86,7 +88,7 @@ from pkm_bringup.program_plan import plan_program, spindle_load_entries
 
 KEYS = ("name", "description", "machine", "model", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "spindle_load",
-        "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives")
+        "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives", "laser_tracker")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder", "drives": "drives"}
@@ -129,6 +131,7 @@ class Scenario:
     operators: list = field(default_factory=list)     # more nodes that may command (full names)
     hardware: str = "sim"
     drives: dict = field(default_factory=dict)
+    laser_tracker: dict | None = None     # laser_tracker_node's parameters when it runs
 
     @property
     def controller_machine(self) -> str:
@@ -319,6 +322,9 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     if unknown:
         raise ScenarioError(f"{unknown[0]}: unknown scenario key; allowed: {', '.join(KEYS)}")
     machine = data.get("machine")
+    if isinstance(machine, str) and machine not in machine_names() and not Path(machine).is_absolute() \
+            and (path.parent / machine).is_file():       # a file beside the scenario (an as-built machine)
+        machine = str((path.parent / machine).resolve())
     try:
         config = load_machine(machine) if isinstance(machine, str) else None
     except (ValueError, FileNotFoundError) as exc:
@@ -365,6 +371,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
             raise ScenarioError(f"trajectory.tool_table: no such file {table}")
         s.trajectory = {**s.trajectory, "tool_table": str(table)}
     s.metrology = _boolean(data, "metrology", False)
+    if "laser_tracker" in data:
+        s.laser_tracker = _mapping(data, "laser_tracker", "laser_tracker")
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
     operators = data.get("operators") or []
@@ -374,6 +382,9 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
                             f"{operators!r}")
     s.operators = list(operators)
     s.hardware = data.get("hardware", s.hardware)
+    if s.laser_tracker is not None and not s.ground_truth:
+        raise ScenarioError("laser_tracker: reads the simulated plant's true pose; a real machine's tracker is "
+                            "its own instrument")
     try:
         check_hardware(s.hardware, s.drives, s.mode, s.ground_truth,
                        bool(s.metrology or data.get("load") or data.get("spindle_load")), config)
@@ -574,6 +585,9 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     if s.metrology:
         nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
                                  "summary_path": str(summaries / "gough_sensor.json")}
+    if s.laser_tracker is not None:
+        nodes["laser_tracker"] = {**_node_defaults("laser_tracker"), **s.laser_tracker,
+                                  "summary_path": str(summaries / "laser_tracker.json")}
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.controller_machine,
                                "program_file": str(s.program or ""),
@@ -597,7 +611,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
 # node -> the per-step streams it publishes through its recording tap when recorded
 TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"), "drives": ("drives/state", "/clock"),
                   "ros2_control": ("drives/state", "/clock"),
-                  "gough_sensor": ("metrology/struts", "metrology/pose"),
+                  "gough_sensor": ("metrology/struts", "metrology/pose"), "laser_tracker": ("instrument/laser",),
                   "controller": ("drives/command", "controller/reference")}
 
 START_TOPIC = topics.RUN_START    # latched String "start" with its credential: the orchestrator's start signal
@@ -613,6 +627,8 @@ def expected_topics(s: Scenario) -> list[str]:
         topics.append("drives/cia402")
     if s.metrology:
         topics += ["metrology/struts", "metrology/pose"]
+    if s.laser_tracker is not None:
+        topics.append("instrument/laser")
     return topics
 
 

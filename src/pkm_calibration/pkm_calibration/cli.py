@@ -25,8 +25,11 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import ConfigError, FieldError
 
+from .as_built import as_built_struts, strut_gauge
 from .machine_files import calibrated_path, write_machine_file
+from .poses import candidate_poses
 from .procedure import calibrated_machine_data, identify_run, plan_calibration
+from .strut_errors import StrutErrorModel
 
 
 def _nominal_path(machine: str) -> Path:
@@ -44,10 +47,15 @@ def plan(args) -> str:
 
 def identify(args) -> str:
     config = load_machine(args.machine)
-    result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m)
+    result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m,
+                          validate_every=args.validate_every)
     lines = [f"{config.name}: {result.method}, {result.dwells} dwells; {result.identifiable.describe()}",
              f"residual RMS {1e6 * result.misfit_before_m:.3f} um (nominal) -> {1e6 * result.misfit_after_m:.3f} um"]
     lines += [f"  {name:<18} {value:>16} {std:>10}" for name, value, std in result.table()]
+    validation = result.extra.get("validation")
+    if validation:
+        lines.append(f"validation on {validation['dwells']} dwells kept out: the instrument's residual RMS "
+                     f"{1e6 * validation['rms_before_m']:.2f} um (nominal) -> {1e6 * validation['rms_after_m']:.2f} um")
     if config.kind == "planar":
         out = args.out or calibrated_path(_nominal_path(args.machine))
         data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
@@ -55,6 +63,22 @@ def identify(args) -> str:
                                       f"({result.method}); the nominal file: {_nominal_path(args.machine)}")
         lines.append(f"{out}: the calibrated machine file (a scenario's model: {out})")
     return "\n".join(lines) + "\n"
+
+
+def as_built(args) -> str:
+    """A simulated machine as built (as_built.py): its file, and the plant's errors to set."""
+    config = load_machine(args.machine)
+    if config.kind != "struts":
+        raise FieldError("machine", f"{args.machine}: as-built machines of strut machines for now")
+    model = StrutErrorModel(config.model, tuple(args.tool))
+    pool = candidate_poses(config.model, 200, args.seed)
+    held = strut_gauge(model, config.model.inverse_kinematics_batch(pool)[0])
+    data, _, scales = as_built_struts(config, model, held, args.seed, args.joint_std_m, args.scale_std)
+    header = (f"{config.name} as built: pkm-calibrate as-built {args.machine} --seed {args.seed} --joint-std-m "
+              f"{args.joint_std_m:g} --scale-std {args.scale_std:g}\nthe plant's encoders: plant.link_length_errors "
+              f"{[round(v, 9) for v in scales]}")
+    write_machine_file(args.out, data, header)
+    return f"{args.out}: plant.link_length_errors {[round(v, 9) for v in scales]}\n"
 
 
 def main(argv=None) -> int:
@@ -78,6 +102,15 @@ def main(argv=None) -> int:
     i.add_argument("--sigma-m", type=float, default=None, help="the readings' noise (default: module doc)")
     i.add_argument("--label", default="", help="the calibration's name (default: the run's directory)")
     i.add_argument("--out", type=Path, help="the calibrated machine file (default: beside the nominal one)")
+    i.add_argument("--validate-every", type=int, default=0,
+                   help="keep every k-th dwell out of the identification to validate it (default: none)")
+    b = sub.add_parser("as-built", help="a simulated machine as built: seeded errors on what calibration identifies")
+    b.add_argument("machine")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--joint-std-m", type=float, default=5e-4)
+    b.add_argument("--scale-std", type=float, default=2e-4)
+    b.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"))
+    b.add_argument("--out", type=Path, required=True)
     for q in (p, i):
         q.add_argument("--instrument", choices=("auto", "none", "laser"), default="auto",
                        help="the instrument read at the poses (auto: a laser tracker on a strut machine, none "
@@ -86,7 +119,7 @@ def main(argv=None) -> int:
                        help="the point the instrument measures, platform frame (m)")
     args = parser.parse_args(argv)
     try:
-        text = plan(args) if args.command == "plan" else identify(args)
+        text = {"plan": plan, "identify": identify, "as-built": as_built}[args.command](args)
     except (FieldError, ConfigError, ValueError, FileNotFoundError) as exc:
         print(f"pkm-calibrate: {exc}", file=sys.stderr)
         return 2

@@ -5,6 +5,12 @@ nominal, the residuals before and after). Scenarios use it as the controller's
 ``model`` (or as the ``machine`` of a real machine); pkm-analyze, pkm-run's summary and
 the panel name it by its ``calibration.label``.
 
+A machine on struts (strut_errors.StrutErrorModel) is written with its joints moved
+(a_k + da_k, b_k + db_k, in the file's length unit); its encoders' zeros and scales are
+kept in the calibration section only (the strut model has no encoder terms yet: a
+controller on the file does not apply them), and an as-built machine for a simulation
+the same way (``strut_machine_data``).
+
 A planar machine on rails (self_calibration.PlanarRailErrorModel's parameters per leg:
 length, zero, b.x, b.y, rail.across) is written in its own words: the link length
 L + dL, the platform point b + db, and the rail origin a + z u + across n (the
@@ -21,10 +27,10 @@ import numpy as np
 import yaml
 
 from pkm_kinematics import load_machine
-from pkm_kinematics.config import load_machine_data
+from pkm_kinematics.config import LENGTH_UNITS, load_machine_data
 from pkm_kinematics.errors import FieldError
 
-__all__ = ["calibrated_rail_machine", "write_machine_file", "calibrated_path"]
+__all__ = ["calibrated_rail_machine", "strut_machine_data", "write_machine_file", "calibrated_path"]
 
 
 def calibrated_path(nominal: Path) -> Path:
@@ -69,3 +75,25 @@ def write_machine_file(path: Path, data: dict, header: str = "") -> Path:
     path.write_text(text, encoding="utf-8")
     load_machine(path)
     return path
+
+
+def strut_machine_data(config, names, theta, calibration: dict | None = None, std=None) -> dict:
+    """The machine file's data of strut machine ``config`` with its joints moved by the
+    a.* and b.* of ``theta`` (named ``names``, SI: written in the file's length unit);
+    with ``calibration``, its section (every parameter, zero and scale included)."""
+    if config.kind != "struts":
+        raise FieldError("machine", f"{config.name}: a strut machine's file, not a {config.kind} machine's")
+    data = copy.deepcopy(config.data)
+    unit = LENGTH_UNITS[data.get("length_unit", "m")]
+    values = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
+    for strut in data["struts"]:
+        for part, key in (("a", "base"), ("b", "platform")):
+            strut[key] = [float(strut[key][c] + values[f"{part}.{strut['name']}.{axis}"] / unit)
+                          for c, axis in enumerate("xyz")]
+    if calibration is not None:
+        std = np.zeros(len(names)) if std is None else np.asarray(std, dtype=float)
+        data["calibration"] = {**calibration,
+                               "written": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                               "parameters": {n: {"value": float(v), "std": float(e)}
+                                              for n, v, e in zip(names, values.values(), std)}}
+    return data

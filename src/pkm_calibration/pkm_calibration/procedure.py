@@ -25,12 +25,15 @@ import numpy as np
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.struts import StrutMachine
 
+from .as_built import strut_gauge
 from .identify import Identifiability, identifiability, identify
 from .machine_files import calibrated_rail_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
 from .recorded import read_calibration_run
 from .self_calibration import PlanarRailErrorModel, self_calibrate
 from .strut_errors import StrutErrorModel
+
+ENCODER_COUNT_M = 1e-6     # the drives' encoder count (the plant's and the machine files' 1 um)
 
 __all__ = ["CalibrationPlan", "RunIdentification", "error_model", "plan_calibration", "identify_run"]
 
@@ -54,11 +57,21 @@ class RunIdentification:
     misfit_after_m: float
     dwells: int
     method: str
+    covariance: np.ndarray     # of the identified parameters (identifiable.identified's order)
     extra: dict = field(default_factory=dict)
 
+    def chi_square(self, truth) -> float:
+        """(theta - truth)^T C^-1 (theta - truth) over the identified parameters: chi-square
+        distributed with as many degrees of freedom when the predicted covariance C is
+        right (a simulation's check against its true parameters)."""
+        free = list(self.identifiable.identified)
+        error = self.theta[free] - np.asarray(truth, dtype=float)[free]
+        return float(error @ np.linalg.solve(self.covariance, error))
+
     def table(self) -> list[list[str]]:
-        """Identified parameters (value and standard deviation in um), then the held ones."""
-        rows = [["parameter", "identified (um)", "std (um)"]]
+        """Identified parameters (value and standard deviation in um; a scale in ppm), then
+        the held ones."""
+        rows = [["parameter", "identified (um, ppm)", "std"]]
         rows += [[self.names[k], f"{1e6 * self.theta[k]:.2f}", f"{1e6 * self.std[k]:.2f}"]
                  for k in self.identifiable.identified]
         rows += [[self.names[k], "held at nominal", "-"] for k in self.identifiable.held]
@@ -117,10 +130,15 @@ def plan_calibration(config, count: int, instrument: str | None = None, candidat
 
 
 def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: float = 0.2, tool=(0.0, 0.0, 0.0),
-                 sigma_m: float | None = None, held=None) -> RunIdentification:
+                 sigma_m: float | None = None, held=None, validate_every: int = 0) -> RunIdentification:
     """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
     ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
-    self-calibration; the instrument's spread at the dwells, at least 1 nm, otherwise)."""
+    self-calibration; with an instrument, its spread at the dwells over the square root
+    of the samples averaged, with the encoders' count in quadrature). With an
+    instrument, ``held`` defaults to the gauge (as_built.strut_gauge), and every
+    ``validate_every``-th dwell is kept out of the identification to validate it: the
+    instrument's residuals there with the nominal and the identified model
+    (``extra["validation"]``)."""
     instrument = instrument_for(config, instrument)
     model, method = error_model(config, instrument, tool)
     need = 1 + (model.size // (config.model.n_legs - 3) if instrument is None else model.size // 3)
@@ -130,12 +148,27 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
                                 **({"sigma_m": sigma_m} if sigma_m else {}))
         return RunIdentification(model.names, result.theta, result.std, result.identifiable,
                                  result.misfit_before_m, result.misfit_after_m, len(readings.dwells), method,
-                                 {"poses": result.poses})
-    if sigma_m is None:
-        sigma_m = max(1e-9, float(np.median([d.spread.mean() for d in readings.dwells])))
-    result = identify(model, readings.readings, readings.instrument, sigma_m, held=held)
+                                 result.covariance, {"poses": result.poses})
+    q, y = readings.readings, readings.instrument
+    check = np.zeros(len(q), dtype=bool)
+    if validate_every:
+        check[validate_every - 1::validate_every] = True
+    if sigma_m is None:      # a dwell's mean: the tracker's noise averaged, the encoders' count not
+        spread = np.median([np.mean(d.spread) / np.sqrt(d.samples) for d in readings.dwells])
+        sigma_m = float(np.hypot(spread, ENCODER_COUNT_M / np.sqrt(12.0)))
+    if held is None:
+        held = strut_gauge(model, q[~check])
+    result = identify(model, q[~check], y[~check], sigma_m, held=held)
+    extra = {"sigma_m": sigma_m}
+    if check.any():
+        before = model.predict(np.zeros(model.size), q[check]).y - y[check]
+        after = model.predict(result.theta, q[check]).y - y[check]
+        extra["validation"] = {"dwells": int(check.sum()), "rms_before_m": float(np.sqrt(np.mean(before ** 2))),
+                               "rms_after_m": float(np.sqrt(np.mean(after ** 2))),
+                               "max_before_m": float(np.linalg.norm(before, axis=1).max()),
+                               "max_after_m": float(np.linalg.norm(after, axis=1).max())}
     return RunIdentification(model.names, result.theta, result.std, result.identifiable, result.rms_before_m,
-                             result.rms_after_m, len(readings.dwells), method)
+                             result.rms_after_m, int((~check).sum()), method, result.covariance, extra)
 
 
 def calibrated_machine_data(config, result: RunIdentification, label: str, source: str) -> dict:

@@ -130,6 +130,7 @@ class SelfCalibration:
     misfit_before_m: float     # RMS of the closures at the nominal model (its best poses)
     misfit_after_m: float
     std: np.ndarray            # the parameters' standard deviations from the encoders' noise (0: held)
+    covariance: np.ndarray     # of the identified ones (identifiable.identified's order)
 
 
 def self_calibrate(model: PlanarRailErrorModel, readings, guesses, max_nfev: int = 100,
@@ -184,4 +185,4 @@ def self_calibrate(model: PlanarRailErrorModel, readings, guesses, max_nfev: int
     std = np.zeros(model.size)
     std[free] = np.sqrt(np.diag(cov)[3 * N:])
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))      # noqa: E731
-    return SelfCalibration(theta, poses, which, rms(poses_only.fun), rms(result.fun), std)
+    return SelfCalibration(theta, poses, which, rms(poses_only.fun), rms(result.fun), std, cov[3 * N:, 3 * N:])

@@ -30,6 +30,7 @@ FEED_OVERRIDE, SETTINGS = "controller/feed_override", "controller/settings"
 TRAJECTORY, GOAL, PROGRAM, RUN_START = "trajectory", "goal", "program", "run/start"
 LOAD, ESTOP, MARKERS, DIAGNOSTICS = "load", "estop", "markers", "diagnostics"
 DRIVES_CIA402 = "drives/cia402"       # each servo drive's CiA 402 state and error code (pkm_drives)
+LASER_POINT = "instrument/laser"     # a laser tracker's reading of the tool point (calibration runs)
 PROGRAM_EVENTS = "program/events"     # a trajectory's spindle, coolant and tool-change events (pkm_trajectory)
 
 CATALOGUE: dict[str, Topic] = {t.name: t for t in (
@@ -41,6 +42,7 @@ CATALOGUE: dict[str, Topic] = {t.name: t for t in (
     Topic(TRUE_POSE, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(METROLOGY_STRUTS, "sensor_msgs/msg/JointState", "stream"),
     Topic(METROLOGY_POSE, "geometry_msgs/msg/PoseStamped", "stream"),
+    Topic(LASER_POINT, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(CONTROLLER_REFERENCE, "geometry_msgs/msg/PoseStamped", "stream"),
     Topic(CONTROLLER_STATUS, "diagnostic_msgs/msg/DiagnosticArray", "stream"),
     Topic(CONTROLLER_EVENTS, "std_msgs/msg/String", "events"),

@@ -61,7 +61,8 @@ JOINT, POSE, CLOCK = "joint", "pose", "clock"
 # per-step stream -> (topic suffix, or the absolute /clock; message kind)
 STEP_STREAMS = {"state": (STATE, JOINT), "command": (COMMAND, JOINT), "struts": (STRUTS, JOINT),
                 "true_pose": (TRUE_POSE, POSE), "reference": (REFERENCE, POSE),
-                "metrology_pose": (METROLOGY_POSE, POSE), "clock": (CLOCK_TOPIC, CLOCK)}
+                "metrology_pose": (METROLOGY_POSE, POSE), "instrument": (topics.LASER_POINT, POSE),
+                "clock": (CLOCK_TOPIC, CLOCK)}
 JOINT_FIELDS = ("position", "velocity", "effort")
 
 _STAMP = struct.Struct("<iI")

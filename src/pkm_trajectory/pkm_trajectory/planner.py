@@ -751,6 +751,11 @@ def plan_validated(segments, machine, limits: Limits, rate_hz: float = 1000.0, b
     limits (and ``drive_force_limit``, N, with the machine's ``dynamics``) would be
     exceeded the motion slows down (segment_law) rather than being refused, within
     ``joint_jerk_limit`` too where given (the task axes' jerk always)."""
+    if len(limits.velocity) != machine.task_space.dof:
+        space = machine.task_space
+        raise ValueError(f"limits: {len(limits.velocity)} values per limit (max_velocity, max_acceleration, "
+                         f"max_jerk) for {machine.name}'s {space.dof} task axes ({', '.join(space.axes)}): give one "
+                         "per axis")
     axes = machine.task_space.translation_axes
     drives = None
     if joint_velocity_limit is not None and joint_acceleration_limit is not None:
