@@ -77,7 +77,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = [["machine, instrument", "parameters", "identified", "poses", "CPU ms", "error"]]
     for count in args.poses:
-        rows.append(archi_row(max(count, 16), args.repeat))
+        rows.append(archi_row(max(count, 20), args.repeat))        # 20 parameters, one equation a pose
     for count in args.poses:
         rows.append(genhexkins_row(max(count, 16), args.repeat))
     print("| " + " | ".join(rows[0]) + " |")

@@ -22,6 +22,7 @@ SMALL = {
     "kinematics.py": (["--repeat", "1"], "benchmark"),
     "drives.py": (["--cycles", "50"], "| archi | 4 |"),
     "drive_limited.py": (["--segments", "60"], "| genhexkins tilt"),
+    "calibration.py": (["--poses", "20", "--repeat", "1"], "| genhexkins, laser tracker"),
     "hexapod.py": (["--repeat", "1", "--readings", "200"], "| genhexkins hexapod | ours, compiled stream"),
     "gough_sensor.py": (["--repeat", "1", "--cycles", "50"], "node callback"),
     "trajectory.py": (["--lines", "40", "--repeat", "1"], "ARCHI test motion"),
