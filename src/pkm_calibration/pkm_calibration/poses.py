@@ -51,6 +51,8 @@ def workspace_bounds(machine, angle_half_range_deg: float | None = None) -> tupl
     rotation ranges, a planar machine's x, y and theta ranges); ``angle_half_range_deg``
     narrows the rotations to +-that (a planar machine: about the range's middle)."""
     ws = machine.workspace
+    if "size" in ws and "center" in ws:          # a translating machine's cube
+        return np.asarray(ws["center"], dtype=float) - ws["size"] / 2, np.asarray(ws["center"], dtype=float) + ws["size"] / 2
     if "center" in ws:
         half = np.radians(ws["abc_half_range_deg"])
         if angle_half_range_deg is not None:
@@ -73,7 +75,7 @@ def poses_clear(machine, x, bar_angle_deg: float = BAR_ANGLE_DEG) -> np.ndarray:
     x = np.atleast_2d(np.asarray(x, dtype=float))
     q, ok = machine.inverse_kinematics_batch(x)
     ok &= machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0))
-    if "center" not in machine.workspace and ok.any():
+    if getattr(machine, "bars", None) is not None and ok.any():
         ok[ok] &= _bars_clear_of_their_rails(machine, x[ok], q[ok], bar_angle_deg)
     return ok
 
