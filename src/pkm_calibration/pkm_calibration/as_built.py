@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .identify import RANK_TOLERANCE
+from .identify import gauge
 from .machine_files import strut_machine_data
 from .strut_errors import StrutErrorModel
 
@@ -24,26 +24,10 @@ FRAME = ("frame.x", "frame.y", "frame.z", "frame.rx", "frame.ry", "frame.rz")
 
 
 def strut_gauge(model: StrutErrorModel, readings) -> tuple:
-    """The parameters held at nominal by convention: the instrument's frame, then, in the
-    parameters' order, each one that adds nothing the ones before it do not already
-    explain at ``readings`` (N, n) (a column in the span of the earlier ones, its
-    columns scaled to unit norm: rank by RANK_TOLERANCE): the same names for any
-    readings that are not special, so that a simulation's truth and its
-    identification agree on them."""
-    jac = model.jacobian(np.zeros(model.size), readings)
-    jac = jac / np.where(np.linalg.norm(jac, axis=0) > 0.0, np.linalg.norm(jac, axis=0), 1.0)
-    kept, held = [], []
-    basis = np.zeros((jac.shape[0], 0))
-    for k, name in enumerate(model.names):
-        if name in FRAME:
-            continue
-        residual = jac[:, k] - basis @ (basis.T @ jac[:, k])
-        if np.linalg.norm(residual) > 1e3 * RANK_TOLERANCE:
-            basis = np.column_stack((basis, residual / np.linalg.norm(residual)))
-            kept.append(name)
-        else:
-            held.append(name)
-    return FRAME + tuple(held)
+    """The parameters held at nominal by convention (identify.gauge): the instrument's
+    frame, then the platform parameters that one point's readings at ``readings``
+    (N, n) cannot identify beyond the ones before them."""
+    return gauge(model.jacobian(np.zeros(model.size), readings), model.names, FRAME)
 
 
 def as_built_struts(config, model: StrutErrorModel, held, seed: int, joint_std_m: float = 5e-4,

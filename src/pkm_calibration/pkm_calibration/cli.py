@@ -112,9 +112,10 @@ def main(argv=None) -> int:
     b.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"))
     b.add_argument("--out", type=Path, required=True)
     for q in (p, i):
-        q.add_argument("--instrument", choices=("auto", "none", "laser"), default="auto",
-                       help="the instrument read at the poses (auto: a laser tracker on a strut machine, none "
-                            "otherwise: self-calibration from the redundancy)")
+        q.add_argument("--instrument", choices=("auto", "none", "laser", "gough"), default="auto",
+                       help="the instrument read at the poses (auto: a laser tracker on a strut machine; none, "
+                            "self-calibration from the redundancy, on a redundant machine on rails; the Gough "
+                            "metrology on one with a metrology section)")
         q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
                        help="the point the instrument measures, platform frame (m)")
     args = parser.parse_args(argv)

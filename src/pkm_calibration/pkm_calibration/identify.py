@@ -22,7 +22,7 @@ from scipy.optimize import least_squares
 
 from pkm_kinematics.errors import FieldError
 
-__all__ = ["Identifiability", "Identification", "holding", "identifiability", "identify", "RANK_TOLERANCE"]
+__all__ = ["Identifiability", "Identification", "gauge", "holding", "identifiability", "identify", "RANK_TOLERANCE"]
 
 RANK_TOLERANCE = 1e-8
 
@@ -67,6 +67,27 @@ def identifiability(jacobian, names) -> Identifiability:
     keep = tuple(sorted(int(k) for k in pivots[:rank]))
     s = np.linalg.svd(scaled[:, list(keep)], compute_uv=False)
     return Identifiability(keep, tuple(sorted(int(k) for k in pivots[rank:])), tuple(names), float(s[0] / s[-1]))
+
+
+def gauge(jacobian, names, first=()) -> tuple:
+    """A convention for what is held at nominal, the same for any measurements that are
+    not special: the parameters named ``first``, then, in the parameters' order, each one
+    that adds nothing the ones before it do not already explain (its column, scaled to
+    unit norm, in the span of the earlier ones within 1e3 RANK_TOLERANCE), so that a
+    simulation's truth and its identification agree on them."""
+    jac = np.asarray(jacobian, dtype=float)
+    jac = jac / np.where(np.linalg.norm(jac, axis=0) > 0.0, np.linalg.norm(jac, axis=0), 1.0)
+    held = []
+    basis = np.zeros((jac.shape[0], 0))
+    for k, name in enumerate(names):
+        if name in first:
+            continue
+        residual = jac[:, k] - basis @ (basis.T @ jac[:, k])
+        if np.linalg.norm(residual) > 1e3 * RANK_TOLERANCE:
+            basis = np.column_stack((basis, residual / np.linalg.norm(residual)))
+        else:
+            held.append(name)
+    return tuple(n for n in names if n in first) + tuple(held)
 
 
 def holding(jacobian, names, held) -> Identifiability:

@@ -40,29 +40,31 @@ def calibrated_path(nominal: Path) -> Path:
 
 
 def calibrated_rail_machine(config, names, theta, std, calibration: dict) -> dict:
-    """The machine file's data of planar rail machine ``config`` (a MachineConfig)
-    with the parameters ``theta`` (named ``names``, module doc) and their ``std``; the
-    ``calibration`` section's other entries (label, source, method, ...) as given."""
-    if config.kind != "planar":
-        raise FieldError("machine", f"{config.name}: a calibrated file of a planar machine on rails, not a "
+    """The machine file's data of rail machine ``config`` (a MachineConfig: planar or
+    translating) with the parameters ``theta`` (named ``names``: rail_errors.RailErrorModel's,
+    module doc) and their ``std``; the ``calibration`` section's other entries (label,
+    source, method, ...) as given; the instrument's frame, if any, in it only."""
+    if config.kind not in ("planar", "translational"):
+        raise FieldError("machine", f"{config.name}: a calibrated file of a machine on rails, not a "
                                     f"{config.kind} machine")
     data = copy.deepcopy(config.data)
-    theta = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
+    unit = LENGTH_UNITS[data.get("length_unit", "m")]
+    values = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
     for leg in data["legs"]:
         name = leg["name"]
         u = np.asarray(leg["rail_direction"], dtype=float)
         u = u / np.linalg.norm(u)
-        normal = np.array([-u[1], u[0]])
-        origin = (np.asarray(leg["rail_origin"], dtype=float) + theta[f"zero.{name}"] * u
-                  + theta[f"rail.across.{name}"] * normal)
+        origin = np.asarray(leg["rail_origin"], dtype=float) + values[f"zero.{name}"] / unit * u
+        if f"rail.across.{name}" in values:                    # planar: n = z x u
+            origin = origin + values[f"rail.across.{name}"] / unit * np.array([-u[1], u[0]])
         leg["rail_origin"] = [float(v) for v in origin]
-        leg["link_length"] = float(leg["link_length"] + theta[f"length.{name}"])
-        leg["platform_point"] = [float(leg["platform_point"][0] + theta[f"b.x.{name}"]),
-                                 float(leg["platform_point"][1] + theta[f"b.y.{name}"])]
+        leg["link_length"] = float(leg["link_length"] + values[f"length.{name}"] / unit)
+        key = "platform_point" if "platform_point" in leg else "platform_offset"
+        leg[key] = [float(v + values.get(f"b.{axis}.{name}", 0.0) / unit) for v, axis in zip(leg[key], "xyz")]
     data["calibration"] = {**calibration,
                            "written": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                            "parameters": {n: {"value": float(v), "std": float(s)}
-                                          for n, v, s in zip(names, theta.values(), std)}}
+                                          for n, v, s in zip(names, values.values(), std)}}
     return data
 
 

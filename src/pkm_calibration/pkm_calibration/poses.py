@@ -75,7 +75,7 @@ def poses_clear(machine, x, bar_angle_deg: float = BAR_ANGLE_DEG) -> np.ndarray:
     x = np.atleast_2d(np.asarray(x, dtype=float))
     q, ok = machine.inverse_kinematics_batch(x)
     ok &= machine.within_joint_limits(np.where(np.isfinite(q), q, 0.0))
-    if getattr(machine, "bars", None) is not None and ok.any():
+    if hasattr(machine, "rail_directions") and ok.any():         # a machine on rails
         ok[ok] &= _bars_clear_of_their_rails(machine, x[ok], q[ok], bar_angle_deg)
     return ok
 

@@ -21,19 +21,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.struts import StrutMachine
 
 from .as_built import strut_gauge
-from .identify import Identifiability, identifiability, identify
+from .identify import Identifiability, gauge, identifiability, identify
 from .machine_files import calibrated_rail_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
 from .recorded import read_calibration_run
-from .self_calibration import PlanarRailErrorModel, self_calibrate
+from .rail_errors import RailErrorModel
+from .self_calibration import ENCODER_NOISE_M, PlanarRailErrorModel, calibrate_rails, self_calibrate
 from .strut_errors import StrutErrorModel
 
 ENCODER_COUNT_M = 1e-6     # the drives' encoder count (the plant's and the machine files' 1 um)
+INSTRUMENT_NOISE_M = 1e-6  # an instrument's mean at a dwell, for planning (identify takes the run's)
 
 __all__ = ["CalibrationPlan", "RunIdentification", "error_model", "plan_calibration", "identify_run"]
 
@@ -79,10 +82,17 @@ class RunIdentification:
 
 
 def instrument_for(config, instrument: str | None) -> str | None:
-    """The instrument of ``instrument`` "auto": a laser tracker for a strut machine,
-    none (self-calibration) otherwise; "none" -> None."""
+    """The instrument of ``instrument`` "auto": a laser tracker for a strut machine; none
+    (self-calibration) for a machine on rails with more drives than degrees of freedom;
+    the Gough metrology for one without but with a metrology section (MoM3); "none" ->
+    None."""
     if instrument == "auto":
-        return "laser" if isinstance(config.model, StrutMachine) else None
+        model = config.model
+        if isinstance(model, StrutMachine):
+            return "laser"
+        if model.n_legs <= model.task_space.dof and config.metrology is not None:
+            return "gough"
+        return None
     return None if instrument == "none" else instrument
 
 
@@ -95,14 +105,19 @@ def error_model(config, instrument: str | None, tool=(0.0, 0.0, 0.0)):
         return PlanarRailErrorModel(machine), "self-calibration from the redundancy, no instrument"
     if instrument == "laser" and isinstance(machine, StrutMachine):
         return StrutErrorModel(machine, tuple(tool)), "laser tracker on the tool point"
+    if instrument == "gough" and config.metrology is None:
+        raise FieldError("instrument", f"{config.name} has no metrology section: no Gough to calibrate with")
+    if instrument in ("laser", "gough") and hasattr(machine, "rail_directions"):
+        return (RailErrorModel(machine, instrument=True, tool=tuple(tool) if instrument == "laser" else (0.0,) * 3),
+                "laser tracker on the tool point" if instrument == "laser" else "the Gough metrology's tool pose")
     raise FieldError("instrument", f"{config.name}: {instrument} calibration of a {config.kind} machine is not "
-                                   "modelled yet (self-calibration: planar machines on rails; laser: strut machines)")
+                                   "modelled yet (machines on rails: none, laser, gough; strut machines: laser)")
 
 
 def _blocks(model, poses: np.ndarray, readings: np.ndarray) -> np.ndarray:
     """Each pose's rows of the identification Jacobian (N, rows, size)."""
-    if isinstance(model, PlanarRailErrorModel):
-        return model.pose_blocks(poses, readings)
+    if isinstance(model, RailErrorModel):
+        return model.pose_blocks(poses, readings, (ENCODER_NOISE_M, INSTRUMENT_NOISE_M))
     jac = model.jacobian(np.zeros(model.size), readings)
     return jac.reshape(len(poses), 3, model.size)
 
@@ -141,34 +156,65 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     (``extra["validation"]``)."""
     instrument = instrument_for(config, instrument)
     model, method = error_model(config, instrument, tool)
-    need = 1 + (model.size // (config.model.n_legs - 3) if instrument is None else model.size // 3)
-    readings = read_calibration_run(run_dir, config, min_dwell_s, instrument, min_dwells=need)
+    n, dof = config.model.n_legs, config.model.task_space.dof
+    rows = n - dof + (0 if instrument is None else 3 if isinstance(model, StrutErrorModel) else
+                      model.readings_per_point)
+    readings = read_calibration_run(run_dir, config, min_dwell_s, instrument, min_dwells=1 + model.size // rows)
     if instrument is None:
         result = self_calibrate(model, readings.readings, readings.poses, held=held,
                                 **({"sigma_m": sigma_m} if sigma_m else {}))
         return RunIdentification(model.names, result.theta, result.std, result.identifiable,
                                  result.misfit_before_m, result.misfit_after_m, len(readings.dwells), method,
                                  result.covariance, {"poses": result.poses})
-    q, y = readings.readings, readings.instrument
+    q, poses, y = readings.readings, readings.poses, readings.instrument
     check = np.zeros(len(q), dtype=bool)
     if validate_every:
         check[validate_every - 1::validate_every] = True
-    if sigma_m is None:      # a dwell's mean: the tracker's noise averaged, the encoders' count not
-        spread = np.median([np.mean(d.spread) / np.sqrt(d.samples) for d in readings.dwells])
-        sigma_m = float(np.hypot(spread, ENCODER_COUNT_M / np.sqrt(12.0)))
-    if held is None:
-        held = strut_gauge(model, q[~check])
-    result = identify(model, q[~check], y[~check], sigma_m, held=held)
+    if sigma_m is None:      # a dwell's mean: the instrument's noise averaged
+        sigma_m = max(1e-9, float(np.median([np.mean(d.spread) / np.sqrt(d.samples) for d in readings.dwells])))
+    if isinstance(model, StrutErrorModel):
+        sigma_m = float(np.hypot(sigma_m, ENCODER_NOISE_M))       # the encoders' count: not averaged
+        if held is None:
+            held = strut_gauge(model, q[~check])
+        result = identify(model, q[~check], y[~check], sigma_m, held=held)
+        theta, before, after = result.theta, result.rms_before_m, result.rms_after_m
+
+        def predicted(t, rows):
+            return model.predict(t, q[rows]).y
+    else:
+        if held is None:        # the instrument's frame is the machine's base frame, then identify.gauge
+            frame = tuple(n for n in model.names if n.startswith("frame."))
+            held = gauge(model.parameter_jacobian(poses[~check], q[~check], (ENCODER_NOISE_M, sigma_m)),
+                         model.names, frame)
+        result = calibrate_rails(model, q[~check], poses[~check], y[~check], point_sigma_m=sigma_m, held=held)
+        theta, before, after = result.theta, result.misfit_before_m, result.misfit_after_m
+        d = model.readings_per_point
+
+        def predicted(t, rows):     # the points at the poses the readings close to (the model's own FK)
+            return model.points(t, _closed_poses(model, t, q[rows], poses[rows]))[:, :d]
+        y = y[:, :d]
     extra = {"sigma_m": sigma_m}
     if check.any():
-        before = model.predict(np.zeros(model.size), q[check]).y - y[check]
-        after = model.predict(result.theta, q[check]).y - y[check]
-        extra["validation"] = {"dwells": int(check.sum()), "rms_before_m": float(np.sqrt(np.mean(before ** 2))),
-                               "rms_after_m": float(np.sqrt(np.mean(after ** 2))),
-                               "max_before_m": float(np.linalg.norm(before, axis=1).max()),
-                               "max_after_m": float(np.linalg.norm(after, axis=1).max())}
-    return RunIdentification(model.names, result.theta, result.std, result.identifiable, result.rms_before_m,
-                             result.rms_after_m, int((~check).sum()), method, result.covariance, extra)
+        e0 = predicted(np.zeros(model.size), check) - y[check]
+        e1 = predicted(theta, check) - y[check]
+        extra["validation"] = {"dwells": int(check.sum()), "rms_before_m": float(np.sqrt(np.mean(e0 ** 2))),
+                               "rms_after_m": float(np.sqrt(np.mean(e1 ** 2))),
+                               "max_before_m": float(np.linalg.norm(e0, axis=1).max()),
+                               "max_after_m": float(np.linalg.norm(e1, axis=1).max())}
+    return RunIdentification(model.names, theta, result.std, result.identifiable, before, after,
+                             int((~check).sum()), method, result.covariance, extra)
+
+
+def _closed_poses(model, theta, readings, guesses) -> np.ndarray:
+    """The poses where the bars of ``theta`` close at ``readings`` (least squares from
+    ``guesses``): what the machine's model says the encoders' pose is."""
+    out = []
+    for q, guess in zip(readings, guesses):
+        fit = least_squares(lambda x: model.residuals(theta, x[None], q[None]).ravel(), guess,
+                            jac=lambda x: model.jacobian(theta, x[None], q[None])[0], xtol=1e-15, ftol=1e-15,
+                            gtol=1e-15)
+        out.append(fit.x)
+    return np.array(out)
 
 
 def calibrated_machine_data(config, result: RunIdentification, label: str, source: str) -> dict:

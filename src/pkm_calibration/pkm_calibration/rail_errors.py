@@ -69,7 +69,7 @@ class RailErrorModel:
 
     def __post_init__(self):
         m = self.machine
-        if getattr(m, "bars", None) is None or m.task_space.name not in ("planar", "position"):
+        if not hasattr(m, "rail_directions") or m.task_space.name not in ("planar", "position"):
             raise FieldError("machine", f"{m.name}: the rail error model is for machines on rails (planar or "
                                         f"translating), not {type(m).__name__} ({m.task_space.name})")
         per_leg = ("length", "zero", "b.x", "b.y", "rail.across") if self.planar else \
