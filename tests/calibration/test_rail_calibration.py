@@ -9,7 +9,6 @@ named."""
 import numpy as np
 import pytest
 
-from pkm_calibration.identify import identifiability
 from pkm_calibration.poses import candidate_poses
 from pkm_calibration.rail_errors import RailErrorModel
 from pkm_calibration.self_calibration import calibrate_rails

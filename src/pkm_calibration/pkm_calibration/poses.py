@@ -52,7 +52,8 @@ def workspace_bounds(machine, angle_half_range_deg: float | None = None) -> tupl
     narrows the rotations to +-that (a planar machine: about the range's middle)."""
     ws = machine.workspace
     if "size" in ws and "center" in ws:          # a translating machine's cube
-        return np.asarray(ws["center"], dtype=float) - ws["size"] / 2, np.asarray(ws["center"], dtype=float) + ws["size"] / 2
+        center = np.asarray(ws["center"], dtype=float)
+        return center - ws["size"] / 2, center + ws["size"] / 2
     if "center" in ws:
         half = np.radians(ws["abc_half_range_deg"])
         if angle_half_range_deg is not None:

@@ -109,8 +109,8 @@ class RailErrorModel:
             if self.planar:
                 origin = origin + t[k, 4] * np.array([-u[1], u[0]])
             point = np.asarray(leg.platform_point, dtype=float) + t[k, 2:2 + dim]
-            legs.append(dataclasses.replace(leg, rail_origin=tuple(origin.tolist()),
-                                            link_length=leg.link_length + t[k, 0], platform_point=tuple(point.tolist())))
+            legs.append(dataclasses.replace(leg, rail_origin=tuple(origin.tolist()), link_length=leg.link_length
+                                            + t[k, 0], platform_point=tuple(point.tolist())))
         return self.machine.with_legs(self.machine.name + "_as_built", legs)
 
     def _legs(self, theta) -> np.ndarray:

@@ -182,7 +182,8 @@ def mom3_calibration(bench: Bench) -> Outcome:
     names = list(result.names)
     truth = np.zeros(len(names))
     for k, leg in enumerate(config.model.leg_names):
-        truth[names.index(f"length.{leg}")] = MOM3_PLANT["link_length_errors"][k] * config.data["legs"][k]["link_length"]
+        length = config.data["legs"][k]["link_length"]
+        truth[names.index(f"length.{leg}")] = MOM3_PLANT["link_length_errors"][k] * length
         truth[names.index(f"zero.{leg}")] = MOM3_PLANT["rail_offset_errors_m"][k]
     free = list(result.identifiable.identified)
     statistic, bound = result.chi_square(truth), float(chi2.ppf(0.999, len(free)))
