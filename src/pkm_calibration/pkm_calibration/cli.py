@@ -56,7 +56,7 @@ def identify(args) -> str:
     if validation:
         lines.append(f"validation on {validation['dwells']} dwells kept out: the instrument's residual RMS "
                      f"{1e6 * validation['rms_before_m']:.2f} um (nominal) -> {1e6 * validation['rms_after_m']:.2f} um")
-    if config.kind == "planar":
+    if config.kind in ("planar", "translational"):         # a strut machine's encoder terms: not in its file yet
         out = args.out or calibrated_path(_nominal_path(args.machine))
         data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
         write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
