@@ -49,7 +49,10 @@ def identify(args) -> str:
     config = load_machine(args.machine)
     result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m,
                           validate_every=args.validate_every)
-    lines = [f"{config.name}: {result.method}, {result.dwells} dwells; {result.identifiable.describe()}",
+    moving = result.extra.get("unsettled", 0)
+    lines = [f"{config.name}: {result.method}, {result.dwells} dwells"
+             + (f" ({moving} left out: the machine had not settled)" if moving else "")
+             + f"; {result.identifiable.describe()}",
              f"residual RMS {1e6 * result.misfit_before_m:.3f} um (nominal) -> {1e6 * result.misfit_after_m:.3f} um"]
     lines += [f"  {name:<18} {value:>16} {std:>10}" for name, value, std in result.table()]
     validation = result.extra.get("validation")

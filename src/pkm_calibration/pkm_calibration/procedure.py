@@ -149,8 +149,9 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
     ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
     self-calibration; with an instrument, its spread at the dwells over the square root
-    of the samples averaged, with the encoders' count in quadrature). With an
-    instrument, ``held`` defaults to the gauge (as_built.strut_gauge), and every
+    of the samples averaged, with the encoders' count in quadrature on a strut machine).
+    ``held`` defaults to one convention (identify.gauge: with an instrument, its frame
+    first), the same whatever the poses; with an instrument every
     ``validate_every``-th dwell is kept out of the identification to validate it: the
     instrument's residuals there with the nominal and the identified model
     (``extra["validation"]``)."""
@@ -161,11 +162,13 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
                       model.readings_per_point)
     readings = read_calibration_run(run_dir, config, min_dwell_s, instrument, min_dwells=1 + model.size // rows)
     if instrument is None:
+        if held is None:          # identify.gauge: the same names whatever the poses
+            held = gauge(model.parameter_jacobian(readings.poses, readings.readings), model.names)
         result = self_calibrate(model, readings.readings, readings.poses, held=held,
                                 **({"sigma_m": sigma_m} if sigma_m else {}))
         return RunIdentification(model.names, result.theta, result.std, result.identifiable,
                                  result.misfit_before_m, result.misfit_after_m, len(readings.dwells), method,
-                                 result.covariance, {"poses": result.poses})
+                                 result.covariance, {"poses": result.poses, "unsettled": readings.unsettled})
     q, poses, y = readings.readings, readings.poses, readings.instrument
     check = np.zeros(len(q), dtype=bool)
     if validate_every:
@@ -193,7 +196,7 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
         def predicted(t, rows):     # the points at the poses the readings close to (the model's own FK)
             return model.points(t, _closed_poses(model, t, q[rows], poses[rows]))[:, :d]
         y = y[:, :d]
-    extra = {"sigma_m": sigma_m}
+    extra = {"sigma_m": sigma_m, "unsettled": readings.unsettled}
     if check.any():
         e0 = predicted(np.zeros(model.size), check) - y[check]
         e1 = predicted(theta, check) - y[check]

@@ -8,7 +8,9 @@ encoders (``drives/state``) and the instrument, when the run has one (the laser
 tracker's ``instrument/tool_point``, the Gough sensor's ``metrology/pose``), are
 averaged over the dwell's last ``settled`` fraction, where the machine has stopped;
 their spread there is kept (the readings' noise, for the identification's standard
-deviations).
+deviations). A dwell where the encoders still move (any drive's spread over
+``max_spread_m``: the machine had not settled) is not a reading of one pose: it is
+left out, and counted.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pkm_runs.report_data import load_run
 
 __all__ = ["Dwell", "CalibrationReadings", "dwells", "read_calibration_run"]
 
+MAX_SPREAD_M = 2e-6          # a settled dwell's encoders: within a count or two of still
 STILL = 1e-9                # m, and quaternion components: a reference step smaller is round-off
 INSTRUMENTS = {"laser": "instrument", "gough": "metrology_pose"}    # instrument -> the run's stream
 
@@ -38,12 +41,17 @@ class Dwell:
     samples: int                # drive states averaged
     instrument: np.ndarray | None = None       # the instrument's mean point there (3,), or None
 
+    def settled(self, max_spread_m: float) -> bool:
+        """The machine stood still over the averaged part (every drive's spread within)."""
+        return bool(np.all(self.spread <= max_spread_m))
+
 
 @dataclass(frozen=True)
 class CalibrationReadings:
     """Every dwell of a run, as arrays: poses (N, dof), readings (N, n), instrument (N, 3) or None."""
     dwells: list
     leg_names: tuple
+    unsettled: int = 0          # dwells left out: the machine still moving (module doc)
 
     @property
     def poses(self) -> np.ndarray:
@@ -104,7 +112,7 @@ def dwells(steps: dict, space, min_dwell_s: float = 0.2, settled: float = 0.5,
 
 
 def read_calibration_run(run_dir, machine, min_dwell_s: float = 0.2, instrument: str | None = None,
-                         min_dwells: int = 1) -> CalibrationReadings:
+                         min_dwells: int = 1, max_spread_m: float = MAX_SPREAD_M) -> CalibrationReadings:
     """The dwells of the recorded run in ``run_dir`` of ``machine`` (a MachineConfig);
     ``instrument``: "laser" or "gough" (the run must have recorded it). FieldError
     naming what is missing: a run of another machine (its drives), no reference, no
@@ -135,7 +143,10 @@ def read_calibration_run(run_dir, machine, min_dwell_s: float = 0.2, instrument:
                                            f"(stream {INSTRUMENTS[instrument]})")
         points = np.where(rows.present[keep, None], rows.position[keep], np.nan)
     found = dwells(arrays, model.task_space, min_dwell_s, instrument=points)
-    if len(found) < min_dwells:
-        raise FieldError("run", f"{run_dir}: {len(found)} dwells of at least {min_dwell_s:g} s found, "
+    still = [d for d in found if d.settled(max_spread_m)]
+    if len(still) < min_dwells:
+        moving = f" ({len(found) - len(still)} more where the machine had not settled: longer dwells?)" \
+            if len(still) < len(found) else ""
+        raise FieldError("run", f"{run_dir}: {len(still)} dwells of at least {min_dwell_s:g} s found{moving}, "
                                 f"{min_dwells} needed (is it a calibration program's run?)")
-    return CalibrationReadings(found, tuple(model.leg_names))
+    return CalibrationReadings(still, tuple(model.leg_names), len(found) - len(still))
