@@ -96,7 +96,7 @@ SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "g
 CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
 # sim_hw defaults sized for one machine (config/sim_hw.yaml: ARCHI's four drives)
-PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose", "encoder_offsets_m")
+PER_DRIVE = ("link_length_errors", "rail_offset_errors_m", "initial_pose", "encoder_offsets_m", "screw_errors_m")
 
 
 class ScenarioError(ValueError):

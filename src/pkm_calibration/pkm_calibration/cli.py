@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from pkm_kinematics import load_machine
+from pkm_kinematics.compensation import comp_file_text
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import ConfigError, FieldError
 
@@ -48,7 +49,7 @@ def plan(args) -> str:
 def identify(args) -> str:
     config = load_machine(args.machine)
     result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m,
-                          validate_every=args.validate_every)
+                          validate_every=args.validate_every, table_spacing_m=args.table_spacing_m)
     moving = result.extra.get("unsettled", 0)
     lines = [f"{config.name}: {result.method}, {result.dwells} dwells"
              + (f" ({moving} left out: the machine had not settled)" if moving else "")
@@ -59,12 +60,25 @@ def identify(args) -> str:
     if validation:
         lines.append(f"validation on {validation['dwells']} dwells kept out: the instrument's residual RMS "
                      f"{1e6 * validation['rms_before_m']:.2f} um (nominal) -> {1e6 * validation['rms_after_m']:.2f} um")
+    tables = result.extra.get("compensation")
+    if tables is not None:
+        rms = result.extra["drive_error_rms_m"]
+        lines.append("drive errors left by the geometry, RMS um: " + ", ".join(
+            f"{n} {1e6 * b:.2f} -> {1e6 * a:.2f}" for n, b, a in zip(config.model.leg_names, rms["before"],
+                                                                    rms["after"])) + " (with the tables)")
+        if "validation_compensated" in result.extra:
+            lines.append(f"validation with the tables: {1e6 * result.extra['validation_compensated']['rms_m']:.2f} um")
     if config.kind in ("planar", "translational"):         # a strut machine's encoder terms: not in its file yet
         out = args.out or calibrated_path(_nominal_path(args.machine))
         data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
         write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
                                       f"({result.method}); the nominal file: {_nominal_path(args.machine)}")
         lines.append(f"{out}: the calibrated machine file (a scenario's model: {out})")
+        if tables is not None:       # LinuxCNC comp files beside it, one per drive (COMP_FILE_TYPE 1, metres)
+            for name, table in zip(config.model.leg_names, tables.tables):
+                comp = Path(out).with_name(f"{Path(out).stem}.{name}.comp")
+                comp.write_text(comp_file_text(table), encoding="utf-8")
+                lines.append(f"{comp}: drive {name}'s compensation table ({len(table.positions)} points)")
     return "\n".join(lines) + "\n"
 
 
@@ -105,6 +119,9 @@ def main(argv=None) -> int:
     i.add_argument("--sigma-m", type=float, default=None, help="the readings' noise (default: module doc)")
     i.add_argument("--label", default="", help="the calibration's name (default: the run's directory)")
     i.add_argument("--out", type=Path, help="the calibrated machine file (default: beside the nominal one)")
+    i.add_argument("--table-spacing-m", type=float, default=None,
+                   help="identify each drive's compensation table too, knots this far apart (where the instrument "
+                        "fixes the pose: MoM3 and its Gough); written in the machine file and as LinuxCNC comp files")
     i.add_argument("--validate-every", type=int, default=0,
                    help="keep every k-th dwell out of the identification to validate it (default: none)")
     b = sub.add_parser("as-built", help="a simulated machine as built: seeded errors on what calibration identifies")

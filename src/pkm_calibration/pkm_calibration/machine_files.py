@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from pkm_kinematics import load_machine
+from pkm_kinematics.compensation import compensation_of
 from pkm_kinematics.config import LENGTH_UNITS, load_machine_data
 from pkm_kinematics.errors import FieldError
 
@@ -75,7 +76,7 @@ def write_machine_file(path: Path, data: dict, header: str = "") -> Path:
     text = "".join(f"# {line}\n" for line in header.splitlines()) + yaml.safe_dump(data, sort_keys=False)
     path = Path(path)
     path.write_text(text, encoding="utf-8")
-    load_machine(path)
+    compensation_of(load_machine(path))          # its drive tables, if any, as the controller will read them
     return path
 
 

@@ -27,6 +27,7 @@ from pkm_kinematics.errors import FieldError
 from pkm_kinematics.struts import StrutMachine
 
 from .as_built import strut_gauge
+from .compensation_fit import fit_tables, true_drive_positions
 from .identify import Identifiability, gauge, identifiability, identify
 from .machine_files import calibrated_rail_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
@@ -145,7 +146,8 @@ def plan_calibration(config, count: int, instrument: str | None = None, candidat
 
 
 def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: float = 0.2, tool=(0.0, 0.0, 0.0),
-                 sigma_m: float | None = None, held=None, validate_every: int = 0) -> RunIdentification:
+                 sigma_m: float | None = None, held=None, validate_every: int = 0,
+                 table_spacing_m: float | None = None) -> RunIdentification:
     """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
     ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
     self-calibration; with an instrument, its spread at the dwells over the square root
@@ -154,7 +156,9 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     first), the same whatever the poses; with an instrument every
     ``validate_every``-th dwell is kept out of the identification to validate it: the
     instrument's residuals there with the nominal and the identified model
-    (``extra["validation"]``)."""
+    (``extra["validation"]``). ``table_spacing_m``: compensation tables too
+    (compensation_fit, where the instrument fixes the pose), knots this far apart:
+    ``extra["compensation"]``, and the validation with them."""
     instrument = instrument_for(config, instrument)
     model, method = error_model(config, instrument, tool)
     n, dof = config.model.n_legs, config.model.task_space.dof
@@ -170,6 +174,7 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
                                  result.misfit_before_m, result.misfit_after_m, len(readings.dwells), method,
                                  result.covariance, {"poses": result.poses, "unsettled": readings.unsettled})
     q, poses, y = readings.readings, readings.poses, readings.instrument
+    tables = None
     check = np.zeros(len(q), dtype=bool)
     if validate_every:
         check[validate_every - 1::validate_every] = True
@@ -189,14 +194,30 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
             frame = tuple(n for n in model.names if n.startswith("frame."))
             held = gauge(model.parameter_jacobian(poses[~check], q[~check], (ENCODER_NOISE_M, sigma_m)),
                          model.names, frame)
-        result = calibrate_rails(model, q[~check], poses[~check], y[~check], point_sigma_m=sigma_m, held=held)
-        theta, before, after = result.theta, result.misfit_before_m, result.misfit_after_m
+        fit = ~check
+        result = calibrate_rails(model, q[fit], poses[fit], y[fit], point_sigma_m=sigma_m, held=held)
         d = model.readings_per_point
+        tables = None
+        if table_spacing_m:       # compensation_fit: the tables, then the geometry on compensated readings
+            tables, _, _ = fit_tables(q[fit], true_drive_positions(model, result.theta, y[fit]), table_spacing_m)
+            compensated = np.array([tables.positions(row) for row in q])
+            result = calibrate_rails(model, compensated[fit], poses[fit], y[fit], point_sigma_m=sigma_m, held=held)
+            tables, drive_before, drive_after = fit_tables(q[fit], true_drive_positions(model, result.theta, y[fit]),
+                                                           table_spacing_m)
+        theta, before, after = result.theta, result.misfit_before_m, result.misfit_after_m
 
-        def predicted(t, rows):     # the points at the poses the readings close to (the model's own FK)
-            return model.points(t, _closed_poses(model, t, q[rows], poses[rows]))[:, :d]
+        def predicted(t, rows, tables=None):     # the points at the poses the readings close to (the model's FK)
+            readings_ = q[rows] if tables is None else np.array([tables.positions(row) for row in q[rows]])
+            return model.points(t, _closed_poses(model, t, readings_, poses[rows]))[:, :d]
         y = y[:, :d]
     extra = {"sigma_m": sigma_m, "unsettled": readings.unsettled}
+    if not isinstance(model, StrutErrorModel) and tables is not None:
+        extra["compensation"] = tables
+        extra["drive_error_rms_m"] = {"before": drive_before.tolist(), "after": drive_after.tolist()}
+        if check.any():
+            e2 = predicted(theta, check, tables) - y[check]
+            extra["validation_compensated"] = {"rms_m": float(np.sqrt(np.mean(e2 ** 2))),
+                                               "max_m": float(np.linalg.norm(e2, axis=1).max())}
     if check.any():
         e0 = predicted(np.zeros(model.size), check) - y[check]
         e1 = predicted(theta, check) - y[check]
@@ -225,4 +246,9 @@ def calibrated_machine_data(config, result: RunIdentification, label: str, sourc
     calibration = {"label": label, "source": source, "method": result.method, "dwells": result.dwells,
                    "held": [result.names[k] for k in result.identifiable.held],
                    "misfit_before_m": result.misfit_before_m, "misfit_after_m": result.misfit_after_m}
-    return calibrated_rail_machine(config, result.names, result.theta, result.std, calibration)
+    data = calibrated_rail_machine(config, result.names, result.theta, result.std, calibration)
+    tables = result.extra.get("compensation")
+    if tables is not None:       # pkm_kinematics.compensation's section: the drives' tables (m)
+        data["compensation"] = {name: [[float(p), float(c)] for p, c in zip(t.positions, t.corrections)]
+                                for name, t in zip(config.model.leg_names, tables.tables) if t is not None}
+    return data

@@ -46,6 +46,7 @@ import numpy as np
 from pkm_common.causes import TripCause
 from pkm_kinematics.analysis import task_box
 from pkm_kinematics.config import MachineConfig
+from pkm_kinematics.compensation import compensation_of
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR
@@ -73,6 +74,7 @@ class ControllerCore:
         self.machine = machine
         self.config = config or ControllerConfig()
         self.model = machine.model
+        self.compensation = compensation_of(machine)     # the machine file's drive tables, or None
         # the task coordinates (pkm_kinematics.task_space): planar and position machines
         # run the compiled 3-DOF kernels of laws.py; a spatial one (x, y, z, a, b, c)
         # feeds back twists and the rotation vector (laws.spatial_command_kernel)
@@ -244,6 +246,10 @@ class ControllerCore:
                 self.trip(*problem)
                 return False
         q, qdot, q_array = list(q), list(qdot), np.array(q, dtype=float)
+        if self.compensation is not None:      # the drives' tables (pkm_kinematics.compensation): true positions
+            qdot = self.compensation.velocities(q_array, qdot).tolist()
+            q_array = self.compensation.positions(q_array)
+            q = q_array.tolist()
         t_s = stamp_ns * 1e-9
         dt = self.config.dt_s if self.last_time_s is None or t_s <= self.last_time_s else t_s - self.last_time_s
         first = self.last_time_s is None

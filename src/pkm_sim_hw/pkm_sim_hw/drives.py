@@ -28,17 +28,26 @@ class Encoders:
     """The drive encoders of one plant: ``read(q_true, faults)`` once per step.
     ``offsets``: incremental encoders count from where they were at power-up, not from
     the machine's zero: each reads its drive's position plus its offset (unknown to the
-    controller until the drive is homed: HomingMotion)."""
+    controller until the drive is homed: HomingMotion). ``screw_errors``: each drive's
+    screw (or scale) error, the reading's periodic departure from the true position,
+    A_k sin(2 pi q / ``screw_period_m``) (a ball screw's cumulative lead error along its
+    travel: what a compensation table, LinuxCNC's COMP_FILE, takes out)."""
 
-    def __init__(self, resolution_m: float, noise_m: float, seed: int, dt_s: float, offsets=()):
+    def __init__(self, resolution_m: float, noise_m: float, seed: int, dt_s: float, offsets=(),
+                 screw_errors=(), screw_period_m: float = 0.1):
         self.resolution_m, self.noise_m, self.dt_s = resolution_m, noise_m, dt_s
         self.offsets = [float(o) for o in offsets]
+        self.screw_errors = [float(a) for a in screw_errors]
+        self.screw_wavenumber = 2.0 * math.pi / screw_period_m
         self._rng = np.random.default_rng(seed)
         self.last: list = []
 
     def quantise(self, q) -> list:
         """The offset, noise (one draw per drive), then the resolution."""
         res, noise = self.resolution_m, self.noise_m
+        if self.screw_errors:
+            k = self.screw_wavenumber
+            q = [qi + a * math.sin(k * qi) for qi, a in zip(q, self.screw_errors)]
         if self.offsets:
             q = [qi + o for qi, o in zip(q, self.offsets)]
         if noise > 0.0:

@@ -69,6 +69,10 @@ def declare_plant(node, machine):
                                                    "offsets until homed, one per drive (empty: none)", unit="m")),
         rail_offset_errors_m=tuple(declare_float_list(node, "rail_offset_errors_m", [], "one per drive "
                                                       "(empty: none)", unit="m")),
+        screw_errors_m=tuple(declare_float_list(node, "screw_errors_m", [], "each drive's screw error amplitude, "
+                                                "one per drive (empty: none)", lo=-1e-3, hi=1e-3, unit="m")),
+        screw_error_period_m=declare_float(node, "screw_error_period_m", 0.1, 1e-3, 10.0, "the screw error's "
+                                           "period along the travel", unit="m"),
         compliance=tuple(declare_float_list(node, "compliance", [0.0, 0.0, 0.0], "the tool's deflection per unit "
                                             "load, one per load component (3, or 6 on a 6-DOF machine)", lo=0.0)),
         frame_compliance=tuple(declare_float_list(node, "frame_compliance", [0.0, 0.0, 0.0], "the actuation "

@@ -104,6 +104,8 @@ class PlantParameters:
     link_length_errors: tuple = ()        # relative, per leg, e.g. (0, 0, 0.02, 0)
     rail_offset_errors_m: tuple = ()      # shift of each rail origin along its rail
     encoder_offsets_m: tuple = ()         # incremental encoders' offsets until homed, one per drive (drives.Encoders)
+    screw_errors_m: tuple = ()            # each drive's screw error amplitude (drives.Encoders), one per drive
+    screw_error_period_m: float = 0.1     # and its period along the travel
     compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C in task coordinates (m/N, m/N, m/N or rad/(N m))
     frame_compliance: tuple = (0.0, 0.0, 0.0)   # diagonal C_frame: the actuation chain's frame under frame_load
     faults: tuple = ()
@@ -126,6 +128,9 @@ class PlantParameters:
                   ("link_length_errors", len(self.link_length_errors) in (0, n_drives)
                    and all(abs(e) < 0.5 for e in self.link_length_errors), f"{n_drives} values in (-0.5, 0.5)"),
                   ("rail_offset_errors_m", len(self.rail_offset_errors_m) in (0, n_drives), f"{n_drives} values"),
+                  ("screw_errors_m", len(self.screw_errors_m) in (0, n_drives)
+                   and all(abs(a) <= 1e-3 for a in self.screw_errors_m), f"{n_drives} values in [-1e-3, 1e-3] m"),
+                  ("screw_error_period_m", 1e-3 <= self.screw_error_period_m <= 10.0, "[0.001, 10] m"),
                   ("encoder_offsets_m", len(self.encoder_offsets_m) in (0, n_drives)
                    and all(abs(o) <= 1.0 for o in self.encoder_offsets_m), f"{n_drives} values in [-1, 1] m"),
                   ("compliance", len(self.compliance) in (3, 6) and all(c >= 0.0 for c in self.compliance),
@@ -222,7 +227,8 @@ class Plant:
         self._locked: list[int] = []
         self._lock_positions: dict[int, float] = {}
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
-                                 self.params.dt_s, self.params.encoder_offsets_m)
+                                 self.params.dt_s, self.params.encoder_offsets_m, self.params.screw_errors_m,
+                                 self.params.screw_error_period_m)
         self.encoders.start(self._drive_positions(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
 

@@ -93,7 +93,8 @@ class StrutPlant:
         if not self.machine.within_joint_limits(q):
             raise FieldError("initial_pose", f"struts outside their limits: {np.round(q, 6).tolist()} m")
         self.encoders = Encoders(self.params.encoder_resolution_m, self.params.encoder_noise_m, self.params.seed,
-                                 self.params.dt_s, self.params.encoder_offsets_m)
+                                 self.params.dt_s, self.params.encoder_offsets_m, self.params.screw_errors_m,
+                                 self.params.screw_error_period_m)
         self._reading_scale = 1.0 / (1.0 + np.asarray(self.params.link_length_errors or [0.0] * self.n, dtype=float))
         self.encoders.start((q * self._reading_scale).tolist())
         self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
