@@ -96,3 +96,21 @@ def test_a_strut_machine_as_built_is_the_error_models_machine_in_the_files_unit(
     assert np.abs(built.base_joints - expected.base_joints).max() < 1e-12
     assert np.abs(built.platform_joints - expected.platform_joints).max() < 1e-12
     assert 1e-4 < np.abs(built.base_joints - config.model.base_joints).max() < 3e-3
+
+
+def test_a_calibrated_strut_file_carries_its_encoders_zero_and_scale_as_tables(tmp_path):
+    """l = q + z + s q of the identification, as the controller will apply it
+    (pkm_kinematics.compensation) over the strut's travel."""
+    from pkm_calibration.machine_files import calibrated_strut_machine
+    from pkm_calibration.strut_errors import StrutErrorModel
+    from pkm_kinematics.compensation import compensation_of
+    config = load_machine("genhexkins")
+    model = StrutErrorModel(config.model)
+    theta = np.random.default_rng(8).normal(0.0, 2e-4, model.size)
+    path = write_machine_file(tmp_path / "g.yaml", calibrated_strut_machine(config, model.names, theta,
+                                                                             np.zeros(model.size), {"label": "g"}))
+    comp = compensation_of(load_machine(path))
+    q = np.linspace(config.model.joint_lower, config.model.joint_upper, 7)
+    expected = model.lengths(theta, q)
+    got = np.array([comp.positions(row) for row in q])
+    assert np.abs(got - expected).max() < 1e-12, np.abs(got - expected).max()

@@ -59,7 +59,7 @@ def test_identify_finds_the_leg_error_and_the_calibrated_model_stops_the_fight(c
 def test_runs_that_are_not_this_machines_calibration_are_refused(calibration, capsys):
     root, _ = calibration
     assert main(["identify", "genhexkins", str(root / "run"), "--instrument", "laser"]) == 2
-    assert "the run has 4 drives, machine genhexkins 6" in capsys.readouterr().err
+    assert "a run of archi, not of genhexkins" in capsys.readouterr().err        # its run.json says so
     assert main(["identify", "archi", str(root / "run"), "--min-dwell-s", "5"]) == 2
     assert "0 dwells of at least 5 s found, 21 needed (is it a calibration program's run?)" in \
         capsys.readouterr().err

@@ -11,8 +11,11 @@ identify (the rest named and held at nominal), prints the parameters with their
 standard deviations and the residuals before and after, and writes the calibrated
 machine file (default: beside the nominal one, ``<name>.calibrated.yaml``), which a
 scenario's ``model`` key gives the controller. ``--instrument`` auto: self-calibration
-from the redundancy on a planar machine on rails (ARCHI), a laser tracker on the tool
-point of a strut machine (plan, and identification only: its machine file is to come).
+from the redundancy on a redundant machine on rails (ARCHI), a laser tracker on the tool
+point of a strut machine (its encoders' zeros and scales go into the file as
+compensation tables), the Gough metrology on a machine on rails that has one (MoM3).
+``--table-spacing-m``: each drive's compensation table too, also written as LinuxCNC
+comp files beside the machine file.
 """
 
 from __future__ import annotations
@@ -68,17 +71,16 @@ def identify(args) -> str:
                                                                     rms["after"])) + " (with the tables)")
         if "validation_compensated" in result.extra:
             lines.append(f"validation with the tables: {1e6 * result.extra['validation_compensated']['rms_m']:.2f} um")
-    if config.kind in ("planar", "translational"):         # a strut machine's encoder terms: not in its file yet
-        out = args.out or calibrated_path(_nominal_path(args.machine))
-        data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
-        write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
-                                      f"({result.method}); the nominal file: {_nominal_path(args.machine)}")
-        lines.append(f"{out}: the calibrated machine file (a scenario's model: {out})")
-        if tables is not None:       # LinuxCNC comp files beside it, one per drive (COMP_FILE_TYPE 1, metres)
-            for name, table in zip(config.model.leg_names, tables.tables):
-                comp = Path(out).with_name(f"{Path(out).stem}.{name}.comp")
-                comp.write_text(comp_file_text(table), encoding="utf-8")
-                lines.append(f"{comp}: drive {name}'s compensation table ({len(table.positions)} points)")
+    out = args.out or calibrated_path(_nominal_path(args.machine))
+    data = calibrated_machine_data(config, result, args.label or Path(args.run).name, str(Path(args.run)))
+    write_machine_file(out, data, f"{config.name}, calibrated by pkm-calibrate identify from {args.run}\n"
+                                  f"({result.method}); the nominal file: {_nominal_path(args.machine)}")
+    lines.append(f"{out}: the calibrated machine file (a scenario's model: {out})")
+    if tables is not None:       # LinuxCNC comp files beside it, one per drive (COMP_FILE_TYPE 1, metres)
+        for name, table in zip(config.model.leg_names, tables.tables):
+            comp = Path(out).with_name(f"{Path(out).stem}.{name}.comp")
+            comp.write_text(comp_file_text(table), encoding="utf-8")
+            lines.append(f"{comp}: drive {name}'s compensation table ({len(table.positions)} points)")
     return "\n".join(lines) + "\n"
 
 

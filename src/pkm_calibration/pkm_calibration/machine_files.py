@@ -6,10 +6,11 @@ nominal, the residuals before and after). Scenarios use it as the controller's
 the panel name it by its ``calibration.label``.
 
 A machine on struts (strut_errors.StrutErrorModel) is written with its joints moved
-(a_k + da_k, b_k + db_k, in the file's length unit); its encoders' zeros and scales are
-kept in the calibration section only (the strut model has no encoder terms yet: a
-controller on the file does not apply them), and an as-built machine for a simulation
-the same way (``strut_machine_data``).
+(a_k + da_k, b_k + db_k, in the file's length unit), and its encoders' zeros and
+scales, l = q + z + s q, as each strut's compensation table (pkm_kinematics.compensation:
+c(q) = z + s q, two points at the strut's limits, exact between them), which the
+controller applies to its readings (``calibrated_strut_machine``); an as-built machine
+for a simulation the same way, joints only (``strut_machine_data``).
 
 A planar machine on rails (self_calibration.PlanarRailErrorModel's parameters per leg:
 length, zero, b.x, b.y, rail.across) is written in its own words: the link length
@@ -31,7 +32,8 @@ from pkm_kinematics.compensation import compensation_of
 from pkm_kinematics.config import LENGTH_UNITS, load_machine_data
 from pkm_kinematics.errors import FieldError
 
-__all__ = ["calibrated_rail_machine", "strut_machine_data", "write_machine_file", "calibrated_path"]
+__all__ = ["calibrated_rail_machine", "calibrated_strut_machine", "strut_machine_data", "write_machine_file",
+           "calibrated_path"]
 
 
 def calibrated_path(nominal: Path) -> Path:
@@ -100,3 +102,18 @@ def strut_machine_data(config, names, theta, calibration: dict | None = None, st
                                "parameters": {n: {"value": float(v), "std": float(e)}
                                               for n, v, e in zip(names, values.values(), std)}}
     return data
+
+
+def calibrated_strut_machine(config, names, theta, std, calibration: dict) -> dict:
+    """The calibrated file's data of strut machine ``config``: its joints moved and its
+    encoders' zeros and scales as compensation tables (module doc)."""
+    data = strut_machine_data(config, names, theta, calibration, std)
+    values = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
+    model = config.model
+    data["compensation"] = {}
+    for k, leg in enumerate(model.leg_names):
+        z, s = values[f"zero.{leg}"], values[f"scale.{leg}"]
+        ends = (float(model.joint_lower[k]), float(model.joint_upper[k]))
+        data["compensation"][leg] = [[q, z + s * q] for q in ends]
+    return data
+

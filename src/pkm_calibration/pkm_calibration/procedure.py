@@ -29,7 +29,7 @@ from pkm_kinematics.struts import StrutMachine
 from .as_built import strut_gauge
 from .compensation_fit import fit_tables, true_drive_positions
 from .identify import Identifiability, gauge, identifiability, identify
-from .machine_files import calibrated_rail_machine
+from .machine_files import calibrated_rail_machine, calibrated_strut_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
 from .recorded import read_calibration_run
 from .rail_errors import RailErrorModel
@@ -246,6 +246,8 @@ def calibrated_machine_data(config, result: RunIdentification, label: str, sourc
     calibration = {"label": label, "source": source, "method": result.method, "dwells": result.dwells,
                    "held": [result.names[k] for k in result.identifiable.held],
                    "misfit_before_m": result.misfit_before_m, "misfit_after_m": result.misfit_after_m}
+    if config.kind == "struts":
+        return calibrated_strut_machine(config, result.names, result.theta, result.std, calibration)
     data = calibrated_rail_machine(config, result.names, result.theta, result.std, calibration)
     tables = result.extra.get("compensation")
     if tables is not None:       # pkm_kinematics.compensation's section: the drives' tables (m)

@@ -15,10 +15,13 @@ left out, and counted.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from pkm_kinematics import load_machine
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.rotations import rotation_from_quaternion
 from pkm_kinematics.task_space import task_pose
@@ -111,12 +114,25 @@ def dwells(steps: dict, space, min_dwell_s: float = 0.2, settled: float = 0.5,
     return out
 
 
+def _run_machine(run_dir) -> str | None:
+    """The name of the machine a pkm-run run says it ran (run.json), or None."""
+    path = Path(run_dir) / "run.json"
+    try:
+        machine = json.loads(path.read_text(encoding="utf-8")).get("machine")
+        return load_machine(machine).name if machine else None
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def read_calibration_run(run_dir, machine, min_dwell_s: float = 0.2, instrument: str | None = None,
                          min_dwells: int = 1, max_spread_m: float = MAX_SPREAD_M) -> CalibrationReadings:
     """The dwells of the recorded run in ``run_dir`` of ``machine`` (a MachineConfig);
     ``instrument``: "laser" or "gough" (the run must have recorded it). FieldError
     naming what is missing: a run of another machine (its drives), no reference, no
     instrument's stream, fewer than ``min_dwells`` dwells."""
+    recorded = _run_machine(run_dir)
+    if recorded is not None and recorded != machine.name:
+        raise FieldError("machine", f"{run_dir}: a run of {recorded}, not of {machine.name}")
     run = load_run(run_dir)
     steps, model = run.steps, machine.model
     state, reference = steps.rows.get("state"), steps.rows.get("reference")
