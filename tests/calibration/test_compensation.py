@@ -60,3 +60,30 @@ def test_the_controller_reads_true_positions_through_the_tables():
     core.update(0, q.tolist(), [0.0] * 3)
     assert np.allclose(core.record.measured, plain.record.measured, atol=1e-12), (core.record.measured,
                                                                                  plain.record.measured)
+
+
+def test_tables_are_read_in_the_files_unit_and_must_meet_the_joint_limits():
+    """genhexkins is in inches: its table's positions and corrections too; a table
+    off the drive's travel (metres in an inch file) is refused, as a pasted LinuxCNC
+    triplet is."""
+    data = dict(load_machine("genhexkins").data, compensation={"j0": [[18.0, 0.001], [42.0, 0.002]]})
+    comp = compensation_of(load_machine_data(data))
+    assert np.allclose(comp.positions([0.5, 0, 0, 0, 0, 0])[0], 0.5 + 0.0254 * 0.001)     # held: 0.5 m < 18 in
+    assert np.isclose(comp.tables[0].correction(30 * 0.0254), 0.0254 * 0.0015)
+    for rows, match in (([[0.4, 0.0], [1.0, 0.0]],
+                         r"the table's positions \[0.4, 1\] miss the drive's joint limits \[18, 42\] \(inch\)"),
+                        ([[18.0, 0.0, 0.0], [42.0, 0.0, 0.0]], "rows of \\[position, correction\\]")):
+        with pytest.raises(ConfigError, match=r"compensation\.j0: " + match):
+            compensation_of(load_machine_data(dict(load_machine("genhexkins").data, compensation={"j0": rows})))
+
+
+def test_identify_takes_the_trackers_point_from_the_run_and_refuses_another(tmp_path):
+    import json
+    from pkm_calibration.procedure import _tool_of_run, identify_run
+    (tmp_path / "run.json").write_text(json.dumps({"machine": "archi", "laser_tracker": {"tool": [0.1, 0.05, 0.0]}}))
+    assert _tool_of_run(tmp_path, "laser", None) == (0.1, 0.05, 0.0)
+    with pytest.raises(ValueError, match=r"tool: the run's laser tracker read the point \[0.1, 0.05, 0.0\] m of the "
+                                         r"platform, not \[0.0, 0.0, -0.05\]"):
+        _tool_of_run(tmp_path, "laser", (0.0, 0.0, -0.05))
+    with pytest.raises(ValueError, match="table_spacing_m: archi: drive tables need an instrument that fixes"):
+        identify_run(load_machine("archi"), tmp_path, None, table_spacing_m=0.02)

@@ -47,3 +47,6 @@ def test_the_graph_records_the_tracker_at_every_step(tmp_path):
     assert np.abs(error).max() < 5e-6 and 0.8e-6 < error.std() < 1.2e-6, (np.abs(error).max(), error.std())
     with pytest.raises(ScenarioError, match="^laser_tracker.sigma: not a laser_tracker parameter"):
         load_scenario("archi_fig12", {"laser_tracker": {"sigma": 1e-6}})
+    with pytest.raises(ScenarioError, match=r"^laser_tracker.sigma_m: must be in \[0, 0.001\] m, got 0.5"):
+        load_scenario("archi_fig12", {"laser_tracker": {"sigma_m": 0.5}})     # refused at load, not at start
+    assert load_scenario("archi_fig12").laser_tracker is None

@@ -52,7 +52,8 @@ from pkm_bringup.graph import Progress, RunFailed, StopSignals, run_processes
 from pkm_bringup.processes import use_ros_environment
 from pkm_bringup.rt_profile import RealtimeProfileRefused, applied_to_this_process, check_permitted
 from pkm_bringup.run_files import DiskReserve
-from pkm_bringup.scenario import Scenario, ScenarioError, load_scenario, node_parameters, params_file_text
+from pkm_bringup.scenario import (Scenario, ScenarioError, laser_tracker_parameters, load_scenario, node_parameters,
+                                  params_file_text)
 from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_common.credential import KEY_FILE, RunKey
 from pkm_common.files import disk_full, write_json
@@ -180,7 +181,8 @@ def collect(s: Scenario, run_dir: Path, mode: str, wall_s: float, codes: dict, e
     sensor, sim = summaries.get("gough_sensor", {}), summaries.get(s.machine_node, {})
     sensor_missed = max(0, sim.get("published", {}).get("platform/true_pose", 0)
                         - sensor.get("published", {}).get("metrology/struts", 0)) if sensor and sim else 0
-    run = {"scenario": s.name, "machine": s.machine, "model": s.controller_machine, "namespace": s.namespace,
+    run = {"scenario": s.name, "machine": s.machine, "model": s.controller_machine,
+           "laser_tracker": laser_tracker_parameters(s), "namespace": s.namespace,
            "mode": mode,
            "strategy": s.strategy, "distribution": s.controller.get("distribution"),
            "metrology": s.metrology, "realtime_profile": s.realtime_profile, "duration_s": s.duration_s,

@@ -19,6 +19,7 @@ from pkm_drives.bus_timing import check_rate, cycle_load
 from pkm_drives.canopen_master import pdo_bytes
 from pkm_drives.drive_config import drive_settings
 from pkm_drives.virtual_drive import DEFAULT_EDS
+from pkm_gough_sensor.laser import LaserTracker
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.homing import homing_plan
@@ -90,5 +91,9 @@ def check_drives(p: dict, config) -> None:
                           settings.heartbeat_s))
 
 
+def check_laser_tracker(p: dict, config) -> None:
+    LaserTracker(p["tool"], p["sigma_m"], p["seed"], p["frame_position"], p["frame_rpy_deg"])
+
+
 OWNER_CHECKS = {"controller": check_controller, "plant": check_plant, "sensor": check_sensor,
-                "trajectory": check_trajectory, "drives": check_drives}
+                "trajectory": check_trajectory, "drives": check_drives, "laser_tracker": check_laser_tracker}

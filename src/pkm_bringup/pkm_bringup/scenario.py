@@ -91,7 +91,7 @@ KEYS = ("name", "description", "machine", "model", "namespace", "mode", "dt_s", 
         "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives", "laser_tracker")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
-            "recorder": "recorder", "drives": "drives"}
+            "recorder": "recorder", "drives": "drives", "laser_tracker": "laser_tracker"}
 # parameters with a fixed set of values, checked when the scenario is loaded
 CHOICES = {("recorder", "compression"): ("lz4", "zstd", "none"), ("recorder", "cpu_priority"): ("normal", "idle")}
 
@@ -371,8 +371,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
             raise ScenarioError(f"trajectory.tool_table: no such file {table}")
         s.trajectory = {**s.trajectory, "tool_table": str(table)}
     s.metrology = _boolean(data, "metrology", False)
-    if "laser_tracker" in data:
-        s.laser_tracker = _mapping(data, "laser_tracker", "laser_tracker")
+    if "laser_tracker" not in data:         # its node runs only when the scenario has the section
+        s.laser_tracker = None
     s.record = _boolean(data, "record", True)
     s.realtime_profile = _boolean(data, "realtime_profile", False)
     operators = data.get("operators") or []
@@ -470,7 +470,7 @@ def _check_nodes(s: Scenario, config) -> None:
             raise _owner_refusal(s, key, exc) from None
     for key in SECTIONS:
         floats = _float_parameters(s.section_node(key))
-        for name, value in getattr(s, key).items():
+        for name, value in (getattr(s, key) or {}).items():
             if name in floats and not math.isfinite(value):
                 raise ScenarioError(f"{key}.{name}: must be a finite number, got {value!r}")
 
@@ -549,6 +549,13 @@ def run_node_name(s: Scenario, node: str) -> str:
     return f"{s.namespace.rstrip('/')}/{node}"
 
 
+def laser_tracker_parameters(s: Scenario) -> dict | None:
+    """What the run's laser tracker reads (its node's parameters: config/laser_tracker.yaml
+    and the scenario's section), or None without one; run.json keeps them, so that
+    pkm-calibrate identify takes the tool point the tracker read."""
+    return None if s.laser_tracker is None else {**_node_defaults("laser_tracker"), **s.laser_tracker}
+
+
 def operator_names(s: Scenario) -> list[str]:
     """The nodes that may command the run (pkm_common.sources.AllowedSenders): pkm-run's
     own (the start, an interrupt's E-stop), the panel's, and the scenario's
@@ -586,8 +593,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
         nodes["gough_sensor"] = {**_node_defaults("gough_sensor"), **s.sensor, "machine": s.machine,
                                  "summary_path": str(summaries / "gough_sensor.json")}
     if s.laser_tracker is not None:
-        nodes["laser_tracker"] = {**_node_defaults("laser_tracker"), **s.laser_tracker,
-                                  "summary_path": str(summaries / "laser_tracker.json")}
+        nodes["laser_tracker"] = {**laser_tracker_parameters(s), "summary_path": str(summaries / "laser_tracker.json")}
     if s.program is not None or s.mode == "realtime":     # realtime: goals and programs from an operator too
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.controller_machine,
                                "program_file": str(s.program or ""),

@@ -51,7 +51,8 @@ def plan(args) -> str:
 
 def identify(args) -> str:
     config = load_machine(args.machine)
-    result = identify_run(config, args.run, args.instrument, args.min_dwell_s, tuple(args.tool), args.sigma_m,
+    result = identify_run(config, args.run, args.instrument, args.min_dwell_s,
+                          None if args.tool is None else tuple(args.tool), args.sigma_m,
                           validate_every=args.validate_every, table_spacing_m=args.table_spacing_m)
     moving = result.extra.get("unsettled", 0)
     lines = [f"{config.name}: {result.method}, {result.dwells} dwells"
@@ -138,8 +139,9 @@ def main(argv=None) -> int:
                        help="the instrument read at the poses (auto: a laser tracker on a strut machine; none, "
                             "self-calibration from the redundancy, on a redundant machine on rails; the Gough "
                             "metrology on one with a metrology section)")
-        q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                       help="the point the instrument measures, platform frame (m)")
+        q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0) if q is p else None,
+                       metavar=("X", "Y", "Z"), help="the point the instrument measures, platform frame (m)"
+                       + ("" if q is p else "; default: the run's laser tracker's (run.json)"))
     args = parser.parse_args(argv)
     try:
         text = {"plan": plan, "identify": identify, "as-built": as_built}[args.command](args)

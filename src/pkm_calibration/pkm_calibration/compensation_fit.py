@@ -61,11 +61,12 @@ def fit_table(readings, errors, spacing_m: float) -> DriveTable:
 
 
 def fit_tables(readings, true_positions, spacing_m: float) -> tuple[Compensation, np.ndarray, np.ndarray]:
-    """(the tables of every drive, the RMS of q* - q per drive before, and after the
-    tables)."""
+    """(the tables of every drive, the RMS of q* - q about its mean per drive before, and
+    after the tables)."""
     q, qs = np.asarray(readings, dtype=float), np.asarray(true_positions, dtype=float)
     errors = qs - q
     tables = tuple(fit_table(q[:, k], errors[:, k] - errors[:, k].mean(), spacing_m) for k in range(q.shape[1]))
     comp = Compensation(tables)
     after = qs - np.array([comp.positions(row) for row in q])
-    return comp, np.sqrt(np.mean(errors ** 2, axis=0)), np.sqrt(np.mean((after - after.mean(axis=0)) ** 2, axis=0))
+    spread = lambda e: np.sqrt(np.mean((e - e.mean(axis=0)) ** 2, axis=0))     # noqa: E731 (the zero takes the mean)
+    return comp, spread(errors), spread(after)

@@ -36,6 +36,16 @@ __all__ = ["calibrated_rail_machine", "calibrated_strut_machine", "strut_machine
            "calibrated_path"]
 
 
+def _without_calibration(data: dict) -> dict:
+    """A copy of a machine file's data without an earlier calibration's section and drive
+    tables: the identification's parameters are deltas from its geometry, measured on
+    raw readings, so the old tables must not be applied on top of the new ones."""
+    data = copy.deepcopy(data)
+    data.pop("calibration", None)
+    data.pop("compensation", None)
+    return data
+
+
 def calibrated_path(nominal: Path) -> Path:
     """Beside the nominal file: ``archi.yaml`` -> ``archi.calibrated.yaml``."""
     nominal = Path(nominal)
@@ -50,7 +60,7 @@ def calibrated_rail_machine(config, names, theta, std, calibration: dict) -> dic
     if config.kind not in ("planar", "translational"):
         raise FieldError("machine", f"{config.name}: a calibrated file of a machine on rails, not a "
                                     f"{config.kind} machine")
-    data = copy.deepcopy(config.data)
+    data = _without_calibration(config.data)
     unit = LENGTH_UNITS[data.get("length_unit", "m")]
     values = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
     for leg in data["legs"]:
@@ -72,9 +82,10 @@ def calibrated_rail_machine(config, names, theta, std, calibration: dict) -> dic
 
 
 def write_machine_file(path: Path, data: dict, header: str = "") -> Path:
-    """Write ``data`` as a machine file (checked by loading it first: a file the loader
-    would refuse is not written); returns the path."""
-    load_machine_data(data, str(path))
+    """Write ``data`` as a machine file (checked by loading it first, its drive tables
+    too: a file the loader or the controller would refuse is not written); returns the
+    path."""
+    compensation_of(load_machine_data(data, str(path)))
     text = "".join(f"# {line}\n" for line in header.splitlines()) + yaml.safe_dump(data, sort_keys=False)
     path = Path(path)
     path.write_text(text, encoding="utf-8")
@@ -88,7 +99,7 @@ def strut_machine_data(config, names, theta, calibration: dict | None = None, st
     with ``calibration``, its section (every parameter, zero and scale included)."""
     if config.kind != "struts":
         raise FieldError("machine", f"{config.name}: a strut machine's file, not a {config.kind} machine's")
-    data = copy.deepcopy(config.data)
+    data = _without_calibration(config.data)
     unit = LENGTH_UNITS[data.get("length_unit", "m")]
     values = dict(zip(names, np.asarray(theta, dtype=float).tolist()))
     for strut in data["struts"]:
@@ -114,6 +125,7 @@ def calibrated_strut_machine(config, names, theta, std, calibration: dict) -> di
     for k, leg in enumerate(model.leg_names):
         z, s = values[f"zero.{leg}"], values[f"scale.{leg}"]
         ends = (float(model.joint_lower[k]), float(model.joint_upper[k]))
-        data["compensation"][leg] = [[q, z + s * q] for q in ends]
+        unit = LENGTH_UNITS[data.get("length_unit", "m")]
+        data["compensation"][leg] = [[q / unit, (z + s * q) / unit] for q in ends]
     return data
 

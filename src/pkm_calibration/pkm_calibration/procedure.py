@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from pkm_kinematics.config import LENGTH_UNITS
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.struts import StrutMachine
 
@@ -31,7 +32,7 @@ from .compensation_fit import fit_tables, true_drive_positions
 from .identify import Identifiability, gauge, identifiability, identify
 from .machine_files import calibrated_rail_machine, calibrated_strut_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
-from .recorded import read_calibration_run
+from .recorded import read_calibration_run, run_record
 from .rail_errors import RailErrorModel
 from .self_calibration import ENCODER_NOISE_M, PlanarRailErrorModel, calibrate_rails, self_calibrate
 from .strut_errors import StrutErrorModel
@@ -145,12 +146,13 @@ def plan_calibration(config, count: int, instrument: str | None = None, candidat
                            poses[is_pose], index, which, method)
 
 
-def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: float = 0.2, tool=(0.0, 0.0, 0.0),
+def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: float = 0.2, tool=None,
                  sigma_m: float | None = None, held=None, validate_every: int = 0,
                  table_spacing_m: float | None = None) -> RunIdentification:
     """Step 3 (module doc): the parameters from the recorded run in ``run_dir``.
-    ``sigma_m``: the readings' noise (default: the encoders' 1 um count for
-    self-calibration; with an instrument, its spread at the dwells over the square root
+    ``tool``: the laser tracker's point (default: the run's, from run.json).
+    ``sigma_m``: the readings' noise (default: the encoders' 1 um count's
+    quantisation, 1/sqrt(12) um, for self-calibration; with an instrument, its spread at the dwells over the square root
     of the samples averaged, with the encoders' count in quadrature on a strut machine).
     ``held`` defaults to one convention (identify.gauge: with an instrument, its frame
     first), the same whatever the poses; with an instrument every
@@ -160,7 +162,13 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     (compensation_fit, where the instrument fixes the pose), knots this far apart:
     ``extra["compensation"]``, and the validation with them."""
     instrument = instrument_for(config, instrument)
+    tool = _tool_of_run(run_dir, instrument, tool)
     model, method = error_model(config, instrument, tool)
+    if table_spacing_m and (instrument is None or isinstance(model, StrutErrorModel) or model.planar):
+        raise FieldError("table_spacing_m", f"{config.name}: drive tables need an instrument that fixes the pose "
+                                            "(a translating machine on rails and its Gough or a tracker: MoM3)")
+    if validate_every and instrument is None:
+        raise FieldError("validate_every", "self-calibration has no instrument to validate against")
     n, dof = config.model.n_legs, config.model.task_space.dof
     rows = n - dof + (0 if instrument is None else 3 if isinstance(model, StrutErrorModel) else
                       model.readings_per_point)
@@ -229,6 +237,19 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
                              int((~check).sum()), method, result.covariance, extra)
 
 
+def _tool_of_run(run_dir, instrument, tool):
+    """The laser tracker's tool point: the run's (run.json) when ``tool`` is None, and
+    FieldError when the one given is not what the run's tracker read."""
+    tracker = run_record(run_dir).get("laser_tracker") if instrument == "laser" else None
+    ran = tuple(float(v) for v in tracker["tool"]) if isinstance(tracker, dict) and "tool" in tracker else None
+    if tool is None:
+        return ran or (0.0, 0.0, 0.0)
+    if ran is not None and np.abs(np.subtract(tool, ran)).max() > 1e-9:
+        raise FieldError("tool", f"the run's laser tracker read the point {list(ran)} m of the platform, not "
+                                 f"{list(tool)}")
+    return tuple(tool)
+
+
 def _closed_poses(model, theta, readings, guesses) -> np.ndarray:
     """The poses where the bars of ``theta`` close at ``readings`` (least squares from
     ``guesses``): what the machine's model says the encoders' pose is."""
@@ -251,6 +272,7 @@ def calibrated_machine_data(config, result: RunIdentification, label: str, sourc
     data = calibrated_rail_machine(config, result.names, result.theta, result.std, calibration)
     tables = result.extra.get("compensation")
     if tables is not None:       # pkm_kinematics.compensation's section: the drives' tables (m)
-        data["compensation"] = {name: [[float(p), float(c)] for p, c in zip(t.positions, t.corrections)]
+        unit = LENGTH_UNITS[data.get("length_unit", "m")]
+        data["compensation"] = {name: [[float(p) / unit, float(c) / unit] for p, c in zip(t.positions, t.corrections)]
                                 for name, t in zip(config.model.leg_names, tables.tables) if t is not None}
     return data

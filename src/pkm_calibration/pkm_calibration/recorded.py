@@ -5,7 +5,7 @@ The dwells are found from the controller's reference (``controller/reference``):
 stretches where it stands still (no coordinate changing by more than STILL, the
 round-off of its interpolation) for at least ``min_dwell_s``. At each, the
 encoders (``drives/state``) and the instrument, when the run has one (the laser
-tracker's ``instrument/tool_point``, the Gough sensor's ``metrology/pose``), are
+tracker's ``instrument/laser``, the Gough sensor's ``metrology/pose``), are
 averaged over the dwell's last ``settled`` fraction, where the machine has stopped;
 their spread there is kept (the readings' noise, for the identification's standard
 deviations). A dwell where the encoders still move (any drive's spread over
@@ -27,7 +27,7 @@ from pkm_kinematics.rotations import rotation_from_quaternion
 from pkm_kinematics.task_space import task_pose
 from pkm_runs.report_data import load_run
 
-__all__ = ["Dwell", "CalibrationReadings", "dwells", "read_calibration_run"]
+__all__ = ["Dwell", "CalibrationReadings", "dwells", "read_calibration_run", "run_record"]
 
 MAX_SPREAD_M = 2e-6          # a settled dwell's encoders: within a count or two of still
 STILL = 1e-9                # m, and quaternion components: a reference step smaller is round-off
@@ -114,13 +114,21 @@ def dwells(steps: dict, space, min_dwell_s: float = 0.2, settled: float = 0.5,
     return out
 
 
+def run_record(run_dir) -> dict:
+    """A pkm-run run's run.json (empty without one)."""
+    try:
+        data = json.loads((Path(run_dir) / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 def _run_machine(run_dir) -> str | None:
     """The name of the machine a pkm-run run says it ran (run.json), or None."""
-    path = Path(run_dir) / "run.json"
     try:
-        machine = json.loads(path.read_text(encoding="utf-8")).get("machine")
+        machine = run_record(run_dir).get("machine")
         return load_machine(machine).name if machine else None
-    except (OSError, ValueError, AttributeError):
+    except (ValueError, AttributeError):
         return None
 
 

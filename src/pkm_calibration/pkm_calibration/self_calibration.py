@@ -99,15 +99,21 @@ def calibrate_rails(model: RailErrorModel, readings, guesses, points=None, sigma
         theta[free] = z[3 * N:]
         return z[:3 * N].reshape(N, 3), theta
 
+    # each closure's noise is its encoder's, |dr/dq| = |e . u| times sigma_m (at the
+    # guesses' nominal poses: fixed weights, so that the covariance below is the
+    # estimator's), a point's the instrument's
+    _, e, _, u, *_ = model._terms(np.zeros(model.size), guesses, readings)
+    weight = 1.0 / (sigma_m * np.maximum(np.abs(np.einsum("nkd,kd->nk", e, u)).ravel(), 1e-3))
+
     def fun_of(poses, theta):
-        r = model.residuals(theta, poses, readings).ravel() / sigma_m
+        r = model.residuals(theta, poses, readings).ravel() * weight
         if points is None:
             return r
         return np.concatenate((r, (model.points(theta, poses) - points).ravel() / point_sigma_m))
 
     def jac_of(poses, theta, columns):
         d_pose, d_theta = model.jacobian(theta, poses, readings)
-        rows = np.hstack((d_pose, d_theta[:, columns])) / sigma_m
+        rows = np.hstack((d_pose, d_theta[:, columns])) * weight[:, None]
         if points is None:
             return rows
         y_pose, y_theta = model.point_jacobian(theta, poses)
@@ -121,17 +127,13 @@ def calibrate_rails(model: RailErrorModel, readings, guesses, points=None, sigma
                            max_nfev=max_nfev)
     poses, theta = unpack(result.x)
     full = jac_of(poses, theta, free)
-    _, e, _, u, *_ = model._terms(theta, poses, readings)
-    gain = np.ones(full.shape[0])
-    gain[:N * n] = np.abs(np.einsum("nkd,kd->nk", e, u)).ravel()        # a closure's noise: its encoder's
-    full = full / gain[:, None]
     cov = np.linalg.pinv(full.T @ full)
     std = np.zeros(model.size)
     std[free] = np.sqrt(np.diag(cov)[3 * N:])
 
     def rms(z, x):                       # in metres: the closures' and the points' rows
         r = fun_of(z, x)
-        r[:N * n] *= sigma_m
+        r[:N * n] /= weight
         r[N * n:] *= point_sigma_m
         return float(np.sqrt(np.mean(r ** 2)))
     return RailCalibration(theta, poses, which, rms(poses_only.x.reshape(N, 3), zero), rms(poses, theta), std,

@@ -7,9 +7,11 @@ trims, linear between them, at most 256 points).
                           held at the end values beyond them
 
 A machine file carries its tables in a ``compensation`` section, one per drive that
-has one, ``{q1: [[position, correction], ...], ...}`` (m); pkm-calibrate identify
-writes them, and each also as a LinuxCNC comp file (COMP_FILE_TYPE 1: lines
-"nominal forward-trim reverse-trim", the same trim both ways: no backlash modelled).
+has one, ``{q1: [[position, correction], ...], ...}`` in the file's ``length_unit``,
+each table overlapping the drive's joint limits; pkm-calibrate identify writes them,
+and each also as a LinuxCNC comp file (COMP_FILE_TYPE 0: lines "nominal actual
+actual", the position the joint reports and where it really is, moving forward and
+back: the same, no backlash modelled; in mm).
 The controller applies them to the readings (and the velocities by the slope) before
 anything else sees them.
 """
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .config import LENGTH_UNITS
 from .errors import ConfigError
 
 __all__ = ["DriveTable", "Compensation", "compensation_of", "comp_file_text", "read_comp_file", "MAX_POINTS"]
@@ -76,7 +79,8 @@ class Compensation:
 
 def compensation_of(config) -> Compensation | None:
     """The ``compensation`` section of a machine file (a MachineConfig), or None.
-    ConfigError naming the drive of a bad table or an unknown drive."""
+    ConfigError naming the drive of a bad table (not two columns, outside its joint
+    limits) or an unknown drive."""
     section = config.data.get("compensation")
     if not section:
         return None
@@ -86,35 +90,49 @@ def compensation_of(config) -> Compensation | None:
     unknown = [k for k in section if k not in names]
     if unknown:
         raise ConfigError("compensation", f"{unknown[0]!r} is not a drive of {config.name} ({', '.join(names)})")
+    unit = LENGTH_UNITS[config.data.get("length_unit", "m")]
+    model = config.model
     tables = []
-    for name in names:
+    for k, name in enumerate(names):
         rows = section.get(name)
         if rows is None:
             tables.append(None)
             continue
         try:
             arr = np.asarray(rows, dtype=float)
-            tables.append(DriveTable(arr[:, 0], arr[:, 1]))
+            if arr.ndim != 2 or arr.shape[1] != 2:
+                raise ConfigError("compensation", f"rows of [position, correction], got shape {arr.shape}")
+            table = DriveTable(arr[:, 0] * unit, arr[:, 1] * unit)
         except (ValueError, IndexError) as exc:
             raise ConfigError(f"compensation.{name}", str(exc).split(": ", 1)[-1]) from None
+        lower, upper = float(model.joint_lower[k]), float(model.joint_upper[k])
+        if table.positions[-1] < lower or table.positions[0] > upper:
+            unit_name = config.data.get("length_unit", "m")
+            raise ConfigError(f"compensation.{name}", f"the table's positions [{table.positions[0] / unit:g}, "
+                                                      f"{table.positions[-1] / unit:g}] miss the drive's joint limits "
+                                                      f"[{lower / unit:g}, {upper / unit:g}] ({unit_name})")
+        tables.append(table)
     return Compensation(tuple(tables))
 
 
-def comp_file_text(table: DriveTable, unit_m: float = 1.0) -> str:
-    """A LinuxCNC comp file (COMP_FILE_TYPE 1) of ``table`` in machine units of ``unit_m``."""
-    return "".join(f"{p / unit_m:.6f} {c / unit_m:.9f} {c / unit_m:.9f}\n"
+def comp_file_text(table: DriveTable, unit_m: float = 1e-3) -> str:
+    """A LinuxCNC comp file (COMP_FILE_TYPE 0: "nominal actual actual", the reported and
+    the real position) of ``table``, in machine units of ``unit_m`` (default mm)."""
+    return "".join(f"{p / unit_m:.6f} {(p + c) / unit_m:.6f} {(p + c) / unit_m:.6f}\n"
                    for p, c in zip(table.positions, table.corrections))
 
 
-def read_comp_file(text: str, unit_m: float = 1.0) -> DriveTable:
-    """The table of a LinuxCNC comp file's text (COMP_FILE_TYPE 1; the forward trim)."""
+def read_comp_file(text: str, unit_m: float = 1e-3) -> DriveTable:
+    """The table of a LinuxCNC comp file's text (COMP_FILE_TYPE 0; moving forward)."""
     rows = []
     for number, line in enumerate(text.splitlines(), start=1):
         words = line.split()
         if not words or words[0].startswith(("#", ";")):
             continue
         if len(words) != 3:
-            raise ConfigError("comp_file", f"line {number}: expected 'nominal forward-trim reverse-trim', got {line!r}")
-        rows.append([float(words[0]) * unit_m, float(words[1]) * unit_m])
+            raise ConfigError("comp_file", f"line {number}: expected 'nominal actual-forward actual-reverse', got "
+                                           f"{line!r}")
+        nominal, actual = float(words[0]) * unit_m, float(words[1]) * unit_m
+        rows.append([nominal, actual - nominal])
     arr = np.asarray(rows, dtype=float).reshape(-1, 2)
     return DriveTable(arr[:, 0], arr[:, 1])
