@@ -1,28 +1,34 @@
-"""Calibrating ARCHI in three commands, end to end in the graph: the shipped calibration
-program (pkm-calibrate plan's, checked to be what plan writes today) run on the machine
-with archi_fig12's 2 % leg error, `pkm-calibrate identify` on the recording, and the
-calibrated file as the controller's model: archi_fig12's joint PIDs no longer fight.
-A run of another machine and a run without dwells (of the length asked) are refused by name."""
+"""Calibrating a machine in three commands, end to end through pkm-calibrate's CLI: the
+shipped ARCHI program is what `plan` writes today; a short MoM3 program planned here
+(12 poses) run in the graph on mom3_calibration's Delta as built, `identify
+--instrument gough` on its recording writes the calibrated file, whose lengths and
+zeros are the plant's, and which the controller then loads as its model. A run of
+another machine, without the instrument's stream, with dwells outside the workspace
+or without dwells (of the length asked) is refused by name. (ARCHI's own calibration
+run, and every model on its machine: pkm-gallery's archi_calibration, in make test.)"""
 
-import re
-
-import numpy as np
 import pytest
 import yaml
 
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import load_scenario
 from pkm_calibration.cli import main
+from pkm_calibration.recorded import read_calibration_run
 from pkm_kinematics import load_machine
-from pkm_kinematics.config import config_dir
-from pkm_runs.report_data import load_run
+from pkm_kinematics.config import config_dir, load_machine_data
+
+LENGTH_ERRORS = (0.002, -0.0015, 0.001)          # config/scenarios/mom3_calibration.yaml's plant
+ZERO_ERRORS = (0.0005, -0.0008, 0.0003)
 
 
 @pytest.fixture(scope="module")
 def calibration(tmp_path_factory):
     root = tmp_path_factory.mktemp("calibration")
-    run = run_scenario(load_scenario("archi_calibration"), root / "run", in_process=True, progress=False,
-                       report=False)
+    program = root / "mom3_short.nc"
+    assert main(["plan", "mom3", "--instrument", "gough", "--poses", "12", "--candidates", "200", "--dwell-s", "0.3",
+                 "--feed", "18000", "--out", str(program)]) == 0
+    run = run_scenario(load_scenario("mom3_calibration", {"program": str(program)}), root / "run", in_process=True,
+                       progress=False, report=False)
     return root, run
 
 
@@ -34,32 +40,39 @@ def test_the_shipped_program_is_what_plan_writes(tmp_path):
     assert out.read_text() == shipped
 
 
-def test_identify_finds_the_leg_error_and_the_calibrated_model_stops_the_fight(calibration, capsys):
+def test_identify_writes_the_plants_geometry_and_the_controller_loads_it(calibration, capsys):
     root, run = calibration
     assert run["status"] == "completed", run["error"]
-    out = root / "archi.calibrated.yaml"
-    assert main(["identify", "archi", str(root / "run"), "--out", str(out), "--label", "test"]) == 0
+    out = root / "mom3.calibrated.yaml"
+    assert main(["identify", "mom3", str(root / "run"), "--instrument", "gough", "--out", str(out),
+                 "--label", "test"]) == 0
     printed = capsys.readouterr().out
-    dwells = re.search(r"no instrument, (\d+) dwells(?: \((\d+) left out: the machine had not settled\))?", printed)
-    assert dwells and int(dwells[1]) + int(dwells[2] or 0) == 30 and int(dwells[2] or 0) <= 3, printed
-    assert "held at nominal: b.y.q2, zero.q4, b.x.q4, b.y.q4, rail.across.q4" in printed, printed
+    assert "the Gough metrology's tool pose" in printed and "held at nominal: b.z.q1, b.z.q2, b.z.q3" in printed, \
+        printed
     data = yaml.safe_load(out.read_text())
-    length = data["legs"][2]["link_length"]
-    std = data["calibration"]["parameters"]["length.q3"]["std"]
-    assert abs(length - 1.02) < 3 * std and std < 5e-5, (length, std)      # 1 um counts: tens of um
-    assert load_machine(out).model_label == "archi (calibrated: test)"
-    with capsys.disabled():           # the run's nodes write to the real standard streams
-        fig12 = run_scenario(load_scenario("archi_fig12", {"model": str(out), "controller": {"strategy": "joint_pid"}}),
-                             root / "fig12", in_process=True, progress=False, report=False)
-    assert fig12["status"] == "completed" and fig12["model"] == str(out), (fig12["status"], fig12["error"])
-    applied = load_run(root / "fig12").steps.rows["state"].effort
-    assert np.abs(applied).max() < 400.0, np.abs(applied).max()       # nominal model: 2000 N, saturated
+    nominal = load_machine("mom3").data["legs"]
+    parameters = data["calibration"]["parameters"]
+    for k, leg in enumerate(data["legs"]):
+        name = leg["name"]
+        length, std = leg["link_length"] - nominal[k]["link_length"], parameters[f"length.{name}"]["std"]
+        assert abs(length - LENGTH_ERRORS[k] * nominal[k]["link_length"]) < max(3 * std, 2e-6), (name, length, std)
+        zero, std = leg["rail_origin"][2] - nominal[k]["rail_origin"][2], parameters[f"zero.{name}"]["std"]
+        assert abs(zero - ZERO_ERRORS[k]) < max(3 * std, 2e-6), (name, zero, std)
+    config = load_machine(out)
+    assert config.model_label == "mom3 (calibrated: test)"
+    fig19 = load_scenario("mom3_fig19", {"model": str(out)})
+    assert fig19.controller_machine == str(out)
 
 
 def test_runs_that_are_not_this_machines_calibration_are_refused(calibration, capsys):
     root, _ = calibration
-    assert main(["identify", "genhexkins", str(root / "run"), "--instrument", "laser"]) == 2
-    assert "a run of archi, not of genhexkins" in capsys.readouterr().err        # its run.json says so
-    assert main(["identify", "archi", str(root / "run"), "--min-dwell-s", "5"]) == 2
-    assert "0 dwells of at least 5 s found, 21 needed (is it a calibration program's run?)" in \
+    assert main(["identify", "archi", str(root / "run")]) == 2
+    assert "a run of mom3, not of archi" in capsys.readouterr().err        # its run.json says so
+    assert main(["identify", "mom3", str(root / "run"), "--instrument", "laser"]) == 2
+    assert "the run recorded no laser readings (stream instrument)" in capsys.readouterr().err
+    narrow = dict(load_machine("mom3").data, workspace={"center": [0.0, 0.0, 0.882], "size": 0.02})
+    with pytest.raises(ValueError, match=r"is outside mom3's workspace \[.*\]: not a calibration of this machine"):
+        read_calibration_run(root / "run", load_machine_data(narrow))
+    assert main(["identify", "mom3", str(root / "run"), "--instrument", "gough", "--min-dwell-s", "5"]) == 2
+    assert "0 dwells of at least 5 s found, 8 needed (is it a calibration program's run?)" in \
         capsys.readouterr().err

@@ -27,6 +27,8 @@ from pkm_kinematics.rotations import rotation_from_quaternion
 from pkm_kinematics.task_space import task_pose
 from pkm_runs.report_data import load_run
 
+from .poses import workspace_bounds
+
 __all__ = ["Dwell", "CalibrationReadings", "dwells", "read_calibration_run", "run_record"]
 
 MAX_SPREAD_M = 2e-6          # a settled dwell's encoders: within a count or two of still
@@ -167,6 +169,16 @@ def read_calibration_run(run_dir, machine, min_dwell_s: float = 0.2, instrument:
                                            f"(stream {INSTRUMENTS[instrument]})")
         points = np.where(rows.present[keep, None], rows.position[keep], np.nan)
     found = dwells(arrays, model.task_space, min_dwell_s, instrument=points)
+    lo, hi = workspace_bounds(model)
+    slack = np.where(np.arange(len(lo)) < model.task_space.translation_axes, 1e-3, np.radians(1.0))
+    for k, d in enumerate(found):
+        out = (d.pose < lo - slack) | (d.pose > hi + slack)
+        if out.any():
+            axis = int(np.argmax(out))
+            raise FieldError("poses", f"{run_dir}: dwell {k + 1} at {model.task_space.axes[axis]} = "
+                                      f"{d.pose[axis]:.6g} is outside {machine.name}'s workspace "
+                                      f"[{lo[axis]:.6g}, {hi[axis]:.6g}]: not a calibration of this machine's "
+                                      "workspace")
     still = [d for d in found if d.settled(max_spread_m)]
     if len(still) < min_dwells:
         moving = f" ({len(found) - len(still)} more where the machine had not settled: longer dwells?)" \
