@@ -227,6 +227,18 @@ MOM3_PLANT = {"link_length_errors": [0.002, -0.0015, 0.001],       # config/scen
 MOM3_COMPLIANCE = [7.0e-7, 7.0e-7, 7.0e-7]                          # mom3_fig19's (Table 2: 77 um under 110 N)
 
 
+def _square_error(bench: Bench, label: str, strategy: str, plant: dict, model=None, load_n: float = 0.0) -> tuple:
+    """(status, RMS, max) of the tool error over mom3_fig19's square, under ``load_n`` on
+    the tool (x), the controller on ``model`` (default: the machine's)."""
+    out = bench.run("mom3_fig19", label=label, controller={"strategy": strategy, "distribution": "pseudo_inverse"},
+                    plant=plant, load=[{"t_s": 0.05, "wrench": [load_n, 0.0, 0.0], "ramp_s": 0.1}] if load_n else [],
+                    **({"model": str(model)} if model else {}))
+    st = out.steps
+    rows = st["t_s"] >= FIG19_FROM_S
+    e = np.linalg.norm(st["position"][rows] - st["ref_position"][rows], axis=1)
+    return out.status, float(np.sqrt(np.nanmean(e * e))), float(np.nanmax(e))
+
+
 def mom3_calibration(bench: Bench) -> Outcome:
     config = load_machine("mom3")
     run = bench.run("mom3_calibration")
@@ -248,15 +260,9 @@ def mom3_calibration(bench: Bench) -> Outcome:
                                    ("classical (encoders), calibrated model", "computed_torque", path),
                                    ("sensor space (Gough struts), nominal model", "sensor_space", None)):
         for load in (0.0, 110.0):
-            out = bench.run("mom3_fig19", label=f"{strategy}_{'calibrated' if model else 'nominal'}_{load:.0f}N",
-                            controller={"strategy": strategy, "distribution": "pseudo_inverse"},
-                            plant={**MOM3_PLANT, "compliance": MOM3_COMPLIANCE},
-                            load=[{"t_s": 0.05, "wrench": [load, 0.0, 0.0], "ramp_s": 0.1}] if load else [],
-                            **({"model": str(model)} if model else {}))
-            st = out.steps
-            rows = st["t_s"] >= FIG19_FROM_S
-            e = np.linalg.norm(st["position"][rows] - st["ref_position"][rows], axis=1)
-            errors[(label, load)] = (out.status, float(np.sqrt(np.nanmean(e * e))), float(np.nanmax(e)))
+            errors[(label, load)] = _square_error(bench, f"{strategy}_{'calibrated' if model else 'nominal'}_"
+                                                         f"{load:.0f}N", strategy,
+                                                  {**MOM3_PLANT, "compliance": MOM3_COMPLIANCE}, model, load)
     nominal, calibrated, sensor = (k for k, _ in list(errors)[::2])
     v = result.extra["validation"]
     o = Outcome()
@@ -290,16 +296,6 @@ def mom3_calibration(bench: Bench) -> Outcome:
 
 
 TABLE_SPACING_M = 0.02          # mom3_compensation's knots (the screws' error: a 0.1 m period)
-
-
-def _square_error(bench: Bench, label: str, strategy: str, plant: dict, model=None) -> tuple:
-    """(status, RMS, max) of the tool error over mom3_fig19's square, no load."""
-    out = bench.run("mom3_fig19", label=label, controller={"strategy": strategy, "distribution": "pseudo_inverse"},
-                    plant=plant, load=[], **({"model": str(model)} if model else {}))
-    st = out.steps
-    rows = st["t_s"] >= FIG19_FROM_S
-    e = np.linalg.norm(st["position"][rows] - st["ref_position"][rows], axis=1)
-    return out.status, float(np.sqrt(np.nanmean(e * e))), float(np.nanmax(e))
 
 
 def mom3_compensation(bench: Bench) -> Outcome:
