@@ -1,7 +1,7 @@
 """Session-wide test setup: a private ROS 2 DDS domain and rclpy fixtures.
 
 Importing this file (pytest does it before collecting any test module) sets
-``ROS_DOMAIN_ID`` and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` in ``os.environ`` so
+``ROS_DOMAIN_ID`` and the DDS profile (pkm_common.domains.localhost_dds) in ``os.environ`` so
 that every rclpy context of this session, and every process it starts, talks
 only inside its own domain on localhost. Parallel pytest runs on one machine
 (two developers, CI beside a developer) therefore never see each other's nodes.
@@ -19,6 +19,7 @@ Fixtures:
 """
 
 import contextlib
+import os
 import threading
 import time
 
@@ -34,8 +35,8 @@ ROS_DOMAIN_ID = use_private_domain()
 
 
 def pytest_report_header(config):
-    return (f'ROS_DOMAIN_ID={ROS_DOMAIN_ID} '
-            f'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST')
+    return (f'ROS_DOMAIN_ID={ROS_DOMAIN_ID}, DDS on localhost over UDP '
+            f'(FASTRTPS_DEFAULT_PROFILES_FILE={os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")})')
 
 
 # --- rclpy fixtures ----------------------------------------------------------

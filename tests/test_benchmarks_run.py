@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from pkm_bringup.processes import ros_environment
-from pkm_common.domains import NoFreeDomain, claim_domain_id
+from pkm_common.domains import DDS_PROFILE, NoFreeDomain, claim_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,7 +51,8 @@ def test_a_benchmark_graph_runs_in_a_domain_it_holds_apart_from_the_test_that_st
     env = ros_environment(own_domain=True)
     domain = int(env["ROS_DOMAIN_ID"])
     assert domain != int(os.environ["ROS_DOMAIN_ID"])            # not this worker's
-    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == DDS_PROFILE               # on localhost (localhost_dds)
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
     with pytest.raises(NoFreeDomain):                             # held: nobody else claims it
         claim_domain_id(ids=[domain], strict=True)
     # and no benchmark names a domain of its own choosing

@@ -5,6 +5,8 @@ import os
 
 import pytest
 
+from pkm_common.domains import DDS_PROFILE
+
 pytestmark = pytest.mark.ros
 
 NAMES = ['q1', 'q2', 'q3', 'q4']
@@ -17,7 +19,9 @@ def test_session_has_private_domain():
     domain_id = int(os.environ['ROS_DOMAIN_ID'])
     assert domain_id != 0
     assert 1 <= domain_id <= 101 or 215 <= domain_id <= 232
-    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    # on localhost over UDP only (pkm_common.domains.localhost_dds)
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    assert os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] == DDS_PROFILE
 
 
 @pytest.mark.parametrize('ros_graph', ['single', 'events'], indirect=True)

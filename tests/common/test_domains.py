@@ -6,7 +6,8 @@ import sys
 
 import pytest
 
-from pkm_common.domains import DOMAIN_IDS, NoFreeDomain, claim_domain_id, domains_named_by_live_processes
+from pkm_common.domains import (DDS_PROFILE, DOMAIN_IDS, NoFreeDomain, claim_domain_id, domains_named_by_live_processes,
+                                localhost_dds)
 
 _CHILD = """
 import sys, time
@@ -65,3 +66,22 @@ def test_an_id_named_in_a_live_process_environment_is_not_claimed(tmp_path, monk
         orphan.wait()
     assert used not in domains_named_by_live_processes()
     assert claim_domain_id(ids=[used], lock_dir=str(tmp_path), strict=True) == used
+
+
+@pytest.mark.parametrize("given,expected", [
+    ({}, {"range": "SYSTEM_DEFAULT", "profile": DDS_PROFILE}),                      # nothing asked: ours
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}, {"range": "SYSTEM_DEFAULT", "profile": DDS_PROFILE}),
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT", "FASTRTPS_DEFAULT_PROFILES_FILE": DDS_PROFILE},
+     {"range": "SYSTEM_DEFAULT", "profile": DDS_PROFILE}),                           # ours again: unchanged
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}, {"range": "SUBNET", "profile": None}),   # asked: as asked
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT"}, {"range": "SYSTEM_DEFAULT", "profile": None}),
+    ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/mine.xml"}, {"range": "LOCALHOST", "profile": "/etc/mine.xml"}),
+    ({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}, {"range": "LOCALHOST", "profile": None}),
+    ({"ROS_LOCALHOST_ONLY": "1"}, {"range": "SYSTEM_DEFAULT", "profile": DDS_PROFILE}),   # deprecated: dropped
+])
+def test_a_graphs_dds_is_the_udp_localhost_profile_unless_the_user_asked_for_another(given, expected):
+    env = localhost_dds({"PATH": "/bin", **given})
+    assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == expected["range"], env
+    assert env.get("FASTRTPS_DEFAULT_PROFILES_FILE") == expected["profile"], env
+    assert "ROS_LOCALHOST_ONLY" not in env and env["PATH"] == "/bin"
+    assert os.path.isfile(DDS_PROFILE)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pkm_bringup.rt_profile import Scheduling, child_environment, preexec
-from pkm_common.domains import claim_domain_id
+from pkm_common.domains import PROFILE_ENV, claim_domain_id, localhost_dds
 
 MODULES = {
     "recorder": "pkm_recording.recorder_node",
@@ -106,15 +106,14 @@ def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 10.0, together: bool
 
 def ros_environment(own_domain: bool = False) -> dict:
     """The process environment with a DDS domain (ROS_DOMAIN_ID kept if set, else one
-    claimed for this process: no live process on the host holds it) and discovery on
-    localhost. ``own_domain`` claims one even if ROS_DOMAIN_ID is set: for a graph that
-    must stay apart from the graph of whoever started this process (a benchmark started
-    by a test, whose worker runs its own graphs in the domain it passed down)."""
-    env = dict(os.environ)
-    env.pop("ROS_LOCALHOST_ONLY", None)
+    claimed for this process: no live process on the host holds it) and the DDS kept on
+    localhost (pkm_common.domains.localhost_dds). ``own_domain`` claims one even if
+    ROS_DOMAIN_ID is set: for a graph that must stay apart from the graph of whoever
+    started this process (a benchmark started by a test, whose worker runs its own
+    graphs in the domain it passed down)."""
+    env = localhost_dds(os.environ)
     if own_domain or "ROS_DOMAIN_ID" not in env:
         env["ROS_DOMAIN_ID"] = str(claim_domain_id())
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
 
@@ -123,5 +122,5 @@ def use_ros_environment() -> dict:
     """``ros_environment`` for the children, its ROS_ variables applied to this process
     too (so that its own nodes join the same domain); returns it."""
     env = ros_environment()
-    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_")})
+    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_") or k == PROFILE_ENV})
     return env

@@ -8,9 +8,9 @@ life of the process and released by the kernel when it ends, even on a crash or 
 ``kill -9``. A process that names the ID in its environment holds it too: a graph
 started by hand (``ROS_DOMAIN_ID=5 pkm-run ...``), or the nodes of a run whose
 claiming process has ended (an orphan keeps its environment, not its parent's lock).
-With discovery kept on localhost (``ROS_AUTOMATIC_DISCOVERY_RANGE=
-LOCALHOST``, set by :func:`use_private_domain`), processes on different hosts never
-meet whatever their IDs, so the claim only needs to be unique per host.
+With discovery and traffic kept on localhost (:func:`localhost_dds`, applied by
+:func:`use_private_domain`), processes on different hosts never meet whatever their
+IDs, so the claim only needs to be unique per host.
 
 Fast DDS on Linux maps IDs 0-101 and 215-232 to valid UDP ports (ROS 2 docs, "The
 ROS_DOMAIN_ID"); 0 is everybody's default, so :data:`DOMAIN_IDS` leaves it out.
@@ -27,6 +27,10 @@ import tempfile
 import time
 
 DOMAIN_IDS = tuple(range(1, 102)) + tuple(range(215, 233))
+DDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_localhost_udp.xml")
+PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"     # Fast DDS 2.x (Jazzy's) reads its default profile here
+RANGE_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+FASTDDS_RMW = "rmw_fastrtps_cpp"
 LOCK_DIR = os.path.join(tempfile.gettempdir(), "pkm-ros-domain-locks")
 FORCE_ENV = "PKM_TEST_ROS_DOMAIN_ID"           # forces an ID (to watch a run with a ROS tool)
 
@@ -104,6 +108,38 @@ def claim_domain_id(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = Fal
     return ids[0]
 
 
+def localhost_dds(env: dict) -> dict:
+    """The DDS settings of a graph's process, on localhost: ``env`` with them (a copy).
+
+    With Fast DDS (Jazzy's default RMW) and no range or profile of the user's:
+    :data:`DDS_PROFILE` (UDP on 127.0.0.1 only, no shared memory: the file says why) as
+    Fast DDS's default profile, and ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT`` so
+    that rmw_fastrtps takes it as it is (``LOCALHOST`` makes rmw_fastrtps add its own
+    shared-memory transport). ``LOCALHOST`` asked for explicitly is taken to mean this.
+    Another range asked for (a machine whose nodes run on two hosts), another RMW or a
+    profile of the user's: left as asked, with ``LOCALHOST`` where no range is.
+    """
+    env = dict(env)
+    env.pop("ROS_LOCALHOST_ONLY", None)              # deprecated in Jazzy, warns
+    asked = env.get(RANGE_ENV, "")
+    profile = env.get(PROFILE_ENV) or DDS_PROFILE
+    fast_dds = (env.get("RMW_IMPLEMENTATION") or FASTDDS_RMW) == FASTDDS_RMW
+    on_localhost = asked in ("", "LOCALHOST") or (asked == "SYSTEM_DEFAULT" and env.get(PROFILE_ENV) == DDS_PROFILE)
+    if fast_dds and on_localhost and profile == DDS_PROFILE:
+        env[PROFILE_ENV], env[RANGE_ENV] = DDS_PROFILE, "SYSTEM_DEFAULT"
+    elif not asked:
+        env[RANGE_ENV] = "LOCALHOST"
+    return env
+
+
+def use_localhost_dds() -> None:
+    """:func:`localhost_dds` applied to this process's environment (before its first
+    rclpy context: Fast DDS and rcl read it then)."""
+    dds = localhost_dds(os.environ)
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ.update({k: dds[k] for k in (RANGE_ENV, PROFILE_ENV) if k in dds})
+
+
 def use_private_domain(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = False) -> int:
     """Claim a domain for this process (once: later calls return the same ID) and set
     the environment every rclpy context and child process of it reads."""
@@ -112,7 +148,7 @@ def use_private_domain(ids=DOMAIN_IDS, lock_dir: str = LOCK_DIR, strict: bool = 
         return int(current)
     domain_id = claim_domain_id(ids, lock_dir, strict)
     os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)      # deprecated in Jazzy, warns
     os.environ.pop("ROS_STATIC_PEERS", None)
+    os.environ.pop(RANGE_ENV, None)                 # a private domain is on this host: ours
+    use_localhost_dds()
     return domain_id

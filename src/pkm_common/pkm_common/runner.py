@@ -29,6 +29,7 @@ import rclpy
 import rclpy.signals
 from rclpy.executors import ExternalShutdownException
 
+from pkm_common.domains import use_localhost_dds
 from pkm_kinematics.errors import FieldError
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETER = 0, 1, 2
@@ -113,6 +114,7 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     errors raised before the node (and its logger) exists.
     """
     executor = os.environ.get('PKM_EXECUTOR', executor)     # for experiments: single | events
+    use_localhost_dds()             # a node started by hand talks as a graph's nodes do
     context = rclpy.Context()
     # SIGINT/SIGTERM only set a flag, checked between two spin_once calls: the loop
     # ends at a callback boundary and the teardown runs in order. rclpy's own handlers
