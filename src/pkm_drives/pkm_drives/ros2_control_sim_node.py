@@ -20,6 +20,7 @@ one by joint name.
 
 from __future__ import annotations
 
+import time
 
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -58,6 +59,7 @@ class Ros2ControlSimNode(Node):
         self.order = list(reversed(self.joints)) + [EXTRA_JOINT]       # the broadcaster's own order
         self.effort = [0.0] * len(self.joints)                          # the controller's, in its joints' order
         self.counts = {"commands": 0, "rejected": 0, "updates": 0}
+        self.last_update_s, self.max_update_gap_s = None, 0.0     # its own loop's longest stall (a diagnostic)
         self.pub_states = system_publisher(self, JointState, settings.joint_states)
         self.pub_pose = publisher(self, topics.TRUE_POSE)
         self.pose_encoder = PoseStampedEncoder("world")
@@ -79,6 +81,10 @@ class Ros2ControlSimNode(Node):
 
     def update(self) -> None:
         """controller_manager's cycle: read the plant, publish the joints, write the efforts."""
+        now = time.monotonic()
+        if self.last_update_s is not None:
+            self.max_update_gap_s = max(self.max_update_gap_s, now - self.last_update_s)
+        self.last_update_s = now
         out = self.plant.step(self.effort, hold=not self.counts["commands"])   # brakes until commanded
         self.counts["updates"] += 1
         ns = self.plant.k * self.plant.dt_ns
@@ -94,6 +100,7 @@ class Ros2ControlSimNode(Node):
 
     def summary(self) -> dict:
         return {**self.counts, "last_command": dict(zip(self.joints, self.effort)), "steps": self.plant.k,
+                "max_update_gap_ms": round(self.max_update_gap_s * 1e3, 1),
                 "stopped": self.plant.stopped, "stop_reason": self.plant.stop_reason}
 
     def destroy_node(self):
