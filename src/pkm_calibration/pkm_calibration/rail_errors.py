@@ -76,10 +76,14 @@ class RailErrorModel:
             ("length", "zero", "b.x", "b.y", "b.z")
         names = [f"{p}.{leg}" for leg in m.leg_names for p in per_leg]
         if self.instrument:
-            names += [f"frame.{c}" for c in (("x", "y", "rz") if self.planar else ("x", "y", "z", "rx", "ry", "rz"))]
+            names += self._instrument_names()
         if len(self.tool) != 3:
             raise FieldError("tool", f"expected the tool point (x, y, z) in the platform frame, got {self.tool!r}")
         object.__setattr__(self, "names", tuple(names))
+
+    def _instrument_names(self) -> list[str]:
+        """The instrument's parameters, after the legs': its frame (module doc)."""
+        return [f"frame.{c}" for c in (("x", "y", "rz") if self.planar else ("x", "y", "z", "rx", "ry", "rz"))]
 
     @property
     def planar(self) -> bool:
