@@ -7,6 +7,7 @@ another machine, without the instrument's stream, with dwells outside the worksp
 or without dwells (of the length asked) is refused by name. (ARCHI's own calibration
 run, and every model on its machine: pkm-gallery's archi_calibration, in make test.)"""
 
+import numpy as np
 import pytest
 import yaml
 
@@ -62,6 +63,53 @@ def test_identify_writes_the_plants_geometry_and_the_controller_loads_it(calibra
     assert config.model_label == "mom3 (calibrated: test)"
     fig19 = load_scenario("mom3_fig19", {"model": str(out)})
     assert fig19.controller_machine == str(out)
+
+
+@pytest.fixture(scope="module")
+def miscalibrated_gough_run(calibration):
+    """The same program, the Gough's own joints off by 0.2 mm (per axis, std)."""
+    root, _ = calibration
+    scenario = load_scenario("mom3_calibration", {"program": str(root / "mom3_short.nc"),
+                                                  "sensor": {"calibration_error_m": 2e-4, "seed": 3}})
+    run = run_scenario(scenario, root / "gough_off", in_process=True, progress=False, report=False)
+    assert run["status"] == "completed", run["error"]
+    return root / "gough_off"
+
+
+def _identified(out):
+    data = yaml.safe_load(out.read_text())
+    return data, data["calibration"]["parameters"]
+
+
+def test_a_miscalibrated_gough_read_strut_by_strut_is_identified_with_the_machine(miscalibrated_gough_run, capsys):
+    """Its pose (the sensor's forward kinematics on its nominal joints) carries the
+    joints' errors into the machine's model; its struts, with its joints identified
+    too, explain every reading. The encoders' zeros then share one offset: the datum
+    (where the tool is against the Gough's held joints), the rest within their std."""
+    run_dir, out = miscalibrated_gough_run, miscalibrated_gough_run / "pose.yaml"
+    assert main(["identify", "mom3", str(run_dir), "--instrument", "gough", "--out", str(out)]) == 0
+    pose_fit = capsys.readouterr().out
+    out = run_dir / "struts.yaml"
+    assert main(["identify", "mom3", str(run_dir), "--instrument", "gough-struts", "--out", str(out)]) == 0
+    struts_fit = capsys.readouterr().out
+    assert "its own joints identified too" in struts_fit and "gough.plate.1.x" in struts_fit
+    after = [float(text.split("residual RMS ")[1].split(" -> ")[1].split(" um")[0]) for text in (pose_fit, struts_fit)]
+    assert after[0] > 10.0 and after[1] < 1.0, after               # um: what each model leaves unexplained
+    data, parameters = _identified(out)
+    nominal = load_machine("mom3").data["legs"]
+    zeros = []
+    for k, leg in enumerate(data["legs"]):
+        name = leg["name"]
+        length, std = leg["link_length"] - nominal[k]["link_length"], parameters[f"length.{name}"]["std"]
+        assert abs(length - LENGTH_ERRORS[k] * nominal[k]["link_length"]) < max(3 * std, 2e-6), (name, length, std)
+        zeros.append((leg["rail_origin"][2] - nominal[k]["rail_origin"][2] - ZERO_ERRORS[k],
+                      parameters[f"zero.{name}"]["std"]))
+    datum = np.mean([z for z, _ in zeros])
+    assert all(abs(z - datum) < 3 * std for z, std in zeros), (datum, zeros)
+    assert abs(datum) < 3 * 2e-4, datum
+    offsets = data["metrology"]["geometry"]["joint_offsets"]
+    assert np.abs(offsets["base"]).max() > 1e-4 and np.abs(offsets["plate"]).max() == 0.0   # plate: held
+    assert load_machine(out).metrology.platform.base_points.shape == (6, 3)
 
 
 def test_runs_that_are_not_this_machines_calibration_are_refused(calibration, capsys):

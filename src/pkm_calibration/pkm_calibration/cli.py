@@ -135,10 +135,11 @@ def main(argv=None) -> int:
     b.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"))
     b.add_argument("--out", type=Path, required=True)
     for q in (p, i):
-        q.add_argument("--instrument", choices=("auto", "none", "laser", "gough"), default="auto",
+        q.add_argument("--instrument", choices=("auto", "none", "laser", "gough", "gough-struts"), default="auto",
                        help="the instrument read at the poses (auto: a laser tracker on a strut machine; none, "
                             "self-calibration from the redundancy, on a redundant machine on rails; the Gough "
-                            "metrology on one with a metrology section)")
+                            "metrology's pose on one with a metrology section; gough-struts: its six struts, "
+                            "the Gough's own joints identified too)")
         q.add_argument("--tool", type=float, nargs=3, default=(0.0, 0.0, 0.0) if q is p else None,
                        metavar=("X", "Y", "Z"), help="the point the instrument measures, platform frame (m)"
                        + ("" if q is p else "; default: the run's laser tracker's (run.json)"))

@@ -16,6 +16,9 @@ A planar machine on rails (self_calibration.PlanarRailErrorModel's parameters pe
 length, zero, b.x, b.y, rail.across) is written in its own words: the link length
 L + dL, the platform point b + db, and the rail origin a + z u + across n (the
 encoder's zero moves the rail's origin along it, as the plant's rail_offset_errors_m).
+Calibrated with its Gough strut by strut (gough_errors), the Gough's joint centres go
+into its metrology section as ``geometry.joint_offsets`` (its own frames), which the
+sensor's forward kinematics then uses.
 """
 
 from __future__ import annotations
@@ -74,6 +77,15 @@ def calibrated_rail_machine(config, names, theta, std, calibration: dict) -> dic
         leg["link_length"] = float(leg["link_length"] + values[f"length.{name}"] / unit)
         key = "platform_point" if "platform_point" in leg else "platform_offset"
         leg[key] = [float(v + values.get(f"b.{axis}.{name}", 0.0) / unit) for v, axis in zip(leg[key], "xyz")]
+    if any(n.startswith("gough.") for n in names):           # gough_errors: the sensor's joints, its own frames
+        m = config.metrology
+        geometry = data["metrology"]["geometry"]
+        old = geometry.get("joint_offsets", {})
+        for part, rotation in (("base", m.base_rotation), ("plate", m.plate_rotation_in_tool)):
+            delta = np.array([[values[f"gough.{part}.{j + 1}.{c}"] for c in "xyz"] for j in range(6)])
+            delta = delta @ np.asarray(rotation, dtype=float) + np.asarray(old.get(part, np.zeros((6, 3))))
+            old[part] = [[float(v) for v in row] for row in delta]
+        geometry["joint_offsets"] = old
     data["calibration"] = {**calibration,
                            "written": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                            "parameters": {n: {"value": float(v), "std": float(s)}

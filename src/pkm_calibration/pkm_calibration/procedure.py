@@ -13,7 +13,9 @@ the program in between):
 
 The models by machine and instrument (``MODELS``): a planar machine on rails with more
 drives than degrees of freedom, no instrument: self-calibration; a machine on struts,
-the laser tracker (its tool point): strut_errors.StrutErrorModel.
+the laser tracker (its tool point): strut_errors.StrutErrorModel; a machine on rails
+and its Gough, by the pose the sensor reports ("gough": rail_errors) or strut by strut
+with the sensor's own joints ("gough-struts": gough_errors).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from pkm_kinematics.struts import StrutMachine
 
 from .as_built import strut_gauge
 from .compensation_fit import fit_tables, true_drive_positions
+from .gough_errors import GoughStrutRailModel, gough_joints
 from .identify import Identifiability, gauge, identifiability, identify
 from .machine_files import calibrated_rail_machine, calibrated_strut_machine
 from .poses import calibration_program, candidate_poses, observability_index, route, select_poses
@@ -109,11 +112,19 @@ def error_model(config, instrument: str | None, tool=(0.0, 0.0, 0.0)):
         return StrutErrorModel(machine, tuple(tool)), "laser tracker on the tool point"
     if instrument == "gough" and config.metrology is None:
         raise FieldError("instrument", f"{config.name} has no metrology section: no Gough to calibrate with")
+    if instrument == "gough-struts" and config.metrology is not None and hasattr(machine, "rail_directions"):
+        base, plate = gough_joints(config.metrology)
+        return (GoughStrutRailModel(machine, base=base, plate=plate),
+                "the Gough metrology strut by strut, its own joints identified too")
+    if instrument == "gough-struts":
+        raise FieldError("instrument", f"{config.name}: gough-struts needs a machine on rails with a metrology "
+                                       "section (MoM3)")
     if instrument in ("laser", "gough") and hasattr(machine, "rail_directions"):
         return (RailErrorModel(machine, instrument=True, tool=tuple(tool) if instrument == "laser" else (0.0,) * 3),
                 "laser tracker on the tool point" if instrument == "laser" else "the Gough metrology's tool pose")
     raise FieldError("instrument", f"{config.name}: {instrument} calibration of a {config.kind} machine is not "
-                                   "modelled yet (machines on rails: none, laser, gough; strut machines: laser)")
+                                   "modelled yet (machines on rails: none, laser, gough, gough-struts; strut "
+                                   "machines: laser)")
 
 
 def _blocks(model, poses: np.ndarray, readings: np.ndarray) -> np.ndarray:
@@ -164,9 +175,11 @@ def identify_run(config, run_dir, instrument: str | None = None, min_dwell_s: fl
     instrument = instrument_for(config, instrument)
     tool = _tool_of_run(run_dir, instrument, tool)
     model, method = error_model(config, instrument, tool)
-    if table_spacing_m and (instrument is None or isinstance(model, StrutErrorModel) or model.planar):
+    if table_spacing_m and (instrument is None or isinstance(model, (StrutErrorModel, GoughStrutRailModel))
+                            or model.planar):
         raise FieldError("table_spacing_m", f"{config.name}: drive tables need an instrument that fixes the pose "
-                                            "(a translating machine on rails and its Gough or a tracker: MoM3)")
+                                            "(a translating machine on rails and its Gough's pose or a tracker: "
+                                            "MoM3)")
     if validate_every and instrument is None:
         raise FieldError("validate_every", "self-calibration has no instrument to validate against")
     n, dof = config.model.n_legs, config.model.task_space.dof

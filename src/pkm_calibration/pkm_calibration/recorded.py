@@ -33,7 +33,8 @@ __all__ = ["Dwell", "CalibrationReadings", "dwells", "read_calibration_run", "ru
 
 MAX_SPREAD_M = 2e-6          # a settled dwell's encoders: within a count or two of still
 STILL = 1e-9                # m, and quaternion components: a reference step smaller is round-off
-INSTRUMENTS = {"laser": "instrument", "gough": "metrology_pose"}    # instrument -> the run's stream
+# instrument -> the run's stream
+INSTRUMENTS = {"laser": "instrument", "gough": "metrology_pose", "gough-struts": "struts"}
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,7 @@ class Dwell:
     readings: np.ndarray        # the encoders' mean over the settled part (n,)
     spread: np.ndarray          # their standard deviation there (n,)
     samples: int                # drive states averaged
-    instrument: np.ndarray | None = None       # the instrument's mean point there (3,), or None
+    instrument: np.ndarray | None = None       # the instrument's mean there (a point (3,), struts (6,)), or None
 
     def settled(self, max_spread_m: float) -> bool:
         """The machine stood still over the averaged part (every drive's spread within)."""

@@ -333,6 +333,23 @@ def _parallelograms(r: FieldReader, name: str, description: str) -> Parallelogra
     return model
 
 
+MAX_JOINT_OFFSET_M = 0.01     # a calibration's correction of a Gough joint centre, at most
+
+
+def _joint_rows(r: FieldReader, key: str) -> np.ndarray:
+    """Six (x, y, z) offsets of the Gough's joint centres (m), each within MAX_JOINT_OFFSET_M."""
+    rows = r.raw(key)
+    if not isinstance(rows, list) or len(rows) != 6:
+        raise ConfigError(r.field_name(key), f"expected 6 offsets [x, y, z] (m), one per strut, got {rows!r}")
+    out = np.array([FieldReader({f"{key}[{k}]": row}, r.path).vector(f"{key}[{k}]", 3, unit="m")
+                    for k, row in enumerate(rows)])
+    if np.abs(out).max() > MAX_JOINT_OFFSET_M:
+        k = int(np.argmax(np.abs(out).max(axis=1)))
+        raise ConfigError(r.field_name(f"{key}[{k}]"), f"offsets must be within {MAX_JOINT_OFFSET_M:g} m, got "
+                                                       f"{out[k].tolist()}")
+    return out
+
+
 def _gough(r: FieldReader) -> GoughMetrologyConfig:
     g = r.sub("geometry")
     geometry = {"r_base": g.number("r_base", lo=0.0, lo_open=True, unit="m"),
@@ -344,6 +361,10 @@ def _gough(r: FieldReader) -> GoughMetrologyConfig:
     base, plate = mom3_points(geometry["r_base"], geometry["r_plate"], math.radians(geometry["alpha_base_deg"]),
                               math.radians(geometry["alpha_plate_deg"]),
                               math.radians(geometry["plate_line_offset_deg"]))
+    if g.has("joint_offsets"):      # a calibration's (pkm-calibrate --instrument gough-struts): m, the Gough's frames
+        offsets = g.sub("joint_offsets")
+        base = base + _joint_rows(offsets, "base")
+        plate = plate + _joint_rows(offsets, "plate")
     limits = r.interval("strut_limits", unit="m")
     if limits[0] <= 0.0:
         raise ConfigError(r.field_name("strut_limits"), f"min must be > 0 m, got {limits[0]:g}")
