@@ -10,11 +10,13 @@ import pytest
 
 from pkm_calibration.gough_errors import GoughStrutRailModel, gough_joints
 from pkm_calibration.identify import gauge
+from pkm_calibration.machine_files import calibrated_rail_machine
 from pkm_calibration.poses import candidate_poses
 from pkm_calibration.self_calibration import calibrate_rails
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
-from pkm_kinematics.errors import FieldError
+from pkm_kinematics.config import load_machine_data
+from pkm_kinematics.errors import ConfigError, FieldError
 
 SCALES = (1e-6, 1e-6)
 
@@ -107,3 +109,21 @@ def test_a_gough_without_its_joints_is_refused_naming_the_metrology():
     with pytest.raises(FieldError) as info:
         GoughStrutRailModel(config.model, base=np.zeros((5, 3)), plate=np.zeros((6, 3)))
     assert info.value.name == "metrology"
+
+
+def test_the_goughs_identified_joints_go_into_its_metrology_section_and_a_wild_one_is_refused():
+    config, model, _ = setup("mom3", 1, 0)
+    theta = np.zeros(model.size)
+    g = model.gough_columns
+    theta[g:g + 3] = [1e-4, -2e-4, 3e-4]                               # strut 1's base joint (world)
+    theta[g + 33:g + 36] = [5e-5, 0.0, -5e-5]                         # strut 6's plate joint (tool frame)
+    data = calibrated_rail_machine(config, model.names, theta, np.zeros(model.size), {"label": "t"})
+    calibrated = load_machine_data(data, "mom3.calibrated.yaml")
+    base, plate = gough_joints(calibrated.metrology)
+    nominal_base, nominal_plate = gough_joints(config.metrology)
+    assert np.abs(base - nominal_base - theta[g:g + 18].reshape(6, 3)).max() < 1e-12
+    assert np.abs(plate - nominal_plate - theta[g + 18:].reshape(6, 3)).max() < 1e-12
+    data["metrology"]["geometry"]["joint_offsets"]["base"][2] = [0.0, 0.02, 0.0]
+    with pytest.raises(ConfigError) as info:
+        load_machine_data(data, "mom3.calibrated.yaml")
+    assert info.value.name.endswith("metrology.geometry.joint_offsets.base[2]"), info.value.name
