@@ -34,6 +34,7 @@ SMALL = {
     "realtime.py": (["--pairs", "1", "--rates", "1000", "--duration-s", "0.3", "--in-process"], "ratio"),
     "rt_floor.py": (["--steps", "200"], "chain floor:"),
     "study.py": (["--runs", "3", "--duration-s", "0.2", "--variants", "2000", "--workers", "1"], "Pareto front"),
+    "startup.py": (["--repeat", "1", "--modes", "in-process"], "pkm-run --help"),
     "bringup.py": (["--windows-only", "--window-modes", "in-process", "--window-runs", "1",
                     "--window-length-s", "6"], "in-process"),
 }

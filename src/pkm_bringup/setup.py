@@ -21,7 +21,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'pkm-run = pkm_bringup.orchestrator:main',
+            'pkm-run = pkm_bringup.run_cli:main',
         ],
     },
 )

@@ -38,7 +38,6 @@ report.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import fcntl
 import json
@@ -48,6 +47,7 @@ import sys
 import time
 from pathlib import Path
 
+from pkm_bringup import run_cli
 from pkm_bringup.graph import Progress, RunFailed, StopSignals, run_processes
 from pkm_bringup.processes import use_ros_environment
 from pkm_bringup.rt_profile import RealtimeProfileRefused, applied_to_this_process, check_permitted
@@ -354,20 +354,12 @@ class _Interruption(StopSignals):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="pkm-run", description=__doc__.split("\n\n")[0])
-    parser.add_argument("scenario", help="scenario file, or the name of one in config/scenarios")
-    parser.add_argument("--in-process", action="store_true", help="all nodes in one executor")
-    parser.add_argument("--runs", default="runs", help="parent of the run directory (default: runs)")
-    parser.add_argument("--run-dir", help="exact run directory (must not exist)")
-    parser.add_argument("--no-record", action="store_true")
-    parser.add_argument("--no-progress", action="store_true")
-    parser.add_argument("--rt-profile", action="store_true",
-                        help="realtime profile: SCHED_FIFO and locked memory for the loop's nodes "
-                             "(the scenario key realtime_profile; needs root or CAP_SYS_NICE and CAP_IPC_LOCK)")
-    parser.add_argument("--credential", metavar="FILE",
-                        help="the key the run's commands are signed with (mode 600; a panel's or a script's: "
-                             "pkm_common.credential); default: a new one, RUN_DIR/credential.key")
-    args = parser.parse_args(argv)
+    """pkm-run (its console script is run_cli.main: the same, its arguments read first)."""
+    return run_command(run_cli.parser().parse_args(argv))
+
+
+def run_command(args) -> int:
+    """pkm-run with its parsed arguments (run_cli.parser)."""
     overrides = {**({"record": False} if args.no_record else {}),
                  **({"realtime_profile": True} if args.rt_profile else {})}
     try:
