@@ -34,7 +34,7 @@ import numpy as np
 
 from pkm_kinematics.errors import FieldError
 
-from .rail_errors import RailErrorModel
+from .rail_errors import RailErrorModel, distance_pose_jacobian
 
 __all__ = ["GoughStrutRailModel", "gough_joints"]
 
@@ -105,16 +105,8 @@ class GoughStrutRailModel(RailErrorModel):
         """The struts' (d s / d poses, d s / d theta): (6 N, 3 N), (6 N, size) (module doc)."""
         _, e, rc, rot = self._struts(theta, poses)
         N = len(e)
-        d_pose = np.zeros((N, STRUTS, 3 * N))
+        d_pose = distance_pose_jacobian(e, rc, self.planar)
         d_theta = np.zeros((N, STRUTS, self.size))
-        index = np.arange(N)
-        if self.planar:
-            d_pose[index, :, 3 * index] = e[:, :, 0]
-            d_pose[index, :, 3 * index + 1] = e[:, :, 1]
-            d_pose[index, :, 3 * index + 2] = -e[:, :, 0] * rc[:, :, 1] + e[:, :, 1] * rc[:, :, 0]
-        else:
-            for c in range(3):
-                d_pose[index, :, 3 * index + c] = e[:, :, c]
         er = np.einsum("nkj,nji->nki", e, rot)                              # e^T R (N, 6, 3)
         g = self.gough_columns
         for j in range(STRUTS):

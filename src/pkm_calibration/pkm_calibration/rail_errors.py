@@ -43,7 +43,7 @@ from pkm_kinematics.rotations import exp_so3
 
 from .identify import Identifiability, identifiability
 
-__all__ = ["RailErrorModel", "FRAME_STEP"]
+__all__ = ["RailErrorModel", "FRAME_STEP", "distance_pose_jacobian"]
 
 FRAME_STEP = 1e-7       # rad: the instrument frame's rotation by central differences
 
@@ -53,6 +53,20 @@ def _rz(angle) -> np.ndarray:
     out = np.zeros(np.shape(angle) + (3, 3))
     out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1], out[..., 2, 2] = c, -s, s, c, 1.0
     return out
+
+
+def distance_pose_jacobian(e, rb, planar: bool) -> np.ndarray:
+    """d |p_i + R_i b_k - a_ik| / d (every pose) for the unit vectors e (N, k, 3) and
+    R b (N, k, 3) (module doc: dr/dp = e, dr/dtheta = e . (z x R b)): (N, k, 3 N),
+    block-diagonal; a planar pose is (x, y, theta), a translating one (x, y, z)."""
+    N, k = e.shape[:2]
+    d_pose = np.zeros((N, k, 3 * N))
+    index = np.arange(N)
+    for c in range(2 if planar else 3):
+        d_pose[index, :, 3 * index + c] = e[:, :, c]
+    if planar:
+        d_pose[index, :, 3 * index + 2] = e[:, :, 1] * rb[:, :, 0] - e[:, :, 0] * rb[:, :, 1]
+    return d_pose
 
 
 @dataclass(frozen=True)
@@ -171,16 +185,8 @@ class RailErrorModel:
         poses, (N n, size)."""
         _, e, rb, u, normal, _ = self._terms(theta, poses, readings)
         N, n = e.shape[:2]
-        d_pose = np.zeros((N, n, 3 * N))
+        d_pose = distance_pose_jacobian(e, rb, self.planar)
         d_theta = np.zeros((N, n, self.size))
-        index = np.arange(N)
-        if self.planar:
-            d_pose[index, :, 3 * index] = e[:, :, 0]
-            d_pose[index, :, 3 * index + 1] = e[:, :, 1]
-            d_pose[index, :, 3 * index + 2] = e[:, :, 0] * -rb[:, :, 1] + e[:, :, 1] * rb[:, :, 0]
-        else:
-            for c in range(3):
-                d_pose[index, :, 3 * index + c] = e[:, :, c]
         _, rot = self._pose(poses)
         er = np.einsum("nkj,nji->nki", e, rot)                               # e^T R (N, n, 3)
         for k in range(n):
