@@ -77,6 +77,8 @@ def test_an_id_named_in_a_live_process_environment_is_not_claimed(tmp_path, monk
     ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT"}, {"range": "SYSTEM_DEFAULT", "profile": None}),
     ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/mine.xml"}, {"range": "LOCALHOST", "profile": "/etc/mine.xml"}),
     ({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}, {"range": "LOCALHOST", "profile": None}),
+    ({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp", "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+      "FASTRTPS_DEFAULT_PROFILES_FILE": DDS_PROFILE}, {"range": "LOCALHOST", "profile": None}),   # ours inherited
     ({"ROS_LOCALHOST_ONLY": "1"}, {"range": "SYSTEM_DEFAULT", "profile": DDS_PROFILE}),   # deprecated: dropped
 ])
 def test_a_graphs_dds_is_the_udp_localhost_profile_unless_the_user_asked_for_another(given, expected):

@@ -127,7 +127,11 @@ def localhost_dds(env: dict) -> dict:
     on_localhost = asked in ("", "LOCALHOST") or (asked == "SYSTEM_DEFAULT" and env.get(PROFILE_ENV) == DDS_PROFILE)
     if fast_dds and on_localhost and profile == DDS_PROFILE:
         env[PROFILE_ENV], env[RANGE_ENV] = DDS_PROFILE, "SYSTEM_DEFAULT"
-    elif not asked:
+    elif not asked or (on_localhost and env.get(PROFILE_ENV) == DDS_PROFILE):
+        if env.get(PROFILE_ENV) == DDS_PROFILE:
+            # ours, inherited by a process on another RMW: SYSTEM_DEFAULT would be that
+            # RMW's own default (multicast on every interface), not this profile
+            del env[PROFILE_ENV]
         env[RANGE_ENV] = "LOCALHOST"
     return env
 
