@@ -172,8 +172,47 @@ def declare_float_list(node, name: str, default, description: str = '', *,
     return out
 
 
-__all__ = ['ParameterError', 'declare_bool', 'declare_float', 'declare_float_list',
+__all__ = ['ParameterError', 'ParameterValues', 'declare_bool', 'declare_float', 'declare_float_list',
            'declare_int', 'declare_like', 'declare_str']
+
+
+class _Value:
+    __slots__ = ('value',)
+
+    def __init__(self, value):
+        self.value = value
+
+
+class ParameterValues:
+    """A node's parameters without a node: what the ``declare_*`` functions need of
+    one, over a dict of overrides (a run's params/<node>.yaml as pkm_bringup.scenario
+    makes it), so that a core built from a node's declarations is built the same way
+    without rclpy's node (the direct engine, pkm_bringup.direct). rclpy's own checks
+    are kept: an override of another type than the descriptor's is refused, and a
+    value outside the descriptor's range."""
+
+    def __init__(self, values: dict):
+        self._parameter_overrides = {name: _Value(value) for name, value in values.items()}
+        self.declared: dict = {}
+
+    def declare_parameter(self, name: str, default, descriptor: ParameterDescriptor, ignore_override: bool = False):
+        from rclpy.parameter import Parameter      # its type rules, without a node (no context needed)
+        given = self._parameter_overrides.get(name)
+        value = default if ignore_override or given is None else given.value
+        kind = Parameter.Type.from_parameter_value(value).value
+        if not descriptor.dynamic_typing and kind != descriptor.type:
+            raise ParameterException(f'wrong type for parameter {name!r}', name)
+        for ranges in (descriptor.floating_point_range, descriptor.integer_range):
+            if ranges and not ranges[0].from_value <= value <= ranges[0].to_value:
+                raise ParameterException(f'parameter {name!r} out of range', name)
+        self.declared[name] = value
+        return _Value(value)
+
+    def has_parameter(self, name: str) -> bool:
+        return name in self.declared
+
+    def get_parameter(self, name: str):
+        return _Value(self.declared[name])
 
 
 def declare_like(node, name: str, default):

@@ -15,7 +15,6 @@ program without the run's credential is refused, and the trajectories carry it
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from geometry_msgs.msg import PoseStamped
@@ -30,59 +29,24 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_s
                                     signed_message, trajectory_msg)
 from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.endpoints import publisher, subscription
-from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
+from pkm_common.params import declare_str
 from pkm_common.poses import tool_pose_to_machine
 from pkm_common.runner import main_exit, run_node
 from pkm_common.sources import AllowedSenders, CommandGuard, node_names
-from pkm_kinematics import load_machine
-from pkm_kinematics.dynamics import dynamic_model
-from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, plan_validated, point_to_point
+from pkm_trajectory.planner import point_to_point
 from pkm_trajectory.plan_chain import PlanChain, trajectory_verdict
-from pkm_trajectory.program import gcode_segments, program_events_text
-from pkm_trajectory.tool_table import load_tool_table
+from pkm_trajectory.planning import declare_planner
+from pkm_trajectory.program import program_events_text
 
 
 class TrajectoryNode(Node):
     def __init__(self, context=None, **kwargs):
         super().__init__("trajectory", context=context, **kwargs)
-        self.config = load_machine(declare_str(self, "machine", "archi"))
+        self.settings = settings = declare_planner(self)
+        self.config = settings.config
         self.model = self.config.model
         self.space = self.model.task_space
-        # per task axis: m/s (m/s^2, m/s^3) for a translation, rad/s ... for an angle
-        defaults = {name: [per_axis[0]] * self.space.translation_axes
-                    + [per_axis[1]] * (self.space.dof - self.space.translation_axes)
-                    for name, per_axis in (("max_velocity", (0.5, 2.0)), ("max_acceleration", (5.0, 20.0)),
-                                           ("max_jerk", (200.0, 800.0)))}
-        self.limits = Limits(*(tuple(declare_float_list(self, name, default, length=self.space.dof, lo=0.0))
-                               for name, default in defaults.items()))
-        self.rate_hz = declare_float(self, "rate_hz", 1000.0, *RATE_HZ_RANGE, unit="Hz")
-        self.joint_velocity = declare_float(self, "max_joint_velocity", 2.0, 0.0, 100.0, lo_open=True, unit="m/s")
-        self.joint_acceleration = declare_float(self, "max_joint_acceleration", 50.0, 0.0, 1e4, lo_open=True,
-                                                unit="m/s^2")
-        self.max_condition = declare_float(self, "max_condition", 50.0, 1.0, 1e12)
-        self.feed_override = declare_float(self, "feed_override", 1.0, 0.0, 2.0, lo_open=True)
-        self.scale = declare_float(self, "scale", 1.0, 0.0, 100.0, lo_open=True)
-        self.repeat = declare_int(self, "repeat", 1, 1, 10000)
-        self.blend_tolerance = declare_float(self, "blend_tolerance_m", 0.0, 0.0, 0.01,
-                                             "corner blending of line moves (0: exact stop)", unit="m")
-        # a plan's size is known before it is sampled, and refused beyond these (planner.PlanBudget)
-        self.budget = PlanBudget(
-            declare_int(self, "max_points", 200_000, 2, 10_000_000,
-                        "longer trajectories are refused (message size and memory)"),
-            declare_int(self, "max_segments", 10_000, 1, 1_000_000, "programs of more segments are refused"),
-            declare_float(self, "max_planning_s", 10.0, 0.0, 3600.0, "corner blending that takes longer is refused",
-                          lo_open=True, unit="s"))
-        # drive forces kept by slowing down (the machine's dynamic model; 0: no force limit)
-        force = declare_float(self, "max_drive_force_n", 0.0, 0.0, 1e7, "drive force limit kept by the plan "
-                              "(0: none)", unit="N")
-        self.drive_force = force if force > 0.0 else None
-        self.dynamics = dynamic_model(self.config) if self.drive_force is not None else None
-        jerk = declare_float(self, "max_joint_jerk", 0.0, 0.0, 1e7, "drive jerk limit of the motion slowed down for "
-                             "the drives (0: the task axes' jerk only)", unit="m/s^3")
-        self.drive_jerk = jerk if jerk > 0.0 else None
-        table = declare_str(self, "tool_table", "", "LinuxCNC tool.tbl (mm) that G43 H reads", allow_empty=True)
-        self.tools = load_tool_table(table) if table else None
-        program_file = declare_str(self, "program_file", "", "G-code file planned at start", allow_empty=True)
+        program_file = settings.program_file
         # plans start where the controller's accepted trajectories end (plan_chain)
         self.chain = PlanChain(self.model.home)
         self.accepted = self.rejected = 0
@@ -107,7 +71,7 @@ class TrajectoryNode(Node):
             "(empty: anyone's)", allow_empty=True)), "controller_source")
         self.events_sub = subscription(self, topics.CONTROLLER_EVENTS, self.on_event)
         if program_file:
-            self.submit("program_file", lambda: gcode_segments(Path(program_file).read_text(), **self._options()))
+            self.submit("program_file", lambda: settings.program_segments(Path(program_file).read_text(), self.pose))
 
     @property
     def pose(self) -> list:
@@ -126,11 +90,6 @@ class TrajectoryNode(Node):
         ok, stamp_ns = verdict
         if self.chain.verdict(ok, stamp_ns) and not ok:
             self.get_logger().warning(f"the controller refused the trajectory: plans start at {self.pose} again")
-
-    def _options(self):
-        return {"space": self.space, "start_pose": self.pose, "feed_override": self.feed_override,
-                "scale": self.scale, "repeat": self.repeat, "tools": self.tools,
-                "max_moves": self.budget.max_segments, "deadline": time.monotonic() + self.budget.max_planning_s}
 
     def sender_refused(self, topic: str, buf: bytes) -> bool:
         """A goal or program without the run's credential of an allowed sender, or while
@@ -159,15 +118,13 @@ class TrajectoryNode(Node):
     def on_program(self, buf: bytes) -> None:
         if self.sender_refused(topics.PROGRAM, buf):
             return
-        self.submit("program", lambda: gcode_segments(split_text(decode_string(buf, "program"))[1],
-                                                      **self._options()))
+        self.submit("program", lambda: self.settings.program_segments(split_text(decode_string(buf, "program"))[1],
+                                                                      self.pose))
 
     def submit(self, source: str, build) -> None:
         """Plan, validate, publish or refuse; every outcome is reported."""
         try:
-            samples = plan_validated(build(), self.model, self.limits, self.rate_hz, self.blend_tolerance,
-                                     self.joint_velocity, self.joint_acceleration, self.max_condition,
-                                     self.budget, self.drive_force, self.dynamics, self.drive_jerk)
+            samples = self.settings.plan(build())
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
