@@ -70,13 +70,13 @@ def _digest(messages, fields) -> dict:
     return {"count": len(rows), "sha256": h.hexdigest()}
 
 
-def scenario_outputs(name: str, work: Path) -> dict:
+def scenario_outputs(name: str, work: Path, engine: str = "graph") -> dict:
     from pkm_bringup.orchestrator import run_scenario
     from pkm_runs.replay import recorded_messages, replay_controller
     from pkm_bringup.scenario import load_scenario
     s = load_scenario(name)
     run_dir = work / name
-    run = run_scenario(s, run_dir, in_process=True, progress=False)
+    run = run_scenario(s, run_dir, in_process=True, progress=False, engine=engine)
     bag, ns = run_dir / "bag", s.namespace
     commands = _digest((m for _, _, m in recorded_messages(bag, ns, ("drives/command",))), lambda m: list(m.effort))
     poses = _digest((m for _, _, m in recorded_messages(bag, ns, ("platform/true_pose",))),
@@ -105,12 +105,18 @@ def lockstep_scenarios() -> list[str]:
     return [n for n in names if load_scenario(n).mode == "lockstep"]
 
 
-def outputs(only: list[str] | None, analyze: bool) -> dict:
+def outputs(only: list[str] | None, analyze: bool, engine: str = "graph") -> dict:
     out = {"scenarios": {}, "analyze": analyze_outputs() if analyze else {}}
     with tempfile.TemporaryDirectory(prefix="golden-") as work:
         for name in only or lockstep_scenarios():
+            if engine == "direct":
+                from pkm_bringup.direct import refusal
+                from pkm_bringup.scenario import load_scenario
+                if refusal(load_scenario(name)):
+                    print(f"golden: {name}: {refusal(load_scenario(name))}", file=sys.stderr, flush=True)
+                    continue
             print(f"golden: {name}", file=sys.stderr, flush=True)
-            out["scenarios"][name] = scenario_outputs(name, Path(work))
+            out["scenarios"][name] = scenario_outputs(name, Path(work), engine)
     return out
 
 
@@ -136,8 +142,12 @@ def main(argv=None) -> int:
     parser.add_argument("action", choices=("record", "compare"))
     parser.add_argument("--golden", type=Path, default=GOLDEN)
     parser.add_argument("--only", nargs="+", metavar="SCENARIO", help="these scenarios (and no pkm-analyze)")
+    parser.add_argument("--engine", choices=("graph", "direct"), default="graph",
+                        help="direct: the direct engine's runs against the golden outputs (recorded by the graph)")
     args = parser.parse_args(argv)
-    now = outputs(args.only, analyze=not args.only)
+    if args.engine == "direct" and args.action == "record":
+        parser.error("the golden outputs are recorded by the graph (compare --engine direct checks the engine)")
+    now = outputs(args.only, analyze=not args.only, engine=args.engine)
     if args.action == "record":
         if args.only and args.golden.exists():        # add to what was recorded
             now = {**json.loads(args.golden.read_text()), "scenarios": {

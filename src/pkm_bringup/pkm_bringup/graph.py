@@ -27,11 +27,10 @@ from std_msgs.msg import Bool
 
 from pkm_bringup.processes import start_node, stop_nodes
 from pkm_bringup.rt_profile import scheduling
-from pkm_bringup.scenario import START_TOPIC, Scenario, controller_node_name, expected_topics
+from pkm_bringup.scenario import START_TOPIC, Scenario, controller_node_name, expected_topics, start_signal
 from pkm_common import topics
 from pkm_common.causes import TripCause
 from pkm_common.conversions import publisher_names
-from pkm_common.credential import RunKey, Signer
 from pkm_common.endpoints import publisher, subscription
 from pkm_common.files import summary_written
 from pkm_controller.strategies import REGISTRY as STRATEGIES
@@ -186,8 +185,7 @@ def publish_start(node, credential: Path) -> None:
     """The latched start signal of a scenario without a program (controller
     wait_for_start), with the run's credential (pkm_common.credential)."""
     node.start_publisher = publisher(node, START_TOPIC)
-    signer = Signer(RunKey.read(credential), node.get_fully_qualified_name())
-    node.start_publisher.publish(signer.text(START_TOPIC, "start"))
+    node.start_publisher.publish(start_signal(credential, node.get_fully_qualified_name()))
 
 
 def refuse_intruders(monitor, s: Scenario) -> None:

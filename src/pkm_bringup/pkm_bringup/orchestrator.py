@@ -61,6 +61,8 @@ from pkm_recording.bag import recorded_stamps, recover
 from pkm_runs.report import summary, write_report
 
 
+ENGINES = ("graph", "direct")
+
 # pkm-run's exit code per run status (2: the scenario or the arguments were refused)
 EXIT_CODES = {"completed": 0, "failed": 1, "tripped": 3}
 
@@ -205,16 +207,22 @@ def _write_run(run_dir: Path, run: dict) -> None:
 
 
 def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
-                 report: bool = True, credential: Path | None = None) -> dict:
+                 report: bool = True, credential: Path | None = None, engine: str = "graph") -> dict:
     """Run ``s`` into ``run_dir`` (created); returns run.json's content (status
     ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded.
     ``credential``: the key file the run's commands are signed with (a panel's, a
     script's: pkm_common.credential); by default a new one in the run directory.
+    ``engine``: "graph" (the ROS 2 nodes, as processes or ``in_process``) or "direct"
+    (the same loops without a transport, pkm_bringup.direct; a scenario it cannot run
+    fails with the reason, nothing started).
     Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
     when the scenario asks for the realtime profile and the OS does not allow it."""
-    if s.realtime_profile:
+    if engine not in ENGINES:
+        raise ValueError(f"engine: must be one of {ENGINES}, got {engine!r}")
+    direct = engine == "direct"
+    if s.realtime_profile and not direct:
         check_permitted(in_process)
-    mode = "in_process" if in_process else "processes"
+    mode = "direct" if direct else "in_process" if in_process else "processes"
     reserves = []
     try:                                       # nothing started yet: a full disk is said, not a traceback
         for sub in ("params", "logs", "summaries"):
@@ -226,6 +234,10 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
                 raise OSError(reserve.error)
         for stale in (run_dir / "summaries").glob("*.json"):     # a run directory used again
             stale.unlink()
+        if direct:
+            from pkm_bringup.direct import refusal      # (without rclpy's graph: imported for this engine only)
+            if refusal(s):
+                raise ValueError(refusal(s))
         if credential is None:
             RunKey.create(run_dir / KEY_FILE)
         params = node_parameters(s, run_dir, credential)
@@ -242,15 +254,19 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         if not isinstance(exc, OSError):
             raise
         return collect(s, run_dir, mode, 0.0, {}, f"the run directory cannot be written, nothing started: {exc}")
-    use_ros_environment()
+    if not direct:                                  # no transport, nothing to cross-talk with
+        use_ros_environment()
     start = time.monotonic()
     error, codes, interruption, failure = "", {}, _Interruption(), TripCause.NONE
     try:
-        if in_process:       # (imported for this mode only: it loads every node's module, seconds)
+        if direct:
+            from pkm_bringup.direct import run_direct as run
+        elif in_process:       # (imported for this mode only: it loads every node's module, seconds)
             from pkm_bringup.in_process import run_in_process as run
         else:
             run = run_processes
-        with interruption, RunLock(s.namespace), _in_process_profile(s, in_process):
+        with interruption, RunLock(s.namespace) if not direct else contextlib.nullcontext(), \
+                _in_process_profile(s, in_process and not direct):
             run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0])
     except RunFailed as exc:
         error, failure = str(exc), exc.cause
@@ -367,7 +383,14 @@ def run_command(args) -> int:
     except ScenarioError as exc:
         print(f"pkm-run: {exc}", file=sys.stderr)
         return 2
-    if s.realtime_profile:                  # refused before anything is made or started
+    direct = args.engine == "direct"
+    if direct:
+        from pkm_bringup.direct import refusal
+        if refusal(s) or args.in_process:
+            print(f"pkm-run: --engine direct: {refusal(s) or 'the engine is one process already (no --in-process)'}",
+                  file=sys.stderr)
+            return 2
+    elif s.realtime_profile:                  # refused before anything is made or started
         try:
             check_permitted(args.in_process)
         except RealtimeProfileRefused as exc:
@@ -378,13 +401,13 @@ def run_command(args) -> int:
         print(f"pkm-run: run directory {run_dir} exists and is not empty", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, _interrupt)
-    domain = use_ros_environment()["ROS_DOMAIN_ID"]     # this shell's, or one claimed: said, to join it
-    print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated, "
-          f"ROS_DOMAIN_ID={domain})", flush=True)
+    where = "the direct engine" if direct else \
+        f"ROS_DOMAIN_ID={use_ros_environment()['ROS_DOMAIN_ID']}"     # this shell's, or one claimed: said, to join it
+    print(f"running {s.name}: {s.description or s.machine} ({s.duration_s:.3f} s simulated, {where})", flush=True)
     credential = Path(args.credential).resolve() if args.credential else None
     print(f"commands need the credential in {credential or run_dir / KEY_FILE}", flush=True)
     run = run_scenario(s, run_dir, in_process=args.in_process, progress=not args.no_progress,
-                       credential=credential)
+                       credential=credential, engine=args.engine)
     print(format_summary(run, run_dir), flush=True)
     return EXIT_CODES[run["status"]]
 

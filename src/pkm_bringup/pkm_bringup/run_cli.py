@@ -14,6 +14,10 @@ def parser() -> argparse.ArgumentParser:
                                                             "summary, report (pkm_bringup.orchestrator)")
     p.add_argument("scenario", help="scenario file, or the name of one in config/scenarios")
     p.add_argument("--in-process", action="store_true", help="all nodes in one executor")
+    p.add_argument("--engine", choices=("graph", "direct"), default="graph",
+                   help="graph: the ROS 2 nodes (default); direct: the same loops in one process without a "
+                        "transport, the same run bit for bit, several times faster (lockstep scenarios on "
+                        "sim_hw only: pkm_bringup.direct)")
     p.add_argument("--runs", default="runs", help="parent of the run directory (default: runs)")
     p.add_argument("--run-dir", help="exact run directory (must not exist)")
     p.add_argument("--no-record", action="store_true")

@@ -75,7 +75,7 @@ import yaml
 from pkm_bringup.hardware import MACHINE_NODE, check_hardware, controller_wiring, machine_nodes
 from pkm_bringup.owner_checks import OWNER_CHECKS
 from pkm_common import topics
-from pkm_common.credential import KEY_FILE
+from pkm_common.credential import KEY_FILE, RunKey, Signer
 from pkm_common.poses import MACHINE_KINDS as GRAPH_KINDS
 from pkm_controller.configuration import NODE_PARAMETERS
 from pkm_controller.config import ControllerConfig
@@ -622,6 +622,12 @@ TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"), "d
 
 START_TOPIC = topics.RUN_START    # latched String "start" with its credential: the orchestrator's start signal
                                # (scenarios without a program)
+
+
+def start_signal(credential: Path, sender: str) -> bytes:
+    """The start signal, serialized: the String "start" with the run's credential of
+    ``sender`` (pkm_common.credential)."""
+    return Signer(RunKey.read(credential), sender).text(START_TOPIC, "start")
 
 
 def expected_topics(s: Scenario) -> list[str]:

@@ -23,7 +23,7 @@ import numpy as np
 from . import bars as B
 from .errors import FieldError, JointLimitError, KinematicsError, SingularityError
 from .jit import direct_call, kernel
-from .rotations import rate_matrix, rotation_from_rpy, rpy_kernel, rpy_rotation_kernel
+from .rotations import rate_matrix, rate_matrix_kernel, rotation_from_rpy, rpy_kernel, rpy_rotation_kernel
 from .task_space import SPATIAL, task_pose
 
 
@@ -206,9 +206,15 @@ class StrutMachine:
         return np.array([self.jacobian(x) for x in poses]).reshape(len(poses), self.n_legs, 6)
 
     def task_jacobian_batch(self, poses) -> np.ndarray:
-        """:meth:`task_jacobian` at poses (N, 6): (N, n, 6)."""
-        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-        return np.array([self.task_jacobian(x) for x in poses]).reshape(len(poses), self.n_legs, 6)
+        """:meth:`task_jacobian` at poses (N, 6): (N, n, 6), in one compiled pass
+        (``pose_jacobians_into``: a planner's validation asks ~10^5 poses)."""
+        poses = np.ascontiguousarray(np.asarray(poses, dtype=float).reshape(-1, 6))
+        rows, rates = np.empty((len(poses), self.n_legs, 6)), np.empty((len(poses), 3, 3))
+        bad = pose_jacobians_into(self.bars, poses, rows, rates)
+        if bad >= 0:
+            raise SingularityError(f"a strut has zero length at x = {poses[bad]}")
+        rows[:, :, 3:] = np.matmul(rows[:, :, 3:], rates)
+        return rows
 
     def condition_number_batch(self, poses) -> np.ndarray:
         """:meth:`condition_number` at poses (N, 6)."""
@@ -227,7 +233,7 @@ class StrutMachine:
 
     def task_jacobian(self, x) -> np.ndarray:
         """q' = J x' for the task coordinates' rates (rotation rates through
-        ``rate_matrix``)."""
+        ``rate_matrix``; many poses: :meth:`task_jacobian_batch`)."""
         x = np.asarray(x, dtype=float)
         jac = self.jacobian(x)
         return np.hstack((jac[:, :3], jac[:, 3:] @ rate_matrix(*x[3:])))
@@ -347,3 +353,23 @@ class StrutFK:
 
 
 __all__ = ["FKCode", "StrutFK", "StrutFKResult", "StrutMachine", "rate_matrix"]
+
+
+
+@kernel()
+def pose_jacobians_into(bars, poses, rows, rates) -> int:
+    """At each pose of ``poses`` (N, 6): the unit pose Jacobian J_m (MoM3 eq. 2,
+    ``bars.unit_pose_jacobian_into``) into ``rows`` (N, n, 6) and the rate matrix
+    E(b, c) (rotations.rate_matrix) into ``rates`` (N, 3, 3): the task Jacobian is
+    [J_m[:, :3], J_m[:, 3:] E] (``StrutMachine.task_jacobian_batch`` multiplies as
+    ``task_jacobian`` does, bit for bit). Returns the index of the first pose where a
+    strut has zero length, -1 if none."""
+    q = np.zeros(bars.shape[0])
+    for i in range(poses.shape[0]):
+        r = rpy_rotation_kernel(poses[i, 3], poses[i, 4], poses[i, 5])
+        if not B.unit_pose_jacobian_into(bars, poses[i, 0], poses[i, 1], poses[i, 2], r, q, rows[i]):
+            return i
+        e = rate_matrix_kernel(poses[i, 4], poses[i, 5])
+        for k in range(9):
+            rates[i, k // 3, k % 3] = e[k]
+    return -1

@@ -6,8 +6,11 @@ same checks.
 
 from __future__ import annotations
 
+import collections
+import os
+import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_kinematics import load_machine
@@ -17,7 +20,14 @@ from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, Samples, p
 from pkm_trajectory.program import gcode_segments
 from pkm_trajectory.tool_table import load_tool_table
 
-__all__ = ["PlannerSettings", "declare_planner"]
+__all__ = ["PLAN_CACHE_SIZE", "PlannerSettings", "declare_planner"]
+
+# programs planned per process, kept: the runs of a study, and the two engines of a
+# comparison, plan the same program from the same pose with the same settings (tens of
+# seconds for a hexapod's): the last few plans are kept (a plan's samples are read, never changed)
+PLAN_CACHE_SIZE = 4
+_PLANS: collections.OrderedDict = collections.OrderedDict()
+_PLANS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -38,6 +48,7 @@ class PlannerSettings:
     drive_jerk: float | None
     tools: dict | None
     program_file: str
+    key: tuple = field(default=(), compare=False)     # the declared values (plan_program's cache)
 
     def gcode_options(self, start_pose) -> dict:
         space = self.config.model.task_space
@@ -49,6 +60,23 @@ class PlannerSettings:
         """A G-code program's segments from ``start_pose`` (program.gcode_segments)."""
         return gcode_segments(text, **self.gcode_options(start_pose))
 
+    def plan_program(self, text: str, start_pose) -> Samples:
+        """A G-code program planned from ``start_pose`` (program_segments, plan); the
+        same program from the same pose with the same settings is planned once per
+        process (the last PLAN_CACHE_SIZE kept)."""
+        key = (self.key, text, tuple(float(v) for v in start_pose))
+        with _PLANS_LOCK:
+            found = _PLANS.get(key)
+            if found is not None:
+                _PLANS.move_to_end(key)
+                return found
+        found = self.plan(self.program_segments(text, start_pose))
+        with _PLANS_LOCK:
+            _PLANS[key] = found
+            while len(_PLANS) > PLAN_CACHE_SIZE:
+                _PLANS.popitem(last=False)
+        return found
+
     def plan(self, segments) -> Samples:
         """Planned, sampled and checked against the machine; raises TrajectoryRejected
         (or ValueError) naming the sample and the limit."""
@@ -59,7 +87,8 @@ class PlannerSettings:
 
 def declare_planner(node) -> PlannerSettings:
     """trajectory_node's parameters (a bad one raises ParameterError naming it)."""
-    config = load_machine(declare_str(node, "machine", "archi"))
+    machine = declare_str(node, "machine", "archi")
+    config = load_machine(machine)
     space = config.model.task_space
     # per task axis: m/s (m/s^2, m/s^3) for a translation, rad/s ... for an angle
     defaults = {name: [per_axis[0]] * space.translation_axes + [per_axis[1]] * (space.dof - space.translation_axes)
@@ -91,7 +120,18 @@ def declare_planner(node) -> PlannerSettings:
                          "the drives (0: the task axes' jerk only)", unit="m/s^3")
     table = declare_str(node, "tool_table", "", "LinuxCNC tool.tbl (mm) that G43 H reads", allow_empty=True)
     program_file = declare_str(node, "program_file", "", "G-code file planned at start", allow_empty=True)
+    key = (machine, _version(machine), limits, rate_hz, joint_velocity, joint_acceleration, max_condition,
+           feed_override, scale, repeat, blend_tolerance, budget, force, jerk, table, _version(table))
     return PlannerSettings(config, limits, rate_hz, joint_velocity, joint_acceleration, max_condition, feed_override,
                            scale, repeat, blend_tolerance, budget, drive_force,
                            dynamic_model(config) if drive_force is not None else None, jerk if jerk > 0.0 else None,
-                           load_tool_table(table) if table else None, program_file)
+                           load_tool_table(table) if table else None, program_file, key)
+
+
+def _version(path: str) -> int:
+    """A file's modification time (ns), 0 for a name or nothing: a file written again
+    (a calibrated machine, a tool table) is another plan."""
+    try:
+        return os.stat(path).st_mtime_ns if path and os.sep in path else 0
+    except OSError:
+        return 0

@@ -71,7 +71,7 @@ class TrajectoryNode(Node):
             "(empty: anyone's)", allow_empty=True)), "controller_source")
         self.events_sub = subscription(self, topics.CONTROLLER_EVENTS, self.on_event)
         if program_file:
-            self.submit("program_file", lambda: settings.program_segments(Path(program_file).read_text(), self.pose))
+            self.submit("program_file", lambda: settings.plan_program(Path(program_file).read_text(), self.pose))
 
     @property
     def pose(self) -> list:
@@ -107,24 +107,25 @@ class TrajectoryNode(Node):
         if self.sender_refused(topics.GOAL, buf):
             return
 
-        def segments():
+        def plan():
             msg = deserialize_message(buf, PoseStamped)
             position, rotation = pose_from_msg(msg)
             # a planar machine's yaw on the revolution it is at (a 6-DOF pose: its roll, pitch, yaw)
             target = tool_pose_to_machine(self.space, position, rotation, self.pose[2])
-            return [point_to_point(self.pose, target)]
-        self.submit("goal", segments)
+            return self.settings.plan([point_to_point(self.pose, target)])
+        self.submit("goal", plan)
 
     def on_program(self, buf: bytes) -> None:
         if self.sender_refused(topics.PROGRAM, buf):
             return
-        self.submit("program", lambda: self.settings.program_segments(split_text(decode_string(buf, "program"))[1],
-                                                                      self.pose))
+        self.submit("program", lambda: self.settings.plan(self.settings.program_segments(
+            split_text(decode_string(buf, "program"))[1], self.pose)))
 
-    def submit(self, source: str, build) -> None:
-        """Plan, validate, publish or refuse; every outcome is reported."""
+    def submit(self, source: str, plan) -> None:
+        """Plan (``plan()``: planning.PlannerSettings's, validated), publish or refuse;
+        every outcome is reported."""
         try:
-            samples = self.settings.plan(build())
+            samples = plan()
         except Exception as exc:              # noqa: BLE001 - every failure is a reported rejection
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")

@@ -1,0 +1,396 @@
+"""The direct engine (``pkm-run --engine direct``, studies by default): a lockstep
+scenario's loops in one process without a transport.
+
+In lockstep the graph is deterministic: the plant publishes the state of step k and
+waits for the command stamped k (sim_hw_node's docstring). The same sans-IO loops the
+nodes run (sim_loop.SimLoop, the Gough sensor's and the laser tracker's
+sensor_loop, node_loop.ControllerLoop), built from the same parameters by the nodes'
+own declarations (pkm_common.params.ParameterValues over the run's params/<node>.yaml),
+hand each other their messages' bytes through a queue in the order the graph
+delivers them: so the run is the graph's, every command and true pose bit for bit
+(tests/bringup/test_direct_engine.py compares every lockstep scenario).
+
+What is the graph's and not here: the transport (DDS, discovery, the recorder's
+subscriptions), the wall-clock watchdogs (nothing can stall between two loops that
+call each other), the periodic diagnostics and markers (wall-clock timers), the
+nodes' logs (one file, logs/direct.log). The run directory is the same: params,
+summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
+pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it.
+
+Refused, with the reason: realtime scenarios (the plant steps on a clock) and
+hardware other than sim_hw (a drive interface's bus and its drives are processes of
+their own: run them as a graph).
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import fields
+from pathlib import Path
+
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Bool, String
+
+from pkm_bringup.graph import RunFailed
+from pkm_bringup.scenario import START_TOPIC, Scenario, run_node_name, start_signal
+from pkm_common import topics
+from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, signed_message, trajectory_msg
+from pkm_common.credential import RunKey, Signer, Verifier
+from pkm_common.files import write_summary
+from pkm_common.params import ParameterValues, declare_like
+from pkm_controller.config import ControllerConfig
+from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, warm_up
+from pkm_controller.node_loop import ControllerLoop
+from pkm_gough_sensor.sensor_loop import GoughSensorLoop, LaserLoop, declare_gough_sensor, declare_laser_tracker
+from pkm_recording.bag import BagWriter
+from pkm_recording.recording import qos_dict
+from pkm_recording.tap import StreamTap, split_batch
+from pkm_recording.tap_records import StampCounter
+from pkm_common.qos import publisher_qos
+from pkm_sim_hw.parameters import declare_settings
+from pkm_sim_hw.sim_loop import SimLoop
+from pkm_sim_hw.step_streams import StepStreams
+from pkm_trajectory.planning import declare_planner
+from pkm_trajectory.program import program_events_text
+
+__all__ = ["DirectRun", "refusal", "run_direct"]
+
+FLUSH_STEPS = 200            # the bag takes the records in batches of about this many steps (the graph's 0.2 s)
+PROGRESS_STEPS = 100
+
+
+def refusal(s: Scenario) -> str:
+    """Why the direct engine cannot run ``s``, or "" when it can."""
+    if s.mode != "lockstep":
+        return (f"mode {s.mode}: the direct engine runs lockstep scenarios only (a realtime plant steps on a "
+                "clock, its controller on its own); run it as a graph (without --engine direct)")
+    if s.hardware != "sim":
+        return (f"hardware {s.hardware}: the direct engine simulates sim_hw only (a drive interface's bus and its "
+                "drives are processes of their own); run it as a graph (without --engine direct)")
+    return ""
+
+
+class Recorder:
+    """The bag of a direct run: every message the loops publish, as the graph's recorder
+    writes it (one tap, pkm_recording.tap, written a batch at a time in one compiled
+    pass), with the topic's QoS from the catalogue and the count of new stamps per
+    topic (its summary, as recorder_node's)."""
+
+    def __init__(self, output: str, compression: str):
+        self.writer = BagWriter(output, compression=compression)
+        self.tap = StreamTap()
+        self.channels: dict[str, int] = {}
+        self.stamps = StampCounter()
+
+    def index(self, name: str, relative: str) -> int:
+        """The tap index of a topic (``relative``: its catalogue name), its channel made."""
+        msgtype = topics.CATALOGUE[relative].type
+        if name not in self.channels:
+            self.channels[name] = channel = self.writer.add_topic(name, msgtype, [qos_dict(publisher_qos(relative))])
+            self.stamps.reserve(channel)
+        return self.tap.topic_index(name, msgtype)
+
+    def flush(self) -> None:
+        payload = self.tap.take_payload()
+        if payload is None:
+            return
+        table, region, count = split_batch(payload)
+        written, stamps = self.writer.write_tap_records(region, count, [self.channels[name] for name, _ in table])
+        self.stamps.add(written, stamps)
+
+    def close(self) -> dict:
+        """The last batch, the bag finalized; the summary recorder_node writes."""
+        self.flush()
+        self.writer.close()
+        return {"recorded": self.writer.counts,
+                "recorded_stamps": {name: self.stamps.count(c) for name, c in self.channels.items()},
+                "tapped": sorted(self.channels), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
+
+
+class Topic:
+    """One topic between the loops: a publication is recorded and queued for each reader."""
+
+    __slots__ = ("queue", "readers", "tap", "index", "clock")
+
+    def __init__(self, queue: collections.deque, recorder: Recorder | None, name: str, relative: str):
+        self.queue, self.readers = queue, []
+        self.tap = None if recorder is None else recorder.tap
+        self.index = None if recorder is None else recorder.index(name, relative)
+        self.clock = time.time_ns
+
+    def publish(self, data: bytes) -> None:
+        if self.tap is not None:
+            self.tap.add_indexed(self.index, data, self.clock())
+        for reader in self.readers:
+            self.queue.append((reader, data))
+
+
+class _Log:
+    """The nodes' log lines, one file (the graph: logs/<node>.log)."""
+
+    def __init__(self, path: Path):
+        self.file = open(path, "a", encoding="utf-8")      # noqa: SIM115 - closed by DirectRun.close
+
+    def line(self, node: str, level: str, text: str) -> None:
+        self.file.write(f"[{level}] [{node}]: {text}\n")
+
+
+class _Ports:
+    """What the loops ask of their shells (sim_loop.SimPorts, node_loop.ControllerPorts,
+    sensor_loop.SensorPorts), answered by the run's wiring: the graph of a run, whose
+    every topic has the one publisher pkm-run starts."""
+
+    def __init__(self, run: DirectRun, node: str):
+        self.run, self.node = run, node
+
+    def log_info(self, text: str) -> None:
+        self.run.log.line(self.node, "INFO", text)
+
+    def log_error(self, text: str) -> None:
+        self.run.log.line(self.node, "ERROR", text)
+
+    def diagnostics(self, stamp_ns: int, level: int, name: str, message: str, values: dict,
+                    topic: str = topics.DIAGNOSTICS) -> None:
+        self.run.topic(topic).publish(serialize_message(diagnostic_array(
+            ns_to_stamp(stamp_ns), [diagnostic_status(name, level, message, values)])))
+
+
+class _SimPorts(_Ports):
+    def publish_diagnostics(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
+        self.diagnostics(stamp_ns, level, self.node, message, values)
+
+    def publish_markers(self, segments, stamp_ns: int) -> None:
+        """Markers are for a viewer of the live graph: not made here."""
+
+    def report_refusal(self, refusal, topic: str, text: str, plant_step: int, now_ns: int) -> None:
+        values = {"topic": topic, "reason": refusal.reason, "cause": str(refusal.cause),
+                  "stamp_ns": refusal.stamp_ns, "sender": refusal.sender or "unknown",
+                  "plant_step": plant_step, "stopped": refusal.stop}
+        self.diagnostics(now_ns, 2, "sim_hw/refused", refusal.reason, values, topics.DRIVES_REFUSED)
+        self.log_error(text)
+
+    def command_publishers(self) -> list[str]:
+        return [self.run.names["controller"]]
+
+    def load_senders(self) -> list[str]:
+        return []
+
+    def after_cycle(self) -> None:
+        self.run.after_step()
+
+    def run_finished(self) -> None:
+        """The loop ends when the queue is empty (the last state answered)."""
+
+
+class _ControllerPorts(_Ports):
+    def __init__(self, run: DirectRun, node: str):
+        super().__init__(run, node)
+        self.command = run.topic(topics.DRIVES_COMMAND)
+        self.publish_command = self.command.publish
+        self.publish_reference_bytes = run.topic(topics.CONTROLLER_REFERENCE).publish
+
+    def resend_command(self, command: bytes) -> None:
+        for reader in self.command.readers:            # not recorded: the bag holds one per stamp
+            self.command.queue.append((reader, command))
+
+    def publish_status(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
+        self.diagnostics(stamp_ns, level, "controller", message, values, topics.CONTROLLER_STATUS)
+
+    def publish_event(self, text: str) -> None:
+        self.run.topic(topics.CONTROLLER_EVENTS).publish(serialize_message(String(data=text)))
+
+    def publish_estop(self) -> None:
+        self.run.estop()
+
+    def after_cycle(self) -> None:
+        """The recorder's batches follow the plant's steps."""
+
+    def input_publishers(self, topic: str) -> list[str]:
+        return [self.run.names["gough_sensor" if topic.startswith("metrology/") else self.run.machine_node]]
+
+    def topic_senders(self, topic: str) -> list[str]:
+        senders = {topics.TRAJECTORY: "trajectory", START_TOPIC: "bringup_monitor"}
+        return [self.run.names[senders[topic]]] if topic in senders else []
+
+
+class _SensorPorts(_Ports):
+    def __init__(self, run: DirectRun, node: str):
+        super().__init__(run, node)
+        self.publish_struts = run.topic(topics.METROLOGY_STRUTS).publish
+        self.publish_pose = run.topic(topics.METROLOGY_POSE).publish
+
+    def error(self, message: str, values: dict) -> None:
+        self.log_error(message)
+        self.diagnostics(max(int(values.get("stamp_ns", 0)), 0), 2, f"{self.node}: metrology", message, values)
+
+
+def controller_loop(params: dict, ports) -> ControllerLoop:
+    """The run's ControllerLoop as controller_node configures it from the same
+    parameters (declare_like on each, then core_from_parameters and a warm-up)."""
+    node = ParameterValues(params)
+    values = {name: declare_like(node, name, default) for name, default in NODE_PARAMETERS.items()}
+    config = ControllerConfig(**{f.name: declare_like(node, f.name, f.default) for f in fields(ControllerConfig)})
+    core = core_from_parameters(values["machine"], config)
+    warm_up(core)
+    loop = ControllerLoop(core, values, ports, Verifier.from_file(values["credential_file"]))
+    loop.active = True
+    loop.pairing.reset_watchdog()
+    return loop
+
+
+class DirectRun:
+    """A lockstep scenario's loops wired to each other (see the module doc)."""
+
+    def __init__(self, s: Scenario, run_dir: Path, params: dict):
+        self.s, self.run_dir, self.params = s, run_dir, params
+        self.machine_node = s.machine_node
+        self.names = {name: run_node_name(s, name) for name in (*params, "bringup_monitor")}
+        self.queue: collections.deque = collections.deque()
+        self.topics: dict[str, Topic] = {}
+        self.log = _Log(run_dir / "logs" / "direct.log")
+        self.recorder = None
+        if s.record:
+            recorder = params["recorder"]
+            self.recorder = Recorder(recorder["output"], recorder.get("compression", "lz4"))
+        self.steps_since_flush = 0
+        self.summaries = {}              # node -> (its summary path, the summary's function)
+        # the plant
+        sim_params = params[self.machine_node]
+        settings = declare_settings(ParameterValues(sim_params))
+        self.plant = settings.plant
+        streams = StepStreams(self.plant, settings.machine.model.task_space, self.topic(topics.TRUE_POSE),
+                              self.topic(topics.DRIVES_STATE), self.topic(topics.CLOCK))
+        self.sim = SimLoop(settings, streams, _SimPorts(self, self.machine_node))
+        self.sim_summary = settings.summary_path
+        # the instruments
+        self.sensor = self.laser = None
+        if "gough_sensor" in params:
+            sensor = declare_gough_sensor(ParameterValues(params["gough_sensor"]))
+            self.sensor = GoughSensorLoop(sensor.model, _SensorPorts(self, "gough_sensor"))
+            self.topic(topics.TRUE_POSE).readers.append(self.sensor.on_true_pose)
+            self.summaries["gough_sensor"] = (sensor.summary_path, self.sensor.summary)
+        if "laser_tracker" in params:
+            laser = declare_laser_tracker(ParameterValues(params["laser_tracker"]))
+            ports = _Ports(self, "laser_tracker")
+            self.laser = LaserLoop(laser.model, self.topic(topics.LASER_POINT).publish, ports.log_error,
+                                   topics.LASER_POINT)
+            self.topic(topics.TRUE_POSE).readers.append(self.laser.on_true_pose)
+            self.summaries["laser_tracker"] = (laser.summary_path, self.laser.summary)
+        # the controller
+        self.controller = controller_loop(params["controller"], _ControllerPorts(self, "controller"))
+        self.summaries["controller"] = (params["controller"].get("summary_path", ""), self.controller.summary)
+        self.topic(topics.DRIVES_STATE).readers.append(self.controller.on_state)
+        self.topic(topics.DRIVES_COMMAND).readers.append(self.sim.on_command)
+        metrology = self.controller.core.strategy.metrology_topic
+        if metrology:
+            self.topic(metrology).readers.append(self.controller.on_metrology)
+
+    def topic(self, relative: str) -> Topic:
+        """The run's topic of a catalogue name (made on first use)."""
+        found = self.topics.get(relative)
+        if found is None:
+            name = relative if relative.startswith("/") else f"{self.s.namespace.rstrip('/')}/{relative}"
+            found = self.topics[relative] = Topic(self.queue, self.recorder, name, relative)
+        return found
+
+    def after_step(self) -> None:
+        self.steps_since_flush += 1
+        if self.recorder is not None and self.steps_since_flush >= FLUSH_STEPS:
+            self.steps_since_flush = 0
+            self.recorder.flush()
+
+    def estop(self) -> None:
+        """The controller latched estop: the plant brakes, the controller stays stopped."""
+        self.topic(topics.ESTOP).publish(serialize_message(Bool(data=True)))
+        self.queue.append((lambda _: self.sim.on_estop(True), b""))
+        self.queue.append((lambda _: self.controller.on_estop(True), b""))
+
+    def plan(self) -> None:
+        """The program planned as trajectory_node plans it at start, published signed to
+        the controller (which waits for it); a rejected program is the run's failure."""
+        settings = declare_planner(ParameterValues(self.params["trajectory"]))
+        try:
+            text = Path(settings.program_file).read_text(encoding="utf-8")
+            samples = settings.plan_program(text, settings.config.model.home.tolist())
+        except Exception as exc:              # noqa: BLE001 - the planner's every refusal, named
+            raise RunFailed(f"the planner rejected the program {settings.program_file}: {exc}") from None
+        msg = trajectory_msg(settings.config.model.task_space, samples.time_s, samples.position, samples.velocity,
+                             samples.acceleration)
+        msg.header.frame_id = "world"
+        stamp_ns = time.time_ns()
+        msg.header.stamp = ns_to_stamp(stamp_ns)
+        path = self.params["trajectory"].get("credential_file", "")
+        signer = Signer(RunKey.read(path), self.names["trajectory"]) if path else None
+        data = signed_message(signer, "trajectory", msg)
+        self.topic(topics.TRAJECTORY).publish(data)
+        if samples.events:
+            self.topic(topics.PROGRAM_EVENTS).publish(serialize_message(String(
+                data=program_events_text(stamp_ns, samples.events))))
+        self.controller.on_trajectory(data)
+
+    def start(self) -> None:
+        """The latched start signal of a scenario without a program."""
+        data = start_signal(Path(self.params["controller"]["credential_file"]), self.names["bringup_monitor"])
+        self.topic(START_TOPIC).publish(data)
+        self.controller.on_start(data)
+
+    def run(self, progress, deadline: float) -> None:
+        """From the start to the plant's last step, its last state answered."""
+        if "trajectory" in self.params:
+            self.plan()
+        else:
+            self.start()
+        self.sim.publish_state()
+        queue, sim, plant = self.queue, self.sim, self.plant
+        next_progress = 0
+        while queue:
+            reader, data = queue.popleft()
+            reader(data)
+            if plant.k >= next_progress:
+                next_progress = plant.k + PROGRESS_STEPS
+                progress.update(plant.t)
+                if time.monotonic() > deadline:
+                    raise RunFailed(f"timeout_s: the run did not end within {self.s.timeout_s:g} s (wall clock)")
+        if not sim.run.finished:
+            raise RunFailed(f"the loop stopped at step {plant.k} of {sim.duration_steps}: no message left to "
+                            f"answer (see {self.run_dir / 'logs' / 'direct.log'})")
+
+    def close(self) -> None:
+        """The nodes' summaries and the bag, whatever happened (an interrupted run's too)."""
+        try:
+            if not self.sim.run.finished:
+                self.sim.write_summary()            # interrupted: what was done so far
+            for path, summary in self.summaries.values():
+                if path:
+                    write_summary(path, summary(), lambda text: self.log.line("direct", "ERROR", text))
+            if self.recorder is not None:
+                write_summary(self.params["recorder"]["summary_path"], self.recorder.close(),
+                              lambda text: self.log.line("recorder", "ERROR", text))
+        finally:
+            self.log.file.close()
+
+
+def run_direct(s: Scenario, run_dir: Path, params: dict, progress, codes: dict, interruption=None,
+               reserve=None) -> dict:
+    """The scenario in the direct engine (the runners' signature, graph.run_processes);
+    fills and returns ``codes`` (0 per node that ran). Raises RunFailed."""
+    why = refusal(s)
+    if why:
+        raise RunFailed(why)
+    run = None
+    try:
+        try:
+            run = DirectRun(s, run_dir, params)
+        except ValueError as exc:                 # a refused configuration is the run's failure
+            raise RunFailed(f"refused configuration: {exc}") from None
+        run.run(progress, time.monotonic() + s.timeout_s)
+        progress.update(s.duration_s)
+    finally:
+        progress.done()
+        if reserve is not None:
+            reserve.release()
+        if run is not None:
+            run.close()
+    codes.update({name: 0 for name in params})
+    return codes

@@ -1,0 +1,73 @@
+"""The direct engine (pkm_bringup.direct) computes the graph's run: every lockstep
+scenario of config/scenarios run by both (the graph's nodes in one process, the
+engine's loops without a transport), every command and true pose compared byte for
+byte (the CDR bytes of each stamp's first message: the values, the stamp and the
+plant's status word), and the run's outcome. Scenarios the engine refuses are
+refused by name, nothing started.
+
+Each scenario runs its first ``SECONDS`` of simulated time in both (its program
+planned once: planning.PlannerSettings.plan_program keeps it for the second engine);
+``tools/golden.py compare --engine direct`` compares whole runs against the golden
+outputs the graph recorded.
+"""
+
+from pathlib import Path
+
+import pytest
+
+from pkm_bringup.direct import refusal
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import load_scenario
+from pkm_common import topics
+from pkm_common.cdr import stamp_ns_of
+from pkm_runs.replay import recorded_bytes
+
+SCENARIOS = {p.stem: load_scenario(p) for p in
+             sorted((Path(__file__).resolve().parents[2] / "config" / "scenarios").glob("*.yaml"))}
+LOCKSTEP = [n for n, s in SCENARIOS.items() if s.mode == "lockstep"]
+DIRECT = [n for n in LOCKSTEP if not refusal(SCENARIOS[n])]
+SECONDS = 0.6
+
+
+def per_stamp(run_dir: Path, namespace: str, topic: str) -> dict[int, bytes]:
+    """Each stamp's first message on ``topic`` (the graph repeats the plant's first
+    state until its controller answers)."""
+    out = {}
+    for _, _, raw in recorded_bytes(run_dir / "bag", namespace, (topic,)):
+        out.setdefault(stamp_ns_of(raw), bytes(raw))
+    return out
+
+
+def test_the_engine_runs_every_lockstep_scenario_on_the_simulated_machine():
+    refused = {n: refusal(SCENARIOS[n]) for n in LOCKSTEP if n not in DIRECT}
+    assert set(refused) == {"archi_canopen", "hexapod_canopen"}, refused
+    assert all("hardware" in why and "run it as a graph" in why for why in refused.values()), refused
+    assert len(DIRECT) >= 20, DIRECT
+
+
+@pytest.mark.parametrize("name", DIRECT)
+def test_the_direct_engine_computes_the_graphs_run_byte_for_byte(name, tmp_path):
+    s = load_scenario(name, {"duration_s": SECONDS})
+    graph = run_scenario(s, tmp_path / "graph", in_process=True, progress=False, report=False)
+    direct = run_scenario(s, tmp_path / "direct", engine="direct", progress=False, report=False)
+    assert direct["mode"] == "direct" and graph["mode"] == "in_process"
+    assert (direct["status"], direct["cause"]) == (graph["status"], graph["cause"]), (graph["error"], direct["error"])
+    assert direct["trip_reason"] == graph["trip_reason"]
+    steps = round(SECONDS / s.dt_s)
+    for topic in (topics.DRIVES_COMMAND, topics.TRUE_POSE, topics.DRIVES_STATE):
+        want, got = per_stamp(tmp_path / "graph", s.namespace, topic), per_stamp(tmp_path / "direct", s.namespace, topic)
+        assert len(want) >= (steps if graph["cause"] == "none" else 1), (topic, len(want))
+        assert sorted(got) == sorted(want), (topic, len(got), len(want), sorted(set(got) ^ set(want))[:5])
+        differ = [stamp for stamp in want if got[stamp] != want[stamp]]
+        assert not differ, f"{topic}: {len(differ)} of {len(want)} stamps differ, the first at {min(differ)} ns"
+    # the run's record: what each node published was recorded, in both
+    assert direct["lost"] == {t: 0 for t in direct["published"]}, direct["lost"]
+    assert direct["published"] == graph["published"]
+
+
+def test_a_refused_scenario_starts_nothing(tmp_path):
+    run = run_scenario(load_scenario("archi_canopen"), tmp_path / "run", engine="direct", progress=False)
+    assert run["status"] == "failed" and "hardware canopen" in run["error"] and "nothing started" in run["error"]
+    assert not (tmp_path / "run" / "bag").exists()
+    for name in ("panel_archi", "archi_ros2_control"):
+        assert "mode realtime" in refusal(SCENARIOS[name]), name
