@@ -49,6 +49,7 @@ def _study(tmp_path: Path, **data) -> Path:
     ({"scenario": "nope"}, "scenario: no such scenario 'nope'"),
     ({"name": "../up"}, "name: letters, digits"),
     ({"set": {"settle_s": 0.1}, "group_by": ["settle_s"]}, "group_by: settle_s is not a grid parameter"),
+    ({"engine": "fast"}, "engine: must be one of direct, graph"),
 ])
 def test_a_bad_study_is_refused_naming_the_key(tmp_path, data, message):
     with pytest.raises(StudyError, match=message):
@@ -224,11 +225,12 @@ def test_a_study_on_a_scheduler_with_two_workers_survives_a_killed_worker(tmp_pa
     """A real Dask scheduler and two `dask worker` processes over TCP on localhost, as
     on a cluster; one worker is killed (its nanny and process, SIGKILL) after the first
     rows: the study still ends with every run done once, none failed, and the runs
-    that shared the workers' time had their own DDS domains."""
+    that shared the workers' time had their own DDS domains (graph runs: the direct
+    engine has none)."""
     from pkm_studies.study import load_study as load
     from pkm_studies.study_engine import run_study
     path = tmp_path / "tiny.yaml"
-    path.write_text(yaml.safe_dump({"name": "tiny_remote", **TINY,
+    path.write_text(yaml.safe_dump({"name": "tiny_remote", **TINY, "engine": "graph",
                                     "sample": {**TINY["sample"], "runs": 4}}), encoding="utf-8")
     scheduler_file = tmp_path / "scheduler.json"
     procs = [subprocess.Popen([str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0",
@@ -332,3 +334,24 @@ def test_a_design_sweep_is_computed_in_chunks_resumed_and_has_its_pareto_front(t
     assert (again["done_before"], again["ran"]) == (2, 1)
     pd.testing.assert_frame_equal(again["table"], table)
     assert pd.read_parquet(out / "results.parquet").shape == (100, len(table.columns))
+
+
+# ------------------------------------------------------------------ the run's engine
+def test_a_study_run_gives_the_same_row_in_the_direct_engine_as_in_the_graph(tmp_path):
+    """A study's run (execute_run, as a worker runs it) in the direct engine by default
+    and in the graph when asked: the same metrics, and the engine said in the row."""
+    from pkm_studies.run_task import RunTask, execute_run
+    study = load_study(_study(tmp_path, **{k: v for k, v in TINY.items() if k != "scenario"}))
+    run = study.runs()[1]
+    rows = {engine: execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / engine), True, engine))
+            for engine in ("", "graph")}
+    assert rows[""]["run.engine"] == "direct" and rows["graph"]["run.engine"] == "graph"
+    assert "run.domain_id" in rows["graph"] and "run.domain_id" not in rows[""]
+    volatile = ("wall", "compute", "response", "steps_per_s", "task_s", "worker", "engine", "domain", "mode",
+                "max_callback", "gap",
+                # the graph's plant repeats its first state until its controller answers (discovery)
+                "resent", "stale", "repeats", "gough_sensor.received", "gough_sensor.measured", "gough_sensor.solved")
+    same = {k: v for k, v in rows["graph"].items() if not any(w in k for w in volatile)}
+    assert rows[""]["run.status"] == "completed", rows[""].get("run.error")
+    assert len(same) > 20 and {k: rows[""].get(k) for k in same} == same
+    assert rows[""]["controller.max_tracking_error_m"] > 0.0

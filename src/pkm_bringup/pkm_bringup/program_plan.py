@@ -14,33 +14,24 @@ from __future__ import annotations
 
 import math
 
-from pkm_kinematics.dynamics import dynamic_model
+from pkm_common.params import ParameterValues
 from pkm_kinematics.errors import FieldError
-from pkm_trajectory.planner import Limits, PlanBudget, Samples, plan_validated
-from pkm_trajectory.program import gcode_segments
-from pkm_trajectory.tool_table import load_tool_table
+from pkm_trajectory.planner import Samples
+from pkm_trajectory.planning import declare_planner
 
 __all__ = ["plan_program", "spindle_load_entries"]
 
 SPINDLE_KEYS = ("wrench", "ramp_s", "reference_rpm")
 
 
-def plan_program(program_text: str, model, machine_config, p: dict) -> Samples:
-    """The program planned and validated with trajectory_node's parameters ``p`` (its
-    defaults and the scenario's trajectory section) from the machine's home."""
-    tools = load_tool_table(p["tool_table"]) if p.get("tool_table") else None
-    segments = gcode_segments(program_text, model.task_space, start_pose=[float(v) for v in model.home],
-                              tools=tools, feed_override=float(p.get("feed_override", 1.0)),
-                              scale=float(p.get("scale", 1.0)), repeat=int(p.get("repeat", 1)))
-    force = float(p.get("max_drive_force_n", 0.0)) or None
-    limits = Limits(tuple(p["max_velocity"]), tuple(p["max_acceleration"]), tuple(p["max_jerk"]))
-    return plan_validated(segments, model, limits, float(p.get("rate_hz", 1000.0)),
-                          float(p.get("blend_tolerance_m", 0.0)), float(p.get("max_joint_velocity", 2.0)),
-                          float(p.get("max_joint_acceleration", 50.0)), float(p.get("max_condition", 50.0)),
-                          PlanBudget(int(p.get("max_points", 200_000)), int(p.get("max_segments", 10_000)),
-                                     float(p.get("max_planning_s", 10.0))),
-                          force, dynamic_model(machine_config) if force else None,
-                          float(p.get("max_joint_jerk", 0.0)) or None)
+def plan_program(program_text: str, machine: str, p: dict) -> Samples:
+    """The program planned and validated as trajectory_node plans it, from the machine's
+    home: its declarations over ``p`` (its parameters: the node's defaults and the
+    scenario's trajectory section, typed as the node gets them) and ``machine`` (the
+    controller's model). The plan is kept (planning.PlannerSettings.plan_program): a
+    run in one process, or a study's, plans it once."""
+    settings = declare_planner(ParameterValues({**p, "machine": machine}))
+    return settings.plan_program(program_text, settings.config.model.home.tolist())
 
 
 def spindle_load_entries(events: list, spec, size: int) -> list[dict]:

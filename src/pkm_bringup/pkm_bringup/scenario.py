@@ -409,9 +409,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
     samples = None
     if s.program is not None and (not s.duration_s or spindle is not None):
         try:      # planned as trajectory_node will: a program it would refuse fails here
-            model = _machine(s.controller_machine)
-            samples = plan_program(s.program.read_text(encoding="utf-8"), model.model, model,
-                                   {**_node_defaults("trajectory"), **s.trajectory})
+            samples = plan_program(s.program.read_text(encoding="utf-8"), s.controller_machine,
+                                   _typed("trajectory", {**_node_defaults("trajectory"), **s.trajectory}))
         except (ValueError, KeyError) as exc:          # TrajectoryRejected is a ValueError
             raise ScenarioError(f"program: {exc}") from None
     if spindle is not None:      # the plant's load while the program's spindle turns (program_plan)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import rclpy.logging
 
+from pkm_bringup.direct import refusal
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import ScenarioError, load_scenario
 from pkm_common.domains import use_private_domain
@@ -22,7 +23,7 @@ from pkm_runs.report import analyse_bag
 from pkm_runs.report_metrics import metrics_dict
 from pkm_studies.study import failed_metrics, run_metrics
 
-_ONE_RUN_AT_A_TIME = threading.Lock()       # a worker process with several threads still runs one graph
+_ONE_RUN_AT_A_TIME = threading.Lock()       # a worker process with several threads still runs one run at a time
 
 
 @dataclass(frozen=True)
@@ -32,20 +33,28 @@ class RunTask:
     overrides: dict
     run_dir: str
     in_process: bool
+    engine: str = ""            # direct | graph; "": direct where the scenario allows it (study.Study.engine)
 
 
 def execute_run(task: RunTask) -> dict:
     """Run one study run on this worker and return its metrics (study.run_metrics), or
     ``failed_metrics`` with the error: never raises for a failing run. What fails
-    around the run (no free DDS domain, rclpy missing on this worker) raises: it is
-    the worker's fault, not the run's, and the study records no row for it."""
+    around the run (no free DDS domain for a graph, rclpy missing on this worker)
+    raises: it is the worker's fault, not the run's, and the study records no row for it."""
     with _ONE_RUN_AT_A_TIME:
-        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}",
-                 "run.domain_id": use_private_domain(strict=True)}
-        _quiet_nodes()
         start = time.monotonic()
+        where = {"run.worker": f"{socket.gethostname()}:{os.getpid()}"}
         try:
-            metrics = _execute(task)
+            s = load_scenario(task.scenario, task.overrides)
+        except ScenarioError as exc:
+            return {**failed_metrics(f"scenario refused: {exc}"), **where, "run.task_s": time.monotonic() - start}
+        engine = task.engine or ("graph" if refusal(s) else "direct")
+        where["run.engine"] = engine
+        if engine == "graph":              # a graph's DDS domain, held by this process alone
+            where["run.domain_id"] = use_private_domain(strict=True)
+            _quiet_nodes()
+        try:
+            metrics = _execute(task, s, engine)
         except Exception as exc:       # noqa: BLE001 - a run's failure is a row, not a lost task
             metrics = failed_metrics(f"{type(exc).__name__}: {exc}")
         return {**metrics, **where, "run.task_s": time.monotonic() - start}
@@ -57,14 +66,10 @@ def _quiet_nodes() -> None:
     rclpy.logging.set_logger_level("pkm", rclpy.logging.LoggingSeverity.FATAL)
 
 
-def _execute(task: RunTask) -> dict:
-    try:
-        s = load_scenario(task.scenario, task.overrides)
-    except ScenarioError as exc:
-        return failed_metrics(f"scenario refused: {exc}")
+def _execute(task: RunTask, s, engine: str) -> dict:
     run_dir = Path(task.run_dir)
     shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
-    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False)
+    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine)
     report = None
     if s.record and (run_dir / "bag" / "metadata.yaml").exists():
         try:

@@ -54,7 +54,8 @@ from pkm_kinematics.task_space import PLANAR
 from pkm_kinematics.yaml_files import read_yaml
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
-              "design", "objectives")
+              "engine", "design", "objectives")
+ENGINES = ("direct", "graph")      # a run's engine (pkm_bringup.direct, or the graph's nodes)
 DESIGN_KEYS = ("machine", "kind", "points_per_axis", "theta_points", "chunk")
 SENSES = ("min", "max")
 SAMPLE_KEYS = ("method", "runs", "seed", "parameters")
@@ -114,7 +115,8 @@ class Study:
     draws: list = field(default_factory=list)  # [Draw]
     group_by: list = field(default_factory=list)
     metrics: list = field(default_factory=list)
-    in_process: bool = True
+    in_process: bool = True                  # the graph's nodes in one process (engine graph)
+    engine: str = ""                         # direct | graph; "": direct where the run's scenario allows it
     design: dict | None = None                # a design sweep (design_study.py) instead of runs
     objectives: dict = field(default_factory=dict)    # design metric -> "min" | "max" (the Pareto front)
 
@@ -338,6 +340,11 @@ def load_study(path: str | Path, check: bool = True) -> Study:
     if not isinstance(in_process, bool):
         raise StudyError(f"in_process: must be true or false, got {in_process!r}")
     study.in_process = in_process
+    engine = data.get("engine", "")
+    if engine not in ("", *ENGINES):
+        raise StudyError(f"engine: must be one of {', '.join(ENGINES)} (default: direct where a run's scenario "
+                         f"allows it, lockstep on the simulated machine; else graph), got {engine!r}")
+    study.engine = engine
     if check and design is None:
         check_runs(study)
     return study

@@ -7,9 +7,11 @@
 The engine is Dask's: a ``LocalCluster`` of ``--workers`` processes (one thread each)
 by default, or the scheduler of a cluster of machines that have the project installed
 at the same path (README, "Studies on a cluster"). Each run is a task; the worker runs
-it complete, in one process by default (``in_process: false`` runs the nodes as
-processes), in a DDS domain its process holds alone on its host
-(pkm_common.domains), one run at a time per worker process, into the run directory
+it complete: in the direct engine (pkm_bringup.direct: the graph's run, without a
+transport) where its scenario allows it (lockstep, the simulated machine) unless the
+study says ``engine: graph``; as a graph in one process (``in_process: false``: its
+nodes as processes) in a DDS domain its process holds alone on its host
+(pkm_common.domains); one run at a time per worker process, into the run directory
 ``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded
 unless it failed).
 
@@ -66,7 +68,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
                    desc=study.name, smoothing=0.1)
         try:
             tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
-                             study.in_process) for r in pending]
+                             study.in_process, study.engine) for r in pending]
             prefix = task_prefix("study", study.name, out_dir)
             for i, future in completed_on_dask(execute_run, [tasks], [prefix + r.key for r in pending],
                                                workers, scheduler):
