@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
-from rclpy.exceptions import ParameterException
 
 from pkm_kinematics.errors import ParameterError
 
@@ -50,10 +49,19 @@ def _override(node, name):
     return None if param is None else param.value
 
 
+def _refused(exc: Exception) -> bool:
+    """rclpy's ParameterException (a value of the wrong type or out of the declared
+    range) or ParameterValues' own, told by class name: this module stays importable
+    without rclpy (the pure core's declarations, ParameterValues)."""
+    return any(c.__name__ == 'ParameterException' for c in type(exc).__mro__)
+
+
 def _declare(node, name, default, descriptor: ParameterDescriptor, allowed: str):
     try:
         return node.declare_parameter(name, default, descriptor).value
-    except ParameterException as exc:
+    except Exception as exc:
+        if not _refused(exc):
+            raise
         given = _override(node, name)
         shown = f'got {given!r}' if given is not None else f'rclpy: {exc}'
         raise ParameterError(name, f'must be {allowed}, {shown}') from None
@@ -89,7 +97,9 @@ def declare_float(node, name: str, default: float, lo: float = -math.inf, hi: fl
 def _declare_ignoring_override(node, name, value, descriptor, allowed):
     try:
         return node.declare_parameter(name, value, descriptor, ignore_override=True).value
-    except ParameterException:
+    except Exception as exc:
+        if not _refused(exc):
+            raise
         raise ParameterError(name, f'must be {allowed}, got {value!r}') from None
 
 
@@ -183,6 +193,27 @@ class _Value:
         self.value = value
 
 
+class ParameterException(ValueError):
+    """A value ParameterValues refuses as rclpy would (its type, its range)."""
+
+
+def _parameter_type(value) -> int:
+    """The ParameterType of a Python value, by rclpy's rules (Parameter.Type.from_parameter_value)."""
+    for kind, test in ((ParameterType.PARAMETER_BOOL, lambda v: isinstance(v, bool)),
+                       (ParameterType.PARAMETER_INTEGER, lambda v: isinstance(v, int)),
+                       (ParameterType.PARAMETER_DOUBLE, lambda v: isinstance(v, float)),
+                       (ParameterType.PARAMETER_STRING, lambda v: isinstance(v, str))):
+        if test(value):
+            return kind
+    if isinstance(value, (list, tuple)):
+        for kind, item in ((ParameterType.PARAMETER_BYTE_ARRAY, bytes), (ParameterType.PARAMETER_BOOL_ARRAY, bool),
+                           (ParameterType.PARAMETER_INTEGER_ARRAY, int), (ParameterType.PARAMETER_DOUBLE_ARRAY, float),
+                           (ParameterType.PARAMETER_STRING_ARRAY, str)):
+            if all(isinstance(v, item) for v in value):
+                return kind
+    return ParameterType.PARAMETER_NOT_SET
+
+
 class ParameterValues:
     """A node's parameters without a node: what the ``declare_*`` functions need of
     one, over a dict of overrides (a run's params/<node>.yaml as pkm_bringup.scenario
@@ -196,15 +227,14 @@ class ParameterValues:
         self.declared: dict = {}
 
     def declare_parameter(self, name: str, default, descriptor: ParameterDescriptor, ignore_override: bool = False):
-        from rclpy.parameter import Parameter      # its type rules, without a node (no context needed)
         given = self._parameter_overrides.get(name)
         value = default if ignore_override or given is None else given.value
-        kind = Parameter.Type.from_parameter_value(value).value
+        kind = _parameter_type(value)
         if not descriptor.dynamic_typing and kind != descriptor.type:
-            raise ParameterException(f'wrong type for parameter {name!r}', name)
+            raise ParameterException(f'wrong type for parameter {name!r}')
         for ranges in (descriptor.floating_point_range, descriptor.integer_range):
             if ranges and not ranges[0].from_value <= value <= ranges[0].to_value:
-                raise ParameterException(f'parameter {name!r} out of range', name)
+                raise ParameterException(f'parameter {name!r} out of range')
         self.declared[name] = value
         return _Value(value)
 
