@@ -213,7 +213,7 @@ def test_a_message_lost_in_transport_does_not_stop_the_lockstep(ros_graph, lost)
         sim.pub_state.publish = drop_once(sim.pub_state.publish, stamp_ns_of)
     else:
         gough = next(n for n in ros_graph.executor.get_nodes() if isinstance(n, GoughSensorNode))
-        gough.pub_struts.publish = drop_once(gough.pub_struts.publish, stamp_ns_of)
+        gough.publish_struts = drop_once(gough.publish_struts, stamp_ns_of)
     assert ros_graph.spin_until(lambda: sim.plant.k >= 400 or ctrl.core.stopped, timeout_sec=60.0)
     assert dropped and not ctrl.core.stopped, ctrl.core.stop_reason
     assert sim.counts["state_repeats"] >= 1
