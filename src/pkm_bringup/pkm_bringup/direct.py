@@ -51,7 +51,7 @@ from pkm_common.qos import publisher_qos
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.sim_loop import SimLoop
 from pkm_sim_hw.step_streams import StepStreams
-from pkm_trajectory.planning import declare_planner
+from pkm_trajectory.planning import PLAN_CACHE_SIZE, declare_planner
 from pkm_trajectory.program import program_events_text
 
 __all__ = ["DirectRun", "refusal", "run_direct"]
@@ -225,6 +225,22 @@ class _SensorPorts(_Ports):
         self.diagnostics(max(int(values.get("stamp_ns", 0)), 0), 2, f"{self.node}: metrology", message, values)
 
 
+_MESSAGES: collections.OrderedDict = collections.OrderedDict()     # id(samples) -> (samples, message)
+
+
+def _trajectory_message(space, samples):
+    """The trajectory message of a plan (conversions.trajectory_msg), made once per plan
+    the planner keeps (planning.PLAN_CACHE_SIZE): a study's runs send the same one,
+    each with its own stamp and credential."""
+    found = _MESSAGES.get(id(samples))
+    if found is None or found[0] is not samples:
+        found = _MESSAGES[id(samples)] = (samples, trajectory_msg(space, samples.time_s, samples.position,
+                                                                  samples.velocity, samples.acceleration))
+        while len(_MESSAGES) > PLAN_CACHE_SIZE:
+            _MESSAGES.popitem(last=False)
+    return found[1]
+
+
 def controller_loop(params: dict, ports) -> ControllerLoop:
     """The run's ControllerLoop as controller_node configures it from the same
     parameters (declare_like on each, then core_from_parameters and a warm-up)."""
@@ -315,8 +331,7 @@ class DirectRun:
             samples = settings.plan_program(text, settings.config.model.home.tolist())
         except Exception as exc:              # noqa: BLE001 - the planner's every refusal, named
             raise RunFailed(f"the planner rejected the program {settings.program_file}: {exc}") from None
-        msg = trajectory_msg(settings.config.model.task_space, samples.time_s, samples.position, samples.velocity,
-                             samples.acceleration)
+        msg = _trajectory_message(settings.config.model.task_space, samples)
         msg.header.frame_id = "world"
         stamp_ns = time.time_ns()
         msg.header.stamp = ns_to_stamp(stamp_ns)
