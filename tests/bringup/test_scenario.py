@@ -60,7 +60,8 @@ def test_parameters_are_typed_for_ros(tmp_path):
     assert isinstance(p["controller"]["drive_mismatch_cycles"], int)
     assert p["sim_hw"]["load_schedule"] == [0.0, 1.0, 2.0, 3.0]
     assert "link_length_errors" not in p["sim_hw"]          # ARCHI-sized default dropped for MoM3
-    assert p["controller"]["wait_for_trajectory"] is True and p["controller"]["wait_for_start"] is False
+    # the loop starts at pkm-run's start, once the recorder is ready, and with its trajectory
+    assert p["controller"]["wait_for_trajectory"] is True and p["controller"]["wait_for_start"] is True
     assert set(p) == {"sim_hw", "controller", "gough_sensor", "trajectory", "recorder"}
     assert p["recorder"]["output"] == str(tmp_path / "bag")
 

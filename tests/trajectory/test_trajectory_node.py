@@ -156,3 +156,34 @@ def test_a_goal_or_program_from_a_node_the_run_did_not_name_is_refused(ros_graph
     assert all({kv.key: kv.value for kv in s.values}["intruder"] == "/rogue" for s in refusals)
     ros_graph.spin_until(lambda: False, timeout_sec=0.3)
     assert trajectories == [] and node.accepted == 0
+
+
+def test_a_program_planned_at_start_up_is_signed_and_published_at_the_runs_start(ros_graph, tmp_path):
+    """pkm-run starts the planner with the other nodes (wait_for_start): its program is
+    planned at once but held; a start signal without the run's credential is refused;
+    at the run's start it is signed then, so that a controller that started after the
+    plan (its Verifier refuses what was signed before it was made) takes it."""
+    from pkm_common.credential import RunKey, Signer, Verifier
+    from rclpy.serialization import serialize_message
+    key = RunKey.create(tmp_path / "credential.key")
+    program = tmp_path / "p.nc"
+    program.write_text(PROGRAM)
+    node = ros_graph.add_node(TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+        Parameter("machine", value="archi"), Parameter("rate_hz", value=200.0),
+        Parameter("program_file", value=str(program)), Parameter("wait_for_start", value=True),
+        Parameter("credential_file", value=str(tmp_path / "credential.key"))]))
+    assert node.held is not None and node.accepted == 0          # planned, not published
+    controller_checks = Verifier(key)                               # a controller that came up after the plan
+    client = ros_graph.create_node("client")
+    raw = []
+    client.create_subscription(MultiDOFJointTrajectory, "trajectory", raw.append, LATCHED_QOS, raw=True)
+    start = client.create_publisher(String, "run/start", LATCHED_QOS)
+    assert ros_graph.spin_until(lambda: start.get_subscription_count() > 0)
+    start.publish(serialize_message(String(data="start")))          # no credential: refused
+    ros_graph.spin_until(lambda: bool(raw), timeout_sec=0.5)
+    assert not raw and node.held is not None
+    start.publish(Signer(key, "/client").text("run/start", "start"))
+    assert ros_graph.spin_until(lambda: len(raw) == 1)
+    assert node.held is None and node.accepted == 1
+    sender, refused = controller_checks.check("trajectory", raw[0], True)
+    assert refused is None and sender == node.get_fully_qualified_name(), refused

@@ -324,7 +324,8 @@ class DirectRun:
 
     def plan(self) -> None:
         """The program planned as trajectory_node plans it at start, published signed to
-        the controller (which waits for it); a rejected program is the run's failure."""
+        the controller (which waits for it and the start); a rejected program is the
+        run's failure."""
         settings = declare_planner(ParameterValues(self.params["trajectory"]))
         try:
             text = Path(settings.program_file).read_text(encoding="utf-8")
@@ -345,7 +346,7 @@ class DirectRun:
         self.controller.on_trajectory(data)
 
     def start(self) -> None:
-        """The latched start signal of a scenario without a program."""
+        """pkm-run's latched start signal (the controller waits for it)."""
         data = start_signal(Path(self.params["controller"]["credential_file"]), self.names["bringup_monitor"])
         self.topic(START_TOPIC).publish(data)
         self.controller.on_start(data)
@@ -354,8 +355,7 @@ class DirectRun:
         """From the start to the plant's last step, its last state answered."""
         if "trajectory" in self.params:
             self.plan()
-        else:
-            self.start()
+        self.start()
         self.sim.publish_state()
         queue, sim, plant = self.queue, self.sim, self.plant
         next_progress = 0

@@ -182,8 +182,8 @@ def refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 1
 
 
 def publish_start(node, credential: Path) -> None:
-    """The latched start signal of a scenario without a program (controller
-    wait_for_start), with the run's credential (pkm_common.credential)."""
+    """The latched start signal of a run (controller wait_for_start), with the run's
+    credential (pkm_common.credential)."""
     node.start_publisher = publisher(node, START_TOPIC)
     node.start_publisher.publish(start_signal(credential, node.get_fully_qualified_name()))
 
@@ -240,27 +240,25 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
                 raise node_died(node.name, node.popen.returncode, node.tail())
     try:
         refuse_if_another_run(executor, monitor, s)
-        # a planner for an operator (realtime, no program) starts with the loop's nodes and
-        # is up before the start: its start-up (imports, ~1 s of CPU) stalled a running loop
-        operator_planner = "trajectory" in params and s.program is None
-        for name in START_ORDER + (("trajectory",) if operator_planner else ()):
+        # every node at once, the planner too (its imports and its plan meanwhile, off the
+        # critical path of the start-up); the loop starts at the start signal, once the
+        # graph is connected, the recorder ready and the planner up (a planner still
+        # importing, ~1 s of CPU, stalled a running loop)
+        for name in START_ORDER + ("trajectory",):
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
                                          run_dir / "logs", os.environ.copy(), scheduling_of(s, name))
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (connected(monitor, s) and (not s.record or ready.exists()) and
-                   (not operator_planner or monitor.count_publishers(s.topic("trajectory")) > 0)):
+                   ("trajectory" not in params or monitor.count_publishers(s.topic("trajectory")) > 0)):
             check_alive()
             refuse_intruders(monitor, s)
             if time.monotonic() > deadline:
                 raise RunFailed(f"graph not connected within {CONNECT_TIMEOUT_S:g} s (see {run_dir / 'logs'})")
             executor.spin_once(timeout_sec=0.05)
-        if "trajectory" in params and not operator_planner:   # the run starts when the controller has its trajectory
-            nodes["trajectory"] = start_node("trajectory", s.namespace, run_dir / "params" / "trajectory.yaml",
-                                             run_dir / "logs", os.environ.copy(), scheduling_of(s, "trajectory"))
-        if s.program is None:               # ... or at the start signal (realtime: the planner waits for goals)
-            publish_start(monitor, Path(params["controller"]["credential_file"]))
+        # the controller answers from then on (with a program: once its trajectory is there)
+        publish_start(monitor, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
         machine = s.machine_node
         sim = nodes[machine]

@@ -84,11 +84,10 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
             executor.spin_once(timeout_sec=0.05)
         if "trajectory" in params:
             create("trajectory")
-        if s.program is None:
-            starter = monitor_node(context, s.namespace)
-            executor.add_node(starter)
-            nodes["starter"] = starter
-            publish_start(starter, Path(params["controller"]["credential_file"]))
+        starter = monitor_node(context, s.namespace)
+        executor.add_node(starter)
+        nodes["starter"] = starter
+        publish_start(starter, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
         sim = nodes[s.machine_node]
         last = 0.0

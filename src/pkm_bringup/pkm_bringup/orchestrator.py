@@ -1,19 +1,24 @@
 """``pkm-run``: run a scenario end to end — every node, recording, summary, report.
 
-Multi-process (default): recorder, sim_hw, gough_sensor, controller as processes
-(processes.py), parameters from the scenario (scenario.py) written to
-``<run_dir>/params/<node>.yaml``. The run starts only when the graph is connected
-(every stream of the scenario has its publisher and subscriber, the recorder is
-subscribed to all of them); then trajectory_node is started, the controller (told to
-wait for its trajectory) answers the first state and the lockstep begins; without a
-program the controller starts at a start signal, and in realtime mode trajectory_node
-runs all the same, for the goals and programs of an operator (pkm-panel). The run ends
+Multi-process (default): recorder, sim_hw, gough_sensor, controller and
+trajectory_node as processes, started together (processes.py), parameters from the
+scenario (scenario.py) written to ``<run_dir>/params/<node>.yaml``. The run starts
+only when the graph is connected (every stream of the scenario has its publisher and
+subscriber, the recorder is subscribed to all of them, the planner is up): then
+pkm-run publishes the start signal, and the controller (told to wait for it, and with
+a program for its trajectory) answers the first state and the lockstep begins; in
+realtime mode trajectory_node runs all the same, for the goals and programs of an
+operator (pkm-panel). The run ends
 when sim_hw reaches ``duration_s``; the nodes are then stopped in order, the recorder
 last. A node that exits early is a crash: reported with its last output, everything
 else stopped. Ctrl-C / SIGTERM stop everything the same way (the bag is finalized).
 
 In-process (``--in-process``): the same nodes and parameters in one executor, for fast
 tests; in lockstep both modes compute the same run (tests/bringup).
+
+Direct (``--engine direct``): the same loops without a transport, in one process
+(direct.py): a lockstep scenario on the simulated machine, the graph's run byte for
+byte (tests/bringup/test_direct_engine.py), several times faster; studies use it.
 
 Realtime profile (``--rt-profile``, or the scenario's ``realtime_profile: true``):
 SCHED_FIFO and locked memory for the loop's nodes (rt_profile.py), set as each

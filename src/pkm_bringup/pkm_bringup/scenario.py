@@ -580,8 +580,10 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
         "controller": {**controller_defaults(s.machine_name or s.machine), **controller_wiring(s, _machine(s.machine)),
                        **s.controller, "machine": s.controller_machine,
                        "dt_s": s.dt_s, "end_time_s": s.duration_s, "autostart": True,
+                       # the loop starts at pkm-run's start signal, once the graph is connected and
+                       # the recorder ready; with a program, when the trajectory is there too
                        "wait_for_trajectory": s.program is not None,
-                       "wait_for_start": s.program is None,
+                       "wait_for_start": True,
                        "state_source": run_node_name(s, s.machine_node),
                        "trajectory_source": run_node_name(s, "trajectory"),
                        "operator_sources": ",".join(operator_names(s)), "credential_file": key,
@@ -597,7 +599,7 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
         nodes["trajectory"] = {**_node_defaults("trajectory"), **s.trajectory, "machine": s.controller_machine,
                                "program_file": str(s.program or ""),
                                "operator_sources": ",".join(operator_names(s)), "credential_file": key,
-                               "controller_source": controller_node_name(s)}
+                               "controller_source": controller_node_name(s), "wait_for_start": True}
     if s.record:
         # the loop's nodes hand their per-step streams to the recorder in batches
         # (pkm_recording.tap) instead of a delivery per message to one more process

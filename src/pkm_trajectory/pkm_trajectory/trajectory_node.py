@@ -29,7 +29,7 @@ from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_s
                                     signed_message, trajectory_msg)
 from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.endpoints import publisher, subscription
-from pkm_common.params import declare_str
+from pkm_common.params import declare_bool, declare_str
 from pkm_common.poses import tool_pose_to_machine
 from pkm_common.runner import main_exit, run_node
 from pkm_common.sources import AllowedSenders, CommandGuard, node_names
@@ -70,6 +70,16 @@ class TrajectoryNode(Node):
             self, "controller_source", "", "the controller's full node name: its verdicts move where plans start "
             "(empty: anyone's)", allow_empty=True)), "controller_source")
         self.events_sub = subscription(self, topics.CONTROLLER_EVENTS, self.on_event)
+        # pkm-run starts the planner with the other nodes: its program is planned at once
+        # but signed and published at the run's start, when the controller that checks the
+        # credential is up (a controller refuses a credential signed before it started)
+        self.held = None                   # the program's plan until the start
+        self.started = not declare_bool(self, "wait_for_start", False, "hold the program's trajectory until the "
+                                        "run's start signal (run/start, from operator_sources)")
+        if not self.started:
+            self.start_guard = CommandGuard(AllowedSenders(topics.RUN_START, operators, "operator_sources"),
+                                            Verifier(key))
+            self.inputs[topics.RUN_START] = subscription(self, topics.RUN_START, self.on_start, raw=True)
         if program_file:
             self.submit("program_file", lambda: settings.plan_program(Path(program_file).read_text(), self.pose))
 
@@ -115,6 +125,16 @@ class TrajectoryNode(Node):
             return self.settings.plan([point_to_point(self.pose, target)])
         self.submit("goal", plan)
 
+    def on_start(self, buf: bytes) -> None:
+        found = self.start_guard.refused(lambda: graph_senders(self, self.inputs[topics.RUN_START].topic_name), buf)
+        if found is not None:
+            self.get_logger().error(f"start refused: {found.reason}")
+            return
+        self.started = True
+        if self.held is not None:
+            self.publish(*self.held)
+            self.held = None
+
     def on_program(self, buf: bytes) -> None:
         if self.sender_refused(topics.PROGRAM, buf):
             return
@@ -131,6 +151,14 @@ class TrajectoryNode(Node):
             self.get_logger().error(f"{source} rejected: {exc}")
             self.report(2, f"{source} rejected: {exc}", {})
             return
+        if source == "program_file" and not self.started:
+            self.held = (source, samples)
+            self.get_logger().info(f"{source} planned: {samples.duration_s:.3f} s, held until the start")
+            return
+        self.publish(source, samples)
+
+    def publish(self, source: str, samples) -> None:
+        """An accepted plan, signed now, to the controller; reported."""
         msg = self.to_msg(samples)
         self.pub.publish(signed_message(self.signer, "trajectory", msg))
         stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
