@@ -254,3 +254,34 @@ def test_decode_bool_reads_what_rclpy_serialized_and_refuses_other_bytes():
     for bad in (b"", b"\x00\x01\x00\x00", b"\x01\x00\x00\x00\x01"):        # empty, cut, big-endian
         with pytest.raises(ValueError, match="estop: not a little-endian CDR std_msgs/Bool"):
             decode_bool(bad, "estop")
+
+
+def test_a_trajectory_encoded_as_records_is_the_message_rclpy_reads():
+    """cdr.encode_multidof_trajectory (through conversions.trajectory_bytes) against
+    rclpy: its bytes deserialize to the message conversions.trajectory_msg builds, and
+    have its size, for planar and spatial samples, 0, 1, 2 and 7 points, and frame ids
+    whose lengths put the first point 4 or 8 past an alignment; our decoder reads them
+    back. (rclpy's padding bytes are not initialised: the bytes are compared as messages.)"""
+    import numpy as np
+    from rclpy.serialization import deserialize_message, serialize_message
+    from trajectory_msgs.msg import MultiDOFJointTrajectory
+    from pkm_common.cdr import decode_multidof_trajectory
+    from pkm_common.conversions import trajectory_bytes, trajectory_msg
+    from pkm_kinematics.task_space import PLANAR, SPATIAL
+    rng = np.random.default_rng(7)
+    offsets = set()
+    for space in (PLANAR, SPATIAL):
+        for n in (0, 1, 2, 7):
+            t = np.cumsum(rng.uniform(0.0, 0.01, n))
+            x, v, a = (rng.normal(size=(n, space.dof)) for _ in range(3))
+            for frame in ("world", "w", "worl", "a-longer-frame-id"):
+                msg = trajectory_msg(space, t, x, v, a)
+                msg.header.frame_id, msg.header.stamp.sec, msg.header.stamp.nanosec = frame, 12, 345
+                data = trajectory_bytes(space, t, x, v, a, 12 * 10**9 + 345, frame_id=frame)
+                assert deserialize_message(data, MultiDOFJointTrajectory) == msg, (space, n, frame)
+                assert len(data) == len(serialize_message(msg))
+                back = decode_multidof_trajectory(data)
+                np.testing.assert_array_equal(back.time_s, [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                                                            for p in msg.points])
+                offsets.add((len(frame) + 1) % 8)
+    assert len(offsets) > 1

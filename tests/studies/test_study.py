@@ -50,6 +50,7 @@ def _study(tmp_path: Path, **data) -> Path:
     ({"name": "../up"}, "name: letters, digits"),
     ({"set": {"settle_s": 0.1}, "group_by": ["settle_s"]}, "group_by: settle_s is not a grid parameter"),
     ({"engine": "fast"}, "engine: must be one of direct, graph"),
+    ({"keep_runs": "no"}, "keep_runs: must be true or false"),
 ])
 def test_a_bad_study_is_refused_naming_the_key(tmp_path, data, message):
     with pytest.raises(StudyError, match=message):
@@ -139,6 +140,9 @@ def test_the_summary_counts_statuses_and_summarises_the_runs_that_did_not_fail(t
     assert (a["runs"], a["completed"], a["tripped"], a["failed"]) == (3, 1, 1, 1)
     assert (a["m.count"], a["m.mean"], a["m.max"]) == (2, 2.0, 3.0)       # the failed run's 100 left out
     assert b["m.std"] == pytest.approx(np.std([2.0, 4.0], ddof=1))
+    # the tails: numpy's percentile (linear interpolation) of the runs that did not fail
+    assert (a["m.p95"], a["m.p99"]) == pytest.approx((np.percentile([1.0, 3.0], 95), np.percentile([1.0, 3.0], 99)))
+    assert a["m.p99"] == pytest.approx(2.98)
 
 
 def test_only_a_run_dask_gave_up_on_is_a_failed_row():
@@ -355,3 +359,18 @@ def test_a_study_run_gives_the_same_row_in_the_direct_engine_as_in_the_graph(tmp
     assert rows[""]["run.status"] == "completed", rows[""].get("run.error")
     assert len(same) > 20 and {k: rows[""].get(k) for k in same} == same
     assert rows[""]["controller.max_tracking_error_m"] > 0.0
+
+
+def test_a_recorded_run_of_a_study_that_keeps_no_runs_leaves_its_metrics_and_no_directory(tmp_path):
+    """keep_runs: false (a Monte Carlo of thousands of recorded runs, ~3 MB of bag
+    each): the report's metrics are in the row, the run's directory is gone; a study
+    that keeps them keeps it."""
+    from pkm_studies.run_task import RunTask, execute_run
+    study = load_study(_study(tmp_path, **{**{k: v for k, v in TINY.items() if k != "scenario"},
+                                           "set": {"duration_s": 0.2, "record": True}, "keep_runs": False}))
+    assert study.keep_runs is False
+    run = study.runs()[0]
+    for keep in (False, True):
+        row = execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / str(keep)), True, "", keep))
+        assert row["run.status"] == "completed" and row["report.tracking_error.max_m"] > 0.0, row.get("run.error")
+        assert (tmp_path / str(keep) / "bag").is_dir() == keep

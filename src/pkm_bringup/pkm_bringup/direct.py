@@ -35,7 +35,8 @@ from std_msgs.msg import Bool, String
 from pkm_bringup.graph import RunFailed
 from pkm_bringup.scenario import START_TOPIC, Scenario, run_node_name, start_signal
 from pkm_common import topics
-from pkm_common.conversions import diagnostic_array, diagnostic_status, ns_to_stamp, signed_message, trajectory_msg
+from pkm_common.conversions import (diagnostic_array, diagnostic_status, ns_to_stamp, trajectory_bytes,
+                                    trajectory_fields)
 from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_common.files import write_summary
 from pkm_common.params import ParameterValues, declare_like
@@ -225,20 +226,21 @@ class _SensorPorts(_Ports):
         self.diagnostics(max(int(values.get("stamp_ns", 0)), 0), 2, f"{self.node}: metrology", message, values)
 
 
-_MESSAGES: collections.OrderedDict = collections.OrderedDict()     # id(samples) -> (samples, message)
+_FIELDS: collections.OrderedDict = collections.OrderedDict()     # id(samples) -> (samples, point fields)
 
 
-def _trajectory_message(space, samples):
-    """The trajectory message of a plan (conversions.trajectory_msg), made once per plan
-    the planner keeps (planning.PLAN_CACHE_SIZE): a study's runs send the same one,
-    each with its own stamp and credential."""
-    found = _MESSAGES.get(id(samples))
+def _trajectory_bytes(space, samples, stamp_ns: int, signer) -> bytes:
+    """The trajectory of a plan as trajectory_node publishes it (conversions.trajectory_bytes),
+    signed; its points' fields made once per plan the planner keeps
+    (planning.PLAN_CACHE_SIZE): a study's runs send the same points, each run with its
+    own stamp and credential."""
+    found = _FIELDS.get(id(samples))
     if found is None or found[0] is not samples:
-        found = _MESSAGES[id(samples)] = (samples, trajectory_msg(space, samples.time_s, samples.position,
-                                                                  samples.velocity, samples.acceleration))
-        while len(_MESSAGES) > PLAN_CACHE_SIZE:
-            _MESSAGES.popitem(last=False)
-    return found[1]
+        found = _FIELDS[id(samples)] = (samples, trajectory_fields(space, samples.position, samples.velocity,
+                                                                   samples.acceleration))
+        while len(_FIELDS) > PLAN_CACHE_SIZE:
+            _FIELDS.popitem(last=False)
+    return trajectory_bytes(space, samples.time_s, None, None, None, stamp_ns, signer, fields=found[1])
 
 
 def controller_loop(params: dict, ports) -> ControllerLoop:
@@ -332,13 +334,10 @@ class DirectRun:
             samples = settings.plan_program(text, settings.config.model.home.tolist())
         except Exception as exc:              # noqa: BLE001 - the planner's every refusal, named
             raise RunFailed(f"the planner rejected the program {settings.program_file}: {exc}") from None
-        msg = _trajectory_message(settings.config.model.task_space, samples)
-        msg.header.frame_id = "world"
         stamp_ns = time.time_ns()
-        msg.header.stamp = ns_to_stamp(stamp_ns)
         path = self.params["trajectory"].get("credential_file", "")
         signer = Signer(RunKey.read(path), self.names["trajectory"]) if path else None
-        data = signed_message(signer, "trajectory", msg)
+        data = _trajectory_bytes(settings.config.model.task_space, samples, stamp_ns, signer)
         self.topic(topics.TRAJECTORY).publish(data)
         if samples.events:
             self.topic(topics.PROGRAM_EVENTS).publish(serialize_message(String(

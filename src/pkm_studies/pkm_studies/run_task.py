@@ -34,6 +34,7 @@ class RunTask:
     run_dir: str
     in_process: bool
     engine: str = ""            # direct | graph; "": direct where the scenario allows it (study.Study.engine)
+    keep_run: bool = True       # a recorded run's directory kept once its metrics are read (study.Study.keep_runs)
 
 
 def execute_run(task: RunTask) -> dict:
@@ -78,6 +79,6 @@ def _execute(task: RunTask, s, engine: str) -> dict:
         except (ValueError, OSError) as exc:
             run["error"] = run.get("error") or f"report: {exc}"
     metrics = run_metrics(run, report)
-    if not s.record and metrics.get("run.status") != "failed":
+    if (not s.record or not task.keep_run) and metrics.get("run.status") != "failed":
         shutil.rmtree(run_dir, ignore_errors=True)
     return metrics

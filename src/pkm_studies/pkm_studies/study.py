@@ -54,7 +54,7 @@ from pkm_kinematics.task_space import PLANAR
 from pkm_kinematics.yaml_files import read_yaml
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
-              "engine", "design", "objectives")
+              "engine", "keep_runs", "design", "objectives")
 ENGINES = ("direct", "graph")      # a run's engine (pkm_bringup.direct, or the graph's nodes)
 DESIGN_KEYS = ("machine", "kind", "points_per_axis", "theta_points", "chunk")
 SENSES = ("min", "max")
@@ -117,6 +117,7 @@ class Study:
     metrics: list = field(default_factory=list)
     in_process: bool = True                  # the graph's nodes in one process (engine graph)
     engine: str = ""                         # direct | graph; "": direct where the run's scenario allows it
+    keep_runs: bool = True                   # a recorded run's directory (its bag) kept after its metrics are read
     design: dict | None = None                # a design sweep (design_study.py) instead of runs
     objectives: dict = field(default_factory=dict)    # design metric -> "min" | "max" (the Pareto front)
 
@@ -345,6 +346,11 @@ def load_study(path: str | Path, check: bool = True) -> Study:
         raise StudyError(f"engine: must be one of {', '.join(ENGINES)} (default: direct where a run's scenario "
                          f"allows it, lockstep on the simulated machine; else graph), got {engine!r}")
     study.engine = engine
+    keep = data.get("keep_runs", True)
+    if not isinstance(keep, bool):
+        raise StudyError(f"keep_runs: must be true or false (false: a recorded run's directory is removed once "
+                         f"its metrics are in its row; a failed run's is kept), got {keep!r}")
+    study.keep_runs = keep
     if check and design is None:
         check_runs(study)
     return study

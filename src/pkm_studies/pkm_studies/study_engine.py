@@ -12,8 +12,8 @@ transport) where its scenario allows it (lockstep, the simulated machine) unless
 study says ``engine: graph``; as a graph in one process (``in_process: false``: its
 nodes as processes) in a DDS domain its process holds alone on its host
 (pkm_common.domains); one run at a time per worker process, into the run directory
-``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded
-unless it failed).
+``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded,
+or with ``keep_runs: false`` once its metrics are read, unless it failed).
 
 Nothing lost, nothing twice: the client writes each run's row to
 ``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
@@ -68,7 +68,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
                    desc=study.name, smoothing=0.1)
         try:
             tasks = [RunTask(str(study.scenario), r.overrides, str(out_dir.resolve() / "runs" / r.key),
-                             study.in_process, study.engine) for r in pending]
+                             study.in_process, study.engine, study.keep_runs) for r in pending]
             prefix = task_prefix("study", study.name, out_dir)
             for i, future in completed_on_dask(execute_run, [tasks], [prefix + r.key for r in pending],
                                                workers, scheduler):

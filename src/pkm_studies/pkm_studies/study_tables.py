@@ -59,6 +59,9 @@ def _text(value) -> str:
     return str(value)
 
 
+TAIL_PERCENTILES = (95, 99)
+
+
 def summarise(study: Study, frame: pd.DataFrame) -> pd.DataFrame:
     """The summary table: a row per group, in the order the groups first appear."""
     if not len(frame):
@@ -76,7 +79,10 @@ def summarise(study: Study, frame: pd.DataFrame) -> pd.DataFrame:
                 continue
             values = pd.to_numeric(ok[m], errors="coerce").dropna()
             row.update({f"{m}.count": len(values), f"{m}.mean": values.mean(), f"{m}.std": values.std(),
-                        f"{m}.min": values.min(), f"{m}.median": values.median(), f"{m}.max": values.max()})
+                        f"{m}.min": values.min(), f"{m}.median": values.median(),
+                        # a Monte Carlo's tails (linear interpolation between order statistics)
+                        **{f"{m}.p{q}": values.quantile(q / 100) for q in TAIL_PERCENTILES},
+                        f"{m}.max": values.max()})
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -99,7 +105,7 @@ def write_outputs(study: Study, out_dir: Path, runs) -> pd.DataFrame:
 
 def format_summary(study: Study, frame: pd.DataFrame) -> str:
     """The summary as a text table: per group, the runs by status and each metric's
-    mean, std and max."""
+    mean, std, 99th percentile and max."""
     summary = summarise(study, frame)
     if not len(summary):
         return "no results"
@@ -108,13 +114,14 @@ def format_summary(study: Study, frame: pd.DataFrame) -> str:
     width = min(100, max(5, *(len(str(g)) for g in summary["group"])))
     head = f"{'group':{width}s} {'runs':>5s} {'done':>5s} {'trip':>5s} {'fail':>5s}"
     for m in metrics:
-        head += f"  {m + ' mean/std/max':>44s}"
+        head += f"  {m + ' mean/std/p99/max':>52s}"
     lines.append(head)
     for _, row in summary.iterrows():
         line = f"{str(row['group'])[:width]:{width}s} {row['runs']:5d} {row['completed']:5d} {row['tripped']:5d} " \
                f"{row['failed']:5d}"
         for m in metrics:
-            line += "  " + f"{_num(row[m + '.mean'])} / {_num(row[m + '.std'])} / {_num(row[m + '.max'])}".rjust(44)
+            line += "  " + (f"{_num(row[m + '.mean'])} / {_num(row[m + '.std'])} / {_num(row[m + '.p99'])} / "
+                            f"{_num(row[m + '.max'])}").rjust(52)
         lines.append(line)
     return "\n".join(lines)
 

@@ -21,12 +21,11 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
-from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from pkm_common import topics
 from pkm_common.cdr import decode_string
 from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, pose_from_msg,
-                                    signed_message, trajectory_msg)
+                                    trajectory_bytes)
 from pkm_common.credential import RunKey, Signer, Verifier, split_text
 from pkm_common.endpoints import publisher, subscription
 from pkm_common.params import declare_bool, declare_str
@@ -159,21 +158,15 @@ class TrajectoryNode(Node):
 
     def publish(self, source: str, samples) -> None:
         """An accepted plan, signed now, to the controller; reported."""
-        msg = self.to_msg(samples)
-        self.pub.publish(signed_message(self.signer, "trajectory", msg))
-        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        stamp_ns = self.get_clock().now().nanoseconds
+        self.pub.publish(trajectory_bytes(self.space, samples.time_s, samples.position, samples.velocity,
+                                          samples.acceleration, stamp_ns, self.signer))
         self.chain.published(samples.position[-1].tolist(), stamp_ns)
         if samples.events:                 # spindle, coolant, tool changes at their times along it
             self.pub_events.publish(String(data=program_events_text(stamp_ns, samples.events)))
         self.accepted += 1
         self.get_logger().info(f"{source} accepted: {samples.duration_s:.3f} s, {len(samples.time_s)} points")
         self.report(0, f"{source} accepted", {"duration_s": samples.duration_s, "points": len(samples.time_s)})
-
-    def to_msg(self, samples) -> MultiDOFJointTrajectory:
-        msg = trajectory_msg(self.space, samples.time_s, samples.position, samples.velocity, samples.acceleration)
-        msg.header.frame_id = "world"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        return msg
 
     def report(self, level: int, message: str, values: dict) -> None:
         values = {**values, "accepted": self.accepted, "rejected": self.rejected,
