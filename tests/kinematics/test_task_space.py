@@ -51,3 +51,16 @@ def test_planar_and_position_fields_and_the_registry():
     assert fields[1] == (0.0, 0.0, 0.0, 1.0) and fields[3] == (0.0, 0.0, 0.0) and fields[4] == (4.0, 5.0, 6.0)
     assert [s.dof for s in TASK_SPACES.values()] == [3, 3, 6]
     assert SPATIAL.describe() == "x, y, z, a, b, c" and PLANAR.words == ("X", "Y", "C")
+
+
+def test_angle_rates_batch_is_angle_rates_bit_for_bit():
+    """The batched form of the per-sample formula (a spatial trajectory's rates as the
+    controller reads them back): the same bits as angle_rates sample by sample."""
+    import numpy as np
+    from pkm_kinematics.task_space import angle_rates, angle_rates_batch
+    rng = np.random.default_rng(11)
+    angles, omega, alpha = rng.uniform(-1.2, 1.2, (500, 3)), rng.normal(size=(500, 3)), rng.normal(size=(500, 3))
+    rates, accelerations = angle_rates_batch(angles, omega, alpha)
+    each = [angle_rates(a, w, dw) for a, w, dw in zip(angles, omega, alpha)]
+    np.testing.assert_array_equal(rates, [r for r, _ in each])
+    np.testing.assert_array_equal(accelerations, [a for _, a in each])

@@ -18,7 +18,7 @@ import numpy as np
 from pkm_common.cdr import TrajectoryData
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to, yaw_of_quaternion
-from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates
+from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates_batch
 
 
 class Reference:
@@ -155,7 +155,7 @@ def reference_from_trajectory(data, space: TaskSpace) -> "Reference":
     "tool", as trajectory_node publishes) -> Reference in the task coordinates of
     ``space``: the yaw of a planar machine unwrapped (unlimited rotation); a spatial
     pose's roll, pitch and yaw, roll and yaw unwrapped, and their rates from the
-    twists (``task_space.angle_rates``, the inverse of what trajectory_node wrote)."""
+    twists (``task_space.angle_rates_batch``, the inverse of what trajectory_node wrote)."""
     if len(data.joint_names) != 1 or not len(data.time_s):
         raise FieldError("trajectory", f"expected one joint 'tool' and at least one point, got "
                                        f"{list(data.joint_names)} with {len(data.time_s)} points")
@@ -167,10 +167,10 @@ def reference_from_trajectory(data, space: TaskSpace) -> "Reference":
     if space is SPATIAL:
         angles = np.array([rpy_from_rotation(rotation_from_quaternion(q)) for q in tf[:, 3:7]]).reshape(-1, 3)
         angles[:, 0], angles[:, 2] = unwrap_angles(angles[:, 0]), unwrap_angles(angles[:, 2])
-        rates = [angle_rates(x, w, dw) for x, w, dw in zip(angles, vel[:, 3:6], acc[:, 3:6])]
+        rates, accelerations = angle_rates_batch(angles, vel[:, 3:6], acc[:, 3:6])
         return Reference(data.time_s, np.column_stack((tf[:, :3], angles)),
-                         np.column_stack((vel[:, :3], [r[0] for r in rates])).reshape(-1, 6),
-                         np.column_stack((acc[:, :3], [r[1] for r in rates])).reshape(-1, 6))
+                         np.column_stack((vel[:, :3], rates)).reshape(-1, 6),
+                         np.column_stack((acc[:, :3], accelerations)).reshape(-1, 6))
     return Reference(data.time_s, tf[:, :3], vel[:, :3], acc[:, :3])
 
 

