@@ -52,7 +52,8 @@ def closed_loop(workers: int, runs: int, duration_s: float, engine: str = "graph
     done = [t for t, _ in outcome["finished_at"]]
     task_of = dict(zip(table["key"], table["run.task_s"]))
     task = list(task_of.values())
-    out = {"engine": engine, "workers": workers, "runs": len(table), "failed": int((table["run.status"] == "failed").sum()),
+    out = {"engine": engine, "workers": workers, "runs": len(table),
+           "failed": int((table["run.status"] == "failed").sum()),
            "wall_s": wall, "startup_s": done[0] - outcome["started"] - statistics.median(task),
            "task_s": statistics.median(task),
            "per_hour": (len(done) - 1) / (done[-1] - done[0]) * 3600 if len(done) > 1 else float("nan")}

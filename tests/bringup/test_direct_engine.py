@@ -55,7 +55,8 @@ def test_the_direct_engine_computes_the_graphs_run_byte_for_byte(name, tmp_path)
     assert direct["trip_reason"] == graph["trip_reason"]
     steps = round(SECONDS / s.dt_s)
     for topic in (topics.DRIVES_COMMAND, topics.TRUE_POSE, topics.DRIVES_STATE):
-        want, got = per_stamp(tmp_path / "graph", s.namespace, topic), per_stamp(tmp_path / "direct", s.namespace, topic)
+        want = per_stamp(tmp_path / "graph", s.namespace, topic)
+        got = per_stamp(tmp_path / "direct", s.namespace, topic)
         assert len(want) >= (steps if graph["cause"] == "none" else 1), (topic, len(want))
         assert sorted(got) == sorted(want), (topic, len(got), len(want), sorted(set(got) ^ set(want))[:5])
         differ = [stamp for stamp in want if got[stamp] != want[stamp]]
