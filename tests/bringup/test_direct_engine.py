@@ -72,3 +72,5 @@ def test_a_refused_scenario_starts_nothing(tmp_path):
     assert not (tmp_path / "run" / "bag").exists()
     for name in ("panel_archi", "archi_ros2_control"):
         assert "mode realtime" in refusal(SCENARIOS[name]), name
+    named = load_scenario("mom3_square", {"operators": ["/pkm/my_script"]})
+    assert "operators ['/pkm/my_script']" in refusal(named) and "run it as a graph" in refusal(named)

@@ -187,3 +187,15 @@ def test_a_program_planned_at_start_up_is_signed_and_published_at_the_runs_start
     assert node.held is None and node.accepted == 1
     sender, refused = controller_checks.check("trajectory", raw[0], True)
     assert refused is None and sender == node.get_fully_qualified_name(), refused
+
+
+def test_a_runs_program_the_planner_rejects_ends_the_planner_naming_why(ros_graph, tmp_path):
+    """Under pkm-run (wait_for_start) a rejected program_file is the run's failure at
+    once (the node refuses its configuration: pkm-run reports it), not a controller
+    waiting for a trajectory until the run's timeout."""
+    program = tmp_path / "p.nc"
+    program.write_text("G21 G90\nG1 F600 Y-1300\nM2\n")               # out of the workspace
+    with pytest.raises(ValueError, match="program_file rejected: line 2: y would reach -1.3"):
+        TrajectoryNode(context=ros_graph.context, parameter_overrides=[
+            Parameter("machine", value="archi"), Parameter("program_file", value=str(program)),
+            Parameter("wait_for_start", value=True)])

@@ -17,9 +17,10 @@ nodes' logs (one file, logs/direct.log). The run directory is the same: params,
 summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
 pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it.
 
-Refused, with the reason: realtime scenarios (the plant steps on a clock) and
-hardware other than sim_hw (a drive interface's bus and its drives are processes of
-their own: run them as a graph).
+Refused, with the reason: realtime scenarios (the plant steps on a clock), hardware
+other than sim_hw (a drive interface's bus and its drives are processes of their
+own) and scenarios that name operators (nodes that would command the run through the
+graph): run them as a graph.
 """
 
 from __future__ import annotations
@@ -69,6 +70,9 @@ def refusal(s: Scenario) -> str:
     if s.hardware != "sim":
         return (f"hardware {s.hardware}: the direct engine simulates sim_hw only (a drive interface's bus and its "
                 "drives are processes of their own); run it as a graph (without --engine direct)")
+    if s.operators:
+        return (f"operators {s.operators}: the direct engine has no graph for them to command the run through; "
+                "run it as a graph (without --engine direct)")
     return ""
 
 
@@ -102,8 +106,10 @@ class Recorder:
 
     def close(self) -> dict:
         """The last batch, the bag finalized; the summary recorder_node writes."""
-        self.flush()
-        self.writer.close()
+        try:
+            self.flush()
+        finally:
+            self.writer.close()
         return {"recorded": self.writer.counts,
                 "recorded_stamps": {name: self.stamps.count(c) for name, c in self.channels.items()},
                 "tapped": sorted(self.channels), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
@@ -273,6 +279,16 @@ class DirectRun:
             self.recorder = Recorder(recorder["output"], recorder.get("compression", "lz4"))
         self.steps_since_flush = 0
         self.summaries = {}              # node -> (its summary path, the summary's function)
+        try:
+            self._wire(s, params)
+        except BaseException:            # a refused configuration, an interrupt: nothing left open
+            self.log.file.close()
+            if self.recorder is not None:
+                self.recorder.writer.close()
+            raise
+
+    def _wire(self, s: Scenario, params: dict) -> None:
+        """The loops, each built by its node's declarations, and who reads what."""
         # the plant
         sim_params = params[self.machine_node]
         settings = declare_settings(ParameterValues(sim_params))

@@ -239,15 +239,18 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             if not node.running() and node.name not in allowed_done:
                 raise node_died(node.name, node.popen.returncode, node.tail())
     try:
-        refuse_if_another_run(executor, monitor, s)
-        # every node at once, the planner too (its imports and its plan meanwhile, off the
-        # critical path of the start-up); the loop starts at the start signal, once the
-        # graph is connected, the recorder ready and the planner up (a planner still
-        # importing, ~1 s of CPU, stalled a running loop)
+        # every node at once, the planner too, held after its imports (~1 s of CPU each)
+        # while pkm-run makes sure the domain is its own (held_node: nothing on DDS yet),
+        # then released; the loop starts at the start signal, once the graph is
+        # connected, the recorder ready and the planner up (a planner still importing
+        # stalled a running loop)
         for name in START_ORDER + ("trajectory",):
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
-                                         run_dir / "logs", os.environ.copy(), scheduling_of(s, name))
+                                         run_dir / "logs", os.environ.copy(), scheduling_of(s, name), hold=True)
+        refuse_if_another_run(executor, monitor, s)
+        for node in nodes.values():
+            node.release()
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (connected(monitor, s) and (not s.record or ready.exists()) and

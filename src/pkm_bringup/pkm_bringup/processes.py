@@ -1,6 +1,7 @@
 """Child processes of a run: started so that none can outlive the orchestrator.
 
 Each node runs as ``python -m <module> --ros-args -r __ns:=<ns> --params-file <file>``
+(or held after its imports until released: ``held_node``)
 in its own session (a Ctrl-C in the terminal reaches the orchestrator only, which then
 stops the nodes in order: the recorder last, so that it finalizes a complete bag), with
 ``PR_SET_PDEATHSIG`` = SIGTERM: if the orchestrator itself dies (even by kill -9), the
@@ -58,6 +59,18 @@ class NodeProcess:
     def running(self) -> bool:
         return self.popen.poll() is None
 
+    def release(self) -> None:
+        """A held node (``start_node(hold=True)``): run it now (held_node). A node
+        that already ended is left to the run's checks."""
+        if self.popen.stdin is None:
+            return
+        try:
+            self.popen.stdin.write(b"go\n")
+            self.popen.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass
+        self.popen.stdin = None
+
     def tail(self, lines: int = 25) -> str:
         try:
             text = self.log.read_text(encoding="utf-8", errors="replace").splitlines()
@@ -67,17 +80,20 @@ class NodeProcess:
 
 
 def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict,
-               scheduling: Scheduling | None = None) -> NodeProcess:
-    """Start node ``name``; ``scheduling``: its realtime profile (None: as this process)."""
+               scheduling: Scheduling | None = None, hold: bool = False) -> NodeProcess:
+    """Start node ``name``; ``scheduling``: its realtime profile (None: as this process);
+    ``hold``: imported but held until ``release`` (pkm_bringup.held_node), without DDS."""
     log = log_dir / f"{name}.log"
-    args = [sys.executable, "-u", "-m", MODULES[name], "--ros-args", "-r", f"__ns:={namespace}",
+    module = ["pkm_bringup.held_node", MODULES[name]] if hold else [MODULES[name]]
+    args = [sys.executable, "-u", "-m", *module, "--ros-args", "-r", f"__ns:={namespace}",
             "--params-file", str(params_file)]
     preexec_fn = die_with_parent
     if scheduling is not None:
         env = child_environment(env, scheduling)
         preexec_fn = preexec(scheduling, before=die_with_parent)
     with log.open("w") as out:
-        popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT,
+                                 stdin=subprocess.PIPE if hold else subprocess.DEVNULL,
                                  start_new_session=True, preexec_fn=preexec_fn)
     return NodeProcess(name, popen, log)
 

@@ -622,7 +622,7 @@ TAPPED_STREAMS = {"sim_hw": ("drives/state", "platform/true_pose", "/clock"), "d
                   "controller": ("drives/command", "controller/reference")}
 
 START_TOPIC = topics.RUN_START    # latched String "start" with its credential: the orchestrator's start signal
-                               # (scenarios without a program)
+                               # (every run: the controller and a run's planner wait for it)
 
 
 def start_signal(credential: Path, sender: str) -> bytes:

@@ -49,6 +49,9 @@ def execute_run(task: RunTask) -> dict:
             s = load_scenario(task.scenario, task.overrides)
         except ScenarioError as exc:
             return {**failed_metrics(f"scenario refused: {exc}"), **where, "run.task_s": time.monotonic() - start}
+        except Exception as exc:       # noqa: BLE001 - an unreadable program, ...: the run's failure, a row
+            return {**failed_metrics(f"scenario not loaded: {type(exc).__name__}: {exc}"), **where,
+                    "run.task_s": time.monotonic() - start}
         engine = task.engine or ("graph" if refusal(s) else "direct")
         where["run.engine"] = engine
         if engine == "graph":              # a graph's DDS domain, held by this process alone

@@ -11,10 +11,11 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pkm_common.params import declare_float, declare_float_list, declare_int, declare_str
 from pkm_kinematics import load_machine
-from pkm_kinematics.config import MachineConfig
+from pkm_kinematics.config import MachineConfig, config_dir
 from pkm_kinematics.dynamics import dynamic_model
 from pkm_trajectory.planner import RATE_HZ_RANGE, Limits, PlanBudget, Samples, plan_validated
 from pkm_trajectory.program import gcode_segments
@@ -128,10 +129,17 @@ def declare_planner(node) -> PlannerSettings:
                            load_tool_table(table) if table else None, program_file, key)
 
 
-def _version(path: str) -> int:
-    """A file's modification time (ns), 0 for a name or nothing: a file written again
-    (a calibrated machine, a tool table) is another plan."""
+def _version(name_or_path: str) -> tuple:
+    """A file's identity and version (modification time ns, size, inode), for a machine
+    given by name its file in config/machines: a file written again (a machine
+    calibrated again, a tool table) is another plan. () for nothing."""
+    if not name_or_path:
+        return ()
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml", ".tbl") and os.sep not in name_or_path:
+        path = config_dir() / "machines" / f"{name_or_path}.yaml"
     try:
-        return os.stat(path).st_mtime_ns if path and os.sep in path else 0
+        found = path.stat()
     except OSError:
-        return 0
+        return (str(path),)
+    return str(path.resolve()), found.st_mtime_ns, found.st_size, found.st_ino

@@ -3,7 +3,10 @@
 Thin shell over planner.py and program.py. A ``goal`` (PoseStamped, tool pose in
 world) plans a point-to-point move from the end of the last trajectory (or the
 machine's home); a ``program`` (std_msgs/String, G-code) plans the program from
-there; ``program_file`` (parameter) is planned at start. Before anything is
+there; ``program_file`` (parameter) is planned at start, and with ``wait_for_start``
+(pkm-run's runs) held until the run's signed start signal (``run/start``), then
+signed and published; a rejected ``program_file`` of a run ends the node (its run
+cannot start). Before anything is
 published the whole trajectory is checked against the machine model (reachability,
 joint limits, joint velocity and acceleration, conditioning, transmission factors);
 a rejected one publishes nothing and reports which sample, which limit and by how
@@ -49,9 +52,6 @@ class TrajectoryNode(Node):
         # plans start where the controller's accepted trajectories end (plan_chain)
         self.chain = PlanChain(self.model.home)
         self.accepted = self.rejected = 0
-        self.pub = publisher(self, topics.TRAJECTORY)
-        self.pub_diag = publisher(self, topics.DIAGNOSTICS)
-        self.pub_events = publisher(self, topics.PROGRAM_EVENTS)
         # who may send goals and programs (pkm_common.sources; pkm-run names them, empty: anyone)
         operators = node_names(declare_str(self, "operator_sources", "", "full node names allowed to send goals "
                                            "and programs, comma-separated (empty: anyone)", allow_empty=True))
@@ -59,6 +59,20 @@ class TrajectoryNode(Node):
         path = declare_str(self, "credential_file", "", "the run's key (pkm_common.credential; empty: commands "
                            "need none)", allow_empty=True)
         key = RunKey.read(path) if path else None
+        # pkm-run starts the planner with the other nodes: its program is planned at once
+        # but signed and published at the run's start, when the controller that checks the
+        # credential is up (a controller refuses a credential signed before it started).
+        # The start's check is made before any publisher: pkm-run signs the start once it
+        # sees this node's trajectory publisher, and a Verifier refuses what was signed
+        # before it was made
+        self.held = None                   # the program's plan until the start
+        self.wait_for_start = declare_bool(self, "wait_for_start", False, "hold the program's trajectory until "
+                                           "the run's start signal (run/start, from operator_sources)")
+        self.started = not self.wait_for_start
+        self.start_guard = CommandGuard(AllowedSenders(topics.RUN_START, operators, "operator_sources"), Verifier(key))
+        self.pub = publisher(self, topics.TRAJECTORY)
+        self.pub_diag = publisher(self, topics.DIAGNOSTICS)
+        self.pub_events = publisher(self, topics.PROGRAM_EVENTS)
         self.signer = Signer(key, self.get_fully_qualified_name()) if key else None
         self.command_guards = {topic: CommandGuard(AllowedSenders(topic, operators, "operator_sources"), Verifier(key))
                        for topic in (topics.GOAL, topics.PROGRAM)}
@@ -69,15 +83,7 @@ class TrajectoryNode(Node):
             self, "controller_source", "", "the controller's full node name: its verdicts move where plans start "
             "(empty: anyone's)", allow_empty=True)), "controller_source")
         self.events_sub = subscription(self, topics.CONTROLLER_EVENTS, self.on_event)
-        # pkm-run starts the planner with the other nodes: its program is planned at once
-        # but signed and published at the run's start, when the controller that checks the
-        # credential is up (a controller refuses a credential signed before it started)
-        self.held = None                   # the program's plan until the start
-        self.started = not declare_bool(self, "wait_for_start", False, "hold the program's trajectory until the "
-                                        "run's start signal (run/start, from operator_sources)")
         if not self.started:
-            self.start_guard = CommandGuard(AllowedSenders(topics.RUN_START, operators, "operator_sources"),
-                                            Verifier(key))
             self.inputs[topics.RUN_START] = subscription(self, topics.RUN_START, self.on_start, raw=True)
         if program_file:
             self.submit("program_file", lambda: settings.plan_program(Path(program_file).read_text(), self.pose))
@@ -127,7 +133,9 @@ class TrajectoryNode(Node):
     def on_start(self, buf: bytes) -> None:
         found = self.start_guard.refused(lambda: graph_senders(self, self.inputs[topics.RUN_START].topic_name), buf)
         if found is not None:
+            self.refused_senders += 1
             self.get_logger().error(f"start refused: {found.reason}")
+            self.report(2, f"start refused: {found.reason}", {"intruder": found.sender})
             return
         self.started = True
         if self.held is not None:
@@ -149,6 +157,8 @@ class TrajectoryNode(Node):
             self.rejected += 1
             self.get_logger().error(f"{source} rejected: {exc}")
             self.report(2, f"{source} rejected: {exc}", {})
+            if source == "program_file" and self.wait_for_start:      # a run's program: its run cannot start
+                raise ValueError(f"program_file rejected: {exc}") from None
             return
         if source == "program_file" and not self.started:
             self.held = (source, samples)
