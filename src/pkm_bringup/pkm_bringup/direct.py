@@ -295,22 +295,19 @@ class DirectRun:
         self.plant = settings.plant
         streams = StepStreams(self.plant, settings.machine.model.task_space, self.topic(topics.TRUE_POSE),
                               self.topic(topics.DRIVES_STATE), self.topic(topics.CLOCK))
-        self.sim = SimLoop(settings, streams, _SimPorts(self, self.machine_node))
-        self.sim_summary = settings.summary_path
+        self.sim = SimLoop(settings, streams, _SimPorts(self, self.machine_node))      # (it writes its summary)
         # the instruments
-        self.sensor = self.laser = None
         if "gough_sensor" in params:
-            sensor = declare_gough_sensor(ParameterValues(params["gough_sensor"]))
-            self.sensor = GoughSensorLoop(sensor.model, _SensorPorts(self, "gough_sensor"))
-            self.topic(topics.TRUE_POSE).readers.append(self.sensor.on_true_pose)
-            self.summaries["gough_sensor"] = (sensor.summary_path, self.sensor.summary)
+            settings = declare_gough_sensor(ParameterValues(params["gough_sensor"]))
+            sensor = GoughSensorLoop(settings.model, _SensorPorts(self, "gough_sensor"))
+            self.topic(topics.TRUE_POSE).readers.append(sensor.on_true_pose)
+            self.summaries["gough_sensor"] = (settings.summary_path, sensor.summary)
         if "laser_tracker" in params:
-            laser = declare_laser_tracker(ParameterValues(params["laser_tracker"]))
-            ports = _Ports(self, "laser_tracker")
-            self.laser = LaserLoop(laser.model, self.topic(topics.LASER_POINT).publish, ports.log_error,
-                                   topics.LASER_POINT)
-            self.topic(topics.TRUE_POSE).readers.append(self.laser.on_true_pose)
-            self.summaries["laser_tracker"] = (laser.summary_path, self.laser.summary)
+            settings = declare_laser_tracker(ParameterValues(params["laser_tracker"]))
+            laser = LaserLoop(settings.model, self.topic(topics.LASER_POINT).publish,
+                              _Ports(self, "laser_tracker").log_error, topics.LASER_POINT)
+            self.topic(topics.TRUE_POSE).readers.append(laser.on_true_pose)
+            self.summaries["laser_tracker"] = (settings.summary_path, laser.summary)
         # the controller
         self.controller = controller_loop(params["controller"], _ControllerPorts(self, "controller"))
         self.summaries["controller"] = (params["controller"].get("summary_path", ""), self.controller.summary)

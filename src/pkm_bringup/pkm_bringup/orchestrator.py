@@ -53,6 +53,7 @@ import time
 from pathlib import Path
 
 from pkm_bringup import run_cli
+from pkm_bringup.engines import ENGINES
 from pkm_bringup.graph import Progress, RunFailed, StopSignals, run_processes
 from pkm_bringup.processes import use_ros_environment
 from pkm_bringup.rt_profile import RealtimeProfileRefused, applied_to_this_process, check_permitted
@@ -65,8 +66,6 @@ from pkm_common.files import disk_full, write_json
 from pkm_recording.bag import recorded_stamps, recover
 from pkm_runs.report import summary, write_report
 
-
-ENGINES = ("graph", "direct")
 
 # pkm-run's exit code per run status (2: the scenario or the arguments were refused)
 EXIT_CODES = {"completed": 0, "failed": 1, "tripped": 3}

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+from pkm_bringup.engines import ENGINES
+
 __all__ = ["parser", "main"]
 
 
@@ -14,7 +16,7 @@ def parser() -> argparse.ArgumentParser:
                                                             "summary, report (pkm_bringup.orchestrator)")
     p.add_argument("scenario", help="scenario file, or the name of one in config/scenarios")
     p.add_argument("--in-process", action="store_true", help="all nodes in one executor")
-    p.add_argument("--engine", choices=("graph", "direct"), default="graph",
+    p.add_argument("--engine", choices=ENGINES, default="graph",
                    help="graph: the ROS 2 nodes (default); direct: the same loops in one process without a "
                         "transport, the same run bit for bit, several times faster (lockstep scenarios on "
                         "sim_hw only: pkm_bringup.direct)")

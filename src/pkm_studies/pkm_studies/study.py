@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pkm_bringup.engines import ENGINES
 from pkm_bringup.scenario import KEYS, SECTIONS, ScenarioError, load_scenario, read_mapping_file
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
@@ -55,7 +56,6 @@ from pkm_kinematics.yaml_files import read_yaml
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
               "engine", "keep_runs", "design", "objectives")
-ENGINES = ("direct", "graph")      # a run's engine (pkm_bringup.direct, or the graph's nodes)
 DESIGN_KEYS = ("machine", "kind", "points_per_axis", "theta_points", "chunk")
 SENSES = ("min", "max")
 SAMPLE_KEYS = ("method", "runs", "seed", "parameters")
