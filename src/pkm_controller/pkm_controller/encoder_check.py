@@ -241,6 +241,31 @@ def gough_kernel(d, last_d, bias, mean_square, over, off, skip, jump_m):
     return last if count == 1 and over[last] >= 2 else -1
 
 
+@kernel("(float64[:], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:], "
+        "int64[:], float64[:], boolean[:], float64, boolean)")
+def gough_check_kernel(q, g, history_q, history_g, hold_g, last_d, bias, mean_square, over, off, skip, jump_m, first):
+    """One cycle of GoughCrossCheck on the readings ``q`` and q(x_g) ``g``, its state
+    updated in place: the history of the last three cycles (the newest last) and
+    q(x_g) where each reading last changed, then ``gough_kernel`` on d = q - g
+    (``first``: the first cycle, which only starts the low-pass at d). Returns the
+    drive named, or -1."""
+    n = q.shape[0]
+    for i in range(n):
+        if q[i] != history_q[2, i]:
+            hold_g[i] = g[i]
+        history_q[0, i], history_q[1, i], history_q[2, i] = history_q[1, i], history_q[2, i], q[i]
+        history_g[0, i], history_g[1, i], history_g[2, i] = history_g[1, i], history_g[2, i], g[i]
+    d = q - g
+    if first:
+        hold_g[:] = g
+        bias[:] = d
+        last_d[:] = d
+        return -1
+    drive = gough_kernel(d, last_d, bias, mean_square, over, off, skip, jump_m)
+    last_d[:] = d
+    return drive
+
+
 class GoughCrossCheck:
     """Each encoder against the Gough metrology, where the strategy has it (sensor_space,
     measured_space): the reading q_i against q_i(x_g), the machine's inverse kinematics
@@ -281,6 +306,7 @@ class GoughCrossCheck:
         self.history_q, self.history_g = np.zeros((3, n)), np.zeros((3, n))
         self.hold_g = np.zeros(n)
         self.last_d = np.zeros(n)
+        self.skip_set = False
 
     def agrees(self, i: int, size: float, held: bool) -> bool:
         """Did drive i's reading move as the Gough saw the tool move, against a
@@ -301,23 +327,17 @@ class GoughCrossCheck:
         """The fault (drive, what) when one drive's reading has left the Gough's (class
         docstring), None otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
         ``skip``: drives not to judge (dropped ones)."""
-        q, g = np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float)
-        changed = q != self.history_q[2]
-        self.hold_g[changed] = g[changed]
-        self.history_q[:2], self.history_g[:2] = self.history_q[1:], self.history_g[1:]
-        self.history_q[2], self.history_g[2] = q, g
         self.cycles += 1
-        d = q - g
-        if self.cycles == 1:
-            self.hold_g[:] = g
-            self.bias[:] = d
-            self.last_d = d
-            return None
-        self.skip[:] = False
-        for i in skip:
-            self.skip[i] = True
-        i = gough_kernel(d, self.last_d, self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m)
-        self.last_d = d
+        if skip:
+            self.skip[:] = False
+            for i in skip:
+                self.skip[i] = True
+        elif self.skip_set:
+            self.skip[:] = False
+        self.skip_set = bool(skip)
+        i = gough_check_kernel(np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float), self.history_q,
+                               self.history_g, self.hold_g, self.last_d, self.bias, self.mean_square, self.over,
+                               self.off, self.skip, self.jump_m, self.cycles == 1)
         if i < 0:
             return None
         return EncoderFault(i, f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position "
