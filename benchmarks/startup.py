@@ -4,8 +4,9 @@
    the orchestrator is imported: pkm_bringup.run_cli).
 2. From starting a run to its first simulated step: a fresh interpreter runs
    ``--scenario`` (shortened to ``--duration-s``, not recorded) as processes and in one
-   process; the first step is the time sim_hw logs "loop started" (the ROS log's wall
-   clock), against the wall clock just before the interpreter was started. Printed:
+   process (as pkm-run: the node server started first, processes.start_node_server); the
+   first step is the time sim_hw logs "loop started" (the ROS log's wall clock), against
+   the wall clock just before the interpreter was started. Printed:
    min / median / max over ``--repeat`` runs of each.
 
 Usage: python benchmarks/startup.py [--repeat 3] [--scenario archi_demo] [--duration-s 0.3]
@@ -28,6 +29,10 @@ LOOP_STARTED = re.compile(r"\[(\d+\.\d+)\] \[pkm\.(?:sim_hw|drives|ros2_control)
 
 _RUN = """
 import sys
+if sys.argv[4] == "processes":       # as pkm-run does (run_cli.main), first
+    from pkm_bringup.processes import start_node_server, use_ros_environment
+    use_ros_environment()
+    start_node_server()
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.processes import use_ros_environment
 from pkm_bringup.scenario import load_scenario

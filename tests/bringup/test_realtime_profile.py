@@ -19,6 +19,7 @@ import yaml
 from pkm_bringup import rt_profile
 from pkm_bringup.orchestrator import main as pkm_run_main
 from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.processes import node_pids
 from pkm_bringup.rt_profile import (FIFO, OTHER, PROFILE, Permissions, RealtimeProfileRefused, Scheduling, refusal,
                                     scheduling)
 from pkm_bringup.scenario import ScenarioError, load_scenario
@@ -173,22 +174,6 @@ def test_run_node_exits_2_naming_a_failed_memory_lock(monkeypatch, capfd):
     assert "realtime profile: memory not locked: [Errno 12] mlockall(MCL_CURRENT | MCL_FUTURE)" in capfd.readouterr().err
 
 
-def _node_pids(run_dir: Path) -> dict[str, int]:
-    """node name -> pid of the run's node processes (their command line names the run
-    directory through the params file)."""
-    pids = {}
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        args = [a.decode(errors="replace") for a in cmd]
-        params = next((a for a in args if a.startswith(str(run_dir / "params"))), None)
-        if params and "pkm_bringup.orchestrator" not in args:
-            pids[Path(params).stem] = int(pid)
-    return pids
-
-
 def _policies(pid: int) -> set[tuple[int, int]]:
     """(policy, priority) of every thread of ``pid``."""
     out = set()
@@ -225,7 +210,7 @@ def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_lock
             if log.exists() and "trajectory accepted" in log.read_text(errors="replace"):
                 break
             time.sleep(0.05)
-        pids = _node_pids(run_dir)
+        pids = node_pids(run_dir)
         assert set(pids) == {"recorder", "sim_hw", "gough_sensor", "controller", "trajectory"}, pids
         seen = {name: (_policies(pid), _locked_kib(pid)) for name, pid in pids.items()}
     finally:

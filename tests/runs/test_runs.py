@@ -18,6 +18,7 @@ import pytest
 from pkm_kinematics.task_space import POSITION
 
 from pkm_bringup.orchestrator import EXIT_CODES, run_scenario
+from pkm_bringup.processes import node_pids
 from pkm_runs.replay import replay_controller
 from pkm_bringup.scenario import load_scenario
 from terminal import default_sigint      # tests/terminal.py
@@ -32,18 +33,8 @@ def _pkm_run(*args, **kwargs):
 
 
 def _leftovers(run_dir: Path) -> list[str]:
-    """Live processes whose command line mentions the run directory (its nodes)."""
-    found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if str(run_dir) in cmd and "pkm_bringup.orchestrator" not in cmd:
-            found.append(f"{pid}: {cmd}")
-    return found
+    """Live node processes of the run ("<pid>: <node>"; processes.node_pids)."""
+    return [f"{pid}: {name}" for name, pid in node_pids(run_dir).items()]
 
 
 def _held_archi_demo(tmp_path: Path) -> str:
@@ -324,7 +315,7 @@ def test_a_crashing_node_is_reported_and_everything_stops(tmp_path):
     proc = _pkm_run(_held_archi_demo(tmp_path), "--run-dir", str(run_dir))
     _wait_running(run_dir, proc)
     time.sleep(0.5)
-    victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_controller.controller_node" in line]
+    victims = [line.split(":")[0] for line in _leftovers(run_dir) if line.endswith(": controller")]
     assert len(victims) == 1
     os.kill(int(victims[0]), signal.SIGKILL)
     out, _ = proc.communicate(timeout=60)
@@ -345,7 +336,7 @@ def test_after_a_recorder_kill_the_run_recovers_its_bag_and_reports_the_loss(tmp
     proc = _pkm_run(_held_archi_demo(tmp_path), "--run-dir", str(run_dir))
     _wait_running(run_dir, proc)
     time.sleep(1.5)
-    victims = [line.split(":")[0] for line in _leftovers(run_dir) if "pkm_recording.recorder_node" in line]
+    victims = [line.split(":")[0] for line in _leftovers(run_dir) if line.endswith(": recorder")]
     assert len(victims) == 1
     os.kill(int(victims[0]), signal.SIGKILL)
     out, _ = proc.communicate(timeout=90)

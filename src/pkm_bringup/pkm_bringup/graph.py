@@ -168,10 +168,12 @@ def signals_ignored() -> StopSignals:
     return StopSignals(signal.SIG_IGN)
 
 
-def refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 1.0) -> None:
+def refuse_if_another_run(executor, monitor, s: Scenario, discovery_s: float = 0.5) -> None:
     """Two runs in one DDS domain and namespace would answer each other's states. Runs of
     this machine are refused by RunLock at once; this looks for any other (a graph
-    started by hand) for ``discovery_s``."""
+    started by hand) for ``discovery_s``: two of the participants' announcement periods
+    (fastdds_localhost_udp.xml, leaseAnnouncement), so that a participant that missed
+    this one's first announcements is heard from meanwhile anyway."""
     end = time.monotonic() + discovery_s
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.05)
@@ -239,18 +241,16 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             if not node.running() and node.name not in allowed_done:
                 raise node_died(node.name, node.popen.returncode, node.tail())
     try:
-        # every node at once, the planner too, held after its imports (~1 s of CPU each)
-        # while pkm-run makes sure the domain is its own (held_node: nothing on DDS yet),
-        # then released; the loop starts at the start signal, once the graph is
-        # connected, the recorder ready and the planner up (a planner still importing
-        # stalled a running loop)
+        # the domain must be the run's own before anything of the run joins it; meanwhile
+        # the node server finishes its imports (processes.start_node_server), then every
+        # node starts at once, the planner too; the loop starts at the start signal, once
+        # the graph is connected, the recorder ready and the planner up (a planner still
+        # importing stalled a running loop)
+        refuse_if_another_run(executor, monitor, s)
         for name in START_ORDER + ("trajectory",):
             if name in params:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
-                                         run_dir / "logs", os.environ.copy(), scheduling_of(s, name), hold=True)
-        refuse_if_another_run(executor, monitor, s)
-        for node in nodes.values():
-            node.release()
+                                         run_dir / "logs", os.environ.copy(), scheduling_of(s, name))
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (connected(monitor, s) and (not s.record or ready.exists()) and

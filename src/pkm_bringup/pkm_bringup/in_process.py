@@ -71,7 +71,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
     try:
         monitor = monitor_node(context, s.namespace)
         executor.add_node(monitor)
-        refuse_if_another_run(executor, monitor, s, discovery_s=0.5)
+        refuse_if_another_run(executor, monitor, s)
         executor.remove_node(monitor)
         monitor.destroy_node()
         for name in START_ORDER:

@@ -1,25 +1,35 @@
 """Child processes of a run: started so that none can outlive the orchestrator.
 
-Each node runs as ``python -m <module> --ros-args -r __ns:=<ns> --params-file <file>``
-(or held after its imports until released: ``held_node``)
-in its own session (a Ctrl-C in the terminal reaches the orchestrator only, which then
-stops the nodes in order: the recorder last, so that it finalizes a complete bag), with
-``PR_SET_PDEATHSIG`` = SIGTERM: if the orchestrator itself dies (even by kill -9), the
-kernel terminates its children. stdout and stderr go to ``logs/<node>.log``.
+Every node is forked from the run's node server (``multiprocessing``'s fork server,
+``node_server``): one clean process that has imported the nodes' modules (rclpy,
+numpy, numba and the compiled kernels: ~2 s of CPU, ~1.4 s of it in every node when
+each imported its own), started early (pkm-run starts it before its own imports,
+``start_node_server``) and forking a node in milliseconds. The child then is what
+``python -m <module> --ros-args -r __ns:=<ns> --params-file <file>`` was: in its own
+session (a Ctrl-C in the terminal reaches the orchestrator only, which then stops the
+nodes in order: the recorder last, so that it finalizes a complete bag), with
+``PR_SET_PDEATHSIG`` = SIGTERM (its parent, the server, ends with the orchestrator,
+even one killed with kill -9: so does every node), its environment the run's,
+stdout and stderr in ``logs/<node>.log``.
 
-With a ``Scheduling`` of the realtime profile (rt_profile.py), the child gets its
-policy between fork and exec (every thread it creates inherits it) and, when it locks
-its memory, ``PKM_MLOCKALL=1`` in its environment (honoured by
+With a ``Scheduling`` of the realtime profile (rt_profile.py), the child takes its
+policy before it runs the node (every thread it creates inherits it) and, when it
+locks its memory, ``PKM_MLOCKALL=1`` in its environment (honoured by
 ``pkm_common.runner.run_node``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import importlib
+import multiprocessing
+import multiprocessing.forkserver
 import os
 import signal
 import subprocess
 import sys
+import types
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +48,11 @@ MODULES = {
     "controller": "pkm_controller.controller_node",
     "trajectory": "pkm_trajectory.trajectory_node",
 }
-_PR_SET_PDEATHSIG = 1
+# what the node server imports before it forks a node: the nodes of a simulated run (a
+# drive interface's node imports its own bus and protocol after the fork)
+PRELOAD = tuple(MODULES[name] for name in ("recorder", "sim_hw", "gough_sensor", "laser_tracker", "controller",
+                                           "trajectory"))
+_PR_SET_PDEATHSIG, _PR_SET_NAME = 1, 15
 try:                                      # loaded here, not after fork (dlopen in a forked
     _PRCTL = ctypes.CDLL("libc.so.6", use_errno=True).prctl      # multi-threaded process can deadlock)
 except (OSError, AttributeError):
@@ -50,26 +64,121 @@ def die_with_parent() -> None:          # runs in the child between fork and exe
         _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def die_with_parent_checked() -> None:
+    """``die_with_parent``, in a child that may have outlived its parent already."""
+    parent = os.getppid()
+    die_with_parent()
+    if os.getppid() != parent:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def node_server():
+    """The multiprocessing context of the node server (module docstring)."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOAD))
+    return context
+
+
+def start_node_server() -> None:
+    """Start the node server now, its imports running while the caller does its own;
+    the first ``start_node`` waits for them."""
+    node_server()
+    multiprocessing.forkserver.ensure_running()
+
+
+class ForkedProcess:
+    """A node forked by the node server, with the part of subprocess.Popen's interface
+    a run uses (pid, returncode, poll, wait, send_signal, kill)."""
+
+    def __init__(self, process, args: list):
+        self.process, self.args = process, args
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    @property
+    def returncode(self) -> int | None:
+        return self.process.exitcode
+
+    def poll(self) -> int | None:
+        return self.process.exitcode
+
+    def wait(self, timeout: float | None = None) -> int:
+        self.process.join(timeout)
+        if self.process.exitcode is None:
+            raise subprocess.TimeoutExpired(self.args, timeout)
+        return self.process.exitcode
+
+    def send_signal(self, sig: int) -> None:
+        if self.process.exitcode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.process.pid, sig)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
+def _let_the_server_end() -> None:
+    """multiprocessing hands every child of the fork server the write end of the pipe
+    whose end tells the server that its clients are gone (so that a child could use the
+    server too): a node holding it would keep the server, whose death is the node's
+    (PR_SET_PDEATHSIG), alive after pkm-run's death. Closed: the server ends with
+    pkm-run, and every node with the server (tests/bringup/test_node_server.py)."""
+    server = getattr(multiprocessing.forkserver, "_forkserver", None)
+    fd = getattr(server, "_forkserver_alive_fd", None)
+    if fd is not None:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+        server._forkserver_alive_fd = None
+
+
+@contextlib.contextmanager
+def _without_main_module():
+    """A node needs its own module only: multiprocessing would have the child run the
+    caller's main script again first (as ``__mp_main__``: a script that runs a scenario
+    at its top level would run it in every node) unless the caller's ``__main__`` has
+    neither a file nor a module name while the child is prepared."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
+def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Scheduling | None) -> None:
+    """A node in the child the node server forked (start_node): its session, its
+    parent's death, its policy, its log, its environment, then the module's ``main``
+    with the node's arguments."""
+    os.setsid()
+    _let_the_server_end()
+    die_with_parent_checked()
+    if _PRCTL is not None:                  # ps and top name the node (the command line is the server's)
+        _PRCTL(_PR_SET_NAME, f"pkm:{name}"[:15].encode())
+    if scheduling is not None:
+        preexec(scheduling)()
+    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    sys.stdout = open(1, "w", buffering=1, encoding="utf-8", closefd=False)   # noqa: SIM115 - the process's
+    sys.stderr = open(2, "w", buffering=1, encoding="utf-8", closefd=False)   # noqa: SIM115
+    os.environ.clear()
+    os.environ.update(env)
+    module = importlib.import_module(MODULES[name])
+    sys.argv = [module.__file__, *argv]
+    module.main()
+
+
 @dataclass
 class NodeProcess:
     name: str
-    popen: subprocess.Popen
+    popen: subprocess.Popen | ForkedProcess
     log: Path
 
     def running(self) -> bool:
         return self.popen.poll() is None
-
-    def release(self) -> None:
-        """A held node (``start_node(hold=True)``): run it now (held_node). A node
-        that already ended is left to the run's checks."""
-        if self.popen.stdin is None:
-            return
-        try:
-            self.popen.stdin.write(b"go\n")
-            self.popen.stdin.close()
-        except (BrokenPipeError, OSError):
-            pass
-        self.popen.stdin = None
 
     def tail(self, lines: int = 25) -> str:
         try:
@@ -80,22 +189,36 @@ class NodeProcess:
 
 
 def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict,
-               scheduling: Scheduling | None = None, hold: bool = False) -> NodeProcess:
-    """Start node ``name``; ``scheduling``: its realtime profile (None: as this process);
-    ``hold``: imported but held until ``release`` (pkm_bringup.held_node), without DDS."""
+               scheduling: Scheduling | None = None) -> NodeProcess:
+    """Start node ``name``, forked by the node server (module docstring; the first
+    waits for the server's imports); ``scheduling``: its realtime profile (None: as
+    this process)."""
     log = log_dir / f"{name}.log"
-    module = ["pkm_bringup.held_node", MODULES[name]] if hold else [MODULES[name]]
-    args = [sys.executable, "-u", "-m", *module, "--ros-args", "-r", f"__ns:={namespace}",
-            "--params-file", str(params_file)]
-    preexec_fn = die_with_parent
+    log.write_text("")
+    argv = ["--ros-args", "-r", f"__ns:={namespace}", "--params-file", str(params_file)]
     if scheduling is not None:
         env = child_environment(env, scheduling)
-        preexec_fn = preexec(scheduling, before=die_with_parent)
-    with log.open("w") as out:
-        popen = subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT,
-                                 stdin=subprocess.PIPE if hold else subprocess.DEVNULL,
-                                 start_new_session=True, preexec_fn=preexec_fn)
-    return NodeProcess(name, popen, log)
+    process = node_server().Process(target=run_forked, name=f"pkm-{name}", daemon=True,
+                                    args=(name, argv, dict(env), str(log), scheduling))
+    with _without_main_module():
+        process.start()
+    return NodeProcess(name, ForkedProcess(process, [MODULES[name], *argv]), log)
+
+
+def node_pids(run_dir: Path, proc_dir: str = "/proc") -> dict[str, int]:
+    """The live node processes of the run in ``run_dir``, node name -> pid: a node's
+    stdout is its ``logs/<node>.log`` (its command line is the node server's); for a
+    tool or a test that acts on one node."""
+    logs = os.path.realpath(Path(run_dir) / "logs") + os.sep
+    found = {}
+    for pid in filter(str.isdigit, os.listdir(proc_dir)):
+        try:
+            target = os.readlink(f"{proc_dir}/{pid}/fd/1")
+        except OSError:                   # ended meanwhile, a zombie, or another user's
+            continue
+        if target.startswith(logs) and target.endswith(".log"):
+            found[target[len(logs):-len(".log")]] = int(pid)
+    return found
 
 
 def _wait_or_kill(node: NodeProcess, timeout_s: float) -> None:

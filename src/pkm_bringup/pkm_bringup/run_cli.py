@@ -1,6 +1,7 @@
 """``pkm-run``'s command line, read before the orchestrator and what it imports (rclpy,
 the kinematics' compiled kernels: over a second) are loaded, so that ``pkm-run --help``
-and a refused argument answer at once. The run itself: orchestrator.run_command."""
+and a refused argument answer at once. The run itself: orchestrator.run_command; a
+run of processes starts the node server first (processes.start_node_server)."""
 
 from __future__ import annotations
 
@@ -35,5 +36,9 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    if args.engine == "graph" and not args.in_process:
+        from pkm_bringup.processes import start_node_server, use_ros_environment
+        use_ros_environment()           # the run's domain in the server's environment, and so in its nodes'
+        start_node_server()             # the nodes' imports on the other core while this process does its own
     from pkm_bringup.orchestrator import run_command      # the heavy part, once the arguments are good
     return run_command(args)
