@@ -43,7 +43,8 @@ def test_the_loop_nodes_run_sched_fifo_in_the_order_of_the_critical_path_and_the
     assert sim.lock_memory and ctrl.lock_memory and sensor.lock_memory
     for node in ("recorder", "trajectory"):                            # below every SCHED_FIFO thread anyway
         assert scheduling(node) == Scheduling(OTHER, 0, lock_memory=False)
-    assert set(PROFILE) == {"sim_hw", "controller", "gough_sensor", "recorder", "trajectory", "drives",
+    assert PROFILE["loop"] == ctrl                 # the composed loop: one thread, the loop's highest priority
+    assert set(PROFILE) == {"sim_hw", "controller", "gough_sensor", "loop", "recorder", "trajectory", "drives",
                             "virtual_drives", "ros2_control", "ros2_control_sim"}
     assert scheduling("drives") == scheduling("virtual_drives") == sim     # the machine's place on the path
     one = scheduling("recorder", in_process=True)                      # one process: all of it at the loop's
@@ -83,6 +84,22 @@ def test_the_scenario_key_is_validated_and_off_by_default(tmp_path):
     assert load_scenario("mom3_square", {"realtime_profile": True}).realtime_profile is True
     with pytest.raises(ScenarioError, match="realtime_profile: must be true or false, got 'yes'"):
         load_scenario("mom3_square", {"realtime_profile": "yes"})
+
+
+def test_the_loop_is_composed_by_default_with_the_profile_only_on_the_simulated_machine():
+    """loop_process: composed with the realtime profile, separate without it (and in
+    every lockstep run), either when asked; composed only on sim_hw, a bad value named."""
+    assert load_scenario("mom3_square").loop_process == "separate"
+    assert load_scenario("mom3_square", {"realtime_profile": True}).loop_process == "composed"
+    assert load_scenario("mom3_square", {"realtime_profile": True, "loop_process": "separate"}).loop_process == \
+        "separate"
+    assert load_scenario("mom3_square", {"loop_process": "composed"}).loop_process == "composed"
+    assert load_scenario("archi_canopen", {"realtime_profile": True}).loop_process == "separate"
+    with pytest.raises(ScenarioError, match="^loop_process: composed runs the simulated machine's loop "
+                                            r"\(hardware: sim\), not hardware canopen"):
+        load_scenario("archi_canopen", {"loop_process": "composed"})
+    with pytest.raises(ScenarioError, match="^loop_process: must be one of separate, composed, got 'one'"):
+        load_scenario("mom3_square", {"loop_process": "one"})
 
 
 def _eperm(*args):
@@ -186,11 +203,15 @@ def _policies(pid: int) -> set[tuple[int, int]]:
 
 
 @pytest.mark.slow
-def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_locked(tmp_path, realtime_loop_alone):
+@pytest.mark.parametrize("loop_process", ["composed", "separate"])
+def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_locked(tmp_path, realtime_loop_alone,
+                                                                                   loop_process):
     """archi_demo in real time (1 kHz, Gough in the loop, recorded) with
-    ``realtime_profile: true``: while it runs, every thread of sim_hw, the controller and
-    the Gough sensor is SCHED_FIFO at its priority and their memory is locked; the
-    recorder keeps its own SCHED_IDLE, the trajectory node SCHED_OTHER, neither locked."""
+    ``realtime_profile: true``: while it runs, every thread of the loop's process (the
+    composed one, the profile's default: PROFILE["loop"]) or of each of sim_hw, the
+    controller and the Gough sensor (``loop_process: separate``) is SCHED_FIFO at its
+    priority and their memory is locked; the recorder keeps its own SCHED_IDLE, the
+    trajectory node SCHED_OTHER, neither locked."""
     from pkm_kinematics.config import config_dir
     scenario = yaml.safe_load((config_dir() / "scenarios" / "archi_demo.yaml").read_text())
     # the sync error counter off: this 2-core VM misses bursts of 1 ms cycles (the
@@ -198,20 +219,23 @@ def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_lock
     scenario.update({"name": "archi_demo_rt", "mode": "realtime", "realtime_profile": True, "duration_s": 2.0,
                      "program": str(config_dir() / "programs" / "archi_test_motion.nc"),
                      "plant": {**scenario["plant"], "sync_error_limit": 0}})
+    if loop_process == "separate":
+        scenario["loop_process"] = "separate"
+    loop = ["loop"] if loop_process == "composed" else ["sim_hw", "controller", "gough_sensor"]
     path = tmp_path / "archi_demo_rt.yaml"
     path.write_text(yaml.safe_dump(scenario))
     run_dir = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "pkm_bringup.orchestrator", str(path), "--run-dir", str(run_dir),
                              "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        log = run_dir / "logs" / "controller.log"
+        log = run_dir / "logs" / ("loop.log" if loop_process == "composed" else "controller.log")
         deadline = time.monotonic() + 90
         while proc.poll() is None and time.monotonic() < deadline:
             if log.exists() and "trajectory accepted" in log.read_text(errors="replace"):
                 break
             time.sleep(0.05)
         pids = node_pids(run_dir)
-        assert set(pids) == {"recorder", "sim_hw", "gough_sensor", "controller", "trajectory"}, pids
+        assert set(pids) == {"recorder", "trajectory", *loop}, pids
         seen = {name: (_policies(pid), _locked_kib(pid)) for name, pid in pids.items()}
     finally:
         out, _ = proc.communicate(timeout=120)
@@ -224,7 +248,7 @@ def test_a_realtime_run_as_processes_has_its_loop_at_sched_fifo_with_memory_lock
         run["summaries"]["sim_hw"]["deadline_misses"] > 0
     assert proc.returncode == (3 if tripped_by_misses else 0), out
     assert run["realtime_profile"] is True and run["status"] in ("completed", "tripped"), out
-    for name in ("sim_hw", "controller", "gough_sensor"):
+    for name in loop:
         policies, locked_kib = seen[name]
         assert policies == {(os.SCHED_FIFO, PROFILE[name].priority)}, (name, policies)
         assert locked_kib > 100_000, (name, locked_kib)            # the whole process (over 1 GiB mapped)

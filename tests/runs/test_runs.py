@@ -262,6 +262,25 @@ def test_processes_compute_the_same_run_as_in_process(in_process_run, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_composed_loop_computes_the_same_run_as_in_process(in_process_run, tmp_path):
+    """The loop's nodes composed in one process (loop_process: composed,
+    pkm_bringup.composed_loop), the recorder and the planner in their own: the same
+    commands bit for bit, every node's summary, no node left."""
+    run_dir, _ = in_process_run
+    proc_dir = tmp_path / "mom3_composed"
+    run = run_scenario(load_scenario("mom3_square", {**SHORT, "loop_process": "composed"}), proc_dir,
+                       in_process=False, progress=False)
+    assert run["status"] == "completed", run["error"]
+    assert run["lost"] and all(v == 0 for v in run["lost"].values()), run["lost"]
+    assert set(run["exit_codes"]) == {"recorder", "loop", "trajectory"} and not any(run["exit_codes"].values()), \
+        run["exit_codes"]
+    assert {"sim_hw", "gough_sensor", "controller", "recorder"} <= set(run["summaries"]), sorted(run["summaries"])
+    a, b = _commands(run_dir), _commands(proc_dir)
+    assert len(a) == 801 and a == b
+    assert not _leftovers(proc_dir)
+
+
+@pytest.mark.slow
 def test_archi_demo_runs_to_completion_as_processes(tmp_path):
     """The default scenario (make demo): ARCHI test motion, Gough in the loop, cutting
     load, sensor space + inf-norm, five processes, recorded; replayed exactly."""

@@ -25,6 +25,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Bool
 
+from pkm_bringup.composed_loop import COMPOSED
 from pkm_bringup.processes import start_node, stop_nodes
 from pkm_bringup.rt_profile import scheduling
 from pkm_bringup.scenario import START_TOPIC, Scenario, controller_node_name, expected_topics, start_signal
@@ -41,7 +42,7 @@ START_ORDER = ("recorder", "virtual_drives", "ros2_control_sim", "sim_hw", "driv
                "laser_tracker", "controller")
 # after the sim's last step, how long the loop's nodes keep running (see run_processes)
 LOOP_END_GRACE_S = 0.15
-STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "laser_tracker", "sim_hw", "drives",
+STOP_ORDER = ("trajectory", "starter", "controller", "gough_sensor", "laser_tracker", "sim_hw", "loop", "drives",
               "ros2_control", "virtual_drives", "ros2_control_sim", "recorder")
 # the graph's machine: simulated, or a drive interface (one of them); behind one, its simulated machine
 MACHINE_NODES = ("sim_hw", "drives", "ros2_control")
@@ -123,7 +124,7 @@ def estop_before_stop(executor, monitor, nodes: dict, wait_s: float = 1.0) -> No
     first, the controller would leave a realtime plant to its watchdog, and the run would
     name that consequence ("watchdog") as its cause. Waits up to ``wait_s`` for the
     controller's stopped status. Whatever fails here, the ordered stop that follows runs."""
-    controller = nodes.get("controller")
+    controller = nodes.get("controller") or nodes.get("loop")       # its own process, or the composed loop's
     if controller is None or not controller.running() or monitor.controller_stopped:
         return
     try:
@@ -247,10 +248,14 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         # the graph is connected, the recorder ready and the planner up (a planner still
         # importing stalled a running loop)
         refuse_if_another_run(executor, monitor, s)
+        composed = [name for name in COMPOSED if name in params] if s.loop_process == "composed" else []
         for name in START_ORDER + ("trajectory",):
-            if name in params:
+            if name in params and name not in composed:
                 nodes[name] = start_node(name, s.namespace, run_dir / "params" / f"{name}.yaml",
                                          run_dir / "logs", os.environ.copy(), scheduling_of(s, name))
+        if composed:                         # the loop's nodes in one process (composed_loop)
+            nodes["loop"] = start_node("loop", s.namespace, None, run_dir / "logs", os.environ.copy(),
+                                       scheduling_of(s, "loop"), args=[str(run_dir / "params"), *composed])
         ready = run_dir / "recorder.ready"
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         while not (connected(monitor, s) and (not s.record or ready.exists()) and
@@ -263,13 +268,13 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
         # the controller answers from then on (with a program: once its trajectory is there)
         publish_start(monitor, Path(params["controller"]["credential_file"]))
         deadline = time.monotonic() + s.timeout_s
-        machine = s.machine_node
+        machine = "loop" if "loop" in nodes else s.machine_node      # the process the plant runs in
         sim = nodes[machine]
         # the loop is over when the sim has exited, or LOOP_END_GRACE_S after it finished
         # (its last diagnostics, or its summary file, written before it shuts down: the
         # exit of a process with compiled kernels takes ~0.4 s, close to the
         # controller's state watchdog; the grace lets the last state be answered)
-        sim_summary = run_dir / "summaries" / f"{machine}.json"
+        sim_summary = run_dir / "summaries" / f"{s.machine_node}.json"
         finished_wall = math.inf
         while sim.running() and time.monotonic() < finished_wall + LOOP_END_GRACE_S:
             check_alive(allowed_done=(machine,))

@@ -47,11 +47,12 @@ MODULES = {
     "laser_tracker": "pkm_gough_sensor.laser_tracker_node",
     "controller": "pkm_controller.controller_node",
     "trajectory": "pkm_trajectory.trajectory_node",
+    "loop": "pkm_bringup.composed_loop",          # sim_hw, the instruments and the controller in one process
 }
 # what the node server imports before it forks a node: the nodes of a simulated run (a
 # drive interface's node imports its own bus and protocol after the fork)
 PRELOAD = tuple(MODULES[name] for name in ("recorder", "sim_hw", "gough_sensor", "laser_tracker", "controller",
-                                           "trajectory"))
+                                           "trajectory", "loop"))
 _PR_SET_PDEATHSIG, _PR_SET_NAME = 1, 15
 try:                                      # loaded here, not after fork (dlopen in a forked
     _PRCTL = ctypes.CDLL("libc.so.6", use_errno=True).prctl      # multi-threaded process can deadlock)
@@ -188,14 +189,17 @@ class NodeProcess:
         return "\n".join(text[-lines:])
 
 
-def start_node(name: str, namespace: str, params_file: Path, log_dir: Path, env: dict,
-               scheduling: Scheduling | None = None) -> NodeProcess:
+def start_node(name: str, namespace: str, params_file: Path | None, log_dir: Path, env: dict,
+               scheduling: Scheduling | None = None, args=()) -> NodeProcess:
     """Start node ``name``, forked by the node server (module docstring; the first
     waits for the server's imports); ``scheduling``: its realtime profile (None: as
-    this process)."""
+    this process); ``args``: before the ROS arguments (the composed loop's: its
+    params directory and nodes); ``params_file`` None: none."""
     log = log_dir / f"{name}.log"
     log.write_text("")
-    argv = ["--ros-args", "-r", f"__ns:={namespace}", "--params-file", str(params_file)]
+    argv = [*args, "--ros-args", "-r", f"__ns:={namespace}"]
+    if params_file is not None:
+        argv += ["--params-file", str(params_file)]
     if scheduling is not None:
         env = child_environment(env, scheduling)
     process = node_server().Process(target=run_forked, name=f"pkm-{name}", daemon=True,

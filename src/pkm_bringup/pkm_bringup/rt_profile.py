@@ -85,6 +85,9 @@ PROFILE: dict[str, Scheduling] = {
     "trajectory": Scheduling(),
     "recorder": Scheduling(),
 }
+# the loop's nodes composed in one process (pkm_bringup.composed_loop): one thread, at
+# the loop's highest priority
+PROFILE["loop"] = Scheduling(FIFO, PROFILE["controller"].priority, lock_memory=True)
 # one process (--in-process): every node on one thread, at the loop's highest priority
 IN_PROCESS = Scheduling(FIFO, PROFILE["controller"].priority, lock_memory=True)
 HOW_TO_RUN_WITHOUT = "run without --rt-profile (scenario: realtime_profile: false)"

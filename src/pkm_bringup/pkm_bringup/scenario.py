@@ -40,6 +40,12 @@ node runs by default. Keys (all optional but ``machine``)::
                                       # needs root, or CAP_SYS_NICE and CAP_IPC_LOCK: pkm-run refuses
                                       # (exit 2, nothing started) where the OS does not allow it.
                                       # pkm-run --rt-profile sets it.
+    loop_process: separate            # as processes, the loop's nodes (sim_hw, the instruments, the
+                                      # controller) each in its own process, or composed: in one, one
+                                      # executor, still separate nodes exchanging messages
+                                      # (pkm_bringup/composed_loop.py; hardware sim). Default: composed
+                                      # with the realtime profile (1 kHz within 2x the machine's
+                                      # floor: benchmarks/realtime.py), separate otherwise.
     hardware: sim                     # sim: sim_hw_node; canopen: drives_node on CiA 402 drives; ros2_control:
                                       # a ros2_control system's effort controller (docs/drives.md)
     drives: {...}                     # drives_node parameters (config/drives.yaml), virtual: true (virtual
@@ -88,7 +94,10 @@ from pkm_bringup.program_plan import plan_program, spindle_load_entries
 
 KEYS = ("name", "description", "machine", "model", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
         "trajectory", "controller", "metrology", "sensor", "plant", "recorder", "load", "frame_load", "spindle_load",
-        "record", "timeout_s", "realtime_profile", "operators", "hardware", "drives", "laser_tracker")
+        "record", "timeout_s", "realtime_profile", "loop_process", "operators", "hardware", "drives",
+        "laser_tracker")
+# how the nodes of the loop run as processes (pkm_bringup.composed_loop)
+LOOP_PROCESSES = ("separate", "composed")
 # scenario section -> node whose parameters it sets
 SECTIONS = {"trajectory": "trajectory", "controller": "controller", "sensor": "gough_sensor", "plant": "sim_hw",
             "recorder": "recorder", "drives": "drives", "laser_tracker": "laser_tracker"}
@@ -128,6 +137,7 @@ class Scenario:
     timeout_s: float = 600.0
     description: str = ""
     realtime_profile: bool = False
+    loop_process: str = "separate"
     operators: list = field(default_factory=list)     # more nodes that may command (full names)
     hardware: str = "sim"
     drives: dict = field(default_factory=dict)
@@ -390,6 +400,12 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
                        bool(s.metrology or data.get("load") or data.get("spindle_load")), config)
     except FieldError as exc:
         raise ScenarioError(f"{exc.name}: {exc.detail}") from None
+    s.loop_process = data.get("loop_process", "composed" if s.realtime_profile and s.hardware == "sim" else "separate")
+    if s.loop_process not in LOOP_PROCESSES:
+        raise ScenarioError(f"loop_process: must be one of {', '.join(LOOP_PROCESSES)}, got {s.loop_process!r}")
+    if s.loop_process == "composed" and s.hardware != "sim":
+        raise ScenarioError(f"loop_process: composed runs the simulated machine's loop (hardware: sim), not "
+                            f"hardware {s.hardware}: its drive interface's nodes are processes of their own")
     size = len(config.model.task_space.loads)
     s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
     s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)

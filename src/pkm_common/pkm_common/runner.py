@@ -113,6 +113,16 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
     ``args`` are the command-line arguments (``sys.argv`` if None); ``name`` labels
     errors raised before the node (and its logger) exists.
     """
+    return run_nodes([factory], args, executor, name, spin_period_s)
+
+
+def run_nodes(factories: list, args=None, executor: str = 'single', name: str = 'node',
+              spin_period_s: float = 0.1, done: Callable | None = None) -> int:
+    """``run_node`` for several nodes in one process: each built in order on one
+    context, all spun by one executor (a composition: still separate nodes exchanging
+    messages), torn down in reverse order while the context is up (their last batches
+    published); the loop ends on a signal, when the context is shut down, or when
+    ``done(nodes)`` says so."""
     executor = os.environ.get('PKM_EXECUTOR', executor)     # for experiments: single | events
     use_localhost_dds()             # a node started by hand talks as a graph's nodes do
     context = rclpy.Context()
@@ -127,48 +137,52 @@ def run_node(factory: Callable, args=None, executor: str = 'single', name: str =
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda *_: stop.append(True))
     rclpy.init(args=args, context=context, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    node = None
+    nodes = []
     exec_ = None
     code = EXIT_OK
     locked = False
     try:
         try:
-            node = factory(context=context)
+            for factory in factories:
+                nodes.append(factory(context=context))
         except ValueError as exc:      # ParameterError, ConfigError: a refused configuration
             rclpy.logging.get_logger(name).error(str(exc))
             return EXIT_BAD_PARAMETER
         exec_ = make_executor(executor, context)
-        exec_.add_node(node)
+        for node in nodes:
+            exec_.add_node(node)
         if os.environ.get(MEMORY_LOCK_ENV) == '1':
             try:
                 lock_memory()
                 locked = True
             except OSError as exc:
-                node.get_logger().error(f'realtime profile: memory not locked: {exc}')
+                nodes[0].get_logger().error(f'realtime profile: memory not locked: {exc}')
                 return EXIT_BAD_PARAMETER
         with start_up_frozen(), _profiled(name):
-            while context.ok() and not stop:
+            while context.ok() and not stop and not (done is not None and done(nodes)):
                 exec_.spin_once(timeout_sec=spin_period_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = EXIT_OK
     except Exception as exc:          # noqa: BLE001 - reported, then a non-zero exit
-        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(name)
+        logger = nodes[-1].get_logger() if nodes else rclpy.logging.get_logger(name)
         logger.fatal(f'{type(exc).__name__}: {exc}')
         code = EXIT_ERROR
     finally:
-        if node is not None:
-            try:
-                if exec_ is not None:
-                    exec_.remove_node(node)
-            finally:
-                node.destroy_node()
-        if exec_ is not None:
-            exec_.shutdown()
-        rclpy.try_shutdown(context=context)
-        if locked:
-            unlock_memory()
-        for sig, handler in previous.items():     # leave an embedding process as it was
-            signal.signal(sig, handler)
+        try:
+            for node in reversed(nodes):
+                try:
+                    if exec_ is not None:
+                        exec_.remove_node(node)
+                finally:
+                    node.destroy_node()
+        finally:
+            if exec_ is not None:
+                exec_.shutdown()
+            rclpy.try_shutdown(context=context)
+            if locked:
+                unlock_memory()
+            for sig, handler in previous.items():     # leave an embedding process as it was
+                signal.signal(sig, handler)
     return code
 
 
