@@ -191,6 +191,7 @@ class SimLoop:
         if not self.lockstep:
             if self.hold.latch(effort, stamp, self.run.last_published_ns):
                 self.plant.step(effort)            # the next tick's step, made now; the tick publishes it
+                self.side_work()
             return
         self.advance(effort)
 
@@ -220,12 +221,22 @@ class SimLoop:
         where the drive supervision finds the command to compare."""
         self.streams.hold(held_stamp_ns)
         self.publish_state()
+        if self.lockstep:
+            self.side_work()
+        if self.duration_steps and self.plant.k >= self.duration_steps:
+            self.finish()
+
+    def side_work(self) -> None:
+        """The recorder's batch, the markers and the diagnostics when due: in lockstep
+        right after a step's publication (the plant then waits for its answer), in real
+        time once the answer to it is in (the next step made, its tick not yet due). In
+        a composed loop (one thread: pkm_bringup.composed_loop) the work right after the
+        publication sat between the state and the controller, on the deadline's path.
+        Their timers do it when no cycle runs (Cadence.on_timer)."""
         self.ports.after_cycle()
         for cadence, work in self.cadences:
             if cadence.in_cycle():
                 work()
-        if self.duration_steps and self.plant.k >= self.duration_steps:
-            self.finish()
 
     def summary(self) -> dict:
         return self.run.summary(self.plant, time.monotonic())
