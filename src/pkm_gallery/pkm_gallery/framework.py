@@ -17,6 +17,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from pkm_bringup.direct import refusal as direct_refusal
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import load_scenario
 from pkm_kinematics import load_machine
@@ -88,12 +89,14 @@ class Bench:
     progress: bool = False
 
     def run(self, scenario: str, label: str = "", **overrides) -> RunOutput:
-        """Run a scenario in one process (``overrides`` replace its top-level keys);
-        its run.json content and its per-step arrays."""
+        """Run a scenario in one process (``overrides`` replace its top-level keys): in
+        the direct engine where it can (the graph's run bit for bit, pkm_bringup.direct),
+        else as a graph in one executor; its run.json content and its per-step arrays."""
         run_dir = self.work / (label or scenario)
         shutil.rmtree(run_dir, ignore_errors=True)     # the gallery's own: a run again starts afresh
-        run = run_scenario(load_scenario(scenario, overrides or None), run_dir, in_process=True,
-                           progress=self.progress, report=False)
+        s = load_scenario(scenario, overrides or None)
+        run = run_scenario(s, run_dir, in_process=True, progress=self.progress, report=False,
+                           engine="graph" if direct_refusal(s) else "direct")
         if run["status"] == "failed":
             raise RuntimeError(f"{scenario} ({label or 'as shipped'}): the run failed: {run['error']}")
         return RunOutput(run, step_arrays(run_dir))
