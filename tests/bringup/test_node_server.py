@@ -6,6 +6,7 @@ run once (multiprocessing would run the caller's main script again in every chil
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -42,7 +43,7 @@ def test_a_forked_node_stays_in_its_own_session_with_the_environment_given(tmp_p
         assert node.running(), node.tail()
     finally:
         codes = stop_nodes([node], timeout_s=20)
-    assert codes == {"trajectory": 0}, (codes, node.tail())
+    assert codes["trajectory"] in (0, -signal.SIGTERM), (codes, node.tail())
     assert (tmp_path / "profiles" / "trajectory.prof").exists(), node.tail()
 
 
@@ -87,10 +88,42 @@ def test_a_script_running_a_scenario_at_its_top_level_runs_once_and_its_nodes_di
             time.sleep(0.05)
         before = node_pids(run_dir)
         assert set(before) == {"sim_hw", "gough_sensor", "controller", "trajectory"}, before
+        servers = {_parent(pid) for pid in before.values()}          # the node server, the nodes' parent
+        assert len(servers) == 1 and proc.pid not in servers, (servers, proc.pid)
     finally:
         proc.kill()
         proc.wait()
     deadline = time.monotonic() + 20
-    while node_pids(run_dir) and time.monotonic() < deadline:
+    while (node_pids(run_dir) or Path(f"/proc/{next(iter(servers))}").exists()) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not node_pids(run_dir), (before, node_pids(run_dir))
+    assert not Path(f"/proc/{next(iter(servers))}").exists(), "the node server outlived its client"
+
+
+def _parent(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+def test_a_caller_that_may_not_fork_starts_each_node_as_its_own_interpreter(tmp_path, monkeypatch):
+    """In a daemonic multiprocessing process (a Dask worker) multiprocessing refuses
+    children: the node is started as ``python -u -m <module>`` instead, with its log
+    and its session, and ends on SIGTERM (before its runner's handler exists, by it)."""
+    import multiprocessing
+    monkeypatch.setitem(multiprocessing.current_process()._config, "daemon", True)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    params = tmp_path / "trajectory.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    machine: archi\n")
+    node = start_node("trajectory", "/t_spawned", params, logs, dict(os.environ))
+    try:
+        cmdline = Path(f"/proc/{node.popen.pid}/cmdline").read_bytes().split(b"\0")
+        assert b"pkm_trajectory.trajectory_node" in cmdline, cmdline
+        deadline = time.monotonic() + 30
+        while "trajectory" not in node_pids(tmp_path) and time.monotonic() < deadline:
+            assert node.running(), node.tail()
+            time.sleep(0.02)
+        assert node_pids(tmp_path) == {"trajectory": node.popen.pid}
+        assert os.getsid(node.popen.pid) == node.popen.pid
+    finally:
+        codes = stop_nodes([node], timeout_s=20)
+    assert codes["trajectory"] in (0, -signal.SIGTERM), (codes, node.tail())

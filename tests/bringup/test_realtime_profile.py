@@ -43,7 +43,8 @@ def test_the_loop_nodes_run_sched_fifo_in_the_order_of_the_critical_path_and_the
     assert sim.lock_memory and ctrl.lock_memory and sensor.lock_memory
     for node in ("recorder", "trajectory"):                            # below every SCHED_FIFO thread anyway
         assert scheduling(node) == Scheduling(OTHER, 0, lock_memory=False)
-    assert PROFILE["loop"] == ctrl                 # the composed loop: one thread, the loop's highest priority
+    loop = scheduling("loop")                      # the composed loop: one thread, at the profile's highest priority
+    assert loop.policy == FIFO and loop.lock_memory and loop.priority == max(p.priority for p in PROFILE.values())
     assert set(PROFILE) == {"sim_hw", "controller", "gough_sensor", "loop", "recorder", "trajectory", "drives",
                             "virtual_drives", "ros2_control", "ros2_control_sim"}
     assert scheduling("drives") == scheduling("virtual_drives") == sim     # the machine's place on the path

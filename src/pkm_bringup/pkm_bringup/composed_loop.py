@@ -40,11 +40,18 @@ def _classes() -> dict:
             "controller": ControllerNode}
 
 
-def _factory(cls, params_file: Path, **changed):
-    """``cls`` built with the parameters of its params file (pkm-run's, ``/**``)."""
+def _factory(name: str, cls, params_file: Path, **changed):
+    """``cls`` built with the parameters of its params file (pkm-run's, ``/**``); a
+    refused configuration names the node (they share one log)."""
     values = {**yaml.safe_load(params_file.read_text(encoding="utf-8"))["/**"]["ros__parameters"], **changed}
-    overrides = [Parameter(name, value=value) for name, value in values.items()]
-    return lambda context: cls(context=context, parameter_overrides=overrides)
+    overrides = [Parameter(key, value=value) for key, value in values.items()]
+
+    def build(context):
+        try:
+            return cls(context=context, parameter_overrides=overrides)
+        except ValueError as exc:
+            raise ValueError(f"node {name} refused its configuration: {exc}") from exc
+    return build
 
 
 def main(argv=None) -> int:
@@ -52,12 +59,12 @@ def main(argv=None) -> int:
     split = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     (params_dir, *names), ros_args = argv[:split] or [""], argv[split:]
     unknown = [name for name in names if name not in COMPOSED]
-    if not params_dir or not names or unknown:
+    if not params_dir or "sim_hw" not in names or unknown:
         print(f"usage: python -m pkm_bringup.composed_loop <params dir> <node> ... --ros-args ...; nodes: one or "
-              f"more of {', '.join(COMPOSED)}, got {names}", file=sys.stderr)
+              f"more of {', '.join(COMPOSED)} with sim_hw, got {names}", file=sys.stderr)
         return 2
     classes = _classes()
-    factories = [_factory(classes[name], Path(params_dir) / f"{name}.yaml",
+    factories = [_factory(name, classes[name], Path(params_dir) / f"{name}.yaml",
                           **({"shutdown_on_finish": False} if name == "sim_hw" else {}))
                  for name in COMPOSED if name in names]
     finished = []

@@ -10,7 +10,13 @@ session (a Ctrl-C in the terminal reaches the orchestrator only, which then stop
 nodes in order: the recorder last, so that it finalizes a complete bag), with
 ``PR_SET_PDEATHSIG`` = SIGTERM (its parent, the server, ends with the orchestrator,
 even one killed with kill -9: so does every node), its environment the run's,
-stdout and stderr in ``logs/<node>.log``.
+stdout and stderr in ``logs/<node>.log``. The server leaves pkm-run's session and
+ignores the signals meant for pkm-run (node_server_init). Limits: what a node reads
+from its environment at import (NUMBA_CACHE_DIR, PKM_NO_JIT, PYTHONPATH) is the
+server's, and so is its /proc/<pid>/environ (pkm-run starts the server with the run's
+ROS_DOMAIN_ID: pkm_common.domains finds the domain there). A caller that may not fork
+(a daemonic multiprocessing process: a Dask worker) starts each node as its own
+interpreter instead (``python -u -m <module>``).
 
 With a ``Scheduling`` of the realtime profile (rt_profile.py), the child takes its
 policy before it runs the node (every thread it creates inherits it) and, when it
@@ -29,6 +35,8 @@ import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 import types
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,8 +59,9 @@ MODULES = {
 }
 # what the node server imports before it forks a node: the nodes of a simulated run (a
 # drive interface's node imports its own bus and protocol after the fork)
-PRELOAD = tuple(MODULES[name] for name in ("recorder", "sim_hw", "gough_sensor", "laser_tracker", "controller",
-                                           "trajectory", "loop"))
+PRELOAD = ("pkm_bringup.node_server_init",) + tuple(
+    MODULES[name] for name in ("recorder", "sim_hw", "gough_sensor", "laser_tracker", "controller", "trajectory",
+                               "loop"))
 _PR_SET_PDEATHSIG, _PR_SET_NAME = 1, 15
 try:                                      # loaded here, not after fork (dlopen in a forked
     _PRCTL = ctypes.CDLL("libc.so.6", use_errno=True).prctl      # multi-threaded process can deadlock)
@@ -87,9 +96,24 @@ def start_node_server() -> None:
     multiprocessing.forkserver.ensure_running()
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 class ForkedProcess:
     """A node forked by the node server, with the part of subprocess.Popen's interface
-    a run uses (pid, returncode, poll, wait, send_signal, kill)."""
+    a run uses (pid, returncode, poll, wait, send_signal, kill). Its exit code comes
+    from the server; a server that died (an OOM kill) leaves multiprocessing saying 255
+    at once: a node still alive then is said running until it ends (its death
+    signal, PR_SET_PDEATHSIG, ends it), and is still signalled."""
+
+    LOST = 255                     # multiprocessing's exit code when the server's pipe closed
 
     def __init__(self, process, args: list):
         self.process, self.args = process, args
@@ -100,19 +124,25 @@ class ForkedProcess:
 
     @property
     def returncode(self) -> int | None:
-        return self.process.exitcode
+        return self.poll()
 
     def poll(self) -> int | None:
-        return self.process.exitcode
+        code = self.process.exitcode
+        if code == self.LOST and _alive(self.process.pid):
+            return None
+        return code
 
     def wait(self, timeout: float | None = None) -> int:
+        end = None if timeout is None else time.monotonic() + timeout
         self.process.join(timeout)
-        if self.process.exitcode is None:
-            raise subprocess.TimeoutExpired(self.args, timeout)
-        return self.process.exitcode
+        while self.poll() is None:
+            if end is not None and time.monotonic() >= end:
+                raise subprocess.TimeoutExpired(self.args, timeout)
+            time.sleep(0.01)                # a node the lost server can no longer report
+        return self.poll()
 
     def send_signal(self, sig: int) -> None:
-        if self.process.exitcode is None:
+        if self.poll() is None:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.process.pid, sig)
 
@@ -134,18 +164,23 @@ def _let_the_server_end() -> None:
         server._forkserver_alive_fd = None
 
 
+_STARTING = threading.Lock()
+
+
 @contextlib.contextmanager
 def _without_main_module():
     """A node needs its own module only: multiprocessing would have the child run the
     caller's main script again first (as ``__mp_main__``: a script that runs a scenario
     at its top level would run it in every node) unless the caller's ``__main__`` has
-    neither a file nor a module name while the child is prepared."""
-    main = sys.modules["__main__"]
-    sys.modules["__main__"] = types.ModuleType("__main__")
-    try:
-        yield
-    finally:
-        sys.modules["__main__"] = main
+    neither a file nor a module name while the child is prepared (one start at a time:
+    the swap is the process's)."""
+    with _STARTING:
+        main = sys.modules["__main__"]
+        sys.modules["__main__"] = types.ModuleType("__main__")
+        try:
+            yield
+        finally:
+            sys.modules["__main__"] = main
 
 
 def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Scheduling | None) -> None:
@@ -202,11 +237,29 @@ def start_node(name: str, namespace: str, params_file: Path | None, log_dir: Pat
         argv += ["--params-file", str(params_file)]
     if scheduling is not None:
         env = child_environment(env, scheduling)
+    if multiprocessing.current_process().daemon:      # a Dask worker's: it may not fork children of its own
+        return _spawn_node(name, argv, env, log, scheduling)
     process = node_server().Process(target=run_forked, name=f"pkm-{name}", daemon=True,
                                     args=(name, argv, dict(env), str(log), scheduling))
-    with _without_main_module():
-        process.start()
+    try:
+        with _without_main_module():
+            process.start()
+    except (EOFError, ConnectionError, FileNotFoundError) as exc:
+        raise RuntimeError(f"the node server is not running ({type(exc).__name__}: {exc}); its own error is on "
+                           "this process's stderr") from None
     return NodeProcess(name, ForkedProcess(process, [MODULES[name], *argv]), log)
+
+
+def _spawn_node(name: str, argv: list, env: dict, log: Path, scheduling: Scheduling | None) -> NodeProcess:
+    """``python -u -m <module> <argv>``: a node of its own interpreter, for a caller that
+    may not fork (multiprocessing's daemonic processes), as nodes were started before
+    the node server."""
+    preexec_fn = die_with_parent if scheduling is None else preexec(scheduling, before=die_with_parent)
+    with log.open("w") as out:
+        popen = subprocess.Popen([sys.executable, "-u", "-m", MODULES[name], *argv], env=env, stdout=out,
+                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                                 preexec_fn=preexec_fn)
+    return NodeProcess(name, popen, log)
 
 
 def node_pids(run_dir: Path, proc_dir: str = "/proc") -> dict[str, int]:

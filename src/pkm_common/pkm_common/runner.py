@@ -169,12 +169,16 @@ def run_nodes(factories: list, args=None, executor: str = 'single', name: str = 
         code = EXIT_ERROR
     finally:
         try:
-            for node in reversed(nodes):
+            for node in reversed(nodes):         # each torn down whatever another's teardown raised
                 try:
-                    if exec_ is not None:
-                        exec_.remove_node(node)
-                finally:
-                    node.destroy_node()
+                    try:
+                        if exec_ is not None:
+                            exec_.remove_node(node)
+                    finally:
+                        node.destroy_node()
+                except Exception as exc:          # noqa: BLE001 - reported; the next node still goes
+                    node.get_logger().error(f'teardown: {type(exc).__name__}: {exc}')
+                    code = code or EXIT_ERROR
         finally:
             if exec_ is not None:
                 exec_.shutdown()

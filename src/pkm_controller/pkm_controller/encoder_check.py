@@ -327,17 +327,20 @@ class GoughCrossCheck:
         """The fault (drive, what) when one drive's reading has left the Gough's (class
         docstring), None otherwise; ``q`` the readings, ``q_gough`` = q(x_g);
         ``skip``: drives not to judge (dropped ones)."""
+        q, g = np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float)
+        if q.shape != (self.n,) or g.shape != (self.n,):
+            raise ValueError(f"Gough cross-check: {self.n} readings and {self.n} drive positions of the Gough's pose "
+                             f"needed, got shapes {q.shape} and {g.shape}")
         self.cycles += 1
-        if skip:
+        if len(skip):
             self.skip[:] = False
             for i in skip:
                 self.skip[i] = True
         elif self.skip_set:
             self.skip[:] = False
-        self.skip_set = bool(skip)
-        i = gough_check_kernel(np.asarray(q, dtype=float), np.asarray(q_gough, dtype=float), self.history_q,
-                               self.history_g, self.hold_g, self.last_d, self.bias, self.mean_square, self.over,
-                               self.off, self.skip, self.jump_m, self.cycles == 1)
+        self.skip_set = bool(len(skip))
+        i = gough_check_kernel(q, g, self.history_q, self.history_g, self.hold_g, self.last_d, self.bias,
+                               self.mean_square, self.over, self.off, self.skip, self.jump_m, self.cycles == 1)
         if i < 0:
             return None
         return EncoderFault(i, f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position "
