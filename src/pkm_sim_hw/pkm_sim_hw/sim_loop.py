@@ -190,8 +190,8 @@ class SimLoop:
             self.ports.log_info(f"loop started: the first command, at step {self.plant.k}")
         if not self.lockstep:
             if self.hold.latch(effort, stamp, self.run.last_published_ns):
+                self.side_work()                   # of the step published (its stamp), before the next is made
                 self.plant.step(effort)            # the next tick's step, made now; the tick publishes it
-                self.side_work()
             return
         self.advance(effort)
 
@@ -229,7 +229,8 @@ class SimLoop:
     def side_work(self) -> None:
         """The recorder's batch, the markers and the diagnostics when due: in lockstep
         right after a step's publication (the plant then waits for its answer), in real
-        time once the answer to it is in (the next step made, its tick not yet due). In
+        time once the answer to it is in (before the next step is made, its tick not yet
+        due). In
         a composed loop (one thread: pkm_bringup.composed_loop) the work right after the
         publication sat between the state and the controller, on the deadline's path.
         Their timers do it when no cycle runs (Cadence.on_timer)."""
