@@ -39,6 +39,11 @@ def test_a_forked_node_stays_in_its_own_session_with_the_environment_given(tmp_p
         assert pid == node.popen.pid
         assert os.getsid(pid) == pid
         assert Path(f"/proc/{pid}/comm").read_text().strip() == "pkm:trajectory"
+        # the server, in a session of its own, ignores what is meant for pkm-run; the node does not
+        server = _parent(pid)
+        assert os.getsid(server) == server != os.getsid(0)
+        assert _ignored(server) >= {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}, _ignored(server)
+        assert not _ignored(pid) & {signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT}, _ignored(pid)
         time.sleep(1.0)                        # built and spinning
         assert node.running(), node.tail()
     finally:
@@ -98,6 +103,13 @@ def test_a_script_running_a_scenario_at_its_top_level_runs_once_and_its_nodes_di
         time.sleep(0.1)
     assert not node_pids(run_dir), (before, node_pids(run_dir))
     assert not Path(f"/proc/{next(iter(servers))}").exists(), "the node server outlived its client"
+
+
+def _ignored(pid: int) -> set[int]:
+    """The signals ``pid`` ignores (/proc/<pid>/status SigIgn)."""
+    mask = int(next(line.split()[1] for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                    if line.startswith("SigIgn:")), 16)
+    return {sig for sig in range(1, 65) if mask >> (sig - 1) & 1}
 
 
 def _parent(pid: int) -> int:

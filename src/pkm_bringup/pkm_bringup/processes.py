@@ -41,6 +41,7 @@ import types
 from dataclasses import dataclass
 from pathlib import Path
 
+from pkm_bringup.node_server_init import IGNORED as IGNORED_BY_THE_SERVER
 from pkm_bringup.rt_profile import Scheduling, child_environment, preexec
 from pkm_common.domains import PROFILE_ENV, claim_domain_id, localhost_dds
 
@@ -184,22 +185,27 @@ def _without_main_module():
 
 
 def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Scheduling | None) -> None:
-    """A node in the child the node server forked (start_node): its session, its
-    parent's death, its policy, its log, its environment, then the module's ``main``
-    with the node's arguments."""
-    os.setsid()
-    _let_the_server_end()
+    """A node in the child the node server forked (start_node): its parent's death,
+    its log (first: what fails after it is said there), the default dispositions of
+    the signals the server ignores (node_server_init), its session, its policy, its
+    environment, then the module's ``main`` with the node's arguments."""
     die_with_parent_checked()
-    if _PRCTL is not None:                  # ps and top name the node (the command line is the server's)
-        _PRCTL(_PR_SET_NAME, f"pkm:{name}"[:15].encode())
-    if scheduling is not None:
-        preexec(scheduling)()
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
     sys.stdout = open(1, "w", buffering=1, encoding="utf-8", closefd=False)   # noqa: SIM115 - the process's
     sys.stderr = open(2, "w", buffering=1, encoding="utf-8", closefd=False)   # noqa: SIM115
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    for sig in IGNORED_BY_THE_SERVER:
+        if sig != signal.SIGINT:
+            signal.signal(sig, signal.SIG_DFL)
+    os.setsid()
+    _let_the_server_end()
+    if _PRCTL is not None:                  # ps and top name the node (the command line is the server's)
+        _PRCTL(_PR_SET_NAME, f"pkm:{name}"[:15].encode())
+    if scheduling is not None:
+        preexec(scheduling)()
     os.environ.clear()
     os.environ.update(env)
     module = importlib.import_module(MODULES[name])
