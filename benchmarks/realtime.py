@@ -1,6 +1,8 @@
 """Realtime benchmark: missed deadlines of ``mode: realtime`` runs without and with
 pkm-run's realtime profile (``--rt-profile``: SCHED_FIFO and locked memory for the
-loop's nodes, pkm_bringup/rt_profile.py).
+loop's nodes, pkm_bringup/rt_profile.py; with it the loop's nodes also run composed in
+one process by default, ``loop_process: composed``, pkm_bringup/composed_loop.py, and
+without it each in its own).
 
 The scenario (archi_demo by default: ARCHI test motion, Gough in the loop, sensor
 space + inf-norm, recorded) runs as processes in real time: sim_hw steps on a wall
