@@ -210,7 +210,9 @@ def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Schedulin
     os.environ.update(env)
     module = importlib.import_module(MODULES[name])
     sys.argv = [module.__file__, *argv]
-    module.main()
+    code = module.main()                    # a node's main exits itself (runner.main_exit); a usage error returns
+    if code:
+        sys.exit(code)
 
 
 @dataclass
