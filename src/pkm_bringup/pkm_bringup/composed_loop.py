@@ -54,7 +54,8 @@ def _factory(name: str, cls, params_file: Path, **changed):
     return build
 
 
-def main(argv=None) -> int:
+def main(argv=None) -> int | None:
+    """Exits with the nodes' code (runner.main_exit); returns 2 on a usage error."""
     argv = list(sys.argv[1:] if argv is None else argv)
     split = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     (params_dir, *names), ros_args = argv[:split] or [""], argv[split:]
@@ -75,7 +76,6 @@ def main(argv=None) -> int:
         return bool(finished) and time.monotonic() > finished[0] + END_GRACE_S
     main_exit(run_nodes(factories, args=["composed_loop", *ros_args], executor="events", name="loop", done=done,
                         spin_period_s=0.02))
-    return 0
 
 
 if __name__ == "__main__":

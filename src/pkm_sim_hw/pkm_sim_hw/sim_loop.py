@@ -230,10 +230,9 @@ class SimLoop:
         """The recorder's batch, the markers and the diagnostics when due: in lockstep
         right after a step's publication (the plant then waits for its answer), in real
         time once the answer to it is in (before the next step is made, its tick not yet
-        due). In
-        a composed loop (one thread: pkm_bringup.composed_loop) the work right after the
-        publication sat between the state and the controller, on the deadline's path.
-        Their timers do it when no cycle runs (Cadence.on_timer)."""
+        due). In a composed loop (one thread: pkm_bringup.composed_loop) the work right
+        after the publication sat between the state and the controller, on the
+        deadline's path. Their timers do it when no cycle runs (Cadence.on_timer)."""
         self.ports.after_cycle()
         for cadence, work in self.cadences:
             if cadence.in_cycle():
