@@ -20,6 +20,9 @@ STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), 
 # rule or by explicit Euler: name -> integration order (0: solved)
 FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
 SENSOR_JACOBIAN_POSES = ("estimated", "desired")
+# the farthest a trajectory may start from the reference and still be approached
+# (tracking.Approach): a correction of the machine's own position, not a move
+MAX_APPROACH_M, MAX_APPROACH_RAD = 0.1, 0.5
 # what an operator may change in a running controller (ControllerCore.change_settings)
 RUNTIME_SETTINGS = ("strategy", "distribution", "p_norm", "prestress_n", "bandwidth_hz", "damping_ratio",
                     "integral_time_s")
@@ -48,6 +51,10 @@ class ControllerConfig:
     workspace_margin_rad: float = 0.02    # ... and a spatial machine's a, b, c their ranges by this much
     start_tolerance_m: float = 0.005      # a trajectory must start this close to the current reference
     start_tolerance_rad: float = 0.04     # (each below its following-error bound: the reference jumps by it)
+    start_approach_m: float = 0.0         # farther, but within this: a move to the trajectory's start first (0: off)
+    start_approach_rad: float = 0.0       # ... and within this rotation (3-DOF machines; tracking.Approach)
+    approach_speed_m_s: float = 0.02      # the approach move's peak speed
+    approach_speed_rad_s: float = 0.1     # ... and peak rotation rate
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
     drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
     actuation_delay_cycles: int = 0       # the drives apply a command this many cycles after the next state
@@ -94,6 +101,14 @@ class ControllerConfig:
              f"in [0, {self.following_error_m:g}) m (below following_error_m)"),
             ("start_tolerance_rad", 0.0 <= self.start_tolerance_rad < self.following_error_rad,
              f"in [0, {self.following_error_rad:g}) rad (below following_error_rad)"),
+            ("start_approach_m", self.start_approach_m == 0.0
+             or self.start_tolerance_m <= self.start_approach_m <= MAX_APPROACH_M,
+             f"0 (off), or in [{self.start_tolerance_m:g}, {MAX_APPROACH_M:g}] m (from start_tolerance_m)"),
+            ("start_approach_rad", self.start_approach_rad == 0.0
+             or self.start_tolerance_rad <= self.start_approach_rad <= MAX_APPROACH_RAD,
+             f"0 (off), or in [{self.start_tolerance_rad:g}, {MAX_APPROACH_RAD:g}] rad (from start_tolerance_rad)"),
+            ("approach_speed_m_s", 0.0 < self.approach_speed_m_s <= 1.0, "in (0, 1] m/s"),
+            ("approach_speed_rad_s", 0.0 < self.approach_speed_rad_s <= 2.0, "in (0, 2] rad/s"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
             ("actuation_delay_cycles", 0 <= self.actuation_delay_cycles <= 8, "in [0, 8]"),

@@ -99,6 +99,9 @@ def run_summary(core: ControllerCore, compute_s, response_s, answers: int) -> di
     """The node's summary at exit: the status values, whether it stopped, the compute
     and response time percentiles (us), and the answers published per topic."""
     _, message, values = core.status()
-    return {"message": message, **values, "stopped": core.stopped, **percentiles_us("compute", compute_s),
-            **percentiles_us("response", response_s),
-            "published": dict.fromkeys(("drives/command", "controller/reference"), answers)}
+    out = {"message": message, **values, "stopped": core.stopped, **percentiles_us("compute", compute_s),
+           **percentiles_us("response", response_s),
+           "published": dict.fromkeys(("drives/command", "controller/reference"), answers)}
+    if core.tracker.last_approach is not None:       # the last trajectory that started with an approach move
+        out["start_approach"] = core.tracker.last_approach
+    return out

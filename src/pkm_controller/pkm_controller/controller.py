@@ -61,7 +61,7 @@ from .reference import Reference
 from .status import controller_status
 from .strategies import Feedback, strategy
 from .supervisor import Supervisor
-from .tracking import ReferenceTracker
+from .tracking import Approach, ReferenceTracker
 from .tuning import MachineTuning, holding_integral, zero_integral
 
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
@@ -134,15 +134,19 @@ class ControllerCore:
 
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
-        self.tracker = ReferenceTracker(self.space, self.config.start_tolerance_m, self.config.start_tolerance_rad,
-                                        self.kernels.twists)
+        c = self.config
+        approach = None
+        if c.start_approach_m > 0.0 or c.start_approach_rad > 0.0:
+            approach = Approach(c.start_approach_m, c.start_approach_rad, c.approach_speed_m_s,
+                                c.approach_speed_rad_s, c.dt_s)
+        self.tracker = ReferenceTracker(self.space, c.start_tolerance_m, c.start_tolerance_rad, self.kernels.twists,
+                                        approach)
         self.estimator.reset()
         self.last_stamp_ns: int | None = None   # the stamp of the last state (the answers' key)
         self.last_time_s: float | None = None   # the same in seconds (the reference's time)
         self._cycle: Cycle | None = None        # prepared, waiting for complete()
         self.supervisor.reset()
         self.integral = zero_integral(self.strategy.law, self.n, self.dof)
-        c = self.config
         self.encoder_checks = EncoderChecks(self.model, self.names, c, self.strategy.uses_metrology)
         self.last_command = [0.0] * self.n
         # the last answers by the stamp (ns) of their state: a realtime plant may apply
@@ -183,15 +187,16 @@ class ControllerCore:
         """The trajectory's time under the feed override (feed.FeedClock)."""
         return self.tracker.feed
 
-    def set_trajectory(self, reference: Reference, now_s: float | None = None) -> None:
+    def set_trajectory(self, reference: Reference, now_s: float | None = None) -> dict | None:
         """Start ``reference`` at ``now_s`` (the time of the next state; None: at the next
         cycle). Refused (ValueError, nothing moves) when stopped, while another
-        trajectory runs, or when it does not start at the current reference."""
+        trajectory runs, or when it does not start at the current reference; returns
+        the approach move it starts with (tracking.ReferenceTracker.starting), if any."""
         if self.stopped:
             raise ValueError(f"trajectory refused: the controller is stopped ({self.stop_reason})")
         if self.mode == "tracking":
             raise ValueError("trajectory refused: another trajectory is running")
-        self.tracker.set_trajectory(reference, self.last_time_s if now_s is None else now_s)
+        return self.tracker.set_trajectory(reference, self.last_time_s if now_s is None else now_s)
 
     # ----------------------------------------------------------------- safety
     def trip(self, reason: str, cause: TripCause) -> list:

@@ -53,7 +53,9 @@ def apply_action(core, action: Action, payload, after_ns=LAST_CYCLE) -> dict:
             event.update(duration_s=payload.duration_s, points=len(payload.time_s))
             if getattr(payload, "stamp_ns", None) is not None:     # the message's header stamp: its name
                 event["stamp_ns"] = payload.stamp_ns
-            core.set_trajectory(payload, now)
+            approach = core.set_trajectory(payload, now)
+            if approach is not None:
+                event["approach"] = approach
         elif action == Action.ESTOP:
             core.trip("estop", TripCause.ESTOP)
         elif action == Action.SAFE_STOP:
@@ -90,7 +92,10 @@ def event_summary(event: dict) -> str:
     if not event["ok"]:
         return f"{event['kind']} refused: {event['message']}"
     if event["kind"] == Action.TRAJECTORY.value:
-        return f"trajectory accepted: {event['duration_s']:.3f} s, {event['points']} points"
+        approach = event.get("approach")
+        after = "" if approach is None else (f", after an approach of {approach['distance_m'] * 1e3:.3f} mm / "
+                                             f"{approach['angle_rad']:.4f} rad in {approach['duration_s']:.3f} s")
+        return f"trajectory accepted: {event['duration_s']:.3f} s, {event['points']} points{after}"
     return f"{event['kind']} applied: " + ", ".join(
         f"{k}={v}" for k, v in event.items() if k not in ("kind", "ok", "message"))
 

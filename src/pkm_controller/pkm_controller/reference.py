@@ -12,6 +12,7 @@ a bisection plus a few float operations (~2 us).
 from __future__ import annotations
 
 import bisect
+import math
 
 import numpy as np
 
@@ -136,6 +137,47 @@ def check_consistent(reference: Reference) -> None:
             raise FieldError("trajectory", f"point {k + 1} (t = {t[k + 1]:.4f} s), task axis {i}: its {name} "
                                            f"changes by {step[k, i]:.6g} where its {rates_name} give "
                                            f"{given:.6g}: not a motion")
+
+
+def minimum_jerk(tau: float) -> tuple[float, float, float]:
+    """(s, ds/dtau, d2s/dtau2) of the rest-to-rest quintic s = 10 tau^3 - 15 tau^4 +
+    6 tau^5 on tau in [0, 1] (Flash and Hogan's minimum-jerk move): zero velocity and
+    acceleration at both ends; peak ds/dtau 1.875 at tau = 1/2."""
+    t2 = tau * tau
+    return (t2 * tau * (10.0 + tau * (-15.0 + 6.0 * tau)), 30.0 * t2 * (1.0 - tau) ** 2,
+            60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau))
+
+
+PEAK_RATE = 1.875               # max ds/dtau of minimum_jerk
+
+
+def with_approach(reference: Reference, offset, duration_s: float, dt_s: float) -> Reference:
+    """``reference`` preceded by a minimum-jerk move from ``reference.start - offset`` to
+    its start (``offset``: the start minus where the machine is, angles wrapped, as
+    laws.task_pose_error gives it) taking ``duration_s`` rounded up to whole cycles of
+    ``dt_s``, sampled every cycle; the trajectory's times shifted by it. Each approach
+    sample is anchored at the start (start - (1 - s) offset), so that its last one is
+    the start exactly and an angle's 2 pi wrap is the trajectory's own."""
+    n = max(1, math.ceil(duration_s / dt_s - 1e-9))
+    total = n * dt_s
+    start = reference.start
+    times, xs, vs, accs = [], [], [], []
+    for k in range(n):
+        s, ds, dds = minimum_jerk(k / n)
+        times.append(k * dt_s)
+        xs.append([p - (1.0 - s) * e for p, e in zip(start, offset)])
+        vs.append([e * ds / total for e in offset])
+        accs.append([e * dds / (total * total) for e in offset])
+    times.append(total)                                  # the start itself, once
+    xs.append(list(start))
+    vs.append(list(reference.velocity[0]))
+    accs.append(list(reference.acceleration[0]))
+    first = 1 if reference.time_s[0] == 0.0 else 0
+    times.extend(total + t for t in reference.time_s[first:])
+    out = Reference(times, xs + reference.position[first:], vs + reference.velocity[first:],
+                    accs + reference.acceleration[first:])
+    out.stamp_ns = reference.stamp_ns
+    return out
 
 
 def unwrap_angles(angles) -> list:

@@ -7,11 +7,35 @@ reference is.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from pkm_kinematics.errors import FieldError
+from pkm_kinematics.task_space import SPATIAL
+
 from .feed import FeedClock, scaled_reference
 from .laws import error_norms, task_pose_error
-from .reference import Reference
+from .reference import PEAK_RATE, Reference, with_approach
 
-__all__ = ["ReferenceTracker"]
+__all__ = ["Approach", "ReferenceTracker"]
+
+
+@dataclass(frozen=True)
+class Approach:
+    """A trajectory that starts beyond the start tolerances but within ``max_m`` and
+    ``max_rad`` of the reference is taken after a minimum-jerk move to its start
+    (reference.with_approach) at peak speeds ``speed_m_s`` and ``speed_rad_s``, sampled
+    every ``dt_s``: as a CNC's program starts from wherever the machine is. A machine
+    homed on its drives with a model error believes itself millimetres from the
+    configured home where the program was planned from (ControllerConfig.start_approach_m)."""
+
+    max_m: float
+    max_rad: float
+    speed_m_s: float
+    speed_rad_s: float
+    dt_s: float
+
+    def duration_s(self, distance_m: float, angle_rad: float) -> float:
+        return PEAK_RATE * max(distance_m / self.speed_m_s, angle_rad / self.speed_rad_s)
 
 
 class ReferenceTracker:
@@ -20,9 +44,14 @@ class ReferenceTracker:
     ``twists(x, v, a)``: the rates as the laws take them (commands.SixAxis.twists), None
     when they are the coordinates' own."""
 
-    def __init__(self, space, start_tolerance_m: float, start_tolerance_rad: float, twists=None):
-        self.space, self.twists = space, twists
+    def __init__(self, space, start_tolerance_m: float, start_tolerance_rad: float, twists=None,
+                 approach: Approach | None = None):
+        if approach is not None and space is SPATIAL:
+            raise FieldError("start_approach_m", "approach moves are for the 3-DOF machines (planar, "
+                                                 "translational): 0 on a 6-DOF machine")
+        self.space, self.twists, self.approach = space, twists, approach
         self.start_tolerance_m, self.start_tolerance_rad = start_tolerance_m, start_tolerance_rad
+        self.last_approach: dict | None = None   # the last approach move: distance_m, angle_rad, duration_s
         self.reference: Reference | None = None  # None before the first cycle
         self.feed = FeedClock()
         self.pending: Reference | None = None    # given before the first cycle: started by hold()
@@ -33,29 +62,47 @@ class ReferenceTracker:
             return "holding"
         return "tracking" if now_s is not None and self.feed.peek(now_s) < self.reference.duration_s else "holding"
 
-    def set_trajectory(self, reference: Reference, now_s: float | None) -> None:
+    def set_trajectory(self, reference: Reference, now_s: float | None) -> dict | None:
         """Start ``reference`` at ``now_s``; before the first cycle it waits for hold().
         Refused (ValueError, nothing changes) when it does not start at the current
-        reference. The caller refuses it while stopped or tracking."""
+        reference (within the approach's bounds: taken after a move to its start,
+        returned as {distance_m, angle_rad, duration_s}). The caller refuses it while
+        stopped or tracking."""
         if self.reference is None:               # no state yet: checked at the first cycle
             self.pending = reference
-            return
+            return None
         current, _, _ = self.reference.sample(self.feed.peek(now_s))
-        self.check_start(reference, current)
+        reference, approach = self.starting(reference, current)
         self.reference = reference
         self.feed.restart(now_s)
+        if approach is not None:
+            self.last_approach = approach
+        return approach
 
-    def check_start(self, reference: Reference, current) -> None:
+    def starting(self, reference: Reference, current) -> tuple[Reference, dict | None]:
+        """(the reference to run, None) when ``reference`` starts within the start
+        tolerances of ``current``; (it preceded by an approach move, the approach) within
+        the approach's bounds; else ValueError naming the distance and the bounds."""
         dof = self.space.dof
         if len(reference.start) != dof:
             raise ValueError(f"trajectory refused: {len(reference.start)} task coordinates, this machine has "
                              f"{dof} ({self.space.describe()})")
-        dist, angle = error_norms(task_pose_error(reference.start, current, self.space), self.space)
-        if dist > self.start_tolerance_m or angle > self.start_tolerance_rad:
-            raise ValueError(f"trajectory refused: it starts at {[round(v, 6) for v in reference.start]}, "
-                             f"{dist * 1e3:.3f} mm / {angle:.4f} rad from the "
-                             f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
-                             f"{self.start_tolerance_m:g}, start_tolerance_rad {self.start_tolerance_rad:g})")
+        offset = task_pose_error(reference.start, current, self.space)
+        dist, angle = error_norms(offset, self.space)
+        if dist <= self.start_tolerance_m and angle <= self.start_tolerance_rad:
+            return reference, None
+        a = self.approach
+        if a is not None and dist <= max(a.max_m, self.start_tolerance_m) and \
+                angle <= max(a.max_rad, self.start_tolerance_rad):
+            duration = a.duration_s(dist, angle)
+            approached = with_approach(reference, offset, duration, a.dt_s)
+            return approached, {"distance_m": dist, "angle_rad": angle,
+                                "duration_s": round(approached.duration_s - reference.duration_s, 9)}
+        bounds = "" if a is None else f", start_approach_m {a.max_m:g}, start_approach_rad {a.max_rad:g}"
+        raise ValueError(f"trajectory refused: it starts at {[round(v, 6) for v in reference.start]}, "
+                         f"{dist * 1e3:.3f} mm / {angle:.4f} rad from the "
+                         f"current reference {[round(v, 6) for v in current]} (start_tolerance_m "
+                         f"{self.start_tolerance_m:g}, start_tolerance_rad {self.start_tolerance_rad:g}{bounds})")
 
     def hold(self, pose, now_s: float) -> str | None:
         """The first cycle: hold at ``pose`` from ``now_s``, then start a trajectory
