@@ -374,3 +374,29 @@ def test_a_recorded_run_of_a_study_that_keeps_no_runs_leaves_its_metrics_and_no_
         row = execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / str(keep)), True, "", keep))
         assert row["run.status"] == "completed" and row["report.tracking_error.max_m"] > 0.0, row.get("run.error")
         assert (tmp_path / str(keep) / "bag").is_dir() == keep
+
+
+def test_a_study_resumes_from_its_table_alone(tmp_path):
+    """A long study carried over clean checkouts keeps only results.parquet: its rows
+    come back as they were written (floats to the bit, lists, a row's missing cells
+    still missing) and count as done."""
+    from pkm_studies.study_engine import restore_rows
+    from pkm_studies.study_tables import write_outputs
+    study = load_study(_study(tmp_path, grid={"controller.strategy": ["joint_pid", "computed_torque"]},
+                              metrics=["m"]), check=False)
+    runs = study.runs()
+    out = tmp_path / "out"
+    (out / "results").mkdir(parents=True)
+    rows = {runs[0].key: {"key": runs[0].key, "index": 0, "run.status": "completed", "m": 0.1 + 0.2,
+                          "plant.link_length_errors": [1e-3 / 3, -2.5e-3], "controller.strategy": "joint_pid"},
+            runs[1].key: {"key": runs[1].key, "index": 1, "run.status": "failed", "run.error": "boom",
+                          "controller.strategy": "computed_torque"}}
+    for key, row in rows.items():
+        (out / "results" / f"{key}.json").write_text(json.dumps(row), encoding="utf-8")
+    write_outputs(study, out, runs)
+    for p in (out / "results").glob("*.json"):
+        p.unlink()
+    assert restore_rows(out, {r.key for r in runs}) == 2
+    again = {p.stem: json.loads(p.read_text(encoding="utf-8")) for p in (out / "results").glob("*.json")}
+    assert again == rows
+    assert restore_rows(out, {r.key for r in runs}) == 0            # present rows are left alone

@@ -17,7 +17,8 @@ or with ``keep_runs: false`` once its metrics are read, unless it failed).
 
 Nothing lost, nothing twice: the client writes each run's row to
 ``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
-only the runs without one. A run's key holds a hash of what it runs, so an edited
+only the runs without one (rows in ``results.parquet`` that ``results/`` lacks are
+written back first: a checkout that keeps only the table resumes from it). A run's key holds a hash of what it runs, so an edited
 study or base scenario never reuses an old row for a changed run. A run that fails
 (an error, a refused scenario) is a row with ``run.status: failed`` and its error; a
 run whose worker dies is given by Dask to another worker, and after Dask's
@@ -48,7 +49,7 @@ from pkm_studies.dask_runner import (SchedulerUnreachable, StudyBusy, completed_
 from pkm_studies.design_study import format_front, run_design
 from pkm_studies.run_task import RunTask, execute_run
 from pkm_studies.study import Study, StudyError, describe, failed_metrics, load_study, result_row
-from pkm_studies.study_tables import format_summary, write_outputs
+from pkm_studies.study_tables import format_summary, rows_from_table, write_outputs
 
 
 def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler: str | None = None,
@@ -59,6 +60,7 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     (out_dir / "results").mkdir(exist_ok=True)
     shutil.copyfile(study.source, out_dir / "study.yaml")
     runs = study.runs()
+    restore_rows(out_dir, {r.key for r in runs})
     done = done_keys(out_dir)
     pending = [r for r in runs if r.key not in done]
     outcome = {"runs": len(runs), "done_before": len(runs) - len(pending), "ran": 0, "failed": 0,
@@ -91,6 +93,18 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
     outcome["failed_total"] = int((outcome["table"]["run.status"] == "failed").sum()) \
         if "run.status" in outcome["table"] else 0
     return outcome
+
+
+def restore_rows(out_dir: Path, keys: set) -> int:
+    """Rows of the study's runs that its table has and ``results/`` has not, written back
+    (a study resumed from a checkout that keeps only results.parquet); how many."""
+    restored = 0
+    for key, row in rows_from_table(out_dir).items():
+        path = out_dir / "results" / f"{key}.json"
+        if key in keys and not path.exists():
+            write_json_atomic(path, row)
+            restored += 1
+    return restored
 
 
 def _metrics_of(future) -> tuple[dict | None, str]:

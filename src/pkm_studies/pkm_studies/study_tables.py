@@ -59,6 +59,31 @@ def _text(value) -> str:
     return str(value)
 
 
+def _plain(value):
+    """A table cell as the row had it: numpy scalars and arrays as Python numbers and lists."""
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def rows_from_table(out_dir: Path) -> dict[str, dict]:
+    """{key: row} of ``<out>/results.parquet`` (none without one): the rows as they were
+    written (a cell left empty by its row, NaN in the table, left out again), floats to
+    the bit. The table is what a study keeps of its rows where its ``results/`` is not
+    kept (a long study carried on over several machines or clean checkouts)."""
+    path = out_dir / "results.parquet"
+    if not path.exists():
+        return {}
+    rows = {}
+    for record in pd.read_parquet(path, engine="pyarrow").to_dict("records"):
+        row = {k: _plain(v) for k, v in record.items()
+               if not (isinstance(v, float) and math.isnan(v)) and v is not None}
+        rows[str(row["key"])] = row
+    return rows
+
+
 TAIL_PERCENTILES = (95, 99)
 
 
