@@ -316,3 +316,32 @@ def test_the_imperfect_delta_turns_its_tool_and_its_drives_read_the_bars():
         PlantParameters(parallelogram_bar_errors_m=BARS).validate(3, ARCHI.model.task_space)
     with pytest.raises(TypeError, match="space"):
         PlantParameters(parallelogram_bar_errors_m=BARS).validate(3, "translational")
+
+
+@pytest.mark.parametrize("name", ["archi", "mom3", "orthoglide"])
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_the_compiled_step_is_the_python_step_to_the_bit(name, substeps):
+    """Plant.step integrates a machine on rails in one compiled call
+    (DynamicModel.semi_implicit_step); the Python path (_integrate, kept for rk4 and
+    locked drives) is its reference: the same state and outputs at every step, under
+    random forces about the holding forces, and the same stop where the machine is
+    driven out of its workspace."""
+    machine = load_machine(name)
+    params = dict(substeps=substeps, link_length_errors=(0.01,) + (0.0,) * (machine.model.n_legs - 1),
+                  force_limit_n=1e5)
+    compiled, python = Plant(machine, PlantParameters(**params)), Plant(machine, PlantParameters(**params))
+    python._compiled_step = False
+    assert compiled._compiled_step
+    rng = np.random.default_rng(3)
+    hold = min_two_norm(compiled.machine.jacobian(compiled.x), compiled.dynamics.static_forces(compiled.x))
+    for k in range(600):
+        forces = (hold + rng.normal(0.0, 20.0, machine.model.n_legs)).tolist()
+        a, b = compiled.step(forces), python.step(forces)
+        assert (a, compiled.x, compiled.v) == (b, python.x, python.v), k
+    push = [3000.0 * (1 - 2 * (i % 2)) for i in range(machine.model.n_legs)]
+    for k in range(3000):
+        a, b = compiled.step(push), python.step(push)
+        assert (a, compiled.x, compiled.stop_reason) == (b, python.x, python.stop_reason), k
+        if compiled.stopped:
+            break
+    assert compiled.stopped and compiled.stop_reason.startswith("left the workspace:"), compiled.stop_reason

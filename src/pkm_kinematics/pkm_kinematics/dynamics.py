@@ -30,11 +30,12 @@ from . import bars as B
 from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError, FieldError
 from .jit import kernel
-from .planar import solve3
+from .planar import solve3, solve3_kernel
 from .rigid_body import RigidBodyParameters, StrutDynamics
 from .task_space import PLANAR
 
 VT_LEAST_SQUARES_SINGULAR = 3          # measured_state: J_m^T J_m not invertible (after bars.VT_*)
+STEP_SINGULAR_MASS = 4                 # semi_implicit_step: A(x) not invertible
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,22 @@ class DynamicModel:
             r2 += j2 * f
         return solve3(a, (r0, r1, r2))
 
+    def semi_implicit_step(self, x, xdot, drive_forces, wrench, h: float, substeps: int) -> tuple:
+        """``substeps`` semi-implicit Euler steps of ``forward_dynamics`` (xdot += h xddot,
+        then x += h xdot) under constant forces and wrench, and the velocity terms at the
+        state reached, in one compiled call (:func:`semi_implicit_step_kernel`): the
+        simulated plant's step, the same floats as the step written in Python. Returns
+        (x, xdot, (q, J_m rows, q', J_m' x') as lists); raises like ``terms`` (naming the
+        pose where it failed) and LinAlgError where A(x) is singular."""
+        x0, x1, x2, v0, v1, v2, q, rows, qdot, jdv, code, leg = semi_implicit_step_kernel(
+            self.machine.bars, self.machine.twist_columns, x[0], x[1], x[2], xdot[0], xdot[1], xdot[2],
+            np.asarray(drive_forces, dtype=float), wrench[0], wrench[1], wrench[2], h, substeps, *self._mass_args)
+        if code == STEP_SINGULAR_MASS:
+            raise np.linalg.LinAlgError("singular 3x3 system")
+        if code != B.VT_OK:
+            self.machine.raise_velocity_terms_error(code, leg, [x0, x1, x2])
+        return [x0, x1, x2], [v0, v1, v2], (q.tolist(), rows.tolist(), qdot.tolist(), jdv.tolist())
+
     def inverse_dynamics(self, x, xdot, xddot, wrench=(0.0, 0.0, 0.0)) -> np.ndarray:
         """The platform wrench J^T f_d the drives must produce: A xddot + H - f_n."""
         a, h, _, _, _ = self.terms(x, xdot)
@@ -171,6 +188,41 @@ def _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
         h1 += j1 * c
         h2 += j2 * c
     return a00, a01, a02, a11, a12, a22, h0, h1, h2
+
+
+@kernel("(float64[:, :], int64[:], float64, float64, float64, float64, float64, float64, float64[:], float64, "
+        "float64, float64, float64, int64, float64[:], float64[:], float64[:], float64, float64, float64, float64, "
+        "float64, float64)")
+def semi_implicit_step_kernel(bars, columns, x0, x1, x2, v0, v1, v2, forces, w0, w1, w2, h, substeps,
+                              md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+    """DynamicModel.semi_implicit_step: per substep, the velocity terms at (x, v), A and
+    H (:func:`_mass_terms_kernel`), xddot = A^-1 (J^T f + w - H) (ARCHI §3.4, Cramer's
+    rule as planar.solve3), v += h xddot, x += h v; then the velocity terms at the state
+    reached. Returns (x, v, q, J_m, q', J_m' x', code, leg): code bars.VT_OK, a
+    velocity-terms code with x the pose where it failed, or STEP_SINGULAR_MASS."""
+    m = forces.shape[0]
+    q, rows, qd, jdv, no_rates = np.empty(m), np.empty((m, 3)), np.empty(m), np.empty(m), np.empty((0, 3))
+    for _ in range(substeps):
+        px, py, pz, r, t = B.task_pose_twist(columns, x0, x1, x2, v0, v1, v2)
+        code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
+        if code != B.VT_OK:
+            return x0, x1, x2, v0, v1, v2, q, rows, qd, jdv, code, leg
+        a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
+                                                                      pg0, pg1, pg2)
+        r0, r1, r2 = w0 - h0, w1 - h1, w2 - h2
+        for i in range(m):
+            f = forces[i]
+            r0 += rows[i, 0] * f
+            r1 += rows[i, 1] * f
+            r2 += rows[i, 2] * f
+        acc0, acc1, acc2, ok = solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
+        if not ok:
+            return x0, x1, x2, v0, v1, v2, q, rows, qd, jdv, STEP_SINGULAR_MASS, -1
+        v0, v1, v2 = v0 + h * acc0, v1 + h * acc1, v2 + h * acc2
+        x0, x1, x2 = x0 + h * v0, x1 + h * v1, x2 + h * v2
+    px, py, pz, r, t = B.task_pose_twist(columns, x0, x1, x2, v0, v1, v2)
+    code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
+    return x0, x1, x2, v0, v1, v2, q, rows, qd, jdv, code, leg
 
 
 @kernel("(float64[:, :], int64[:], float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "

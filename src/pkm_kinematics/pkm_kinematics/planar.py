@@ -55,9 +55,9 @@ NEWTON_RADIUS = 1e-2
 
 def solve3(a, b):
     """Solve a 3x3 system by Cramer's rule on Python floats (10x faster than LAPACK
-    here): :func:`_solve3_kernel` interpreted, for Python callers."""
+    here): :func:`solve3_kernel` interpreted, for Python callers."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    x0, x1, x2, ok = _solve3_kernel.py_func(a00, a01, a02, a10, a11, a12, a20, a21, a22, b[0], b[1], b[2])
+    x0, x1, x2, ok = solve3_kernel.py_func(a00, a01, a02, a10, a11, a12, a20, a21, a22, b[0], b[1], b[2])
     if not ok:
         raise np.linalg.LinAlgError("singular 3x3 system")
     return x0, x1, x2
@@ -84,7 +84,7 @@ FK_REASONS = {PlanarFKCode.SINGULAR: "singular configuration: Jacobian rank < 3"
 
 
 @kernel()
-def _solve3_kernel(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):
+def solve3_kernel(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):
     """:func:`solve3` for the kernels: (x0, x1, x2, solvable)."""
     c00 = a11 * a22 - a12 * a21
     c01 = a12 * a20 - a10 * a22
@@ -186,11 +186,11 @@ def _forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, tol,
                 h11 += w * gx * gx
                 h12 += w * gx * nt
                 h22 += w * (nt * nt - (ex * rbx + ey * rby))
-        dx, dy, dth, ok = _solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
+        dx, dy, dth, ok = solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
         if not ok:
             return 0.0, 0.0, 0.0, FK_SINGULAR, iteration, math.inf, 0, 0, 0.0
         if use_hessian:
-            nx_, ny_, nt_, ok = _solve3_kernel(a00 + h00, a01 + h01, a02 + h02, a01 + h01, a11 + h11, a12 + h12,
+            nx_, ny_, nt_, ok = solve3_kernel(a00 + h00, a01 + h01, a02 + h02, a01 + h01, a11 + h11, a12 + h12,
                                                a02 + h02, a12 + h12, a22 + h22, r0, r1, r2)
             if ok and nx_ * r0 + ny_ * r1 + nt_ * r2 > 0.0:     # a descent direction
                 dx, dy, dth = nx_, ny_, nt_

@@ -47,6 +47,7 @@ from pkm_kinematics.distribution import internal_force_rows
 from pkm_kinematics.errors import FieldError, KinematicsError
 from pkm_kinematics.dynamics import DynamicModel
 from pkm_kinematics.parallelogram import ParallelogramMachine
+from pkm_kinematics.rails import RailMachine
 from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
 from pkm_kinematics.validation import finite_floats
 
@@ -199,6 +200,10 @@ class Plant:
         self.names = list(config.model.leg_names)
         self.machine = true_machine(config.model, self.params.link_length_errors, self.params.rail_offset_errors_m)
         self.dynamics = DynamicModel(self.machine, config.dynamics)
+        # a machine on rails integrated semi-implicitly, no drive locked: the whole
+        # integration and the outputs' velocity terms in one compiled call, the same
+        # floats as _integrate (tests/sim_hw); rk4 and locked drives take the Python path
+        self._compiled_step = self.params.integrator == "semi_implicit" and isinstance(self.machine, RailMachine)
         home = config.model.home
         self.x = finite_floats(home if initial_pose is None else initial_pose, 3, "initial_pose")
         self.machine.inverse_kinematics(self.x)          # reachable with the true geometry
@@ -320,11 +325,15 @@ class Plant:
         if not (self.stopped or hold):
             saved = (self.x, self.v)
             try:
-                for _ in range(self.params.substeps):
-                    reaction = self._integrate(applied, h)
-                    if self._locked:
-                        self._hold_locked_drives()
-                terms = self.machine.velocity_terms(self.x, self.v)
+                if self._compiled_step and not self._locked:
+                    self.x, self.v, terms = self.dynamics.semi_implicit_step(self.x, self.v, applied, self.load, h,
+                                                                             self.params.substeps)
+                else:
+                    for _ in range(self.params.substeps):
+                        reaction = self._integrate(applied, h)
+                        if self._locked:
+                            self._hold_locked_drives()
+                    terms = self.machine.velocity_terms(self.x, self.v)
                 for i, (qi, lo, hi) in enumerate(zip(terms[0], self._lower, self._upper)):
                     if not lo <= qi <= hi:
                         raise KinematicsError(f"drive {self.names[i]} reached its end stop ({qi:.6g} m)")
