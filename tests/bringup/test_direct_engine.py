@@ -74,3 +74,34 @@ def test_a_refused_scenario_starts_nothing(tmp_path):
         assert "mode realtime" in refusal(SCENARIOS[name]), name
     named = load_scenario("mom3_square", {"operators": ["/pkm/my_script"]})
     assert "operators ['/pkm/my_script']" in refusal(named) and "run it as a graph" in refusal(named)
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("archi_demo", {"duration_s": 1.5}),
+    # three brakes: the plant holds, the controller trips; the record goes on
+    ("mom3_square", {"duration_s": 1.0, "plant": {"faults": "0:locked:0.3,1:locked:0.3,2:locked:0.3"}}),
+])
+def test_a_run_kept_in_memory_has_the_metrics_of_its_bag(name, overrides, tmp_path):
+    """A study's run whose bag would be removed once read keeps its messages in memory
+    (pkm_recording.memory) and takes its metrics from them: the metrics read from the
+    bag of the same run, every one, and the same record of what was published and
+    recorded; no bag written."""
+    from pkm_recording.memory import MemoryRecording
+    from pkm_runs.report import analyse_bag
+    from pkm_runs.report_metrics import metrics_dict
+    s = load_scenario(name, {**overrides, "record": True})
+    bagged = run_scenario(s, tmp_path / "bag", engine="direct", progress=False, report=False)
+    recording = MemoryRecording()
+    kept = run_scenario(s, tmp_path / "memory", engine="direct", progress=False, report=False, recording=recording)
+    assert not (tmp_path / "memory" / "bag").exists() and len(recording) > 0
+    want = metrics_dict(analyse_bag(tmp_path / "bag", namespace=bagged["namespace"], machine_name=bagged["machine"]),
+                        bagged["published"])
+    got = kept["metrics"]
+    assert (got.pop("bag"), want.pop("bag")) == ("memory", str(tmp_path / "bag" / "bag"))
+    timing, want_timing = got.pop("timing"), want.pop("timing")      # two runs: their wall clocks differ
+    assert sorted(timing) == sorted(want_timing) and timing["sim_s"] == want_timing["sim_s"]
+    assert got == want
+    assert (kept["recorded"], kept["lost"], kept["status"], kept["cause"]) == \
+        (bagged["recorded"], bagged["lost"], bagged["status"], bagged["cause"])
+    with pytest.raises(ValueError, match="recording: in memory only for a recorded run"):
+        run_scenario(s, tmp_path / "graph", progress=False, recording=MemoryRecording())

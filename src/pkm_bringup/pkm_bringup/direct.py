@@ -15,7 +15,10 @@ subscriptions), the wall-clock watchdogs (nothing can stall between two loops th
 call each other), the periodic diagnostics and markers (wall-clock timers), the
 nodes' logs (one file, logs/direct.log). The run directory is the same: params,
 summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
-pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it.
+pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it; or,
+for a study's run whose bag would be removed once read, no bag: the messages kept in
+memory (pkm_recording.memory) and the metrics taken from them (run_scenario's
+``recording``).
 
 Refused, with the reason: realtime scenarios (the plant steps on a clock), hardware
 other than sim_hw (a drive interface's bus and its drives are processes of their
@@ -46,6 +49,7 @@ from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters, 
 from pkm_controller.node_loop import ControllerLoop
 from pkm_gough_sensor.sensor_loop import GoughSensorLoop, LaserLoop, declare_gough_sensor, declare_laser_tracker
 from pkm_recording.bag import BagWriter
+from pkm_recording.memory import MemoryRecording
 from pkm_recording.recording import qos_dict
 from pkm_recording.tap import StreamTap, split_batch
 from pkm_recording.tap_records import StampCounter
@@ -115,12 +119,46 @@ class Recorder:
                 "tapped": sorted(self.channels), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
 
 
+class MemoryRecorder:
+    """:class:`Recorder` for a run whose messages are kept in memory instead of a bag
+    (pkm_recording.memory.MemoryRecording: a study's run whose bag would be removed once
+    read): every message handed to the recording as published, the same summary."""
+
+    def __init__(self, recording: MemoryRecording):
+        self.recording = recording
+        self.tap = self                      # Topic.publish hands each message to tap.add_indexed
+
+    def index(self, name: str, relative: str) -> int:
+        return self.recording.add_topic(name, topics.CATALOGUE[relative].type)
+
+    def add_indexed(self, index: int, data: bytes, publish_time_ns: int) -> None:
+        self.recording.add(index, publish_time_ns, data)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> dict:
+        """recorder_node's summary: per topic the messages, and those with a new header
+        stamp (a repeat of the last one is not counted, as StampCounter)."""
+        last, stamps = {}, {}
+        for conn, _, raw in self.recording.messages():
+            head = raw[4:12]
+            if last.get(conn.topic) != head:
+                last[conn.topic] = head
+                stamps[conn.topic] = stamps.get(conn.topic, 0) + 1
+        names = [c.topic for c in self.recording.connections]
+        return {"recorded": {c.topic: c.msgcount for c in self.recording.connections},
+                "recorded_stamps": {name: stamps.get(name, 0) for name in names},
+                "tapped": sorted(names), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
+
+
 class Topic:
     """One topic between the loops: a publication is recorded and queued for each reader."""
 
     __slots__ = ("queue", "readers", "tap", "index", "clock")
 
-    def __init__(self, queue: collections.deque, recorder: Recorder | None, name: str, relative: str):
+    def __init__(self, queue: collections.deque, recorder: Recorder | MemoryRecorder | None, name: str,
+                 relative: str):
         self.queue, self.readers = queue, []
         self.tap = None if recorder is None else recorder.tap
         self.index = None if recorder is None else recorder.index(name, relative)
@@ -266,7 +304,7 @@ def controller_loop(params: dict, ports) -> ControllerLoop:
 class DirectRun:
     """A lockstep scenario's loops wired to each other (see the module doc)."""
 
-    def __init__(self, s: Scenario, run_dir: Path, params: dict):
+    def __init__(self, s: Scenario, run_dir: Path, params: dict, recording: MemoryRecording | None = None):
         self.s, self.run_dir, self.params = s, run_dir, params
         self.machine_node = s.machine_node
         self.names = {name: run_node_name(s, name) for name in (*params, "bringup_monitor")}
@@ -274,7 +312,9 @@ class DirectRun:
         self.topics: dict[str, Topic] = {}
         self.log = _Log(run_dir / "logs" / "direct.log")
         self.recorder = None
-        if s.record:
+        if s.record and recording is not None:
+            self.recorder = MemoryRecorder(recording)
+        elif s.record:
             recorder = params["recorder"]
             self.recorder = Recorder(recorder["output"], recorder.get("compression", "lz4"))
         self.steps_since_flush = 0
@@ -283,7 +323,7 @@ class DirectRun:
             self._wire(s, params)
         except BaseException:            # a refused configuration, an interrupt: nothing left open
             self.log.file.close()
-            if self.recorder is not None:
+            if isinstance(self.recorder, Recorder):
                 self.recorder.writer.close()
             raise
 
@@ -399,16 +439,17 @@ class DirectRun:
 
 
 def run_direct(s: Scenario, run_dir: Path, params: dict, progress, codes: dict, interruption=None,
-               reserve=None) -> dict:
+               reserve=None, recording: MemoryRecording | None = None) -> dict:
     """The scenario in the direct engine (the runners' signature, graph.run_processes);
-    fills and returns ``codes`` (0 per node that ran). Raises RunFailed."""
+    fills and returns ``codes`` (0 per node that ran). ``recording``: a recorded
+    scenario's messages go there instead of to a bag. Raises RunFailed."""
     why = refusal(s)
     if why:
         raise RunFailed(why)
     run = None
     try:
         try:
-            run = DirectRun(s, run_dir, params)
+            run = DirectRun(s, run_dir, params, recording)
         except ValueError as exc:                 # a refused configuration is the run's failure
             raise RunFailed(f"refused configuration: {exc}") from None
         run.run(progress, time.monotonic() + s.timeout_s)

@@ -64,7 +64,9 @@ from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_common.credential import KEY_FILE, RunKey
 from pkm_common.files import disk_full, write_json
 from pkm_recording.bag import recorded_stamps, recover
-from pkm_runs.report import summary, write_report
+from pkm_recording.memory import MAX_SECONDS
+from pkm_runs.report import analyse_recording, summary, write_report
+from pkm_runs.report_metrics import metrics_dict
 
 
 # pkm-run's exit code per run status (2: the scenario or the arguments were refused)
@@ -211,19 +213,27 @@ def _write_run(run_dir: Path, run: dict) -> None:
 
 
 def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress: bool = True,
-                 report: bool = True, credential: Path | None = None, engine: str = "graph") -> dict:
+                 report: bool = True, credential: Path | None = None, engine: str = "graph",
+                 recording=None) -> dict:
     """Run ``s`` into ``run_dir`` (created); returns run.json's content (status
     ``completed`` or ``failed`` with ``error``), with ``metrics`` when recorded.
     ``credential``: the key file the run's commands are signed with (a panel's, a
     script's: pkm_common.credential); by default a new one in the run directory.
     ``engine``: "graph" (the ROS 2 nodes, as processes or ``in_process``) or "direct"
     (the same loops without a transport, pkm_bringup.direct; a scenario it cannot run
-    fails with the reason, nothing started).
+    fails with the reason, nothing started). ``recording``: a
+    pkm_recording.memory.MemoryRecording for a recorded scenario in the direct engine of
+    at most memory.MAX_SECONDS: its messages are kept there instead of a bag, and the
+    metrics (``metrics``, no report files) are taken from them (a study's run whose
+    bag would be removed once read).
     Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
     when the scenario asks for the realtime profile and the OS does not allow it."""
     if engine not in ENGINES:
         raise ValueError(f"engine: must be one of {ENGINES}, got {engine!r}")
     direct = engine == "direct"
+    if recording is not None and not (direct and s.record and s.duration_s <= MAX_SECONDS):
+        raise ValueError(f"recording: in memory only for a recorded run of at most {MAX_SECONDS:g} s in the direct "
+                         f"engine (engine {engine}, record {s.record}, duration_s {s.duration_s:g})")
     if s.realtime_profile and not direct:
         check_permitted(in_process)
     mode = "direct" if direct else "in_process" if in_process else "processes"
@@ -271,7 +281,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
             run = run_processes
         with interruption, RunLock(s.namespace) if not direct else contextlib.nullcontext(), \
                 _in_process_profile(s, in_process and not direct):
-            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0])
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0],
+                *(() if recording is None else (recording,)))
     except RunFailed as exc:
         error, failure = str(exc), exc.cause
     except KeyboardInterrupt:
@@ -288,7 +299,14 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     if recovered:
         result["recovered"] = recovered
         _write_run(run_dir, result)
-    if report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
+    if recording is not None and len(recording):
+        try:
+            result["metrics"] = metrics_dict(analyse_recording(recording, namespace=result.get("namespace"),
+                                                               machine_name=result.get("machine")),
+                                             result.get("published"))
+        except ValueError as exc:                  # messages the analysis cannot read: said, no traceback
+            result["report_error"] = str(exc)
+    elif report and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         try:
             result["metrics"] = write_report(run_dir)
         except (ValueError, OSError) as exc:      # an unreadable bag (IncompleteBagError, ...): said, no traceback

@@ -36,9 +36,10 @@ from pkm_kinematics.task_space import PLANAR
 
 __all__ = ["Analysis", "BagReadError", "IncompleteBagError", "JointSeries", "MAX_PLOT_POINTS", "MinMaxDecimator",
            "NoBagError", "PoseSeries", "RunData", "RunInfo", "RunReader", "StatusRecord", "StepBlock", "analyse",
-           "analyse_bag", "find_bag", "internal_forces", "load_run", "main", "metrics", "null_space_part", "plot",
-           "read_run_json", "summary", "tracking_errors", "write_report", "COMMAND", "DEFAULT_NAMESPACE",
-           "DIAGNOSTICS", "ESTOP", "KNOWN_SUFFIXES", "LOAD", "METROLOGY_POSE", "NS_PER_S", "REFERENCE", "STATE",
+           "analyse_bag", "analyse_recording", "find_bag", "internal_forces", "load_run", "main", "metrics",
+           "null_space_part", "plot", "read_run_json", "summary", "tracking_errors", "write_report", "COMMAND",
+           "DEFAULT_NAMESPACE", "DIAGNOSTICS", "ESTOP", "KNOWN_SUFFIXES", "LOAD", "METROLOGY_POSE", "NS_PER_S",
+           "REFERENCE", "STATE",
            "STATUS", "STRUTS", "TRAJECTORY", "TRUE_POSE"]
 
 
@@ -46,7 +47,18 @@ __all__ = ["Analysis", "BagReadError", "IncompleteBagError", "JointSeries", "MAX
 def analyse_bag(run_dir_or_bag, namespace: str | None = None, machine_name: str | None = None,
                 plot_points: int = MAX_PLOT_POINTS) -> Analysis:
     """Stream a recorded run through :class:`RunAnalysis` (memory independent of its length)."""
-    with RunReader(run_dir_or_bag, namespace) as reader:
+    return _analyse(RunReader(run_dir_or_bag, namespace), machine_name, plot_points)
+
+
+def analyse_recording(recording, namespace: str | None = None, machine_name: str | None = None,
+                      plot_points: int = MAX_PLOT_POINTS) -> Analysis:
+    """:func:`analyse_bag` of a run's messages kept in memory instead of a bag
+    (pkm_recording.memory.MemoryRecording, a direct run's): the same analysis."""
+    return _analyse(RunReader("memory", namespace, source=recording), machine_name, plot_points)
+
+
+def _analyse(reader: RunReader, machine_name: str | None, plot_points: int) -> Analysis:
+    with reader:
         analysis = RunAnalysis(reader.info, machine_name, plot_points)
         for block in reader.blocks():
             analysis.add(block)

@@ -310,8 +310,11 @@ class RunReader:
     :class:`BagReadError` (rosbags cannot read it)."""
 
     def __init__(self, path, namespace: str | None = None, *, keep_records: bool = False,
-                 block_rows: int = BLOCK_ROWS, lookback_ns: int = LOOKBACK_NS):
-        self.bag = find_bag(path)
+                 block_rows: int = BLOCK_ROWS, lookback_ns: int = LOOKBACK_NS, source=None):
+        # ``source``: the messages from elsewhere than a bag, read as AnyReader reads one
+        # (pkm_recording.memory.MemoryRecording: a direct run's, kept in memory); ``path`` names it
+        self.source = source
+        self.bag = find_bag(path) if source is None else Path(path)
         self.namespace = namespace
         self.keep_records = keep_records
         self.block_rows, self.lookback_ns = int(block_rows), int(lookback_ns)
@@ -324,7 +327,7 @@ class RunReader:
 
     # -- opening
     def __enter__(self) -> RunReader:
-        self._opened = open_bag(self.bag)
+        self._opened = open_bag(self.bag) if self.source is None else contextlib.nullcontext(self.source)
         self._reader = self._opened.__enter__()
         connections = self._reader.connections
         topics = {c.topic: c.msgtype for c in connections}

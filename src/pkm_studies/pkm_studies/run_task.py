@@ -19,6 +19,7 @@ from pkm_bringup.direct import refusal
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import ScenarioError, load_scenario
 from pkm_common.domains import use_private_domain
+from pkm_recording.memory import MAX_SECONDS, MemoryRecording
 from pkm_runs.report import analyse_bag
 from pkm_runs.report_metrics import metrics_dict
 from pkm_studies.study import failed_metrics, run_metrics
@@ -73,9 +74,14 @@ def _quiet_nodes() -> None:
 def _execute(task: RunTask, s, engine: str) -> dict:
     run_dir = Path(task.run_dir)
     shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
-    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine)
-    report = None
-    if s.record and (run_dir / "bag" / "metadata.yaml").exists():
+    # a bag that would be removed once read: the messages kept in memory, the metrics from them
+    memory = engine == "direct" and s.record and not task.keep_run and s.duration_s <= MAX_SECONDS
+    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine,
+                       recording=MemoryRecording() if memory else None)
+    report = run.pop("metrics", None) if memory else None
+    if memory and report is None and run.get("report_error"):
+        run["error"] = run.get("error") or f"report: {run['report_error']}"
+    if not memory and s.record and (run_dir / "bag" / "metadata.yaml").exists():
         try:
             report = metrics_dict(analyse_bag(run_dir, namespace=run.get("namespace"),
                                               machine_name=run.get("machine")), run.get("published"))
