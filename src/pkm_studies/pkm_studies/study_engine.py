@@ -13,13 +13,16 @@ study says ``engine: graph``; as a graph in one process (``in_process: false``: 
 nodes as processes) in a DDS domain its process holds alone on its host
 (pkm_common.domains); one run at a time per worker process, into the run directory
 ``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded,
-or with ``keep_runs: false`` once its metrics are read, unless it failed).
+or with ``keep_runs: false`` once its metrics are read, unless it failed; such a
+run in the direct engine writes no bag: its messages are kept in memory and its
+metrics taken from them, the bag's exactly: pkm_recording.memory).
 
 Nothing lost, nothing twice: the client writes each run's row to
 ``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
 only the runs without one (rows in ``results.parquet`` that ``results/`` lacks are
-written back first: a checkout that keeps only the table resumes from it). A run's key holds a hash of what it runs, so an edited
-study or base scenario never reuses an old row for a changed run. A run that fails
+written back first: a checkout that keeps only the table resumes from it). A run's
+key holds a hash of what it runs, so an edited study or base scenario never reuses an
+old row for a changed run. A run that fails
 (an error, a refused scenario) is a row with ``run.status: failed`` and its error; a
 run whose worker dies is given by Dask to another worker, and after Dask's
 ``distributed.scheduler.allowed-failures`` deaths (3) it is recorded as failed, named
