@@ -400,3 +400,15 @@ def test_a_study_resumes_from_its_table_alone(tmp_path):
     again = {p.stem: json.loads(p.read_text(encoding="utf-8")) for p in (out / "results").glob("*.json")}
     assert again == rows
     assert restore_rows(out, {r.key for r in runs}) == 0            # present rows are left alone
+
+
+def test_a_study_runs_draw_by_draw_across_its_cells(tmp_path):
+    """Stopped early, a study has compared its groups on the same draws."""
+    from pkm_studies.study_engine import run_order
+    study = load_study(_study(tmp_path, grid={"controller.strategy": ["joint_pid", "computed_torque"]},
+                              sample={"runs": 3, "parameters": {"dt_s": {"distribution": "uniform", "low": 0.001,
+                                                                          "high": 0.002}}}), check=False)
+    runs = study.runs()
+    assert [(r.cell, r.draw) for r in runs] == [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2)]
+    order = run_order(runs, {runs[0].key})
+    assert [(r.cell, r.draw) for r in order] == [(1, 0), (0, 1), (1, 1), (0, 2), (1, 2)]
