@@ -412,3 +412,21 @@ def test_a_study_runs_draw_by_draw_across_its_cells(tmp_path):
     assert [(r.cell, r.draw) for r in runs] == [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2)]
     order = run_order(runs, {runs[0].key})
     assert [(r.cell, r.draw) for r in order] == [(1, 0), (0, 1), (1, 1), (0, 2), (1, 2)]
+
+
+def test_a_study_of_metrics_rows_keeps_the_status_and_its_metrics_only(tmp_path):
+    from pkm_studies.study_tables import write_outputs
+    study = load_study(_study(tmp_path, grid={"controller.strategy": ["joint_pid"]}, metrics=["m"], rows="metrics"),
+                       check=False)
+    run = study.runs()[0]
+    row = {"key": run.key, "index": 0, "cell": 0, "draw": 0, "controller.strategy": "joint_pid",
+           "run.status": "completed", "run.cause": "none", "run.wall_s": 1.0, "m": 2.0, "controller.cycles": 5}
+    assert study.row_columns(row) == ["key", "index", "cell", "draw", "controller.strategy", "run.status",
+                                      "run.cause", "m"]
+    out = tmp_path / "out"
+    (out / "results").mkdir(parents=True)
+    (out / "results" / f"{run.key}.json").write_text(json.dumps(row), encoding="utf-8")   # a row of before
+    table = write_outputs(study, out, [run])
+    assert list(table.columns) == study.row_columns(row)
+    with pytest.raises(StudyError, match="rows: must be one of all, metrics"):
+        load_study(_study(tmp_path, rows="some"), check=False)

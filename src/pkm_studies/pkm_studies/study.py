@@ -18,6 +18,8 @@ A study file (``config/studies/*.yaml``; ``pkm-study``, study_engine.py runs it)
         controller.bandwidth_hz: {distribution: uniform, low: 20, high: 40}
     group_by: [controller.strategy]   # the summary's groups (default: the grid's parameters)
     metrics: [report.tracking_error.max_m, report.internal_force.max_n]   # summarised and plotted
+    keep_runs: true                   # false: a recorded run's directory removed once its row is written
+    rows: all                         # metrics: a row keeps its status and the metrics above only
 
 A dotted path names a scenario key (``dt_s``, ``record``) or a parameter of one of its
 node sections (``controller.strategy``, ``plant.link_length_errors``: scenario.SECTIONS);
@@ -30,7 +32,9 @@ A run's row holds its varied parameters, its status and the metrics: ``run.*`` (
 cause, wall time), ``controller.*`` and ``sim_hw.*`` (the nodes' summaries: the
 controller's own measured error, peak force, saturation count, deadline misses ...) and,
 for a recorded run, ``report.*`` (the report's metrics: the true tracking error,
-internal force ...; report_metrics.metrics_dict), nested keys joined with dots.
+internal force ...; report_metrics.metrics_dict), nested keys joined with dots. With
+``rows: metrics`` it keeps its key, draw, varied parameters, ``run.status``, ``cause``,
+``trip_reason``, ``error`` and the study's ``metrics`` only (a Monte Carlo's table).
 """
 
 from __future__ import annotations
@@ -55,7 +59,7 @@ from pkm_kinematics.task_space import PLANAR
 from pkm_kinematics.yaml_files import read_yaml
 
 STUDY_KEYS = ("name", "description", "scenario", "set", "grid", "sample", "group_by", "metrics", "in_process",
-              "engine", "keep_runs", "design", "objectives")
+              "engine", "keep_runs", "rows", "design", "objectives")
 DESIGN_KEYS = ("machine", "kind", "points_per_axis", "theta_points", "chunk")
 SENSES = ("min", "max")
 SAMPLE_KEYS = ("method", "runs", "seed", "parameters")
@@ -64,6 +68,9 @@ DISTRIBUTIONS = {"normal": ("mean", "std"), "uniform": ("low", "high")}
 DEFAULT_METRICS = ("report.tracking_error.max_m", "report.internal_force.max_n", "report.drive_force.peak_applied_n",
                    "controller.max_tracking_error_m", "controller.peak_drive_force_n")
 MAX_RUNS = 1_000_000
+ROWS = ("all", "metrics")                     # what a row keeps (Study.rows)
+ROW_BASE = ("key", "index", "cell", "draw")
+ROW_STATUS = ("run.status", "run.cause", "run.trip_reason", "run.error")
 
 
 class StudyError(ValueError):
@@ -118,8 +125,18 @@ class Study:
     in_process: bool = True                  # the graph's nodes in one process (engine graph)
     engine: str = ""                         # direct | graph; "": direct where the run's scenario allows it
     keep_runs: bool = True                   # a recorded run's directory (its bag) kept after its metrics are read
+    rows: str = "all"                        # all: every metric of a run in its row; metrics: status and metrics only
     design: dict | None = None                # a design sweep (design_study.py) instead of runs
     objectives: dict = field(default_factory=dict)    # design metric -> "min" | "max" (the Pareto front)
+
+    def row_columns(self, columns) -> list:
+        """The columns a row and the table keep of ``columns``: every one; with ``rows:
+        metrics``, the run's key and place, its varied parameters, its status and the
+        study's ``metrics`` (a table of 30 000 runs of ~190 columns is ~19 MB)."""
+        if self.rows == "all":
+            return list(columns)
+        kept = {*ROW_BASE, *self.varied, *ROW_STATUS, *self.metrics}
+        return [c for c in columns if c in kept]
 
     @property
     def varied(self) -> list[str]:
@@ -351,6 +368,11 @@ def load_study(path: str | Path, check: bool = True) -> Study:
         raise StudyError(f"keep_runs: must be true or false (false: a recorded run's directory is removed once "
                          f"its metrics are in its row; a failed run's is kept), got {keep!r}")
     study.keep_runs = keep
+    rows = data.get("rows", "all")
+    if rows not in ROWS:
+        raise StudyError(f"rows: must be one of {', '.join(ROWS)} (metrics: a row keeps the run's status and the "
+                         f"study's metrics only), got {rows!r}")
+    study.rows = rows
     if check and design is None:
         check_runs(study)
     return study

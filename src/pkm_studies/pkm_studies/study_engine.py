@@ -82,7 +82,9 @@ def run_study(study: Study, out_dir: Path, workers: int | None = None, scheduler
                 if metrics is None:                 # not the run's failure: no row, it runs next time
                     outcome["not_run"].append(f"{run.key}: {problem}")
                     continue
-                write_json_atomic(out_dir / "results" / f"{run.key}.json", result_row(run, metrics))
+                row = result_row(run, metrics)
+                write_json_atomic(out_dir / "results" / f"{run.key}.json",
+                                  {k: row[k] for k in study.row_columns(row)})
                 outcome["ran"] += 1
                 outcome["finished_at"].append((time.monotonic(), run.key))
                 outcome["failed"] += metrics.get("run.status") == "failed"

@@ -115,6 +115,7 @@ def summarise(study: Study, frame: pd.DataFrame) -> pd.DataFrame:
 def write_outputs(study: Study, out_dir: Path, runs) -> pd.DataFrame:
     """results.parquet, results.csv, summary.csv and the plots; returns the table."""
     frame = read_rows(out_dir, runs)
+    frame = frame[study.row_columns(frame.columns)]         # rows written before a study's ``rows`` changed
     if len(frame):
         atomic_write(out_dir / "results.parquet", lambda p: frame.to_parquet(p, engine="pyarrow", index=False))
         as_text = frame.copy()
