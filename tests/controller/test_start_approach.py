@@ -57,7 +57,7 @@ def test_the_approach_ends_exactly_at_the_start_and_the_whole_is_one_consistent_
 
 
 def test_a_tracker_starts_within_the_tolerance_approaches_within_the_bounds_and_refuses_beyond():
-    approach = Approach(0.02, 0.1, 0.02, 0.1, 0.001)
+    approach = Approach(0.02, 0.1, 0.02, 0.1, 10.0, 50.0, 0.0, 0.001)      # the speeds bind here
     tracker = ReferenceTracker(PLANAR, 0.005, 0.04, approach=approach)
     ref = _line_from_home()
     near = [HOME[0] - 0.003, HOME[1], HOME[2]]
@@ -89,6 +89,7 @@ def test_a_machine_with_leg_errors_approaches_its_program_and_tracks_it_in_its_m
     assert not core.stopped and core.supervisor.faults == [], (core.stop_reason, core.supervisor.faults)
     how = core.tracker.last_approach
     assert how["distance_m"] == pytest.approx(0.0116, abs=1e-4), how
+    # the speed binds (0.02 m/s over 11.6 mm: 1.09 s; the acceleration's 0.58 s)
     assert how["duration_s"] == pytest.approx(PEAK_RATE * how["distance_m"] / 0.02, abs=1e-3)
     refs = np.array(log.reference)
     steps_of_ref = np.hypot(*np.diff(refs[:, :2], axis=0).T)
@@ -114,13 +115,55 @@ def test_an_operator_trajectory_reports_its_approach_in_its_event():
     assert "after an approach of 7.0" in event_summary(event)
 
 
+def test_a_short_approach_keeps_within_the_acceleration_bound():
+    """0.1 mm at 0.05 m/s would take 4 cycles and 35 m/s^2 (a force spike); the
+    acceleration bound makes it sqrt(5.77 d / a)."""
+    approach = Approach(0.02, 0.1, 0.05, 0.2, 0.2, 1.0, 0.0, 0.001)
+    tracker = ReferenceTracker(PLANAR, 0.0, 0.0, approach=approach)
+    ref = _line_from_home()
+    taken, how = tracker.starting(ref, [HOME[0] - 1e-4, HOME[1], HOME[2]])
+    assert how["duration_s"] == pytest.approx(math.ceil(math.sqrt(10 / math.sqrt(3) * 1e-4 / 0.2) / 0.001) * 0.001)
+    n = round(how["duration_s"] / 0.001)
+    assert max(abs(a[0]) for a in taken.acceleration[:n]) <= 0.2
+    assert max(abs(v[0]) for v in taken.velocity[:n]) <= 0.05
+
+
+def test_a_fixed_approach_gives_every_start_the_same_timing():
+    """approach_duration_s: the program starts that long after the trajectory, whether
+    the machine was off its start (an approach move), or at it (a hold)."""
+    approach = Approach(0.02, 0.1, 0.05, 0.2, 0.2, 1.0, 1.5, 0.001)
+    tracker = ReferenceTracker(PLANAR, 0.005, 0.04, approach=approach)
+    ref = _line_from_home()
+    at_start, how = tracker.starting(ref, list(HOME))
+    assert how["distance_m"] == 0.0 and how["duration_s"] == 1.5
+    assert all(p == ref.start for p in at_start.position[:1501])
+    off, how = tracker.starting(ref, [HOME[0] - 0.012, HOME[1], HOME[2]])
+    assert how["duration_s"] == 1.5 and off.time_s == at_start.time_s and off.position[1500:] == ref.position
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("start_approach_m", 0.003, r"start_approach_m: must be 0 \(off\), or in \[0.005, 0.1\] m"),
     ("start_approach_m", 0.2, r"start_approach_m: must be 0 \(off\), or in \[0.005, 0.1\] m"),
     ("start_approach_rad", 0.6, r"start_approach_rad: must be 0 \(off\), or in \[0.04, 0.5\] rad"),
-    ("approach_speed_m_s", 0.0, r"approach_speed_m_s: must be in \(0, 1\] m/s"),
-    ("approach_speed_rad_s", 3.0, r"approach_speed_rad_s: must be in \(0, 2\] rad/s"),
+    ("approach_speed_m_s", 0.0, r"approach_speed_m_s: must be in \[0.001, 1\] m/s"),
+    ("approach_speed_rad_s", 3.0, r"approach_speed_rad_s: must be in \[0.001, 2\] rad/s"),
+    ("approach_acceleration_m_s2", 20.0, r"approach_acceleration_m_s2: must be in \[0.001, 10\] m/s\^2"),
+    ("approach_duration_s", 1.0, r"approach_duration_s: must be 0 without an approach"),
 ])
 def test_approach_settings_out_of_range_name_the_field(field, value, message):
     with pytest.raises(ValueError, match=message):
         ControllerCore(ARCHI, ControllerConfig(**{field: value}))
+
+
+def test_an_approach_that_would_take_minutes_or_break_its_bounds_is_refused():
+    """At 1 mm/s, 0.1 m would take 188 s (188,000 samples built in the controller's
+    callback); a fixed duration shorter than the longest approach allows would exceed
+    the speed or acceleration."""
+    with pytest.raises(ValueError, match=r"approach_speed_m_s: .*start_approach_m \(0.1 m\) within 60 s"):
+        ControllerCore(ARCHI, ControllerConfig(start_approach_m=0.1, approach_speed_m_s=0.001))
+    with pytest.raises(ValueError, match=r"approach_duration_s: must be 0 \(from the speeds\), or in \[.*, 60\] s"):
+        ControllerCore(ARCHI, ControllerConfig(start_approach_m=0.04, approach_duration_s=90.0))
+    # 40 mm at 0.05 m/s: 1.5 s
+    with pytest.raises(ValueError, match=r"approach_duration_s: must be 0 \(from the speeds\), or in \[1.5, 60\] s"):
+        ControllerCore(ARCHI, ControllerConfig(start_approach_m=0.04, approach_speed_m_s=0.05,
+                                               approach_acceleration_m_s2=1.0, approach_duration_s=1.0))

@@ -77,3 +77,24 @@ def test_a_channel_outside_the_sequence_table_is_refused_before_anything_is_writ
         sequence = np.zeros(size, np.int64)
         out, *_, code, record = pack_tap_records(region, count, np.array([channel], np.int64), sequence)
         assert (code, record, len(out)) == (PACK_BAD_CHANNEL, 0, 0) and not sequence.any()
+
+
+def test_the_stamp_a_recorder_counts_is_the_packers():
+    """record_stamp (Python, for a run kept in memory) and pack_tap_records (compiled, the
+    bag's) give a message the same stamp, a header's and a short message's."""
+    import numpy as np
+
+    from pkm_recording.tap import StreamTap, split_batch
+    from pkm_recording.tap_records import pack_tap_records, record_stamp
+    messages = [bytes([0, 1, 0, 0]) + (123).to_bytes(4, "little") + (456).to_bytes(4, "little", signed=False) + b"x",
+                bytes([0, 1, 0, 0]) + (-5).to_bytes(4, "little", signed=True) + (7).to_bytes(4, "little") + b"yz",
+                bytes([0, 1, 0, 0, 1])]                      # a Bool: shorter than a header
+    tap = StreamTap()
+    index = tap.topic_index("/t", "std_msgs/msg/Bool")
+    for k, raw in enumerate(messages):
+        tap.add_indexed(index, raw, 1000 + k)
+    _, region, count = split_batch(tap.take_payload())
+    stamps = pack_tap_records(np.frombuffer(bytearray(region), np.uint8), count, np.array([0], np.int64),
+                              np.zeros(1, np.int64))[4]
+    assert stamps.tolist() == [record_stamp(raw) for raw in messages]
+    assert record_stamp(messages[2]) == -6 and record_stamp(messages[0]) == 123 + (456 << 32)

@@ -52,7 +52,7 @@ from pkm_recording.bag import BagWriter
 from pkm_recording.memory import MemoryRecording
 from pkm_recording.recording import qos_dict
 from pkm_recording.tap import StreamTap, split_batch
-from pkm_recording.tap_records import StampCounter
+from pkm_recording.tap_records import StampCounter, record_stamp
 from pkm_common.qos import publisher_qos
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.sim_loop import SimLoop
@@ -139,16 +139,14 @@ class MemoryRecorder:
 
     def close(self) -> dict:
         """recorder_node's summary: per topic the messages, and those with a new header
-        stamp (a repeat of the last one is not counted, as StampCounter)."""
-        last, stamps = {}, {}
-        for conn, _, raw in self.recording.messages():
-            head = raw[4:12]
-            if last.get(conn.topic) != head:
-                last[conn.topic] = head
-                stamps[conn.topic] = stamps.get(conn.topic, 0) + 1
-        names = [c.topic for c in self.recording.connections]
-        return {"recorded": {c.topic: c.msgcount for c in self.recording.connections},
-                "recorded_stamps": {name: stamps.get(name, 0) for name in names},
+        stamp (StampCounter over the messages in the order written, as the bag's)."""
+        connections = self.recording.connections
+        stamps = StampCounter(max(len(connections), 1))
+        for cid, _, raw in self.recording.written():
+            stamps.add_one(cid, record_stamp(raw))
+        names = [c.topic for c in connections]
+        return {"recorded": {c.topic: c.msgcount for c in connections},
+                "recorded_stamps": {c.topic: stamps.count(c.id) for c in connections},
                 "tapped": sorted(names), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
 
 

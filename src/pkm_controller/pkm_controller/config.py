@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields, replace
 from pkm_kinematics.distribution import METHODS, TWO_ARM
 from pkm_kinematics.errors import FieldError
 
+from .reference import PEAK_RATE, approach_duration
 from .strategies import NAMES
 
 STRATEGIES = NAMES          # the registry's names (pkm_controller.strategies), in its order
@@ -22,7 +23,7 @@ FORWARD_KINEMATICS = {"newton": 0, "integrated": 2, "integrated_euler": 1}
 SENSOR_JACOBIAN_POSES = ("estimated", "desired")
 # the farthest a trajectory may start from the reference and still be approached
 # (tracking.Approach): a correction of the machine's own position, not a move
-MAX_APPROACH_M, MAX_APPROACH_RAD = 0.1, 0.5
+MAX_APPROACH_M, MAX_APPROACH_RAD, MAX_APPROACH_S = 0.1, 0.5, 60.0
 # what an operator may change in a running controller (ControllerCore.change_settings)
 RUNTIME_SETTINGS = ("strategy", "distribution", "p_norm", "prestress_n", "bandwidth_hz", "damping_ratio",
                     "integral_time_s")
@@ -55,6 +56,10 @@ class ControllerConfig:
     start_approach_rad: float = 0.0       # ... and within this rotation (3-DOF machines; tracking.Approach)
     approach_speed_m_s: float = 0.02      # the approach move's peak speed
     approach_speed_rad_s: float = 0.1     # ... and peak rotation rate
+    approach_acceleration_m_s2: float = 0.2     # ... its peak acceleration
+    approach_acceleration_rad_s2: float = 1.0   # ... and angular acceleration
+    approach_duration_s: float = 0.0      # 0: from those; else every trajectory starts with an approach this long
+                                          # (a hold where it starts at the reference): the same timing every run
     drive_mismatch_n: float = 50.0        # |reported - commanded force| that counts as a mismatch
     drive_mismatch_cycles: int = 5        # consecutive mismatches that declare a drive failed
     actuation_delay_cycles: int = 0       # the drives apply a command this many cycles after the next state
@@ -107,8 +112,23 @@ class ControllerConfig:
             ("start_approach_rad", self.start_approach_rad == 0.0
              or self.start_tolerance_rad <= self.start_approach_rad <= MAX_APPROACH_RAD,
              f"0 (off), or in [{self.start_tolerance_rad:g}, {MAX_APPROACH_RAD:g}] rad (from start_tolerance_rad)"),
-            ("approach_speed_m_s", 0.0 < self.approach_speed_m_s <= 1.0, "in (0, 1] m/s"),
-            ("approach_speed_rad_s", 0.0 < self.approach_speed_rad_s <= 2.0, "in (0, 2] rad/s"),
+            ("approach_speed_m_s", 1e-3 <= self.approach_speed_m_s <= 1.0
+             and PEAK_RATE * self.start_approach_m <= MAX_APPROACH_S * self.approach_speed_m_s,
+             f"in [0.001, 1] m/s, and start_approach_m ({self.start_approach_m:g} m) within {MAX_APPROACH_S:g} s"),
+            ("approach_speed_rad_s", 1e-3 <= self.approach_speed_rad_s <= 2.0
+             and PEAK_RATE * self.start_approach_rad <= MAX_APPROACH_S * self.approach_speed_rad_s,
+             f"in [0.001, 2] rad/s, and start_approach_rad ({self.start_approach_rad:g} rad) within "
+             f"{MAX_APPROACH_S:g} s"),
+            ("approach_acceleration_m_s2", 1e-3 <= self.approach_acceleration_m_s2 <= 10.0, "in [0.001, 10] m/s^2"),
+            ("approach_acceleration_rad_s2", 1e-3 <= self.approach_acceleration_rad_s2 <= 50.0,
+             "in [0.001, 50] rad/s^2"),
+            ("approach_duration_s", self.approach_duration_s == 0.0
+             or self.start_approach_m > 0.0 or self.start_approach_rad > 0.0,
+             "0 without an approach (start_approach_m and start_approach_rad 0)"),
+            ("approach_duration_s", self.approach_duration_s == 0.0
+             or self.approach_fastest_s() <= self.approach_duration_s <= MAX_APPROACH_S,
+             f"0 (from the speeds), or in [{self.approach_fastest_s():.4g}, {MAX_APPROACH_S:g}] s (the longest "
+             f"approach, start_approach_m and _rad, within approach_speed_* and approach_acceleration_*)"),
             ("drive_mismatch_n", 0.0 < self.drive_mismatch_n < math.inf, "in (0, inf) N"),
             ("drive_mismatch_cycles", 1 <= self.drive_mismatch_cycles <= 10000, "in [1, 10000]"),
             ("actuation_delay_cycles", 0 <= self.actuation_delay_cycles <= 8, "in [0, 8]"),
@@ -127,6 +147,18 @@ class ControllerConfig:
         for name, ok, allowed in checks:
             if not ok:
                 raise FieldError.out_of_range(name, allowed, getattr(self, name))
+
+    def approach_fastest_s(self) -> float:
+        """The shortest duration of the longest approach move (start_approach_m and
+        start_approach_rad) within the approach's speeds and accelerations (inf where one
+        of those is out of its range: refused by its own check)."""
+        bounds = (self.approach_speed_m_s, self.approach_speed_rad_s, self.approach_acceleration_m_s2,
+                  self.approach_acceleration_rad_s2)
+        if not all(b > 0.0 and math.isfinite(b) for b in bounds):
+            return math.inf
+        return approach_duration(self.start_approach_m, self.start_approach_rad, self.approach_speed_m_s,
+                                 self.approach_speed_rad_s, self.approach_acceleration_m_s2,
+                                 self.approach_acceleration_rad_s2)
 
     def with_changes(self, changes: dict) -> "ControllerConfig":
         """This configuration with ``changes`` of ``RUNTIME_SETTINGS`` (numbers as floats);

@@ -135,12 +135,8 @@ class ControllerCore:
     def reset(self) -> None:
         """Back to the state before the first cycle (lifecycle cleanup / re-activate)."""
         c = self.config
-        approach = None
-        if c.start_approach_m > 0.0 or c.start_approach_rad > 0.0:
-            approach = Approach(c.start_approach_m, c.start_approach_rad, c.approach_speed_m_s,
-                                c.approach_speed_rad_s, c.dt_s)
         self.tracker = ReferenceTracker(self.space, c.start_tolerance_m, c.start_tolerance_rad, self.kernels.twists,
-                                        approach)
+                                        Approach.of(c))
         self.estimator.reset()
         self.last_stamp_ns: int | None = None   # the stamp of the last state (the answers' key)
         self.last_time_s: float | None = None   # the same in seconds (the reference's time)

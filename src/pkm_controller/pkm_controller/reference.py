@@ -149,6 +149,16 @@ def minimum_jerk(tau: float) -> tuple[float, float, float]:
 
 
 PEAK_RATE = 1.875               # max ds/dtau of minimum_jerk
+PEAK_CURVATURE = 10.0 / math.sqrt(3.0)      # max |d2s/dtau2| of minimum_jerk, at tau = (3 -+ sqrt 3) / 6
+
+
+def approach_duration(distance_m: float, angle_rad: float, speed_m_s: float, speed_rad_s: float,
+                      acceleration_m_s2: float, acceleration_rad_s2: float) -> float:
+    """The shortest minimum-jerk move over ``distance_m`` and ``angle_rad`` within the
+    peak speeds (PEAK_RATE d / T) and accelerations (PEAK_CURVATURE d / T^2)."""
+    return max(PEAK_RATE * distance_m / speed_m_s, PEAK_RATE * angle_rad / speed_rad_s,
+               math.sqrt(PEAK_CURVATURE * distance_m / acceleration_m_s2),
+               math.sqrt(PEAK_CURVATURE * angle_rad / acceleration_rad_s2))
 
 
 def with_approach(reference: Reference, offset, duration_s: float, dt_s: float) -> Reference:

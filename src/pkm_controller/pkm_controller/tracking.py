@@ -14,7 +14,7 @@ from pkm_kinematics.task_space import SPATIAL
 
 from .feed import FeedClock, scaled_reference
 from .laws import error_norms, task_pose_error
-from .reference import PEAK_RATE, Reference, with_approach
+from .reference import Reference, approach_duration, with_approach
 
 __all__ = ["Approach", "ReferenceTracker"]
 
@@ -23,19 +23,37 @@ __all__ = ["Approach", "ReferenceTracker"]
 class Approach:
     """A trajectory that starts beyond the start tolerances but within ``max_m`` and
     ``max_rad`` of the reference is taken after a minimum-jerk move to its start
-    (reference.with_approach) at peak speeds ``speed_m_s`` and ``speed_rad_s``, sampled
-    every ``dt_s``: as a CNC's program starts from wherever the machine is. A machine
-    homed on its drives with a model error believes itself millimetres from the
-    configured home where the program was planned from (ControllerConfig.start_approach_m)."""
+    (reference.with_approach) within peak speeds and accelerations, sampled every
+    ``dt_s``: as a CNC's program starts from wherever the machine is. A machine homed on
+    its drives with a model error believes itself millimetres from the configured home
+    where the program was planned from (ControllerConfig.start_approach_m). With a
+    ``fixed_s`` duration every trajectory starts with an approach that long (a hold
+    where it starts at the reference): the program's timing is the same whatever the
+    start (a study's load schedule, in the run's time, meets the same motion)."""
 
     max_m: float
     max_rad: float
     speed_m_s: float
     speed_rad_s: float
+    acceleration_m_s2: float
+    acceleration_rad_s2: float
+    fixed_s: float
     dt_s: float
 
+    @classmethod
+    def of(cls, config) -> "Approach | None":
+        """The approach of a ControllerConfig; None when it has none."""
+        c = config
+        if c.start_approach_m == 0.0 and c.start_approach_rad == 0.0:
+            return None
+        return cls(c.start_approach_m, c.start_approach_rad, c.approach_speed_m_s, c.approach_speed_rad_s,
+                   c.approach_acceleration_m_s2, c.approach_acceleration_rad_s2, c.approach_duration_s, c.dt_s)
+
     def duration_s(self, distance_m: float, angle_rad: float) -> float:
-        return PEAK_RATE * max(distance_m / self.speed_m_s, angle_rad / self.speed_rad_s)
+        if self.fixed_s > 0.0:
+            return self.fixed_s
+        return approach_duration(distance_m, angle_rad, self.speed_m_s, self.speed_rad_s, self.acceleration_m_s2,
+                                 self.acceleration_rad_s2)
 
 
 class ReferenceTracker:
@@ -47,8 +65,9 @@ class ReferenceTracker:
     def __init__(self, space, start_tolerance_m: float, start_tolerance_rad: float, twists=None,
                  approach: Approach | None = None):
         if approach is not None and space is SPATIAL:
-            raise FieldError("start_approach_m", "approach moves are for the 3-DOF machines (planar, "
-                                                 "translational): 0 on a 6-DOF machine")
+            name = "start_approach_m" if approach.max_m > 0.0 else "start_approach_rad"
+            raise FieldError(name, "approach moves are for the 3-DOF machines (planar, translational): 0 on a "
+                                   "6-DOF machine")
         self.space, self.twists, self.approach = space, twists, approach
         self.start_tolerance_m, self.start_tolerance_rad = start_tolerance_m, start_tolerance_rad
         self.last_approach: dict | None = None   # the last approach move: distance_m, angle_rad, duration_s
@@ -89,9 +108,9 @@ class ReferenceTracker:
                              f"{dof} ({self.space.describe()})")
         offset = task_pose_error(reference.start, current, self.space)
         dist, angle = error_norms(offset, self.space)
-        if dist <= self.start_tolerance_m and angle <= self.start_tolerance_rad:
-            return reference, None
         a = self.approach
+        if dist <= self.start_tolerance_m and angle <= self.start_tolerance_rad and (a is None or not a.fixed_s):
+            return reference, None
         if a is not None and dist <= max(a.max_m, self.start_tolerance_m) and \
                 angle <= max(a.max_rad, self.start_tolerance_rad):
             duration = a.duration_s(dist, angle)

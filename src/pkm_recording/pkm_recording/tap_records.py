@@ -177,6 +177,13 @@ def _count_new_stamps(channels, stamps, last, seen, counts):
     return -1
 
 
+def record_stamp(raw) -> int:
+    """The stamp a recorder counts a message by (pack_tap_records' rule, in Python): the
+    8 bytes after the CDR header (a header's sec and nanosec) as one little-endian
+    int64, or -1 - its length for a message shorter than 12 bytes (a Bool)."""
+    return int.from_bytes(raw[4:12], "little", signed=True) if len(raw) >= 12 else -1 - len(raw)
+
+
 class StampCounter:
     """Per channel id, the messages with a new header stamp (a repeat of the last
     stamp is not counted: sim_hw republishes step 0 until it is answered), as the

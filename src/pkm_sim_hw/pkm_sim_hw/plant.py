@@ -202,8 +202,9 @@ class Plant:
         self.dynamics = DynamicModel(self.machine, config.dynamics)
         # a machine on rails integrated semi-implicitly, no drive locked: the whole
         # integration and the outputs' velocity terms in one compiled call, the same
-        # floats as _integrate (tests/sim_hw); rk4 and locked drives take the Python path
-        self._compiled_step = self.params.integrator == "semi_implicit" and isinstance(self.machine, RailMachine)
+        # floats as _integrate (tests/sim_hw compares the two: set it False for the
+        # Python path); rk4 and locked drives take the Python path
+        self.compiled_step = self.params.integrator == "semi_implicit" and isinstance(self.machine, RailMachine)
         home = config.model.home
         self.x = finite_floats(home if initial_pose is None else initial_pose, 3, "initial_pose")
         self.machine.inverse_kinematics(self.x)          # reachable with the true geometry
@@ -325,7 +326,7 @@ class Plant:
         if not (self.stopped or hold):
             saved = (self.x, self.v)
             try:
-                if self._compiled_step and not self._locked:
+                if self.compiled_step and not self._locked and self.params.integrator == "semi_implicit":
                     self.x, self.v, terms = self.dynamics.semi_implicit_step(self.x, self.v, applied, self.load, h,
                                                                              self.params.substeps)
                 else:

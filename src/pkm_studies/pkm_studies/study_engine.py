@@ -14,8 +14,9 @@ nodes as processes) in a DDS domain its process holds alone on its host
 (pkm_common.domains); one run at a time per worker process, into the run directory
 ``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded,
 or with ``keep_runs: false`` once its metrics are read, unless it failed; such a
-run in the direct engine writes no bag: its messages are kept in memory and its
-metrics taken from them, the bag's exactly: pkm_recording.memory).
+run in the direct engine of at most memory.MAX_SECONDS writes no bag: its messages are
+kept in memory and its metrics taken from them, the bag's exactly; a failed one's
+directory is kept without a bag: pkm_recording.memory).
 
 Nothing lost, nothing twice: the client writes each run's row to
 ``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
@@ -167,7 +168,7 @@ def main(argv=None) -> int:
 
 def _main_runs(study, out_dir: Path, args) -> int:
     runs = study.runs()
-    done = done_keys(out_dir)
+    done = done_keys(out_dir) | set(rows_from_table(out_dir))      # the table's rows: restored when it runs
     to_run = len(runs) - len(done & {r.key for r in runs})
     print(f"study {study.name}: {len(runs)} runs of {study.scenario.name} ({to_run} to run) -> {out_dir}", flush=True)
     if args.dry_run:
