@@ -30,7 +30,7 @@ from . import bars as B
 from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError, FieldError
 from .jit import kernel
-from .planar import solve3, solve3_kernel
+from .planar import solve3_kernel
 from .rigid_body import RigidBodyParameters, StrutDynamics
 from .task_space import PLANAR
 
@@ -102,14 +102,16 @@ class DynamicModel:
         return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
 
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
-        """xddot from A xddot = J^T f_d + f_n - H."""
-        a, h, rows, _, _ = self.terms(x, xdot)
-        r0, r1, r2 = wrench[0] - h[0], wrench[1] - h[1], wrench[2] - h[2]
-        for (j0, j1, j2), f in zip(rows, drive_forces):
-            r0 += j0 * f
-            r1 += j1 * f
-            r2 += j2 * f
-        return solve3(a, (r0, r1, r2))
+        """xddot from A xddot = J^T f_d + f_n - H (:func:`forward_acceleration_kernel`)."""
+        _, rows, qdot, jdv = self.machine.velocity_terms_arrays(x, xdot)
+        forces = np.asarray(drive_forces, dtype=float)
+        if forces.shape != (rows.shape[0],):
+            raise FieldError("drive_forces", f"expected {rows.shape[0]} values, got shape {forces.shape}")
+        a0, a1, a2, ok = forward_acceleration_kernel(rows, qdot, jdv, forces, wrench[0], wrench[1], wrench[2],
+                                                     *self._mass_args)
+        if not ok:
+            raise np.linalg.LinAlgError("singular 3x3 system")
+        return a0, a1, a2
 
     def semi_implicit_step(self, x, xdot, drive_forces, wrench, h: float, substeps: int) -> tuple:
         """``substeps`` semi-implicit Euler steps of ``forward_dynamics`` (xdot += h xddot,
@@ -118,9 +120,12 @@ class DynamicModel:
         simulated plant's step, the same floats as the step written in Python. Returns
         (x, xdot, (q, J_m rows, q', J_m' x') as lists); raises like ``terms`` (naming the
         pose where it failed) and LinAlgError where A(x) is singular."""
+        forces = np.asarray(drive_forces, dtype=float)
+        if forces.shape != (self.machine.n_legs,):
+            raise FieldError("drive_forces", f"expected {self.machine.n_legs} values, got shape {forces.shape}")
         x0, x1, x2, v0, v1, v2, q, rows, qdot, jdv, code, leg = semi_implicit_step_kernel(
             self.machine.bars, self.machine.twist_columns, x[0], x[1], x[2], xdot[0], xdot[1], xdot[2],
-            np.asarray(drive_forces, dtype=float), wrench[0], wrench[1], wrench[2], h, substeps, *self._mass_args)
+            forces, wrench[0], wrench[1], wrench[2], h, substeps, *self._mass_args)
         if code == STEP_SINGULAR_MASS:
             raise np.linalg.LinAlgError("singular 3x3 system")
         if code != B.VT_OK:
@@ -190,15 +195,31 @@ def _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
     return a00, a01, a02, a11, a12, a22, h0, h1, h2
 
 
+@kernel("(float64[:, :], float64[:], float64[:], float64[:], float64, float64, float64, float64[:], float64[:], "
+        "float64[:], float64, float64, float64, float64, float64, float64)")
+def forward_acceleration_kernel(rows, qdot, jdv, forces, w0, w1, w2, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+    """xddot = A^-1 (J^T f + w - H) (ARCHI §3.4) from J_m (rows), qdot and Jdot_m xdot:
+    A and H by :func:`_mass_terms_kernel`, Cramer's rule (planar.solve3_kernel).
+    Returns (xddot_0, xddot_1, xddot_2, solvable)."""
+    a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qdot, jdv, md, k, dg, mn0, mn1, mn2,
+                                                                  pg0, pg1, pg2)
+    r0, r1, r2 = w0 - h0, w1 - h1, w2 - h2
+    for i in range(rows.shape[0]):
+        f = forces[i]
+        r0 += rows[i, 0] * f
+        r1 += rows[i, 1] * f
+        r2 += rows[i, 2] * f
+    return solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
+
+
 @kernel("(float64[:, :], int64[:], float64, float64, float64, float64, float64, float64, float64[:], float64, "
         "float64, float64, float64, int64, float64[:], float64[:], float64[:], float64, float64, float64, float64, "
         "float64, float64)")
 def semi_implicit_step_kernel(bars, columns, x0, x1, x2, v0, v1, v2, forces, w0, w1, w2, h, substeps,
                               md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
-    """DynamicModel.semi_implicit_step: per substep, the velocity terms at (x, v), A and
-    H (:func:`_mass_terms_kernel`), xddot = A^-1 (J^T f + w - H) (ARCHI §3.4, Cramer's
-    rule as planar.solve3), v += h xddot, x += h v; then the velocity terms at the state
-    reached. Returns (x, v, q, J_m, q', J_m' x', code, leg): code bars.VT_OK, a
+    """DynamicModel.semi_implicit_step: per substep, the velocity terms at (x, v),
+    xddot (:func:`forward_acceleration_kernel`), v += h xddot, x += h v; then the
+    velocity terms at the state reached. Returns (x, v, q, J_m, q', J_m' x', code, leg): code bars.VT_OK, a
     velocity-terms code with x the pose where it failed, or STEP_SINGULAR_MASS."""
     m = forces.shape[0]
     q, rows, qd, jdv, no_rates = np.empty(m), np.empty((m, 3)), np.empty(m), np.empty(m), np.empty((0, 3))
@@ -207,15 +228,8 @@ def semi_implicit_step_kernel(bars, columns, x0, x1, x2, v0, v1, v2, forces, w0,
         code, leg = B.rail_velocity_terms_into(bars, px, py, pz, r, t, columns, q, rows, qd, jdv, no_rates)
         if code != B.VT_OK:
             return x0, x1, x2, v0, v1, v2, q, rows, qd, jdv, code, leg
-        a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
-                                                                      pg0, pg1, pg2)
-        r0, r1, r2 = w0 - h0, w1 - h1, w2 - h2
-        for i in range(m):
-            f = forces[i]
-            r0 += rows[i, 0] * f
-            r1 += rows[i, 1] * f
-            r2 += rows[i, 2] * f
-        acc0, acc1, acc2, ok = solve3_kernel(a00, a01, a02, a01, a11, a12, a02, a12, a22, r0, r1, r2)
+        acc0, acc1, acc2, ok = forward_acceleration_kernel(rows, qd, jdv, forces, w0, w1, w2, md, k, dg,
+                                                           mn0, mn1, mn2, pg0, pg1, pg2)
         if not ok:
             return x0, x1, x2, v0, v1, v2, q, rows, qd, jdv, STEP_SINGULAR_MASS, -1
         v0, v1, v2 = v0 + h * acc0, v1 + h * acc1, v2 + h * acc2
