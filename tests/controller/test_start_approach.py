@@ -167,3 +167,19 @@ def test_an_approach_that_would_take_minutes_or_break_its_bounds_is_refused():
     with pytest.raises(ValueError, match=r"approach_duration_s: must be 0 \(from the speeds\), or in \[1.5, 60\] s"):
         ControllerCore(ARCHI, ControllerConfig(start_approach_m=0.04, approach_speed_m_s=0.05,
                                                approach_acceleration_m_s2=1.0, approach_duration_s=1.0))
+
+
+def test_an_approach_across_pi_turns_the_short_way_and_a_late_first_point_keeps_its_dwell():
+    """A planar machine's angle: from pi - 0.01 to -pi + 0.01 is 0.02 rad, not 2 pi; a
+    trajectory whose first point is at 0.1 s still rests there until then."""
+    approach = Approach(0.02, 0.1, 0.02, 0.1, 10.0, 50.0, 0.0, 0.001)
+    tracker = ReferenceTracker(PLANAR, 0.005, 0.0, approach=approach)
+    start = [HOME[0], HOME[1], -math.pi + 0.01]
+    ref = Reference([0.1, 0.2], [start, start])
+    taken, how = tracker.starting(ref, [HOME[0], HOME[1], math.pi - 0.01])
+    assert how["angle_rad"] == pytest.approx(0.02) and how["duration_s"] == pytest.approx(0.375)
+    angles = [p[2] for p in taken.position]
+    assert math.remainder(angles[0] - (math.pi - 0.01), 2 * math.pi) == pytest.approx(0.0, abs=1e-12)
+    assert max(abs(b - a) for a, b in zip(angles, angles[1:])) < 1e-4          # no 2 pi swing
+    assert taken.time_s[375:] == pytest.approx([0.375, 0.475, 0.575]) and taken.position[375:] == [start] * 3
+    assert all(b > a for a, b in zip(taken.time_s, taken.time_s[1:]))
