@@ -197,7 +197,17 @@ def test_the_replay_drives_the_controller_nodes_own_loop(in_process_run, monkeyp
         monkeypatch.setattr(ControllerLoop, name, spy)
     result = replay_controller(in_process_run[0])
     assert result.ok and result.compared == 801, result
-    assert seen == {"on_state": 801, "on_metrology": 801, "answer": 801}, seen
+    # the plant repeats its first state until it is answered: a repeat recorded after the
+    # answer reached the node too, which prepared it and left it (one under load, seen):
+    # the replay hands it over as well
+    from pkm_common import topics
+    from pkm_common.cdr import stamp_ns_of
+    from pkm_runs.replay import recorded_bytes
+    states = [stamp_ns_of(raw) for _, _, raw in recorded_bytes(in_process_run[0] / "bag", in_process_run[1]["namespace"],
+                                                               (topics.DRIVES_STATE,))]
+    repeats = len(states) - len(set(states))
+    assert (seen["on_metrology"], seen["answer"]) == (801, 801), seen
+    assert 801 <= seen["on_state"] <= 801 + repeats, (seen, repeats)
 
 
 def test_offline_replay_detects_a_changed_law(in_process_run, tmp_path):
