@@ -105,3 +105,24 @@ def test_a_run_kept_in_memory_has_the_metrics_of_its_bag(name, overrides, tmp_pa
         (bagged["recorded"], bagged["lost"], bagged["status"], bagged["cause"])
     with pytest.raises(ValueError, match="recording: in memory only for a recorded run"):
         run_scenario(s, tmp_path / "graph", progress=False, recording=MemoryRecording())
+
+
+def test_a_failed_run_kept_in_memory_leaves_its_bag(tmp_path):
+    """A study keeps a failed run's directory to be looked into: its messages are
+    written as its bag, which reads back to the metrics taken in memory. (ARCHI with
+    1 % leg errors starts 11.6 mm from its program in the nominal model: refused, the
+    program did not run.)"""
+    from pkm_recording.memory import MemoryRecording
+    from pkm_runs.report import analyse_bag
+    from pkm_runs.report_metrics import metrics_dict
+    s = load_scenario("archi_demo", {"duration_s": 0.5, "record": True, "metrology": False,
+                                     "controller": {"strategy": "computed_torque"},
+                                     "plant": {"link_length_errors": [-0.0063, 0.0008, -0.013, -0.0004]}})
+    run = run_scenario(s, tmp_path / "run", engine="direct", progress=False, report=False,
+                       recording=MemoryRecording())
+    assert run["status"] == "failed" and "trajectory refused" in run["error"], run["error"]
+    got = run["metrics"]
+    want = metrics_dict(analyse_bag(tmp_path / "run", namespace=run["namespace"], machine_name=run["machine"]),
+                        run["published"])
+    assert got.pop("bag") == "memory" and want.pop("bag").startswith(str(tmp_path / "run" / "bag"))
+    assert got == want

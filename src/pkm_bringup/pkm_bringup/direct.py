@@ -129,7 +129,7 @@ class MemoryRecorder:
         self.tap = self                      # Topic.publish hands each message to tap.add_indexed
 
     def index(self, name: str, relative: str) -> int:
-        return self.recording.add_topic(name, topics.CATALOGUE[relative].type)
+        return self.recording.add_topic(name, topics.CATALOGUE[relative].type, [qos_dict(publisher_qos(relative))])
 
     def add_indexed(self, index: int, data: bytes, publish_time_ns: int) -> None:
         self.recording.add(index, publish_time_ns, data)

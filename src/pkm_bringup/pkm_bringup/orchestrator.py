@@ -225,7 +225,7 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     pkm_recording.memory.MemoryRecording for a recorded scenario in the direct engine of
     at most memory.MAX_SECONDS: its messages are kept there instead of a bag, and the
     metrics (``metrics``, no report files) are taken from them (a study's run whose
-    bag would be removed once read).
+    bag would be removed once read); a failed run's are written as its bag.
     Raises rt_profile.RealtimeProfileRefused, before anything is made or started,
     when the scenario asks for the realtime profile and the OS does not allow it."""
     if engine not in ENGINES:
@@ -299,6 +299,11 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
     if recovered:
         result["recovered"] = recovered
         _write_run(run_dir, result)
+    if recording is not None and len(recording) and result["status"] == "failed":
+        try:                                       # kept for pkm-report and pkm-replay on the failure
+            recording.write_bag(run_dir / "bag")
+        except (OSError, ValueError) as exc:
+            result["report_error"] = f"the failed run's bag not written: {exc}"
     if recording is not None and len(recording):
         try:
             result["metrics"] = metrics_dict(analyse_recording(recording, namespace=result.get("namespace"),

@@ -39,15 +39,18 @@ class MemoryRecording:
         self._connections: list[Connection] = []
         self._by_topic: dict[str, Connection] = {}
         self._records: list[tuple[int, int, int, bytes]] = []   # (log_ns, order, connection id, raw)
+        self._qos: list = []                                     # per connection id
         self._typestore = None
 
-    def add_topic(self, topic: str, msgtype: str) -> int:
-        """The id of ``topic`` (made on first use; its type must not change)."""
+    def add_topic(self, topic: str, msgtype: str, offered_qos: list | None = None) -> int:
+        """The id of ``topic`` (made on first use; its type must not change);
+        ``offered_qos``: its publisher's QoS, as a bag's channel carries it (write_bag)."""
         found = self._by_topic.get(topic)
         if found is None:
             found = Connection(len(self._connections), topic, msgtype)
             self._connections.append(found)
             self._by_topic[topic] = found
+            self._qos.append(offered_qos)
         elif found.msgtype != msgtype:
             raise ValueError(f"topic {topic}: recorded as {found.msgtype}, not {msgtype}")
         return found.id
@@ -79,6 +82,19 @@ class MemoryRecording:
             from rosbags.typesys import Stores, get_typestore
             self._typestore = get_typestore(Stores.ROS2_JAZZY)
         return self._typestore.deserialize_cdr(raw, msgtype)
+
+    def write_bag(self, path, compression: str = "lz4") -> None:
+        """The messages as the rosbag2 MCAP bag a recorder would have written at ``path``
+        (a run kept in memory that failed: its directory is kept, pkm-report and
+        pkm-replay read it)."""
+        from .bag import BagWriter
+        writer = BagWriter(path, compression=compression)
+        try:
+            channels = [writer.add_topic(c.topic, c.msgtype, self._qos[c.id]) for c in self._connections]
+            for cid, log_ns, raw in self.written():
+                writer.write(channels[cid], log_ns, raw)
+        finally:
+            writer.close()
 
     def __len__(self) -> int:
         return len(self._records)

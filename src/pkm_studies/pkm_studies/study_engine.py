@@ -15,8 +15,8 @@ nodes as processes) in a DDS domain its process holds alone on its host
 ``<out>/runs/<key>`` on the worker's host (removed after a run that was not recorded,
 or with ``keep_runs: false`` once its metrics are read, unless it failed; such a
 run in the direct engine of at most memory.MAX_SECONDS writes no bag: its messages are
-kept in memory and its metrics taken from them, the bag's exactly; a failed one's
-directory is kept without a bag: pkm_recording.memory).
+kept in memory and its metrics taken from them, the bag's exactly; a failed one's are
+written as its bag, in its directory that is kept: pkm_recording.memory).
 
 Nothing lost, nothing twice: the client writes each run's row to
 ``<out>/results/<key>.json`` (atomically) as it comes; started again, the study runs
