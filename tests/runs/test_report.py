@@ -198,7 +198,10 @@ def test_load_run_dedupes_step_zero(archi):
     assert len(run.clock_ns) == N
     assert [r.name for r in run.statuses["sim_hw"]] == ["sim_hw"] * 3
     assert run.trajectory_position.shape == (3, 3)
-    np.testing.assert_allclose(run.trajectory_time_s, [0.0, 0.2, 0.4])
+    np.testing.assert_allclose(run.trajectory_time_s, [0.0, 0.2, 0.4], rtol=0, atol=1e-15)
+    points = exp["ref"][[0, 200, -1]]
+    np.testing.assert_allclose(run.trajectory_position[:, :2], points[:, :2], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(run.trajectory_yaw, points[:, 2], rtol=0, atol=1e-15)
     np.testing.assert_allclose(run.load_force[0], [10.0, 0.0, 0.0])
 
 
@@ -286,6 +289,18 @@ def test_tripped_run(tmp_path):
     # a status of level 2 that names no cause (recorded before causes were published)
     assert m["trip_cause"] == "unknown" and m["trip_reason"] == "stopped: following error"
     assert m["trip_source"] == "controller" and m["trip_time_s"] == pytest.approx((N - 1) * 1e-3)
+
+
+def test_a_trajectory_point_without_its_transform_is_read_as_nan(tmp_path):
+    # the last trajectory is the run's; cdr's decoder refuses this one, rosbags' objects read it
+    late = trajectory([(0.0, (1.0, -0.4, 0.0)), (0.5, (1.1, -0.3, 0.2))])
+    late.points[0].transforms = []
+    run_dir, _ = archi_run(tmp_path, extra=[(f"{NS}/trajectory", WALL0 - 10**8, late)])
+    run = report.load_run(run_dir)
+    assert np.isnan(run.trajectory_position[0]).all() and np.isnan(run.trajectory_yaw[0])
+    np.testing.assert_allclose(run.trajectory_position[1], [1.1, -0.3, 0.0], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(run.trajectory_yaw[1], 0.2, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(run.trajectory_time_s, [0.0, 0.5])
 
 
 def test_write_report_and_plots(archi, capsys):
