@@ -78,3 +78,16 @@ def test_exception_in_a_callback_exits_1(capfd):
 
     assert run_node(lambda context: _node(context, boom), args=[]) == EXIT_ERROR
     assert 'RuntimeError: boom in a timer' in capfd.readouterr().err
+
+
+def test_without_the_collection_the_garbage_of_before_is_frozen_with_the_rest_and_collected_after():
+    garbage = _Cycle()
+    ref = weakref.ref(garbage)
+    del garbage                                       # unreachable, not yet collected
+    with start_up_frozen(collect=False):
+        assert gc.get_freeze_count() > 1000
+        gc.collect()
+        assert ref() is not None                     # frozen as it was: a study's run pays no full collection
+    assert gc.get_freeze_count() == 0
+    gc.collect()
+    assert ref() is None

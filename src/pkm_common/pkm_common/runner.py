@@ -72,13 +72,17 @@ def make_executor(kind: str, context):
 
 
 @contextlib.contextmanager
-def start_up_frozen():
+def start_up_frozen(collect: bool = True):
     """The objects of start-up (modules, compiled kernels, the nodes) frozen out of the
     cyclic garbage collector for the block (``gc.freeze``), then returned to it. The loop
     allocates little, but each collection of the oldest generation scanned all of
     them on the loop's thread: in one process of archi_demo (~150,000 objects) the
-    full collections took 86-182 ms each, the middle ones up to 9 ms."""
-    gc.collect()
+    full collections took 86-182 ms each, the middle ones up to 9 ms.
+    ``collect=False``: frozen as they are, without the collection first (one run of many
+    in a long-lived process: a study's worker, ~230,000 objects, ~0.1 s a collection);
+    what was garbage is collected after the block, as it would have been."""
+    if collect:
+        gc.collect()
     gc.freeze()
     try:
         yield
