@@ -12,7 +12,12 @@ PIP_FLAGS ?= -q --disable-pip-version-check
 # domain in tests/conftest.py); worksteal keeps both cores busy to the end, when only the
 # slow multi-process tests are left. -rfEs: the short summary at the end names every failed
 # test (CI shows only part of a long log). `make test PYTEST_ARGS=-q` runs it in one process.
+# The realtime tests (marker realtime: a realtime graph alone on the machine) run after
+# the others, in one process: under xdist each waited for the other worker's test to end
+# while that worker then waited for it (tests/conftest.py's lock; ~1 minute of a run).
 PYTEST_ARGS ?= -q -rfEs -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
+PYTEST_RT_ARGS ?= -q -rfEs -p no:cacheprovider --durations=10
+RT_TEST_FILES = $(shell grep -rl --include='test_*.py' realtime_loop_alone tests)
 
 # The ament_python packages, installed editable (their console scripts land in
 # $(VENV)/bin). Re-installed when a package's setup.py/setup.cfg changes (new
@@ -52,7 +57,8 @@ test: venv
 	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || \
 		echo "make test: chromium not found: the operator panel's browser test is skipped (apt-get install chromium)"
 	$(VENV)/bin/lint-imports --no-cache
-	$(VPY) -m pytest $(PYTEST_ARGS)
+	$(VPY) -m pytest -m "not realtime" $(PYTEST_ARGS)
+	$(VPY) -m pytest -m realtime $(PYTEST_RT_ARGS) $(RT_TEST_FILES)
 
 # The packages' layer order and the pure core without rclpy (.importlinter); also the
 # first step of `make test`.

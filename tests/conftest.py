@@ -34,6 +34,14 @@ from pkm_common.domains import use_private_domain  # noqa: E402  (no rclpy insid
 ROS_DOMAIN_ID = use_private_domain()
 
 
+def pytest_collection_modifyitems(config, items):
+    """A test that takes ``realtime_loop_alone`` is marked ``realtime`` (make test runs
+    those after the others, one at a time)."""
+    for item in items:
+        if "realtime_loop_alone" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.realtime)
+
+
 def pytest_report_header(config):
     return (f'ROS_DOMAIN_ID={ROS_DOMAIN_ID}, DDS on localhost over UDP '
             f'(FASTRTPS_DEFAULT_PROFILES_FILE={os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")})')
