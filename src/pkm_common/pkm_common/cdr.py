@@ -421,6 +421,24 @@ class PoseStampedEncoder:
         return self._struct.pack(CDR_LE_HEADER, sec, nanosec, self._middle, px, py, pz, qx, qy, qz, qw)
 
 
+class PoseStampedDecoder:
+    """``decode_pose_stamped`` with the layout of one frame's messages (PoseStampedEncoder's):
+    a stream in that frame is read with one compare and one ``struct`` call; any other
+    message takes the general path."""
+
+    def __init__(self, frame_id: str = "world", what: str = "PoseStamped"):
+        self.frame_id, self.what = frame_id, what
+        self._layout = PoseStampedEncoder(frame_id)
+
+    def decode(self, buf) -> PoseStampedData:
+        lay = self._layout
+        if len(buf) == lay.size:
+            v = lay._struct.unpack_from(buf)
+            if v[0] == CDR_LE_HEADER and v[3] == lay._middle:
+                return PoseStampedData(_stamp_ns(v[1], v[2], self.what), self.frame_id, v[4:7], v[7:11])
+        return decode_pose_stamped(buf, self.what)
+
+
 def encode_string(text: str) -> bytes:
     """Serialized std_msgs/String."""
     middle, _ = _string_bytes(text, 0)

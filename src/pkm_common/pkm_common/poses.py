@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from pkm_kinematics.errors import FieldError
+from pkm_kinematics.rotations import rotation_quaternion_floats, unit_quaternion_rotation_floats
 from pkm_kinematics.task_space import TASK_SPACES, TaskSpace, pose_fields, task_pose, tool_pose
 
 QUATERNION_NORM_TOL = 1e-6
@@ -21,27 +22,9 @@ MACHINE_KINDS = ('planar', 'translational', 'struts')
 
 
 # Per-message paths (1-2 kHz): quaternion <-> matrix on Python floats, ~3x faster than
-# the numpy helpers of pkm_kinematics.rotations for one 3 x 3 matrix.
-def _quaternion(r) -> tuple:
-    """Unit quaternion (x, y, z, w), w >= 0, of a row-major 9-tuple (Shepperd's method)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = ((r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s)
-    elif r00 > r11 and r00 > r22:
-        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = (0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s)
-    elif r11 > r22:
-        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q = ((r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q = ((r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s)
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if q[3] < 0.0:
-        n = -n
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+# the numpy helpers of pkm_kinematics.rotations for one 3 x 3 matrix (the same formulas
+# compiled: rotations' *_kernel, for the Gough sensor's reading kernel).
+_quaternion = rotation_quaternion_floats
 
 
 def pose_components(position, rotation) -> tuple[tuple, tuple]:
@@ -86,11 +69,8 @@ def pose_from_components(position, orientation) -> tuple[np.ndarray, np.ndarray]
     if abs(norm - 1.0) > QUATERNION_NORM_TOL:
         raise ValueError(f'pose.orientation: must be a unit quaternion (|q| within 1 +- '
                          f'{QUATERNION_NORM_TOL:g}), got |q| = {norm!r}')
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    rot = [[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-           [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-           [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]]
-    return np.array(p), np.array(rot)
+    rot = unit_quaternion_rotation_floats(x / norm, y / norm, z / norm, w / norm)
+    return np.array(p), np.array(rot).reshape(3, 3)
 
 
 # ------------------------------------------------------ machine <-> tool pose

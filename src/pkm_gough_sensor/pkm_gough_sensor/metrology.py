@@ -29,10 +29,13 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
-from pkm_kinematics.bars import COL_A, COL_B, STRUT, bar_rows, strut_lengths_kernel
+from pkm_common.poses import QUATERNION_NORM_TOL, pose_components
+from pkm_kinematics.bars import COL_A, COL_B, FK_CONVERGED, STRUT, bar_rows, strut_lengths_kernel
 from pkm_kinematics.errors import FieldError
-from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform
-from pkm_kinematics.rotations import mul3
+from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, dkm_solve_kernel
+from pkm_kinematics.jit import direct_call, kernel
+from pkm_kinematics.rotations import (mul3, mul3_kernel, mv3, mv3_kernel, rotation_quaternion_kernel,
+                                      unit_quaternion_rotation_kernel)
 from pkm_kinematics.validation import finite_floats
 
 STRUT_NAMES = tuple(f'strut{i}' for i in range(1, 7))
@@ -56,10 +59,120 @@ def _t(r: tuple) -> tuple:
     return (r[0], r[3], r[6], r[1], r[4], r[7], r[2], r[5], r[8])
 
 
-def _mv(r: tuple, v) -> tuple:
-    x, y, z = v
-    return (r[0] * x + r[1] * y + r[2] * z, r[3] * x + r[4] * y + r[5] * z,
-            r[6] * x + r[7] * y + r[8] * z)
+_mv = mv3
+
+
+
+@kernel()
+def rotation_defect_kernel(r) -> tuple:
+    """(the largest element of |R^T R - I|, det R) of a row-major 9-tuple."""
+    a, b, c, d, e, f, g, h, i = r
+    err = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
+              abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
+              abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return err, det
+
+
+rotation_defect = rotation_defect_kernel.py_func
+
+
+@kernel()
+def quantized_kernel(value: float, resolution: float) -> float:
+    """A scale's reading: ``value`` rounded to the nearest multiple of ``resolution``
+    (halves to even)."""
+    return round(value / resolution) * resolution
+
+
+quantized = quantized_kernel.py_func
+
+
+@kernel()
+def tool_in_world_kernel(p_bp, r_bp, p_wb, r_wb, r_pt, p_tp) -> tuple:
+    """The tool pose in world (position, row-major rotation) of the plate pose in the
+    Gough base frame (module doc): R_t = R_wb R_bp R_tp^T, p_t = p_wb + R_wb p_bp - R_t p_tp."""
+    r_t = mul3_kernel(r_wb, mul3_kernel(r_bp, r_pt))
+    wp = mv3_kernel(r_wb, p_bp)
+    rp = mv3_kernel(r_t, p_tp)
+    return (p_wb[0] + wp[0] - rp[0], p_wb[1] + wp[1] - rp[1], p_wb[2] + wp[2] - rp[2]), r_t
+
+
+tool_in_world = tool_in_world_kernel   # for Python callers too (tuples; ~1 us, its py_func ~2 us)
+
+# Codes of the compiled reading (GoughSensorModel.measure_fields, estimate_into), apart
+# from the DKM's (bars.FK_*, gough.DKM_*: >= 0, READ_OK is FK_CONVERGED). What is refused
+# is taken again by the interpreted path, which names the error.
+READ_OK = FK_CONVERGED
+READ_REFUSED, READ_OUTSIDE_TRAVEL, READ_NOT_FINITE, READ_POSE_NOT_FINITE = -1, -2, -3, -4
+
+
+@kernel("(float64[::1], float64[:, :], float64[::1])")
+def true_lengths_kernel(pose, bars, out):
+    """The true strut lengths into ``out`` (6,) of a tool pose's fields (x, y, z, qx,
+    qy, qz, qw) as a true_pose message carries them, with its checks
+    (pose_from_components, rotation_floats): READ_OK, or READ_REFUSED and nothing
+    written."""
+    px, py, pz, x, y, z, w = pose[0], pose[1], pose[2], pose[3], pose[4], pose[5], pose[6]
+    if not math.isfinite(px + py + pz) or not math.isfinite(x + y + z + w):
+        return READ_REFUSED
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+        return READ_REFUSED
+    r = unit_quaternion_rotation_kernel(x / norm, y / norm, z / norm, w / norm)
+    err, det = rotation_defect_kernel(r)
+    if err > ROTATION_TOL or det <= 0.0:
+        return READ_REFUSED
+    out[:] = strut_lengths_kernel(bars, px, py, pz, r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+    return READ_OK
+
+
+@kernel("(float64[::1], float64[::1], float64, float64[::1])")
+def readings_kernel(true_lengths, noise, resolution, out):
+    """The scales' readings into ``out``: true length + noise, quantised (measure)."""
+    for k in range(6):
+        out[k] = quantized_kernel(true_lengths[k] + noise[k], resolution)
+
+
+@kernel("(float64[::1], float64, float64, float64[:, :], float64[::1], int64[:], float64, int64, float64, float64, "
+        "float64[::1], float64[::1], float64[:, ::1], float64[::1])")
+def estimate_kernel(lengths, lo, hi, bars, state, flags, tol_m, max_iterations, divergence_limit, home_det_sign,
+                    mounting, p, rotation, pose):
+    """The tool pose of six readings (estimate: the travel check, the warm-started DKM
+    on the nominal geometry, the tool in world) into ``pose`` (x, y, z, qx, qy, qz,
+    qw, as pose_components gives it). ``mounting``: p_wb (3), R_wb (9), R_pt (9),
+    p_tp (3). Returns (code, iterations, J_h evaluations, residual): READ_OUTSIDE_TRAVEL
+    and READ_NOT_FINITE before the solve, the solve's code after it (its last iterate
+    in ``p``, ``rotation``), READ_POSE_NOT_FINITE for a converged solve whose tool pose
+    is not finite."""
+    for k in range(6):
+        if not math.isfinite(lengths[k]):
+            return READ_NOT_FINITE, 0, 0, math.nan
+    for k in range(6):
+        if not lo <= lengths[k] <= hi:
+            return READ_OUTSIDE_TRAVEL, 0, 0, math.nan
+    code, iterations, evaluations, residual = dkm_solve_kernel(bars, lengths, state, flags, tol_m, max_iterations,
+                                                              divergence_limit, home_det_sign, p, rotation)
+    if code != FK_CONVERGED:
+        return code, iterations, evaluations, residual
+    m = mounting
+    rt = rotation
+    (x, y, z), r_t = tool_in_world_kernel(
+        (p[0], p[1], p[2]), (rt[0, 0], rt[0, 1], rt[0, 2], rt[1, 0], rt[1, 1], rt[1, 2], rt[2, 0], rt[2, 1], rt[2, 2]),
+        (m[0], m[1], m[2]), (m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11]),
+        (m[12], m[13], m[14], m[15], m[16], m[17], m[18], m[19], m[20]), (m[21], m[22], m[23]))
+    total = x + y + z
+    for v in r_t:
+        total += v
+    if not math.isfinite(total):
+        return READ_POSE_NOT_FINITE, iterations, evaluations, residual
+    qx, qy, qz, qw = rotation_quaternion_kernel(r_t)
+    pose[0], pose[1], pose[2], pose[3], pose[4], pose[5], pose[6] = x, y, z, qx, qy, qz, qw
+    return code, iterations, evaluations, residual
+
+
+_true_lengths_call = direct_call(true_lengths_kernel)
+_readings_call = direct_call(readings_kernel)
+_estimate_call = direct_call(estimate_kernel)
 
 
 def rotation_floats(value, name: str) -> tuple:
@@ -75,11 +188,7 @@ def rotation_floats(value, name: str) -> tuple:
         raise FieldError(name, f'expected a 3 x 3 rotation matrix, got {value!r}') from None
     if not math.isfinite(a + b + c + d + e + f + g + h + i):
         raise FieldError(name, f'contains NaN or infinite values: {list(flat)}')
-    # columns orthonormal (R^T R = I) and det = +1
-    err = max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
-              abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
-              abs(a * c + d * f + g * i), abs(b * c + e * f + h * i))
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    err, det = rotation_defect(flat)    # columns orthonormal (R^T R = I) and det = +1
     if err > ROTATION_TOL or det <= 0.0:
         raise FieldError(name, f'not a rotation matrix (|R^T R - I| = {err:.3g}, det = {det:.6g})')
     return flat
@@ -149,6 +258,10 @@ class GoughSensorModel:
         self.dkm_tol_m = DKM_TOL_FRACTION * self.resolution_m
         self.solver = GoughDKMSolver(self.nominal, tol_m=self.dkm_tol_m)
         self._travel = (float(self.nominal.strut_limits[0]), float(self.nominal.strut_limits[1]))
+        # the compiled reading's arrays (measure_fields, estimate_into)
+        self._true_out, self._no_noise = np.empty(6), np.zeros(6)
+        self._dkm_p, self._dkm_rotation = np.empty(3), np.empty((3, 3))
+        self._mounting = np.array(self._p_wb + self._r_wb + self._r_pt + self._p_tp, dtype=float)
 
     # ------------------------------------------------------------- frames
     @property
@@ -170,11 +283,7 @@ class GoughSensorModel:
         return _mv(self._r_bw, d), mul3(self._r_bw, mul3(r_t, self._r_tp))
 
     def _tool_in_world(self, p_bp, r_bp) -> tuple[tuple, tuple]:
-        r_t = mul3(self._r_wb, mul3(r_bp, self._r_pt))
-        wp = _mv(self._r_wb, p_bp)
-        rp = _mv(r_t, self._p_tp)
-        return (self._p_wb[0] + wp[0] - rp[0], self._p_wb[1] + wp[1] - rp[1],
-                self._p_wb[2] + wp[2] - rp[2]), r_t
+        return tool_in_world(tuple(p_bp), tuple(r_bp), self._p_wb, self._r_wb, self._r_pt, self._p_tp)
 
     def plate_pose(self, tool_position, tool_rotation) -> tuple[np.ndarray, np.ndarray]:
         """The Gough plate pose in the Gough base frame for a tool pose in world."""
@@ -215,7 +324,7 @@ class GoughSensorModel:
             noise = self._noise.normal(0.0, self.noise_std_m, 6).tolist()
             lengths = [a + b for a, b in zip(lengths, noise)]
         res = self.resolution_m
-        return np.array([round(v / res) * res for v in lengths])
+        return np.array([quantized(v, res) for v in lengths])
 
     # ---------------------------------------------------------- estimating
     def estimate(self, lengths) -> tuple[np.ndarray, np.ndarray, GoughDKMResult]:
@@ -241,6 +350,43 @@ class GoughSensorModel:
             return np.full(3, np.nan), np.full((3, 3), np.nan), result
         p, r = self._tool_in_world(result.position.tolist(), tuple(result.rotation.ravel().tolist()))
         return np.array(p), np.array(r).reshape(3, 3), result
+
+    # ------------------------------------------------ the compiled reading
+    # measure() and estimate() of one true pose in three compiled calls (~1 us each
+    # against ~25 us interpreted), the same floats: the kernels are made of the
+    # functions these methods call (rotations' kernels, quantized, tool_in_world, the
+    # solver's dkm_solve_kernel). What they refuse is taken again by measure() or
+    # estimate(), which name the error.
+    def measure_fields(self, fields: np.ndarray, out: np.ndarray) -> bool:
+        """:meth:`measure` of a true tool pose given as its message's fields (7 float64:
+        x, y, z, qx, qy, qz, qw, as pose_from_components reads them) into ``out`` (6
+        float64). False, with no noise drawn and nothing written, for a pose that
+        pose_from_components or measure() refuses."""
+        if _true_lengths_call(fields, self._true_bars, self._true_out) != READ_OK:
+            return False
+        noise = self._noise.normal(0.0, self.noise_std_m, 6) if self.noise_std_m > 0.0 else self._no_noise
+        _readings_call(self._true_out, noise, self.resolution_m, out)
+        return True
+
+    def estimate_into(self, lengths: np.ndarray, pose: np.ndarray) -> GoughDKMResult | None:
+        """:meth:`estimate` of readings ``lengths`` (6 float64), the tool pose into
+        ``pose`` as pose_components gives it (x, y, z, qx, qy, qz, qw): None when it
+        converged, else the failed result estimate() gives (the DKM state as after it).
+        Raises what estimate() and pose_components raise."""
+        solver = self.solver
+        bars, state, flags, tol_m, max_iterations, divergence_limit, det_sign = solver.kernel_arguments()
+        p, rotation = self._dkm_p, self._dkm_rotation
+        code, iterations, evaluations, residual = _estimate_call(
+            lengths, self._travel[0], self._travel[1], bars, state, flags, tol_m, max_iterations, divergence_limit,
+            det_sign, self._mounting, p, rotation, pose)
+        if code == READ_OK:
+            return None
+        if code in (READ_OUTSIDE_TRAVEL, READ_NOT_FINITE):      # before the solve: the state untouched
+            return self.estimate(lengths.tolist())[2]
+        if code == READ_POSE_NOT_FINITE:                          # raises, naming it
+            p_t, r_t = self._tool_in_world(p.tolist(), tuple(rotation.ravel().tolist()))
+            pose_components(np.array(p_t), np.array(r_t).reshape(3, 3))
+        return solver.result_of(code, p, rotation, iterations, evaluations, residual)
 
     def reset(self, tool_position=None, tool_rotation=None) -> None:
         """Restart the DKM warm start from a tool pose (default: the platform's home)."""

@@ -11,9 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from pkm_common.cdr import JointStateEncoder, PoseStampedEncoder, decode_pose_stamped
+import numpy as np
+
+from pkm_common.cdr import JointStateEncoder, PoseStampedDecoder, PoseStampedEncoder, decode_pose_stamped
 from pkm_common.params import ParameterError, declare_float, declare_float_list, declare_int, declare_str
-from pkm_common.poses import pose_components, pose_from_components
+from pkm_common.poses import pose_from_components
 from pkm_gough_sensor.laser import MAX_SIGMA_M, LaserTracker
 from pkm_gough_sensor.metrology import MAX_RESOLUTION_M, STRUT_NAMES, GoughSensorModel
 from pkm_kinematics import load_machine, machine_names
@@ -93,15 +95,23 @@ class GoughSensorLoop:
         self._last_stamp_ns = -1
         self._struts_encoder = JointStateEncoder(STRUT_NAMES, "gough_base", fields=("position",))
         self._pose_encoder = PoseStampedEncoder("world")
+        self._pose_decoder = PoseStampedDecoder("world", "platform/true_pose")
+        # the compiled reading's arrays (GoughSensorModel.measure_fields, estimate_into)
+        self._fields, self._lengths, self._pose = np.empty(7), np.empty(6), np.empty(7)
 
     def on_true_pose(self, buf: bytes) -> None:
         self.counts["received"] += 1
         ns = -1
         try:
-            msg = decode_pose_stamped(buf, "platform/true_pose")
+            msg = self._pose_decoder.decode(buf)
             ns = msg.stamp_ns
-            position, rotation = _true_pose(msg)
-            lengths = self.model.measure(position, rotation)
+            if msg.frame_id not in ACCEPTED_FRAMES:
+                _true_pose(msg)                    # raises, naming the frame
+            fields = self._fields
+            fields[:3], fields[3:] = msg.position, msg.orientation
+            lengths = self._lengths
+            if not self.model.measure_fields(fields, lengths):
+                lengths = self.model.measure(*_true_pose(msg))      # raises what the compiled one refused
         except ValueError as exc:
             self.counts["refused"] += 1
             self.ports.error(f"true pose refused: {exc}", {"stamp_ns": ns})
@@ -111,20 +121,21 @@ class GoughSensorLoop:
         new_step = ns != self._last_stamp_ns      # counted once per step (not the discovery repeats)
         self._last_stamp_ns = ns
         # the readings first: a sensor-space controller waits for them, and the DKM
-        # (~20 us) is then off its critical path; a measured-space one waits for the pose
-        lengths = lengths.tolist()
-        self.ports.publish_struts(self._struts_encoder.encode(ns, position=lengths))
+        # is then off its critical path; a measured-space one waits for the pose
+        values = lengths.tolist()
+        self.ports.publish_struts(self._struts_encoder.encode(ns, position=values))
         published["metrology/struts"] += new_step
-        est_p, est_r, result = self.model.estimate(lengths)
-        if result.converged:
+        result = self.model.estimate_into(lengths, self._pose)
+        if result is None:
             published["metrology/pose"] += new_step
             self.counts["solved"] += 1
-            self.ports.publish_pose(self._pose_encoder.encode(ns, *pose_components(est_p, est_r)))
+            pose = self._pose.tolist()
+            self.ports.publish_pose(self._pose_encoder.encode(ns, pose[:3], pose[3:]))
         else:
             self.counts["failed"] += 1
             self.ports.error(f"DKM failed: {result.reason}", {
                 "stamp_ns": ns, "iterations": result.iterations,
-                "residual_m": result.residual_m, "lengths_m": lengths})
+                "residual_m": result.residual_m, "lengths_m": values})
 
     def summary(self) -> dict:
         return {**self.counts, "published": self.published}

@@ -475,5 +475,23 @@ class GoughDKMSolver:
             return GoughDKMResult(p, rotation, True, iterations, evaluations, residual)
         if code == DKM_BAD_LENGTHS:
             platform._validate_lengths(lengths)            # raises, naming what is wrong
-        return platform._result(code, p, rotation.ravel(), iterations, evaluations, residual, None,
-                                self.max_iterations)
+        return self.result_of(code, p, rotation, iterations, evaluations, residual)
+
+    def kernel_arguments(self) -> tuple:
+        """What ``dkm_solve_kernel`` takes besides the target and the outputs: (bars,
+        state, flags, tol_m, max_iterations, divergence_limit, home_det_sign), for a
+        compiled caller that solves inside its own kernel (the Gough sensor's reading).
+        The state is this solver's: a solve there moves it on as :meth:`solve` does
+        (taken anew for each call: :meth:`reset` replaces it)."""
+        platform = self.platform
+        return (platform.bars, self._state, self._flags, float(self.tol_m), int(self.max_iterations),
+                platform._divergence_limit, platform._home_det_sign)
+
+    def result_of(self, code: int, p, rotation, iterations: int, evaluations: int,
+                  residual: float) -> GoughDKMResult:
+        """The GoughDKMResult of a solve by ``dkm_solve_kernel`` (its code and last
+        iterate ``p`` (3,), ``rotation`` (3, 3)), as :meth:`solve` returns it."""
+        if code == B.FK_CONVERGED:
+            return GoughDKMResult(p, rotation, True, iterations, evaluations, residual)
+        return self.platform._result(code, p, np.asarray(rotation).ravel(), iterations, evaluations, residual,
+                                     None, self.max_iterations)

@@ -95,6 +95,55 @@ mul3 = mul3_kernel.py_func         # interpreted, for Python callers (see exp_so
 
 
 @kernel()
+def mv3_kernel(r, v) -> tuple:
+    """A rotation given as a row-major 9-tuple times a 3-vector (3 floats)."""
+    x, y, z = v
+    return (r[0] * x + r[1] * y + r[2] * z, r[3] * x + r[4] * y + r[5] * z,
+            r[6] * x + r[7] * y + r[8] * z)
+
+
+mv3 = mv3_kernel.py_func
+
+
+@kernel()
+def unit_quaternion_rotation_kernel(x: float, y: float, z: float, w: float) -> tuple:
+    """The rotation (row-major 9-tuple) of a unit quaternion (x, y, z, w)."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
+            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
+            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
+
+
+unit_quaternion_rotation_floats = unit_quaternion_rotation_kernel.py_func
+
+
+@kernel()
+def rotation_quaternion_kernel(r) -> tuple:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation given as a row-major 9-tuple
+    (Shepperd's method)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q0, q1, q2, q3 = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q0, q1, q2, q3 = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q0, q1, q2, q3 = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q0, q1, q2, q3 = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    if q3 < 0.0:
+        n = -n
+    return (q0 / n, q1 / n, q2 / n, q3 / n)
+
+
+rotation_quaternion_floats = rotation_quaternion_kernel.py_func
+
+
+@kernel()
 def log_so3_kernel(r) -> tuple:
     """The rotation vector (3 floats) of a rotation given as a row-major 9-tuple
     (angle < pi): the inverse of :func:`exp_so3_kernel`."""
