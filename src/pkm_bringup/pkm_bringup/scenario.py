@@ -661,6 +661,11 @@ def expected_topics(s: Scenario) -> list[str]:
     return topics
 
 
+# libyaml's emitter where PyYAML has it: the same text as PyYAML's own (every node's
+# file of every shipped scenario compared), ~4x faster (a study's run writes four)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
 def params_file_text(params: dict) -> str:
     """A ROS 2 ``--params-file`` for one node."""
-    return yaml.safe_dump({"/**": {"ros__parameters": params}}, sort_keys=False)
+    return yaml.dump({"/**": {"ros__parameters": params}}, Dumper=_DUMPER, sort_keys=False)
