@@ -70,7 +70,8 @@ def true_poses(model, n):
     out = []
     for k in range(n):
         s = k / n
-        p = p0 + 0.01 * np.array([math.sin(2 * math.pi * s), math.sin(4 * math.pi * s), 0.3 * math.cos(2 * math.pi * s)])
+        turn = 2 * math.pi * s
+        p = p0 + 0.01 * np.array([math.sin(turn), math.sin(2 * turn), 0.3 * math.cos(turn)])
         r = exp_so3(3e-3 * np.array([math.sin(2 * math.pi * s), math.cos(2 * math.pi * s), s])) @ r0
         position, q = pose_components(p, r)
         buf = enc.encode(1000 + k * 1_000_000, position, q)

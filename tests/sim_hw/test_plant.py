@@ -319,6 +319,39 @@ def test_the_imperfect_delta_turns_its_tool_and_its_drives_read_the_bars():
 
 
 @pytest.mark.parametrize("name", ["archi", "mom3", "orthoglide"])
+def test_the_compiled_outputs_are_the_python_outputs_with_every_encoder_and_load_term(name):
+    """The compiled step (rail_step.py) against the Python path with what the test
+    below leaves out: encoder noise (the same draws), screw errors and offsets, a force
+    limit the commands cross (saturation), the tool's and the frame's compliance under
+    scheduled loads."""
+    machine = load_machine(name)
+    n = machine.model.n_legs
+    probe = Plant(machine, PlantParameters())
+    hold = min_two_norm(probe.machine.jacobian(probe.x), probe.dynamics.static_forces(probe.x))
+    params = dict(link_length_errors=(0.01,) + (0.0,) * (n - 1), force_limit_n=float(np.abs(hold).max() + 60.0),
+                  encoder_noise_m=2e-7,
+                  seed=11, screw_errors_m=tuple(2e-6 * (i + 1) for i in range(n)), screw_error_period_m=0.05,
+                  encoder_offsets_m=tuple(0.013 * (i - 1) for i in range(n)),
+                  compliance=(1e-7, 2e-7, 3e-7), frame_compliance=(4e-8, 5e-8, 6e-8))
+    compiled, python = Plant(machine, PlantParameters(**params)), Plant(machine, PlantParameters(**params))
+    python.compiled_step = False
+    for plant in (compiled, python):
+        plant.schedule_load([(0.05, [30.0, -20.0, 1.0 if name == "archi" else 10.0]), (0.2, [0.0, 0.0, 0.0])])
+        plant.schedule_frame_load([(0.1, [50.0, 0.0, 0.0])])
+    rng = np.random.default_rng(5)
+    saturated = 0
+    for k in range(250):
+        forces = (hold + rng.normal(0.0, 60.0, n)).tolist()
+        a, b = compiled.step(forces), python.step(forces)
+        assert (a, compiled.x, compiled.v, compiled.load) == (b, python.x, python.v, python.load), k
+        saturated += any(a.saturated)
+    assert saturated > 20 and a.tool_pose != a.rigid_pose and not a.stopped, (saturated, a)
+    assert (a.internal_force_norm > 0.0) == (n > 3), a
+    with pytest.raises(ValueError, match="drive forces"):
+        compiled.step([math.nan] * n)
+
+
+@pytest.mark.parametrize("name", ["archi", "mom3", "orthoglide"])
 @pytest.mark.parametrize("substeps", [1, 3])
 def test_the_compiled_step_is_the_python_step_to_the_bit(name, substeps):
     """Plant.step integrates a machine on rails in one compiled call

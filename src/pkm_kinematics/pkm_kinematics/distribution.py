@@ -246,7 +246,7 @@ def _min_two_norm_rows(rows, wrench) -> list[float]:
 
 
 @kernel("(float64[:, :], float64[:])")
-def _project_kernel(rows, forces):
+def project_kernel(rows, forces):
     """(J (J^T J)^-1 J^T f, solvable)."""
     y0, y1, y2, ok = least_squares_kernel(rows, forces)
     return rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2, ok
@@ -256,7 +256,7 @@ def project_rows(rows, forces) -> list[float]:
     """:func:`project_forces` on floats (J as n rows of 3, or an (n, 3) array):
     J (J^T J)^-1 J^T f, the least-norm forces producing the wrench of ``forces``
     (their null-space part removed)."""
-    projected, ok = _project_kernel(*_rows_and_values(rows, forces))
+    projected, ok = project_kernel(*_rows_and_values(rows, forces))
     if not ok:
         raise DistributionError(SINGULAR_GRAM)
     return projected.tolist()

@@ -113,6 +113,12 @@ class DynamicModel:
             raise np.linalg.LinAlgError("singular 3x3 system")
         return a0, a1, a2
 
+    def step_arguments(self) -> tuple:
+        """What :func:`semi_implicit_step_kernel` takes of this model, for a compiled
+        caller's step (pkm_sim_hw.rail_step): (bars, twist columns, then the mass
+        model's md, k, drive gravity, mn0, mn1, mn2, pg0, pg1, pg2)."""
+        return (self.machine.bars, self.machine.twist_columns, *self._mass_args)
+
     def semi_implicit_step(self, x, xdot, drive_forces, wrench, h: float, substeps: int) -> tuple:
         """``substeps`` semi-implicit Euler steps of ``forward_dynamics`` (xdot += h xddot,
         then x += h xdot) under constant forces and wrench, and the velocity terms at the

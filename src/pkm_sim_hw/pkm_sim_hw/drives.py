@@ -24,6 +24,9 @@ def applied_forces(commanded, limit: float, faults) -> tuple[list, list]:
     return applied, saturated
 
 
+_NO_NOISE = np.zeros(0)
+
+
 class Encoders:
     """The drive encoders of one plant: ``read(q_true, faults)`` once per step.
     ``offsets``: incremental encoders count from where they were at power-up, not from
@@ -55,6 +58,13 @@ class Encoders:
         if res > 0.0:
             q = [round(qi / res) * res for qi in q]
         return q
+
+    def noise(self, n: int) -> np.ndarray:
+        """The noise :meth:`quantise` adds in a step (the same draws, one per drive in
+        order, times its std) as an array, for a compiled step; empty without noise."""
+        if self.noise_m > 0.0:
+            return self.noise_m * self._rng.standard_normal(n)
+        return _NO_NOISE
 
     def start(self, q_true) -> None:
         """The first reading (no velocity before it)."""

@@ -52,6 +52,7 @@ from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
+from .rail_step import STEP_OK, rail_dynamics_step, rail_outputs
 
 FAULT_KINDS = ("no_force", "locked", "encoder_freeze", "encoder_slip")
 DEFAULT_SLIP_M = 1e-4
@@ -237,6 +238,9 @@ class Plant:
                                  self.params.screw_error_period_m)
         self.encoders.start(self._drive_positions(self.machine.inverse_kinematics(self.x, check_limits=False).tolist())[0])
         self._last = self._output([0.0] * n, [False] * n, self.active_faults())
+        # the common case compiled whole (rail_step.py); ``compiled_step`` False: never
+        self._compiled = _CompiledStep(self) if self.compiled_step and self.bars is None and not self._faults \
+            else None
 
     # ------------------------------------------------------------------ inputs
     def check_load(self, wrench, what: str = "load") -> list:
@@ -298,11 +302,12 @@ class Plant:
         ``hold``: the drives' holding brakes are closed for this period (a drive whose
         power stage is off: pkm_drives.virtual_drive), the platform stays where it is,
         without latching a stop."""
+        if self._compiled is not None and self.compiled_step and not (self.stopped or hold):
+            out = self._compiled.step(forces)
+            if out is not None:
+                return out
         cmd = finite_floats(forces, self.n, "drive forces")
-        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
-            self.load = self._schedule.pop(0)[1]
-        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
-            self.frame_load = self._frame_schedule.pop(0)[1]
+        self._apply_schedules()
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
         locked = sorted({f.drive for f in faults if f.kind == "locked"})
@@ -352,6 +357,13 @@ class Plant:
             applied = [0.0] * self.n
         self._last = self._output(applied, saturated, faults, terms)
         return self._last
+
+    def _apply_schedules(self) -> None:
+        """The scheduled loads due at this step."""
+        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
+            self.load = self._schedule.pop(0)[1]
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
+            self.frame_load = self._frame_schedule.pop(0)[1]
 
     def _acceleration(self, x, v, forces):
         """xddot, and the brake reactions of locked drives (constrained dynamics)."""
@@ -438,6 +450,63 @@ class Plant:
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""
         return self._last
+
+
+class _CompiledStep:
+    """Plant.step of a rail machine without faults or bars, compiled whole
+    (rail_step.py): the plant's state copied in and out of arrays around two kernel
+    calls. ``step`` returns None where the interpreted step must be taken (a command
+    that is not n finite numbers, an end stop, a pose the kinematics refuses): nothing
+    has changed then."""
+
+    def __init__(self, plant: Plant):
+        n, p = plant.n, plant.params
+        self.plant = plant
+        self.args = plant.dynamics.step_arguments()
+        self.h, self.substeps, self.limit = p.dt_s / p.substeps, int(p.substeps), float(p.force_limit_n)
+        self.lower, self.upper = np.array(plant._lower, dtype=float), np.array(plant._upper, dtype=float)
+        enc = plant.encoders
+        self.encoders = (float(enc.resolution_m), np.array(enc.offsets, dtype=float),
+                         np.array(enc.screw_errors, dtype=float), float(enc.screw_wavenumber))
+        self.compliance = np.array(p.compliance, dtype=float)
+        self.frame_compliance = np.array(p.frame_compliance, dtype=float)
+        self.cmd, self.state, self.load, self.frame_load = np.empty(n), np.empty(6), np.empty(3), np.empty(3)
+        self.applied, self.saturated, self.projected = np.empty(n), np.zeros(n, dtype=bool), np.zeros(n)
+        self.q, self.rows = np.empty(n), np.empty((n, 3))
+        self.reading, self.velocity, self.tool, self.fint = np.empty(n), np.empty(n), np.empty(3), np.empty(n)
+
+    def step(self, forces) -> PlantOutput | None:
+        plant, cmd = self.plant, self.cmd
+        if len(forces) != plant.n:
+            return None
+        try:
+            cmd[:] = forces
+        except (TypeError, ValueError):
+            return None
+        if not math.isfinite(cmd.sum()):
+            return None                              # refused by the interpreted step, naming it
+        plant._apply_schedules()
+        state, load, frame_load = self.state, self.load, self.frame_load
+        state[:3], state[3:] = plant.x, plant.v
+        load[:], frame_load[:] = plant.load, plant.frame_load
+        if rail_dynamics_step(cmd, self.limit, state, load, self.h, self.substeps, *self.args, self.lower,
+                              self.upper, self.applied, self.saturated, self.q, self.rows,
+                              self.projected) != STEP_OK:
+            return None
+        enc = plant.encoders
+        resolution, offsets, screw_errors, wavenumber = self.encoders
+        norm = rail_outputs(self.q, self.applied, self.projected, resolution, offsets, screw_errors, wavenumber,
+                            enc.noise(plant.n), np.array(enc.last, dtype=float), enc.dt_s, state, load, frame_load,
+                            self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool,
+                            self.fint)
+        plant.x, plant.v = state[:3].tolist(), state[3:].tolist()
+        plant.t += plant.params.dt_s
+        plant.k += 1
+        enc.last = reading = self.reading.tolist()
+        plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(),
+                                  self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
+                                  self.fint.tolist(), norm, [], plant.stopped, None)
+        return plant._last
 
 
 def check_load(wrench, space: TaskSpace, params: PlantParameters, what: str = "load") -> list:
