@@ -69,6 +69,23 @@ def test_archi_homes_three_switches_then_its_redundant_drive_and_ends_at_home():
     assert plant.k == 0 and plant.t == 0.0                       # the run starts homed, at time 0
 
 
+def test_after_homing_the_compiled_step_reads_the_encoders_with_their_new_offsets():
+    """Homing gives the encoders new offsets: the compiled step (rail_step) reads with
+    them as the Python path does (it read with the old ones: 12-41 m/s velocities)."""
+    archi = load_machine("archi")
+    params = PlantParameters(dt_s=DT, encoder_offsets_m=(0.0123, -0.0311, 0.0207, 0.0415))
+    plants = [Plant(archi, params, initial_pose=[1.0015, -0.4008, 0.7858]) for _ in range(2)]
+    plants[1].compiled_step = False
+    for plant in plants:
+        home(plant, homing_plan(archi), mass_kg=12.25)
+    hold = [0.0, 0.0, 0.0, 0.0]
+    for k in range(20):
+        a, b = plants[0].step(hold), plants[1].step(hold)
+        assert (a, plants[0].x) == (b, plants[1].x), k
+    assert np.abs(a.encoder_velocities).max() < 1.0, a           # falling unpowered, not 12-41 m/s
+    np.testing.assert_allclose(a.encoder_positions, archi.model.inverse_kinematics(plants[0].x), atol=1.5e-6)
+
+
 def test_a_hexapod_homes_its_six_struts_together():
     hexapod = load_machine("genhexkins")
     data = copy.deepcopy(hexapod.data)

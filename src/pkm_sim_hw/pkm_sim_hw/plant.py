@@ -465,9 +465,7 @@ class _CompiledStep:
         self.args = plant.dynamics.step_arguments()
         self.h, self.substeps, self.limit = p.dt_s / p.substeps, int(p.substeps), float(p.force_limit_n)
         self.lower, self.upper = np.array(plant._lower, dtype=float), np.array(plant._upper, dtype=float)
-        enc = plant.encoders
-        self.encoders = (float(enc.resolution_m), np.array(enc.offsets, dtype=float),
-                         np.array(enc.screw_errors, dtype=float), float(enc.screw_wavenumber))
+        self._encoder_key, self.encoders = None, ()
         self.compliance = np.array(p.compliance, dtype=float)
         self.frame_compliance = np.array(p.frame_compliance, dtype=float)
         self.cmd, self.state, self.load, self.frame_load = np.empty(n), np.empty(6), np.empty(3), np.empty(3)
@@ -494,7 +492,7 @@ class _CompiledStep:
                               self.projected) != STEP_OK:
             return None
         enc = plant.encoders
-        resolution, offsets, screw_errors, wavenumber = self.encoders
+        resolution, offsets, screw_errors, wavenumber = self._encoder_arguments(enc)
         norm = rail_outputs(self.q, self.applied, self.projected, resolution, offsets, screw_errors, wavenumber,
                             enc.noise(plant.n), np.array(enc.last, dtype=float), enc.dt_s, state, load, frame_load,
                             self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool,
@@ -507,6 +505,16 @@ class _CompiledStep:
                                   self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
                                   self.fint.tolist(), norm, [], plant.stopped, None)
         return plant._last
+
+    def _encoder_arguments(self, enc: Encoders) -> tuple:
+        """The encoders' constants as the kernel takes them, made again whenever they
+        change (homing gives the encoders their new offsets)."""
+        key = (enc.resolution_m, enc.offsets, enc.screw_errors, enc.screw_wavenumber)
+        if key != self._encoder_key:
+            self._encoder_key = (key[0], list(key[1]), list(key[2]), key[3])
+            self.encoders = (float(enc.resolution_m), np.array(enc.offsets, dtype=float),
+                             np.array(enc.screw_errors, dtype=float), float(enc.screw_wavenumber))
+        return self.encoders
 
 
 def check_load(wrench, space: TaskSpace, params: PlantParameters, what: str = "load") -> list:

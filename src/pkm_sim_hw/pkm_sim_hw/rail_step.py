@@ -7,7 +7,7 @@ substeps and the velocity terms at the state reached
 caller, resolution; the velocity by backward difference), the internal force
 (``distribution.project_kernel``) and the tool's deflection (``Plant._output``). The
 same floats as those functions: each is the formula they compute, in their order
-(tests/sim_hw/test_rail_step.py runs both on the shipped rail machines). Anything
+(tests/sim_hw/test_plant.py and test_homing.py run both on the shipped rail machines). Anything
 else (a non-finite command, an end stop, a pose the kinematics refuses, a singular
 mass matrix) returns its code with the state untouched, and the caller takes the
 interpreted path, which names it."""
