@@ -15,6 +15,8 @@ PIP_FLAGS ?= -q --disable-pip-version-check
 # The realtime tests (marker realtime: a realtime graph alone on the machine) run after
 # the others, in one process: under xdist each waited for the other worker's test to end
 # while that worker then waited for it (tests/conftest.py's lock; ~1 minute of a run).
+# PYTEST_ARGS given (command line, environment): one pytest of exactly those, the lock
+# keeping the realtime tests alone.
 PYTEST_ARGS ?= -q -rfEs -p no:cacheprovider --durations=25 -n auto --maxprocesses 4 --dist worksteal
 PYTEST_RT_ARGS ?= -q -rfEs -p no:cacheprovider --durations=10
 RT_TEST_FILES = $(shell grep -rl --include='test_*.py' realtime_loop_alone tests)
@@ -57,8 +59,12 @@ test: venv
 	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || \
 		echo "make test: chromium not found: the operator panel's browser test is skipped (apt-get install chromium)"
 	$(VENV)/bin/lint-imports --no-cache
+ifeq ($(origin PYTEST_ARGS),file)
 	$(VPY) -m pytest -m "not realtime" $(PYTEST_ARGS)
-	$(VPY) -m pytest -m realtime $(PYTEST_RT_ARGS) $(RT_TEST_FILES)
+	$(if $(RT_TEST_FILES),$(VPY) -m pytest -m realtime $(PYTEST_RT_ARGS) $(RT_TEST_FILES))
+else
+	$(VPY) -m pytest $(PYTEST_ARGS)
+endif
 
 # The packages' layer order and the pure core without rclpy (.importlinter); also the
 # first step of `make test`.
