@@ -771,9 +771,9 @@ def _set_trajectory_fast(run: RunData, raw, msgtype: str) -> bool:
         return False
     if not data.joint_names:
         return False
-    run.trajectory_time_s = data.time_s
+    run.trajectory_time_s = data.time_s            # sec + 1e-9 nsec: the general path's to the last bit, or one ulp off
     run.trajectory_position = data.transform[:, 0, :3].copy()
-    run.trajectory_yaw = yaw_of_quaternions(data.transform[:, 0, 3:])
+    run.trajectory_yaw = np.array([yaw_of_quaternion(*q) for q in data.transform[:, 0, 3:].tolist()])
     return True
 
 
