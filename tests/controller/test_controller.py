@@ -238,6 +238,8 @@ def test_workspace_and_singularity_margin_trip():
     ([1.0, 2.0, float("nan"), 0.5], [0.0] * 4, r"position\[2\] \(q3\) is nan"),
     ([1.0, 2.0, 0.5], [0.0] * 4, "position has 3 values, expected 4"),
     ([1.0, 2.0, 0.5, 0.6], [0.0, float("inf"), 0.0, 0.0], r"velocity\[1\] \(q2\) is inf"),
+    # each finite, their sum not (it raised StopIteration out of the controller)
+    ([1.0, 1.7e308, 0.5, 1.7e308], [0.0] * 4, r"position\[1\] \(q2\) is 1.7e\+308"),
 ])
 def test_a_bad_state_is_refused_and_the_controller_stops(q, qdot, message):
     core = ControllerCore(ARCHI, ControllerConfig())

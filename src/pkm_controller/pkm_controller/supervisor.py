@@ -71,7 +71,9 @@ class Supervisor:
                 return Trip(f"drives/state: {name} has {len(values)} values, expected {size} ({self.names})",
                             TripCause.INPUT_REFUSED)
             if not math.isfinite(sum(values)):
-                k = next(i for i, v in enumerate(values) if not math.isfinite(v))
+                k = next((i for i, v in enumerate(values) if not math.isfinite(v)), None)
+                if k is None:             # each finite, their sum not: the largest is named
+                    k = max(range(size), key=lambda i: abs(values[i]))
                 return Trip(f"drives/state: {name}[{k}] ({self.names[k]}) is {values[k]}", TripCause.INPUT_REFUSED)
         if applied is not None and len(applied) and (len(applied) != self.n or not math.isfinite(sum(applied))):
             return Trip(f"drives/state: effort must be {self.n} finite values, got {list(applied)}",
