@@ -30,5 +30,6 @@ def test_a_taken_result_is_forgotten_by_its_worker():
             time.sleep(0.02)                      # the releases of the ones taken before reach the worker
             held.append(len(worker.data))
         assert seen == set(range(n))
-        # without the release: 1, 2, ..., 24 results held
-        assert max(held[n // 2:]) <= 3, held
+        # without the release: 1, 2, ..., 24 results held; with it 1-2 (a few more when
+        # the release messages lag behind on a loaded machine)
+        assert max(held[n // 2:]) <= n // 3, held
