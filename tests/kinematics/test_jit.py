@@ -121,3 +121,15 @@ def test_kernel_wrappers_check_shapes_and_accept_integers():
     assert gram_condition([]) == 1.0
     assert gram_condition(np.eye(3)) == pytest.approx(1.0)
     assert gram_condition(np.diag([1.0, 1.0, 4.0])) == pytest.approx(4.0)
+
+
+def test_the_cache_key_covers_every_file_with_kernels():
+    # numba's cache notices edits to a kernel's own file only: a kernel calling one of
+    # another file would run stale machine code unless that file is in the cache key
+    from pathlib import Path
+    src = Path(__file__).resolve().parents[2] / "src"
+    with_kernels = {f"{path.parent.name}/{path.name}" for path in src.glob("pkm_*/pkm_*/*.py")
+                    if "@kernel" in path.read_text()}
+    keyed = {name for name, _ in jit._kernel_sources()}
+    assert {"pkm_sim_hw/rail_step.py", "pkm_sim_hw/drives.py", "pkm_controller/laws.py"} <= with_kernels
+    assert with_kernels - keyed == set(), f"kernel files outside numba's cache key: {with_kernels - keyed}"

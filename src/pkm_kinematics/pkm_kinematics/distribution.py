@@ -252,6 +252,13 @@ def project_kernel(rows, forces):
     return rows[:, 0] * y0 + rows[:, 1] * y1 + rows[:, 2] * y2, ok
 
 
+@kernel("(float64[:, :], float64[:])")
+def internal_force_kernel(rows, forces):
+    """(f - J (J^T J)^-1 J^T f, solvable): the null-space part of the forces."""
+    projected, ok = project_kernel(rows, forces)
+    return forces - projected, ok
+
+
 def project_rows(rows, forces) -> list[float]:
     """:func:`project_forces` on floats (J as n rows of 3, or an (n, 3) array):
     J (J^T J)^-1 J^T f, the least-norm forces producing the wrench of ``forces``
@@ -557,7 +564,10 @@ def add_prestress(jac, forces, prestress_n: float, reference=None, direction=Non
 
 def internal_force_rows(rows, forces) -> list[float]:
     """:func:`internal_force` on floats (J as rows of 3): f - J (J^T J)^-1 J^T f."""
-    return [f - p for f, p in zip(forces, project_rows(rows, forces))]
+    internal, ok = internal_force_kernel(*_rows_and_values(rows, forces))
+    if not ok:
+        raise DistributionError(SINGULAR_GRAM)
+    return internal.tolist()
 
 
 def internal_force(jac, forces) -> np.ndarray:

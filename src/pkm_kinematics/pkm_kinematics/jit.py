@@ -14,23 +14,41 @@ Entry points declare their argument types and are compiled, or loaded from the
 cache, when their module is imported (see ``kernel``): the first import after an
 install or an edit compiles (~10 s), later ones load the machine code (~1 s).
 numba's cache notices edits to a kernel's own file only, not to the kernels it
-calls in other files; the cache directory is therefore keyed by a hash of this
-package's sources (kernels outside it, e.g. in pkm_controller.laws, call only
-kernels of this package): ``$NUMBA_CACHE_DIR`` or ``~/.cache/pkm``, then
+calls in other files; the cache directory is therefore keyed by a hash of the
+sources of every file that may hold a kernel (this package's, and those of the
+packages in ``KERNEL_PACKAGES`` that import this module), so that a kernel may call
+kernels of any other file: ``$NUMBA_CACHE_DIR`` or ``~/.cache/pkm``, then
 ``numba-<hash>``. Old directories there can be deleted at any time.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 from pathlib import Path
+
+# the packages outside this one with kernels (a file there holds kernels if it imports this module)
+KERNEL_PACKAGES = ("pkm_common", "pkm_sim_hw", "pkm_gough_sensor", "pkm_controller", "pkm_recording")
+
+
+def _kernel_sources():
+    """(name, source) of each file that may hold a kernel, in a fixed order."""
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        yield "pkm_kinematics/" + path.name, path.read_bytes()
+    for package in KERNEL_PACKAGES:
+        spec = importlib.util.find_spec(package)          # found, not imported
+        for location in (spec.submodule_search_locations or []) if spec else []:
+            for path in sorted(Path(location).glob("*.py")):
+                source = path.read_bytes()
+                if b"pkm_kinematics.jit import" in source:
+                    yield f"{package}/{path.name}", source
 
 
 def _cache_dir() -> str:
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    for name, source in _kernel_sources():
+        digest.update(name.encode() + b"\0" + source)
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "pkm")
     return os.path.join(base, "numba-" + digest.hexdigest()[:16])

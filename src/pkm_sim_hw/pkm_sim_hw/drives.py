@@ -12,12 +12,40 @@ import math
 
 import numpy as np
 
+from pkm_kinematics.jit import kernel
+
+
+@kernel()
+def saturated_force(commanded, limit):
+    """(applied, saturated): a drive's commanded force clamped to +-``limit``;
+    saturated: the command was beyond it."""
+    return max(-limit, min(limit, commanded)), abs(commanded) > limit
+
+
+@kernel()
+def encoder_reading(q, screw_error, wavenumber, offset, noise, resolution):
+    """A drive's encoder reading at its true position ``q``: the screw error
+    A sin(k q), the offset, the noise (this step's draw), then quantised at the
+    resolution (none at 0). A zero term adds nothing."""
+    if screw_error != 0.0:
+        q = q + screw_error * math.sin(wavenumber * q)
+    if offset != 0.0:
+        q = q + offset
+    if noise != 0.0:
+        q = q + noise
+    if resolution > 0.0:
+        q = round(q / resolution) * resolution
+    return q
+
+
+_saturated_force, _encoder_reading = saturated_force.py_func, encoder_reading.py_func
+
 
 def applied_forces(commanded, limit: float, faults) -> tuple[list, list]:
-    """(applied, saturated): each command clamped to +-``limit``, zero on a drive with
-    an active ``no_force`` fault; saturated: the command was beyond the limit."""
-    saturated = [abs(f) > limit for f in commanded]
-    applied = [max(-limit, min(limit, f)) for f in commanded]
+    """(applied, saturated): each command clamped to +-``limit`` (``saturated_force``),
+    zero on a drive with an active ``no_force`` fault."""
+    pairs = [_saturated_force(f, limit) for f in commanded]
+    applied, saturated = [a for a, _ in pairs], [s for _, s in pairs]
     for f in faults:
         if f.kind == "no_force":
             applied[f.drive] = 0.0
@@ -46,22 +74,18 @@ class Encoders:
         self.last: list = []
 
     def quantise(self, q) -> list:
-        """The offset, noise (one draw per drive), then the resolution."""
-        res, noise = self.resolution_m, self.noise_m
-        if self.screw_errors:
-            k = self.screw_wavenumber
-            q = [qi + a * math.sin(k * qi) for qi, a in zip(q, self.screw_errors)]
-        if self.offsets:
-            q = [qi + o for qi, o in zip(q, self.offsets)]
-        if noise > 0.0:
-            q = [qi + noise * self._rng.standard_normal() for qi in q]
-        if res > 0.0:
-            q = [round(qi / res) * res for qi in q]
-        return q
+        """Each drive's ``encoder_reading``: screw error, offset, noise (one draw per
+        drive), then the resolution."""
+        n = len(q)
+        screw = self.screw_errors or [0.0] * n
+        offsets = self.offsets or [0.0] * n
+        noise = self.noise(n).tolist() if self.noise_m > 0.0 else [0.0] * n
+        k, res = self.screw_wavenumber, self.resolution_m
+        return [_encoder_reading(float(q[i]), screw[i], k, offsets[i], noise[i], res) for i in range(n)]
 
     def noise(self, n: int) -> np.ndarray:
-        """The noise :meth:`quantise` adds in a step (the same draws, one per drive in
-        order, times its std) as an array, for a compiled step; empty without noise."""
+        """The noise of a step's readings: one draw per drive in order, times its
+        std; empty without noise."""
         if self.noise_m > 0.0:
             return self.noise_m * self._rng.standard_normal(n)
         return _NO_NOISE

@@ -53,6 +53,9 @@ from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
 from .rail_step import STEP_OK, rail_dynamics_step, rail_outputs
+from .structure import deflected
+
+_deflected = deflected.py_func
 
 FAULT_KINDS = ("no_force", "locked", "encoder_freeze", "encoder_slip")
 DEFAULT_SLIP_M = 1e-4
@@ -442,7 +445,7 @@ class Plant:
         reading, velocity = self.encoders.read(q_true, faults)
         fint = internal_force_rows(rows, applied) if self.n > 3 else [0.0] * self.n
         c, cf = self.params.compliance, self.params.frame_compliance
-        tool = [xi + ci * li + cfi * fi for xi, ci, li, cfi, fi in zip(self.x, c, self.load, cf, self.frame_load)]
+        tool = [_deflected(*terms) for terms in zip(self.x, c, self.load, cf, self.frame_load)]
         return PlantOutput(self.t, self.k, self.k * self.dt_ns, reading, velocity, list(applied), saturated, tool,
                            list(self.x), fint, math.sqrt(sum(f * f for f in fint)),
                            [f"{f.drive}:{f.kind}" for f in faults], self.stopped, rotation)
@@ -469,7 +472,7 @@ class _CompiledStep:
         self.compliance = np.array(p.compliance, dtype=float)
         self.frame_compliance = np.array(p.frame_compliance, dtype=float)
         self.cmd, self.state, self.load, self.frame_load = np.empty(n), np.empty(6), np.empty(3), np.empty(3)
-        self.applied, self.saturated, self.projected = np.empty(n), np.zeros(n, dtype=bool), np.zeros(n)
+        self.applied, self.saturated = np.empty(n), np.zeros(n, dtype=bool)
         self.q, self.rows = np.empty(n), np.empty((n, 3))
         self.reading, self.velocity, self.tool, self.fint = np.empty(n), np.empty(n), np.empty(3), np.empty(n)
 
@@ -489,14 +492,13 @@ class _CompiledStep:
         load[:], frame_load[:] = plant.load, plant.frame_load
         if rail_dynamics_step(cmd, self.limit, state, load, self.h, self.substeps, *self.args, self.lower,
                               self.upper, self.applied, self.saturated, self.q, self.rows,
-                              self.projected) != STEP_OK:
+                              self.fint) != STEP_OK:
             return None
         enc = plant.encoders
         resolution, offsets, screw_errors, wavenumber = self._encoder_arguments(enc)
-        norm = rail_outputs(self.q, self.applied, self.projected, resolution, offsets, screw_errors, wavenumber,
+        norm = rail_outputs(self.q, self.fint, resolution, offsets, screw_errors, wavenumber,
                             enc.noise(plant.n), np.array(enc.last, dtype=float), enc.dt_s, state, load, frame_load,
-                            self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool,
-                            self.fint)
+                            self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool)
         plant.x, plant.v = state[:3].tolist(), state[3:].tolist()
         plant.t += plant.params.dt_s
         plant.k += 1

@@ -45,6 +45,9 @@ from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
 from .plant import Fault, PlantOutput, PlantParameters, check_load, load_steps
+from .structure import deflected
+
+_deflected = deflected.py_func
 
 _NOT_YET = ("rail_offset_errors_m", "parallelogram_bar_errors_m")
 
@@ -198,7 +201,8 @@ class StrutPlant:
         tool, rotation = list(x), self.rotation
         if self._compliance.any() or self._frame_compliance.any():
             # the tool deflected by C f_load and carried by the frame's C_frame f_frame: unseen by the struts
-            tool = (np.asarray(x) + self._compliance * self.load + self._frame_compliance * self.frame_load).tolist()
+            tool = [_deflected(*terms) for terms in zip(x, self._compliance.tolist(), self.load.tolist(),
+                                                        self._frame_compliance.tolist(), self.frame_load.tolist())]
             rotation = rotation_from_rpy(*tool[3:])
         return PlantOutput(self.t, self.k, self.k * self.dt_ns, reading, velocity, list(applied), saturated, tool,
                            list(x),
