@@ -39,8 +39,7 @@ from std_msgs.msg import Bool, String
 from pkm_bringup.graph import RunFailed
 from pkm_bringup.scenario import START_TOPIC, Scenario, run_node_name, start_signal
 from pkm_common import topics
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, ns_to_stamp, trajectory_bytes,
-                                    trajectory_fields)
+from pkm_common.conversions import diagnostic_bytes, trajectory_bytes, trajectory_fields
 from pkm_common.credential import RunKey, Signer, Verifier
 from pkm_common.files import write_summary
 from pkm_common.params import ParameterValues, declare_like
@@ -196,8 +195,7 @@ class _Ports:
 
     def diagnostics(self, stamp_ns: int, level: int, name: str, message: str, values: dict,
                     topic: str = topics.DIAGNOSTICS) -> None:
-        self.run.topic(topic).publish(serialize_message(diagnostic_array(
-            ns_to_stamp(stamp_ns), [diagnostic_status(name, level, message, values)])))
+        self.run.topic(topic).publish(diagnostic_bytes(stamp_ns, name, level, message, values))
 
 
 class _SimPorts(_Ports):

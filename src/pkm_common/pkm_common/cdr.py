@@ -469,6 +469,36 @@ def first_string_span(buf, stamped: bool, what: str = "message") -> tuple[int, i
     return start, r.pos - 1
 
 
+def encode_diagnostic_array(stamp_ns: int, statuses, frame_id: str = "") -> bytes:
+    """Serialized diagnostic_msgs/DiagnosticArray: ``statuses`` each (level 0-255,
+    name, message, hardware_id, [(key, value)] strings), as rclpy serializes the
+    message (~20 us here against ~400 us for the message objects and rclpy)."""
+    sec, nanosec = _split_stamp(stamp_ns)
+    parts = [_HEADER_AND_STAMP.pack(CDR_LE_HEADER, sec, nanosec)]
+    chunk, offset = _string_bytes(frame_id, 8)
+    parts.append(chunk)
+    offset = _count(parts, len(statuses), offset)
+    for level, name, message, hardware_id, values in statuses:
+        parts.append(bytes((level,)))
+        offset += 1
+        for text in (name, message, hardware_id):
+            chunk, offset = _string_bytes(text, offset)
+            parts.append(chunk)
+        offset = _count(parts, len(values), offset)
+        for key, value in values:
+            for text in (key, value):
+                chunk, offset = _string_bytes(text, offset)
+                parts.append(chunk)
+    return b"".join(parts)
+
+
+def _count(parts: list, count: int, offset: int) -> int:
+    """A sequence's uint32 length at body ``offset``, padded; returns the new offset."""
+    pad = _pad(offset, 4)
+    parts.append(b"\x00" * pad + _UINT32.pack(count))
+    return offset + pad + 4
+
+
 def encode_clock(stamp_ns: int) -> bytes:
     """Serialized rosgraph_msgs/Clock."""
     sec, nanosec = _split_stamp(stamp_ns)
@@ -476,7 +506,7 @@ def encode_clock(stamp_ns: int) -> bytes:
 
 
 __all__ = ["CDR_LE_HEADER", "ShownReader", "JointStateData", "JointStateEncoder", "PoseStampedData", "PoseStampedEncoder",
-           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "decode_string", "decode_wrench_stamped", "encode_clock", "encode_string",
+           "JointStateDecoder", "TrajectoryData", "decode_joint_state", "decode_multidof_trajectory", "decode_pose_stamped", "decode_string", "decode_wrench_stamped", "encode_clock", "encode_diagnostic_array", "encode_string",
            "first_string_span", "stamp_ns_of"]
 
 

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
-from pkm_common.cdr import encode_multidof_trajectory
+from pkm_common.cdr import encode_diagnostic_array, encode_multidof_trajectory
 from pkm_common.poses import pose_components, pose_from_components
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.task_space import motion_fields
@@ -157,21 +157,34 @@ def _format(value) -> str:
     return str(value)
 
 
-def diagnostic_status(name: str, level, message: str, values: dict | None = None,
-                      hardware_id: str = '') -> DiagnosticStatus:
-    """DiagnosticStatus; ``level`` 0-3 (OK, WARN, ERROR, STALE) or the message's bytes
-    constant; ``values`` become KeyValues, floats with repr (round-trips exactly)."""
+def _level(level) -> bytes:
+    """A diagnostic level 0-3 (or its byte) as the message's byte; FieldError otherwise."""
     if isinstance(level, (bytes, bytearray)):
         level = int.from_bytes(level, 'little')
     if level not in _LEVELS:
         raise FieldError('level', f'must be 0 (OK), 1 (WARN), 2 (ERROR) or 3 (STALE), got {level!r}')
+    return _LEVELS[level]
+
+
+def diagnostic_status(name: str, level, message: str, values: dict | None = None,
+                      hardware_id: str = '') -> DiagnosticStatus:
+    """DiagnosticStatus; ``level`` 0-3 (OK, WARN, ERROR, STALE) or the message's bytes
+    constant; ``values`` become KeyValues, floats with repr (round-trips exactly)."""
     status = DiagnosticStatus()
-    status.level = _LEVELS[level]
+    status.level = _level(level)
     status.name = name
     status.message = message
     status.hardware_id = hardware_id
     status.values = [KeyValue(key=str(k), value=_format(v)) for k, v in (values or {}).items()]
     return status
+
+
+def diagnostic_bytes(stamp_ns: int, name: str, level, message: str, values: dict | None = None,
+                     hardware_id: str = '') -> bytes:
+    """``diagnostic_array`` of one ``diagnostic_status`` serialized (the same bytes as
+    rclpy's, cdr.encode_diagnostic_array), without the message objects."""
+    pairs = [(str(k), _format(v)) for k, v in (values or {}).items()]
+    return encode_diagnostic_array(stamp_ns, [(_level(level)[0], name, message, hardware_id, pairs)])
 
 
 def diagnostic_array(stamp, statuses) -> DiagnosticArray:

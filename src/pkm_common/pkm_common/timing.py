@@ -57,18 +57,20 @@ class DurationHistogram:
     def __init__(self):
         self._log_width = math.log1p(self.RELATIVE_WIDTH)
         self._bins = math.ceil(math.log(self.HIGH_S / self.LOW_S) / self._log_width) + 1
-        self.counts = np.zeros(self._bins, dtype=np.int64)
+        self._scale = 1.0 / self._log_width
+        self.counts = [0] * self._bins          # a list: added to twice a control cycle (~0.4 us, numpy's ~0.8)
         self.count, self.total_s, self.max_s = 0, 0.0, 0.0
 
     def add(self, duration_s: float) -> None:
         """One duration (s); NaN is ignored."""
         if not duration_s >= 0.0:
             return
-        k = int(math.log(max(duration_s, self.LOW_S) / self.LOW_S) / self._log_width)
-        self.counts[min(k, self._bins - 1)] += 1
+        k = int(math.log(duration_s / self.LOW_S) * self._scale) if duration_s > self.LOW_S else 0
+        self.counts[k if k < self._bins else self._bins - 1] += 1
         self.count += 1
         self.total_s += duration_s
-        self.max_s = max(self.max_s, duration_s)
+        if duration_s > self.max_s:
+            self.max_s = duration_s
 
     def __len__(self) -> int:
         return self.count

@@ -35,8 +35,7 @@ from std_msgs.msg import Bool, String
 
 from pkm_common import topics
 from pkm_common.causes import TripCause
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, ns_to_stamp,
-                                    publisher_names)
+from pkm_common.conversions import diagnostic_bytes, graph_senders, publisher_names
 from pkm_common.credential import Verifier
 from pkm_common.endpoints import publisher, subscription
 from pkm_common.files import reserve_file, write_summary
@@ -169,8 +168,7 @@ class ControllerNode(LifecycleNode):
         self.pub_command.publish(command)        # not tapped: the bag holds one per stamp
 
     def publish_status(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
-        self.pub_status.publish(diagnostic_array(ns_to_stamp(stamp_ns),
-                                                 [diagnostic_status("controller", level, message, values)]))
+        self.pub_status.publish(diagnostic_bytes(stamp_ns, "controller", level, message, values))
 
     def publish_event(self, text: str) -> None:
         self.pub_events.publish(String(data=text))

@@ -154,6 +154,7 @@ class EncoderMonitor:
         self.bias, self.mean_square, self.held = np.zeros(n), np.zeros(n), np.zeros(n)
         self.candidate = np.full(n, np.nan)   # the jump that waits for its confirmation, per drive
         self.skip = np.zeros(n, dtype=bool)
+        self.skip_set = False                 # some drive in skip
         self.fault_size = 0.0                 # |jump| (or the displacement asked for) of the last verdict
         self.fault_held = False               # ... and whether it holds the reading (a freeze) or not (a slip)
 
@@ -187,9 +188,11 @@ class EncoderMonitor:
             return None
         second = self.second and abs(dt - self.last_dt) <= 1e-3 * self.last_dt
         self.second, self.last_dt = True, dt
-        self.skip[:] = False
-        for i in skip:
-            self.skip[i] = True
+        if len(skip) or self.skip_set:
+            self.skip[:] = False
+            for i in skip:
+                self.skip[i] = True
+            self.skip_set = bool(len(skip))
         code, drive, value = innovation_kernel(
             q, self.last_q, self.last_dq, second, np.asarray(a, dtype=float), np.asarray(h, dtype=float),
             np.asarray(rows, dtype=float), np.asarray(applied, dtype=float), np.asarray(v_d, dtype=float),

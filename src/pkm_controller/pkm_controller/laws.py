@@ -21,6 +21,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from pkm_gough_sensor.metrology import plate_in_base_kernel
 from pkm_kinematics.distribution import (check_wrench_kernel, distribute_kernel, gram_condition_kernel,
                                         gram_solve_n_kernel, project_forces, project_rows)
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
@@ -510,6 +511,7 @@ class SensorSpaceFeedback:
         self._bars = self.platform.bars
         self._r_wb = sensor.base_rotation_floats
         self._p_tp = sensor.plate_position_in_tool
+        self._plate = sensor.plate_constants         # the mounting, for plate_in_base_kernel
         self.estimate = None                       # (p_bp, R_bp) of the real plate, or None
         self._desired = None                       # what prepare() computed for the cycle
 
@@ -526,10 +528,11 @@ class SensorSpaceFeedback:
         """What does not depend on the readings, done before they arrive: the plate
         pose of the desired tool pose, l_des = IKM_GP (nominal geometry) and J_h at
         the estimated real pose (the estimate of the previous cycle)."""
-        p_bp, r_bp = self.sensor.plate_in_base(tool_position, tool_rotation)
-        at = self.estimate if self.at_estimate and self.estimate is not None else (p_bp, r_bp)
-        l_des, j_h = _desired_lengths_and_jacobian(self._bars, p_bp, r_bp, at[0], at[1])
-        self._desired = (p_bp, r_bp, l_des, j_h, tuple(tool_rotation))
+        p, t = (float(tool_position[0]), float(tool_position[1]), float(tool_position[2])), tuple(tool_rotation)
+        at_estimate = self.at_estimate and self.estimate is not None
+        p_at, r_at = self.estimate if at_estimate else _NO_ESTIMATE
+        p_bp, r_bp, l_des, j_h = _sensor_space_desired(self._bars, p, t, *self._plate, p_at, r_at, at_estimate)
+        self._desired = (p_bp, r_bp, l_des, j_h, t)
 
     def error_from(self, lengths) -> list:
         """The task-space error x_des - x_real for the readings ``lengths`` (6, m), at
@@ -558,6 +561,24 @@ def _desired_lengths_and_jacobian(bars, p_des, r_des, p_at, r_at):
     j_h = pose_from_lengths_jacobian_kernel(bars, p_at[0], p_at[1], p_at[2], r_at[0], r_at[1], r_at[2], r_at[3],
                                             r_at[4], r_at[5], r_at[6], r_at[7], r_at[8])
     return l_des, j_h
+
+
+_NO_ESTIMATE = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
+
+
+@kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_TRIPLE}, "
+        f"{_ROTATION}, boolean)")
+def _sensor_space_desired(bars, p_t, r_t, p_wb, r_bw, r_tp, p_tp, p_at, r_at, at_estimate):
+    """SensorSpaceFeedback.prepare in one call: the plate pose (p_bp, R_bp) of the
+    desired tool pose (p_t, R_t) (``metrology.plate_in_base_kernel``, the mounting
+    (p_wb, R_wb^T, R_tp, p_tp)), then l_des there and J_h at (p_at, R_at) when
+    ``at_estimate``, else at the desired plate pose. Returns (p_bp, R_bp, l_des, J_h)."""
+    p_des, r_des = plate_in_base_kernel(p_t, r_t, p_wb, r_bw, r_tp, p_tp)
+    if at_estimate:
+        l_des, j_h = _desired_lengths_and_jacobian(bars, p_des, r_des, p_at, r_at)
+    else:
+        l_des, j_h = _desired_lengths_and_jacobian(bars, p_des, r_des, p_des, r_des)
+    return p_des, r_des, l_des, j_h
 
 
 @kernel(f"(float64[:, :], float64[:], float64[:], {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")

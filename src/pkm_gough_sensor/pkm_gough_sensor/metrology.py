@@ -34,7 +34,7 @@ from pkm_kinematics.bars import COL_A, COL_B, FK_CONVERGED, STRUT, bar_rows, str
 from pkm_kinematics.errors import FieldError
 from pkm_kinematics.gough import GoughDKMResult, GoughDKMSolver, GoughPlatform, dkm_solve_kernel
 from pkm_kinematics.jit import direct_call, kernel
-from pkm_kinematics.rotations import (mul3, mul3_kernel, mv3, mv3_kernel, rotation_quaternion_kernel,
+from pkm_kinematics.rotations import (mul3_kernel, mv3_kernel, rotation_quaternion_kernel,
                                       unit_quaternion_rotation_kernel)
 from pkm_kinematics.validation import finite_floats
 
@@ -57,10 +57,6 @@ def _nonneg(value, name: str) -> float:
 def _t(r: tuple) -> tuple:
     """Transpose of a row-major 9-tuple."""
     return (r[0], r[3], r[6], r[1], r[4], r[7], r[2], r[5], r[8])
-
-
-_mv = mv3
-
 
 
 @kernel()
@@ -98,6 +94,18 @@ def tool_in_world_kernel(p_bp, r_bp, p_wb, r_wb, r_pt, p_tp) -> tuple:
 
 
 tool_in_world = tool_in_world_kernel   # for Python callers too (tuples; ~1 us, its py_func ~2 us)
+
+
+@kernel()
+def plate_in_base_kernel(p_t, r_t, p_wb, r_bw, r_tp, p_tp) -> tuple:
+    """The plate pose in the Gough base frame (position, row-major rotation) of a tool
+    pose in world, the inverse of ``tool_in_world_kernel``: T_base_plate =
+    T_world_base^-1 T_world_tool T_tool_plate, R_bp = R_wb^T R_t R_tp,
+    p_bp = R_wb^T (p_t + R_t p_tp - p_wb)."""
+    rp = mv3_kernel(r_t, p_tp)
+    d = (p_t[0] + rp[0] - p_wb[0], p_t[1] + rp[1] - p_wb[1], p_t[2] + rp[2] - p_wb[2])
+    return mv3_kernel(r_bw, d), mul3_kernel(r_bw, mul3_kernel(r_t, r_tp))
+
 
 # Codes of the compiled reading (GoughSensorModel.measure_fields, estimate_into), apart
 # from the DKM's (bars.FK_*, gough.DKM_*: >= 0, READ_OK is FK_CONVERGED). What is refused
@@ -277,10 +285,12 @@ class GoughSensorModel:
     def plate_in_base(self, p_t, r_t) -> tuple[tuple, tuple]:
         """:meth:`plate_pose` on floats, unchecked (per-cycle use): tool position (3
         floats) and row-major rotation (9 floats) -> plate position and rotation."""
-        # T_base_plate = T_world_base^-1 T_world_tool T_tool_plate
-        rp = _mv(r_t, self._p_tp)
-        d = (p_t[0] + rp[0] - self._p_wb[0], p_t[1] + rp[1] - self._p_wb[1], p_t[2] + rp[2] - self._p_wb[2])
-        return _mv(self._r_bw, d), mul3(self._r_bw, mul3(r_t, self._r_tp))
+        return plate_in_base_kernel(tuple(p_t), tuple(r_t), self._p_wb, self._r_bw, self._r_tp, self._p_tp)
+
+    @property
+    def plate_constants(self) -> tuple:
+        """(p_wb, R_wb^T, R_tp, p_tp): the mounting as ``plate_in_base_kernel`` takes it."""
+        return self._p_wb, self._r_bw, self._r_tp, self._p_tp
 
     def _tool_in_world(self, p_bp, r_bp) -> tuple[tuple, tuple]:
         return tool_in_world(tuple(p_bp), tuple(r_bp), self._p_wb, self._r_wb, self._r_pt, self._p_tp)

@@ -39,8 +39,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from pkm_common import topics
-from pkm_common.conversions import (diagnostic_array, diagnostic_status, graph_senders, line_list_markers,
-                                    ns_to_stamp, publisher_names)
+from pkm_common.conversions import diagnostic_bytes, graph_senders, line_list_markers, publisher_names
 from pkm_common.endpoints import publisher, subscription
 from pkm_common.params import declare_bool
 from pkm_common.runner import main_exit, run_node
@@ -105,8 +104,7 @@ class SimHwNode(Node):
 
     # ------------------------------------------------- the loop's ports (sim_loop)
     def publish_diagnostics(self, stamp_ns: int, level: int, message: str, values: dict) -> None:
-        self.pub_diag.publish(diagnostic_array(ns_to_stamp(stamp_ns),
-                                               [diagnostic_status(self.get_name(), level, message, values)]))
+        self.pub_diag.publish(diagnostic_bytes(stamp_ns, self.get_name(), level, message, values))
 
     def publish_markers(self, segments, stamp_ns: int) -> None:
         self.pub_markers.publish(line_list_markers(segments, stamp_ns))
