@@ -1,6 +1,7 @@
 """The simulated machine: integration accuracy, physics identities, drives, encoders,
 compliance, internal force, faults and input validation."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -49,8 +50,7 @@ def test_integration_matches_solve_ivp():
 
 def test_energy_conserved_without_friction_and_forces():
     cfg = load_machine("mom3")
-    cfg.dynamics = type(cfg.dynamics)(cfg.dynamics.drive_mass_kg, cfg.dynamics.platform_mass_kg,
-                                      cfg.dynamics.platform_inertia_kgm2, (0.0, 0.0, 0.0), cfg.dynamics.gravity_m_s2)
+    cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(cfg.dynamics, friction_ns_per_m=(0.0, 0.0, 0.0)))
     plant = Plant(cfg, PlantParameters(integrator="rk4", encoder_resolution_m=0.0))
     plant.v = [0.1, -0.05, 0.2]
     e0 = plant.dynamics.energy(plant.x, plant.v)

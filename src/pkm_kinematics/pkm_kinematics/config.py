@@ -7,6 +7,8 @@ field raises ConfigError naming its dotted path and the allowed range, e.g.
 
 from __future__ import annotations
 
+import collections
+import functools
 import math
 import os
 from dataclasses import dataclass, field
@@ -40,6 +42,13 @@ def config_dir() -> Path:
     env = os.environ.get("PKM_CONFIG_DIR")
     if env:
         return Path(env)
+    return _found_config_dir()
+
+
+@functools.lru_cache(maxsize=1)
+def _found_config_dir() -> Path:
+    """The walk of ``config_dir`` (the files do not move while a process runs; a
+    scenario's loading asks ~50 times)."""
     here = Path(__file__).resolve()
     for parent in here.parents:
         if (parent / "config" / "machines").is_dir():
@@ -47,8 +56,17 @@ def config_dir() -> Path:
     raise FileNotFoundError("config directory not found: set PKM_CONFIG_DIR")
 
 
+_NAMES: dict = {}           # machines directory -> (its mtime_ns, the names in it)
+
+
 def machine_names() -> list[str]:
-    return sorted(p.stem for p in (config_dir() / "machines").glob("*.yaml"))
+    """The machines of ``config/machines`` (listed again when a file is added or removed)."""
+    folder = config_dir() / "machines"
+    mtime = folder.stat().st_mtime_ns
+    found = _NAMES.get(folder)
+    if found is None or found[0] != mtime:
+        found = _NAMES[folder] = (mtime, sorted(p.stem for p in folder.glob("*.yaml")))
+    return list(found[1])
 
 
 # --------------------------------------------------------------------- readers
@@ -141,9 +159,11 @@ def _assembly(r: FieldReader) -> int:
 
 
 # -------------------------------------------------------------------- builders
-@dataclass
+@dataclass(frozen=True)
 class MachineConfig:
-    """A loaded machine file: the actuated model, the metrology (if any), raw data."""
+    """A loaded machine file: the actuated model, the metrology (if any), raw data.
+    Read-only (``load_machine`` hands the same one to every loader of an unchanged
+    file): a changed machine is a new one (``dataclasses.replace``)."""
 
     name: str
     kind: str
@@ -459,14 +479,41 @@ def _dynamics(r: FieldReader, n_legs: int, kind: str) -> DynamicsParameters:
 DYNAMICS = {"struts": _rigid_body}
 
 
+_MACHINES: collections.OrderedDict = collections.OrderedDict()    # (path, mtime_ns, size) -> MachineConfig
+MACHINES_KEPT = 32
+
+
 def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
-    """Load ``config/machines/<name>.yaml`` (or a path to a YAML file)."""
+    """Load ``config/machines/<name>.yaml`` (or a path to a YAML file). A file loaded
+    before and unchanged since (its modification time and size) gives the same
+    MachineConfig (a run's loops each load its machine, a study loads it for every
+    run): a MachineConfig and its model are read-only (a changed machine is a new
+    one: ``with_legs``, ``dataclasses.replace``)."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = config_dir() / "machines" / f"{name_or_path}.yaml"
         if not path.is_file():
             raise ConfigError("machine", f"unknown machine {str(name_or_path)!r}; "
                               f"known: {', '.join(machine_names())}")
+    try:
+        stat = path.stat()
+    except OSError:
+        key = None                                # read_yaml names what is wrong
+    else:
+        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+        found = _MACHINES.get(key)
+        if found is not None:
+            _MACHINES.move_to_end(key)
+            return found
+    config = _load_machine_file(path)
+    if key is not None:
+        _MACHINES[key] = config
+        while len(_MACHINES) > MACHINES_KEPT:
+            _MACHINES.popitem(last=False)
+    return config
+
+
+def _load_machine_file(path: Path) -> MachineConfig:
     try:
         data = read_yaml(path)                   # UnreadableFileError (not text) as it is
     except UnreadableFileError:

@@ -475,17 +475,16 @@ class _CompiledStep:
         self.applied, self.saturated = np.empty(n), np.zeros(n, dtype=bool)
         self.q, self.rows = np.empty(n), np.empty((n, 3))
         self.reading, self.velocity, self.tool, self.fint = np.empty(n), np.empty(n), np.empty(3), np.empty(n)
+        self._last_list, self._last_array = None, np.empty(n)     # the encoders' last reading, as a list and an array
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
         if len(forces) != plant.n:
             return None
         try:
-            cmd[:] = forces
+            cmd[:] = forces                          # not finite: refused by the kernel, named by the interpreted step
         except (TypeError, ValueError):
             return None
-        if not math.isfinite(cmd.sum()):
-            return None                              # refused by the interpreted step, naming it
         plant._apply_schedules()
         state, load, frame_load = self.state, self.load, self.frame_load
         state[:3], state[3:] = plant.x, plant.v
@@ -496,13 +495,16 @@ class _CompiledStep:
             return None
         enc = plant.encoders
         resolution, offsets, screw_errors, wavenumber = self._encoder_arguments(enc)
+        if enc.last is not self._last_list:          # a reading not made here (the start, homing)
+            self._last_array[:] = enc.last
         norm = rail_outputs(self.q, self.fint, resolution, offsets, screw_errors, wavenumber,
-                            enc.noise(plant.n), np.array(enc.last, dtype=float), enc.dt_s, state, load, frame_load,
+                            enc.noise(plant.n), self._last_array, enc.dt_s, state, load, frame_load,
                             self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool)
         plant.x, plant.v = state[:3].tolist(), state[3:].tolist()
         plant.t += plant.params.dt_s
         plant.k += 1
-        enc.last = reading = self.reading.tolist()
+        enc.last = self._last_list = reading = self.reading.tolist()
+        self._last_array[:] = self.reading
         plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(),
                                   self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
                                   self.fint.tolist(), norm, [], plant.stopped, None)
