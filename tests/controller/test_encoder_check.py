@@ -267,3 +267,20 @@ def test_no_gough_false_alarm_with_a_noisy_gough():
     assert not core.stopped, core.stop_reason
     rms = np.sqrt(core.encoder_checks.gough_check.mean_square)       # the noise the cross-check sees, per drive
     assert (rms > 1e-6).all(), rms
+
+
+@pytest.mark.parametrize("machine_name", ["archi", "mom3"])
+@pytest.mark.parametrize("fault", [None, "1:encoder_freeze:0.1", "2:encoder_slip:0.1:2e-4"])
+def test_a_rail_machines_compiled_cross_check_is_the_interpreted_one(machine_name, fault, monkeypatch):
+    # rail_gough_check_kernel (q(x_g) and the cross-check in one call) against the
+    # machine's inverse_kinematics and gough_check_kernel, cycle by cycle
+    import pkm_controller.encoder_check as encoder_check
+    compiled_core, compiled, _, compiled_stop = move(machine_name, "sensor_space", fault, **GOUGH_ONLY)
+    assert compiled_core.encoder_checks.rails
+    monkeypatch.setattr(encoder_check, "RailMachine", type("NotARail", (), {}))
+    core, log, _, stop = move(machine_name, "sensor_space", fault, **GOUGH_ONLY)
+    assert not core.encoder_checks.rails
+    assert (stop, core.stop_reason) == (compiled_stop, compiled_core.stop_reason)
+    assert np.array_equal(np.array(log.forces), np.array(compiled.forces))
+    assert compiled_core.encoder_checks.gough_check.cycles == core.encoder_checks.gough_check.cycles > 100
+    assert np.array_equal(compiled_core.encoder_checks.gough_check.bias, core.encoder_checks.gough_check.bias)

@@ -39,7 +39,9 @@ import numpy as np
 
 from pkm_common.causes import TripCause
 from pkm_kinematics.errors import FieldError, KinematicsError
+from pkm_kinematics.bars import IK_OK, rail_task_inverse_kinematics_kernel
 from pkm_kinematics.jit import kernel
+from pkm_kinematics.rails import RailMachine
 
 from .supervisor import Trip
 
@@ -269,6 +271,26 @@ def gough_check_kernel(q, g, history_q, history_g, hold_g, last_d, bias, mean_sq
     return drive
 
 
+GOUGH_NO_POSE = -2          # rail_gough_check_kernel: the measured pose has no inverse kinematics
+
+
+@kernel("(float64[:, :], int64, int64[:], float64, float64, float64, float64[:], float64[:, :], float64[:, :], "
+        "float64[:], float64[:], float64[:], float64[:], int64[:], float64[:], boolean[:], float64, boolean)")
+def rail_gough_check_kernel(bars, n_legs, columns, x0, x1, x2, q, history_q, history_g, hold_g, last_d, bias,
+                            mean_square, over, off, skip, jump_m, first):
+    """``gough_check_kernel`` on the drive positions q(x_g) of a rail machine's pose
+    (x0, x1, x2) the Gough measured (bars.rail_task_inverse_kinematics_kernel, the
+    machine's ``inverse_kinematics``): the drive named, -1, or GOUGH_NO_POSE (a pose
+    not finite or out of reach: nothing judged, the state untouched)."""
+    if not (math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2)):
+        return GOUGH_NO_POSE
+    g, code, _ = rail_task_inverse_kinematics_kernel(bars, n_legs, columns, x0, x1, x2)
+    if code != IK_OK:
+        return GOUGH_NO_POSE
+    return gough_check_kernel(q, g, history_q, history_g, hold_g, last_d, bias, mean_square, over, off, skip, jump_m,
+                              first)
+
+
 class GoughCrossCheck:
     """Each encoder against the Gough metrology, where the strategy has it (sensor_space,
     measured_space): the reading q_i against q_i(x_g), the machine's inverse kinematics
@@ -334,7 +356,28 @@ class GoughCrossCheck:
         if q.shape != (self.n,) or g.shape != (self.n,):
             raise ValueError(f"Gough cross-check: {self.n} readings and {self.n} drive positions of the Gough's pose "
                              f"needed, got shapes {q.shape} and {g.shape}")
+        self._skip(skip)
         self.cycles += 1
+        return self._fault(gough_check_kernel(q, g, self.history_q, self.history_g, self.hold_g, self.last_d,
+                                              self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m,
+                                              self.cycles == 1))
+
+    def check_rail(self, model, q: np.ndarray, pose, skip=()) -> tuple[bool, EncoderFault | None]:
+        """:meth:`check` with q(x_g) the inverse kinematics of the rail machine ``model``
+        at the Gough's ``pose`` (3 task coordinates), in one compiled call; ``q`` the
+        readings as n floats (an array). (judged: False when the pose has no inverse
+        kinematics, nothing judged then; the fault or None)."""
+        self._skip(skip)
+        drive = rail_gough_check_kernel(model.bars, model.n_legs, model.twist_columns, float(pose[0]), float(pose[1]),
+                                        float(pose[2]), q, self.history_q, self.history_g, self.hold_g, self.last_d,
+                                        self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m,
+                                        self.cycles == 0)
+        if drive == GOUGH_NO_POSE:
+            return False, None
+        self.cycles += 1
+        return True, self._fault(drive)
+
+    def _skip(self, skip) -> None:
         if len(skip):
             self.skip[:] = False
             for i in skip:
@@ -342,8 +385,8 @@ class GoughCrossCheck:
         elif self.skip_set:
             self.skip[:] = False
         self.skip_set = bool(len(skip))
-        i = gough_check_kernel(q, g, self.history_q, self.history_g, self.hold_g, self.last_d, self.bias,
-                               self.mean_square, self.over, self.off, self.skip, self.jump_m, self.cycles == 1)
+
+    def _fault(self, i: int) -> EncoderFault | None:
         if i < 0:
             return None
         return EncoderFault(i, f"off the Gough metrology: reading {self.off[i] * 1e6:+.1f} um from the drive position "
@@ -365,6 +408,8 @@ class EncoderChecks:
         self.gough_check = GoughCrossCheck(n, c.encoder_gough_m) \
             if c.encoder_gough_m and uses_metrology else None
         self.pending = None                # (q, Gough pose, suspect) of the last cycle, for the next prepare
+        # a rail machine's q(x_g) and the cross-check in one compiled call (rail_gough_check_kernel)
+        self.rails = isinstance(model, RailMachine)
         self._no_forces = np.zeros(n)
 
     def check_cycle(self, c, forces_mismatched: bool, failed: dict) -> Trip | None:
@@ -409,18 +454,21 @@ class EncoderChecks:
             return None
         (q, measured, suspect), self.pending = self.pending, None
         check = self.gough_check
-        try:
-            q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
-        except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
-            q_gough = None
-        if q_gough is not None:
-            fault = check.check(q, q_gough, failed)
-            if fault is not None:
-                return Trip(f"encoder of drive {self.names[fault.drive]} {fault.what}", TripCause.ENCODER_FAULT)
+        if self.rails:                          # one compiled call
+            judged, fault = check.check_rail(self.model, q, measured, failed)
+        else:
+            try:
+                q_gough = self.model.inverse_kinematics(np.asarray(measured, dtype=float), check_limits=False)
+            except (KinematicsError, ValueError):   # an unreachable measured pose: the law's limits name it
+                q_gough = None
+            judged = q_gough is not None
+            fault = check.check(q, q_gough, failed) if judged else None
+        if fault is not None:
+            return Trip(f"encoder of drive {self.names[fault.drive]} {fault.what}", TripCause.ENCODER_FAULT)
         if suspect is None:
             return None
         drive, what, size, held = suspect
-        if q_gough is not None and check.agrees(drive, size, held):
+        if judged and check.agrees(drive, size, held):
             self.encoders.reset()
             return None
         # the Gough saw the drive move where its reading did not (or cannot tell): the encoder
