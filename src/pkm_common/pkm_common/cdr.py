@@ -23,6 +23,7 @@ a message object).
 
 from __future__ import annotations
 
+import operator
 import struct
 from typing import NamedTuple
 
@@ -60,10 +61,9 @@ def in_order(msg: JointStateData, names, what: str = "JointState") -> JointState
     taken to be in that order already; an array of another length than the names is
     left as it is (the caller checks lengths). ValueError naming ``what`` when the
     names are not a permutation of ``names``."""
-    got = list(msg.name)
-    names = list(names)
-    if not got or got == names:
+    if not msg.name or msg.name == names or tuple(msg.name) == tuple(names):
         return msg
+    got, names = list(msg.name), list(names)
     if sorted(got) != sorted(names):
         raise FieldError(what, f"names {got} are not {names}")
     order = [got.index(n) for n in names]
@@ -325,10 +325,9 @@ class JointStateDecoder:
         if lay is not None and len(buf) >= lay.size:
             values = lay._struct.unpack_from(buf)
             if values[0] == CDR_LE_HEADER and values[3] == lay._middle \
-                    and all(values[i] == count for i, count in lay._count_index):
+                    and lay._count_getter(values) == lay._count_values:
                 stamp = _stamp_ns(values[1], values[2], self.what)
-                arrays = [values[i + 1:i + 1 + count] for i, count in lay._count_index]
-                return JointStateData(stamp, lay.frame_id, lay.names, *arrays)
+                return JointStateData(stamp, lay.frame_id, lay.names, *lay._array_getter(values))
         data = decode_joint_state(buf, self.what)
         n = len(data.name)
         fields = [f for f, values in zip(JointStateEncoder.FIELDS, data[3:]) if values]
@@ -383,6 +382,11 @@ class JointStateEncoder:
         for field in self.FIELDS:
             self._count_index.append((index, self._counts[field]))
             index += 1 + self._counts[field]
+        # what JointStateDecoder reads of an unpacked message in this layout: the counts
+        # (to compare with these) and the arrays, each one C call
+        self._count_getter = operator.itemgetter(*(i for i, _ in self._count_index))
+        self._count_values = tuple(count for _, count in self._count_index)
+        self._array_getter = operator.itemgetter(*(slice(i + 1, i + 1 + count) for i, count in self._count_index))
         self.size = self._struct.size
 
     def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:
