@@ -98,3 +98,19 @@ def test_invalid_yaml(tmp_path):
     bad.write_text("name: [unclosed\n")
     with pytest.raises(ConfigError, match="bad.yaml: invalid YAML"):
         load_machine(bad)
+
+
+def test_an_unchanged_machine_file_is_loaded_once_and_read_only(tmp_path):
+    import dataclasses
+    archi = load_machine("archi")
+    assert load_machine("archi") is archi                     # the same file: the same config
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        archi.dynamics = None
+    path = tmp_path / "archi.yaml"
+    text = (config_dir() / "machines" / "archi.yaml").read_text()
+    path.write_text(text)
+    copy_of = load_machine(path)
+    assert copy_of is not archi and load_machine(path) is copy_of
+    path.write_text(text.replace("name: archi", "name: archz", 1))     # the same size, maybe the same mtime
+    changed = load_machine(path)
+    assert changed is not copy_of and changed.name == "archz"

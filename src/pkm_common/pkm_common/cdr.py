@@ -61,7 +61,8 @@ def in_order(msg: JointStateData, names, what: str = "JointState") -> JointState
     taken to be in that order already; an array of another length than the names is
     left as it is (the caller checks lengths). ValueError naming ``what`` when the
     names are not a permutation of ``names``."""
-    if not msg.name or msg.name == names or tuple(msg.name) == tuple(names):
+    names = names if isinstance(names, (list, tuple)) else tuple(names)
+    if len(msg.name) == 0 or msg.name == names or tuple(msg.name) == tuple(names):
         return msg
     got, names = list(msg.name), list(names)
     if sorted(got) != sorted(names):

@@ -367,6 +367,8 @@ class GoughCrossCheck:
         at the Gough's ``pose`` (3 task coordinates), in one compiled call; ``q`` the
         readings as n floats (an array). (judged: False when the pose has no inverse
         kinematics, nothing judged then; the fault or None)."""
+        if q.shape != (self.n,) or q.dtype != np.float64:
+            raise ValueError(f"Gough cross-check: {self.n} readings as floats needed, got {q.shape} {q.dtype}")
         self._skip(skip)
         drive = rail_gough_check_kernel(model.bars, model.n_legs, model.twist_columns, float(pose[0]), float(pose[1]),
                                         float(pose[2]), q, self.history_q, self.history_g, self.hold_g, self.last_d,

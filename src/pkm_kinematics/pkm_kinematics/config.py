@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -479,13 +480,13 @@ def _dynamics(r: FieldReader, n_legs: int, kind: str) -> DynamicsParameters:
 DYNAMICS = {"struts": _rigid_body}
 
 
-_MACHINES: collections.OrderedDict = collections.OrderedDict()    # (path, mtime_ns, size) -> MachineConfig
+_MACHINES: collections.OrderedDict = collections.OrderedDict()    # (path, SHA-1 of the file) -> MachineConfig
 MACHINES_KEPT = 32
 
 
 def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
     """Load ``config/machines/<name>.yaml`` (or a path to a YAML file). A file loaded
-    before and unchanged since (its modification time and size) gives the same
+    before and unchanged since (the same bytes) gives the same
     MachineConfig (a run's loops each load its machine, a study loads it for every
     run): a MachineConfig and its model are read-only (a changed machine is a new
     one: ``with_legs``, ``dataclasses.replace``)."""
@@ -496,11 +497,10 @@ def load_machine(name_or_path: str | os.PathLike) -> MachineConfig:
             raise ConfigError("machine", f"unknown machine {str(name_or_path)!r}; "
                               f"known: {', '.join(machine_names())}")
     try:
-        stat = path.stat()
+        key = (str(path.resolve()), hashlib.sha1(path.read_bytes()).digest())    # its contents, not its mtime
     except OSError:
         key = None                                # read_yaml names what is wrong
     else:
-        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
         found = _MACHINES.get(key)
         if found is not None:
             _MACHINES.move_to_end(key)

@@ -37,10 +37,16 @@ def _kernel_sources():
     for path in sorted(Path(__file__).parent.glob("*.py")):
         yield "pkm_kinematics/" + path.name, path.read_bytes()
     for package in KERNEL_PACKAGES:
-        spec = importlib.util.find_spec(package)          # found, not imported
+        try:
+            spec = importlib.util.find_spec(package)      # found, not imported
+        except (ImportError, ValueError):                 # ValueError: imported without a spec (a stub)
+            spec = None
         for location in (spec.submodule_search_locations or []) if spec else []:
             for path in sorted(Path(location).glob("*.py")):
-                source = path.read_bytes()
+                try:
+                    source = path.read_bytes()
+                except OSError:                           # removed meanwhile (a rebuild)
+                    continue
                 if b"pkm_kinematics.jit import" in source:
                     yield f"{package}/{path.name}", source
 

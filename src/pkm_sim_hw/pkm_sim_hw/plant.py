@@ -482,9 +482,11 @@ class _CompiledStep:
         if len(forces) != plant.n:
             return None
         try:
-            cmd[:] = forces                          # not finite: refused by the kernel, named by the interpreted step
+            cmd[:] = forces
         except (TypeError, ValueError):
             return None
+        if not math.isfinite(sum(forces)):
+            return None                              # refused by the interpreted step, naming it, nothing changed
         plant._apply_schedules()
         state, load, frame_load = self.state, self.load, self.frame_load
         state[:3], state[3:] = plant.x, plant.v
