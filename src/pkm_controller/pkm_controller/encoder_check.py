@@ -40,7 +40,7 @@ import numpy as np
 from pkm_common.causes import TripCause
 from pkm_kinematics.errors import FieldError, KinematicsError
 from pkm_kinematics.bars import IK_OK, rail_task_inverse_kinematics_kernel
-from pkm_kinematics.jit import kernel
+from pkm_kinematics.jit import direct_call, kernel
 from pkm_kinematics.rails import RailMachine
 
 from .supervisor import Trip
@@ -132,6 +132,9 @@ def innovation_kernel(q, last_q, last_dq, second, a, h, rows, applied, v_d, dt, 
     return ENC_OK, -1, 0.0
 
 
+_innovation = direct_call(innovation_kernel)
+
+
 class EncoderFault(NamedTuple):
     """What a check found: the drive whose reading is wrong, and how."""
     drive: int
@@ -145,7 +148,7 @@ class EncoderMonitor:
     def __init__(self, n: int, jump_m: float, freeze_m: float):
         if not (jump_m > 0.0 and freeze_m > 0.0):
             raise ValueError(f"encoder_jump_m, encoder_freeze_m: must be > 0 m (inf: off), got {jump_m}, {freeze_m}")
-        self.n, self.jump_m, self.freeze_m = n, jump_m, freeze_m
+        self.n, self.jump_m, self.freeze_m = n, float(jump_m), float(freeze_m)
         self.reset()
 
     def reset(self) -> None:
@@ -188,14 +191,14 @@ class EncoderMonitor:
             self.started, self.last_dt = True, dt
             self.last_q[:] = q
             return None
-        second = self.second and abs(dt - self.last_dt) <= 1e-3 * self.last_dt
+        second = bool(self.second and abs(dt - self.last_dt) <= 1e-3 * self.last_dt)
         self.second, self.last_dt = True, dt
         if len(skip) or self.skip_set:
             self.skip[:] = False
             for i in skip:
                 self.skip[i] = True
             self.skip_set = bool(len(skip))
-        code, drive, value = innovation_kernel(
+        code, drive, value = _innovation(       # the declared types exactly: made here
             q, self.last_q, self.last_dq, second, np.asarray(a, dtype=float), np.asarray(h, dtype=float),
             np.asarray(rows, dtype=float), np.asarray(applied, dtype=float), np.asarray(v_d, dtype=float),
             float(dt), self.bias, self.mean_square, self.held, self.candidate, self.skip, self.jump_m,
