@@ -183,7 +183,8 @@ def test_a_redundant_hexapod_is_prestressed_along_the_chosen_internal_force(dist
 def test_the_sensor_space_error_of_a_spatial_tool_is_its_pose_offset():
     """MoM3 §6.4 on 6 DOF: readings of the Gough at a tool offset by (dp, dw) from the
     desired pose give the error (dp, dw) (first order: J_h e_l)."""
-    from pkm_controller.laws import SensorSpaceFeedback, tool_pose_floats
+    from pkm_controller.laws import tool_pose_floats
+    from pkm_controller.sensor_space import SensorSpaceFeedback
     from pkm_gough_sensor.metrology import GoughSensorModel
     sensor = GoughSensorModel(HEXAPOD8.metrology)
     feedback = SensorSpaceFeedback(sensor, planar=False, spatial=True)

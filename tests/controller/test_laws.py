@@ -15,9 +15,10 @@ from pkm_kinematics.rotations import exp_so3
 from pkm_controller.laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, FOLLOWING_ERROR_M,
                                  FOLLOWING_ERROR_RAD, JOINT_LIMIT, LAW_CARTESIAN_PID, LAW_COMPUTED_TORQUE,
                                  LAW_VELOCITY_CASCADE, LIMITS_OK, NUMPY_DISTRIBUTION, SINGULARITY_MARGIN,
-                                 WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains, SensorSpaceFeedback,
-                                 cartesian_command_kernel, clamp_forces_kernel, kernel_settings, limits_kernel,
-                                 pose_error, project_to_range, tool_pose_floats, wrap_angle)
+                                 WORKSPACE_LIMIT, WRENCH_NOT_FINITE, Gains, cartesian_command_kernel,
+                                 clamp_forces_kernel, kernel_settings, limits_kernel, pose_error,
+                                 project_to_range, tool_pose_floats, wrap_angle)
+from pkm_controller.sensor_space import SensorSpaceFeedback
 from pkm_controller.reference import Reference, unwrap_angles
 
 ARCHI = load_machine("archi")

@@ -19,7 +19,8 @@ from pkm_kinematics.rotations import exp_so3, rpy_from_rotation, unwrap_to
 from pkm_kinematics.task_space import PLANAR, SPATIAL
 
 from .config import FORWARD_KINEMATICS
-from .laws import SensorSpaceFeedback, task_pose_error, tool_pose_floats
+from .laws import task_pose_error, tool_pose_floats
+from .sensor_space import SensorSpaceFeedback
 from .strategies import Feedback
 
 __all__ = ["PoseEstimator"]
@@ -70,7 +71,7 @@ def sensor_feedback(machine, strategy, config) -> SensorSpaceFeedback | None:
 class PoseEstimator:
     """The encoder pose of each cycle (``encoder_pose``), and the measured pose and
     error the strategy's ``feedback`` sees (``measure``). ``metrology``: the
-    strategy's laws.SensorSpaceFeedback (sensor_space), else None."""
+    strategy's sensor_space.SensorSpaceFeedback (sensor_space), else None."""
 
     def __init__(self, model, config, feedback: Feedback, metrology=None):
         self.model, self.space, self.config, self.metrology = model, model.task_space, config, metrology
