@@ -30,6 +30,7 @@ from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK,
                    MODE_DISTRIBUTION, NUMPY_DISTRIBUTION, WRENCH_NOT_FINITE, cartesian_command_kernel, joint_pid,
                    kernel_settings, limits_kernel, project_to_range, spatial_command_kernel, spatial_limits_kernel)
+from .sensor_space import sensor_space_command_kernel
 from .strategies import Projection
 from .supervisor import Trip
 
@@ -114,6 +115,28 @@ class ThreeAxis:
             c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
             (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains, s.settings,
             s.modes if full else s.degraded_modes)
+        return self._outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak)
+
+    def sensor_space(self, core, c, struts) -> tuple[tuple, tuple, CartesianOutcome]:
+        """The sensor-space feedback on the strut readings ``struts`` (checked) and
+        :meth:`cartesian` in one compiled call (sensor_space.sensor_space_command_kernel):
+        (measured, error, the outcome); the feedback's estimate of the real plate kept."""
+        s, active, feedback = core.setup, core.supervisor.active, core.metrology
+        full = len(active) == core.n
+        x = c.x_d
+        j_h, l_des, p_bp, r_bp, r_wb, p_tp, t = feedback.prepared()
+        real_p, real_r, measured, error, code, index, value, integral, wrench, forces, saturated, peak = \
+            sensor_space_command_kernel(
+                j_h, l_des, np.asarray(struts, dtype=float), p_bp, r_bp, r_wb, p_tp, t,
+                (float(x[0]), float(x[1]), float(x[2])), c.q_array, c.active_rows, tuple(c.v_d), c.v, tuple(c.a_d),
+                (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains,
+                s.settings, s.modes if full else s.degraded_modes)
+        feedback.estimate = (real_p, real_r)
+        return measured, error, self._outcome(core, active, full, code, index, value, integral, wrench, forces,
+                                              saturated, peak)
+
+    @staticmethod
+    def _outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak):
         distributed = bool(forces.shape[0])
         if distributed:
             forces = forces.tolist() if full else expand(forces.tolist(), active, core.n)

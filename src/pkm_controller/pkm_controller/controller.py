@@ -64,6 +64,7 @@ from .supervisor import Supervisor
 from .tracking import Approach, ReferenceTracker
 from .tuning import MachineTuning, holding_integral, zero_integral
 
+FUSE_SENSOR_SPACE = True    # False: the feedback and the command in two calls (the reference of a test)
 ANSWERS_KEPT = 64           # answers kept for held setpoints (the sync counter trips after a few)
 
 
@@ -112,6 +113,9 @@ class ControllerCore:
         c = self.config
         self.supervisor.config = self.estimator.config = c
         self.strategy = strategy(c.strategy)
+        # sensor_space on a 3-axis machine: the feedback and the command in one compiled call
+        self.fused_struts = FUSE_SENSOR_SPACE and self.strategy.feedback == Feedback.STRUTS \
+            and not self.strategy.joint_space and hasattr(self.kernels, "sensor_space")
         self.tuned = self.tuning.scaled(c)
         # the kernels' packed inputs of this configuration (commands.CommandSetup)
         self.setup = self.kernels.setup(c, self.tuned, (self.joint_box, self.workspace_box), self.n)
@@ -326,6 +330,11 @@ class ControllerCore:
             if c.first:         # the PID laws start holding the load (a singular start pose trips here)
                 self.integral = holding_integral(self.dynamics, self.model, c.pose, self.strategy.law,
                                                  self.config.integral_time_s, sup.active, c.active_rows)
+            if self.fused_struts and not c.first:     # sensor_space, 3 axes: feedback to forces in one call
+                measured, error, outcome = self.kernels.sensor_space(self, c, struts)
+                if self.encoder_checks.gough_check is not None:
+                    self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)
+                return self._cartesian_outcome(c, measured, error, outcome)
             measured, error = self.estimator.measure(c.pose, c.x_d, struts, metrology_pose)
             if not c.first and self.encoder_checks.gough_check is not None:
                 self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)   # judged in the next prepare
@@ -354,8 +363,12 @@ class ControllerCore:
         Star eq. 9; ARCHI §4.2-4.4; MoM3 §6.1), distribution and clamp in one compiled
         call (commands.py, by task space); the distributions it does not compile
         distribute the wrench it returns with numpy."""
-        code, index, value, self.integral, wrench, forces, distributed, saturated, peak = \
-            self.kernels.cartesian(self, c, measured, error)              # a commands.CartesianOutcome
+        return self._cartesian_outcome(c, measured, error, self.kernels.cartesian(self, c, measured, error))
+
+    def _cartesian_outcome(self, c: "Cycle", measured, error, outcome) -> list:
+        """What a Cartesian command kernel returned (a commands.CartesianOutcome): the
+        command accepted, the wrench distributed by numpy, or the trip it names."""
+        code, index, value, self.integral, wrench, forces, distributed, saturated, peak = outcome
         if code == LIMITS_OK and distributed:
             return self._accept(c, forces, saturated, peak, value, measured, error)
         if code == LIMITS_OK:

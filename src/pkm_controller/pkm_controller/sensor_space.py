@@ -11,9 +11,14 @@ from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
-__all__ = ["SensorSpaceFeedback"]
+from .laws import MODE_PLANAR, cartesian_command_kernel
 
+__all__ = ["SensorSpaceFeedback", "sensor_space_command_kernel"]
+
+# numba's spellings of the kernels' argument types (cartesian_command_kernel's packed inputs: laws.py)
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
+_MODEL = f"Tuple((UniTuple({_TRIPLE}, 3), {_TRIPLE}))"
+_CONFIGURATION = "UniTuple(float64[:, :], 2), float64[:, :], UniTuple(float64, 5), UniTuple(int64, 3)"
 
 
 class SensorSpaceFeedback:
@@ -78,6 +83,14 @@ class SensorSpaceFeedback:
             return [ex, ey, ez, wx, wy, wz]
         return [ex, ey, wz] if self.planar else [ex, ey, ez]
 
+    def prepared(self) -> tuple:
+        """What ``error_from`` takes of the last ``prepare`` and of the mounting, as
+        ``sensor_space_command_kernel`` takes it: (J_h, l_des, p_bp, R_bp, R_wb, p_tp, R_t)."""
+        if self._desired is None:
+            raise RuntimeError("SensorSpaceFeedback.prepared: call prepare() first")
+        p_bp, r_bp, l_des, j_h, t = self._desired
+        return j_h, l_des, p_bp, r_bp, self._r_wb, self._p_tp, t
+
 
 
 @kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION})")
@@ -135,3 +148,22 @@ def _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t):
     az = t[6] * lx + t[7] * ly + t[8] * lz
     return (pwx + ay * wwz - az * wwy, pwy + az * wwx - ax * wwz, pwz + ax * wwy - ay * wwx, wwx, wwy, wwz,
             real_p, real_r)
+
+
+@kernel(f"(float64[:, :], float64[:], float64[:], {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_ROTATION}, "
+        f"{_TRIPLE}, float64[:], float64[:, :], {_TRIPLE}, {_TRIPLE}, {_TRIPLE}, {_MODEL}, {_TRIPLE}, boolean, "
+        f"float64, {_CONFIGURATION})")
+def sensor_space_command_kernel(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t, x_d, q, active_rows, v_d, v, a_d,
+                                model, integral, integrate, dt, boxes, gains, settings, modes):
+    """The second half of a sensor-space cycle of a 3-axis machine in one call: the
+    task error e from the strut readings (SensorSpaceFeedback.error_from's kernel,
+    e = (e_x, e_y, e_theta) planar, (e_x, e_y, e_z) translational, ``modes``'
+    MODE_PLANAR), the measured pose x_d - e (pose_estimation), then
+    ``laws.cartesian_command_kernel`` on them. Returns (the real plate's position and
+    rotation, measured, error, then cartesian_command_kernel's eight outputs)."""
+    ex, ey, ez, _, _, wz, real_p, real_r = _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t)
+    error = (ex, ey, wz) if modes[MODE_PLANAR] != 0 else (ex, ey, ez)
+    measured = (x_d[0] - error[0], x_d[1] - error[1], x_d[2] - error[2])
+    code, index, value, i_new, wrench, forces, saturated, peak = cartesian_command_kernel(
+        q, active_rows, (measured, error, v_d, v, a_d), model, integral, integrate, dt, boxes, gains, settings, modes)
+    return real_p, real_r, measured, error, code, index, value, i_new, wrench, forces, saturated, peak
