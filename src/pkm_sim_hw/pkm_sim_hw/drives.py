@@ -53,6 +53,7 @@ def applied_forces(commanded, limit: float, faults) -> tuple[list, list]:
 
 
 _NO_NOISE = np.zeros(0)
+NOISE_STEPS = 1024          # steps of encoder noise drawn at once
 
 
 class Encoders:
@@ -71,6 +72,7 @@ class Encoders:
         self.screw_errors = [float(a) for a in screw_errors]
         self.screw_wavenumber = 2.0 * math.pi / screw_period_m
         self._rng = np.random.default_rng(seed)
+        self._noise_block, self._noise_at = _NO_NOISE, 0        # noise drawn ahead (``noise``)
         self.last: list = []
 
     def quantise(self, q) -> list:
@@ -84,11 +86,17 @@ class Encoders:
         return [_encoder_reading(float(q[i]), screw[i], k, offsets[i], noise[i], res) for i in range(n)]
 
     def noise(self, n: int) -> np.ndarray:
-        """The noise of a step's readings: one draw per drive in order, times its
-        std; empty without noise."""
-        if self.noise_m > 0.0:
-            return self.noise_m * self._rng.standard_normal(n)
-        return _NO_NOISE
+        """The noise of a step's readings (``n`` drives, the same every step): one draw
+        per drive in order, times its std; empty without noise. Drawn NOISE_STEPS steps
+        at a time: the generator's stream is the same (numpy fills an array from it in
+        order), a draw of 4 costs ~1.3 us, a slice ~0.1."""
+        if self.noise_m <= 0.0:
+            return _NO_NOISE
+        k = self._noise_at
+        if k + n > len(self._noise_block):
+            self._noise_block, k = self.noise_m * self._rng.standard_normal(n * NOISE_STEPS), 0
+        self._noise_at = k + n
+        return self._noise_block[k:k + n]
 
     def start(self, q_true) -> None:
         """The first reading (no velocity before it)."""
