@@ -260,7 +260,7 @@ class ControllerCore:
         first = self.last_time_s is None
         self.last_stamp_ns, self.last_time_s = stamp_ns, t_s
         try:
-            pose = self.estimator.encoder_pose(q_array)
+            pose, state = self.estimator.encoder_state(q_array, qdot, self.dynamics)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"forward kinematics of the encoders: {exc}", TripCause.KINEMATICS)
             return False
@@ -279,7 +279,7 @@ class ControllerCore:
                 return False
         try:
             # J_m, v = J_m^+ qdot, and A(x), H(x, v) for the model-based strategies: one compiled call
-            a_model, h_model, rows_a, v = self.dynamics.measured_state(pose, qdot)
+            a_model, h_model, rows_a, v = state if state is not None else self.dynamics.measured_state(pose, qdot)
         except (KinematicsError, ValueError) as exc:
             self.trip(f"kinematics at the measured pose: {exc}", TripCause.KINEMATICS)
             return False

@@ -54,6 +54,9 @@ def _minus_spatial(x, e) -> list:
     return [x[0] - e[0], x[1] - e[1], x[2] - e[2], *rpy_from_rotation(rot)]
 
 
+FUSE_ENCODER_STATE = True    # False: the forward kinematics and the measured state in two calls (a test's reference)
+
+
 def sensor_feedback(machine, strategy, config) -> SensorSpaceFeedback | None:
     """The Gough's feedback of a metrology ``strategy`` (strategies.Strategy) on its
     nominal geometry (the true one is the plant's); None for an encoder strategy.
@@ -102,6 +105,21 @@ class PoseEstimator:
             pose = list(self.model.forward_kinematics_floats(q, self.pose))
         self.pose, self._fk_q, self._fk_cycles = pose, np.array(q, dtype=float), self._fk_cycles + 1
         return pose
+
+    def encoder_state(self, q, qdot, dynamics) -> tuple[list, tuple | None]:
+        """(``encoder_pose``, ``dynamics.measured_state`` there or None): in one
+        compiled call where the machine's forward solver has one
+        (DynamicModel.encoder_state) and the pose is solved every cycle; None: the
+        caller asks ``measured_state``, which raises what the call refused. Raises
+        what ``encoder_pose`` raises."""
+        fused = getattr(dynamics, "encoder_state", None) if FUSE_ENCODER_STATE else None
+        if fused is None or FORWARD_KINEMATICS[self.config.forward_kinematics]:
+            return self.encoder_pose(q), None
+        pose, state = fused(q, self.pose, qdot)
+        if pose is None:
+            return self.encoder_pose(q), None       # raises what the compiled call refused
+        self.pose, self._fk_q, self._fk_cycles = list(pose), np.array(q, dtype=float), self._fk_cycles + 1
+        return self.pose, state
 
     def gough_task_pose(self, metrology_pose, reference_pose) -> list:
         """The task pose of a Gough pose (position, rotation), a planar machine's angle

@@ -30,7 +30,9 @@ from . import bars as B
 from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError, FieldError
 from .jit import kernel
-from .planar import solve3_kernel
+from .planar import (FK_CONVERGED, FK_MAX_ITERATIONS, FK_TOL, PlanarLeastSquaresFK, forward_kinematics_kernel,
+                     solve3_kernel)
+from .translational import ThreeSpheresFK
 from .rigid_body import RigidBodyParameters, StrutDynamics
 from .task_space import PLANAR
 
@@ -75,6 +77,10 @@ class DynamicModel:
         self._rail_origin_gravity = sum(mi * float(np.dot(g, o)) for mi, o in zip(self._md, machine.rail_origins))
         self._mass_args = (np.array(self._md), np.array(self._k), np.array(self._drive_gravity),
                            *(float(v) for v in self._mn + self._platform_gravity))
+        fk = getattr(machine, "fk", None)
+        self._fk_kind = "planar" if isinstance(fk, PlanarLeastSquaresFK) else \
+            "spheres" if isinstance(fk, ThreeSpheresFK) else None
+        self.encoder_state = self._encoder_state if self._fk_kind else None
 
     def terms(self, x, xdot):
         """(A as 3 rows, H (3,), J_m rows, q, qdot) at the state (x, xdot)."""
@@ -100,6 +106,33 @@ class DynamicModel:
         if code != B.VT_OK:
             self.machine.raise_velocity_terms_error(code, leg, x)
         return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
+
+    def _encoder_state(self, q: np.ndarray, guess, drive_velocities) -> tuple:
+        """The forward kinematics of the drive positions ``q`` (n floats, an array;
+        planar: Newton from ``guess``, else from home) and :meth:`measured_state` there
+        in one compiled call: (pose (3 floats) or None, (A, H, J_m, v) or None). None
+        for what the call refused (the forward kinematics, or the measured state):
+        the machine's ``forward_kinematics_floats``, or ``measured_state``, raises it.
+        ``encoder_state`` is this for a machine whose forward solver has such a kernel
+        (planar least squares, three spheres), else None."""
+        qdot = np.array(drive_velocities, dtype=float)
+        n = self.machine.n_legs
+        if q.shape != (n,) or qdot.shape != (n,):
+            return None, None
+        fk = self.machine.fk
+        if self._fk_kind == "planar":
+            ref = self.machine.home if guess is None else guess
+            out = planar_encoder_state_kernel(fk.bars, fk.pairs_array, fk.sides, q, float(ref[0]), float(ref[1]),
+                                              float(ref[2]), self.machine.twist_columns, qdot, *self._mass_args)
+        else:
+            out = spheres_encoder_state_kernel(fk.bars, fk.side, q, self.machine.twist_columns, qdot,
+                                               *self._mass_args)
+        x0, x1, x2, solved, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, _ = out
+        if not solved:
+            return None, None
+        if code != B.VT_OK:
+            return (x0, x1, x2), None
+        return (x0, x1, x2), (((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2))
 
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
         """xddot from A xddot = J^T f_d + f_n - H (:func:`forward_acceleration_kernel`)."""
@@ -265,3 +298,38 @@ def _measured_state_kernel(bars, columns, x0, x1, x2, qdot, md, k, dg, mn0, mn1,
     a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
                                                                   pg0, pg1, pg2)
     return rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg
+
+
+_STATE_TAIL = ("float64[:], float64[:], float64[:], float64[:], float64, float64, float64, float64, float64, "
+               "float64)")      # after the columns (int64[:]): qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2
+
+
+@kernel("(float64[:, :], int64[:, :], float64[:], float64[:], float64, float64, float64, int64[:], " + _STATE_TAIL)
+def planar_encoder_state_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, columns, qdot, md, k, dg, mn0, mn1, mn2,
+                                pg0, pg1, pg2):
+    """A planar rail machine's encoder state in one call (DynamicModel.encoder_state):
+    the forward kinematics of q (planar.forward_kinematics_kernel, Newton from the
+    reference pose), then _measured_state_kernel there. Returns (x, y, theta, solved,
+    then _measured_state_kernel's outputs)."""
+    x, y, th, code, _, _, _, _, _ = forward_kinematics_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, FK_TOL,
+                                                              FK_MAX_ITERATIONS)
+    if code != FK_CONVERGED:
+        return (x, y, th, False, np.empty((0, 3)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                B.VT_OK, -1)
+    rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg = _measured_state_kernel(
+        bars, columns, x, y, th, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
+    return x, y, th, True, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg
+
+
+@kernel("(float64[:, :], float64, float64[:], int64[:], " + _STATE_TAIL)
+def spheres_encoder_state_kernel(bars, side, q, columns, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2):
+    """:func:`planar_encoder_state_kernel` of a three-rail translating machine: the
+    three spheres' intersection (bars.three_rail_forward_kinematics_kernel), then
+    _measured_state_kernel there."""
+    x, y, z, code, _ = B.three_rail_forward_kinematics_kernel(bars, q[0], q[1], q[2], side)
+    if code != B.TRI_OK:
+        return (x, y, z, False, np.empty((0, 3)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                B.VT_OK, -1)
+    rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg = _measured_state_kernel(
+        bars, columns, x, y, z, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
+    return x, y, z, True, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg

@@ -244,6 +244,9 @@ def _forward_kinematics_batch_kernel(bars, pairs, sides, q, guesses, tol, max_it
     return poses, codes
 
 
+forward_kinematics_kernel = _forward_kinematics_kernel      # for compiled callers (dynamics.planar_encoder_state_kernel)
+
+
 class PlanarLeastSquaresFK:
     """The forward kinematics of a planar rail machine (``rails.FORWARD_SOLVERS``
     "least_squares"): Gauss-Newton least squares over all n legs, started from the
