@@ -77,9 +77,9 @@ class DynamicModel:
         self._rail_origin_gravity = sum(mi * float(np.dot(g, o)) for mi, o in zip(self._md, machine.rail_origins))
         self._mass_args = (np.array(self._md), np.array(self._k), np.array(self._drive_gravity),
                            *(float(v) for v in self._mn + self._platform_gravity))
-        fk = getattr(machine, "fk", None)
-        self._fk_kind = "planar" if isinstance(fk, PlanarLeastSquaresFK) else \
-            "spheres" if isinstance(fk, ThreeSpheresFK) else None
+        fk = getattr(machine, "fk", None)          # the rail machines' forward solver, on the machine's own bars
+        self._fk_kind = None if getattr(fk, "bars", None) is not getattr(machine, "bars", None) else \
+            "planar" if isinstance(fk, PlanarLeastSquaresFK) else "spheres" if isinstance(fk, ThreeSpheresFK) else None
         self.encoder_state = self._encoder_state if self._fk_kind else None
 
     def terms(self, x, xdot):
