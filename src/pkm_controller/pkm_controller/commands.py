@@ -109,19 +109,18 @@ class ThreeAxis:
     def cartesian(self, core, c, measured, error) -> CartesianOutcome:
         """laws.cartesian_command_kernel on the prepared cycle ``c``; with a drive dropped
         the compiled pseudo-inverse distributes."""
-        s, active = core.setup, core.supervisor.active
+        active = core.supervisor.active
         full = len(active) == core.n
         code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
             c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
-            (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains, s.settings,
-            s.modes if full else s.degraded_modes)
+            *_law_inputs(core, c, full))
         return self._outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak)
 
     def sensor_space(self, core, c, struts) -> tuple[tuple, tuple, CartesianOutcome]:
         """The sensor-space feedback on the strut readings ``struts`` (checked) and
         :meth:`cartesian` in one compiled call (sensor_space.sensor_space_command_kernel):
         (measured, error, the outcome); the feedback's estimate of the real plate kept."""
-        s, active, feedback = core.setup, core.supervisor.active, core.metrology
+        active, feedback = core.supervisor.active, core.metrology
         full = len(active) == core.n
         x = c.x_d
         j_h, l_des, p_bp, r_bp, r_wb, p_tp, t = feedback.prepared()
@@ -129,8 +128,7 @@ class ThreeAxis:
             sensor_space_command_kernel(
                 j_h, l_des, np.asarray(struts, dtype=float), p_bp, r_bp, r_wb, p_tp, t,
                 (float(x[0]), float(x[1]), float(x[2])), c.q_array, c.active_rows, tuple(c.v_d), c.v, tuple(c.a_d),
-                (c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains,
-                s.settings, s.modes if full else s.degraded_modes)
+                *_law_inputs(core, c, full))
         feedback.estimate = (real_p, real_r)
         return measured, error, self._outcome(core, active, full, code, index, value, integral, wrench, forces,
                                               saturated, peak)
@@ -142,6 +140,15 @@ class ThreeAxis:
             forces = forces.tolist() if full else expand(forces.tolist(), active, core.n)
         return _NEW(CartesianOutcome, (code, index, value, integral, wrench, forces if distributed else [],
                                        distributed, saturated, peak))
+
+
+def _law_inputs(core, c, full: bool) -> tuple:
+    """The 3-axis command kernels' inputs after the task's: (A, H), the integral,
+    whether it integrates (the last command not saturated), dt and the configuration's
+    boxes, gains, settings and modes (all drives, or one dropped)."""
+    s = core.setup
+    return ((c.a_model, c.h_model), core.integral, core.record.saturated == 0, c.dt, s.boxes, s.gains, s.settings,
+            s.modes if full else s.degraded_modes)
 
 
 class SixAxis:

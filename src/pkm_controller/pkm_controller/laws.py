@@ -291,11 +291,14 @@ def velocity_cascade_acceleration(kp, kv, e, v_d, v, integral, a_d):
     return a_d + kv * (v_d + kp * e + integral - v)
 # its distributions: the compiled ones, or NUMPY_DISTRIBUTION (the wrench is returned)
 DIST_PSEUDO_INVERSE, DIST_INF_NORM, NUMPY_DISTRIBUTION = 0, 1, -1
-_MATRIX3 = f"UniTuple({_TRIPLE}, 3)"
+# numba's spellings of cartesian_command_kernel's packed (A, H) and configuration
+# (boxes, gains, settings, modes), for the kernels that call it (sensor_space.py)
+MODEL_TYPE = f"Tuple((UniTuple({_TRIPLE}, 3), {_TRIPLE}))"
+CONFIGURATION_TYPES = f"{_BOXES}, float64[:, :], {_SETTINGS}, {_MODES}"
 
 
-@kernel(f"(float64[:], float64[:, :], UniTuple({_TRIPLE}, 5), Tuple(({_MATRIX3}, {_TRIPLE})), {_TRIPLE}, boolean, "
-        f"float64, {_BOXES}, float64[:, :], {_SETTINGS}, {_MODES})")
+@kernel(f"(float64[:], float64[:, :], UniTuple({_TRIPLE}, 5), {MODEL_TYPE}, {_TRIPLE}, boolean, "
+        f"float64, {CONFIGURATION_TYPES})")
 def cartesian_command_kernel(q, active_rows, task, model, integral, integrate, dt, boxes, gains, settings, modes):
     """The second half of a Cartesian cycle in one compiled call, after the feedback:
     the limits (:func:`limits_kernel`), the integral, the law, the distribution and the

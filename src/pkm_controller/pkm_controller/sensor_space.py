@@ -11,14 +11,11 @@ from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths
 from pkm_kinematics.jit import kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
-from .laws import MODE_PLANAR, cartesian_command_kernel
+from .laws import CONFIGURATION_TYPES, MODE_PLANAR, MODEL_TYPE, cartesian_command_kernel
 
 __all__ = ["SensorSpaceFeedback", "sensor_space_command_kernel"]
 
-# numba's spellings of the kernels' argument types (cartesian_command_kernel's packed inputs: laws.py)
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
-_MODEL = f"Tuple((UniTuple({_TRIPLE}, 3), {_TRIPLE}))"
-_CONFIGURATION = "UniTuple(float64[:, :], 2), float64[:, :], UniTuple(float64, 5), UniTuple(int64, 3)"
 
 
 class SensorSpaceFeedback:
@@ -151,8 +148,8 @@ def _sensor_space_error(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t):
 
 
 @kernel(f"(float64[:, :], float64[:], float64[:], {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_ROTATION}, "
-        f"{_TRIPLE}, float64[:], float64[:, :], {_TRIPLE}, {_TRIPLE}, {_TRIPLE}, {_MODEL}, {_TRIPLE}, boolean, "
-        f"float64, {_CONFIGURATION})")
+        f"{_TRIPLE}, float64[:], float64[:, :], {_TRIPLE}, {_TRIPLE}, {_TRIPLE}, {MODEL_TYPE}, {_TRIPLE}, boolean, "
+        f"float64, {CONFIGURATION_TYPES})")
 def sensor_space_command_kernel(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t, x_d, q, active_rows, v_d, v, a_d,
                                 model, integral, integrate, dt, boxes, gains, settings, modes):
     """The second half of a sensor-space cycle of a 3-axis machine in one call: the

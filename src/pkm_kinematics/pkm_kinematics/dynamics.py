@@ -105,7 +105,7 @@ class DynamicModel:
             raise DistributionError(SINGULAR_GRAM)
         if code != B.VT_OK:
             self.machine.raise_velocity_terms_error(code, leg, x)
-        return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
+        return _measured_state(rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2)
 
     def _encoder_state(self, q: np.ndarray, guess, drive_velocities) -> tuple:
         """The forward kinematics of the drive positions ``q`` (n floats, an array;
@@ -132,7 +132,7 @@ class DynamicModel:
             return None, None
         if code != B.VT_OK:
             return (x0, x1, x2), None
-        return (x0, x1, x2), (((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2))
+        return (x0, x1, x2), _measured_state(rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2)
 
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
         """xddot from A xddot = J^T f_d + f_n - H (:func:`forward_acceleration_kernel`)."""
@@ -298,6 +298,11 @@ def _measured_state_kernel(bars, columns, x0, x1, x2, qdot, md, k, dg, mn0, mn1,
     a00, a01, a02, a11, a12, a22, h0, h1, h2 = _mass_terms_kernel(rows, qd, jdv, md, k, dg, mn0, mn1, mn2,
                                                                   pg0, pg1, pg2)
     return rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, leg
+
+
+def _measured_state(rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2) -> tuple:
+    """(A as 3 rows, H, J_m, v) of _measured_state_kernel's outputs (A symmetric: its 6 entries)."""
+    return ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22)), (h0, h1, h2), rows, (v0, v1, v2)
 
 
 _STATE_TAIL = ("float64[:], float64[:], float64[:], float64[:], float64, float64, float64, float64, float64, "
