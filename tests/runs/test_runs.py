@@ -652,3 +652,28 @@ def test_run_json_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
     summary = tmp_path / "sim_hw.json"
     assert files.reserve_file(summary, 4096) and summary.stat().st_size == 4096 and not files.summary_written(summary)
     assert files.write_summary(summary, {"steps": 3}, errors.append) and json.loads(summary.read_text()) == {"steps": 3}
+
+
+def test_files_of_a_scratch_directory_are_whole_but_not_forced_to_the_disk(tmp_path, monkeypatch):
+    """files.scratch (a study's run directory, read once then removed): JSON and
+    summaries still whole (renamed into place), no fsync, no space set aside; outside
+    it, each write is forced to the disk again."""
+    from pkm_common import files
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+
+    def write_all(where: Path) -> None:
+        where.mkdir()
+        files.write_json(where / "run.json", {"status": "completed"})
+        files.reserve_file(where / "sim_hw.json", 4096)
+        files.write_summary(where / "sim_hw.json", {"steps": 3}, print)
+    with files.scratch():
+        assert not files.durable()
+        write_all(tmp_path / "scratch")
+        assert not files.reserve_file(tmp_path / "scratch" / "other.json")
+    assert synced == [] and files.durable(), synced
+    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == ["run.json", "sim_hw.json"]
+    assert json.loads((tmp_path / "scratch" / "sim_hw.json").read_text()) == {"steps": 3}
+    write_all(tmp_path / "kept")
+    assert len(synced) == 2, synced        # run.json; the summary written into its reserved blocks

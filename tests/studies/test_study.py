@@ -363,17 +363,23 @@ def test_a_study_run_gives_the_same_row_in_the_direct_engine_as_in_the_graph(tmp
 
 def test_a_recorded_run_of_a_study_that_keeps_no_runs_leaves_its_metrics_and_no_directory(tmp_path):
     """keep_runs: false (a Monte Carlo of thousands of recorded runs, ~3 MB of bag
-    each): the report's metrics are in the row, the run's directory is gone; a study
-    that keeps them keeps it."""
+    each): the report's metrics are in the row, the run's directory is gone and nothing
+    of it was forced to the disk (files.scratch: its fsyncs were a quarter of a
+    one-second run); a study that keeps them keeps it, flushed."""
     from pkm_studies.run_task import RunTask, execute_run
     study = load_study(_study(tmp_path, **{**{k: v for k, v in TINY.items() if k != "scenario"},
                                            "set": {"duration_s": 0.2, "record": True}, "keep_runs": False}))
     assert study.keep_runs is False
     run = study.runs()[0]
+    real_fsync = os.fsync
     for keep in (False, True):
-        row = execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / str(keep)), True, "", keep))
+        synced = []
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+            row = execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / str(keep)), True, "", keep))
         assert row["run.status"] == "completed" and row["report.tracking_error.max_m"] > 0.0, row.get("run.error")
         assert (tmp_path / str(keep) / "bag").is_dir() == keep
+        assert (len(synced) > 0) == keep, (keep, synced)
 
 
 def test_a_study_resumes_from_its_table_alone(tmp_path):

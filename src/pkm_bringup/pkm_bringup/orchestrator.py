@@ -62,7 +62,7 @@ from pkm_bringup.scenario import (Scenario, ScenarioError, laser_tracker_paramet
                                   params_file_text)
 from pkm_common.causes import TripCause, parse_cause, run_status
 from pkm_common.credential import KEY_FILE, RunKey
-from pkm_common.files import disk_full, write_json
+from pkm_common.files import disk_full, durable, write_json
 from pkm_recording.bag import recorded_stamps, recover
 from pkm_recording.memory import MAX_SECONDS
 from pkm_runs.report import analyse_recording, summary, write_report
@@ -242,7 +242,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
         for sub in ("params", "logs", "summaries"):
             (run_dir / sub).mkdir(parents=True, exist_ok=True)
         # the end of the run's space, kept from the start: the nodes' summaries, then run.json
-        reserves = [DiskReserve(run_dir, "nodes"), DiskReserve(run_dir, "end")]
+        # (none for a directory thrown away once read: files.scratch)
+        reserves = [DiskReserve(run_dir, "nodes"), DiskReserve(run_dir, "end")] if durable() else []
         for reserve in reserves:
             if not reserve.held:
                 raise OSError(reserve.error)
@@ -281,7 +282,8 @@ def run_scenario(s: Scenario, run_dir: Path, in_process: bool = False, progress:
             run = run_processes
         with interruption, RunLock(s.namespace) if not direct else contextlib.nullcontext(), \
                 _in_process_profile(s, in_process and not direct):
-            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption, reserves[0],
+            run(s, run_dir, params, Progress(s.duration_s, enabled=progress), codes, interruption,
+                reserves[0] if reserves else None,
                 *(() if recording is None else (recording,)))
     except RunFailed as exc:
         error, failure = str(exc), exc.cause

@@ -72,7 +72,7 @@ from pkm_kinematics.errors import FieldError
 from pkm_recording.mcap_writer import FastWriter
 from pkm_recording.tap_records import PACK_ERRORS, PACK_OK, StampCounter, pack_tap_records
 from pkm_common.cdr import stamp_ns_of
-from pkm_common.files import atomic_write
+from pkm_common.files import atomic_write, durable
 
 try:  # mcap's own version string, for the Header's library field
     from importlib.metadata import version as _dist_version
@@ -326,7 +326,8 @@ class _RawFile:
         pass
 
     def fsync(self) -> None:
-        os.fsync(self._fd)
+        if durable():              # (not for a bag thrown away once read: files.scratch)
+            os.fsync(self._fd)
 
     def close(self) -> None:
         if self._fd >= 0:

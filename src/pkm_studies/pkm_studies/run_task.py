@@ -5,6 +5,7 @@ also when study_engine runs as ``python -m``)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -19,6 +20,7 @@ from pkm_bringup.direct import refusal
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import ScenarioError, load_scenario
 from pkm_common.domains import use_private_domain
+from pkm_common.files import scratch
 from pkm_recording.memory import MAX_SECONDS, MemoryRecording
 from pkm_runs.report import analyse_bag
 from pkm_runs.report_metrics import metrics_dict
@@ -76,8 +78,11 @@ def _execute(task: RunTask, s, engine: str) -> dict:
     shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
     # a bag that would be removed once read: the messages kept in memory, the metrics from them
     memory = engine == "direct" and s.record and not task.keep_run and s.duration_s <= MAX_SECONDS
-    run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine,
-                       recording=MemoryRecording() if memory else None)
+    # a directory removed once read is not forced to the disk (a failed run's is kept, unflushed)
+    thrown_away = not s.record or not task.keep_run
+    with scratch() if thrown_away else contextlib.nullcontext():
+        run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine,
+                           recording=MemoryRecording() if memory else None)
     report = run.pop("metrics", None) if memory else None
     if memory and report is None and run.get("report_error"):
         run["error"] = run.get("error") or f"report: {run['report_error']}"
@@ -88,6 +93,6 @@ def _execute(task: RunTask, s, engine: str) -> dict:
         except (ValueError, OSError) as exc:
             run["error"] = run.get("error") or f"report: {exc}"
     metrics = run_metrics(run, report)
-    if (not s.record or not task.keep_run) and metrics.get("run.status") != "failed":
+    if thrown_away and metrics.get("run.status") != "failed":
         shutil.rmtree(run_dir, ignore_errors=True)
     return metrics
