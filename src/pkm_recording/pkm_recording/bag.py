@@ -85,6 +85,7 @@ __all__ = [
     "IncompleteBagError",
     "Recovery",
     "check_complete",
+    "jazzy_typestore",
     "qos_profile",
     "recorded_stamps",
     "qos_profiles_yaml",
@@ -221,7 +222,10 @@ class _Rosbag2Dumper(yaml.SafeDumper):
 # --- message definitions -----------------------------------------------------------------
 
 @functools.lru_cache(maxsize=1)
-def _jazzy_typestore():
+def jazzy_typestore():
+    """rosbags' Jazzy typestore, one per process: a store generates each message type's
+    (de)serializer on its first use (~10 ms a type), so a new store per run of a study
+    paid that again for every run."""
     from rosbags.typesys import Stores, get_typestore
     return get_typestore(Stores.ROS2_JAZZY)
 
@@ -414,7 +418,7 @@ class BagWriter:
         self.file_name = _bag_file_name(self.path)
         self.mcap_path = self.path / self.file_name
         # loaded now (~0.1 s) rather than in the first add_topic(), i.e. in a callback
-        self._typestore = typestore if typestore is not None else _jazzy_typestore()
+        self._typestore = typestore if typestore is not None else jazzy_typestore()
         self._custom_data = dict(custom_data) if custom_data else None
         try:
             self._file = _RawFile(self.mcap_path)

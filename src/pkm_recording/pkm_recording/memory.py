@@ -79,8 +79,8 @@ class MemoryRecording:
     def deserialize(self, raw: bytes, msgtype: str):
         """A message as a rosbags object (the status, estop and trajectory RunReader reads)."""
         if self._typestore is None:
-            from rosbags.typesys import Stores, get_typestore
-            self._typestore = get_typestore(Stores.ROS2_JAZZY)
+            from .bag import jazzy_typestore        # (the process's: its deserializers made once)
+            self._typestore = jazzy_typestore()
         return self._typestore.deserialize_cdr(raw, msgtype)
 
     def write_bag(self, path, compression: str = "lz4") -> None:
