@@ -14,7 +14,11 @@ each call): the plant (SimLoop.on_command: its step and the publication), the Go
 sensor, the controller's two halves (on_state: prepare, on_metrology: complete), and
 what is left of the wall time: the engine's queue and the recorder's tap.
 
-Usage: python benchmarks/engine.py [--scenario archi_demo] [--duration-s 2.0] [--repeat 3]
+``--baseline DIR``: also the graph as processes of another checkout's code (the
+issue's 143a5f0: "ratios against today's code"), in turn with the others
+(baseline.py).
+
+Usage: python benchmarks/engine.py [--scenario archi_demo] [--duration-s 2.0] [--repeat 3] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -80,15 +84,21 @@ def main() -> int:
     parser.add_argument("--scenario", default="archi_demo")
     parser.add_argument("--duration-s", type=float, default=2.0)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--baseline", type=Path, help="a checkout whose graph as processes is measured too")
     args = parser.parse_args()
     from pkm_bringup.processes import use_ros_environment
     use_ros_environment()
     rates = collections.defaultdict(list)
     engines = (("graph, processes", "graph", False), ("graph, one process", "graph", True), ("direct", "direct", False))
+    if args.baseline is not None:
+        from baseline import graph_steps_per_s
+        baseline = f"graph, processes, {args.baseline.resolve().name}'s code"
+        engines = ((baseline, "", False), *engines)
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.repeat):
             for label, engine, in_process in engines:
-                rates[label].append(one_run(args.scenario, args.duration_s, engine, in_process, Path(tmp), k))
+                rates[label].append(graph_steps_per_s(args.baseline, args.scenario, args.duration_s) if not engine
+                                    else one_run(args.scenario, args.duration_s, engine, in_process, Path(tmp), k))
         parts, wall, steps = shares(args.scenario, args.duration_s, Path(tmp))
     print(f"{args.scenario}, {args.duration_s:g} s simulated, {args.repeat} runs per engine, alternating")
     print("| engine | steps/s min | median | max | direct / this (median) |")

@@ -18,8 +18,12 @@ Both engines: the graph (its nodes in one process) and the direct engine
 (pkm_bringup.direct, what a study uses by default), in the same minutes, and their
 ratio of runs per hour (issue 45's target: >= 20).
 
+``--baseline DIR``: first, another checkout's own study benchmark on one worker (the
+issue's 143a5f0: "ratios against today's code in the same minutes", baseline.py), and
+the direct engine's ratio to it.
+
 Usage: python benchmarks/study.py [--runs 8] [--direct-runs 40] [--duration-s 1.0] [--variants 40000]
-       [--workers 1,2] [--no-design]
+       [--workers 1,2] [--no-design] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -99,6 +103,7 @@ def main() -> int:
     parser.add_argument("--workers", default="1,2")
     parser.add_argument("--direct-runs", type=int, default=40, help="runs of the direct engine (it is faster)")
     parser.add_argument("--no-design", action="store_true")
+    parser.add_argument("--baseline", type=Path, help="a checkout whose study benchmark runs first (one worker)")
     args = parser.parse_args()
     counts = [int(w) for w in args.workers.split(",")]
     print(f"closed-loop study: runs of mom3_square, {args.duration_s:g} s simulated each, not recorded; the graph "
@@ -106,7 +111,13 @@ def main() -> int:
     print("| engine | workers | runs | failed | wall s | start-up s | run s (median) | runs per hour | "
           "overhead per run | direct / graph (target >= 20) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    graph_rate = {}
+    graph_rate, base_rate = {}, None
+    if args.baseline is not None:
+        from baseline import study_runs_per_hour
+        b = study_runs_per_hour(args.baseline, args.runs, args.duration_s)
+        base_rate = b["per_hour"]
+        print(f"| graph, {args.baseline.resolve().name}'s code | 1 | {b['runs']} | {b['failed']} | - | - | "
+              f"{b['task_s']:.2f} | {base_rate:.0f} | - | - |", flush=True)
     for w in counts:
         for engine, runs in (("graph", args.runs), ("direct", args.direct_runs)):
             r = closed_loop(w, runs, args.duration_s, engine)
@@ -114,6 +125,8 @@ def main() -> int:
                         if "overhead_s" in r else "-")
             graph_rate.setdefault(w, r["per_hour"])
             ratio = f"{r['per_hour'] / graph_rate[w]:.1f}" if engine == "direct" else "-"
+            if engine == "direct" and base_rate and w == 1:
+                ratio += f" ({r['per_hour'] / base_rate:.1f} against the baseline's code)"
             print(f"| {engine} | {w} | {r['runs']} | {r['failed']} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | "
                   f"{r['task_s']:.2f} | {r['per_hour']:.0f} | {overhead} | {ratio} |", flush=True)
     if args.no_design:
