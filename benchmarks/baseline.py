@@ -21,7 +21,7 @@ from pathlib import Path
 
 def baseline_env(checkout: Path) -> dict:
     """The environment that imports ``checkout``'s packages before this venv's."""
-    src = sorted(str(p) for p in (Path(checkout) / "src").iterdir() if p.is_dir())
+    src = sorted(str(p) for p in (Path(checkout).resolve() / "src").iterdir() if p.is_dir())
     if not src:
         raise SystemExit(f"--baseline {checkout}: no packages under src/ (a checkout of this repository?)")
     env = dict(os.environ)
@@ -30,12 +30,19 @@ def baseline_env(checkout: Path) -> dict:
 
 
 def run_baseline(checkout: Path, code: str, timeout_s: float = 900.0) -> dict:
-    """``code`` (it prints one JSON object last) run with ``checkout``'s code; its result."""
-    done = subprocess.run([sys.executable, "-c", code], cwd=checkout, env=baseline_env(checkout),
-                          capture_output=True, text=True, timeout=timeout_s, check=False)
+    """``code`` (it prints one JSON object last) run with ``checkout``'s code; its result.
+    The child says where it imported ``pkm_bringup`` from: a run of this checkout's code
+    (an editable install's finder answering where the baseline has no such package)
+    is refused, not reported as the baseline's."""
+    checkout = Path(checkout).resolve()
+    done = subprocess.run([sys.executable, "-c", "import pkm_bringup; print(pkm_bringup.__file__)\n" + code],
+                          cwd=checkout, env=baseline_env(checkout), capture_output=True, text=True,
+                          timeout=timeout_s, check=False)
     lines = done.stdout.strip().splitlines()
-    if done.returncode != 0 or not lines:
+    if done.returncode != 0 or len(lines) < 2:
         raise SystemExit(f"--baseline {checkout}: the child failed ({done.returncode}):\n{done.stderr[-2000:]}")
+    if not Path(lines[0]).resolve().is_relative_to(checkout):
+        raise SystemExit(f"--baseline {checkout}: the child imported pkm_bringup from {lines[0]}, not the checkout")
     return json.loads(lines[-1])
 
 

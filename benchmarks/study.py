@@ -29,6 +29,7 @@ Usage: python benchmarks/study.py [--runs 8] [--direct-runs 40] [--duration-s 1.
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import tempfile
@@ -125,7 +126,7 @@ def main() -> int:
                         if "overhead_s" in r else "-")
             graph_rate.setdefault(w, r["per_hour"])
             ratio = f"{r['per_hour'] / graph_rate[w]:.1f}" if engine == "direct" else "-"
-            if engine == "direct" and base_rate and w == 1:
+            if engine == "direct" and base_rate is not None and math.isfinite(base_rate) and base_rate > 0 and w == 1:
                 ratio += f" ({r['per_hour'] / base_rate:.1f} against the baseline's code)"
             print(f"| {engine} | {w} | {r['runs']} | {r['failed']} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | "
                   f"{r['task_s']:.2f} | {r['per_hour']:.0f} | {overhead} | {ratio} |", flush=True)

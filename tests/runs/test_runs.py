@@ -668,12 +668,27 @@ def test_files_of_a_scratch_directory_are_whole_but_not_forced_to_the_disk(tmp_p
         files.write_json(where / "run.json", {"status": "completed"})
         files.reserve_file(where / "sim_hw.json", 4096)
         files.write_summary(where / "sim_hw.json", {"steps": 3}, print)
+    from pkm_common.cdr import encode_clock
+    from pkm_recording.bag import BagWriter
+
+    def write_bag(where: Path) -> None:
+        writer = BagWriter(where, compression="none")
+        clock = writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+        writer.write(clock, 1, encode_clock(1))
+        writer.close()
+    files.reserve_file(tmp_path / "reserved.json", 4096)      # reserved before, written inside
     with files.scratch():
         assert not files.durable()
         write_all(tmp_path / "scratch")
         assert not files.reserve_file(tmp_path / "scratch" / "other.json")
+        files.write_summary(tmp_path / "reserved.json", {"steps": 1}, print)
+        write_bag(tmp_path / "scratch" / "bag")                # a failed run's messages, kept as its bag
     assert synced == [] and files.durable(), synced
-    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == ["run.json", "sim_hw.json"]
+    assert json.loads((tmp_path / "reserved.json").read_text()) == {"steps": 1}
+    assert (tmp_path / "scratch" / "bag" / "metadata.yaml").is_file()
+    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == ["bag", "run.json", "sim_hw.json"]
     assert json.loads((tmp_path / "scratch" / "sim_hw.json").read_text()) == {"steps": 3}
     write_all(tmp_path / "kept")
     assert len(synced) == 2, synced        # run.json; the summary written into its reserved blocks
+    write_bag(tmp_path / "kept" / "bag")
+    assert len(synced) >= 4, synced        # the bag's file, then its metadata.yaml

@@ -380,6 +380,16 @@ def test_a_recorded_run_of_a_study_that_keeps_no_runs_leaves_its_metrics_and_no_
         assert row["run.status"] == "completed" and row["report.tracking_error.max_m"] > 0.0, row.get("run.error")
         assert (tmp_path / str(keep) / "bag").is_dir() == keep
         assert (len(synced) > 0) == keep, (keep, synced)
+    # a run whose bag goes to the disk (longer than memory.MAX_SECONDS) keeps its space set
+    # aside against a full disk, flushed, though its directory is removed after
+    from pkm_studies import run_task
+    synced = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+        patch.setattr(run_task, "MAX_SECONDS", 0.1)
+        row = execute_run(RunTask(str(study.scenario), run.overrides, str(tmp_path / "long"), True, "", False))
+    assert row["run.status"] == "completed" and row["report.tracking_error.max_m"] > 0.0, row.get("run.error")
+    assert not (tmp_path / "long").exists() and synced
 
 
 def test_a_study_resumes_from_its_table_alone(tmp_path):

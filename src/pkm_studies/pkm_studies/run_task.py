@@ -78,9 +78,10 @@ def _execute(task: RunTask, s, engine: str) -> dict:
     shutil.rmtree(run_dir, ignore_errors=True)          # a run started again starts afresh
     # a bag that would be removed once read: the messages kept in memory, the metrics from them
     memory = engine == "direct" and s.record and not task.keep_run and s.duration_s <= MAX_SECONDS
-    # a directory removed once read is not forced to the disk (a failed run's is kept, unflushed)
+    # a directory removed once read is not forced to the disk (a failed run's is kept, unflushed),
+    # unless a bag goes to the disk: its run keeps the space set aside against a full one
     thrown_away = not s.record or not task.keep_run
-    with scratch() if thrown_away else contextlib.nullcontext():
+    with scratch() if thrown_away and (not s.record or memory) else contextlib.nullcontext():
         run = run_scenario(s, run_dir, in_process=task.in_process, progress=False, report=False, engine=engine,
                            recording=MemoryRecording() if memory else None)
     report = run.pop("metrics", None) if memory else None
