@@ -276,15 +276,11 @@ def open_bag(bag):
 def read_messages(reader, bag, connections=None):
     """``reader.messages(connections)`` (connection, log time, raw CDR) in log-time
     order; what the reader raises while reading (a corrupt chunk) as :class:`BagReadError`."""
-    messages = iter(reader.messages() if connections is None else reader.messages(connections=connections))
-    while True:
-        try:
-            item = next(messages)
-        except StopIteration:
-            return
-        except Exception as exc:                 # noqa: BLE001 - rosbags' errors and the decompressors'
-            raise BagReadError(f"{bag}: cannot be read: {exc}") from None
-        yield item
+    messages = reader.messages() if connections is None else reader.messages(connections=connections)
+    try:
+        yield from messages                      # (the consumer's own errors do not come in here)
+    except Exception as exc:                     # noqa: BLE001 - rosbags' errors and the decompressors'
+        raise BagReadError(f"{bag}: cannot be read: {exc}") from None
 
 
 class _Stream:
@@ -372,22 +368,25 @@ class RunReader:
         newest = None                   # the newest stamp of any per-step message
         done_below = None               # stamps below this have been handed out
         since_check, check_every = 0, min(_CHECK_EVERY, self.block_rows)
+        routes: dict = {}               # topic -> (its stream or None, its other stream's suffix or None)
         for conn, log_ns, raw in read_messages(self._reader, self.bag):
             topic = conn.topic
+            route = routes.get(topic)
+            if route is None:
+                route = routes[topic] = (streams.get(topic), others.get(topic))
+            stream, suffix = route
             counts[topic] += 1
-            head = raw[4:12]
+            # the header's stamp bytes (as (sec, nanosec): equal exactly when the 8 bytes are)
+            head = _STAMP.unpack_from(raw, 4) if len(raw) >= 12 else raw[4:12]
             if head != last_stamp.get(topic):          # as recorder_node counts: a new stamp
                 last_stamp[topic] = head
                 stamp_counts[topic] += 1
-            stream = streams.get(topic)
             if stream is None:
-                suffix = others.get(topic)
                 if suffix is not None:
                     self._other(suffix, topic, conn.msgtype, log_ns, raw)
                 continue
-            if raw[:4] == CDR_LE_HEADER and len(head) == 8:
-                sec, nanosec = _STAMP.unpack(head)
-                stamp = sec * NS_PER_S + nanosec
+            if len(raw) >= 12 and raw[:4] == CDR_LE_HEADER:
+                stamp = head[0] * NS_PER_S + head[1]
             else:
                 stamp = self._stamp(raw, stream.msgtype)
             if done_below is not None and stamp < done_below:
