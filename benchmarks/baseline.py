@@ -74,7 +74,7 @@ spec = importlib.util.spec_from_file_location("baseline_study_benchmark", "bench
 bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 out = bench.closed_loop(1, {runs!r}, {duration_s!r})
-print(json.dumps({{"per_hour": out["per_hour"], "task_s": out["task_s"], "failed": out["failed"], "runs": out["runs"]}}))
+print(json.dumps({{key: out[key] for key in ("per_hour", "task_s", "failed", "runs")}}))
 """
 
 

@@ -3,6 +3,8 @@ References: the static strut forces of the dynamic model hold the platform still
 scipy's RK45 of the same model in task coordinates (the SE(3) integrator against an
 independent one); the strut readings are the quantised inverse kinematics; faults, end stops and loads as the rail plant's."""
 
+import math
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -155,3 +157,46 @@ def test_a_frame_load_carries_the_tool_with_the_whole_strut_chain_unseen_by_the_
         StrutPlant(HEXAPOD8, PlantParameters(frame_compliance=(1e-6, 0.0, 0.0)))
     with pytest.raises(ValueError, match=r"frame_load_schedule: fy must be in \[-5000, 5000\] N"):
         loaded.schedule_frame_load([(0.0, [0, 6000.0, 0, 0, 0, 0])])
+
+
+@pytest.mark.parametrize("config", [HEXAPOD, HEXAPOD8], ids=["genhexkins", "hexapod8"])
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_the_compiled_step_is_the_python_step_to_the_bit(config, substeps):
+    """StrutPlant.step in two compiled calls (strut_step.py) against the interpreted
+    step, its reference: the same state and outputs at every step under random forces
+    about the holding forces, with every encoder term (noise from the same draws, screw
+    errors, offsets, a strut's length error), saturation and scheduled loads; then the
+    same stop at an end stop."""
+    n = config.model.n_legs
+    params = dict(substeps=substeps, link_length_errors=(0.01,) + (0.0,) * (n - 1), encoder_noise_m=2e-7, seed=11,
+                  screw_errors_m=tuple(2e-6 * (i + 1) for i in range(n)), screw_error_period_m=0.05,
+                  encoder_offsets_m=tuple(0.013 * (i - 1) for i in range(n)), encoder_resolution_m=1e-8)
+    probe = StrutPlant(config, PlantParameters(**params))
+    hold = static_forces(probe, np.array(probe.x))
+    params["force_limit_n"] = float(np.abs(hold).max() + 60.0)
+    compiled, python = StrutPlant(config, PlantParameters(**params)), StrutPlant(config, PlantParameters(**params))
+    python.compiled_step = False
+    assert compiled._compiled is not None
+    for plant in (compiled, python):
+        plant.schedule_load([(0.05, [30.0, -20.0, 10.0, 1.0, -2.0, 0.5]), (0.2, [0.0] * 6)])
+    rng = np.random.default_rng(5)
+    saturated = 0
+    for k in range(300):
+        forces = (hold + rng.normal(0.0, 60.0, n)).tolist()
+        a, b = compiled.step(forces), python.step(forces)
+        assert (a, compiled.x, compiled.twist.tolist(), compiled.load.tolist()) == \
+            (b, python.x, python.twist.tolist(), python.load.tolist()), k
+        saturated += any(a.saturated)
+    assert saturated > 20 and not a.stopped and (a.internal_force_norm > 0.0) == (n > 6), (saturated, a)
+    with pytest.raises(ValueError, match="drive forces"):
+        compiled.step([math.nan] * n)
+    # pushed up at full force: the same end stop, braked
+    compiled = StrutPlant(config, PlantParameters(substeps=substeps, force_limit_n=5000.0))
+    python = StrutPlant(config, PlantParameters(substeps=substeps, force_limit_n=5000.0))
+    python.compiled_step = False
+    for k in range(3000):
+        a, b = compiled.step([5000.0] * n), python.step([5000.0] * n)
+        assert (a, compiled.x, compiled.stop_reason) == (b, python.x, python.stop_reason), k
+        if compiled.stopped:
+            break
+    assert compiled.stopped and "end stop" in compiled.stop_reason, compiled.stop_reason

@@ -100,14 +100,20 @@ class StrutDynamics:
                                    f"{np.asarray(x).tolist()}")
         return a, h, jac, twist
 
+    def step_arguments(self) -> tuple:
+        """What :func:`strut_step_kernel` takes of this model after the state, forces and
+        wrench, for a compiled caller's step (pkm_sim_hw.strut_step): (M_d, friction,
+        I_p row-major, platform mass, gravity)."""
+        return self._md, self._k, self._inertia.ravel(), float(self.params.platform_mass_kg), self._g
+
     def step(self, position, rotation, twist, drive_forces, wrench, h: float, substeps: int = 1):
         """(p, R, t) after ``substeps`` semi-implicit Euler steps of h (``strut_step_kernel``);
         SingularityError when a strut reaches zero length."""
         ok, p, r, t = strut_step_kernel(self.machine.bars, np.asarray(position, dtype=float),
                                         np.ascontiguousarray(rotation, dtype=float).ravel(),
                                         np.asarray(twist, dtype=float), np.asarray(drive_forces, dtype=float),
-                                        np.asarray(wrench, dtype=float), self._md, self._k, self._inertia.ravel(),
-                                        float(self.params.platform_mass_kg), self._g, float(h), int(substeps))
+                                        np.asarray(wrench, dtype=float), *self.step_arguments(), float(h),
+                                        int(substeps))
         if not ok:
             raise SingularityError(f"a strut has zero length at p = {p.tolist()}")
         return p, r.reshape(3, 3), t

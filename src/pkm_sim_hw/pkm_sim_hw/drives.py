@@ -73,7 +73,20 @@ class Encoders:
         self.screw_wavenumber = 2.0 * math.pi / screw_period_m
         self._rng = np.random.default_rng(seed)
         self._noise_block, self._noise_at = _NO_NOISE, 0        # noise drawn ahead (``noise``)
+        self._kernel_key, self._kernel_arguments = None, ()
         self.last: list = []
+
+    def kernel_arguments(self) -> tuple:
+        """(resolution, offsets, screw errors, screw wavenumber) as a compiled reading
+        takes them (``encoder_reading`` per drive: floats and arrays, an empty array for
+        none), made again whenever they change (homing gives the encoders their new
+        offsets)."""
+        key = (self.resolution_m, self.offsets, self.screw_errors, self.screw_wavenumber)
+        if key != self._kernel_key:
+            self._kernel_key = (key[0], list(key[1]), list(key[2]), key[3])
+            self._kernel_arguments = (float(self.resolution_m), np.array(self.offsets, dtype=float),
+                                      np.array(self.screw_errors, dtype=float), float(self.screw_wavenumber))
+        return self._kernel_arguments
 
     def quantise(self, q) -> list:
         """Each drive's ``encoder_reading``: screw error, offset, noise (one draw per

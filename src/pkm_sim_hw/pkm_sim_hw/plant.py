@@ -468,7 +468,6 @@ class _CompiledStep:
         self.args = plant.dynamics.step_arguments()
         self.h, self.substeps, self.limit = p.dt_s / p.substeps, int(p.substeps), float(p.force_limit_n)
         self.lower, self.upper = np.array(plant._lower, dtype=float), np.array(plant._upper, dtype=float)
-        self._encoder_key, self.encoders = None, ()
         self.compliance = np.array(p.compliance, dtype=float)
         self.frame_compliance = np.array(p.frame_compliance, dtype=float)
         self.cmd, self.state, self.load, self.frame_load = np.empty(n), np.empty(6), np.empty(3), np.empty(3)
@@ -496,7 +495,7 @@ class _CompiledStep:
                               self.fint) != STEP_OK:
             return None
         enc = plant.encoders
-        resolution, offsets, screw_errors, wavenumber = self._encoder_arguments(enc)
+        resolution, offsets, screw_errors, wavenumber = enc.kernel_arguments()
         if enc.last is not self._last_list:          # a reading not made here (the start, homing)
             self._last_array[:] = enc.last
         norm = rail_outputs(self.q, self.fint, resolution, offsets, screw_errors, wavenumber,
@@ -511,16 +510,6 @@ class _CompiledStep:
                                   self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
                                   self.fint.tolist(), norm, [], plant.stopped, None)
         return plant._last
-
-    def _encoder_arguments(self, enc: Encoders) -> tuple:
-        """The encoders' constants as the kernel takes them, made again whenever they
-        change (homing gives the encoders their new offsets)."""
-        key = (enc.resolution_m, enc.offsets, enc.screw_errors, enc.screw_wavenumber)
-        if key != self._encoder_key:
-            self._encoder_key = (key[0], list(key[1]), list(key[2]), key[3])
-            self.encoders = (float(enc.resolution_m), np.array(enc.offsets, dtype=float),
-                             np.array(enc.screw_errors, dtype=float), float(enc.screw_wavenumber))
-        return self.encoders
 
 
 def check_load(wrench, space: TaskSpace, params: PlantParameters, what: str = "load") -> list:

@@ -45,6 +45,7 @@ from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces
 from .plant import Fault, PlantOutput, PlantParameters, check_load, load_steps
+from .strut_step import STEP_OK, strut_dynamics_step, strut_outputs
 from .structure import deflected
 
 _deflected = deflected.py_func
@@ -101,6 +102,10 @@ class StrutPlant:
         self._reading_scale = 1.0 / (1.0 + np.asarray(self.params.link_length_errors or [0.0] * self.n, dtype=float))
         self.encoders.start((q * self._reading_scale).tolist())
         self._last = self._output([0.0] * self.n, [False] * self.n, self.active_faults())
+        # the common case compiled (strut_step.py); ``compiled_step`` False: never
+        self.compiled_step = True
+        self._compiled = _CompiledStrutStep(self) if not self._faults and not (
+            self._compliance.any() or self._frame_compliance.any()) else None
 
     @property
     def x(self) -> list:
@@ -158,11 +163,12 @@ class StrutPlant:
     def step(self, forces, hold: bool = False) -> PlantOutput:
         """Apply the commanded strut forces for one period and advance the state;
         ``hold``: the holding brakes are closed for this period (plant.Plant.step)."""
+        if self._compiled is not None and self.compiled_step and not (self.stopped or hold):
+            out = self._compiled.step(forces)
+            if out is not None:
+                return out
         cmd = finite_floats(forces, self.n, "drive forces")
-        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
-            self.load = np.array(self._schedule.pop(0)[1])
-        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
-            self.frame_load = np.array(self._frame_schedule.pop(0)[1])
+        self._apply_schedules()
         faults = self.active_faults()
         applied, saturated = applied_forces(cmd, self.params.force_limit_n, faults)
         locked = [f for f in faults if f.kind == "locked"]
@@ -190,6 +196,13 @@ class StrutPlant:
         self._last = self._output(applied, saturated, faults, q)
         return self._last
 
+    def _apply_schedules(self) -> None:
+        """The scheduled loads due at this step."""
+        while self._schedule and self.k >= self._schedule[0][0] and not self.schedules_paused:
+            self.load = np.array(self._schedule.pop(0)[1])
+        while self._frame_schedule and self.k >= self._frame_schedule[0][0] and not self.schedules_paused:
+            self.frame_load = np.array(self._frame_schedule.pop(0)[1])
+
     # ----------------------------------------------------------------- outputs
     def _output(self, applied, saturated, faults, lengths=None) -> PlantOutput:
         """The outputs of the current state (``lengths``: its strut lengths, if known)."""
@@ -212,3 +225,68 @@ class StrutPlant:
     def output(self) -> PlantOutput:
         """The outputs of the last step (or of the initial state)."""
         return self._last
+
+
+class _CompiledStrutStep:
+    """StrutPlant.step of a strut machine without faults or compliance, compiled
+    (strut_step.py): the plant's state copied into arrays around two kernel calls.
+    ``step`` returns None where the interpreted step must be taken (a command that is
+    not n finite numbers, an end stop, a strut of zero length, a singular mass matrix):
+    nothing has changed then."""
+
+    def __init__(self, plant: StrutPlant):
+        n, p = plant.n, plant.params
+        self.plant = plant
+        md, kf, inertia, mass, g = plant.dynamics.step_arguments()
+        self.model = tuple(np.ascontiguousarray(a, dtype=float) for a in (md, kf, inertia)) + (
+            float(mass), np.ascontiguousarray(g, dtype=float))
+        self.bars = np.asarray(plant.machine.bars, dtype=float)
+        self.h, self.substeps, self.limit = p.dt_s / p.substeps, int(p.substeps), float(p.force_limit_n)
+        self.lower = np.array(plant.machine.joint_lower, dtype=float)
+        self.upper = np.array(plant.machine.joint_upper, dtype=float)
+        self.scale = np.ascontiguousarray(plant._reading_scale, dtype=float)
+        self.cmd, self.applied, self.saturated, self.q = np.empty(n), np.empty(n), np.zeros(n, dtype=bool), np.empty(n)
+        self.reading, self.velocity, self.x = np.empty(n), np.empty(n), np.empty(6)
+        self._last_list, self._last_array = None, np.empty(n)     # the encoders' last reading, as a list and an array
+
+    def step(self, forces) -> PlantOutput | None:
+        plant, cmd = self.plant, self.cmd
+        if len(forces) != plant.n:
+            return None
+        try:
+            cmd[:] = forces
+        except (TypeError, ValueError):
+            return None
+        if not math.isfinite(sum(forces)):
+            return None                              # refused by the interpreted step, naming it, nothing changed
+        plant._apply_schedules()
+        # new arrays each step, as the interpreted step makes them (the kernel moves them in place)
+        position = np.array(plant.p, dtype=float)
+        rotation = np.array(plant.rotation, dtype=float).reshape(9)
+        twist = np.array(plant.twist, dtype=float)
+        load = np.ascontiguousarray(plant.load, dtype=float)
+        try:
+            code = strut_dynamics_step(cmd, self.limit, position, rotation, twist, load, self.bars, *self.model,
+                                       self.h, self.substeps, self.lower, self.upper, self.applied, self.saturated,
+                                       self.q)
+        except np.linalg.LinAlgError:                # a singular mass matrix: the interpreted step names it
+            return None
+        if code != STEP_OK:
+            return None
+        plant.p, plant.rotation, plant.twist = position, rotation.reshape(3, 3), twist
+        plant.t += plant.params.dt_s
+        plant.k += 1
+        enc = plant.encoders
+        resolution, offsets, screw_errors, wavenumber = enc.kernel_arguments()
+        if enc.last is not self._last_list:          # a reading not made here (the start, homing)
+            self._last_array[:] = enc.last
+        strut_outputs(self.q, self.scale, resolution, offsets, screw_errors, wavenumber, enc.noise(plant.n),
+                      self._last_array, enc.dt_s, position, rotation, self.reading, self.velocity, self.x)
+        enc.last = self._last_list = reading = self.reading.tolist()
+        self._last_array[:] = self.reading
+        x, applied = self.x.tolist(), self.applied.tolist()
+        fint = internal_force(plant.machine.jacobian(x), applied).tolist() if plant.n > 6 else [0.0] * plant.n
+        plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(), applied,
+                                  self.saturated.tolist(), list(x), list(x), fint, math.sqrt(sum(f * f for f in fint)),
+                                  [], plant.stopped, tuple(rotation.tolist()))
+        return plant._last
