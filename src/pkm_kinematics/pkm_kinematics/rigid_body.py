@@ -22,6 +22,7 @@ DynamicModel (dynamics.py), whose drives on rails also carry their weight.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +30,7 @@ import numpy as np
 from . import bars as B
 from .distribution import least_squares_n_kernel
 from .errors import FieldError, SingularityError
-from .struts import StrutMachine
+from .struts import CYCLE_FK, StrutMachine, task_forward_kinematics_kernel
 from .jit import kernel
 from .rotations import exp_so3_kernel, mul3_kernel, rpy_rotation_kernel
 
@@ -99,6 +100,26 @@ class StrutDynamics:
             raise SingularityError(f"{'a strut has zero length' if code == 1 else 'J_m has rank < 6'} at x = "
                                    f"{np.asarray(x).tolist()}")
         return a, h, jac, twist
+
+    def encoder_state(self, q: np.ndarray, guess, drive_velocities) -> tuple:
+        """The forward kinematics of the strut readings ``q`` (n floats, an array) from
+        ``guess`` (the home when None) and :meth:`measured_state` there, in one compiled
+        call (:func:`strut_encoder_state_kernel`): (pose (6 floats) or None, (A, H, J_m,
+        t) or None), the pose the machine's ``forward_kinematics_floats`` gives. None for
+        what the call refused: ``forward_kinematics_floats``, or ``measured_state``,
+        raises it (controller.pose_estimation's fused encoder state, as the rail
+        machines' ``DynamicModel.encoder_state``)."""
+        qdot = np.array(drive_velocities, dtype=float)
+        n = self.machine.n_legs
+        if q.shape != (n,) or q.dtype != np.float64 or qdot.shape != (n,):
+            return None, None
+        g = self.machine.home if guess is None else guess
+        fk, x, code, a, h, jac, twist = strut_encoder_state_kernel(
+            self.machine.bars, q, (float(g[0]), float(g[1]), float(g[2]), float(g[3]), float(g[4]), float(g[5])),
+            qdot, *self.step_arguments())
+        if fk != B.FK_CONVERGED:
+            return None, None
+        return x, ((a, h, jac, twist) if code == 0 else None)
 
     def step_arguments(self) -> tuple:
         """What :func:`strut_step_kernel` takes of this model after the state, forces and
@@ -243,3 +264,25 @@ def strut_measured_state_kernel(bars, x, qdot, md, kf, inertia_p, mass, g):
         return 2, a, h, jac, twist
     ok, a, h, jac = strut_dynamics_terms_kernel(bars, p, r, twist, md, kf, inertia_p, mass, g)
     return 0, a, h, jac, twist
+
+
+@kernel("(float64[:, :], float64[:], UniTuple(float64, 6), float64[:], float64[:], float64[:], float64[:], float64, "
+        "float64[:])")
+def strut_encoder_state_kernel(bars, q, guess, qdot, md, kf, inertia_p, mass, g):
+    """A strut machine's encoder state in one call (StrutDynamics.encoder_state): the
+    forward kinematics of the readings ``q`` from ``guess``
+    (``struts.task_forward_kinematics_kernel`` with the cycle's ``CYCLE_FK``), then
+    :func:`strut_measured_state_kernel` there. Returns (the solve's code, x, the state's
+    code, A, H, J_m, t); -1 for readings that are not finite positive lengths (none
+    solved, as ``forward_kinematics_floats`` refuses them)."""
+    n = bars.shape[0]
+    a, h, jac, twist = np.zeros((6, 6)), np.zeros(6), np.zeros((n, 6)), np.zeros(6)
+    for i in range(n):
+        if not (math.isfinite(q[i]) and q[i] > 0.0):
+            return -1, guess, 1, a, h, jac, twist
+    code, _, _, x = task_forward_kinematics_kernel(bars, q, guess, CYCLE_FK[0], CYCLE_FK[1], CYCLE_FK[2])
+    if code != B.FK_CONVERGED:
+        return code, x, 1, a, h, jac, twist
+    state, a, h, jac, twist = strut_measured_state_kernel(bars, np.array([x[0], x[1], x[2], x[3], x[4], x[5]]), qdot,
+                                                          md, kf, inertia_p, mass, g)
+    return code, x, state, a, h, jac, twist

@@ -59,6 +59,9 @@ class StrutFKResult(NamedTuple):
 
 
 _CODES = {int(c): c for c in FKCode}
+# a controller's solve of its readings each cycle (forward_kinematics_floats,
+# rigid_body.strut_encoder_state_kernel): tolerance m, iterations, divergence limit m
+CYCLE_FK = (1e-12, 30, 1.0)
 _FLOAT64 = np.dtype(np.float64)
 # StrutFK.solve makes every argument itself (the readings made float64 there), with the declared types
 _warm_solve = direct_call(B.forward_kinematics_warm_kernel)
@@ -181,7 +184,7 @@ class StrutMachine:
             raise FieldError("q", f"expected {self.n_legs} finite positive strut lengths, got {q}")
         g = self._home if guess is None else guess
         code, iterations, misfit, x = task_forward_kinematics_kernel(self.bars, q, tuple(float(v) for v in g[:6]),
-                                                                     1e-12, 30, 1.0)
+                                                                     *CYCLE_FK)
         if code != B.FK_CONVERGED:
             raise KinematicsError(f"forward kinematics of q = {q.tolist()}: {_CODES[code].name.lower()} "
                                   f"after {iterations} iterations (misfit {misfit:.3g} m)")
