@@ -278,24 +278,31 @@ def rotation_about_z(angle: float) -> np.ndarray:
 
 def quaternion_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix (Shepperd's method)."""
-    r = rotation
-    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    return quaternion_from_rotation_floats(np.asarray(rotation, dtype=float).ravel().tolist())
+
+
+def quaternion_from_rotation_floats(r) -> np.ndarray:
+    """:func:`quaternion_from_rotation` of a rotation as 9 floats, row-major (a hexapod's
+    per-step pose message: Python floats, not numpy's scalars, ~2x faster; the same
+    operations, so the same bits)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    tr = r00 + r11 + r22
     if tr > 0.0:
         s = 2.0 * math.sqrt(tr + 1.0)
-        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
+        q = [(r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s]
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = [0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s]
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q = [(r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s]
     else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q = [(r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s]
     q = np.array(q)
     if q[3] < 0.0:
         q = -q
-    return q / np.linalg.norm(q)
+    return q / np.linalg.norm(q)         # (numpy's norm: its dot product's rounding, kept)
 
 
 def rotation_from_quaternion(q) -> np.ndarray:

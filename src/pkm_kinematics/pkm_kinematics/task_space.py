@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rotations import (angular_motion_floats, quaternion_from_rotation, rate_matrix, rate_matrix_derivative,
+from .rotations import (angular_motion_floats, quaternion_from_rotation_floats, rate_matrix, rate_matrix_derivative,
                         rate_matrix_derivative_kernel, rate_matrix_kernel, rotation_about_z, rotation_from_rpy,
-                        rpy_from_rotation, unwrap_to)
+                        rpy_from_rotation, rpy_rotation_floats, unwrap_to)
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def pose_fields(space: TaskSpace, x) -> tuple[tuple, tuple]:
         return (x[0], x[1], 0.0), (0.0, 0.0, math.sin(half), math.cos(half))
     if space is POSITION:
         return (x[0], x[1], x[2]), (0.0, 0.0, 0.0, 1.0)
-    return (x[0], x[1], x[2]), tuple(quaternion_from_rotation(rotation_from_rpy(x[3], x[4], x[5])).tolist())
+    return (x[0], x[1], x[2]), tuple(quaternion_from_rotation_floats(rpy_rotation_floats(x[3], x[4], x[5])).tolist())
 
 
 def task_pose(space: TaskSpace, position, rotation, reference_angle: float | None = None) -> np.ndarray:
