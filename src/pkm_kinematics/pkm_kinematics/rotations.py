@@ -117,23 +117,30 @@ unit_quaternion_rotation_floats = unit_quaternion_rotation_kernel.py_func
 
 
 @kernel()
-def rotation_quaternion_kernel(r) -> tuple:
-    """Unit quaternion (x, y, z, w), w >= 0, of a rotation given as a row-major 9-tuple
-    (Shepperd's method)."""
+def shepperd_kernel(r) -> tuple:
+    """The quaternion (x, y, z, w) of a rotation given as a row-major 9-tuple by
+    Shepperd's method, before its normalisation and sign (from the largest of the
+    trace and the diagonal: no division by a small number)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
     tr = r00 + r11 + r22
     if tr > 0.0:
         s = 2.0 * math.sqrt(tr + 1.0)
-        q0, q1, q2, q3 = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
-    elif r00 > r11 and r00 > r22:
+        return (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+    if r00 > r11 and r00 > r22:
         s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q0, q1, q2, q3 = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
-    elif r11 > r22:
+        return 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    if r11 > r22:
         s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q0, q1, q2, q3 = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q0, q1, q2, q3 = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+        return (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
+    s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+    return (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+
+
+@kernel()
+def rotation_quaternion_kernel(r) -> tuple:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation given as a row-major 9-tuple
+    (:func:`shepperd_kernel`, normalised by its scalar norm)."""
+    q0, q1, q2, q3 = shepperd_kernel(r)
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     if q3 < 0.0:
         n = -n
@@ -282,27 +289,15 @@ def quaternion_from_rotation(rotation: np.ndarray) -> np.ndarray:
 
 
 def quaternion_from_rotation_floats(r) -> np.ndarray:
-    """:func:`quaternion_from_rotation` of a rotation as 9 floats, row-major (a hexapod's
-    per-step pose message: Python floats, not numpy's scalars, ~2x faster; the same
-    operations, so the same bits)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [(r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s]
-    elif r00 > r11 and r00 > r22:
-        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = [0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s]
-    elif r11 > r22:
-        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q = [(r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q = [(r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s]
-    q = np.array(q)
+    """:func:`quaternion_from_rotation` of a rotation as 9 floats, row-major (a spatial
+    machine's reference pose every step). Normalised by numpy's norm, not
+    :func:`rotation_quaternion_kernel`'s: that one differs in the last bit, which moves
+    a hexapod's trajectory and then its commands (golden compare: 30 differences on
+    the five hexapod scenarios); one of them is to go with a deliberate re-recording."""
+    q = np.array(shepperd_kernel.py_func(r))
     if q[3] < 0.0:
         q = -q
-    return q / np.linalg.norm(q)         # (numpy's norm: its dot product's rounding, kept)
+    return q / np.linalg.norm(q)
 
 
 def rotation_from_quaternion(q) -> np.ndarray:
