@@ -364,8 +364,8 @@ def test_a_study_run_gives_the_same_row_in_the_direct_engine_as_in_the_graph(tmp
 def test_a_recorded_run_of_a_study_that_keeps_no_runs_leaves_its_metrics_and_no_directory(tmp_path):
     """keep_runs: false (a Monte Carlo of thousands of recorded runs, ~3 MB of bag
     each): the report's metrics are in the row, the run's directory is gone and nothing
-    of it was forced to the disk (files.scratch: its fsyncs were a quarter of a
-    one-second run); a study that keeps them keeps it, flushed."""
+    of it was forced to the disk (files.scratch); a study that keeps them keeps it,
+    flushed."""
     from pkm_studies.run_task import RunTask, execute_run
     study = load_study(_study(tmp_path, **{**{k: v for k, v in TINY.items() if k != "scenario"},
                                            "set": {"duration_s": 0.2, "record": True}, "keep_runs": False}))
