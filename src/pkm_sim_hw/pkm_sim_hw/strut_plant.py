@@ -246,7 +246,7 @@ class _CompiledStrutStep:
         self.upper = np.array(plant.machine.joint_upper, dtype=float)
         self.scale = np.ascontiguousarray(plant._reading_scale, dtype=float)
         self.cmd, self.applied, self.saturated, self.q = np.empty(n), np.empty(n), np.zeros(n, dtype=bool), np.empty(n)
-        self.reading, self.velocity, self.x = np.empty(n), np.empty(n), np.empty(6)
+        self.reading, self.velocity = np.empty(n), np.empty(n)
         self._last_list, self._last_array = None, np.empty(n)     # the encoders' last reading, as a list and an array
 
     def step(self, forces) -> PlantOutput | None:
@@ -281,10 +281,10 @@ class _CompiledStrutStep:
         if enc.last is not self._last_list:          # a reading not made here (the start, homing)
             self._last_array[:] = enc.last
         strut_outputs(self.q, self.scale, resolution, offsets, screw_errors, wavenumber, enc.noise(plant.n),
-                      self._last_array, enc.dt_s, position, rotation, self.reading, self.velocity, self.x)
+                      self._last_array, enc.dt_s, self.reading, self.velocity)
         enc.last = self._last_list = reading = self.reading.tolist()
         self._last_array[:] = self.reading
-        x, applied = self.x.tolist(), self.applied.tolist()
+        x, applied = plant.x, self.applied.tolist()       # (the interpreted step's: strut_step.py)
         fint = internal_force(plant.machine.jacobian(x), applied).tolist() if plant.n > 6 else [0.0] * plant.n
         plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(), applied,
                                   self.saturated.tolist(), list(x), list(x), fint, math.sqrt(sum(f * f for f in fint)),

@@ -4,9 +4,12 @@ saturation (``drives.saturated_force``), the substeps of the semi-implicit rule 
 (``rigid_body.strut_step_kernel``), the strut lengths there
 (``bars.inverse_kinematics_into``) and the end stops; then the encoders' reading of
 each strut's measured length (``drives.encoder_reading``: screw error, offset, noise
-drawn by the caller, resolution; the velocity by backward difference) and the task
-coordinates of the pose (``rotations.rpy_kernel``). The interpreted step calls the same
-functions (their ``py_func``), so each formula is written once
+drawn by the caller, resolution; the velocity by backward difference). The task
+coordinates of the pose are left to the caller (``StrutPlant.x``): their pitch takes
+``math.hypot``, which CPython computes with its own algorithm, not libm's (they differ
+in the last bit for ~0.5 % of arguments), so a compiled ``rpy_kernel`` would not be the
+interpreted step's. The interpreted step calls the same functions (their
+``py_func``), so each formula is written once
 (tests/sim_hw/test_strut_plant.py runs both). Anything else (a non-finite command, an
 end stop, a strut of zero length, a singular mass matrix) returns its code with the
 state untouched, and the caller takes the interpreted path, which names it."""
@@ -18,7 +21,6 @@ import math
 from pkm_kinematics.bars import inverse_kinematics_into
 from pkm_kinematics.jit import direct_call, kernel
 from pkm_kinematics.rigid_body import strut_step_kernel
-from pkm_kinematics.rotations import rpy_kernel
 
 from .drives import encoder_reading, saturated_force
 from .rail_step import STEP_NOT_TAKEN, STEP_OK
@@ -58,22 +60,19 @@ def strut_dynamics_step_kernel(commanded, limit, position, rotation, twist, load
 
 
 @kernel("(float64[::1], float64[::1], float64, float64[::1], float64[::1], float64, float64[::1], float64[::1], "
-        "float64, float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])")
+        "float64, float64[::1], float64[::1])")
 def strut_outputs_kernel(q, scale, resolution, offsets, screw_errors, wavenumber, noise, last_reading, dt_s,
-                         position, rotation, reading, velocity, x):
-    """The step's outputs (module doc) into ``reading``, ``velocity`` and ``x`` (the task
-    coordinates x, y, z, a, b, c): strut k reads ``scale[k] q[k]`` (1 / (1 + its
-    length error)); ``offsets``, ``screw_errors``, ``noise`` (this step's, the standard
-    normals times the noise's std) empty or one per strut; ``last_reading`` the previous
-    reading."""
+                         reading, velocity):
+    """The step's encoder outputs (module doc) into ``reading`` and ``velocity``: strut
+    k reads ``scale[k] q[k]`` (1 / (1 + its length error)); ``offsets``,
+    ``screw_errors``, ``noise`` (this step's, the standard normals times the noise's
+    std) empty or one per strut; ``last_reading`` the previous reading."""
     n = q.shape[0]
     for i in range(n):                                  # drives.Encoders.read
         reading[i] = encoder_reading(q[i] * scale[i], screw_errors[i] if screw_errors.shape[0] else 0.0,
                                      wavenumber, offsets[i] if offsets.shape[0] else 0.0,
                                      noise[i] if noise.shape[0] else 0.0, resolution)
         velocity[i] = (reading[i] - last_reading[i]) / dt_s
-    x[0], x[1], x[2] = position[0], position[1], position[2]
-    x[3], x[4], x[5] = rpy_kernel(rotation[0], rotation[3], rotation[6], rotation[7], rotation[8])
 
 
 strut_dynamics_step = direct_call(strut_dynamics_step_kernel)
