@@ -43,8 +43,21 @@ SMALL = {
 
 
 def test_every_benchmark_is_listed():
-    found = {p.name for p in (ROOT / "benchmarks").glob("*.py")} - {"hoststat.py"}
+    found = {p.name for p in (ROOT / "benchmarks").glob("*.py")} - {"hoststat.py", "baseline.py"}
     assert found == set(SMALL), found ^ set(SMALL)
+
+
+def test_a_baseline_checkout_runs_its_own_code_or_is_refused(tmp_path, monkeypatch):
+    """benchmarks/baseline.py (--baseline DIR): the child imports the checkout's packages
+    first; a directory whose src/ lacks them would have measured this checkout's code
+    through its editable install: refused, naming where it came from."""
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    from baseline import run_baseline
+    code = 'import json, pkm_bringup; print(json.dumps({"at": pkm_bringup.__file__}))'
+    assert run_baseline(ROOT, code)["at"].startswith(str(ROOT / "src"))
+    (tmp_path / "src" / "pkm_other").mkdir(parents=True)
+    with pytest.raises(SystemExit, match="imported pkm_bringup from .*, not the checkout"):
+        run_baseline(tmp_path, code)
 
 
 def test_a_benchmark_graph_runs_in_a_domain_it_holds_apart_from_the_test_that_starts_it():
