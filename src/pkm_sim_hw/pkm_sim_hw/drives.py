@@ -41,6 +41,32 @@ def encoder_reading(q, screw_error, wavenumber, offset, noise, resolution):
 _saturated_force, _encoder_reading = saturated_force.py_func, encoder_reading.py_func
 
 
+@kernel("(float64[::1], float64, float64[::1], boolean[::1])")
+def saturated_forces(commanded, limit, applied, saturated):
+    """``saturated_force`` of every drive into ``applied`` and ``saturated`` (a compiled
+    plant step's); False, nothing written, when a command is not finite."""
+    total = 0.0
+    for i in range(commanded.shape[0]):
+        total += commanded[i]
+    if not math.isfinite(total):
+        return False
+    for i in range(commanded.shape[0]):
+        applied[i], saturated[i] = saturated_force(commanded[i], limit)
+    return True
+
+
+def take_commands(cmd: np.ndarray, forces) -> bool:
+    """``forces`` copied into ``cmd`` (a compiled plant step's n floats) when they are
+    n finite numbers; False otherwise: the interpreted step refuses them, naming why."""
+    if len(forces) != len(cmd):
+        return False
+    try:
+        cmd[:] = forces
+    except (TypeError, ValueError):
+        return False
+    return math.isfinite(sum(forces))
+
+
 def applied_forces(commanded, limit: float, faults) -> tuple[list, list]:
     """(applied, saturated): each command clamped to +-``limit`` (``saturated_force``),
     zero on a drive with an active ``no_force`` fault."""

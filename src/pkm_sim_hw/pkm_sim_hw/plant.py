@@ -51,7 +51,7 @@ from pkm_kinematics.rails import RailMachine
 from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
 from pkm_kinematics.validation import finite_floats
 
-from .drives import Encoders, applied_forces
+from .drives import Encoders, applied_forces, take_commands
 from .rail_step import STEP_OK, rail_dynamics_step, rail_outputs
 from .structure import deflected
 
@@ -478,13 +478,7 @@ class _CompiledStep:
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
-        if len(forces) != plant.n:
-            return None
-        try:
-            cmd[:] = forces
-        except (TypeError, ValueError):
-            return None
-        if not math.isfinite(sum(forces)):
+        if not take_commands(cmd, forces):
             return None                              # refused by the interpreted step, naming it, nothing changed
         plant._apply_schedules()
         state, load, frame_load = self.state, self.load, self.frame_load

@@ -22,7 +22,7 @@ from pkm_kinematics.distribution import internal_force_kernel
 from pkm_kinematics.dynamics import semi_implicit_step_kernel
 from pkm_kinematics.jit import direct_call, kernel
 
-from .drives import encoder_reading, saturated_force
+from .drives import encoder_reading, saturated_forces
 from .structure import deflected
 
 STEP_OK, STEP_NOT_TAKEN = 0, 1
@@ -39,13 +39,8 @@ def rail_dynamics_step_kernel(commanded, limit, state, load, h, substeps, bars, 
     applied forces' null-space part, ``internal`` (zero for n = 3). Returns STEP_OK,
     or STEP_NOT_TAKEN with the state untouched."""
     n = commanded.shape[0]
-    total = 0.0
-    for i in range(n):
-        total += commanded[i]
-    if not math.isfinite(total):
+    if not saturated_forces(commanded, limit, applied, saturated):
         return STEP_NOT_TAKEN
-    for i in range(n):
-        applied[i], saturated[i] = saturated_force(commanded[i], limit)
     x0, x1, x2, v0, v1, v2, q_end, rows_end, _, _, code, _ = semi_implicit_step_kernel(
         bars, columns, state[0], state[1], state[2], state[3], state[4], state[5], applied,
         load[0], load[1], load[2], h, substeps, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)

@@ -43,7 +43,7 @@ from pkm_kinematics.rotations import rotation_from_rpy
 from pkm_kinematics.task_space import load_components
 from pkm_kinematics.validation import finite_floats
 
-from .drives import Encoders, applied_forces
+from .drives import Encoders, applied_forces, take_commands
 from .plant import Fault, PlantOutput, PlantParameters, check_load, load_steps
 from .strut_step import STEP_OK, strut_dynamics_step, strut_outputs
 from .structure import deflected
@@ -251,13 +251,7 @@ class _CompiledStrutStep:
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
-        if len(forces) != plant.n:
-            return None
-        try:
-            cmd[:] = forces
-        except (TypeError, ValueError):
-            return None
-        if not math.isfinite(sum(forces)):
+        if not take_commands(cmd, forces):
             return None                              # refused by the interpreted step, naming it, nothing changed
         plant._apply_schedules()
         # new arrays each step, as the interpreted step makes them (the kernel moves them in place)

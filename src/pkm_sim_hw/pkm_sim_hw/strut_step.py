@@ -16,13 +16,11 @@ state untouched, and the caller takes the interpreted path, which names it."""
 
 from __future__ import annotations
 
-import math
-
 from pkm_kinematics.bars import inverse_kinematics_into
 from pkm_kinematics.jit import direct_call, kernel
 from pkm_kinematics.rigid_body import strut_step_kernel
 
-from .drives import encoder_reading, saturated_force
+from .drives import encoder_reading, saturated_forces
 from .rail_step import STEP_NOT_TAKEN, STEP_OK
 
 __all__ = ["STEP_NOT_TAKEN", "STEP_OK", "strut_dynamics_step", "strut_dynamics_step_kernel", "strut_outputs",
@@ -38,13 +36,8 @@ def strut_dynamics_step_kernel(commanded, limit, position, rotation, twist, load
     row-major)) and ``twist`` (6) moved on in place; into ``applied``, ``saturated`` and
     the strut lengths ``q``. Returns STEP_OK, or STEP_NOT_TAKEN with the state untouched."""
     n = commanded.shape[0]
-    total = 0.0
-    for i in range(n):
-        total += commanded[i]
-    if not math.isfinite(total):
+    if not saturated_forces(commanded, limit, applied, saturated):
         return STEP_NOT_TAKEN
-    for i in range(n):
-        applied[i], saturated[i] = saturated_force(commanded[i], limit)
     ok, p, r, t = strut_step_kernel(bars, position, rotation, twist, applied, load, md, kf, inertia, mass, g, h,
                                     substeps)
     if not ok:
