@@ -2,6 +2,8 @@
 by the multi-process node tests)."""
 
 import gc
+import subprocess
+import sys
 import weakref
 
 import pytest
@@ -91,3 +93,50 @@ def test_without_the_collection_the_garbage_of_before_is_frozen_with_the_rest_an
     assert gc.get_freeze_count() == 0
     gc.collect()
     assert ref() is None
+
+
+# A fresh interpreter (this one's lookups are warm already): the realpath calls of its
+# first rclpy log call, made cold, after warm_log_caller_lookup, or in a node's first
+# callback under run_node (which warms before its loop).
+_FIRST_LOG = """
+import os, sys
+import rclpy.logging
+import numpy, scipy.linalg                      # a process with many modules, as a node's
+from pkm_common.runner import run_node, warm_log_caller_lookup
+calls, real = [], os.path.realpath
+
+def counted(log):
+    os.path.realpath = lambda path, *a, **k: calls.append(path) or real(path, *a, **k)
+    log.info("the process's first log call")
+    os.path.realpath = real
+    print(len(calls), len(sys.modules), flush=True)
+
+if sys.argv[1] == "run_node":
+    from rclpy.node import Node
+    def factory(context):
+        node = Node("first_log", context=context)
+        node.create_timer(0.01, lambda: counted(node.get_logger()) or context.try_shutdown())
+        return node
+    sys.exit(run_node(factory, args=[]))
+if sys.argv[1] == "warm":
+    warm_log_caller_lookup()
+counted(rclpy.logging.get_logger("first_log"))
+"""
+
+
+def _first_log_realpaths(mode: str) -> tuple[int, int]:
+    done = subprocess.run([sys.executable, "-c", _FIRST_LOG, mode], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    calls, modules = map(int, done.stdout.split())
+    return calls, modules
+
+
+def test_a_nodes_first_log_call_does_not_map_every_module_inside_its_loop():
+    """rclpy finds each log call's caller with inspect, whose first lookup maps every
+    loaded module to its file: ~50 ms inside the real-time loop's first cycle (sim_hw's
+    "loop started"), which tripped ros2_control's joint_states watchdog."""
+    cold, modules = _first_log_realpaths("cold")
+    assert cold > modules / 2, (cold, modules)                   # one realpath per module
+    for mode in ("warm", "run_node"):
+        calls, _ = _first_log_realpaths(mode)
+        assert calls < 20, (mode, calls, cold)

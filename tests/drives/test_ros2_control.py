@@ -103,7 +103,8 @@ def test_archi_through_a_ros2_control_system_holds_and_the_joints_get_their_legs
     summary = tmp_path / "rc" / "summaries" / "ros2_control_sim.json"
     stand_in = json.loads(summary.read_text()) if summary.exists() else {}
     # on a failure: the stand-in's own longest stall (max_update_gap_ms) tells whose silence it was
-    assert run["status"] == "completed", (run["error"], run["cause"], run["trip_reason"], stand_in)
+    assert run["status"] == "completed", (stand_in.get("max_update_gap_ms"), run["error"], run["cause"],
+                                          run["trip_reason"], stand_in)
     m = run["metrics"]["tracking_error"]
     assert m["max_m"] < 20e-6, m                                  # holding its home pose under gravity
     assert stand_in["rejected"] == 0 and stand_in["commands"] > 400 and not stand_in["stopped"]

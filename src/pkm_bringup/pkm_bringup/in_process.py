@@ -15,7 +15,7 @@ from pkm_bringup.graph import (CONNECT_TIMEOUT_S, DRAIN_IN_PROCESS_S, START_ORDE
                                end_context, init_context, monitor_node, publish_start, refuse_if_another_run,
                                signals_ignored)
 from pkm_bringup.scenario import Scenario
-from pkm_common.runner import start_up_frozen
+from pkm_common.runner import start_up_frozen, warm_log_caller_lookup
 from pkm_controller.controller_node import ControllerNode
 from pkm_gough_sensor.gough_sensor_node import GoughSensorNode
 from pkm_gough_sensor.laser_tracker_node import LaserTrackerNode
@@ -91,6 +91,7 @@ def run_in_process(s: Scenario, run_dir: Path, params: dict, progress: Progress,
         deadline = time.monotonic() + s.timeout_s
         sim = nodes[s.machine_node]
         last = 0.0
+        warm_log_caller_lookup()
         with start_up_frozen():
             while not sim.finished:
                 if time.monotonic() > deadline:

@@ -54,7 +54,9 @@ def subscription(node, topic: str, callback, raw: bool = False, **kwargs):
 def system_publisher(node, msg_class, name: str):
     """A publisher on a topic of another system, not of the graph's catalogue (a
     ros2_control system's controller commands, named by the machine file), with the
-    QoS ROS 2's own nodes use there: the system default (reliable, volatile, depth 10)."""
+    QoS ROS 2's own nodes use there: the system default (rclcpp::SystemDefaultsQoS: reliable,
+    volatile, and the RMW's own history: Fast DDS keeps the newest sample only, so a
+    reader that falls a period behind gets the newest, not a queue)."""
     return node.create_publisher(msg_class, name, qos_profile_system_default)
 
 

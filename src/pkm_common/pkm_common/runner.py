@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import gc
+import inspect
 import os
 import signal
 import sys
@@ -69,6 +70,18 @@ def make_executor(kind: str, context):
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
     raise FieldError('executor', f'must be one of {list(EXECUTORS)}, got {kind!r}')
+
+
+def warm_log_caller_lookup() -> None:
+    """rclpy's logger looks up the caller of every log call (rcutils_logger._find_caller:
+    ``inspect.getframeinfo``), and a process's first lookup maps every loaded module to
+    its file (``inspect.getmodule``: a realpath per module; 46 ms for the ~1400 modules of
+    a graph's process on an idle host, over 100 ms on a loaded one). Done before the spin
+    loop instead of inside the first callback that logs: sim_hw's and ros2_control's
+    "loop started" at the first command held the real-time loop's first cycle that long,
+    and the ros2_control interface's joint_states watchdog tripped on the silence
+    (tests/common/test_runner.py). Later lookups map only modules imported since."""
+    inspect.getframeinfo(inspect.currentframe())
 
 
 @contextlib.contextmanager
@@ -162,6 +175,7 @@ def run_nodes(factories: list, args=None, executor: str = 'single', name: str = 
             except OSError as exc:
                 nodes[0].get_logger().error(f'realtime profile: memory not locked: {exc}')
                 return EXIT_BAD_PARAMETER
+        warm_log_caller_lookup()
         with start_up_frozen(), _profiled(name):
             while context.ok() and not stop and not (done is not None and done(nodes)):
                 exec_.spin_once(timeout_sec=spin_period_s)
