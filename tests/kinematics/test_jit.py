@@ -133,3 +133,57 @@ def test_the_cache_key_covers_every_file_with_kernels():
     keyed = {name for name, _ in jit._kernel_sources()}
     assert {"pkm_sim_hw/rail_step.py", "pkm_sim_hw/drives.py", "pkm_controller/laws.py"} <= with_kernels
     assert with_kernels - keyed == set(), f"kernel files outside numba's cache key: {with_kernels - keyed}"
+
+
+def test_a_checked_direct_call_refuses_an_argument_of_another_type(monkeypatch):
+    if not jit.COMPILED:
+        pytest.skip("interpreted: direct_call is the function itself")
+    monkeypatch.setenv(jit.CHECK_DIRECT_CALLS_ENV, "1")
+    call = jit.direct_call(dist.least_squares_kernel)
+    rows, values = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), np.array([1.0, 2.0, 3.0])
+    expected = dist.least_squares_kernel(rows, values)
+    assert call(rows, values) == expected
+    with pytest.raises(TypeError, match=r"least_squares_kernel: argument 1 is array\(int64"):
+        call(rows, np.array([1, 2, 3]))
+    with pytest.raises(TypeError, match=r"argument 0 is array\(float64, 1d"):
+        call(values, values)
+
+
+# every direct call (jit.direct_call: no conversion, another type is undefined behaviour)
+# of the scenarios that reach them, each argument checked against the declared types
+_CHECK_RUNS = """
+import json, sys, tempfile
+from pathlib import Path
+from pkm_bringup.processes import use_ros_environment
+use_ros_environment()
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import load_scenario
+from pkm_kinematics import jit
+status = {}
+with tempfile.TemporaryDirectory() as tmp:
+    for name in sys.argv[1:]:
+        s = load_scenario(name, {"duration_s": 0.2, "record": False})
+        status[name] = run_scenario(s, Path(tmp) / name, progress=False, report=False, engine="direct")["status"]
+print(json.dumps({"status": status, "checked": jit.CHECKED}))
+"""
+
+
+@pytest.mark.slow
+def test_every_direct_call_of_the_loops_gets_its_declared_types():
+    import json
+    import subprocess
+    import sys
+    if not jit.COMPILED:
+        pytest.skip("interpreted: direct_call is the function itself")
+    scenarios = ["archi_demo", "mom3_square", "hexapod_metrology", "hexapod_demo"]
+    env = {**os.environ, jit.CHECK_DIRECT_CALLS_ENV: "1"}
+    done = subprocess.run([sys.executable, "-c", _CHECK_RUNS, *scenarios], capture_output=True, text=True,
+                          env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["status"] == {name: "completed" for name in scenarios}, out
+    reached = {"planar_encoder_state_kernel", "spheres_encoder_state_kernel", "_sensor_space_desired",
+               "rail_gough_check_kernel", "innovation_kernel", "rail_dynamics_step_kernel", "rail_outputs_kernel",
+               "strut_dynamics_step_kernel", "strut_outputs_kernel", "true_lengths_kernel", "readings_kernel",
+               "estimate_kernel", "dkm_solve_kernel"}
+    assert reached <= set(out["checked"]), sorted(reached - set(out["checked"]))

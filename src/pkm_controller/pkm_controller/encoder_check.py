@@ -373,7 +373,7 @@ class GoughCrossCheck:
         if q.shape != (self.n,) or q.dtype != np.float64:
             raise ValueError(f"Gough cross-check: {self.n} readings as floats needed, got {q.shape} {q.dtype}")
         self._skip(skip)
-        drive = rail_gough_check_kernel(model.bars, model.n_legs, model.twist_columns, float(pose[0]), float(pose[1]),
+        drive = _rail_gough_check(model.bars, model.n_legs, model.twist_columns, float(pose[0]), float(pose[1]),
                                         float(pose[2]), q, self.history_q, self.history_g, self.hold_g, self.last_d,
                                         self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m,
                                         self.cycles == 0)
@@ -478,3 +478,6 @@ class EncoderChecks:
             return None
         # the Gough saw the drive move where its reading did not (or cannot tell): the encoder
         return Trip(f"encoder of drive {self.names[drive]} {what}", TripCause.ENCODER_FAULT)
+
+
+_rail_gough_check = direct_call(rail_gough_check_kernel)     # check_rail makes each argument with its declared type

@@ -8,7 +8,7 @@ import numpy as np
 
 from pkm_gough_sensor.metrology import plate_in_base_kernel
 from pkm_kinematics.bars import pose_from_lengths_jacobian_kernel, strut_lengths_kernel
-from pkm_kinematics.jit import kernel
+from pkm_kinematics.jit import direct_call, kernel
 from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
 from .laws import CONFIGURATION_TYPES, MODE_PLANAR, MODEL_TYPE, cartesian_command_kernel
@@ -62,7 +62,7 @@ class SensorSpaceFeedback:
         p, t = (float(tool_position[0]), float(tool_position[1]), float(tool_position[2])), tuple(tool_rotation)
         at_estimate = self.at_estimate and self.estimate is not None
         p_at, r_at = self.estimate if at_estimate else _NO_ESTIMATE
-        p_bp, r_bp, l_des, j_h = _sensor_space_desired(self._bars, p, t, *self._plate, p_at, r_at, at_estimate)
+        p_bp, r_bp, l_des, j_h = _desired_call(self._bars, p, t, *self._plate, p_at, r_at, at_estimate)
         self._desired = (p_bp, r_bp, l_des, j_h, t)
 
     def error_from(self, lengths) -> list:
@@ -164,3 +164,6 @@ def sensor_space_command_kernel(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t, 
     code, index, value, i_new, wrench, forces, saturated, peak = cartesian_command_kernel(
         q, active_rows, (measured, error, v_d, v, a_d), model, integral, integrate, dt, boxes, gains, settings, modes)
     return real_p, real_r, measured, error, code, index, value, i_new, wrench, forces, saturated, peak
+
+
+_desired_call = direct_call(_sensor_space_desired)    # prepare() makes each argument with its declared type

@@ -29,7 +29,7 @@ import numpy as np
 from . import bars as B
 from .distribution import SINGULAR_GRAM, least_squares_kernel, min_two_norm
 from .errors import DistributionError, FieldError
-from .jit import kernel
+from .jit import direct_call, kernel
 from .planar import (FK_CONVERGED, FK_MAX_ITERATIONS, FK_TOL, PlanarLeastSquaresFK, forward_kinematics_kernel,
                      solve3_kernel)
 from .translational import ThreeSpheresFK
@@ -122,10 +122,10 @@ class DynamicModel:
         fk = self.machine.fk
         if self._fk_kind == "planar":
             ref = self.machine.home if guess is None else guess
-            out = planar_encoder_state_kernel(fk.bars, fk.pairs_array, fk.sides, q, float(ref[0]), float(ref[1]),
+            out = _planar_encoder_state(fk.bars, fk.pairs_array, fk.sides, q, float(ref[0]), float(ref[1]),
                                               float(ref[2]), self.machine.twist_columns, qdot, *self._mass_args)
         else:
-            out = spheres_encoder_state_kernel(fk.bars, fk.side, q, self.machine.twist_columns, qdot,
+            out = _spheres_encoder_state(fk.bars, fk.side, q, self.machine.twist_columns, qdot,
                                                *self._mass_args)
         x0, x1, x2, solved, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, _ = out
         if not solved:
@@ -338,3 +338,9 @@ def spheres_encoder_state_kernel(bars, side, q, columns, qdot, md, k, dg, mn0, m
     rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg = _measured_state_kernel(
         bars, columns, x, y, z, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
     return x, y, z, True, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg
+
+
+# the per-cycle calls, without the dispatcher's typing of every argument (jit.direct_call:
+# DynamicModel._encoder_state makes each argument with the declared type)
+_planar_encoder_state = direct_call(planar_encoder_state_kernel)
+_spheres_encoder_state = direct_call(spheres_encoder_state_kernel)

@@ -91,13 +91,51 @@ def kernel(signature: str | None = None):
     return decorate
 
 
+# "1": every direct_call checks its arguments' types against the declared signature
+# (TypeError naming the kernel and the argument), for the tests (tests/test_jit.py)
+CHECK_DIRECT_CALLS_ENV = "PKM_CHECK_DIRECT_CALLS"
+CHECKED: dict[str, int] = {}          # checked calls per kernel (in that mode)
+
+
 def direct_call(compiled):
     """The machine code of a kernel compiled for its declared signature, to be called
     without numba's dispatcher, which types every argument on each call (about half of
     a 9-14-argument kernel's call when its work is a warm-started solve). Only for a
     per-call path whose arguments the caller makes itself, with exactly the declared
-    types: no conversion is done. Interpreted (``PKM_NO_JIT=1``): the function itself."""
+    types: no conversion is done, and an argument of another type is undefined
+    behaviour (``PKM_CHECK_DIRECT_CALLS=1`` checks each call). Interpreted
+    (``PKM_NO_JIT=1``): the function itself."""
     overloads = getattr(compiled, "overloads", None)
     if not overloads:
         return compiled
-    return next(iter(overloads.values())).entry_point      # the first: the declared signature
+    signature, overload = next(iter(overloads.items()))      # the first: the declared signature
+    if os.environ.get(CHECK_DIRECT_CALLS_ENV) == "1":
+        return _checked_call(compiled.py_func.__qualname__, signature, overload.entry_point)
+    return overload.entry_point
+
+
+def _accepts(declared, actual) -> bool:
+    """Whether the entry point compiled for ``declared`` (a numba type) takes a value
+    of numba type ``actual`` as it is: the same type, or an array of the same dtype and
+    dimensions where any layout is declared."""
+    from numba.core import types
+    if isinstance(declared, types.Array):
+        return (isinstance(actual, types.Array) and actual.dtype == declared.dtype and actual.ndim == declared.ndim
+                and declared.layout in ("A", actual.layout))
+    if isinstance(declared, types.BaseTuple):
+        return (isinstance(actual, types.BaseTuple) and len(actual) == len(declared)
+                and all(_accepts(d, a) for d, a in zip(declared, actual)))
+    return declared == actual
+
+
+def _checked_call(name: str, signature: tuple, entry):
+    def call(*args):
+        if len(args) != len(signature):
+            raise TypeError(f"{name}: {len(args)} arguments, declared {len(signature)}")
+        for i, (declared, value) in enumerate(zip(signature, args)):
+            actual = numba.typeof(value)
+            if not _accepts(declared, actual):
+                raise TypeError(f"{name}: argument {i} is {actual}, declared {declared}")
+        CHECKED[name] = CHECKED.get(name, 0) + 1
+        return entry(*args)
+    return call
