@@ -185,5 +185,5 @@ def test_every_direct_call_of_the_loops_gets_its_declared_types():
     reached = {"planar_encoder_state_kernel", "spheres_encoder_state_kernel", "_sensor_space_desired",
                "rail_gough_check_kernel", "innovation_kernel", "rail_dynamics_step_kernel", "rail_outputs_kernel",
                "strut_dynamics_step_kernel", "strut_outputs_kernel", "true_lengths_kernel", "readings_kernel",
-               "estimate_kernel", "dkm_solve_kernel"}
+               "estimate_kernel", "dkm_solve_kernel", "sensor_space_command_kernel", "cartesian_command_kernel"}
     assert reached <= set(out["checked"]), sorted(reached - set(out["checked"]))

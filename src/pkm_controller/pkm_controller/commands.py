@@ -25,6 +25,7 @@ import numpy as np
 
 from pkm_common.causes import TripCause
 from pkm_kinematics.distribution import distribute, raise_distribution_error, two_arm_gravity_internal_force
+from pkm_kinematics.jit import direct_call
 from pkm_kinematics.task_space import PLANAR, SPATIAL, task_twists
 
 from .laws import (DIST_INF_NORM, DIST_PSEUDO_INVERSE, DISTRIBUTION_FAILED, FORCES_NOT_FINITE, LIMITS_OK,
@@ -111,7 +112,7 @@ class ThreeAxis:
         the compiled pseudo-inverse distributes."""
         active = core.supervisor.active
         full = len(active) == core.n
-        code, index, value, integral, wrench, forces, saturated, peak = cartesian_command_kernel(
+        code, index, value, integral, wrench, forces, saturated, peak = _cartesian_call(
             c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
             *_law_inputs(core, c, full))
         return self._outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak)
@@ -125,7 +126,7 @@ class ThreeAxis:
         x = c.x_d
         j_h, l_des, p_bp, r_bp, r_wb, p_tp, t = feedback.prepared()
         real_p, real_r, measured, error, code, index, value, integral, wrench, forces, saturated, peak = \
-            sensor_space_command_kernel(
+            _sensor_space_call(
                 j_h, l_des, np.asarray(struts, dtype=float), p_bp, r_bp, r_wb, p_tp, t,
                 (float(x[0]), float(x[1]), float(x[2])), c.q_array, c.active_rows, tuple(c.v_d), c.v, tuple(c.a_d),
                 *_law_inputs(core, c, full))
@@ -268,3 +269,9 @@ def cartesian_failure(code: int, index: int, value: float, wrench: list, forces,
     if code == WRENCH_NOT_FINITE:
         return Trip(f"{strategy}: wrench: contains NaN or infinite values: {wrench}", TripCause.KINEMATICS)
     return supervisor.limit_trip(code, index, value)
+
+
+# the per-cycle calls without the dispatcher's typing (jit.direct_call): every argument is
+# made above with its declared type (PKM_CHECK_DIRECT_CALLS=1 checks it: tests/kinematics/test_jit.py)
+_cartesian_call = direct_call(cartesian_command_kernel)
+_sensor_space_call = direct_call(sensor_space_command_kernel)
