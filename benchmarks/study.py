@@ -22,8 +22,11 @@ ratio of runs per hour (issue 45's target: >= 20).
 issue's 143a5f0: "ratios against today's code in the same minutes", baseline.py), and
 the direct engine's ratio to it.
 
+``--rounds N`` (with ``--baseline``): then N pairs of the baseline and the direct engine,
+alternating, each pair's ratio and their median (the robust figure on a shared VM).
+
 Usage: python benchmarks/study.py [--runs 8] [--direct-runs 40] [--duration-s 1.0] [--variants 40000]
-       [--workers 1,2] [--no-design] [--baseline DIR]
+       [--workers 1,2] [--no-design] [--baseline DIR] [--rounds N]
 """
 
 from __future__ import annotations
@@ -96,6 +99,23 @@ def design(workers: int, variants: int) -> dict:
             "front": int(outcome["table"]["pareto"].sum())}
 
 
+def paired_rounds(args) -> None:
+    """The baseline's code and the direct engine on one worker, alternating, ``--rounds``
+    pairs: the ratio of each pair (the same minutes) and their median. One pair's ratio
+    moved from 8.9 to 13.5 in two runs a few minutes apart on this shared VM."""
+    from baseline import study_runs_per_hour
+    print(f"\nthe baseline's code and the direct engine alternating, one worker, {args.rounds} pairs")
+    print("| pair | baseline runs per hour | direct runs per hour | ratio |")
+    print("|---|---|---|---|")
+    ratios = []
+    for k in range(args.rounds):
+        base = study_runs_per_hour(args.baseline, args.runs, args.duration_s)["per_hour"]
+        direct = closed_loop(1, args.direct_runs, args.duration_s, "direct")["per_hour"]
+        ratios.append(direct / base)
+        print(f"| {k + 1} | {base:.0f} | {direct:.0f} | {ratios[-1]:.1f} |", flush=True)
+    print(f"median ratio {statistics.median(ratios):.1f} (min {min(ratios):.1f}, max {max(ratios):.1f}; target >= 20)")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=8)
@@ -105,6 +125,8 @@ def main() -> int:
     parser.add_argument("--direct-runs", type=int, default=40, help="runs of the direct engine (it is faster)")
     parser.add_argument("--no-design", action="store_true")
     parser.add_argument("--baseline", type=Path, help="a checkout whose study benchmark runs first (one worker)")
+    parser.add_argument("--rounds", type=int, default=1,
+                        help="with --baseline: this many more pairs of baseline and direct, alternating")
     args = parser.parse_args()
     counts = [int(w) for w in args.workers.split(",")]
     print(f"closed-loop study: runs of mom3_square, {args.duration_s:g} s simulated each, not recorded; the graph "
@@ -130,6 +152,8 @@ def main() -> int:
                 ratio += f" ({r['per_hour'] / base_rate:.1f} against the baseline's code)"
             print(f"| {engine} | {w} | {r['runs']} | {r['failed']} | {r['wall_s']:.1f} | {r['startup_s']:.1f} | "
                   f"{r['task_s']:.2f} | {r['per_hour']:.0f} | {overhead} | {ratio} |", flush=True)
+    if base_rate is not None and args.rounds > 1:
+        paired_rounds(args)
     if args.no_design:
         return 0
     print()
