@@ -17,9 +17,10 @@ it:
   eight times the innovation's running RMS: encoder noise) and the second reverses it
   (a load step keeps its sign);
 * **freeze** (the reading holds): ``r_i = -qdot_i dt`` at once when the drive moves
-  fast, confirmed when the reading still holds in the next cycle; slower, the reading stays unchanged while the reference moves the drive:
-  tripped when the net displacement the reference asked for since the reading last
-  changed (``J_i v_d dt`` summed) exceeds ``freeze_m``.
+  fast, confirmed when the reading still holds in the next cycle; slower, the reading
+  stays unchanged while the reference moves the drive: tripped when the net
+  displacement the reference asked for since the reading last changed (``J_i v_d dt``
+  summed) exceeds ``freeze_m``.
 
 A drive that stops (a brake) is not an encoder fault. On a redundant machine the
 readings tell them apart at once: after a brake (or a knock) they still agree with one
