@@ -98,7 +98,10 @@ def test_a_bad_ros2_control_section_is_refused_naming_the_field(section, field):
 
 
 @pytest.mark.slow
-def test_archi_through_a_ros2_control_system_holds_and_the_joints_get_their_legs_forces(tmp_path):
+def test_archi_through_a_ros2_control_system_holds_and_the_joints_get_their_legs_forces(tmp_path, realtime_loop_alone):
+    # a real-time graph of processes (250 Hz): alone on the machine, as the other real-time
+    # graphs of the suite. Beside the other worker's graphs it missed 5 cycles in a row
+    # (sync error count 15 > 12) in a fresh-clone CI run, with the stand-in on time (8 ms)
     run = run_scenario(load_scenario("archi_ros2_control"), tmp_path / "rc", in_process=False, progress=False)
     summary = tmp_path / "rc" / "summaries" / "ros2_control_sim.json"
     stand_in = json.loads(summary.read_text()) if summary.exists() else {}

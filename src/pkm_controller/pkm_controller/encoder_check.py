@@ -375,9 +375,9 @@ class GoughCrossCheck:
             raise ValueError(f"Gough cross-check: {self.n} readings as floats needed, got {q.shape} {q.dtype}")
         self._skip(skip)
         drive = _rail_gough_check(model.bars, model.n_legs, model.twist_columns, float(pose[0]), float(pose[1]),
-                                        float(pose[2]), q, self.history_q, self.history_g, self.hold_g, self.last_d,
-                                        self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m,
-                                        self.cycles == 0)
+                                  float(pose[2]), q, self.history_q, self.history_g, self.hold_g, self.last_d,
+                                  self.bias, self.mean_square, self.over, self.off, self.skip, self.jump_m,
+                                  self.cycles == 0)
         if drive == GOUGH_NO_POSE:
             return False, None
         self.cycles += 1

@@ -123,10 +123,9 @@ class DynamicModel:
         if self._fk_kind == "planar":
             ref = self.machine.home if guess is None else guess
             out = _planar_encoder_state(fk.bars, fk.pairs_array, fk.sides, q, float(ref[0]), float(ref[1]),
-                                              float(ref[2]), self.machine.twist_columns, qdot, *self._mass_args)
+                                        float(ref[2]), self.machine.twist_columns, qdot, *self._mass_args)
         else:
-            out = _spheres_encoder_state(fk.bars, fk.side, q, self.machine.twist_columns, qdot,
-                                               *self._mass_args)
+            out = _spheres_encoder_state(fk.bars, fk.side, q, self.machine.twist_columns, qdot, *self._mass_args)
         x0, x1, x2, solved, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, code, _ = out
         if not solved:
             return None, None

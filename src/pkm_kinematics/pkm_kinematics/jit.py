@@ -92,7 +92,7 @@ def kernel(signature: str | None = None):
 
 
 # "1": every direct_call checks its arguments' types against the declared signature
-# (TypeError naming the kernel and the argument), for the tests (tests/test_jit.py)
+# (TypeError naming the kernel and the argument), for the tests (tests/kinematics/test_jit.py)
 CHECK_DIRECT_CALLS_ENV = "PKM_CHECK_DIRECT_CALLS"
 CHECKED: dict[str, int] = {}          # checked calls per kernel (in that mode)
 
