@@ -101,6 +101,21 @@ class Encoders:
         self._noise_block, self._noise_at = _NO_NOISE, 0        # noise drawn ahead (``noise``)
         self._kernel_key, self._kernel_arguments = None, ()
         self.last: list = []
+        self._last_list, self._last_array = None, np.empty(0)    # ``last`` as the compiled steps take it
+
+    def last_array(self) -> np.ndarray:
+        """``last`` as a float64 array, for a compiled step's reading (the same array
+        every step; made again when ``last`` was set elsewhere: the start, homing)."""
+        if self.last is not self._last_list:
+            self._last_list, self._last_array = self.last, np.array(self.last, dtype=float)
+        return self._last_array
+
+    def keep(self, reading: np.ndarray) -> list:
+        """A compiled step's ``reading`` (made from :meth:`last_array`) as ``last``;
+        returns it as the list."""
+        self.last = self._last_list = reading.tolist()
+        self._last_array[:] = reading
+        return self.last
 
     def kernel_arguments(self) -> tuple:
         """(resolution, offsets, screw errors, screw wavenumber) as a compiled reading

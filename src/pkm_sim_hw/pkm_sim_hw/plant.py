@@ -474,7 +474,6 @@ class _CompiledStep:
         self.applied, self.saturated = np.empty(n), np.zeros(n, dtype=bool)
         self.q, self.rows = np.empty(n), np.empty((n, 3))
         self.reading, self.velocity, self.tool, self.fint = np.empty(n), np.empty(n), np.empty(3), np.empty(n)
-        self._last_list, self._last_array = None, np.empty(n)     # the encoders' last reading, as a list and an array
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
@@ -490,16 +489,13 @@ class _CompiledStep:
             return None
         enc = plant.encoders
         resolution, offsets, screw_errors, wavenumber = enc.kernel_arguments()
-        if enc.last is not self._last_list:          # a reading not made here (the start, homing)
-            self._last_array[:] = enc.last
         norm = rail_outputs(self.q, self.fint, resolution, offsets, screw_errors, wavenumber,
-                            enc.noise(plant.n), self._last_array, enc.dt_s, state, load, frame_load,
+                            enc.noise(plant.n), enc.last_array(), enc.dt_s, state, load, frame_load,
                             self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool)
         plant.x, plant.v = state[:3].tolist(), state[3:].tolist()
         plant.t += plant.params.dt_s
         plant.k += 1
-        enc.last = self._last_list = reading = self.reading.tolist()
-        self._last_array[:] = self.reading
+        reading = enc.keep(self.reading)
         plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(),
                                   self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
                                   self.fint.tolist(), norm, [], plant.stopped, None)

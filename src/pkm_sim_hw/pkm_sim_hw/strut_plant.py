@@ -247,7 +247,6 @@ class _CompiledStrutStep:
         self.scale = np.ascontiguousarray(plant._reading_scale, dtype=float)
         self.cmd, self.applied, self.saturated, self.q = np.empty(n), np.empty(n), np.zeros(n, dtype=bool), np.empty(n)
         self.reading, self.velocity = np.empty(n), np.empty(n)
-        self._last_list, self._last_array = None, np.empty(n)     # the encoders' last reading, as a list and an array
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
@@ -272,12 +271,9 @@ class _CompiledStrutStep:
         plant.k += 1
         enc = plant.encoders
         resolution, offsets, screw_errors, wavenumber = enc.kernel_arguments()
-        if enc.last is not self._last_list:          # a reading not made here (the start, homing)
-            self._last_array[:] = enc.last
         strut_outputs(self.q, self.scale, resolution, offsets, screw_errors, wavenumber, enc.noise(plant.n),
-                      self._last_array, enc.dt_s, self.reading, self.velocity)
-        enc.last = self._last_list = reading = self.reading.tolist()
-        self._last_array[:] = self.reading
+                      enc.last_array(), enc.dt_s, self.reading, self.velocity)
+        reading = enc.keep(self.reading)
         x, applied = plant.x, self.applied.tolist()       # (the interpreted step's: strut_step.py)
         fint = internal_force(plant.machine.jacobian(x), applied).tolist() if plant.n > 6 else [0.0] * plant.n
         plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(), applied,
