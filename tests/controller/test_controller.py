@@ -259,6 +259,7 @@ def test_a_singular_measured_pose_stops_the_controller_naming_it(monkeypatch):
 
     monkeypatch.setattr(core.dynamics, "measured_state", singular)
     monkeypatch.setattr(core.dynamics, "encoder_state", None)          # not in one call with the kinematics
+    monkeypatch.setattr(core, "compiled", None)                      # nor in the compiled prepare
     assert core.update(0, *_state_at(ARCHI_HOME)) == [0.0] * 4
     assert core.stopped
     assert core.stop_reason == "kinematics at the measured pose: leg q2 is perpendicular to its rail (serial singularity)"
@@ -289,6 +290,7 @@ def test_a_non_finite_model_wrench_stops_the_controller_naming_it(monkeypatch):
 
     monkeypatch.setattr(core.dynamics, "measured_state", nan_gravity)
     monkeypatch.setattr(core.dynamics, "encoder_state", None)          # not in one call with the kinematics
+    monkeypatch.setattr(core, "compiled", None)                      # nor in the compiled prepare
     assert core.update(1_000_000, *_state_at(ARCHI_HOME)) == [0.0] * 4
     assert core.stop_reason.startswith("computed_torque: wrench: contains NaN or infinite values: [")
 
@@ -307,6 +309,7 @@ def test_a_finite_wrench_whose_sum_overflows_is_distributed_and_clamped(monkeypa
 
     monkeypatch.setattr(core.dynamics, "measured_state", huge)
     monkeypatch.setattr(core.dynamics, "encoder_state", None)          # not in one call with the kinematics
+    monkeypatch.setattr(core, "compiled", None)                      # nor in the compiled prepare
     forces = core.update(1_000_000, *_state_at(ARCHI_HOME))
     assert not core.stopped, core.stop_reason
     assert max(abs(f) for f in forces) == core.config.force_limit_n and core.supervisor.saturation_count == 1

@@ -164,6 +164,13 @@ with tempfile.TemporaryDirectory() as tmp:
     for name in sys.argv[1:]:
         s = load_scenario(name, {"duration_s": 0.2, "record": False})
         status[name] = run_scenario(s, Path(tmp) / name, progress=False, report=False, engine="direct")["status"]
+    # the same run with every controller cycle interpreted: the kernels the compiled
+    # prepare (pkm_controller.compiled_prepare) calls inside itself, called one by one
+    from pkm_controller import compiled_prepare
+    compiled_prepare.COMPILE_PREPARE = False
+    s = load_scenario("archi_demo", {"duration_s": 0.2, "record": False})
+    status["archi_demo interpreted"] = run_scenario(s, Path(tmp) / "interpreted", progress=False, report=False,
+                                                    engine="direct")["status"]
 # the two no run reaches here: a strut machine's warm forward kinematics, and the Gough's
 # DKM outside the sensor's fused reading (its interpreted path, tools)
 from pkm_common.poses import machine_pose_components, pose_from_components
@@ -194,14 +201,14 @@ def test_every_direct_call_of_the_loops_gets_its_declared_types():
                           env=env, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     out = json.loads(done.stdout.strip().splitlines()[-1])
-    assert out["status"] == {name: "completed" for name in scenarios}, out
-    reached = {"planar_encoder_state_kernel", "spheres_encoder_state_kernel", "_sensor_space_desired",
+    assert out["status"] == {name: "completed" for name in [*scenarios, "archi_demo interpreted"]}, out
+    reached = {"planar_encoder_state_kernel", "spheres_encoder_state_kernel", "sensor_space_desired_kernel",
                "rail_gough_check_kernel", "innovation_kernel", "rail_dynamics_step_kernel", "rail_outputs_kernel",
                "strut_dynamics_step_kernel", "strut_outputs_kernel", "true_lengths_kernel", "readings_kernel",
                "estimate_kernel", "dkm_solve_kernel", "sensor_space_command_kernel", "cartesian_command_kernel"}
-    reached |= {"forward_kinematics_warm_kernel"}
+    reached |= {"forward_kinematics_warm_kernel", "prepare_kernel", "sample_reference_kernel"}
     assert reached <= set(out["checked"]), sorted(reached - set(out["checked"]))
-    assert len(reached) == 16
+    assert len(reached) == 18
     sites = {line.split("direct_call(")[1].split(")")[0].split(".")[-1]
              for path in (Path(__file__).resolve().parents[2] / "src").glob("pkm_*/pkm_*/*.py")
              for line in path.read_text().splitlines() if "= direct_call(" in line}

@@ -52,6 +52,7 @@ from pkm_kinematics.errors import KinematicsError
 from pkm_kinematics.task_space import PLANAR
 
 from .commands import cartesian_failure, distribute_wrench, joint_command, kernels_for
+from .compiled_prepare import CompiledPrepare
 from .config import ControllerConfig, check_runtime_names
 from .cycle import AnswerLog, Cycle, CycleRecord
 from .encoder_check import EncoderChecks
@@ -132,6 +133,7 @@ class ControllerCore:
         self.config, integral = self.tuning.takeover(self.config, changes, self.estimator.pose,
                                                      self.supervisor.active)
         self._apply_config()
+        self.compiled = CompiledPrepare.of(self)
         if integral is not None:
             self.integral = integral
         return dict(changes)
@@ -159,6 +161,8 @@ class ControllerCore:
         self.record = CycleRecord(reference=zero, measured=zero, error=zero, forces=(0.0,) * self.n)
         if self.metrology is not None:
             self.metrology.reset()
+        # a usual cycle's prepare in one compiled call, where the configuration has it
+        self.compiled = CompiledPrepare.of(self)
 
     # ------------------------------------------------- the supervisor's state
     @property
@@ -236,6 +240,10 @@ class ControllerCore:
         ``last_command`` (zeros) answers. ``held``: the stamp of the older command the
         plant applied again (causes.PlantStatus); the drive supervision compares the
         forces with that one, or skips the cycle when it does not know it."""
+        if self.compiled is not None:
+            self._cycle = self.compiled.prepare(stamp_ns, q, qdot, applied, held)
+            if self._cycle is not None:
+                return True
         sup = self.supervisor
         self._cycle = None
         if sup.stopped:

@@ -493,7 +493,14 @@ def tool_pose_floats(x, planar: bool) -> tuple[tuple, tuple]:
     b, c) p with R = Rz(c) Ry(b) Rx(a)."""
     if len(x) == 6:
         return (x[0], x[1], x[2]), rpy_rotation_kernel.py_func(x[3], x[4], x[5])
+    return three_axis_tool_pose_kernel.py_func(x[0], x[1], x[2], planar)
+
+
+@kernel()
+def three_axis_tool_pose_kernel(x0, x1, x2, planar):
+    """:func:`tool_pose_floats` of a planar (x, y, theta) or translational (x, y, z)
+    task pose, for compiled callers too."""
     if planar:
-        c, s = math.cos(x[2]), math.sin(x[2])
-        return (x[0], x[1], 0.0), (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
-    return (x[0], x[1], x[2]), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+        c, s = math.cos(x2), math.sin(x2)
+        return (x0, x1, 0.0), (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+    return (x0, x1, x2), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)

@@ -121,6 +121,11 @@ class PoseEstimator:
         self.pose, self._fk_q, self._fk_cycles = list(pose), np.array(q, dtype=float), self._fk_cycles + 1
         return self.pose, state
 
+    def keep_pose(self, pose: list, q: np.ndarray) -> None:
+        """The encoder pose of the readings ``q``, solved by a compiled caller
+        (compiled_prepare.prepare_kernel) as ``encoder_state`` solves it."""
+        self.pose, self._fk_q, self._fk_cycles = pose, q, self._fk_cycles + 1
+
     def gough_task_pose(self, metrology_pose, reference_pose) -> list:
         """The task pose of a Gough pose (position, rotation), a planar machine's angle
         on the revolution of ``reference_pose``'s."""

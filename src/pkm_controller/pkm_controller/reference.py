@@ -11,13 +11,13 @@ a bisection plus a few float operations (~2 us).
 
 from __future__ import annotations
 
-import bisect
 import math
 
 import numpy as np
 
 from pkm_common.cdr import TrajectoryData
 from pkm_kinematics.errors import FieldError
+from pkm_kinematics.jit import direct_call, kernel
 from pkm_kinematics.rotations import rotation_from_quaternion, rpy_from_rotation, unwrap_to, yaw_of_quaternion
 from pkm_kinematics.task_space import PLANAR, SPATIAL, TaskSpace, angle_rates_batch
 
@@ -50,6 +50,8 @@ class Reference:
         self.position = x.tolist()
         self.velocity = v.tolist()
         self.acceleration = a.tolist()
+        # the same as arrays, as sample_reference_kernel takes them
+        self.arrays = tuple(np.ascontiguousarray(arr, dtype=float) for arr in (t, x, v, a))
 
     @classmethod
     def hold(cls, pose) -> "Reference":
@@ -69,22 +71,38 @@ class Reference:
         return self.position[-1]
 
     def sample(self, t: float) -> tuple[list, list, list]:
-        """(x_d, v_d, a_d) at ``t`` seconds after the start."""
-        ts = self.time_s
-        if t <= ts[0]:
-            return list(self.position[0]), list(self.velocity[0]), list(self.acceleration[0])
-        if t >= ts[-1]:
-            rest = [0.0] * len(self.position[-1])
-            return list(self.position[-1]), rest, list(rest)
-        k = bisect.bisect_right(ts, t)
-        t0, t1 = ts[k - 1], ts[k]
-        w = (t - t0) / (t1 - t0)
-        u = 1.0 - w
-        x0, x1 = self.position[k - 1], self.position[k]
-        v0, v1 = self.velocity[k - 1], self.velocity[k]
-        a0, a1 = self.acceleration[k - 1], self.acceleration[k]
-        return ([u * p + w * q for p, q in zip(x0, x1)], [u * p + w * q for p, q in zip(v0, v1)],
-                [u * p + w * q for p, q in zip(a0, a1)])
+        """(x_d, v_d, a_d) at ``t`` seconds after the start (:func:`sample_reference_kernel`)."""
+        x, v, a = _sample(*self.arrays, float(t))
+        return x.tolist(), v.tolist(), a.tolist()
+
+
+@kernel("(float64[:], float64[:, :], float64[:, :], float64[:, :], float64)")
+def sample_reference_kernel(ts, xs, vs, accs, t):
+    """(x, v, a) of a sampled trajectory (times ``ts``, rows of positions, velocities
+    and accelerations) at ``t``: linearly interpolated between samples; the first
+    sample before the start, the last one at rest after the end."""
+    m, d = xs.shape
+    x, v, a = np.empty(d), np.empty(d), np.empty(d)
+    if t <= ts[0]:
+        x[:], v[:], a[:] = xs[0], vs[0], accs[0]
+        return x, v, a
+    if t >= ts[m - 1]:
+        x[:] = xs[m - 1]
+        v[:] = 0.0
+        a[:] = 0.0
+        return x, v, a
+    k = np.searchsorted(ts, t, side="right")
+    t0, t1 = ts[k - 1], ts[k]
+    w = (t - t0) / (t1 - t0)
+    u = 1.0 - w
+    for j in range(d):
+        x[j] = u * xs[k - 1, j] + w * xs[k, j]
+        v[j] = u * vs[k - 1, j] + w * vs[k, j]
+        a[j] = u * accs[k - 1, j] + w * accs[k, j]
+    return x, v, a
+
+
+_sample = direct_call(sample_reference_kernel)     # Reference.sample makes each argument with its declared type
 
 
 REST_TOLERANCE = 1e-3           # m/s (rad/s): "at rest" at a trajectory's ends

@@ -13,7 +13,7 @@ from pkm_kinematics.rotations import exp_so3_kernel, mul3_kernel
 
 from .laws import CONFIGURATION_TYPES, MODE_PLANAR, MODEL_TYPE, cartesian_command_kernel
 
-__all__ = ["SensorSpaceFeedback", "sensor_space_command_kernel"]
+__all__ = ["SensorSpaceFeedback", "sensor_space_command_kernel", "sensor_space_desired_kernel"]
 
 _TRIPLE, _ROTATION = "UniTuple(float64, 3)", "UniTuple(float64, 9)"
 
@@ -65,6 +65,16 @@ class SensorSpaceFeedback:
         p_bp, r_bp, l_des, j_h = _desired_call(self._bars, p, t, *self._plate, p_at, r_at, at_estimate)
         self._desired = (p_bp, r_bp, l_des, j_h, t)
 
+    def kernel_constants(self) -> tuple:
+        """What sensor_space_desired_kernel takes of the sensor before the tool pose:
+        (the Gough's bars, then the mounting: p_wb, R_wb^T, R_tp, p_tp)."""
+        return (self._bars, *self._plate)
+
+    def keep_prepared(self, p_bp, r_bp, l_des, j_h, r_t) -> None:
+        """What ``prepare`` computes, computed by a compiled caller
+        (compiled_prepare.prepare_kernel) for the tool rotation ``r_t``."""
+        self._desired = (p_bp, r_bp, l_des, j_h, r_t)
+
     def error_from(self, lengths) -> list:
         """The task-space error x_des - x_real for the readings ``lengths`` (6, m), at
         the desired pose of the last ``prepare``: (e_x, e_y, e_theta) planar, (e_x, e_y,
@@ -107,7 +117,7 @@ _NO_ESTIMATE = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
 
 @kernel(f"(float64[:, :], {_TRIPLE}, {_ROTATION}, {_TRIPLE}, {_ROTATION}, {_ROTATION}, {_TRIPLE}, {_TRIPLE}, "
         f"{_ROTATION}, boolean)")
-def _sensor_space_desired(bars, p_t, r_t, p_wb, r_bw, r_tp, p_tp, p_at, r_at, at_estimate):
+def sensor_space_desired_kernel(bars, p_t, r_t, p_wb, r_bw, r_tp, p_tp, p_at, r_at, at_estimate):
     """SensorSpaceFeedback.prepare in one call: the plate pose (p_bp, R_bp) of the
     desired tool pose (p_t, R_t) (``metrology.plate_in_base_kernel``, the mounting
     (p_wb, R_wb^T, R_tp, p_tp)), then l_des there and J_h at (p_at, R_at) when
@@ -166,4 +176,4 @@ def sensor_space_command_kernel(j_h, l_des, lengths, p_bp, r_bp, r_wb, p_tp, t, 
     return real_p, real_r, measured, error, code, index, value, i_new, wrench, forces, saturated, peak
 
 
-_desired_call = direct_call(_sensor_space_desired)    # prepare() makes each argument with its declared type
+_desired_call = direct_call(sensor_space_desired_kernel)    # prepare() makes each argument with its declared type

@@ -127,6 +127,12 @@ class Supervisor:
             self.faults.append(f"{what}: continuing on {name} (condition {cond:.3g})")
         return None
 
+    def drives_agree(self) -> None:
+        """``check_drives`` of a cycle in which every drive applied its command (a
+        compiled caller found it): no mismatch counts."""
+        if any(self.mismatch):
+            self.mismatch = [0] * self.n
+
     def limit_trip(self, code: int, index: int, value: float) -> Trip:
         """The trip of a limits code (laws.CycleCode, not OK) of the limits kernels."""
         c = self.config

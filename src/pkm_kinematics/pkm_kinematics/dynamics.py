@@ -133,6 +133,19 @@ class DynamicModel:
             return (x0, x1, x2), None
         return (x0, x1, x2), _measured_state(rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2)
 
+    def encoder_state_inputs(self) -> tuple | None:
+        """What :func:`rail_encoder_state_kernel` takes of this machine: (spheres, the
+        forward solver's bars, pairs, sides, side), then after q and the guess (columns,
+        then the mass model's 9); None when ``encoder_state`` is."""
+        if self._fk_kind is None:
+            return None
+        fk = self.machine.fk
+        if self._fk_kind == "planar":
+            head = (False, fk.bars, fk.pairs_array, fk.sides, 0.0)
+        else:
+            head = (True, fk.bars, np.zeros((0, 2), dtype=np.int64), np.zeros(0), float(fk.side))
+        return head, (self.machine.twist_columns, *self._mass_args)
+
     def forward_dynamics(self, x, xdot, drive_forces, wrench=(0.0, 0.0, 0.0)) -> tuple:
         """xddot from A xddot = J^T f_d + f_n - H (:func:`forward_acceleration_kernel`)."""
         _, rows, qdot, jdv = self.machine.velocity_terms_arrays(x, xdot)
@@ -337,6 +350,18 @@ def spheres_encoder_state_kernel(bars, side, q, columns, qdot, md, k, dg, mn0, m
     rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg = _measured_state_kernel(
         bars, columns, x, y, z, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
     return x, y, z, True, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, leg
+
+
+@kernel()
+def rail_encoder_state_kernel(spheres, bars, pairs, sides, side, q, ref_x, ref_y, ref_th, columns, qdot, md, k, dg,
+                              mn0, mn1, mn2, pg0, pg1, pg2):
+    """:func:`planar_encoder_state_kernel` or, ``spheres``, :func:`spheres_encoder_state_kernel`,
+    for a compiled caller that serves both (the arguments of the other one unused):
+    DynamicModel.encoder_state_inputs gives what follows q."""
+    if spheres:
+        return spheres_encoder_state_kernel(bars, side, q, columns, qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
+    return planar_encoder_state_kernel(bars, pairs, sides, q, ref_x, ref_y, ref_th, columns, qdot, md, k, dg, mn0,
+                                       mn1, mn2, pg0, pg1, pg2)
 
 
 # the per-cycle calls, without the dispatcher's typing of every argument (jit.direct_call:
