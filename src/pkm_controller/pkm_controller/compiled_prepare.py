@@ -26,7 +26,8 @@ from pkm_kinematics.jit import direct_call, kernel
 
 from .config import FORWARD_KINEMATICS
 from .cycle import Cycle
-from .encoder_check import ENC_OK, GOUGH_NO_POSE, innovation_kernel, rail_gough_check_kernel
+from .encoder_check import (ENC_OK, GOUGH_NO_POSE, GOUGH_STATE_ROWS, MONITOR_STATE_ROWS, innovation_kernel,
+                            rail_gough_check_kernel)
 from .laws import three_axis_tool_pose_kernel
 from .reference import sample_reference_kernel
 from .sensor_space import sensor_space_desired_kernel
@@ -38,14 +39,19 @@ COMPILE_PREPARE = True     # False: every cycle interpreted (the reference of th
 PREPARED, INTERPRETED = 0, 1
 
 _F, _B, _T, _R = "float64", "boolean", "UniTuple(float64, 3)", "UniTuple(float64, 9)"
-_V, _M, _I = "float64[:]", "float64[:, :]", "int64[:]"
+_V, _M, _I, _IM = "float64[:]", "float64[:, :]", "int64[:]", "int64[:, :]"
 _SIGNATURE = "(" + ", ".join((
-    _V, _V, _V, _B, _V, _F,                                       # q, qdot, applied, has_applied, commanded, mismatch_n
-    _B, _M, "int64[:, :]", _V, _F, _T, _I, _V, _V, _V, _F, _F, _F, _F, _F, _F,   # the encoder state
-    _B, _V, _T, "int64", _M, _M, _V, _V, _V, _V, _I, _V, "boolean[:]", _F, _B,  # the Gough cross-check
-    _V, _M, _M, _M, _F,                                              # the reference
-    _B, _V, _V, _B, _F, _V, _V, _V, _V, "boolean[:]", _F, _F, _B,    # the innovation test
-    _B, _B, _M, _T, _R, _R, _T, _T, _R, _B)) + ")"                   # l_des and J_h
+    _M, _V, _I,                          # io, constants, modes (CompiledPrepare.prepare)
+    _M, _IM, _V, _I, _M,                 # the machine's bars, the solver's pairs and sides, columns, the Gough's bars
+    _M, _I, _M, _M,                      # the Gough check's state and counts, the innovation test's, the reference
+    _F, _F, _T, _T, _T, _R,              # tau, dt, the last pose, the last cycle's Gough pose, the plate's estimate
+    _B, _B, _B, _B, _B)) + ")"           # has_applied, pending, gough_first, second, at_estimate
+
+# CompiledPrepare's constants: the indices of its floats, then md, k, dg (n each)
+C_SIDE, C_MISMATCH_N, C_GOUGH_M, C_JUMP_M, C_FREEZE_M, C_MASS, C_P_WB, C_R_BW, C_R_TP, C_P_TP, C_DRIVES = (
+    0, 1, 2, 3, 4, 5, 11, 14, 23, 32, 35)
+# ... and its modes
+M_SPHERES, M_MONITOR, M_DESIRED, M_PLANAR, M_REDUNDANT, M_LEGS = range(6)
 
 
 @kernel()
@@ -57,92 +63,93 @@ def _finite_sum(values):
     return math.isfinite(total)
 
 
+@kernel()
+def _tuple3(c, i):
+    return c[i], c[i + 1], c[i + 2]
+
+
+@kernel()
+def _tuple9(c, i):
+    return c[i], c[i + 1], c[i + 2], c[i + 3], c[i + 4], c[i + 5], c[i + 6], c[i + 7], c[i + 8]
+
+
 @kernel(_SIGNATURE)
-def prepare_kernel(q, qdot, applied, has_applied, commanded, mismatch_n,
-                   spheres, bars, pairs, sides, side, guess, columns, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2,
-                   gough, pending_q, pending_x, n_legs, history_q, history_g, hold_g, last_d, g_bias, g_mean_square,
-                   over, off, g_skip, gough_m, gough_first,
-                   ref_t, ref_x, ref_v, ref_a, tau,
-                   monitor, last_q, last_dq, second, dt, bias, mean_square, held, candidate, skip, jump_m, freeze_m,
-                   redundant,
-                   desired, planar, gough_bars, p_wb, r_bw, r_tp, p_tp, p_at, r_at, at_estimate):
+def prepare_kernel(io, constants, modes, bars, pairs, sides, columns, gough_bars, gough_state, over, monitor_state,
+                   table, tau, dt, guess, pending_x, p_at, r_at, has_applied, pending, gough_first, second,
+                   at_estimate):
     """ControllerCore.prepare of a usual cycle (module doc), in its order: the state's
-    values finite (supervisor.check_state), the last cycle's readings against the
-    Gough (rail_gough_check_kernel; ``gough``: one is pending, ``pending_q`` and the
-    Gough's pose ``pending_x``), the encoder state (rail_encoder_state_kernel from the
-    last pose ``guess``), the drive supervision (a force off its command: not usual),
-    the reference at ``tau`` (sample_reference_kernel), the innovation test
-    (innovation_kernel, ``monitor``) and, ``desired``, l_des and J_h
-    (sensor_space_desired_kernel at the tool pose of x_d). Returns (PREPARED or
-    INTERPRETED, the pose, J_m, v, A, H, x_d, v_d, a_d, whether the Gough judged, p_bp,
-    R_bp, l_des, J_h, R_t); the checks' state arrays written only when PREPARED."""
-    n = q.shape[0]
+    values finite (supervisor.check_state; ``io`` its rows q, qdot, applied, then the
+    last command and the last cycle's q), the last cycle's readings against the Gough
+    (rail_gough_check_kernel, when ``pending``, at the Gough's pose ``pending_x``), the
+    encoder state (rail_encoder_state_kernel from the last pose ``guess``), the drive
+    supervision (a force off its command: not usual), the reference at ``tau``
+    (sample_reference_kernel), the innovation test (innovation_kernel) and l_des and
+    J_h (sensor_space_desired_kernel at the tool pose of x_d), each where ``modes``
+    has it. Returns (PREPARED or INTERPRETED, the pose, J_m, v, A, H, x_d, v_d, a_d,
+    whether the Gough judged, p_bp, R_bp, l_des, J_h, R_t); the state arrays written
+    only when PREPARED."""
+    n = io.shape[1]
+    q, qdot, applied, commanded, pending_q = io[0], io[1], io[2], io[3], io[4]
+    c = constants
+    drives = c[C_DRIVES:]
+    md, k, dg = drives[:n], drives[n:2 * n], drives[2 * n:3 * n]
     code = INTERPRETED
-    pose = (0.0, 0.0, 0.0)
+    pose, v, h = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     rows = np.empty((0, 3))
-    v = (0.0, 0.0, 0.0)
     a_rows = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    h = (0.0, 0.0, 0.0)
-    x_d, v_d, a_d = np.empty(0), np.empty(0), np.empty(0)
+    x_d, v_d, a_d = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     judged = False
     identity = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     p_bp, r_bp, r_t = (0.0, 0.0, 0.0), identity, identity
     l_des, j_h = np.empty(0), np.empty((0, 0))
-    # the checks' state, worked on in copies
-    hq, hg, hold, ld, gb, gms, gover, goff = (history_q.copy(), history_g.copy(), hold_g.copy(), last_d.copy(),
-                                              g_bias.copy(), g_mean_square.copy(), over.copy(), off.copy())
-    lq, ldq, mb, mms, mh, mc = (last_q.copy(), last_dq.copy(), bias.copy(), mean_square.copy(), held.copy(),
-                                candidate.copy())
+    no_skip = np.zeros(n, dtype=np.bool_)         # every drive judged: a usual cycle drops none
+    gs, g_over, ms = gough_state.copy(), over.copy(), monitor_state.copy()     # worked on in copies
     usual = _finite_sum(q) and _finite_sum(qdot) and (not has_applied or _finite_sum(applied))
-    if usual and gough:
-        drive = rail_gough_check_kernel(bars, n_legs, columns, pending_x[0], pending_x[1], pending_x[2], pending_q,
-                                        hq, hg, hold, ld, gb, gms, gover, goff, g_skip, gough_m, gough_first)
+    if usual and pending:
+        drive = rail_gough_check_kernel(bars, modes[M_LEGS], columns, pending_x[0], pending_x[1], pending_x[2],
+                                        pending_q, gs[0:3], gs[3:6], gs[6], gs[7], gs[8], gs[9], g_over, gs[10],
+                                        no_skip, c[C_GOUGH_M], gough_first)
         judged = drive != GOUGH_NO_POSE
         usual = drive < 0
     if usual:
         x0, x1, x2, solved, rows, v0, v1, v2, a00, a01, a02, a11, a12, a22, h0, h1, h2, vt, _ = \
-            rail_encoder_state_kernel(spheres, bars, pairs, sides, side, q, guess[0], guess[1], guess[2], columns,
-                                      qdot, md, k, dg, mn0, mn1, mn2, pg0, pg1, pg2)
+            rail_encoder_state_kernel(modes[M_SPHERES] != 0, bars, pairs, sides, c[C_SIDE], q, guess[0], guess[1],
+                                      guess[2], columns, qdot, md, k, dg, c[C_MASS], c[C_MASS + 1], c[C_MASS + 2],
+                                      c[C_MASS + 3], c[C_MASS + 4], c[C_MASS + 5])
         usual = solved and vt == B.VT_OK
         pose, v, h = (x0, x1, x2), (v0, v1, v2), (h0, h1, h2)
         a_rows = ((a00, a01, a02), (a01, a11, a12), (a02, a12, a22))
     if usual and has_applied:
         for i in range(n):
-            if abs(applied[i] - commanded[i]) > mismatch_n:
+            if abs(applied[i] - commanded[i]) > c[C_MISMATCH_N]:
                 usual = False          # the drive supervision counts it, and the innovation test waits
     if usual:
-        x_d, v_d, a_d = sample_reference_kernel(ref_t, ref_x, ref_v, ref_a, tau)
-    if usual and monitor:
-        a = np.empty((3, 3))
-        for i in range(3):
-            for j in range(3):
-                a[i, j] = a_rows[i][j]
-        forces = applied if has_applied else np.zeros(n)
-        outcome, _, _ = innovation_kernel(q, lq, ldq, second, a, np.array(h), rows, forces, v_d, dt, mb, mms, mh, mc,
-                                          skip, jump_m, freeze_m, redundant)
-        usual = outcome == ENC_OK
-    if usual and desired:
-        p_t, r_t = three_axis_tool_pose_kernel(x_d[0], x_d[1], x_d[2], planar)
-        p_bp, r_bp, l_des, j_h = sensor_space_desired_kernel(gough_bars, p_t, r_t, p_wb, r_bw, r_tp, p_tp, p_at,
-                                                             r_at, at_estimate)
+        xs, vs, accs = sample_reference_kernel(table, tau)
+        x_d, v_d, a_d = (xs[0], xs[1], xs[2]), (vs[0], vs[1], vs[2]), (accs[0], accs[1], accs[2])
+        if modes[M_MONITOR]:
+            a = np.empty((3, 3))
+            for i in range(3):
+                for j in range(3):
+                    a[i, j] = a_rows[i][j]
+            outcome, _, _ = innovation_kernel(q, ms[0], ms[1], second, a, np.array(h), rows,
+                                              applied if has_applied else np.zeros(n), vs, dt, ms[2], ms[3], ms[4],
+                                              ms[5], no_skip, c[C_JUMP_M], c[C_FREEZE_M], modes[M_REDUNDANT] != 0)
+            usual = outcome == ENC_OK
+    if usual and modes[M_DESIRED]:
+        p_t, r_t = three_axis_tool_pose_kernel(x_d[0], x_d[1], x_d[2], modes[M_PLANAR] != 0)
+        p_bp, r_bp, l_des, j_h = sensor_space_desired_kernel(
+            gough_bars, p_t, r_t, _tuple3(c, C_P_WB), _tuple9(c, C_R_BW), _tuple9(c, C_R_TP), _tuple3(c, C_P_TP),
+            p_at, r_at, at_estimate)
     if usual:
         code = PREPARED
-        history_q[:, :], history_g[:, :], hold_g[:], last_d[:] = hq, hg, hold, ld
-        g_bias[:], g_mean_square[:], over[:], off[:] = gb, gms, gover, goff
-        last_q[:], last_dq[:], bias[:], mean_square[:], held[:], candidate[:] = lq, ldq, mb, mms, mh, mc
+        gough_state[:, :], over[:], monitor_state[:, :] = gs, g_over, ms
     return code, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged, p_bp, r_bp, l_des, j_h, r_t
 
 
 _prepare = direct_call(prepare_kernel)      # CompiledPrepare.prepare makes each argument with its declared type
 
-_NO_GOUGH_STATE = (np.zeros((3, 0)), np.zeros((3, 0)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
-                   np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool), 1.0)
-_NO_MONITOR_STATE = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
-                     np.zeros(0, dtype=bool), 1.0, 1.0)
-_NO_PLATE = (np.zeros((0, 0)), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
-             (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
 _NO_ESTIMATE = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
-_NOTHING = np.zeros(0)
+_NO_POSE = (0.0, 0.0, 0.0)
 
 
 class CompiledPrepare:
@@ -150,20 +157,28 @@ class CompiledPrepare:
     machine and configuration have it (a rail machine whose encoder state is one
     kernel, the pose solved every cycle, no drive tables, a 3-axis task, commands
     applied at once), else None. ``prepare`` answers a Cycle, or None when the cycle is
-    not a usual one (the interpreted path takes it)."""
+    not a usual one (the interpreted path takes it). Made again when the controller
+    is reset or its settings change."""
 
     def __init__(self, core, encoder_inputs: tuple):
-        self.core = core
-        self.head, self.tail = encoder_inputs
-        self.bars = core.model.bars
-        self.n = core.n
-        checks = core.encoder_checks
-        self.gough_check, self.monitor = checks.gough_check, checks.encoders
+        (spheres, fk_bars, self.pairs, self.sides, side), (self.columns, md, k, dg, *mass) = encoder_inputs
+        self.core, self.n, self.bars = core, core.n, core.model.bars
+        checks, c, n = core.encoder_checks, core.config, core.n
+        self.gough, self.monitor = checks.gough_check, checks.encoders
         self.desired = core.strategy.feedback == Feedback.STRUTS
-        self.mismatch_n = float(core.config.drive_mismatch_n)
-        self.plate = _NO_PLATE
+        self.gough_bars, plate = np.zeros((0, 6)), (_NO_POSE, _NO_ESTIMATE[1], _NO_ESTIMATE[1], _NO_POSE)
         if self.desired:
-            self.plate = core.metrology.kernel_constants()
+            self.gough_bars, *plate = core.metrology.kernel_constants()
+        monitor = self.monitor
+        self.constants = np.array([
+            side, c.drive_mismatch_n, self.gough.jump_m if self.gough is not None else 0.0,
+            monitor.jump_m if monitor is not None else 0.0, monitor.freeze_m if monitor is not None else 0.0,
+            *mass, *(value for part in plate for value in part), *md, *k, *dg], dtype=float)
+        assert len(self.constants) == C_DRIVES + 3 * n
+        self.modes = np.array([spheres, monitor is not None, self.desired, core.planar, n > 3, n], dtype=np.int64)
+        self.zeros = np.zeros(n)
+        self.no_gough = (np.zeros((GOUGH_STATE_ROWS, n)), np.zeros(n, dtype=np.int64))
+        self.no_monitor = np.zeros((MONITOR_STATE_ROWS, n))
 
     @classmethod
     def of(cls, core) -> "CompiledPrepare | None":
@@ -177,60 +192,47 @@ class CompiledPrepare:
         return cls(core, inputs)
 
     def prepare(self, stamp_ns: int, q, qdot, applied, held) -> Cycle | None:
-        core = self.core
-        sup, checks, feed, n = core.supervisor, core.encoder_checks, core.tracker.feed, self.n
-        if (held is not None or sup.stopped or core.last_time_s is None or sup.failed or len(sup.active) != n
+        core, n = self.core, self.n
+        sup, feed, last_t = core.supervisor, core.tracker.feed, core.last_time_s
+        if (held is not None or sup.stopped or last_t is None or sup.failed or len(sup.active) != n
                 or len(q) != n or len(qdot) != n or not feed.nominal):
             return None
         has_applied = applied is not None and len(applied) > 0
-        if has_applied and len(applied) != n:
-            return None
-        pending, gough, monitor = checks.pending, self.gough_check, self.monitor
-        if pending is not None and pending[2] is not None:      # a suspect for the Gough to judge
-            return None
-        if (monitor is not None and (not monitor.started or monitor.skip_set)) or \
-                (gough is not None and gough.skip_set):
-            return None
-        q_array, qdot_array = np.array(q, dtype=float), np.array(qdot, dtype=float)
-        applied_array = np.array(applied, dtype=float) if has_applied else _NOTHING
-        t_s = stamp_ns * 1e-9
-        dt = core.config.dt_s if t_s <= core.last_time_s else t_s - core.last_time_s
-        tau = feed.peek(t_s)
+        checks, gough, monitor = core.encoder_checks, self.gough, self.monitor
+        pending = checks.pending
         guess, reference = core.estimator.pose, core.tracker.reference
-        if guess is None or reference is None:
-            return None
+        if ((has_applied and len(applied) != n) or (pending is not None and pending[2] is not None)
+                or (monitor is not None and (not monitor.started or monitor.skip_set))
+                or (gough is not None and gough.skip_set) or guess is None or reference is None):
+            return None                # not a usual cycle: a suspect to judge, a drive skipped, ...
+        zeros = self.zeros
+        io = np.array((q, qdot, applied if has_applied else zeros, core.last_command,
+                       zeros if pending is None else pending[0]), dtype=float)
+        t_s = stamp_ns * 1e-9
+        dt = core.config.dt_s if t_s <= last_t else t_s - last_t
+        tau = feed.advance(t_s)[0]     # at the nominal feed the same again if the cycle is interpreted
         if pending is not None:
-            measured = pending[1]
-            gough_args = (True, pending[0], (float(measured[0]), float(measured[1]), float(measured[2])), n,
-                          gough.history_q, gough.history_g, gough.hold_g, gough.last_d, gough.bias,
-                          gough.mean_square, gough.over, gough.off, gough.skip, float(gough.jump_m),
-                          gough.cycles == 0)
+            x = pending[1]
+            pending_x, gough_state, over = (float(x[0]), float(x[1]), float(x[2])), gough.state, gough.over
         else:
-            gough_args = (False, _NOTHING, (0.0, 0.0, 0.0), n, *_NO_GOUGH_STATE, False)
+            pending_x, (gough_state, over) = _NO_POSE, self.no_gough
         if monitor is not None:
             second = bool(monitor.second and abs(dt - monitor.last_dt) <= 1e-3 * monitor.last_dt)
-            monitor_args = (True, monitor.last_q, monitor.last_dq, second, float(dt), monitor.bias,
-                            monitor.mean_square, monitor.held, monitor.candidate, monitor.skip, monitor.jump_m,
-                            monitor.freeze_m, n > 3)
+            monitor_state = monitor.state
         else:
-            monitor_args = (False, *_NO_MONITOR_STATE[:2], False, float(dt), *_NO_MONITOR_STATE[2:], False)
-        if self.desired:
-            metrology = core.metrology
-            estimate = metrology.estimate if metrology.at_estimate and metrology.estimate is not None else None
-            p_at, r_at = estimate if estimate is not None else _NO_ESTIMATE
-            desired_args = (True, core.planar, *self.plate, p_at, r_at, estimate is not None)
-        else:
-            desired_args = (False, False, *self.plate, *_NO_ESTIMATE, False)
-        out = _prepare(q_array, qdot_array, applied_array, has_applied, np.array(core.last_command, dtype=float),
-                       self.mismatch_n, *self.head, (float(guess[0]), float(guess[1]), float(guess[2])), *self.tail,
-                       *gough_args, *reference.arrays, tau, *monitor_args, *desired_args)
+            second, monitor_state = False, self.no_monitor
+        estimate = core.metrology.estimate if self.desired and core.metrology.at_estimate else None
+        p_at, r_at = _NO_ESTIMATE if estimate is None else estimate
+        out = _prepare(io, self.constants, self.modes, self.bars, self.pairs, self.sides, self.columns,
+                       self.gough_bars, gough_state, over, monitor_state, reference.table, tau, float(dt),
+                       (float(guess[0]), float(guess[1]), float(guess[2])), pending_x, p_at, r_at, has_applied,
+                       pending is not None, gough is not None and gough.cycles == 0, second, estimate is not None)
         if out[0] != PREPARED:
             return None
         _, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged, p_bp, r_bp, l_des, j_h, r_t = out
-        # the cycle is a usual one: what the interpreted path keeps of it
+        # a usual cycle: what the interpreted path keeps of it
         core.last_stamp_ns, core.last_time_s = stamp_ns, t_s
-        feed.advance(t_s)
-        pose = list(pose)
+        pose, q_array = list(pose), io[0]
         core.estimator.keep_pose(pose, q_array)
         sup.forces_mismatched = False
         if has_applied:
@@ -244,5 +246,5 @@ class CompiledPrepare:
             core.metrology.keep_prepared(p_bp, r_bp, l_des, j_h, r_t)
         c = Cycle(stamp_ns, t_s, dt, False, list(q), q_array, list(qdot), pose, rows, rows, v)
         c.a_model, c.h_model, c.applied, c.held = a_rows, h, applied, False
-        c.x_d, c.v_d, c.a_d = x_d.tolist(), v_d.tolist(), a_d.tolist()
+        c.x_d, c.v_d, c.a_d = list(x_d), list(v_d), list(a_d)
         return c

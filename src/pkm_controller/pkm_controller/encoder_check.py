@@ -56,6 +56,8 @@ CONSISTENT_FLOOR_M = 2e-6   # ... or two counts
 
 # outcomes of innovation_kernel
 ENC_OK, ENC_FROZEN_SLOW, ENC_FROZEN, ENC_SLIPPED = 0, 1, 2, 3
+MONITOR_STATE_ROWS = 6      # EncoderMonitor.state: last_q, last_dq, bias, mean_square, held, candidate
+GOUGH_STATE_ROWS = 11       # GoughCrossCheck.state: history_q (3), history_g (3), hold_g, last_d, bias, mean_square, off
 
 
 @kernel("(float64[:], float64[:], float64[:, :])")
@@ -154,11 +156,12 @@ class EncoderMonitor:
 
     def reset(self) -> None:
         n = self.n
-        self.last_q, self.last_dq = np.zeros(n), np.zeros(n)
+        # the arrays innovation_kernel updates, as rows of one (``state``, for a compiled caller)
+        self.state = np.zeros((MONITOR_STATE_ROWS, n))
+        self.last_q, self.last_dq, self.bias, self.mean_square, self.held, self.candidate = self.state
+        self.candidate[:] = np.nan            # the jump that waits for its confirmation, per drive
         self.started = self.second = False
         self.last_dt = None
-        self.bias, self.mean_square, self.held = np.zeros(n), np.zeros(n), np.zeros(n)
-        self.candidate = np.full(n, np.nan)   # the jump that waits for its confirmation, per drive
         self.skip = np.zeros(n, dtype=bool)
         self.skip_set = False                 # some drive in skip
         self.fault_size = 0.0                 # |jump| (or the displacement asked for) of the last verdict
@@ -327,14 +330,14 @@ class GoughCrossCheck:
     def reset(self) -> None:
         n = self.n
         self.cycles = 0
-        self.bias, self.mean_square, self.off = np.zeros(n), np.zeros(n), np.zeros(n)
+        # the float arrays gough_check_kernel updates, as rows of one (``state``, for a
+        # compiled caller): (reading, q(x_g)) of the last three cycles (the newest last),
+        # q(x_g) when each reading last changed, the last d, its low-pass, mean square and offset
+        self.state = np.zeros((GOUGH_STATE_ROWS, n))
+        self.history_q, self.history_g = self.state[0:3], self.state[3:6]
+        self.hold_g, self.last_d, self.bias, self.mean_square, self.off = self.state[6:]
         self.over = np.zeros(n, dtype=np.int64)
         self.skip = np.zeros(n, dtype=bool)
-        # (reading, q(x_g)) of the last three cycles (the newest last), and q(x_g) when
-        # each reading last changed
-        self.history_q, self.history_g = np.zeros((3, n)), np.zeros((3, n))
-        self.hold_g = np.zeros(n)
-        self.last_d = np.zeros(n)
         self.skip_set = False
 
     def agrees(self, i: int, size: float, held: bool) -> bool:

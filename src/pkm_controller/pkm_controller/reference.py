@@ -50,8 +50,8 @@ class Reference:
         self.position = x.tolist()
         self.velocity = v.tolist()
         self.acceleration = a.tolist()
-        # the same as arrays, as sample_reference_kernel takes them
-        self.arrays = tuple(np.ascontiguousarray(arr, dtype=float) for arr in (t, x, v, a))
+        # the same as one table, as sample_reference_kernel takes it: a row per sample
+        self.table = np.column_stack((t, x, v, a)).astype(float)
 
     @classmethod
     def hold(cls, pose) -> "Reference":
@@ -72,33 +72,33 @@ class Reference:
 
     def sample(self, t: float) -> tuple[list, list, list]:
         """(x_d, v_d, a_d) at ``t`` seconds after the start (:func:`sample_reference_kernel`)."""
-        x, v, a = _sample(*self.arrays, float(t))
+        x, v, a = _sample(self.table, float(t))
         return x.tolist(), v.tolist(), a.tolist()
 
 
-@kernel("(float64[:], float64[:, :], float64[:, :], float64[:, :], float64)")
-def sample_reference_kernel(ts, xs, vs, accs, t):
-    """(x, v, a) of a sampled trajectory (times ``ts``, rows of positions, velocities
-    and accelerations) at ``t``: linearly interpolated between samples; the first
-    sample before the start, the last one at rest after the end."""
-    m, d = xs.shape
+@kernel("(float64[:, :], float64)")
+def sample_reference_kernel(table, t):
+    """(x, v, a) of a sampled trajectory at ``t``: ``table`` a row per sample (time,
+    then d positions, d velocities, d accelerations), linearly interpolated between
+    samples; the first sample before the start, the last one at rest after the end."""
+    m, d = table.shape[0], (table.shape[1] - 1) // 3
     x, v, a = np.empty(d), np.empty(d), np.empty(d)
-    if t <= ts[0]:
-        x[:], v[:], a[:] = xs[0], vs[0], accs[0]
+    if t <= table[0, 0]:
+        x[:], v[:], a[:] = table[0, 1:1 + d], table[0, 1 + d:1 + 2 * d], table[0, 1 + 2 * d:]
         return x, v, a
-    if t >= ts[m - 1]:
-        x[:] = xs[m - 1]
+    if t >= table[m - 1, 0]:
+        x[:] = table[m - 1, 1:1 + d]
         v[:] = 0.0
         a[:] = 0.0
         return x, v, a
-    k = np.searchsorted(ts, t, side="right")
-    t0, t1 = ts[k - 1], ts[k]
+    k = np.searchsorted(table[:, 0], t, side="right")
+    t0, t1 = table[k - 1, 0], table[k, 0]
     w = (t - t0) / (t1 - t0)
     u = 1.0 - w
     for j in range(d):
-        x[j] = u * xs[k - 1, j] + w * xs[k, j]
-        v[j] = u * vs[k - 1, j] + w * vs[k, j]
-        a[j] = u * accs[k - 1, j] + w * accs[k, j]
+        x[j] = u * table[k - 1, 1 + j] + w * table[k, 1 + j]
+        v[j] = u * table[k - 1, 1 + d + j] + w * table[k, 1 + d + j]
+        a[j] = u * table[k - 1, 1 + 2 * d + j] + w * table[k, 1 + 2 * d + j]
     return x, v, a
 
 
