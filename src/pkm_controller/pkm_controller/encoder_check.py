@@ -57,7 +57,7 @@ CONSISTENT_FLOOR_M = 2e-6   # ... or two counts
 # outcomes of innovation_kernel
 ENC_OK, ENC_FROZEN_SLOW, ENC_FROZEN, ENC_SLIPPED = 0, 1, 2, 3
 MONITOR_STATE_ROWS = 6      # EncoderMonitor.state: last_q, last_dq, bias, mean_square, held, candidate
-GOUGH_STATE_ROWS = 11       # GoughCrossCheck.state: history_q (3), history_g (3), hold_g, last_d, bias, mean_square, off
+GOUGH_STATE_ROWS = 11       # GoughCrossCheck.state: history_q (3), history_g (3), hold_g, last_d, bias, mean_sq., off
 
 
 @kernel("(float64[:], float64[:], float64[:, :])")
