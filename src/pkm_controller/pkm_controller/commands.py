@@ -115,7 +115,7 @@ class ThreeAxis:
         code, index, value, integral, wrench, forces, saturated, peak = _cartesian_call(
             c.q_array, c.active_rows, (tuple(measured), tuple(error), tuple(c.v_d), c.v, tuple(c.a_d)),
             *_law_inputs(core, c, full))
-        return self._outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak)
+        return self.outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak)
 
     def sensor_space(self, core, c, struts) -> tuple[tuple, tuple, CartesianOutcome]:
         """The sensor-space feedback on the strut readings ``struts`` (checked) and
@@ -131,11 +131,11 @@ class ThreeAxis:
                 (float(x[0]), float(x[1]), float(x[2])), c.q_array, c.active_rows, tuple(c.v_d), c.v, tuple(c.a_d),
                 *_law_inputs(core, c, full))
         feedback.estimate = (real_p, real_r)
-        return measured, error, self._outcome(core, active, full, code, index, value, integral, wrench, forces,
+        return measured, error, self.outcome(core, active, full, code, index, value, integral, wrench, forces,
                                               saturated, peak)
 
     @staticmethod
-    def _outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak):
+    def outcome(core, active, full, code, index, value, integral, wrench, forces, saturated, peak):
         distributed = bool(forces.shape[0])
         if distributed:
             forces = forces.tolist() if full else expand(forces.tolist(), active, core.n)

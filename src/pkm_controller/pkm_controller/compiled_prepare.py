@@ -28,9 +28,9 @@ from .config import FORWARD_KINEMATICS
 from .cycle import Cycle
 from .encoder_check import (ENC_OK, GOUGH_NO_POSE, GOUGH_STATE_ROWS, MONITOR_STATE_ROWS, innovation_kernel,
                             rail_gough_check_kernel)
-from .laws import three_axis_tool_pose_kernel
+from .laws import CONFIGURATION_TYPES, three_axis_tool_pose_kernel
 from .reference import sample_reference_kernel
-from .sensor_space import sensor_space_desired_kernel
+from .sensor_space import sensor_space_command_kernel, sensor_space_desired_kernel
 from .strategies import Feedback
 
 __all__ = ["COMPILE_PREPARE", "CompiledPrepare", "prepare_kernel"]
@@ -43,15 +43,19 @@ _V, _M, _I, _IM = "float64[:]", "float64[:, :]", "int64[:]", "int64[:, :]"
 _SIGNATURE = "(" + ", ".join((
     _M, _V, _I,                          # io, constants, modes (CompiledPrepare.prepare)
     _M, _IM, _V, _I, _M,                 # the machine's bars, the solver's pairs and sides, columns, the Gough's bars
-    _M, _I, _M, _M,                      # the Gough check's state and counts, the innovation test's, the reference
+    _M, _I, _M, _M, _V, _M,              # the Gough check's state and counts, the innovation test's, the reference,
+                                         # the cycle's sensor-space inputs (CYCLE_*) and J_h, written
     _F, _F, _T, _T, _T, _R,              # tau, dt, the last pose, the last cycle's Gough pose, the plate's estimate
     _B, _B, _B, _B, _B)) + ")"           # has_applied, pending, gough_first, second, at_estimate
 
 # CompiledPrepare's constants: the indices of its floats, then md, k, dg (n each)
-C_SIDE, C_MISMATCH_N, C_GOUGH_M, C_JUMP_M, C_FREEZE_M, C_MASS, C_P_WB, C_R_BW, C_R_TP, C_P_TP, C_DRIVES = (
-    0, 1, 2, 3, 4, 5, 11, 14, 23, 32, 35)
-# ... and its modes
+C_SIDE, C_MISMATCH_N, C_GOUGH_M, C_JUMP_M, C_FREEZE_M, C_MASS, C_P_WB, C_R_BW, C_R_TP, C_P_TP, C_R_WB, C_DRIVES = (
+    0, 1, 2, 3, 4, 5, 11, 14, 23, 32, 35, 44)
+# ... its modes
 M_SPHERES, M_MONITOR, M_DESIRED, M_PLANAR, M_REDUNDANT, M_LEGS = range(6)
+# ... and the sensor-space inputs of a cycle, kept for complete_kernel: x_d, v_d, a_d, v, A (row-major), H,
+# p_bp, R_bp, R_t, l_des, dt
+X_D, V_D, A_D, V, A, H, P_BP, R_BP, R_T, L_DES, DT, CYCLE_SIZE = 0, 3, 6, 9, 12, 21, 24, 27, 36, 45, 51, 52
 
 
 @kernel()
@@ -75,8 +79,8 @@ def _tuple9(c, i):
 
 @kernel(_SIGNATURE)
 def prepare_kernel(io, constants, modes, bars, pairs, sides, columns, gough_bars, gough_state, over, monitor_state,
-                   table, tau, dt, guess, pending_x, p_at, r_at, has_applied, pending, gough_first, second,
-                   at_estimate):
+                   table, cycle, cycle_j_h, tau, dt, guess, pending_x, p_at, r_at, has_applied, pending, gough_first,
+                   second, at_estimate):
     """ControllerCore.prepare of a usual cycle (module doc), in its order: the state's
     values finite (supervisor.check_state; ``io`` its rows q, qdot, applied, then the
     last command and the last cycle's q), the last cycle's readings against the Gough
@@ -85,9 +89,9 @@ def prepare_kernel(io, constants, modes, bars, pairs, sides, columns, gough_bars
     supervision (a force off its command: not usual), the reference at ``tau``
     (sample_reference_kernel), the innovation test (innovation_kernel) and l_des and
     J_h (sensor_space_desired_kernel at the tool pose of x_d), each where ``modes``
-    has it. Returns (PREPARED or INTERPRETED, the pose, J_m, v, A, H, x_d, v_d, a_d,
-    whether the Gough judged, p_bp, R_bp, l_des, J_h, R_t); the state arrays written
-    only when PREPARED."""
+    has it; then what complete_kernel takes of the cycle into ``cycle`` and
+    ``cycle_j_h``. Returns (PREPARED or INTERPRETED, the pose, J_m, v, A, H, x_d, v_d,
+    a_d, whether the Gough judged); the state arrays written only when PREPARED."""
     n = io.shape[1]
     q, qdot, applied, commanded, pending_q = io[0], io[1], io[2], io[3], io[4]
     c = constants
@@ -99,9 +103,6 @@ def prepare_kernel(io, constants, modes, bars, pairs, sides, columns, gough_bars
     a_rows = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     x_d, v_d, a_d = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     judged = False
-    identity = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-    p_bp, r_bp, r_t = (0.0, 0.0, 0.0), identity, identity
-    l_des, j_h = np.empty(0), np.empty((0, 0))
     no_skip = np.zeros(n, dtype=np.bool_)         # every drive judged: a usual cycle drops none
     gs, g_over, ms = gough_state.copy(), over.copy(), monitor_state.copy()     # worked on in copies
     usual = _finite_sum(q) and _finite_sum(qdot) and (not has_applied or _finite_sum(applied))
@@ -140,13 +141,41 @@ def prepare_kernel(io, constants, modes, bars, pairs, sides, columns, gough_bars
         p_bp, r_bp, l_des, j_h = sensor_space_desired_kernel(
             gough_bars, p_t, r_t, _tuple3(c, C_P_WB), _tuple9(c, C_R_BW), _tuple9(c, C_R_TP), _tuple3(c, C_P_TP),
             p_at, r_at, at_estimate)
+        for i, values in ((X_D, x_d), (V_D, v_d), (A_D, a_d), (V, v), (H, h), (P_BP, p_bp)):
+            for j in range(3):
+                cycle[i + j] = values[j]
+        for i, values in ((R_BP, r_bp), (R_T, r_t)):
+            for j in range(9):
+                cycle[i + j] = values[j]
+        for i in range(3):
+            for j in range(3):
+                cycle[A + 3 * i + j] = a_rows[i][j]
+        cycle[L_DES:L_DES + 6] = l_des
+        cycle[DT] = dt
+        cycle_j_h[:, :] = j_h
     if usual:
         code = PREPARED
         gough_state[:, :], over[:], monitor_state[:, :] = gs, g_over, ms
-    return code, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged, p_bp, r_bp, l_des, j_h, r_t
+    return code, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged
+
+
+@kernel(f"(float64[:], float64[:, :], float64[:], float64[:, :], float64[:], float64[:], UniTuple(float64, 3), "
+        f"boolean, {CONFIGURATION_TYPES})")
+def complete_kernel(cycle, j_h, q, rows, lengths, constants, integral, integrate, boxes, gains, settings, modes):
+    """sensor_space_command_kernel on a cycle prepare_kernel prepared (its inputs in
+    ``cycle`` and ``j_h``), the readings ``lengths`` and the law's state and settings:
+    ThreeAxis.sensor_space without its inputs made into Python objects and back."""
+    c = cycle
+    model = (((c[A], c[A + 1], c[A + 2]), (c[A + 3], c[A + 4], c[A + 5]), (c[A + 6], c[A + 7], c[A + 8])),
+             _tuple3(c, H))
+    return sensor_space_command_kernel(j_h, c[L_DES:L_DES + 6], lengths, _tuple3(c, P_BP), _tuple9(c, R_BP),
+                                       _tuple9(constants, C_R_WB), _tuple3(constants, C_P_TP), _tuple9(c, R_T),
+                                       _tuple3(c, X_D), q, rows, _tuple3(c, V_D), _tuple3(c, V), _tuple3(c, A_D),
+                                       model, integral, integrate, c[DT], boxes, gains, settings, modes)
 
 
 _prepare = direct_call(prepare_kernel)      # CompiledPrepare.prepare makes each argument with its declared type
+_complete = direct_call(complete_kernel)    # CompiledPrepare.sensor_space makes each argument with its declared type
 
 _NO_ESTIMATE = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
 _NO_POSE = (0.0, 0.0, 0.0)
@@ -166,9 +195,11 @@ class CompiledPrepare:
         checks, c, n = core.encoder_checks, core.config, core.n
         self.gough, self.monitor = checks.gough_check, checks.encoders
         self.desired = core.strategy.feedback == Feedback.STRUTS
-        self.gough_bars, plate = np.zeros((0, 6)), (_NO_POSE, _NO_ESTIMATE[1], _NO_ESTIMATE[1], _NO_POSE)
+        self.gough_bars, plate = np.zeros((0, 6)), (_NO_POSE, _NO_ESTIMATE[1], _NO_ESTIMATE[1], _NO_POSE,
+                                                    _NO_ESTIMATE[1])
         if self.desired:
-            self.gough_bars, *plate = core.metrology.kernel_constants()
+            self.gough_bars, *plate, _ = core.metrology.kernel_constants()      # (p_tp once)
+        self.cycle, self.cycle_j_h = np.zeros(CYCLE_SIZE), np.zeros((6, 6))
         monitor = self.monitor
         self.constants = np.array([
             side, c.drive_mismatch_n, self.gough.jump_m if self.gough is not None else 0.0,
@@ -224,12 +255,13 @@ class CompiledPrepare:
         estimate = core.metrology.estimate if self.desired and core.metrology.at_estimate else None
         p_at, r_at = _NO_ESTIMATE if estimate is None else estimate
         out = _prepare(io, self.constants, self.modes, self.bars, self.pairs, self.sides, self.columns,
-                       self.gough_bars, gough_state, over, monitor_state, reference.table, tau, float(dt),
+                       self.gough_bars, gough_state, over, monitor_state, reference.table, self.cycle,
+                       self.cycle_j_h, tau, float(dt),
                        (float(guess[0]), float(guess[1]), float(guess[2])), pending_x, p_at, r_at, has_applied,
                        pending is not None, gough is not None and gough.cycles == 0, second, estimate is not None)
         if out[0] != PREPARED:
             return None
-        _, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged, p_bp, r_bp, l_des, j_h, r_t = out
+        _, pose, rows, v, a_rows, h, x_d, v_d, a_d, judged = out
         # a usual cycle: what the interpreted path keeps of it
         core.last_stamp_ns, core.last_time_s = stamp_ns, t_s
         pose, q_array = list(pose), io[0]
@@ -242,9 +274,21 @@ class CompiledPrepare:
             gough.cycles += judged
         if monitor is not None:
             monitor.second, monitor.last_dt = True, dt
-        if self.desired:
-            core.metrology.keep_prepared(p_bp, r_bp, l_des, j_h, r_t)
         c = Cycle(stamp_ns, t_s, dt, False, list(q), q_array, list(qdot), pose, rows, rows, v)
         c.a_model, c.h_model, c.applied, c.held = a_rows, h, applied, False
         c.x_d, c.v_d, c.a_d = list(x_d), list(v_d), list(a_d)
+        c.compiled = self.desired          # complete() takes the sensor-space inputs from the buffers
         return c
+
+    def sensor_space(self, c: Cycle, struts) -> tuple:
+        """commands.ThreeAxis.sensor_space of a cycle ``prepare`` made (``c.compiled``),
+        by complete_kernel on what it kept: (measured, error, the outcome); the
+        feedback's estimate of the real plate kept."""
+        core = self.core
+        s = core.setup
+        real_p, real_r, measured, error, code, index, value, integral, wrench, forces, saturated, peak = _complete(
+            self.cycle, self.cycle_j_h, c.q_array, c.rows, np.asarray(struts, dtype=float), self.constants,
+            core.integral, core.record.saturated == 0, s.boxes, s.gains, s.settings, s.modes)
+        core.metrology.estimate = (real_p, real_r)
+        return measured, error, core.kernels.outcome(core, core.supervisor.active, True, code, index, value,
+                                                     integral, wrench, forces, saturated, peak)

@@ -339,7 +339,8 @@ class ControllerCore:
                 self.integral = holding_integral(self.dynamics, self.model, c.pose, self.strategy.law,
                                                  self.config.integral_time_s, sup.active, c.active_rows)
             if self.fused_struts and not c.first:     # sensor_space, 3 axes: feedback to forces in one call
-                measured, error, outcome = self.kernels.sensor_space(self, c, struts)
+                measured, error, outcome = self.compiled.sensor_space(c, struts) if c.compiled else \
+                    self.kernels.sensor_space(self, c, struts)
                 if self.encoder_checks.gough_check is not None:
                     self.encoder_checks.keep_for_gough(c.q_array, measured, c.suspect)
                 return self._cartesian_outcome(c, measured, error, outcome)

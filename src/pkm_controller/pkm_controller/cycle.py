@@ -42,7 +42,7 @@ class Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
     __slots__ = ("stamp_ns", "t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model", "applied", "suspect", "held")
+                 "a_d", "a_model", "h_model", "applied", "suspect", "held", "compiled")
 
     def __init__(self, stamp_ns, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
         self.stamp_ns = stamp_ns   # the state's stamp (int ns): the key of the cycle's answer
@@ -53,6 +53,7 @@ class Cycle:
         self.x_d = self.v_d = self.a_d = self.a_model = self.h_model = None
         self.suspect = None        # (drive, what, size) the innovation test names, for the Gough to judge
         self.held = False          # the plant applied an older setpoint again in this period
+        self.compiled = False      # prepared by compiled_prepare: its sensor-space inputs are in its buffers
 
 
 class AnswerLog:

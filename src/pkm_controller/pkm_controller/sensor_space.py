@@ -66,14 +66,10 @@ class SensorSpaceFeedback:
         self._desired = (p_bp, r_bp, l_des, j_h, t)
 
     def kernel_constants(self) -> tuple:
-        """What sensor_space_desired_kernel takes of the sensor before the tool pose:
-        (the Gough's bars, then the mounting: p_wb, R_wb^T, R_tp, p_tp)."""
-        return (self._bars, *self._plate)
-
-    def keep_prepared(self, p_bp, r_bp, l_des, j_h, r_t) -> None:
-        """What ``prepare`` computes, computed by a compiled caller
-        (compiled_prepare.prepare_kernel) for the tool rotation ``r_t``."""
-        self._desired = (p_bp, r_bp, l_des, j_h, r_t)
+        """What sensor_space_desired_kernel takes of the sensor before the tool pose
+        (the Gough's bars, then the mounting: p_wb, R_wb^T, R_tp, p_tp), then what
+        sensor_space_command_kernel takes of it (R_wb, p_tp)."""
+        return (self._bars, *self._plate, self._r_wb, self._p_tp)
 
     def error_from(self, lengths) -> list:
         """The task-space error x_des - x_real for the readings ``lengths`` (6, m), at
