@@ -41,8 +41,8 @@ class CycleRecord:
 class Cycle:
     """What ``prepare`` computed for the cycle ``complete`` finishes."""
 
-    __slots__ = ("stamp_ns", "t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v", "x_d", "v_d",
-                 "a_d", "a_model", "h_model", "applied", "suspect", "held", "compiled")
+    __slots__ = ("stamp_ns", "t_s", "dt", "first", "q", "q_array", "qdot", "pose", "rows", "active_rows", "v",
+                 "x_d", "v_d", "a_d", "a_model", "h_model", "applied", "suspect", "held", "compiled")
 
     def __init__(self, stamp_ns, t_s, dt, first, q, q_array, qdot, pose, rows, active_rows, v):
         self.stamp_ns = stamp_ns   # the state's stamp (int ns): the key of the cycle's answer
