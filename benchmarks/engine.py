@@ -50,6 +50,7 @@ def shares(scenario: str, duration_s: float, tmp: Path) -> tuple[dict, float, in
     from pkm_bringup.orchestrator import make_run_dir
     from pkm_bringup.scenario import load_scenario, node_parameters
     from pkm_common.credential import KEY_FILE, RunKey
+    from pkm_common.runner import start_up_frozen
     s = load_scenario(scenario, {"duration_s": duration_s})
     run_dir = make_run_dir(s, tmp)
     for sub in ("params", "logs", "summaries"):
@@ -72,7 +73,8 @@ def shares(scenario: str, duration_s: float, tmp: Path) -> tuple[dict, float, in
         topic.readers = [timed(r) for r in topic.readers]
     start = time.perf_counter()
     try:
-        run.run(Progress(duration_s, enabled=False), time.monotonic() + 600)
+        with start_up_frozen(collect=False):           # as run_direct runs the loop
+            run.run(Progress(duration_s, enabled=False), time.monotonic() + 600)
     finally:
         wall = time.perf_counter() - start
         run.close()

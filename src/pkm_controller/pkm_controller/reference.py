@@ -133,8 +133,9 @@ def check_consistent(reference: Reference) -> None:
     that jump while the velocities say still) otherwise ran into a following-error or
     encoder trip that named something else. Raises ValueError naming the point and
     axis."""
-    t = np.asarray(reference.time_s)
-    x, v, a = (np.asarray(arr) for arr in (reference.position, reference.velocity, reference.acceleration))
+    table = reference.table                  # the same floats as the lists, already an array
+    d = (table.shape[1] - 1) // 3
+    t, x, v, a = table[:, 0], table[:, 1:1 + d], table[:, 1 + d:1 + 2 * d], table[:, 1 + 2 * d:]
     for k, where in ((0, "starts"), (len(t) - 1, "ends")):
         i = int(np.argmax(np.abs(v[k])))
         if abs(v[k, i]) > REST_TOLERANCE:
