@@ -52,7 +52,8 @@ from pkm_kinematics.task_space import POSITION, TaskSpace, load_components
 from pkm_kinematics.validation import finite_floats
 
 from .drives import Encoders, applied_forces, take_commands
-from .rail_step import STEP_OK, rail_dynamics_step, rail_outputs
+from .rail_step import (IN_FRAME_LOAD, IN_LOAD, IN_SIZE, IN_V, IN_X, K_DRIVES, OUT_DRIVES, OUT_TOOL, OUT_V,
+                        OUT_X, STEP_OK, rail_step)
 from .structure import deflected
 
 _deflected = deflected.py_func
@@ -465,40 +466,39 @@ class _CompiledStep:
     def __init__(self, plant: Plant):
         n, p = plant.n, plant.params
         self.plant = plant
-        self.args = plant.dynamics.step_arguments()
-        self.h, self.substeps, self.limit = p.dt_s / p.substeps, int(p.substeps), float(p.force_limit_n)
-        self.lower, self.upper = np.array(plant._lower, dtype=float), np.array(plant._upper, dtype=float)
-        self.compliance = np.array(p.compliance, dtype=float)
-        self.frame_compliance = np.array(p.frame_compliance, dtype=float)
-        self.cmd, self.state, self.load, self.frame_load = np.empty(n), np.empty(6), np.empty(3), np.empty(3)
-        self.applied, self.saturated = np.empty(n), np.zeros(n, dtype=bool)
-        self.q, self.rows = np.empty(n), np.empty((n, 3))
-        self.reading, self.velocity, self.tool, self.fint = np.empty(n), np.empty(n), np.empty(3), np.empty(n)
+        self.bars, self.columns, md, k, dg, *mass = plant.dynamics.step_arguments()
+        self.constants = np.array([p.force_limit_n, p.dt_s / p.substeps, int(p.substeps), *mass, *p.compliance,
+                                   *p.frame_compliance, *md, *k, *dg, *plant._lower, *plant._upper], dtype=float)
+        assert len(self.constants) == K_DRIVES + 5 * n
+        self.cmd, self.inputs, self.out = np.empty(n), np.empty(IN_SIZE), np.empty(OUT_DRIVES + 5 * n)
+        self.rows, self.saturated = np.empty((n, 3)), np.zeros(n, dtype=bool)
+        self.encoder, self.encoder_args = np.empty(3), None
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
         if not take_commands(cmd, forces):
             return None                              # refused by the interpreted step, naming it, nothing changed
         plant._apply_schedules()
-        state, load, frame_load = self.state, self.load, self.frame_load
-        state[:3], state[3:] = plant.x, plant.v
-        load[:], frame_load[:] = plant.load, plant.frame_load
-        if rail_dynamics_step(cmd, self.limit, state, load, self.h, self.substeps, *self.args, self.lower,
-                              self.upper, self.applied, self.saturated, self.q, self.rows,
-                              self.fint) != STEP_OK:
-            return None
+        inputs, out, n = self.inputs, self.out, plant.n
+        inputs[IN_X:IN_X + 3], inputs[IN_V:IN_V + 3] = plant.x, plant.v
+        inputs[IN_LOAD:IN_LOAD + 3], inputs[IN_FRAME_LOAD:IN_FRAME_LOAD + 3] = plant.load, plant.frame_load
         enc = plant.encoders
-        resolution, offsets, screw_errors, wavenumber = enc.kernel_arguments()
-        norm = rail_outputs(self.q, self.fint, resolution, offsets, screw_errors, wavenumber,
-                            enc.noise(plant.n), enc.last_array(), enc.dt_s, state, load, frame_load,
-                            self.compliance, self.frame_compliance, self.reading, self.velocity, self.tool)
-        plant.x, plant.v = state[:3].tolist(), state[3:].tolist()
+        encoder_args = enc.kernel_arguments()       # the same tuple until homing changes them
+        if encoder_args is not self.encoder_args:
+            self.encoder_args = encoder_args
+            self.encoder[:] = (encoder_args[0], encoder_args[3], enc.dt_s)
+        code, norm = rail_step(cmd, inputs, self.constants, self.bars, self.columns, self.encoder, encoder_args[1],
+                               encoder_args[2], enc.noise(n), enc.last_array(), out, self.rows, self.saturated)
+        if code != STEP_OK:
+            return None
+        plant.x, plant.v = out[OUT_X:OUT_X + 3].tolist(), out[OUT_V:OUT_V + 3].tolist()
         plant.t += plant.params.dt_s
         plant.k += 1
-        reading = enc.keep(self.reading)
-        plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, self.velocity.tolist(),
-                                  self.applied.tolist(), self.saturated.tolist(), self.tool.tolist(), list(plant.x),
-                                  self.fint.tolist(), norm, [], plant.stopped, None)
+        drives = out[OUT_DRIVES:]
+        reading = enc.keep(drives[3 * n:4 * n])
+        plant._last = PlantOutput(plant.t, plant.k, plant.k * plant.dt_ns, reading, drives[4 * n:].tolist(),
+                                  drives[:n].tolist(), self.saturated.tolist(), out[OUT_TOOL:OUT_TOOL + 3].tolist(),
+                                  list(plant.x), drives[2 * n:3 * n].tolist(), norm, [], plant.stopped, None)
         return plant._last
 
 

@@ -85,5 +85,43 @@ def rail_outputs_kernel(q, internal, resolution, offsets, screw_errors, wavenumb
     return math.sqrt(norm)
 
 
-rail_dynamics_step = direct_call(rail_dynamics_step_kernel)
-rail_outputs = direct_call(rail_outputs_kernel)
+# rail_step_kernel's packed arguments: its inputs (x, v, the load, the frame's load) ...
+IN_X, IN_V, IN_LOAD, IN_FRAME_LOAD, IN_SIZE = 0, 3, 6, 9, 12
+# ... its constants, then md, k, dg, the end stops' lower and upper (n each) ...
+K_LIMIT, K_H, K_SUBSTEPS, K_MASS, K_COMPLIANCE, K_FRAME_COMPLIANCE, K_DRIVES = 0, 1, 2, 3, 9, 12, 15
+# ... the encoders' (resolution, screw wavenumber, dt), and its outputs: x, v, the tool, then
+# the applied forces, q, the internal force, the reading and the velocity (n each)
+E_RESOLUTION, E_WAVENUMBER, E_DT = 0, 1, 2
+OUT_X, OUT_V, OUT_TOOL, OUT_DRIVES = 0, 3, 6, 9
+
+
+@kernel("(float64[::1], float64[::1], float64[::1], float64[:, :], int64[:], float64[::1], float64[::1], "
+        "float64[::1], float64[::1], float64[::1], float64[::1], float64[:, ::1], boolean[::1])")
+def rail_step_kernel(commanded, inputs, constants, bars, columns, encoder, offsets, screw_errors, noise,
+                     last_reading, out, rows, saturated):
+    """:func:`rail_dynamics_step_kernel` then :func:`rail_outputs_kernel` in one call,
+    their arguments packed (the module's IN_, K_, E_ and OUT_ indices): fewer to
+    convert per step. Returns (STEP_OK or STEP_NOT_TAKEN, |internal|)."""
+    n = commanded.shape[0]
+    c = constants
+    drives = c[K_DRIVES:]
+    md, k, dg, lower, upper = drives[:n], drives[n:2 * n], drives[2 * n:3 * n], drives[3 * n:4 * n], drives[4 * n:]
+    state = out[OUT_X:OUT_X + 6]
+    state[:] = inputs[IN_X:IN_X + 6]
+    load, frame_load = inputs[IN_LOAD:IN_LOAD + 3], inputs[IN_FRAME_LOAD:IN_FRAME_LOAD + 3]
+    outs = out[OUT_DRIVES:]
+    applied, q, internal = outs[:n], outs[n:2 * n], outs[2 * n:3 * n]
+    reading, velocity = outs[3 * n:4 * n], outs[4 * n:]
+    code = rail_dynamics_step_kernel(commanded, c[K_LIMIT], state, load, c[K_H], int(c[K_SUBSTEPS]), bars, columns,
+                                     md, k, dg, c[K_MASS], c[K_MASS + 1], c[K_MASS + 2], c[K_MASS + 3], c[K_MASS + 4],
+                                     c[K_MASS + 5], lower, upper, applied, saturated, q, rows, internal)
+    if code != STEP_OK:
+        return code, 0.0
+    norm = rail_outputs_kernel(q, internal, encoder[E_RESOLUTION], offsets, screw_errors, encoder[E_WAVENUMBER], noise,
+                               last_reading, encoder[E_DT], state, load, frame_load,
+                               c[K_COMPLIANCE:K_COMPLIANCE + 3], c[K_FRAME_COMPLIANCE:K_FRAME_COMPLIANCE + 3],
+                               reading, velocity, out[OUT_TOOL:OUT_TOOL + 3])
+    return STEP_OK, norm
+
+
+rail_step = direct_call(rail_step_kernel)       # _CompiledStep makes each argument with its declared type
