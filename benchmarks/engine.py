@@ -32,25 +32,51 @@ import time
 from pathlib import Path
 
 
+ONE_RUN = """
+import json, sys
+from pathlib import Path
+from pkm_bringup.processes import use_ros_environment
+use_ros_environment()
+from pkm_bringup.orchestrator import run_scenario
+from pkm_bringup.scenario import load_scenario
+scenario, duration_s, engine, in_process, run_dir = sys.argv[1], float(sys.argv[2]), *sys.argv[3:6]
+in_process = in_process == "1"
+s = load_scenario(scenario, {"duration_s": duration_s})
+run = run_scenario(s, Path(run_dir), in_process=in_process, progress=False, report=False, engine=engine)
+print(json.dumps({"status": run["status"], "error": run.get("error", ""),
+                  "steps_per_s": run["summaries"].get(s.machine_node, {}).get("steps_per_s")}))
+"""
+
+
 def one_run(scenario: str, duration_s: float, engine: str, in_process: bool, tmp: Path, index: int) -> float:
-    from pkm_bringup.orchestrator import run_scenario
-    from pkm_bringup.scenario import load_scenario
-    s = load_scenario(scenario, {"duration_s": duration_s})
-    run = run_scenario(s, tmp / f"{engine}-{in_process}-{index}", in_process=in_process, progress=False,
-                       report=False, engine=engine)
-    if run["status"] != "completed":
+    """Steps per second of one run in a process of its own, as ``pkm-run`` runs it (a run in
+    the benchmark's process met the threads an earlier in-process graph left behind)."""
+    import json
+    import subprocess
+    run_dir = tmp / f"{engine}-{in_process}-{index}"
+    arguments = [scenario, str(duration_s), engine, "1" if in_process else "0", str(run_dir)]
+    done = subprocess.run([sys.executable, "-c", ONE_RUN, *arguments], capture_output=True, text=True, timeout=600)
+    lines = done.stdout.strip().splitlines()
+    failed = {"status": "failed", "error": done.stderr[-2000:]}
+    run = json.loads(lines[-1]) if done.returncode == 0 and lines else failed
+    if run["status"] != "completed" or run["steps_per_s"] is None:
         raise SystemExit(f"{scenario} ({engine}, in_process={in_process}): {run['status']}: {run['error']}")
-    return float(run["summaries"][s.machine_node]["steps_per_s"])
+    return float(run["steps_per_s"])
 
 
 def shares(scenario: str, duration_s: float, tmp: Path) -> tuple[dict, float, int]:
     """Seconds per part of a direct run, its loop's wall time and its steps."""
     from pkm_bringup.direct import DirectRun
     from pkm_bringup.graph import Progress
-    from pkm_bringup.orchestrator import make_run_dir
+    from pkm_bringup.orchestrator import make_run_dir, run_scenario
     from pkm_bringup.scenario import load_scenario, node_parameters
     from pkm_common.credential import KEY_FILE, RunKey
     from pkm_common.runner import start_up_frozen
+    # a short run first: a process's first run loads the compiled kernels and makes its first messages
+    one = tmp / "warm-up"
+    one.mkdir()
+    run_scenario(load_scenario(scenario, {"duration_s": 0.1, "record": False}), one, progress=False, report=False,
+                 engine="direct")
     s = load_scenario(scenario, {"duration_s": duration_s})
     run_dir = make_run_dir(s, tmp)
     for sub in ("params", "logs", "summaries"):
