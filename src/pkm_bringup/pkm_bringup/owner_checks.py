@@ -21,6 +21,7 @@ from pkm_drives.drive_config import drive_settings
 from pkm_drives.virtual_drive import DEFAULT_EDS
 from pkm_gough_sensor.laser import LaserTracker
 from pkm_gough_sensor.metrology import GoughSensorModel
+from pkm_kinematics.config import load_machine
 from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.homing import homing_plan
 from pkm_sim_hw.plant import Fault, PlantParameters, check_load
@@ -29,9 +30,26 @@ from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
 __all__ = ["OWNER_CHECKS"]
 
 
+# (MachineConfig, repr of a ControllerConfig) of the last controllers made without a
+# refusal: a study's runs check the same controller again and again (a core each, ~1 ms)
+_CONTROLLERS_MADE: list = []
+CONTROLLERS_KEPT = 8
+
+
 def check_controller(p: dict, config) -> None:
     known = {f.name for f in fields(ControllerConfig)}
-    core_from_parameters(p["machine"], ControllerConfig.from_dict({k: v for k, v in p.items() if k in known}))
+    controller = ControllerConfig.from_dict({k: v for k, v in p.items() if k in known})
+    try:
+        machine = load_machine(p["machine"])     # the same object while the file is unchanged
+    except ValueError:
+        machine = None                           # core_from_parameters names it
+    key = repr(controller)
+    if machine is not None and any(m is machine and k == key for m, k in _CONTROLLERS_MADE):
+        return
+    core_from_parameters(p["machine"], controller)
+    if machine is not None:
+        _CONTROLLERS_MADE.append((machine, key))
+        del _CONTROLLERS_MADE[:-CONTROLLERS_KEPT]
 
 
 def check_plant(p: dict, config) -> None:
