@@ -37,8 +37,11 @@ def test_a_forked_node_stays_in_its_own_session_with_the_environment_given(tmp_p
             time.sleep(0.02)
         pid = node_pids(tmp_path)["trajectory"]
         assert pid == node.popen.pid
-        assert os.getsid(pid) == pid
+        # named before its log exists (found named); its own session right after the log
         assert Path(f"/proc/{pid}/comm").read_text().strip() == "pkm:trajectory"
+        while os.getsid(pid) != pid and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert os.getsid(pid) == pid, (os.getsid(pid), pid)
         # the server, in a session of its own, ignores what is meant for pkm-run; the node does not
         server = _parent(pid)
         assert os.getsid(server) == server != os.getsid(0)

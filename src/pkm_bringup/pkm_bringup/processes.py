@@ -187,14 +187,16 @@ def _without_main_module():
 def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Scheduling | None) -> None:
     """A node in the child the node server forked (start_node): the default
     dispositions of the signals the server ignores (node_server_init; first, or its
-    death signal would be ignored too), its parent's death, its log (what fails after
-    it is said there), its session, its policy, its environment, then the module's
-    ``main`` with the node's arguments."""
+    death signal would be ignored too), its parent's death, its name, its log (what
+    fails after it is said there), its session, its policy, its environment, then the
+    module's ``main`` with the node's arguments."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     for sig in IGNORED_BY_THE_SERVER:
         if sig != signal.SIGINT:
             signal.signal(sig, signal.SIG_DFL)
     die_with_parent_checked()
+    if _PRCTL is not None:                  # ps and top name the node (the command line is the server's);
+        _PRCTL(_PR_SET_NAME, f"pkm:{name}"[:15].encode())    # before its log, by which node_pids finds it
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
@@ -203,8 +205,6 @@ def run_forked(name: str, argv: list, env: dict, log: str, scheduling: Schedulin
     sys.stderr = open(2, "w", buffering=1, encoding="utf-8", closefd=False)   # noqa: SIM115
     os.setsid()
     _let_the_server_end()
-    if _PRCTL is not None:                  # ps and top name the node (the command line is the server's)
-        _PRCTL(_PR_SET_NAME, f"pkm:{name}"[:15].encode())
     if scheduling is not None:
         preexec(scheduling)()
     os.environ.clear()
