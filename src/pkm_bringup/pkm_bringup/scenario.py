@@ -227,8 +227,7 @@ def _parameter_defaults(node: str) -> dict:
     only: the parsed file itself, not a copy (a study's run asked for them ~40 times)."""
     if node == "controller":
         return {**{f.name: f.default for f in fields(ControllerConfig)}, **NODE_PARAMETERS}
-    path = config_dir() / f"{node}.yaml"
-    return _ros_parameters(str(path), path.stat().st_mtime_ns) if path.is_file() else {}
+    return _parsed_defaults(node)
 
 
 def node_parameter_names(node: str) -> set[str]:
@@ -521,10 +520,13 @@ def _machine(machine: str):
 def _node_defaults(name: str) -> dict:
     """The ros__parameters of config/<name>.yaml (empty if there is none); a copy the
     caller may change."""
+    return copy.deepcopy(_parsed_defaults(name))
+
+
+def _parsed_defaults(name: str) -> dict:
+    """The same, not copied: to read only."""
     path = config_dir() / f"{name}.yaml"
-    if not path.is_file():
-        return {}
-    return copy.deepcopy(_ros_parameters(str(path), path.stat().st_mtime_ns))
+    return _ros_parameters(str(path), path.stat().st_mtime_ns) if path.is_file() else {}
 
 
 @functools.lru_cache(maxsize=64)

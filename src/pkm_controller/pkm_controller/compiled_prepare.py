@@ -190,15 +190,17 @@ class CompiledPrepare:
     is reset or its settings change."""
 
     def __init__(self, core, encoder_inputs: tuple):
-        (spheres, fk_bars, self.pairs, self.sides, side), (self.columns, md, k, dg, *mass) = encoder_inputs
-        self.core, self.n, self.bars = core, core.n, core.model.bars
+        # the forward solver's bars are the machine's own (DynamicModel.encoder_state_inputs), which the
+        # Gough cross-check takes too
+        (spheres, self.bars, self.pairs, self.sides, side), (self.columns, md, k, dg, *mass) = encoder_inputs
+        self.core, self.n = core, core.n
         checks, c, n = core.encoder_checks, core.config, core.n
         self.gough, self.monitor = checks.gough_check, checks.encoders
         self.desired = core.strategy.feedback == Feedback.STRUTS
         self.gough_bars, plate = np.zeros((0, 6)), (_NO_POSE, _NO_ESTIMATE[1], _NO_ESTIMATE[1], _NO_POSE,
                                                     _NO_ESTIMATE[1])
         if self.desired:
-            self.gough_bars, *plate, _ = core.metrology.kernel_constants()      # (p_tp once)
+            self.gough_bars, *plate = core.metrology.kernel_constants()
         self.cycle, self.cycle_j_h = np.zeros(CYCLE_SIZE), np.zeros((6, 6))
         monitor = self.monitor
         self.constants = np.array([

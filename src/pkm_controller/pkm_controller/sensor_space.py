@@ -67,9 +67,9 @@ class SensorSpaceFeedback:
 
     def kernel_constants(self) -> tuple:
         """What sensor_space_desired_kernel takes of the sensor before the tool pose
-        (the Gough's bars, then the mounting: p_wb, R_wb^T, R_tp, p_tp), then what
-        sensor_space_command_kernel takes of it (R_wb, p_tp)."""
-        return (self._bars, *self._plate, self._r_wb, self._p_tp)
+        (the Gough's bars, then the mounting: p_wb, R_wb^T, R_tp, p_tp), then R_wb,
+        which sensor_space_command_kernel takes besides p_tp."""
+        return (self._bars, *self._plate, self._r_wb)
 
     def error_from(self, lengths) -> list:
         """The task-space error x_des - x_real for the readings ``lengths`` (6, m), at
