@@ -473,6 +473,7 @@ class _CompiledStep:
         self.cmd, self.inputs, self.out = np.empty(n), np.empty(IN_SIZE), np.empty(OUT_DRIVES + 5 * n)
         self.rows, self.saturated = np.empty((n, 3)), np.zeros(n, dtype=bool)
         self.encoder, self.encoder_args = np.empty(3), None
+        self.made, self.loads = (None, None), (None, None)      # what step() copied from and made (step)
 
     def step(self, forces) -> PlantOutput | None:
         plant, cmd = self.plant, self.cmd
@@ -480,8 +481,16 @@ class _CompiledStep:
             return None                              # refused by the interpreted step, naming it, nothing changed
         plant._apply_schedules()
         inputs, out, n = self.inputs, self.out, plant.n
-        inputs[IN_X:IN_X + 3], inputs[IN_V:IN_V + 3] = plant.x, plant.v
-        inputs[IN_LOAD:IN_LOAD + 3], inputs[IN_FRAME_LOAD:IN_FRAME_LOAD + 3] = plant.load, plant.frame_load
+        # the state and the loads copied in when they are not the lists this step made
+        # last (or set once): the values in ``out`` and ``inputs`` already
+        x, v, load, frame_load = plant.x, plant.v, plant.load, plant.frame_load
+        if x is self.made[0] and v is self.made[1]:
+            inputs[IN_X:IN_X + 6] = out[OUT_X:OUT_X + 6]
+        else:
+            inputs[IN_X:IN_X + 3], inputs[IN_V:IN_V + 3] = x, v
+        if load is not self.loads[0] or frame_load is not self.loads[1]:
+            inputs[IN_LOAD:IN_LOAD + 3], inputs[IN_FRAME_LOAD:IN_FRAME_LOAD + 3] = load, frame_load
+            self.loads = (load, frame_load)
         enc = plant.encoders
         encoder_args = enc.kernel_arguments()       # the same tuple until homing changes them
         if encoder_args is not self.encoder_args:
@@ -490,8 +499,9 @@ class _CompiledStep:
         code, norm = rail_step(cmd, inputs, self.constants, self.bars, self.columns, self.encoder, encoder_args[1],
                                encoder_args[2], enc.noise(n), enc.last_array(), out, self.rows, self.saturated)
         if code != STEP_OK:
+            self.made = (None, None)                 # ``out`` may be written in part
             return None
-        plant.x, plant.v = out[OUT_X:OUT_X + 3].tolist(), out[OUT_V:OUT_V + 3].tolist()
+        plant.x, plant.v = self.made = out[OUT_X:OUT_X + 3].tolist(), out[OUT_V:OUT_V + 3].tolist()
         plant.t += plant.params.dt_s
         plant.k += 1
         drives = out[OUT_DRIVES:]
