@@ -76,6 +76,45 @@ def test_a_refused_scenario_starts_nothing(tmp_path):
     assert "operators ['/pkm/my_script']" in refusal(named) and "run it as a graph" in refusal(named)
 
 
+@pytest.mark.parametrize("name, overrides, reads_pose", [
+    ("archi_demo", {}, False), ("hexapod_metrology", {"controller": {"strategy": "measured_space"}}, True)])
+def test_a_run_without_a_recording_makes_no_message_nobody_reads(name, overrides, reads_pose, tmp_path):
+    """Unrecorded, the direct engine makes no /clock, no controller/reference, and no
+    Gough DKM pose unless the controller feeds it back (measured_space does,
+    archi_demo's sensor_space reads the struts): the same run
+    all the same, every cycle's statistics in the controller's summary and the plant's
+    last state."""
+    import pkm_sim_hw.step_streams as step_streams
+    made = {"clock": 0}
+    real_encode_clock = step_streams.encode_clock
+
+    def counted(ns):
+        made["clock"] += 1
+        return real_encode_clock(ns)
+    runs = {}
+    for record in (True, False):
+        step_streams.encode_clock = counted
+        try:
+            runs[record] = run_scenario(load_scenario(name, {**overrides, "duration_s": 0.3, "record": record}),
+                                        tmp_path / str(record), engine="direct", progress=False, report=False)
+        finally:
+            step_streams.encode_clock = real_encode_clock
+        made[record], made["clock"] = made["clock"], 0
+    recorded, unrecorded = runs[True], runs[False]
+    assert recorded["status"] == unrecorded["status"] == "completed", (recorded["error"], unrecorded["error"])
+    steps = recorded["summaries"]["sim_hw"]["steps"]
+    assert made[True] >= steps and made[False] == 0, made
+    sensor, sensor_recorded = unrecorded["summaries"]["gough_sensor"], recorded["summaries"]["gough_sensor"]
+    assert sensor["measured"] == sensor_recorded["measured"] >= steps
+    assert sensor_recorded["dkm_run"] and sensor_recorded["solved"] == sensor_recorded["measured"]
+    assert sensor["dkm_run"] == reads_pose and sensor["solved"] == (sensor["measured"] if reads_pose else 0), sensor
+    volatile = ("wall", "compute", "response", "per_s")
+    for node in ("controller", "sim_hw"):
+        want = {k: v for k, v in recorded["summaries"][node].items() if not any(w in k for w in volatile)}
+        got = {k: v for k, v in unrecorded["summaries"][node].items() if not any(w in k for w in volatile)}
+        assert len(want) > 10 and got == want, (node, {k: (got.get(k), v) for k, v in want.items() if got.get(k) != v})
+
+
 @pytest.mark.parametrize("name, overrides", [
     ("archi_demo", {"duration_s": 1.5}),
     # three brakes: the plant holds, the controller trips; the record goes on

@@ -13,7 +13,10 @@ delivers them: so the run is the graph's, every command and true pose bit for bi
 What is the graph's and not here: the transport (DDS, discovery, the recorder's
 subscriptions), the wall-clock watchdogs (nothing can stall between two loops that
 call each other), the periodic diagnostics and markers (wall-clock timers), the
-nodes' logs (one file, logs/direct.log). The run directory is the same: params,
+nodes' logs (one file, logs/direct.log), and in a run without a recording the
+messages nobody reads: /clock, controller/reference, and metrology/pose unless the
+controller feeds the Gough's pose back (its DKM is then not solved: the sensor's
+summary says ``dkm_run: false``, its ``solved`` count is 0). The run directory is the same: params,
 summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
 pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it; or,
 for a study's run whose bag would be removed once read, no bag: the messages kept in
@@ -161,6 +164,11 @@ class Topic:
         self.tap = None if recorder is None else recorder.tap
         self.index = None if recorder is None else recorder.index(name, relative)
         self.clock = time.time_ns
+
+    @property
+    def unread(self) -> bool:
+        """Nothing records or reads it (once the run is wired)."""
+        return self.tap is None and not self.readers
 
     def publish(self, data: bytes) -> None:
         if self.tap is not None:
@@ -335,6 +343,7 @@ class DirectRun:
                               self.topic(topics.DRIVES_STATE), self.topic(topics.CLOCK))
         self.sim = SimLoop(settings, streams, _SimPorts(self, self.machine_node))      # (it writes its summary)
         # the instruments
+        sensor = None
         if "gough_sensor" in params:
             settings = declare_gough_sensor(ParameterValues(params["gough_sensor"]))
             sensor = GoughSensorLoop(settings.model, _SensorPorts(self, "gough_sensor"))
@@ -354,6 +363,14 @@ class DirectRun:
         metrology = self.controller.core.strategy.metrology_topic
         if metrology:
             self.topic(metrology).readers.append(self.controller.on_metrology)
+        # what nobody records or reads is not made (a run without a recording): the
+        # clock, the controller's reference, and the Gough's DKM pose unless the
+        # controller feeds it back (the struts are its readings; ~7 us of a ~60 us step)
+        if self.topic(topics.CLOCK).unread:
+            streams.clock = None
+        self.controller.publishes_reference = not self.topic(topics.CONTROLLER_REFERENCE).unread
+        if sensor is not None:
+            sensor.solves_pose = not self.topic(topics.METROLOGY_POSE).unread
 
     def topic(self, relative: str) -> Topic:
         """The run's topic of a catalogue name (made on first use)."""

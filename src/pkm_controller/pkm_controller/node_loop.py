@@ -127,6 +127,9 @@ class ControllerLoop:
         self.state_decoder = JointStateDecoder("drives/state")
         self.command_encoder = JointStateEncoder(self.names, fields=("effort",))
         self.reference_encoder = PoseStampedEncoder("world")
+        # False: a shell whose controller/reference nobody reads (a direct run without a
+        # recording, pkm_bringup.direct) has none made
+        self.publishes_reference = True
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
         operators = node_names(values["operator_sources"])
@@ -400,6 +403,8 @@ class ControllerLoop:
         self.ports.after_cycle()
 
     def publish_reference(self, stamp_ns: int) -> None:
+        if not self.publishes_reference:
+            return
         position, orientation = machine_pose_components(self.core.space, self.core.record.reference)
         self.ports.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
 

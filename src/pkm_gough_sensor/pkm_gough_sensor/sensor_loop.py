@@ -98,6 +98,10 @@ class GoughSensorLoop:
         self._pose_decoder = PoseStampedDecoder("world", "platform/true_pose")
         # the compiled reading's arrays (GoughSensorModel.measure_fields, estimate_into)
         self._fields, self._lengths, self._pose = np.empty(7), np.empty(6), np.empty(7)
+        # False: a shell whose metrology/pose nobody reads (a direct run without a
+        # recording whose controller feeds back the struts, pkm_bringup.direct): the DKM is
+        # not solved (its summary says so: dkm_run)
+        self.solves_pose = True
 
     def on_true_pose(self, buf: bytes) -> None:
         self.counts["received"] += 1
@@ -125,6 +129,8 @@ class GoughSensorLoop:
         values = lengths.tolist()
         self.ports.publish_struts(self._struts_encoder.encode(ns, position=values))
         published["metrology/struts"] += new_step
+        if not self.solves_pose:
+            return
         result = self.model.estimate_into(lengths, self._pose)
         if result is None:
             published["metrology/pose"] += new_step
@@ -138,7 +144,7 @@ class GoughSensorLoop:
                 "residual_m": result.residual_m, "lengths_m": values})
 
     def summary(self) -> dict:
-        return {**self.counts, "published": self.published}
+        return {**self.counts, "dkm_run": self.solves_pose, "published": self.published}
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,8 @@ __all__ = ["StepStreams"]
 class StepStreams:
     """Publishes a step of ``plant`` (a plant.Plant, or hardware with the same
     interface: pkm_drives.hardware) on three publishers, each with a ``publish(bytes)``
-    (the node's, tapped for the recorder; ``pose`` unused for hardware without ground truth)."""
+    (the node's, tapped for the recorder; ``pose`` unused for hardware without ground truth;
+    ``clock`` None where nothing reads /clock: a direct run without a recording)."""
 
     def __init__(self, plant, space, pose, state, clock):
         self.plant, self.space = plant, space
@@ -51,4 +52,5 @@ class StepStreams:
                 self.stopped = JointStateEncoder(self.plant.names, safe_stop_status(self.plant.stop_cause).word())
             encoder = self.stopped
         self.state.publish(encoder.encode(ns, out.encoder_positions, out.encoder_velocities, out.applied_forces))
-        self.clock.publish(encode_clock(ns))
+        if self.clock is not None:
+            self.clock.publish(encode_clock(ns))
