@@ -78,19 +78,26 @@ def test_a_refused_scenario_starts_nothing(tmp_path):
 
 @pytest.mark.parametrize("name, overrides, reads_pose", [
     ("archi_demo", {}, False), ("hexapod_metrology", {"controller": {"strategy": "measured_space"}}, True)])
-def test_a_run_without_a_recording_makes_no_message_nobody_reads(name, overrides, reads_pose, tmp_path):
-    """Unrecorded, the direct engine makes no /clock, no controller/reference, and no
-    Gough DKM pose unless the controller feeds it back (measured_space does,
+def test_a_run_without_a_recording_makes_no_message_nobody_reads(name, overrides, reads_pose, tmp_path,
+                                                                 monkeypatch):
+    """Unrecorded, the direct engine makes no /clock, no controller/reference or
+    controller/status, and no Gough DKM pose unless the controller feeds it back (measured_space does,
     archi_demo's sensor_space reads the struts): the same run
     all the same, every cycle's statistics in the controller's summary and the plant's
     last state."""
     import pkm_sim_hw.step_streams as step_streams
-    made = {"clock": 0}
-    real_encode_clock = step_streams.encode_clock
+    from pkm_controller.controller import ControllerCore
+    made = {"clock": 0, "status": 0}
+    real_encode_clock, real_status = step_streams.encode_clock, ControllerCore.status
 
     def counted(ns):
         made["clock"] += 1
         return real_encode_clock(ns)
+
+    def status(core):
+        made["status"] += 1
+        return real_status(core)
+    monkeypatch.setattr(ControllerCore, "status", status)
     runs = {}
     for record in (True, False):
         step_streams.encode_clock = counted
@@ -99,11 +106,13 @@ def test_a_run_without_a_recording_makes_no_message_nobody_reads(name, overrides
                                         tmp_path / str(record), engine="direct", progress=False, report=False)
         finally:
             step_streams.encode_clock = real_encode_clock
-        made[record], made["clock"] = made["clock"], 0
+        made[record], made["clock"] = (made["clock"], made["status"]), 0
+        made["status"] = 0
     recorded, unrecorded = runs[True], runs[False]
     assert recorded["status"] == unrecorded["status"] == "completed", (recorded["error"], unrecorded["error"])
     steps = recorded["summaries"]["sim_hw"]["steps"]
-    assert made[True] >= steps and made[False] == 0, made
+    # (clocks, statuses): the one status left is the summary's (configuration.run_summary)
+    assert made[True][0] >= steps and made[True][1] >= 4 and made[False] == (0, 1), made
     sensor, sensor_recorded = unrecorded["summaries"]["gough_sensor"], recorded["summaries"]["gough_sensor"]
     assert sensor["measured"] == sensor_recorded["measured"] >= steps
     assert sensor_recorded["dkm_run"] and sensor_recorded["solved"] == sensor_recorded["measured"]

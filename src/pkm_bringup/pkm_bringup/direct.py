@@ -14,7 +14,8 @@ What is the graph's and not here: the transport (DDS, discovery, the recorder's
 subscriptions), the wall-clock watchdogs (nothing can stall between two loops that
 call each other), the periodic diagnostics and markers (wall-clock timers), the
 nodes' logs (one file, logs/direct.log), and in a run without a recording the
-messages nobody reads: /clock, controller/reference, and metrology/pose unless the
+messages nobody reads: /clock, controller/reference and controller/status (the log
+has the controller's errors), and metrology/pose unless the
 controller feeds the Gough's pose back (its DKM is then not solved: the sensor's
 summary says ``dkm_run: false``, its ``solved`` count is 0). The run directory is the same: params,
 summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
@@ -164,11 +165,6 @@ class Topic:
         self.tap = None if recorder is None else recorder.tap
         self.index = None if recorder is None else recorder.index(name, relative)
         self.clock = time.time_ns
-
-    @property
-    def unread(self) -> bool:
-        """Nothing records or reads it (once the run is wired)."""
-        return self.tap is None and not self.readers
 
     def publish(self, data: bytes) -> None:
         if self.tap is not None:
@@ -364,13 +360,19 @@ class DirectRun:
         if metrology:
             self.topic(metrology).readers.append(self.controller.on_metrology)
         # what nobody records or reads is not made (a run without a recording): the
-        # clock, the controller's reference, and the Gough's DKM pose unless the
-        # controller feeds it back (the struts are its readings; ~7 us of a ~60 us step)
-        if self.topic(topics.CLOCK).unread:
+        # clock, the controller's reference and status, and the Gough's DKM pose unless
+        # the controller feeds it back (the struts are its readings; ~8 us of a ~60 us step)
+        if self.unread(topics.CLOCK):
             streams.clock = None
-        self.controller.publishes_reference = not self.topic(topics.CONTROLLER_REFERENCE).unread
+        self.controller.publishes_reference = not self.unread(topics.CONTROLLER_REFERENCE)
+        self.controller.publishes_status = not self.unread(topics.CONTROLLER_STATUS)
         if sensor is not None:
-            sensor.solves_pose = not self.topic(topics.METROLOGY_POSE).unread
+            sensor.solves_pose = not self.unread(topics.METROLOGY_POSE)
+
+    def unread(self, relative: str) -> bool:
+        """Whether nothing records or reads a topic of the run (once it is wired)."""
+        found = self.topics.get(relative)
+        return self.recorder is None and (found is None or not found.readers)
 
     def topic(self, relative: str) -> Topic:
         """The run's topic of a catalogue name (made on first use)."""

@@ -127,9 +127,9 @@ class ControllerLoop:
         self.state_decoder = JointStateDecoder("drives/state")
         self.command_encoder = JointStateEncoder(self.names, fields=("effort",))
         self.reference_encoder = PoseStampedEncoder("world")
-        # False: a shell whose controller/reference nobody reads (a direct run without a
-        # recording, pkm_bringup.direct) has none made
-        self.publishes_reference = True
+        # False: a shell whose controller/reference or controller/status nobody reads (a
+        # direct run without a recording, pkm_bringup.direct) has none made
+        self.publishes_reference = self.publishes_status = True
         self.decode_metrology = JointStateDecoder("metrology/struts").decode if struts else \
             (lambda buf: decode_pose_stamped(buf, "metrology/pose"))
         operators = node_names(values["operator_sources"])
@@ -409,6 +409,8 @@ class ControllerLoop:
         self.ports.publish_reference_bytes(self.reference_encoder.encode(stamp_ns, position, orientation))
 
     def publish_status(self, extra: str = "") -> None:
+        if not self.publishes_status:
+            return
         level, message, values = self.core.status()
         if extra:
             level, message = max(level, 1), f"{message}; {extra}"
