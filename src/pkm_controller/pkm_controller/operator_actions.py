@@ -50,7 +50,7 @@ def apply_action(core, action: Action, payload, after_ns=LAST_CYCLE) -> dict:
     try:
         if action == Action.TRAJECTORY:
             now = None if core.last_time_s is None else core.last_time_s + core.config.dt_s
-            event.update(duration_s=payload.duration_s, points=len(payload.time_s))
+            event.update(duration_s=payload.duration_s, points=payload.points)
             if getattr(payload, "stamp_ns", None) is not None:     # the message's header stamp: its name
                 event["stamp_ns"] = payload.stamp_ns
             approach = core.set_trajectory(payload, now)
