@@ -9,6 +9,7 @@ import yaml
 
 from pkm_bringup.scenario import ScenarioError, load_scenario, node_parameters, params_file_text
 from pkm_kinematics.config import config_dir
+from pkm_sim_hw.loads import ramp_steps
 
 SCENARIOS = sorted((config_dir() / "scenarios").glob("*.yaml"))
 
@@ -58,7 +59,7 @@ def test_parameters_are_typed_for_ros(tmp_path):
     p = node_parameters(s, tmp_path)
     assert isinstance(p["controller"]["bandwidth_hz"], float)        # ROS double, not integer
     assert isinstance(p["controller"]["drive_mismatch_cycles"], int)
-    assert p["sim_hw"]["load_schedule"] == [0.0, 1.0, 2.0, 3.0]
+    assert p["sim_hw"]["load_profile"] == [0.0, 0.0, 1.0, 2.0, 3.0]         # t_s, ramp_s, the wrench
     assert "link_length_errors" not in p["sim_hw"]          # ARCHI-sized default dropped for MoM3
     # the loop starts at pkm-run's start, once the recorder is ready, and with its trajectory
     assert p["controller"]["wait_for_trajectory"] is True and p["controller"]["wait_for_start"] is True
@@ -114,7 +115,8 @@ def test_a_machine_the_graph_does_not_run_yet_is_refused_by_name():
 def test_a_ramp_may_end_exactly_where_the_next_entry_starts():
     s = load_scenario("mom3_square", {"dt_s": 0.001, "load": [
         {"t_s": 0.1, "wrench": [10.0, 0.0, 0.0], "ramp_s": 0.2}, {"t_s": 0.3, "wrench": [0.0, 0.0, 0.0]}]})
-    assert len(s.load) == 201 and s.load[199][1][0] == pytest.approx(10.0) and s.load[-1] == (0.3, (0.0, 0.0, 0.0))
+    steps = ramp_steps(s.load, s.dt_s)            # as the plant expands them (pkm_sim_hw.loads)
+    assert len(steps) == 201 and steps[199][1][0] == pytest.approx(10.0) and steps[-1] == (0.3, (0.0, 0.0, 0.0))
 
 
 def test_a_scenario_without_program_waits_for_the_start_signal(tmp_path):
@@ -271,9 +273,9 @@ def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
     # (the shipped scenario's frame load goes with its plant section)
     s = load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [10.0, 0.0, -20.0, 1.0, 0.0, 2.0]}],
                                             "plant": {"compliance": [1e-6] * 3 + [1e-5] * 3}, "frame_load": []})
-    assert s.load == [(0.1, (10.0, 0.0, -20.0, 1.0, 0.0, 2.0))]
-    flat = node_parameters(s, tmp_path)["sim_hw"]["load_schedule"]
-    assert flat == [0.1, 10.0, 0.0, -20.0, 1.0, 0.0, 2.0]
+    assert s.load == [(0.1, 0.0, (10.0, 0.0, -20.0, 1.0, 0.0, 2.0))]
+    flat = node_parameters(s, tmp_path)["sim_hw"]["load_profile"]
+    assert flat == [0.1, 0.0, 10.0, 0.0, -20.0, 1.0, 0.0, 2.0]
     with pytest.raises(ScenarioError, match=r"load\[0\]: must be \{t_s: >= 0, wrench: \[6 finite numbers\]"):
         load_scenario("hexapod_metrology", {"load": [{"t_s": 0.1, "wrench": [10.0, 0.0, 0.0]}]})
     with pytest.raises(ScenarioError, match=r"mz must be in \[-500, 500\] N m \(max_load_nm\), got 600 at t_s = 0.1 s"):
@@ -282,7 +284,7 @@ def test_a_six_dof_machine_takes_six_component_loads_and_compliance(tmp_path):
         load_scenario("hexapod_metrology", {"plant": {"compliance": [1e-6, 0.0, 0.0]}, "frame_load": []})
     framed = load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
                                                  "plant": {"frame_compliance": [7e-8] * 6}})
-    assert node_parameters(framed, tmp_path)["sim_hw"]["frame_load_schedule"] == [0.2, 0.0, 850.0, 0, 0, 0, 0]
+    assert node_parameters(framed, tmp_path)["sim_hw"]["frame_load_profile"] == [0.2, 0.0, 0.0, 850.0, 0, 0, 0, 0]
     with pytest.raises(ScenarioError, match=r"frame_compliance: must be 6 values on hexapod8"):
         load_scenario("hexapod_metrology", {"frame_load": [{"t_s": 0.2, "wrench": [0.0, 850.0, 0, 0, 0, 0]}],
                                             "plant": {"frame_compliance": [7e-8] * 3}})

@@ -24,6 +24,7 @@ from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics.config import load_machine
 from pkm_kinematics.errors import FieldError
 from pkm_sim_hw.homing import homing_plan
+from pkm_sim_hw.loads import profile_entries
 from pkm_sim_hw.plant import Fault, PlantParameters, check_load
 from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
 
@@ -70,15 +71,20 @@ def check_plant(p: dict, config) -> None:
     if params.encoder_offsets_m and homing_plan(config) is None:
         raise FieldError("encoder_offsets_m", f"incremental encoders must be homed: machine {config.name!r} has no "
                                               "drives.homing section (methods, order, home positions)")
-    for name, key in (("load_schedule", "load"), ("frame_load_schedule", "frame_load")):
-        schedule = p.get(name, [])          # flat [t_s, f1, f2, f3, ...]
-        space = config.model.task_space
-        size = len(space.loads)
-        for i in range(0, len(schedule), size + 1):
+    space = config.model.task_space
+    size = len(space.loads)
+    for name, profile, key in (("load_schedule", "load_profile", "load"),
+                               ("frame_load_schedule", "frame_load_profile", "frame_load")):
+        # flat [t_s, f1, f2, f3, ...] steps, or [t_s, ramp_s, f1, ...] entries: a ramp
+        # stays between the wrenches it joins, each checked
+        rows = [(t, w) for t, _, w in profile_entries(p.get(profile, []), size, profile)]
+        schedule = p.get(name, [])
+        rows += [(schedule[i], schedule[i + 1:i + 1 + size]) for i in range(0, len(schedule), size + 1)]
+        for t, wrench in rows:
             try:
-                check_load(schedule[i + 1:i + 1 + size], space, params, key)
+                check_load(wrench, space, params, key)
             except FieldError as exc:
-                raise FieldError(exc.name, f"{exc.detail} at t_s = {schedule[i]:g} s") from None
+                raise FieldError(exc.name, f"{exc.detail} at t_s = {t:g} s") from None
 
 
 def check_sensor(p: dict, config) -> None:

@@ -131,7 +131,7 @@ class Scenario:
     sensor: dict = field(default_factory=dict)
     plant: dict = field(default_factory=dict)
     recorder: dict = field(default_factory=dict)
-    load: list = field(default_factory=list)      # [(t_s, (a, b, c))]
+    load: list = field(default_factory=list)      # [(t_s, ramp_s, (a, b, c))]: pkm_sim_hw.loads
     frame_load: list = field(default_factory=list)
     record: bool = True
     timeout_s: float = 600.0
@@ -276,14 +276,14 @@ def _mapping(data: dict, key: str, node: str) -> dict:
     return dict(value)
 
 
-def _load_profile(value, dt_s: float, key: str = "load", size: int = 3) -> list:
-    """[(t_s, wrench)] steps; an entry with ``ramp_s`` reaches its wrench linearly from
-    the previous one over that time (a tool entering the material), one step per dt.
-    A wrench has ``size`` components (the machine's task space: 3, or 6 on a 6-DOF
-    machine)."""
+def _load_profile(value, key: str = "load", size: int = 3) -> list:
+    """[(t_s, ramp_s, wrench)] load entries (pkm_sim_hw.loads: an entry with ``ramp_s``
+    reaches its wrench linearly from the previous one over that time, a tool entering
+    the material; the plant expands them to steps). A wrench has ``size`` components
+    (the machine's task space: 3, or 6 on a 6-DOF machine)."""
     if not isinstance(value, list):
         raise ScenarioError(f"{key}: must be a list of {{t_s, wrench: [{size} numbers], ramp_s}}, got {value!r}")
-    rows, previous, last_t = [], (0.0,) * size, 0.0
+    entries, last_t = [], 0.0
     for i, row in enumerate(value):
         unknown = sorted(set(row) - {"t_s", "wrench", "ramp_s"}) if isinstance(row, dict) else []
         if unknown:
@@ -299,14 +299,9 @@ def _load_profile(value, dt_s: float, key: str = "load", size: int = 3) -> list:
         if t < last_t - 1e-9:
             raise ScenarioError(f"{key}[{i}]: starts at t_s = {t:g} s, before the previous entry ends "
                                 f"({last_t:g} s, ramp included)")
-        target = tuple(float(w) for w in wrench)
-        steps = max(1, round(ramp / dt_s))
-        for k in range(1, steps + 1):
-            a = k / steps
-            rows.append((float(t) + (k - 1) * dt_s,
-                         tuple(p + a * (w - p) for p, w in zip(previous, target))))
-        previous, last_t = target, float(t) + ramp
-    return rows
+        entries.append((float(t), float(ramp), tuple(float(w) for w in wrench)))
+        last_t = float(t) + ramp
+    return entries
 
 
 def read_mapping_file(path: str | Path, folder: str, what: str, error: type) -> tuple[Path, dict]:
@@ -408,8 +403,8 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"loop_process: composed runs the simulated machine's loop (hardware: sim), not "
                             f"hardware {s.hardware}: its drive interface's nodes are processes of their own")
     size = len(config.model.task_space.loads)
-    s.load = _load_profile(data.get("load") or [], s.dt_s, "load", size)
-    s.frame_load = _load_profile(data.get("frame_load") or [], s.dt_s, "frame_load", size)
+    s.load = _load_profile(data.get("load") or [], "load", size)
+    s.frame_load = _load_profile(data.get("frame_load") or [], "frame_load", size)
     if s.frame_load and not any(s.plant.get("frame_compliance") or []):
         raise ScenarioError("frame_load: needs plant.frame_compliance (one per load component): without it the frame "
                             "does not deflect and the load would do nothing")
@@ -434,8 +429,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         if s.mode != "lockstep" or samples is None or data.get("load"):
             raise ScenarioError("spindle_load: needs a lockstep scenario with a program, and replaces load")
         try:
-            s.load = _load_profile(spindle_load_entries(samples.events, spindle, size), s.dt_s, "spindle_load",
-                                   size)
+            s.load = _load_profile(spindle_load_entries(samples.events, spindle, size), "spindle_load", size)
         except FieldError as exc:
             raise ScenarioError(str(exc)) from None
     if s.program is not None and not s.duration_s:
@@ -588,10 +582,10 @@ def node_parameters(s: Scenario, run_dir: Path, credential: Path | None = None) 
     directory's)."""
     summaries = run_dir / "summaries"
     key = str(credential or run_dir / KEY_FILE)
-    flat_load = [v for t, w in s.load for v in (t, *w)]
-    flat_frame_load = [v for t, w in s.frame_load for v in (t, *w)]
+    flat_load = [v for t, ramp, w in s.load for v in (t, ramp, *w)]
+    flat_frame_load = [v for t, ramp, w in s.frame_load for v in (t, ramp, *w)]
     plant = {**{k: v for k, v in _node_defaults("sim_hw").items() if k not in PER_DRIVE}, **s.plant,
-             "machine": s.machine, "dt_s": s.dt_s, "load_schedule": flat_load, "frame_load_schedule": flat_frame_load}
+             "machine": s.machine, "dt_s": s.dt_s, "load_profile": flat_load, "frame_load_profile": flat_frame_load}
     loop = {"machine": s.machine, "mode": s.mode, "dt_s": s.dt_s, "duration_s": s.duration_s,
             "command_source": controller_node_name(s), "load_sources": ",".join(operator_names(s)),
             "credential_file": key, "summary_path": str(summaries / f"{s.machine_node}.json")}

@@ -13,6 +13,7 @@ from pkm_kinematics import load_machine
 from pkm_kinematics.errors import ConfigError, FieldError
 from pkm_sim_hw.authority import CommandGate
 from pkm_sim_hw.homing import home, homing_plan
+from pkm_sim_hw.loads import profile_entries, ramp_steps
 from pkm_sim_hw.plant import Plant, PlantParameters
 from pkm_sim_hw.sim_loop import SimHwSettings
 from pkm_sim_hw.strut_plant import StrutPlant
@@ -91,20 +92,28 @@ def declare_plant(node, machine):
                                                  lo_open=True, unit="m"))
     initial = declare_float_list(node, "initial_pose", [], "empty: the machine's home pose")
     plant = PLANTS.get(machine.kind, Plant)(machine, params, initial_pose=initial or None)
-    schedules = (("load_schedule", plant.schedule_load, "the load on the tool"),
-                 ("frame_load_schedule", plant.schedule_frame_load, "the load on the machine's frame"))
+    schedules = (("load_schedule", "load_profile", plant.schedule_load, "the load on the tool"),
+                 ("frame_load_schedule", "frame_load_profile", plant.schedule_frame_load,
+                  "the load on the machine's frame"))
     size = len(machine.model.task_space.loads)        # a load's components: 3, or 6 on a 6-DOF machine
-    for name, schedule_into, what in schedules:
+    for name, profile_name, schedule_into, what in schedules:
         schedule = declare_float_list(node, name, [], f"flat [t_s, f1, f2, f3, ...]: {what} (task coordinates) "
                                       "from t_s on, in simulated time (deterministic, unlike the load topic)")
+        profile = declare_float_list(node, profile_name, [], f"flat [t_s, ramp_s, f1, f2, f3, ...]: {what}, "
+                                     "each reached linearly from the one before over ramp_s, one step per "
+                                     f"period (pkm_sim_hw.loads; instead of {name})")
+        if schedule and profile:
+            raise ParameterError(profile_name, f"give {name} (steps) or {profile_name} (ramps), not both")
         if len(schedule) % (size + 1):
             raise ParameterError(name, f"must hold groups of {size + 1} numbers [t_s, "
                                        f"{', '.join(machine.model.task_space.loads)}], got {len(schedule)} numbers")
+        given = profile_name if profile else name
         try:
-            schedule_into([(schedule[i], schedule[i + 1:i + 1 + size])
-                           for i in range(0, len(schedule), size + 1)])
+            rows = ramp_steps(profile_entries(profile, size, profile_name), params.dt_s) if profile else \
+                [(schedule[i], schedule[i + 1:i + 1 + size]) for i in range(0, len(schedule), size + 1)]
+            schedule_into(rows, given)
         except ValueError as exc:
-            raise ParameterError(name, exc.detail if isinstance(exc, FieldError) else str(exc)) from None
+            raise ParameterError(given, exc.detail if isinstance(exc, FieldError) else str(exc)) from None
     return plant
 
 

@@ -262,15 +262,16 @@ class Plant:
         ValueError (nothing applied) over its bound."""
         self.load = self.check_load(wrench)
 
-    def schedule_load(self, rows) -> None:
+    def schedule_load(self, rows, what: str = "load_schedule") -> None:
         """Loads on the tool in simulated time: [(t_s, wrench)], times non-decreasing;
-        each applies from the first step at or after t_s (counted in steps: no float drift)."""
-        self._schedule = self._steps(rows, "load_schedule")
+        each applies from the first step at or after t_s (counted in steps: no float drift).
+        ``what`` names them in a refusal (the parameter they came from)."""
+        self._schedule = self._steps(rows, what)
         self._schedule_all = list(self._schedule)
 
-    def schedule_frame_load(self, rows) -> None:
+    def schedule_frame_load(self, rows, what: str = "frame_load_schedule") -> None:
         """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
-        self._frame_schedule = self._steps(rows, "frame_load_schedule")
+        self._frame_schedule = self._steps(rows, what)
         self._frame_schedule_all = list(self._frame_schedule)
 
     def _steps(self, rows, what: str) -> list:

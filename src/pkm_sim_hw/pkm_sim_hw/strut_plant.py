@@ -122,14 +122,14 @@ class StrutPlant:
         naming the component over its bound."""
         return check_load(wrench, self.machine.task_space, self.params, what)
 
-    def schedule_load(self, rows) -> None:
+    def schedule_load(self, rows, what: str = "load_schedule") -> None:
         """Loads on the platform in simulated time: [(t_s, wrench)], as the rail plant's."""
-        self._schedule = load_steps(rows, self.params.dt_s, self.check_load, "load_schedule")
+        self._schedule = load_steps(rows, self.params.dt_s, self.check_load, what)
         self._schedule_all = list(self._schedule)
 
-    def schedule_frame_load(self, rows) -> None:
+    def schedule_frame_load(self, rows, what: str = "frame_load_schedule") -> None:
         """Loads on the machine's frame in simulated time, as :meth:`schedule_load`."""
-        self._frame_schedule = load_steps(rows, self.params.dt_s, self.check_load, "frame_load_schedule")
+        self._frame_schedule = load_steps(rows, self.params.dt_s, self.check_load, what)
         self._frame_schedule_all = list(self._frame_schedule)
 
     def set_load(self, wrench) -> None:
