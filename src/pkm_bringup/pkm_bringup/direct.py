@@ -12,16 +12,16 @@ delivers them: so the run is the graph's, every command and true pose bit for bi
 
 What is the graph's and not here: the transport (DDS, discovery, the recorder's
 subscriptions), the wall-clock watchdogs (nothing can stall between two loops that
-call each other), the periodic diagnostics and markers (wall-clock timers), the
-nodes' logs (one file, logs/direct.log), and in a run without a recording the
-messages nobody reads: /clock, controller/reference and controller/status (the log
-has the controller's errors), and metrology/pose unless the
-controller feeds the Gough's pose back (its DKM is then not solved: the sensor's
-summary says ``dkm_run: false``, its ``solved`` count is 0). The run directory is the same: params,
-summaries, run.json, the bag (rosbag2 MCAP through the recorder's own tap path,
-pkm_recording.tap), so that pkm-report, pkm-replay and the DataFrames read it; or,
-for a study's run whose bag would be removed once read, no bag: the messages kept in
-memory (pkm_recording.memory) and the metrics taken from them (run_scenario's
+call each other), the markers (for a viewer of the live graph), the nodes' logs (one
+file, logs/direct.log), and in a run without a recording the messages nobody reads:
+/clock, the plant's diagnostics, controller/reference and controller/status (the log
+has their errors), and metrology/pose unless the controller feeds the Gough's pose
+back (its DKM is then not solved: the sensor's summary says ``dkm_run: false``, its
+``solved`` count is 0). The run directory is the same: params, summaries, run.json,
+the bag (rosbag2 MCAP through the recorder's own tap path, pkm_recording.tap), so
+that pkm-report, pkm-replay and the DataFrames read it; or, for a study's run whose
+bag would be removed once read, no bag: the messages kept in memory
+(pkm_recording.memory) and the metrics taken from them (run_scenario's
 ``recording``).
 
 Refused, with the reason: realtime scenarios (the plant steps on a clock), hardware
@@ -33,8 +33,8 @@ graph): run them as a graph.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import time
-from dataclasses import fields
 from pathlib import Path
 
 from rclpy.serialization import serialize_message
@@ -295,7 +295,8 @@ def controller_loop(params: dict, ports) -> ControllerLoop:
     and a lockstep run has no deadline (a study's run saved ~1.2 ms of ~100)."""
     node = ParameterValues(params)
     values = {name: declare_like(node, name, default) for name, default in NODE_PARAMETERS.items()}
-    config = ControllerConfig(**{f.name: declare_like(node, f.name, f.default) for f in fields(ControllerConfig)})
+    config = ControllerConfig(**{f.name: declare_like(node, f.name, f.default)
+                              for f in dataclasses.fields(ControllerConfig)})
     core = core_from_parameters(values["machine"], config)
     loop = ControllerLoop(core, values, ports, Verifier.from_file(values["credential_file"]))
     loop.active = True
@@ -333,7 +334,8 @@ class DirectRun:
         """The loops, each built by its node's declarations, and who reads what."""
         # the plant
         sim_params = params[self.machine_node]
-        settings = declare_settings(ParameterValues(sim_params))
+        # (markers are for a viewer of the live graph: none is made here)
+        settings = dataclasses.replace(declare_settings(ParameterValues(sim_params)), publish_markers=False)
         self.plant = settings.plant
         streams = StepStreams(self.plant, settings.machine.model.task_space, self.topic(topics.TRUE_POSE),
                               self.topic(topics.DRIVES_STATE), self.topic(topics.CLOCK))
@@ -364,6 +366,8 @@ class DirectRun:
         # the controller feeds it back (the struts are its readings; ~8 us of a ~60 us step)
         if self.unread(topics.CLOCK):
             streams.clock = None
+        if self.unread(topics.DIAGNOSTICS):
+            self.sim.cadences = ()                   # its diagnostics, their only side work here
         self.controller.publishes_reference = not self.unread(topics.CONTROLLER_REFERENCE)
         self.controller.publishes_status = not self.unread(topics.CONTROLLER_STATUS)
         if sensor is not None:
