@@ -161,8 +161,8 @@ from pkm_bringup.scenario import load_scenario
 from pkm_kinematics import jit
 status = {}
 with tempfile.TemporaryDirectory() as tmp:
-    for name in sys.argv[1:]:
-        s = load_scenario(name, {"duration_s": 0.2, "record": False})
+    for name in sys.argv[1:]:      # recorded: unrecorded, the Gough solves no pose nobody reads
+        s = load_scenario(name, {"duration_s": 0.2, "record": True})
         status[name] = run_scenario(s, Path(tmp) / name, progress=False, report=False, engine="direct")["status"]
     # the same run with every controller cycle interpreted: the kernels the compiled
     # prepare (pkm_controller.compiled_prepare) calls inside itself, called one by one
