@@ -89,7 +89,7 @@ from pkm_controller.strategies import REGISTRY as STRATEGIES
 from pkm_kinematics import load_machine
 from pkm_kinematics.config import config_dir, machine_names
 from pkm_kinematics.errors import FieldError
-from pkm_kinematics.yaml_files import YamlFileError, read_yaml
+from pkm_kinematics.yaml_files import YamlFileError, parse_yaml, read_yaml, read_yaml_text
 from pkm_bringup.program_plan import plan_program, spindle_load_entries
 
 KEYS = ("name", "description", "machine", "model", "namespace", "mode", "dt_s", "program", "duration_s", "settle_s",
@@ -312,12 +312,19 @@ def read_mapping_file(path: str | Path, folder: str, what: str, error: type) -> 
     if not path.exists() and not path.suffix:
         path = config_dir() / folder / f"{path}.yaml"
     try:
-        data = read_yaml(path) or {}
+        data = copy.deepcopy(_parsed_text(read_yaml_text(path), str(path))) or {}
     except (OSError, YamlFileError) as exc:       # not UTF-8, invalid, an alias bomb (yaml_files)
         raise error(f"{what} {path}: {exc}") from None
     if not isinstance(data, dict):
         raise error(f"{what} {path}: must be a mapping")
     return path, data
+
+
+@functools.lru_cache(maxsize=32)
+def _parsed_text(text: str, where: str):
+    """parse_yaml of a file's text, once per text: a study loads its scenario for
+    every run (~0.5 ms of pure-Python YAML each); the caller copies it."""
+    return parse_yaml(text, where)
 
 
 def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
@@ -459,8 +466,9 @@ def controller_defaults(machine_name: str) -> dict:
     """controller_node's parameters for the machine named ``machine_name``
     (config/controller/<name>.yaml); empty for a machine without a file there (the
     node then runs on ControllerConfig's defaults)."""
-    if machine_name not in {p.stem for p in (config_dir() / "controller").glob("*.yaml")}:
-        return {}
+    if not re.fullmatch(r"[\w.-]+", machine_name) or machine_name.startswith(".") \
+            or not (config_dir() / "controller" / f"{machine_name}.yaml").is_file():
+        return {}                  # (a name, not a path: an as-built machine's file has none)
     return _node_defaults(f"controller/{machine_name}")
 
 

@@ -69,6 +69,12 @@ def parse_yaml(text: str, where: str):
 
 def read_yaml(path: str | Path):
     """The YAML document of the file ``path``, bounded (module doc); OSError as it comes."""
+    return parse_yaml(read_yaml_text(path), str(path))
+
+
+def read_yaml_text(path: str | Path) -> str:
+    """The text of the YAML file ``path``, bounded (module doc), not parsed yet; OSError
+    as it comes."""
     path = Path(path)
     with open(path, "rb") as fh:
         raw = fh.read(MAX_FILE_BYTES + 1)
@@ -81,4 +87,4 @@ def read_yaml(path: str | Path):
                                              f"a binary file, or another encoding: save it as UTF-8") from None
     if "\x00" in text:
         raise UnreadableFileError(str(path), f"contains a NUL byte (at {text.index(chr(0))}): a binary file")
-    return parse_yaml(text, str(path))
+    return text
