@@ -388,10 +388,11 @@ def test_the_compiled_step_is_the_python_step_to_the_bit(name, substeps):
 
 
 def test_encoder_noise_is_the_generators_stream_drawn_in_order():
-    # Encoders.noise draws NOISE_STEPS steps ahead: the readings must still be the seeded
-    # generator's normals in order, one per drive a step, across the blocks' edges
-    from pkm_sim_hw.drives import NOISE_STEPS, Encoders
-    steps, q = 2 * NOISE_STEPS + 7, [0.1, 0.2, -0.3, 0.4]
+    # Encoders.noise draws TAKES steps ahead (pkm_common.noise): the readings must still be
+    # the seeded generator's normals in order, one per drive a step, across the blocks' edges
+    from pkm_common.noise import TAKES
+    from pkm_sim_hw.drives import Encoders
+    steps, q = 2 * TAKES + 7, [0.1, 0.2, -0.3, 0.4]
     encoders = Encoders(0.0, 2e-7, seed=11, dt_s=1e-3)
     readings = np.array([encoders.quantise(q) for _ in range(steps)])
     expected = np.array(q) + 2e-7 * np.random.default_rng(11).standard_normal((steps, 4))

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
+from pkm_common.noise import NormalDraws
 from pkm_common.poses import QUATERNION_NORM_TOL, pose_components
 from pkm_kinematics.bars import COL_A, COL_B, FK_CONVERGED, STRUT, bar_rows, strut_lengths_kernel
 from pkm_kinematics.errors import FieldError
@@ -42,7 +43,6 @@ STRUT_NAMES = tuple(f'strut{i}' for i in range(1, 7))
 MAX_RESOLUTION_M = 1e-3          # as the machine file's encoder_resolution
 ROTATION_TOL = 1e-6              # |R^T R - I| allowed in a tool rotation
 DKM_TOL_FRACTION = 1e-3          # DKM strut residual tolerance, as a fraction of the resolution
-NOISE_READINGS = 1024           # readings of strut noise drawn at once (_reading_noise)
 
 
 def _nonneg(value, name: str) -> float:
@@ -243,8 +243,7 @@ class GoughSensorModel:
         self.true_platform = GoughPlatform(
             self.nominal.base_points + base_err, self.nominal.plate_points + plate_err,
             self.nominal.strut_limits, self.nominal.home_position, name='gough_true')
-        self._noise = np.random.default_rng(noise_seq)
-        self._noise_block, self._noise_at = np.zeros(0), 0          # readings' noise drawn ahead (_reading_noise)
+        self._noise = NormalDraws(np.random.default_rng(noise_seq), self.noise_std_m)    # drawn ahead
 
         # mounting as floats
         self._p_wb = tuple(float(v) for v in metrology.base_position)
@@ -333,7 +332,7 @@ class GoughSensorModel:
         lengths = self._true_lengths(finite_floats(tool_position, 3, 'tool_position'),
                                      rotation_floats(tool_rotation, 'tool_rotation'))
         if self.noise_std_m > 0.0:
-            noise = self._reading_noise().tolist()
+            noise = self._noise.take(6).tolist()
             lengths = [a + b for a, b in zip(lengths, noise)]
         res = self.resolution_m
         return np.array([quantized(v, res) for v in lengths])
@@ -369,18 +368,6 @@ class GoughSensorModel:
     # functions these methods call (rotations' kernels, quantized, tool_in_world, the
     # solver's dkm_solve_kernel). What they refuse is taken again by measure() or
     # estimate(), which name the error.
-    def _reading_noise(self) -> np.ndarray:
-        """The noise of one reading: six draws in order, times noise_std_m. Drawn
-        NOISE_READINGS readings at a time: the stream is the generator's, in the same
-        order (numpy fills an array from it in order), and each value is the one
-        ``normal(0.0, noise_std_m)`` gives (0.0 + std z); a draw of 6 costs ~1 us, a slice
-        ~0.1 (pkm_sim_hw.drives.Encoders.noise draws the same way)."""
-        k = self._noise_at
-        if k + 6 > len(self._noise_block):
-            self._noise_block, k = self.noise_std_m * self._noise.standard_normal(6 * NOISE_READINGS), 0
-        self._noise_at = k + 6
-        return self._noise_block[k:k + 6]
-
     def measure_fields(self, fields: np.ndarray, out: np.ndarray) -> bool:
         """:meth:`measure` of a true tool pose given as its message's fields (7 float64:
         x, y, z, qx, qy, qz, qw, as pose_from_components reads them) into ``out`` (6
@@ -388,7 +375,7 @@ class GoughSensorModel:
         pose_from_components or measure() refuses."""
         if _true_lengths_call(fields, self._true_bars, self._true_out) != READ_OK:
             return False
-        noise = self._reading_noise() if self.noise_std_m > 0.0 else self._no_noise
+        noise = self._noise.take(6) if self.noise_std_m > 0.0 else self._no_noise
         _readings_call(self._true_out, noise, self.resolution_m, out)
         return True
 
