@@ -98,16 +98,12 @@ def test_a_run_without_a_recording_makes_no_message_nobody_reads(name, overrides
         made["status"] += 1
         return real_status(core)
     monkeypatch.setattr(ControllerCore, "status", status)
+    monkeypatch.setattr(step_streams, "encode_clock", counted)
     runs = {}
     for record in (True, False):
-        step_streams.encode_clock = counted
-        try:
-            runs[record] = run_scenario(load_scenario(name, {**overrides, "duration_s": 0.3, "record": record}),
-                                        tmp_path / str(record), engine="direct", progress=False, report=False)
-        finally:
-            step_streams.encode_clock = real_encode_clock
-        made[record], made["clock"] = (made["clock"], made["status"]), 0
-        made["status"] = 0
+        runs[record] = run_scenario(load_scenario(name, {**overrides, "duration_s": 0.3, "record": record}),
+                                    tmp_path / str(record), engine="direct", progress=False, report=False)
+        made[record], made["clock"], made["status"] = (made["clock"], made["status"]), 0, 0
     recorded, unrecorded = runs[True], runs[False]
     assert recorded["status"] == unrecorded["status"] == "completed", (recorded["error"], unrecorded["error"])
     steps = recorded["summaries"]["sim_hw"]["steps"]

@@ -31,10 +31,30 @@ from pkm_trajectory.planner import RATE_HZ_RANGE, PlanBudget
 __all__ = ["OWNER_CHECKS"]
 
 
-# (MachineConfig, repr of a ControllerConfig) of the last controllers made without a
-# refusal: a study's runs check the same controller again and again (a core each, ~1 ms)
-_CONTROLLERS_MADE: list = []
-CONTROLLERS_KEPT = 8
+PASSED_KEPT = 8
+
+
+class _Passed:
+    """The last PASSED_KEPT checks that passed, by (an object loaded once while its file
+    is unchanged, the repr of the settings): a study's runs check the same controller
+    (a core, ~1 ms) and sensor (~0.3 ms) at every scenario load."""
+
+    def __init__(self):
+        self._kept: list = []
+
+    def check(self, owner, settings, make) -> None:
+        """``make()`` unless these settings of ``owner`` passed already (``owner`` None:
+        always); ``make`` raises what it refuses."""
+        key = repr(settings)
+        if owner is not None and any(o is owner and k == key for o, k in self._kept):
+            return
+        make()
+        if owner is not None:
+            self._kept.append((owner, key))
+            del self._kept[:-PASSED_KEPT]
+
+
+_CONTROLLERS, _SENSORS = _Passed(), _Passed()
 
 
 def check_controller(p: dict, config) -> None:
@@ -44,13 +64,7 @@ def check_controller(p: dict, config) -> None:
         machine = load_machine(p["machine"])     # the same object while the file is unchanged
     except ValueError:
         machine = None                           # core_from_parameters names it
-    key = repr(controller)
-    if machine is not None and any(m is machine and k == key for m, k in _CONTROLLERS_MADE):
-        return
-    core_from_parameters(p["machine"], controller)
-    if machine is not None:
-        _CONTROLLERS_MADE.append((machine, key))
-        del _CONTROLLERS_MADE[:-CONTROLLERS_KEPT]
+    _CONTROLLERS.check(machine, controller, lambda: core_from_parameters(p["machine"], controller))
 
 
 def check_plant(p: dict, config) -> None:
@@ -87,22 +101,12 @@ def check_plant(p: dict, config) -> None:
                 raise FieldError(exc.name, f"{exc.detail} at t_s = {t:g} s") from None
 
 
-# (metrology section, repr of the values) of the last sensors made without a refusal,
-# as _CONTROLLERS_MADE (a sensor model, ~0.3 ms, at every scenario load of a study)
-_SENSORS_MADE: list = []
-
-
 def check_sensor(p: dict, config) -> None:
     known = set(inspect.signature(GoughSensorModel).parameters) - {"metrology"}
     values = {k: v for k, v in p.items() if k in known}
     if not values.get("resolution_m"):         # 0: the machine file's (gough_sensor_node)
         values.pop("resolution_m", None)
-    key = repr(sorted(values.items()))
-    if any(m is config.metrology and k == key for m, k in _SENSORS_MADE):
-        return
-    GoughSensorModel(config.metrology, **values)
-    _SENSORS_MADE.append((config.metrology, key))
-    del _SENSORS_MADE[:-CONTROLLERS_KEPT]
+    _SENSORS.check(config.metrology, sorted(values.items()), lambda: GoughSensorModel(config.metrology, **values))
 
 
 def check_trajectory(p: dict, config) -> None:
