@@ -9,12 +9,17 @@ Each scenario runs its first ``SECONDS`` of simulated time in both (its program
 planned once: planning.PlannerSettings.plan_program keeps it for the second engine);
 ``tools/golden.py compare --engine direct`` compares whole runs against the golden
 outputs the graph recorded.
+
+The bags are written as pkm-run writes them, by a process of their own
+(direct_recording.RecorderProcess): pytest's process has threads of its own, which
+would otherwise keep the writer in the run's process.
 """
 
 from pathlib import Path
 
 import pytest
 
+from pkm_bringup import direct_recording
 from pkm_bringup.direct import refusal
 from pkm_bringup.orchestrator import run_scenario
 from pkm_bringup.scenario import load_scenario
@@ -27,6 +32,11 @@ SCENARIOS = {p.stem: load_scenario(p) for p in
 LOCKSTEP = [n for n, s in SCENARIOS.items() if s.mode == "lockstep"]
 DIRECT = [n for n in LOCKSTEP if not refusal(SCENARIOS[n])]
 SECONDS = 0.6
+
+
+@pytest.fixture(autouse=True)
+def _writer_process(monkeypatch):
+    monkeypatch.setattr(direct_recording, "may_fork", lambda: True)
 
 
 def per_stamp(run_dir: Path, namespace: str, topic: str) -> dict[int, bytes]:

@@ -18,7 +18,8 @@ file, logs/direct.log), and in a run without a recording the messages nobody rea
 has their errors), and metrology/pose unless the controller feeds the Gough's pose
 back (its DKM is then not solved: the sensor's summary says ``dkm_run: false``, its
 ``solved`` count is 0). The run directory is the same: params, summaries, run.json,
-the bag (rosbag2 MCAP through the recorder's own tap path, pkm_recording.tap), so
+the bag (rosbag2 MCAP through the recorder's own tap path, pkm_recording.tap,
+written by a process of its own as the graph's recorder is: direct_recording), so
 that pkm-report, pkm-replay and the DataFrames read it; or, for a study's run whose
 bag would be removed once read, no bag: the messages kept in memory
 (pkm_recording.memory) and the metrics taken from them (run_scenario's
@@ -40,6 +41,7 @@ from pathlib import Path
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool, String
 
+from pkm_bringup.direct_recording import MemoryRecorder, Recorder, RecorderProcess, bag_recorder
 from pkm_bringup.graph import RunFailed
 from pkm_bringup.scenario import START_TOPIC, Scenario, run_node_name, start_signal
 from pkm_common import topics
@@ -51,12 +53,7 @@ from pkm_controller.config import ControllerConfig
 from pkm_controller.configuration import NODE_PARAMETERS, core_from_parameters
 from pkm_controller.node_loop import ControllerLoop
 from pkm_gough_sensor.sensor_loop import GoughSensorLoop, LaserLoop, declare_gough_sensor, declare_laser_tracker
-from pkm_recording.bag import BagWriter
 from pkm_recording.memory import MemoryRecording
-from pkm_recording.recording import qos_dict
-from pkm_recording.tap import StreamTap, split_batch
-from pkm_recording.tap_records import StampCounter, record_stamp
-from pkm_common.qos import publisher_qos
 from pkm_common.runner import start_up_frozen
 from pkm_sim_hw.parameters import declare_settings
 from pkm_sim_hw.sim_loop import SimLoop
@@ -84,83 +81,13 @@ def refusal(s: Scenario) -> str:
     return ""
 
 
-class Recorder:
-    """The bag of a direct run: every message the loops publish, as the graph's recorder
-    writes it (one tap, pkm_recording.tap, written a batch at a time in one compiled
-    pass), with the topic's QoS from the catalogue and the count of new stamps per
-    topic (its summary, as recorder_node's)."""
-
-    def __init__(self, output: str, compression: str):
-        self.writer = BagWriter(output, compression=compression)
-        self.tap = StreamTap()
-        self.channels: dict[str, int] = {}
-        self.stamps = StampCounter()
-
-    def index(self, name: str, relative: str) -> int:
-        """The tap index of a topic (``relative``: its catalogue name), its channel made."""
-        msgtype = topics.CATALOGUE[relative].type
-        if name not in self.channels:
-            self.channels[name] = channel = self.writer.add_topic(name, msgtype, [qos_dict(publisher_qos(relative))])
-            self.stamps.reserve(channel)
-        return self.tap.topic_index(name, msgtype)
-
-    def flush(self) -> None:
-        payload = self.tap.take_payload()
-        if payload is None:
-            return
-        table, region, count = split_batch(payload)
-        written, stamps = self.writer.write_tap_records(region, count, [self.channels[name] for name, _ in table])
-        self.stamps.add(written, stamps)
-
-    def close(self) -> dict:
-        """The last batch, the bag finalized; the summary recorder_node writes."""
-        try:
-            self.flush()
-        finally:
-            self.writer.close()
-        return {"recorded": self.writer.counts,
-                "recorded_stamps": {name: self.stamps.count(c) for name, c in self.channels.items()},
-                "tapped": sorted(self.channels), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
-
-
-class MemoryRecorder:
-    """:class:`Recorder` for a run whose messages are kept in memory instead of a bag
-    (pkm_recording.memory.MemoryRecording: a study's run whose bag would be removed once
-    read): every message handed to the recording as published, the same summary."""
-
-    def __init__(self, recording: MemoryRecording):
-        self.recording = recording
-        self.tap = self                      # Topic.publish hands each message to tap.add_indexed
-
-    def index(self, name: str, relative: str) -> int:
-        return self.recording.add_topic(name, topics.CATALOGUE[relative].type, [qos_dict(publisher_qos(relative))])
-
-    def add_indexed(self, index: int, data: bytes, publish_time_ns: int) -> None:
-        self.recording.add(index, publish_time_ns, data)
-
-    def flush(self) -> None:
-        pass
-
-    def close(self) -> dict:
-        """recorder_node's summary: per topic the messages, and those with a new header
-        stamp (StampCounter over the messages in the order written, as the bag's)."""
-        connections = self.recording.connections
-        stamps = StampCounter(max(len(connections), 1))
-        for cid, _, raw in self.recording.written():
-            stamps.add_one(cid, record_stamp(raw))
-        names = [c.topic for c in connections]
-        return {"recorded": {c.topic: c.msgcount for c in connections},
-                "recorded_stamps": {c.topic: stamps.count(c.id) for c in connections},
-                "tapped": sorted(names), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
-
-
 class Topic:
     """One topic between the loops: a publication is recorded and queued for each reader."""
 
     __slots__ = ("queue", "readers", "tap", "index", "clock")
 
-    def __init__(self, queue: collections.deque, recorder: Recorder | MemoryRecorder | None, name: str,
-                 relative: str):
+    def __init__(self, queue: collections.deque, recorder: Recorder | RecorderProcess | MemoryRecorder | None,
+                 name: str, relative: str):
         self.queue, self.readers = queue, []
         self.tap = None if recorder is None else recorder.tap
         self.index = None if recorder is None else recorder.index(name, relative)
@@ -319,15 +246,15 @@ class DirectRun:
             self.recorder = MemoryRecorder(recording)
         elif s.record:
             recorder = params["recorder"]
-            self.recorder = Recorder(recorder["output"], recorder.get("compression", "lz4"))
+            self.recorder = bag_recorder(recorder["output"], recorder.get("compression", "lz4"))
         self.steps_since_flush = 0
         self.summaries = {}              # node -> (its summary path, the summary's function)
         try:
             self._wire(s, params)
         except BaseException:            # a refused configuration, an interrupt: nothing left open
             self.log.file.close()
-            if isinstance(self.recorder, Recorder):
-                self.recorder.writer.close()
+            if self.recorder is not None:
+                self.recorder.abandon()
             raise
 
     def _wire(self, s: Scenario, params: dict) -> None:

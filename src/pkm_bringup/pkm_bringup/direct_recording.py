@@ -1,0 +1,274 @@
+"""The recording of a direct run (pkm_bringup.direct): the bag the graph's recorder
+writes, or a study's messages kept in memory.
+
+Three recorders with one interface (``index``, ``tap``, ``flush``, ``close``):
+
+- :class:`Recorder`: the bag written in the run's process (one tap,
+  pkm_recording.tap, a batch at a time in one compiled pass).
+- :class:`RecorderProcess`: the same writer in a process of its own, as the graph's
+  recorder is: the run's process hands it the tap's batches through a pipe and goes
+  on while it compresses and writes (~6 % of a recorded ARCHI step). Used where the
+  run's process may fork safely (one thread: pkm-run); elsewhere (a Dask worker's
+  threads) :func:`bag_recorder` gives the in-process one. The bag is the same bytes.
+- :class:`MemoryRecorder`: no bag, the messages kept in memory
+  (pkm_recording.memory: a study's run whose bag would be removed once read).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from multiprocessing.connection import Pipe
+
+from pkm_common import topics
+from pkm_common.qos import publisher_qos
+from pkm_recording.bag import BagWriter
+from pkm_recording.memory import MemoryRecording
+from pkm_recording.recording import qos_dict
+from pkm_recording.tap import StreamTap, split_batch
+from pkm_recording.tap_records import StampCounter, record_stamp
+
+__all__ = ["MemoryRecorder", "Recorder", "RecorderProcess", "RecordingFailed", "bag_recorder", "may_fork"]
+
+CLOSE_TIMEOUT_S = 600.0       # the writer's last batch and the bag's summary
+
+
+class RecordingFailed(RuntimeError):
+    """The bag's writer failed (a full disk, a path it cannot write): the writer's error."""
+
+
+def _summary(writer: BagWriter, stamps: StampCounter, channels: dict[str, int]) -> dict:
+    """recorder_node's summary of a bag written from a tap."""
+    return {"recorded": writer.counts,
+            "recorded_stamps": {name: stamps.count(c) for name, c in channels.items()},
+            "tapped": sorted(channels), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
+
+
+class _BagSide:
+    """The writing half of a recorder: the bag's channels, the tap's batches written,
+    the count of new stamps per channel (its summary, as recorder_node's)."""
+
+    def __init__(self, output: str, compression: str):
+        self.writer = BagWriter(output, compression=compression)
+        self.channels: dict[str, int] = {}
+        self.stamps = StampCounter()
+
+    def add_topic(self, name: str, relative: str) -> None:
+        if name not in self.channels:
+            msgtype = topics.CATALOGUE[relative].type
+            self.channels[name] = channel = self.writer.add_topic(name, msgtype,
+                                                                  [qos_dict(publisher_qos(relative))])
+            self.stamps.reserve(channel)
+
+    def write(self, payload) -> None:
+        table, region, count = split_batch(payload)
+        written, stamps = self.writer.write_tap_records(region, count, [self.channels[name] for name, _ in table])
+        self.stamps.add(written, stamps)
+
+    def close(self) -> dict:
+        self.writer.close()
+        return _summary(self.writer, self.stamps, self.channels)
+
+
+class Recorder:
+    """The bag of a direct run written in the run's process: every message the loops
+    publish, as the graph's recorder writes it, with the topic's QoS from the
+    catalogue."""
+
+    def __init__(self, output: str, compression: str):
+        self.bag = _BagSide(output, compression)
+        self.tap = StreamTap()
+
+    def index(self, name: str, relative: str) -> int:
+        """The tap index of a topic (``relative``: its catalogue name), its channel made."""
+        self.bag.add_topic(name, relative)
+        return self.tap.topic_index(name, topics.CATALOGUE[relative].type)
+
+    def flush(self) -> None:
+        payload = self.tap.take_payload()
+        if payload is not None:
+            self.bag.write(payload)
+
+    def close(self) -> dict:
+        """The last batch, the bag finalized; the summary recorder_node writes."""
+        try:
+            self.flush()
+        finally:
+            self.bag.writer.close()
+        return _summary(self.bag.writer, self.bag.stamps, self.bag.channels)
+
+    def abandon(self) -> None:
+        """The run was never wired: the bag closed as it is."""
+        self.bag.writer.close()
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """The writer's error as the run's process raises it: a refused bag path stays a
+    ValueError (a refused configuration) and an OSError keeps its errno (a full disk:
+    files.disk_full), with their messages; anything else is a RecordingFailed naming it."""
+    if isinstance(exc, OSError):
+        return OSError(exc.errno, f"the bag's writer: {exc.strerror or exc}", exc.filename)
+    if isinstance(exc, ValueError):
+        return ValueError(str(exc))
+    return RecordingFailed(f"the bag's writer failed: {type(exc).__name__}: {exc}")
+
+
+def _serve(conn, output: str, compression: str) -> None:
+    """The writer process: ("topic", name, relative), ("batch", payload) and ("close",)
+    from the run, in order; it answers ("ready",) once the bag is open, the summary at
+    the close, or ("error", text) and ends. The end of the pipe (the run's process
+    gone) closes the bag as it is."""
+    bag = None
+    try:
+        bag = _BagSide(output, compression)
+        conn.send(("ready",))
+        while True:
+            try:
+                message = conn.recv()
+            except EOFError:
+                break
+            if message[0] == "batch":
+                bag.write(message[1])
+            elif message[0] == "topic":
+                bag.add_topic(message[1], message[2])
+            else:
+                summary, bag = bag.close(), None
+                conn.send(("summary", summary))
+                break
+    except BaseException as exc:             # noqa: BLE001 - the writer's every failure, to the run
+        try:
+            conn.send(("error", _portable(exc)))
+        except OSError:
+            pass
+    finally:
+        if bag is not None:
+            try:
+                bag.writer.close()
+            except BaseException:            # noqa: BLE001 - nothing left to tell
+                pass
+
+
+class RecorderProcess:
+    """:class:`Recorder` with the writing in a forked process of its own (module doc).
+    The pipe holds a batch or two at most (a send waits for the writer): memory stays
+    flat however long the run. A failure of the writer is raised, with its error, at
+    the next batch or the close (:func:`_portable`)."""
+
+    def __init__(self, output: str, compression: str):
+        self.tap = StreamTap()
+        self.conn, child = Pipe()
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()                   # nothing buffered written twice
+        self.pid = os.fork()
+        if self.pid == 0:                    # the writer: it ends with os._exit, never returns
+            code = 1
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)    # the run's process decides when it ends
+                self.conn.close()
+                _serve(child, output, compression)
+                code = 0
+            finally:
+                os._exit(code)
+        child.close()
+        self.closed = False
+        self._answer("ready")
+
+    def _answer(self, kind: str):
+        """The writer's next answer, which must be ``kind``; its error raised."""
+        try:
+            if not self.conn.poll(CLOSE_TIMEOUT_S):
+                raise RecordingFailed(f"the bag's writer gave no answer in {CLOSE_TIMEOUT_S:g} s")
+            message = self.conn.recv()
+        except (EOFError, OSError):
+            message = ("error", RecordingFailed("the bag's writer ended"))
+        if message[0] == "error":
+            self._reap()
+            raise message[1]
+        return message[1] if len(message) > 1 else None
+
+    def _send(self, message: tuple) -> None:
+        if self.conn.poll():                 # the writer said something unasked: its error
+            self._answer("")
+        try:
+            self.conn.send(message)
+        except OSError:
+            self._answer("")                 # its error, or that it ended
+            raise RecordingFailed("the bag's writer ended") from None
+
+    def index(self, name: str, relative: str) -> int:
+        self._send(("topic", name, relative))
+        return self.tap.topic_index(name, topics.CATALOGUE[relative].type)
+
+    def flush(self) -> None:
+        payload = self.tap.take_payload()
+        if payload is not None:
+            self._send(("batch", payload))
+
+    def close(self) -> dict:
+        """The last batch, the bag finalized by the writer; its summary."""
+        try:
+            self.flush()
+            self._send(("close",))
+            return self._answer("summary")
+        finally:
+            self._reap()
+
+    def abandon(self) -> None:
+        """The run was never wired: the writer closes the bag as it is and ends."""
+        self._reap()
+
+    def _reap(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.conn.close()                    # the writer's end of the pipe: it closes the bag and ends
+        os.waitpid(self.pid, 0)
+
+
+def may_fork() -> bool:
+    """Whether this process may fork its bag's writer: it has one thread (a fork copies
+    only the calling thread, and a lock another one held would never be released in
+    the copy)."""
+    return threading.active_count() == 1 and hasattr(os, "fork")
+
+
+def bag_recorder(output: str, compression: str) -> Recorder | RecorderProcess:
+    """The bag's writer in a process of its own where this process may fork, else in
+    this process."""
+    return RecorderProcess(output, compression) if may_fork() else Recorder(output, compression)
+
+
+class MemoryRecorder:
+    """:class:`Recorder` for a run whose messages are kept in memory instead of a bag
+    (pkm_recording.memory.MemoryRecording: a study's run whose bag would be removed once
+    read): every message handed to the recording as published, the same summary."""
+
+    def __init__(self, recording: MemoryRecording):
+        self.recording = recording
+        self.tap = self                      # Topic.publish hands each message to tap.add_indexed
+
+    def index(self, name: str, relative: str) -> int:
+        return self.recording.add_topic(name, topics.CATALOGUE[relative].type, [qos_dict(publisher_qos(relative))])
+
+    def add_indexed(self, index: int, data: bytes, publish_time_ns: int) -> None:
+        self.recording.add(index, publish_time_ns, data)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> dict:
+        """recorder_node's summary: per topic the messages, and those with a new header
+        stamp (StampCounter over the messages in the order written, as the bag's)."""
+        connections = self.recording.connections
+        stamps = StampCounter(max(len(connections), 1))
+        for cid, _, raw in self.recording.written():
+            stamps.add_one(cid, record_stamp(raw))
+        names = [c.topic for c in connections]
+        return {"recorded": {c.topic: c.msgcount for c in connections},
+                "recorded_stamps": {c.topic: stamps.count(c.id) for c in connections},
+                "tapped": sorted(names), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
+
+    def abandon(self) -> None:
+        pass
