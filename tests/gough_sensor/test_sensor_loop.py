@@ -7,6 +7,7 @@ mis-calibrated sensor, refused poses, readings outside the travel and DKM failur
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -89,6 +90,10 @@ def true_poses(model, n):
             buf = buf[:-8]                                                                    # truncated
         elif k % 97 == 83:
             buf = enc.encode(1000 + (k - 1) * 1_000_000, position, q)                         # a repeat
+        elif k % 97 == 89:
+            buf = buf[:4] + struct.pack("<i", -1) + buf[8:]                                   # before 1970
+        elif k % 97 == 91:
+            buf = buf[:8] + struct.pack("<I", 1_000_000_000) + buf[12:]                       # nanosec of 1 s
         out.append(buf)
     return out
 
@@ -99,6 +104,10 @@ def test_the_compiled_reading_publishes_what_the_interpreted_one_did(noise, cali
     reference = GoughSensorModel(MET, noise_std_m=noise, seed=7, calibration_error_m=calibration)
     ports, expected = Ports(), Ports()
     loop = GoughSensorLoop(model, ports)
+    # the usual message is read from its bytes by one kernel (measure_message), the others decoded
+    from_bytes = []
+    measure_message = model.measure_message
+    model.measure_message = lambda *args: from_bytes.append(measure_message(*args)) or from_bytes[-1]
     counts = dict(refused=0, solved=0, failed=0)
     for buf in true_poses(model, 600):
         loop.on_true_pose(buf)
@@ -107,7 +116,10 @@ def test_the_compiled_reading_publishes_what_the_interpreted_one_did(noise, cali
     for k, (got, want) in enumerate(zip(ports.out, expected.out)):
         assert got == want, (k, got, want)
     assert {k: loop.counts[k] for k in counts} == counts
-    refused = sum(k % 97 in (13, 29, 41, 79) for k in range(600))
+    read = sum(ns is not None for ns in from_bytes)
+    assert read >= 550 and len(from_bytes) - read == sum(k % 97 in (13, 29, 89, 91) for k in range(600)), (
+        read, len(from_bytes))
+    refused = sum(k % 97 in (13, 29, 41, 79, 89, 91) for k in range(600))
     assert counts["refused"] == refused and counts["failed"] >= 6, counts    # each case was met
 
 

@@ -366,6 +366,7 @@ class JointStateEncoder:
             chunk, offset = _string_bytes(name, offset)
             middle += chunk
         fmt = ["<4siI", f"{len(middle)}s"]
+        self.offsets = {}                                 # field -> byte offset of its first double in a message
         for field in self.FIELDS:
             pad = _pad(offset, 4)
             fmt.append(f"{pad}xI")
@@ -373,6 +374,7 @@ class JointStateEncoder:
             if field in self.fields and self.n:
                 pad = _pad(offset, 8)
                 fmt.append(f"{pad}x{self.n}d")
+                self.offsets[field] = len(CDR_LE_HEADER) + offset + pad
                 offset += pad + 8 * self.n
         self._middle = middle
         self._struct = struct.Struct("".join(fmt))
@@ -391,6 +393,12 @@ class JointStateEncoder:
         self._count_values = tuple(count for _, count in self._count_index)
         self._array_getter = operator.itemgetter(*(slice(i + 1, i + 1 + count) for i, count in self._count_index))
         self.size = self._struct.size
+
+    def template(self) -> bytes:
+        """A message of this layout stamped 0 with zeros: what a kernel writes the stamp
+        and the arrays into (pkm_common.cdr_kernels, at ``offsets``)."""
+        zeros = [0.0] * self.n
+        return self.encode(0, *(zeros if field in self.fields else () for field in self.FIELDS))
 
     def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:
         """Bytes of the message; each array of ``fields`` must hold one value per name."""
@@ -420,6 +428,14 @@ class PoseStampedEncoder:
         self._struct = struct.Struct(f"<4siI{len(middle)}s{pad}x7d")
         self._middle = middle
         self.size = self._struct.size
+        # the byte offset of position then orientation, 7 doubles (pkm_common.cdr_kernels)
+        self.values_offset = len(CDR_LE_HEADER) + offset + pad
+
+    def matches(self, buf) -> bool:
+        """Whether ``buf`` is a message of this layout (its size, header and frame):
+        then its stamp and values are at fixed offsets."""
+        return len(buf) == self.size and buf[12:12 + len(self._middle)] == self._middle and \
+            buf[:4] == CDR_LE_HEADER
 
     def encode(self, stamp_ns: int, position, orientation) -> bytes:
         """``position`` (x, y, z) and ``orientation`` (x, y, z, w) as numbers."""

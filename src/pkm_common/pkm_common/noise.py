@@ -21,10 +21,14 @@ class NormalDraws:
         self.rng, self.std = rng, std
         self._block, self._at = np.zeros(0), 0
 
+    def peek(self, size: int) -> np.ndarray:
+        """The next ``size`` draws, still to be taken (``take`` gives them again)."""
+        if self._at + size > len(self._block):
+            self._block, self._at = self.std * self.rng.standard_normal(size * TAKES), 0
+        return self._block[self._at:self._at + size]
+
     def take(self, size: int) -> np.ndarray:
         """The next ``size`` draws."""
-        k = self._at
-        if k + size > len(self._block):
-            self._block, k = self.std * self.rng.standard_normal(size * TAKES), 0
-        self._at = k + size
-        return self._block[k:k + size]
+        draws = self.peek(size)
+        self._at += size
+        return draws

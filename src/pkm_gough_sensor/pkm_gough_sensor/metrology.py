@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from pkm_kinematics.config import GoughMetrologyConfig
+from pkm_common.cdr_kernels import STAMP_OK, copy_stamp, read_doubles, read_stamp, write_doubles
 from pkm_common.noise import NormalDraws
 from pkm_common.poses import QUATERNION_NORM_TOL, pose_components
 from pkm_kinematics.bars import COL_A, COL_B, FK_CONVERGED, STRUT, bar_rows, strut_lengths_kernel
@@ -179,7 +180,32 @@ def estimate_kernel(lengths, lo, hi, bars, state, flags, tol_m, max_iterations, 
     return code, iterations, evaluations, residual
 
 
+_MESSAGE = "Array(uint8, 1, 'C', readonly=True)"      # a received message's bytes (np.frombuffer)
+
+
+@kernel(f"({_MESSAGE}, int64, float64[::1], float64[:, :], float64[::1], float64[::1], float64, float64[::1], "
+        "uint8[::1], int64)")
+def measure_message_kernel(pose_msg, pose_at, fields, bars, true_out, noise, resolution, lengths, struts_msg,
+                           struts_at):
+    """true_lengths_kernel and readings_kernel of a true pose message's bytes (its 7
+    values at ``pose_at``, copied into ``fields``), the readings into ``lengths`` and,
+    with the message's stamp, into the bytes of a struts message (its positions at
+    ``struts_at``): (READ_OK, the stamp in ns), or (READ_REFUSED, 0) with nothing
+    written for a pose or a stamp the decoded path refuses."""
+    code, stamp_ns = read_stamp(pose_msg)
+    if code != STAMP_OK:
+        return READ_REFUSED, np.int64(0)
+    read_doubles(pose_msg, pose_at, fields, 7)
+    if true_lengths_kernel(fields, bars, true_out) != READ_OK:
+        return READ_REFUSED, np.int64(0)
+    readings_kernel(true_out, noise, resolution, lengths)
+    copy_stamp(pose_msg, struts_msg)
+    write_doubles(lengths, 6, struts_msg, struts_at)
+    return READ_OK, stamp_ns
+
+
 _true_lengths_call = direct_call(true_lengths_kernel)
+_measure_message_call = direct_call(measure_message_kernel)
 _readings_call = direct_call(readings_kernel)
 _estimate_call = direct_call(estimate_kernel)
 
@@ -378,6 +404,22 @@ class GoughSensorModel:
         noise = self._noise.take(6) if self.noise_std_m > 0.0 else self._no_noise
         _readings_call(self._true_out, noise, self.resolution_m, out)
         return True
+
+    def measure_message(self, pose_msg: np.ndarray, pose_at: int, fields: np.ndarray, lengths: np.ndarray,
+                        struts_msg: np.ndarray, struts_at: int) -> int | None:
+        """:meth:`measure_fields` of a true pose message's bytes (``pose_msg``, uint8, its
+        values at ``pose_at``; copied into ``fields``), the readings into ``lengths`` and
+        into the bytes of a struts message (``struts_msg``, its stamp and its positions at
+        ``struts_at``): the stamp in ns, or None, with no noise drawn and nothing
+        written, for a message the decoded path must take."""
+        noise = self._noise.peek(6) if self.noise_std_m > 0.0 else self._no_noise
+        code, stamp_ns = _measure_message_call(pose_msg, pose_at, fields, self._true_bars, self._true_out, noise,
+                                               self.resolution_m, lengths, struts_msg, struts_at)
+        if code != READ_OK:
+            return None
+        if self.noise_std_m > 0.0:
+            self._noise.take(6)
+        return stamp_ns
 
     def estimate_into(self, lengths: np.ndarray, pose: np.ndarray) -> GoughDKMResult | None:
         """:meth:`estimate` of readings ``lengths`` (6 float64), the tool pose into

@@ -98,6 +98,10 @@ class GoughSensorLoop:
         self._pose_decoder = PoseStampedDecoder("world", "platform/true_pose")
         # the compiled reading's arrays (GoughSensorModel.measure_fields, estimate_into)
         self._fields, self._lengths, self._pose = np.empty(7), np.empty(6), np.empty(7)
+        # a world-frame true pose's bytes straight to the struts' (GoughSensorModel.measure_message)
+        self._pose_layout = PoseStampedEncoder("world")
+        self._struts_msg = np.frombuffer(self._struts_encoder.template(), np.uint8).copy()
+        self._struts_at = self._struts_encoder.offsets["position"]
         # False: a shell whose metrology/pose nobody reads (a direct run without a
         # recording whose controller feeds back the struts, pkm_bringup.direct): the DKM is
         # not solved (its summary says so: dkm_run)
@@ -105,7 +109,13 @@ class GoughSensorLoop:
 
     def on_true_pose(self, buf: bytes) -> None:
         self.counts["received"] += 1
-        ns = -1
+        if self._pose_layout.matches(buf):         # the usual message: read and written by one kernel
+            ns = self.model.measure_message(np.frombuffer(buf, np.uint8), self._pose_layout.values_offset,
+                                            self._fields, self._lengths, self._struts_msg, self._struts_at)
+            if ns is not None:
+                self._measured(ns, self._lengths, self._struts_msg.tobytes())
+                return
+        ns = -1                                    # else decoded: a refusal named
         try:
             msg = self._pose_decoder.decode(buf)
             ns = msg.stamp_ns
@@ -120,14 +130,18 @@ class GoughSensorLoop:
             self.counts["refused"] += 1
             self.ports.error(f"true pose refused: {exc}", {"stamp_ns": ns})
             return
+        self._measured(ns, lengths, self._struts_encoder.encode(ns, position=lengths.tolist()))
+
+    def _measured(self, ns: int, lengths: np.ndarray, struts: bytes) -> None:
+        """The readings ``lengths`` of the true pose stamped ``ns`` (``struts``: their
+        message) published, then the DKM's pose."""
         self.counts["measured"] += 1
         published = self.published
         new_step = ns != self._last_stamp_ns      # counted once per step (not the discovery repeats)
         self._last_stamp_ns = ns
         # the readings first: a sensor-space controller waits for them, and the DKM
         # is then off its critical path; a measured-space one waits for the pose
-        values = lengths.tolist()
-        self.ports.publish_struts(self._struts_encoder.encode(ns, position=values))
+        self.ports.publish_struts(struts)
         published["metrology/struts"] += new_step
         if not self.solves_pose:
             return
@@ -141,7 +155,7 @@ class GoughSensorLoop:
             self.counts["failed"] += 1
             self.ports.error(f"DKM failed: {result.reason}", {
                 "stamp_ns": ns, "iterations": result.iterations,
-                "residual_m": result.residual_m, "lengths_m": values})
+                "residual_m": result.residual_m, "lengths_m": lengths.tolist()})
 
     def summary(self) -> dict:
         return {**self.counts, "dkm_run": self.solves_pose, "published": self.published}
