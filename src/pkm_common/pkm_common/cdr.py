@@ -327,8 +327,10 @@ class JointStateDecoder:
             values = lay._struct.unpack_from(buf)
             if values[0] == CDR_LE_HEADER and values[3] == lay._middle \
                     and lay._count_getter(values) == lay._count_values:
-                stamp = _stamp_ns(values[1], values[2], self.what)
-                return JointStateData(stamp, lay.frame_id, lay.names, *lay._array_getter(values))
+                sec, nanosec = values[1], values[2]
+                if sec < 0 or nanosec >= NS_PER_S:
+                    _stamp_ns(sec, nanosec, self.what)       # raises, naming it
+                return JointStateData(sec * NS_PER_S + nanosec, lay.frame_id, lay.names, *lay._array_getter(values))
         data = decode_joint_state(buf, self.what)
         n = len(data.name)
         fields = [f for f, values in zip(JointStateEncoder.FIELDS, data[3:]) if values]
@@ -393,6 +395,13 @@ class JointStateEncoder:
         self._count_values = tuple(count for _, count in self._count_index)
         self._array_getter = operator.itemgetter(*(slice(i + 1, i + 1 + count) for i, count in self._count_index))
         self.size = self._struct.size
+        # encode's one-pack forms (~0.3 us less than its loop): every field, or one (its
+        # index, the empty counts before and after it); else (-1) the loop
+        self._pack = self._struct.pack
+        one = [i for i, f in enumerate(self.FIELDS) if f in self.fields]
+        self._one = one[0] if len(one) == 1 and self.n else -1
+        self._around = ((0,) * self._one, (0,) * (len(self.FIELDS) - 1 - self._one)) if self._one >= 0 else None
+        self._every = len(one) == len(self.FIELDS) and self.n > 0
 
     def template(self) -> bytes:
         """A message of this layout stamped 0 with zeros: what a kernel writes the stamp
@@ -402,7 +411,20 @@ class JointStateEncoder:
 
     def encode(self, stamp_ns: int, position=(), velocity=(), effort=()) -> bytes:
         """Bytes of the message; each array of ``fields`` must hold one value per name."""
-        sec, nanosec = _split_stamp(stamp_ns)
+        sec, nanosec = divmod(stamp_ns, NS_PER_S)
+        if not 0 <= sec < 2**31:
+            _split_stamp(stamp_ns)                        # raises, naming it
+        n = self.n
+        try:
+            if self._every and len(position) == n and len(velocity) == n and len(effort) == n:
+                return self._pack(CDR_LE_HEADER, sec, nanosec, self._middle, n, *position, n, *velocity, n, *effort)
+            if self._one >= 0:
+                values = (position, velocity, effort)[self._one]
+                if len(values) == n:
+                    before, after = self._around
+                    return self._pack(CDR_LE_HEADER, sec, nanosec, self._middle, *before, n, *values, *after)
+        except struct.error as exc:
+            raise ValueError(f"JointState: {exc} (the arrays must hold numbers)") from None
         arrays = (position, velocity, effort)
         args = [CDR_LE_HEADER, sec, nanosec, self._middle]
         for i, field, count in self._plan:
@@ -439,7 +461,9 @@ class PoseStampedEncoder:
 
     def encode(self, stamp_ns: int, position, orientation) -> bytes:
         """``position`` (x, y, z) and ``orientation`` (x, y, z, w) as numbers."""
-        sec, nanosec = _split_stamp(stamp_ns)
+        sec, nanosec = divmod(stamp_ns, NS_PER_S)
+        if not 0 <= sec < 2**31:
+            _split_stamp(stamp_ns)                        # raises, naming it
         px, py, pz = position
         qx, qy, qz, qw = orientation
         return self._struct.pack(CDR_LE_HEADER, sec, nanosec, self._middle, px, py, pz, qx, qy, qz, qw)
@@ -459,7 +483,9 @@ class PoseStampedDecoder:
         if len(buf) == lay.size:
             v = lay._struct.unpack_from(buf)
             if v[0] == CDR_LE_HEADER and v[3] == lay._middle:
-                return PoseStampedData(_stamp_ns(v[1], v[2], self.what), self.frame_id, v[4:7], v[7:11])
+                if v[1] < 0 or v[2] >= NS_PER_S:
+                    _stamp_ns(v[1], v[2], self.what)         # raises, naming it
+                return PoseStampedData(v[1] * NS_PER_S + v[2], self.frame_id, v[4:7], v[7:11])
         return decode_pose_stamped(buf, self.what)
 
 
