@@ -209,7 +209,7 @@ class CompiledPrepare:
             *mass, *(value for part in plate for value in part), *md, *k, *dg], dtype=float)
         assert len(self.constants) == C_DRIVES + 3 * n
         self.modes = np.array([spheres, monitor is not None, self.desired, core.planar, n > 3, n], dtype=np.int64)
-        self.zeros = np.zeros(n)
+        self.zero_floats = (0.0,) * n
         self.no_gough = (np.zeros((GOUGH_STATE_ROWS, n)), np.zeros(n, dtype=np.int64))
         self.no_monitor = np.zeros((MONITOR_STATE_ROWS, n))
 
@@ -238,9 +238,10 @@ class CompiledPrepare:
                 or (monitor is not None and (not monitor.started or monitor.skip_set))
                 or (gough is not None and gough.skip_set) or guess is None or reference is None):
             return None                # not a usual cycle: a suspect to judge, a drive skipped, ...
-        zeros = self.zeros
-        io = np.array((q, qdot, applied if has_applied else zeros, core.last_command,
-                       zeros if pending is None else pending[0]), dtype=float)
+        # one array of the five rows' floats (a flat tuple: ~1 us less than five sequences)
+        zeros = self.zero_floats
+        io = np.array((*q, *qdot, *(applied if has_applied else zeros), *core.last_command,
+                       *(zeros if pending is None else pending[0].tolist())), dtype=float).reshape(5, n)
         t_s = stamp_ns * 1e-9
         dt = core.config.dt_s if t_s <= last_t else t_s - last_t
         tau = feed.advance(t_s)[0]     # at the nominal feed the same again if the cycle is interpreted
