@@ -16,7 +16,9 @@ Three recorders with one interface (``index``, ``tap``, ``flush``, ``close``):
 
 from __future__ import annotations
 
+import fcntl
 import os
+import pickle
 import signal
 import sys
 import threading
@@ -27,12 +29,14 @@ from pkm_common.qos import publisher_qos
 from pkm_recording.bag import BagWriter
 from pkm_recording.memory import MemoryRecording
 from pkm_recording.recording import qos_dict
-from pkm_recording.tap import StreamTap, split_batch
+from pkm_recording.tap import MAGIC, StreamTap, split_batch
 from pkm_recording.tap_records import StampCounter, record_stamp
 
 __all__ = ["MemoryRecorder", "Recorder", "RecorderProcess", "RecordingFailed", "bag_recorder", "may_fork"]
 
 CLOSE_TIMEOUT_S = 600.0       # the writer's last batch and the bag's summary
+F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)     # Linux's fcntl (Python 3.10+ names it)
+PIPE_BYTES = 1 << 20
 
 
 class RecordingFailed(RuntimeError):
@@ -115,31 +119,33 @@ def _portable(exc: BaseException) -> BaseException:
     return RecordingFailed(f"the bag's writer failed: {type(exc).__name__}: {exc}")
 
 
-def _serve(conn, output: str, compression: str) -> None:
-    """The writer process: ("topic", name, relative), ("batch", payload) and ("close",)
-    from the run, in order; it answers ("ready",) once the bag is open, the summary at
-    the close, or ("error", text) and ends. The end of the pipe (the run's process
-    gone) closes the bag as it is."""
+def _serve(batches, answers, output: str, compression: str) -> None:
+    """The writer process: from the run, in order, the tap's batches (their bytes) and
+    pickled ("topic", name, relative) and ("close",); it answers ("ready",) once the
+    bag is open, the summary at the close, or ("error", the error) and ends. The end
+    of the pipe (the run's process gone) closes the bag as it is."""
     bag = None
     try:
         bag = _BagSide(output, compression)
-        conn.send(("ready",))
+        answers.send(("ready",))
         while True:
             try:
-                message = conn.recv()
+                data = batches.recv_bytes()
             except EOFError:
                 break
-            if message[0] == "batch":
-                bag.write(message[1])
-            elif message[0] == "topic":
+            if data[:len(MAGIC)] == MAGIC:
+                bag.write(data)
+                continue
+            message = pickle.loads(data)
+            if message[0] == "topic":
                 bag.add_topic(message[1], message[2])
             else:
                 summary, bag = bag.close(), None
-                conn.send(("summary", summary))
+                answers.send(("summary", summary))
                 break
     except BaseException as exc:             # noqa: BLE001 - the writer's every failure, to the run
         try:
-            conn.send(("error", _portable(exc)))
+            answers.send(("error", _portable(exc)))
         except OSError:
             pass
     finally:
@@ -152,13 +158,15 @@ def _serve(conn, output: str, compression: str) -> None:
 
 class RecorderProcess:
     """:class:`Recorder` with the writing in a forked process of its own (module doc).
-    The pipe holds a batch or two at most (a send waits for the writer): memory stays
-    flat however long the run. A failure of the writer is raised, with its error, at
+    The pipe holds a batch or two at most (a send waits for the writer when it is
+    full): memory stays flat however long the run. A failure of the writer is raised, with its error, at
     the next batch or the close (:func:`_portable`)."""
 
     def __init__(self, output: str, compression: str):
         self.tap = StreamTap()
-        self.conn, child = Pipe()
+        batches, self.batches = Pipe(duplex=False)          # (reader, writer): to the writer
+        self.conn, answers = Pipe(duplex=False)             # from it
+        _widen(self.batches)
         for stream in (sys.stdout, sys.stderr):
             stream.flush()                   # nothing buffered written twice
         self.pid = os.fork()
@@ -167,11 +175,13 @@ class RecorderProcess:
             try:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)    # the run's process decides when it ends
                 self.conn.close()
-                _serve(child, output, compression)
+                self.batches.close()
+                _serve(batches, answers, output, compression)
                 code = 0
             finally:
                 os._exit(code)
-        child.close()
+        batches.close()
+        answers.close()
         self.closed = False
         self._answer("ready")
 
@@ -188,29 +198,30 @@ class RecorderProcess:
             raise message[1]
         return message[1] if len(message) > 1 else None
 
-    def _send(self, message: tuple) -> None:
+    def _send(self, data: bytes) -> None:
+        """A batch's bytes, or a pickled message (which cannot start as a batch does)."""
         if self.conn.poll():                 # the writer said something unasked: its error
             self._answer("")
         try:
-            self.conn.send(message)
+            self.batches.send_bytes(data)
         except OSError:
             self._answer("")                 # its error, or that it ended
             raise RecordingFailed("the bag's writer ended") from None
 
     def index(self, name: str, relative: str) -> int:
-        self._send(("topic", name, relative))
+        self._send(pickle.dumps(("topic", name, relative)))
         return self.tap.topic_index(name, topics.CATALOGUE[relative].type)
 
     def flush(self) -> None:
         payload = self.tap.take_payload()
         if payload is not None:
-            self._send(("batch", payload))
+            self._send(payload)
 
     def close(self) -> dict:
         """The last batch, the bag finalized by the writer; its summary."""
         try:
             self.flush()
-            self._send(("close",))
+            self._send(pickle.dumps(("close",)))
             return self._answer("summary")
         finally:
             self._reap()
@@ -223,8 +234,19 @@ class RecorderProcess:
         if self.closed:
             return
         self.closed = True
-        self.conn.close()                    # the writer's end of the pipe: it closes the bag and ends
+        self.batches.close()                 # the end of the writer's input: it closes the bag and ends
+        self.conn.close()
         os.waitpid(self.pid, 0)
+
+
+def _widen(connection) -> None:
+    """The pipe to the writer made to hold a batch or two (1 MiB, Linux's default
+    largest), so that a batch is handed over without waiting for the writer to wake;
+    left as it is where the system refuses."""
+    try:
+        fcntl.fcntl(connection.fileno(), F_SETPIPE_SZ, PIPE_BYTES)
+    except (OSError, AttributeError):
+        pass
 
 
 def may_fork() -> bool:
