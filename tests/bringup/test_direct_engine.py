@@ -180,3 +180,24 @@ def test_a_failed_run_kept_in_memory_leaves_its_bag(tmp_path):
                         run["published"])
     assert got.pop("bag") == "memory" and want.pop("bag").startswith(str(tmp_path / "run" / "bag"))
     assert got == want
+
+
+def test_the_pose_solved_beside_the_loop_is_recorded_as_the_loop_solves_it(tmp_path, monkeypatch):
+    """Recorded and not read by the controller (sensor-space control), the Gough's DKM
+    pose is solved by the bag's writer process (direct_beside): the same messages and
+    summaries as a run whose loop solves it (the bag written in the run's process)."""
+    s = load_scenario("archi_demo", {"duration_s": 0.4})
+    runs = {}
+    for fork in (True, False):
+        monkeypatch.setattr(direct_recording, "may_fork", lambda fork=fork: fork)
+        runs[fork] = run_scenario(s, tmp_path / str(fork), engine="direct", progress=False, report=False)
+        assert runs[fork]["status"] == "completed", runs[fork]["error"]
+    for topic in (topics.METROLOGY_POSE, topics.METROLOGY_STRUTS, topics.DIAGNOSTICS, topics.DRIVES_COMMAND):
+        beside, alone = ([bytes(raw) for _, _, raw in recorded_bytes(tmp_path / str(fork) / "bag", s.namespace,
+                                                                     (topic,))] for fork in (True, False))
+        assert beside == alone and (beside or topic == topics.DIAGNOSTICS), (topic, len(beside), len(alone))
+    sensor = runs[True]["summaries"]["gough_sensor"]
+    assert sensor == runs[False]["summaries"]["gough_sensor"] and sensor["dkm_run"], sensor
+    assert sensor["solved"] == sensor["published"]["metrology/pose"] == round(0.4 / s.dt_s) + 1, sensor
+    assert runs[True]["summaries"]["recorder"]["recorded"] == runs[False]["summaries"]["recorder"]["recorded"]
+    assert runs[True]["lost"] == {t: 0 for t in runs[True]["published"]}, runs[True]["lost"]

@@ -23,7 +23,8 @@ STEPS = 650                  # three whole batches of 200 and a last one at the 
 def _record(recorder) -> dict:
     """Two topics' messages through the recorder's tap, a batch every 200 steps."""
     state = recorder.index("/pkm/drives/state", topics.DRIVES_STATE)
-    command = recorder.index("/pkm/drives/command", topics.DRIVES_COMMAND)
+    recorder.start()                             # the writer forked once the run is wired
+    command = recorder.index("/pkm/drives/command", topics.DRIVES_COMMAND)     # a topic after the start
     states, commands = JointStateEncoder(["a", "b", "c"]), JointStateEncoder(["a", "b", "c"], fields=("effort",))
     for k in range(STEPS):
         stamp = k * 1_000_000
@@ -56,8 +57,10 @@ def test_a_refused_bag_path_is_a_value_error_of_the_run_and_no_process_is_left(t
     taken = tmp_path / "bag"
     taken.mkdir()
     (taken / "other.txt").write_text("someone's file")
+    recorder = RecorderProcess(str(taken), "lz4")
+    recorder.index("/pkm/drives/state", topics.DRIVES_STATE)
     with pytest.raises(ValueError, match="exists and is not empty"):
-        RecorderProcess(str(taken), "lz4")
+        recorder.start()
     with pytest.raises(ChildProcessError):
         os.waitpid(-1, os.WNOHANG)               # the writer was reaped: no child of this process left
 
@@ -65,6 +68,7 @@ def test_a_refused_bag_path_is_a_value_error_of_the_run_and_no_process_is_left(t
 def test_a_writer_that_died_fails_the_next_batch(tmp_path):
     recorder = RecorderProcess(str(tmp_path / "bag"), "lz4")
     index = recorder.index("/pkm/drives/state", topics.DRIVES_STATE)
+    recorder.start()
     os.kill(recorder.pid, signal.SIGKILL)
     assert recorder.conn.poll(10.0), "the writer's end of the pipe did not close"
     recorder.tap.add_indexed(index, JointStateEncoder(["a"]).encode(0, [0.0], [0.0], [0.0]), 1)
@@ -95,8 +99,10 @@ def test_a_process_with_threads_writes_its_bag_itself(tmp_path, monkeypatch):
         stop.set()
         other.join()
     assert isinstance(recorder, Recorder), recorder
+    recorder.start()
     recorder.close()
     monkeypatch.setattr(threading, "active_count", lambda: 1)      # pkm-run's process: one thread
     alone = bag_recorder(str(tmp_path / "alone"), "lz4")
     assert isinstance(alone, RecorderProcess), alone
+    alone.start()
     alone.close()

@@ -19,8 +19,9 @@ has their errors), and metrology/pose unless the controller feeds the Gough's po
 back (its DKM is then not solved: the sensor's summary says ``dkm_run: false``, its
 ``solved`` count is 0). The run directory is the same: params, summaries, run.json,
 the bag (rosbag2 MCAP through the recorder's own tap path, pkm_recording.tap,
-written by a process of its own as the graph's recorder is: direct_recording), so
-that pkm-report, pkm-replay and the DataFrames read it; or, for a study's run whose
+written by a process of its own as the graph's recorder is: direct_recording, which
+also solves the Gough's DKM pose where the controller does not read it:
+direct_beside), so that pkm-report, pkm-replay and the DataFrames read it; or, for a study's run whose
 bag would be removed once read, no bag: the messages kept in memory
 (pkm_recording.memory) and the metrics taken from them (run_scenario's
 ``recording``).
@@ -41,6 +42,7 @@ from pathlib import Path
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool, String
 
+from pkm_bringup.direct_beside import PoseBeside
 from pkm_bringup.direct_recording import MemoryRecorder, Recorder, RecorderProcess, bag_recorder
 from pkm_bringup.graph import RunFailed
 from pkm_bringup.scenario import START_TOPIC, Scenario, run_node_name, start_signal
@@ -297,8 +299,18 @@ class DirectRun:
             self.sim.cadences = ()                   # its diagnostics, their only side work here
         self.controller.publishes_reference = not self.unread(topics.CONTROLLER_REFERENCE)
         self.controller.publishes_status = not self.unread(topics.CONTROLLER_STATUS)
+        beside = None
         if sensor is not None:
             sensor.solves_pose = not self.unread(topics.METROLOGY_POSE)
+            if sensor.solves_pose and not self.topic(topics.METROLOGY_POSE).readers and \
+                    isinstance(self.recorder, RecorderProcess):
+                # recorded, not read: solved by the bag's writer, beside the loop (direct_beside)
+                beside = PoseBeside(sensor, lambda run: _SensorPorts(run, "gough_sensor"), self.topic_name)
+                sensor.solves_pose = False
+                self.summaries["gough_sensor"] = (self.summaries["gough_sensor"][0],
+                                                  lambda: _with_beside(sensor.summary(), self.recorder.work_summary))
+        if self.recorder is not None:
+            self.recorder.start(beside)
 
     def unread(self, relative: str) -> bool:
         """Whether nothing records or reads a topic of the run (once it is wired)."""
@@ -309,9 +321,12 @@ class DirectRun:
         """The run's topic of a catalogue name (made on first use)."""
         found = self.topics.get(relative)
         if found is None:
-            name = relative if relative.startswith("/") else f"{self.s.namespace.rstrip('/')}/{relative}"
-            found = self.topics[relative] = Topic(self.queue, self.recorder, name, relative)
+            found = self.topics[relative] = Topic(self.queue, self.recorder, self.topic_name(relative), relative)
         return found
+
+    def topic_name(self, relative: str) -> str:
+        """The full name of a topic of the catalogue in the run's namespace."""
+        return relative if relative.startswith("/") else f"{self.s.namespace.rstrip('/')}/{relative}"
 
     def after_step(self) -> None:
         self.steps_since_flush += 1
@@ -376,14 +391,33 @@ class DirectRun:
         try:
             if not self.sim.run.finished:
                 self.sim.write_summary()            # interrupted: what was done so far
-            for path, summary in self.summaries.values():
-                if path:
-                    write_summary(path, summary(), lambda text: self.log.line("direct", "ERROR", text))
-            if self.recorder is not None:
-                write_summary(self.params["recorder"]["summary_path"], self.recorder.close(),
+            recorded = None
+            try:
+                if self.recorder is not None:
+                    recorded = self.recorder.close()     # first: the work beside the loop is in its summary
+            finally:
+                work = getattr(self.recorder, "work_summary", None) or {}
+                for line in work.get("lines", ()):      # the failures solved beside the loop, in their order
+                    self.log.file.write(line + "\n")
+                if work.get("lines_dropped"):
+                    self.log.line("gough_sensor", "ERROR", f"... and {work['lines_dropped']} more lines like these")
+                for path, summary in self.summaries.values():
+                    if path:
+                        write_summary(path, summary(), lambda text: self.log.line("direct", "ERROR", text))
+            if recorded is not None:
+                write_summary(self.params["recorder"]["summary_path"], recorded,
                               lambda text: self.log.line("recorder", "ERROR", text))
         finally:
             self.log.file.close()
+
+
+def _with_beside(summary: dict, work: dict | None) -> dict:
+    """The sensor's summary with the DKM's counts of its copy beside the loop
+    (direct_beside.PoseBeside): as if its loop had solved them."""
+    if work is None:                             # the writer gave none (it failed): the loop's counts
+        return summary
+    return {**summary, "solved": work["solved"], "failed": work["failed"], "dkm_run": True,
+            "published": {**summary["published"], "metrology/pose": work["published_pose"]}}
 
 
 def run_direct(s: Scenario, run_dir: Path, params: dict, progress, codes: dict, interruption=None,

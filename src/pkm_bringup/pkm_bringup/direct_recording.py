@@ -23,6 +23,7 @@ import signal
 import sys
 import threading
 from multiprocessing.connection import Pipe
+from typing import Protocol
 
 from pkm_common import topics
 from pkm_common.qos import publisher_qos
@@ -32,7 +33,7 @@ from pkm_recording.recording import qos_dict
 from pkm_recording.tap import MAGIC, StreamTap, split_batch
 from pkm_recording.tap_records import StampCounter, record_stamp
 
-__all__ = ["MemoryRecorder", "Recorder", "RecorderProcess", "RecordingFailed", "bag_recorder", "may_fork"]
+__all__ = ["BatchWork", "MemoryRecorder", "Recorder", "RecorderProcess", "RecordingFailed", "bag_recorder", "may_fork"]
 
 CLOSE_TIMEOUT_S = 600.0       # the writer's last batch and the bag's summary
 F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)     # Linux's fcntl (Python 3.10+ names it)
@@ -103,6 +104,9 @@ class Recorder:
             self.bag.writer.close()
         return _summary(self.bag.writer, self.bag.stamps, self.bag.channels)
 
+    def start(self, work: None = None) -> None:
+        """Nothing to start: the bag is written here (no work beside the loop)."""
+
     def abandon(self) -> None:
         """The run was never wired: the bag closed as it is."""
         self.bag.writer.close()
@@ -119,14 +123,18 @@ def _portable(exc: BaseException) -> BaseException:
     return RecordingFailed(f"the bag's writer failed: {type(exc).__name__}: {exc}")
 
 
-def _serve(batches, answers, output: str, compression: str) -> None:
-    """The writer process: from the run, in order, the tap's batches (their bytes) and
-    pickled ("topic", name, relative) and ("close",); it answers ("ready",) once the
-    bag is open, the summary at the close, or ("error", the error) and ends. The end
-    of the pipe (the run's process gone) closes the bag as it is."""
+def _serve(batches, answers, output: str, compression: str, registered: list, work) -> None:
+    """The writer process: the topics ``registered`` before it started, then from the
+    run, in order, the tap's batches (their bytes) and pickled ("topic", name,
+    relative) and ("close",); each batch through ``work`` (BatchWork) if any, then
+    written. It answers ("ready",) once the bag is open, ("summary", the bag's, the
+    work's) at the close, or ("error", the error) and ends. The end of the pipe (the
+    run's process gone) closes the bag as it is."""
     bag = None
     try:
         bag = _BagSide(output, compression)
+        for name, relative in registered:
+            bag.add_topic(name, relative)
         answers.send(("ready",))
         while True:
             try:
@@ -134,6 +142,8 @@ def _serve(batches, answers, output: str, compression: str) -> None:
             except EOFError:
                 break
             if data[:len(MAGIC)] == MAGIC:
+                if work is not None:
+                    data = work.apply(data, bag.add_topic)
                 bag.write(data)
                 continue
             message = pickle.loads(data)
@@ -141,7 +151,7 @@ def _serve(batches, answers, output: str, compression: str) -> None:
                 bag.add_topic(message[1], message[2])
             else:
                 summary, bag = bag.close(), None
-                answers.send(("summary", summary))
+                answers.send(("summary", (summary, None if work is None else work.summary())))
                 break
     except BaseException as exc:             # noqa: BLE001 - the writer's every failure, to the run
         try:
@@ -156,14 +166,35 @@ def _serve(batches, answers, output: str, compression: str) -> None:
                 pass
 
 
+class BatchWork(Protocol):
+    """What the writer process does to each batch before it writes it
+    (RecorderProcess.start): work the loop does not wait for, done beside it."""
+
+    def apply(self, payload: bytes, add_topic) -> bytes:
+        """The batch to write (``add_topic(name, relative)``: a channel for a topic the
+        work adds)."""
+
+    def summary(self) -> dict:
+        """What the work did, returned by the close."""
+
+
 class RecorderProcess:
-    """:class:`Recorder` with the writing in a forked process of its own (module doc).
-    The pipe holds a batch or two at most (a send waits for the writer when it is
-    full): memory stays flat however long the run. A failure of the writer is raised, with its error, at
-    the next batch or the close (:func:`_portable`)."""
+    """:class:`Recorder` with the writing in a forked process of its own (module doc),
+    forked by :meth:`start` once the run is wired. The pipe holds a batch or two at
+    most (a send waits for the writer when it is full): memory stays flat however long
+    the run. A failure of the writer is raised, with its error, at the next batch or
+    the close (:func:`_portable`)."""
 
     def __init__(self, output: str, compression: str):
+        self.output, self.compression = output, compression
         self.tap = StreamTap()
+        self.registered: list[tuple[str, str]] = []     # (name, relative) before the start
+        self.pid = None
+        self.closed = False
+        self.work_summary = None
+
+    def start(self, work: BatchWork | None = None) -> None:
+        """Fork the writer (its copy of this process as it is now: ``work`` with it)."""
         batches, self.batches = Pipe(duplex=False)          # (reader, writer): to the writer
         self.conn, answers = Pipe(duplex=False)             # from it
         _widen(self.batches)
@@ -176,13 +207,12 @@ class RecorderProcess:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)    # the run's process decides when it ends
                 self.conn.close()
                 self.batches.close()
-                _serve(batches, answers, output, compression)
+                _serve(batches, answers, self.output, self.compression, self.registered, work)
                 code = 0
             finally:
                 os._exit(code)
         batches.close()
         answers.close()
-        self.closed = False
         self._answer("ready")
 
     def _answer(self, kind: str):
@@ -209,7 +239,10 @@ class RecorderProcess:
             raise RecordingFailed("the bag's writer ended") from None
 
     def index(self, name: str, relative: str) -> int:
-        self._send(pickle.dumps(("topic", name, relative)))
+        if self.pid is None:
+            self.registered.append((name, relative))
+        else:
+            self._send(pickle.dumps(("topic", name, relative)))
         return self.tap.topic_index(name, topics.CATALOGUE[relative].type)
 
     def flush(self) -> None:
@@ -218,22 +251,26 @@ class RecorderProcess:
             self._send(payload)
 
     def close(self) -> dict:
-        """The last batch, the bag finalized by the writer; its summary."""
+        """The last batch, the bag finalized by the writer; its summary (the work's:
+        ``work_summary``)."""
         try:
             self.flush()
             self._send(pickle.dumps(("close",)))
-            return self._answer("summary")
+            summary, self.work_summary = self._answer("summary")
+            return summary
         finally:
             self._reap()
 
     def abandon(self) -> None:
-        """The run was never wired: the writer closes the bag as it is and ends."""
+        """The run was never wired, or failed: the writer closes the bag as it is and ends."""
         self._reap()
 
     def _reap(self) -> None:
         if self.closed:
             return
         self.closed = True
+        if self.pid is None:                 # never started: no bag made
+            return
         self.batches.close()                 # the end of the writer's input: it closes the bag and ends
         self.conn.close()
         os.waitpid(self.pid, 0)
@@ -291,6 +328,9 @@ class MemoryRecorder:
         return {"recorded": {c.topic: c.msgcount for c in connections},
                 "recorded_stamps": {c.topic: stamps.count(c.id) for c in connections},
                 "tapped": sorted(names), "tap_errors": 0, "tap_batches": 0, "tap_lists": 0, "tap_forged": 0}
+
+    def start(self, work: None = None) -> None:
+        """Nothing to start (no work beside the loop)."""
 
     def abandon(self) -> None:
         pass

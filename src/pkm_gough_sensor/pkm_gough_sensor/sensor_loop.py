@@ -143,8 +143,15 @@ class GoughSensorLoop:
         # is then off its critical path; a measured-space one waits for the pose
         self.ports.publish_struts(struts)
         published["metrology/struts"] += new_step
-        if not self.solves_pose:
-            return
+        if self.solves_pose:
+            self.solve_pose(ns, lengths, new_step)
+
+    def solve_pose(self, ns: int, lengths: np.ndarray, new_step: bool) -> None:
+        """The DKM pose of the readings ``lengths`` (stamped ``ns``; ``new_step``: not a
+        repeat of the last stamp) published, or its failure reported. A direct run has
+        it solved beside its loop, where the loop does not read the pose
+        (pkm_bringup.direct_beside), by a copy of this sensor: the same poses in turn."""
+        published = self.published
         result = self.model.estimate_into(lengths, self._pose)
         if result is None:
             published["metrology/pose"] += new_step
