@@ -1,15 +1,18 @@
 """The recording of a direct run (pkm_bringup.direct): the bag the graph's recorder
 writes, or a study's messages kept in memory.
 
-Three recorders with one interface (``index``, ``tap``, ``flush``, ``close``):
+Three recorders with one interface (``index``, ``tap``, ``start`` once the run is
+wired, ``flush``, ``close``, ``abandon``):
 
 - :class:`Recorder`: the bag written in the run's process (one tap,
   pkm_recording.tap, a batch at a time in one compiled pass).
 - :class:`RecorderProcess`: the same writer in a process of its own, as the graph's
   recorder is: the run's process hands it the tap's batches through a pipe and goes
-  on while it compresses and writes (~6 % of a recorded ARCHI step). Used where the
-  run's process may fork safely (one thread: pkm-run); elsewhere (a Dask worker's
-  threads) :func:`bag_recorder` gives the in-process one. The bag is the same bytes.
+  on while it compresses and writes (~6 % of a recorded ARCHI step). Forked once the
+  run is wired, it may also do work beside the loop on each batch (``BatchWork``:
+  pkm_bringup.direct_beside). Used where the run's process may fork safely (one
+  thread: pkm-run); elsewhere (a Dask worker's threads) :func:`bag_recorder` gives
+  the in-process one. The bag is the same bytes.
 - :class:`MemoryRecorder`: no bag, the messages kept in memory
   (pkm_recording.memory: a study's run whose bag would be removed once read).
 """
@@ -180,10 +183,11 @@ class BatchWork(Protocol):
 
 class RecorderProcess:
     """:class:`Recorder` with the writing in a forked process of its own (module doc),
-    forked by :meth:`start` once the run is wired. The pipe holds a batch or two at
-    most (a send waits for the writer when it is full): memory stays flat however long
-    the run. A failure of the writer is raised, with its error, at the next batch or
-    the close (:func:`_portable`)."""
+    forked by :meth:`start` once the run is wired (the topics indexed before are
+    registered then). The pipe holds a batch or two at most (a send waits for the
+    writer when it is full): memory stays flat however long the run. A failure of
+    the writer is raised, with its error, at the start, the next batch or the close
+    (:func:`_portable`)."""
 
     def __init__(self, output: str, compression: str):
         self.output, self.compression = output, compression
