@@ -106,3 +106,15 @@ def test_a_process_with_threads_writes_its_bag_itself(tmp_path, monkeypatch):
     assert isinstance(alone, RecorderProcess), alone
     alone.start()
     alone.close()
+
+
+def test_the_writer_outlives_signals_to_the_run_s_group_and_ends_with_the_run(tmp_path):
+    """A terminal's Ctrl-C or a kill of the run's process group reaches the writer too:
+    it ignores them, and the run's process, which decides, closes the bag through it."""
+    recorder = RecorderProcess(str(tmp_path / "bag"), "lz4")
+    index = recorder.index("/pkm/drives/state", topics.DRIVES_STATE)
+    recorder.start()
+    for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        os.kill(recorder.pid, number)
+    recorder.tap.add_indexed(index, JointStateEncoder(["a"]).encode(5, [1.0], [0.0], [0.0]), 1)
+    assert recorder.close()["recorded"] == {"/pkm/drives/state": 1}

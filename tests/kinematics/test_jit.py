@@ -171,9 +171,17 @@ with tempfile.TemporaryDirectory() as tmp:
     s = load_scenario("archi_demo", {"duration_s": 0.2, "record": False})
     status["archi_demo interpreted"] = run_scenario(s, Path(tmp) / "interpreted", progress=False, report=False,
                                                     engine="direct")["status"]
-# the two no run reaches here: a strut machine's warm forward kinematics, and the Gough's
-# DKM outside the sensor's fused reading (its interpreted path, tools)
-from pkm_common.poses import machine_pose_components, pose_from_components
+    # recorded with the bag written in this process: the Gough's DKM solved in the loop
+    # (a process of one thread solves it in the bag's writer, whose calls are not counted here)
+    from pkm_bringup import direct_recording
+    direct_recording.may_fork = lambda: False
+    s = load_scenario("archi_demo", {"duration_s": 0.2, "record": True})
+    status["archi_demo bag here"] = run_scenario(s, Path(tmp) / "here", progress=False, report=False,
+                                                 engine="direct")["status"]
+# what no run reaches here: a strut machine's warm forward kinematics, the Gough's
+# DKM outside the sensor's fused reading (its interpreted path, tools), and the compiled
+# reading of a true pose decoded (one the kernel of its bytes does not read: another frame)
+from pkm_common.poses import machine_pose_components, pose_components, pose_from_components
 from pkm_gough_sensor.metrology import GoughSensorModel
 from pkm_kinematics import load_machine
 from pkm_kinematics.struts import StrutFK
@@ -183,6 +191,9 @@ archi = load_machine("archi")
 sensor = GoughSensorModel(archi.metrology)
 pose = pose_from_components(*machine_pose_components(archi.model.task_space, archi.model.home.tolist()))
 sensor.estimate(sensor.measure(*pose))
+import numpy as np
+fields = np.array([*pose[0], *pose_components(*pose)[1]], dtype=float)
+sensor.measure_fields(fields, np.empty(6))
 print(json.dumps({"status": status, "checked": jit.CHECKED}))
 """
 
@@ -201,14 +212,16 @@ def test_every_direct_call_of_the_loops_gets_its_declared_types():
                           env=env, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     out = json.loads(done.stdout.strip().splitlines()[-1])
-    assert out["status"] == {name: "completed" for name in [*scenarios, "archi_demo interpreted"]}, out
+    assert out["status"] == {name: "completed" for name in [*scenarios, "archi_demo interpreted",
+                                                            "archi_demo bag here"]}, out
     reached = {"planar_encoder_state_kernel", "spheres_encoder_state_kernel", "sensor_space_desired_kernel",
                "rail_gough_check_kernel", "innovation_kernel", "rail_step_kernel",
                "strut_dynamics_step_kernel", "strut_outputs_kernel", "true_lengths_kernel", "readings_kernel",
                "estimate_kernel", "dkm_solve_kernel", "sensor_space_command_kernel", "cartesian_command_kernel"}
-    reached |= {"forward_kinematics_warm_kernel", "prepare_kernel", "complete_kernel", "sample_reference_kernel"}
+    reached |= {"forward_kinematics_warm_kernel", "prepare_kernel", "complete_kernel", "sample_reference_kernel",
+                "measure_message_kernel"}
     assert reached <= set(out["checked"]), sorted(reached - set(out["checked"]))
-    assert len(reached) == 18
+    assert len(reached) == 19
     sites = {line.split("direct_call(")[1].split(")")[0].split(".")[-1]
              for path in (Path(__file__).resolve().parents[2] / "src").glob("pkm_*/pkm_*/*.py")
              for line in path.read_text().splitlines() if "= direct_call(" in line}

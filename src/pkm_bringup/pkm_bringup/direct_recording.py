@@ -208,7 +208,8 @@ class RecorderProcess:
         if self.pid == 0:                    # the writer: it ends with os._exit, never returns
             code = 1
             try:
-                signal.signal(signal.SIGINT, signal.SIG_IGN)    # the run's process decides when it ends
+                for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                    signal.signal(number, signal.SIG_IGN)   # the run's process decides when it ends (EOF)
                 self.conn.close()
                 self.batches.close()
                 _serve(batches, answers, self.output, self.compression, self.registered, work)
