@@ -57,19 +57,26 @@ def closed_loop(workers: int, runs: int, duration_s: float, engine: str = "graph
         outcome = run_study(load_study(path), Path(tmp) / "out", workers=workers, progress=False)
         wall = time.monotonic() - start
     table = outcome["table"]
-    done = [t for t, _ in outcome["finished_at"]]
+    # the rows come a task at a time (a batch of runs where the study makes batches:
+    # study_engine.runs_per_task): the rate is of the runs after the first task's, over
+    # the time from its end to the last one's
+    batches = outcome["batches"]
     task_of = dict(zip(table["key"], table["run.task_s"]))
     task = list(task_of.values())
-    out = {"engine": engine, "workers": workers, "runs": len(table),
+    first, last = batches[0][0], batches[-1][0]
+    out = {"engine": engine, "workers": workers, "runs": len(table), "per_task": max(n for _, n in batches),
            "failed": int((table["run.status"] == "failed").sum()),
-           "wall_s": wall, "startup_s": done[0] - outcome["started"] - statistics.median(task),
+           "wall_s": wall, "startup_s": first - outcome["started"] - batches[0][1] * statistics.median(task),
            "task_s": statistics.median(task),
-           "per_hour": (len(done) - 1) / (done[-1] - done[0]) * 3600 if len(done) > 1 else float("nan")}
-    if workers == 1 and len(done) > 2:
-        # with one worker the runs follow one another: between two rows, the second run
-        # and what the study adds to it
-        intervals = [b - a for a, b in zip(done, done[1:])]
-        overheads = [i - task_of[key] for i, (_, key) in zip(intervals, outcome["finished_at"][1:])]
+           "per_hour": sum(n for _, n in batches[1:]) / (last - first) * 3600 if len(batches) > 1 else float("nan")}
+    if workers == 1 and len(batches) > 2:
+        # with one worker the tasks follow one another: between two, the second one's
+        # runs and what the study adds to them, per run
+        keys = [key for _, key in outcome["finished_at"]]
+        overheads, at = [], batches[0][1]
+        for (a, _), (b, n) in zip(batches, batches[1:]):
+            overheads.append((b - a - sum(task_of[k] for k in keys[at:at + n])) / n)
+            at += n
         out["overhead_s"] = statistics.median(overheads)
         out["overhead_share"] = out["overhead_s"] / out["task_s"]
     return out

@@ -448,3 +448,59 @@ def test_a_study_of_metrics_rows_keeps_the_status_and_its_metrics_only(tmp_path)
     assert list(table.columns) == study.row_columns(row)
     with pytest.raises(StudyError, match="rows: must be one of all, metrics"):
         load_study(_study(tmp_path, rows="some"), check=False)
+
+
+def test_short_direct_runs_go_to_the_workers_in_batches(tmp_path):
+    """runs_per_task: up to RUNS_PER_TASK short direct runs a task, at least four tasks
+    per worker; one run a task on a user's scheduler, for the graph, for long runs and
+    for a handful of runs. A batch Dask gave up on is told apart (its runs are then
+    tried one per task)."""
+    from types import SimpleNamespace
+
+    from distributed import KilledWorker
+    from pkm_studies.study_engine import RUNS_PER_TASK, _results_of, runs_per_task
+    study = load_study(_study(tmp_path, set={"duration_s": 1.0}, sample={"runs": 100, "parameters": {
+        "dt_s": {"distribution": "uniform", "low": 0.001, "high": 0.002}}}), check=False)
+    runs = study.runs()
+    assert runs_per_task(study, runs, 1, None) == RUNS_PER_TASK == 8
+    assert runs_per_task(study, runs[:40], 2, None) == 5 and runs_per_task(study, runs[:12], 1, None) == 3
+    assert runs_per_task(study, runs[:7], 1, None) == 1                        # a handful
+    assert runs_per_task(study, runs, 1, "tcp://127.0.0.1:8786") == 1            # a user's scheduler
+    study.engine = "graph"
+    assert runs_per_task(study, runs, 1, None) == 1
+    study.engine = ""
+    long = load_study(_study(tmp_path, set={"duration_s": 20.0}, sample={"runs": 100, "parameters": {
+        "dt_s": {"distribution": "uniform", "low": 0.001, "high": 0.002}}}), check=False)
+    assert runs_per_task(long, long.runs(), 1, None) == 1
+
+    class Done:
+        def __init__(self, error=None, value=None):
+            self.error, self.value = error, value
+
+        def result(self):
+            if self.error is not None:
+                raise self.error
+            return self.value
+    assert _results_of(Done(value=[{"a": 1}])) == ([{"a": 1}], "", False)
+    results, why, killed = _results_of(Done(KilledWorker("pkm-study-x", SimpleNamespace(address="tcp://w"), 3)))
+    assert results is None and killed and "pkm-study-x" in why
+    results, why, killed = _results_of(Done(RuntimeError("all 119 ROS domain IDs")))
+    assert results is None and not killed and "RuntimeError" in why
+
+
+@pytest.mark.slow
+def test_a_study_in_batches_has_the_rows_of_one_run_a_task(tmp_path, monkeypatch):
+    """The same study run in batches (RUNS_PER_TASK) and one run a task: the same rows."""
+    from pkm_studies import study_engine
+    path = tmp_path / "batch.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "name": "batch", "set": {"duration_s": 0.05, "record": False},
+                                    "sample": {**TINY["sample"], "runs": 8}}), encoding="utf-8")
+    tables = {}
+    for per_task in (8, 1):
+        monkeypatch.setattr(study_engine, "RUNS_PER_TASK", per_task)
+        outcome = study_engine.run_study(load_study(path), tmp_path / str(per_task), workers=1, progress=False)
+        assert max(n for _, n in outcome["batches"]) == (4 if per_task == 8 else 1), outcome["batches"]
+        tables[per_task] = outcome["table"].set_index("key").sort_index()
+    columns = ["run.status", "controller.max_tracking_error_m", "controller.cycles", "sim_hw.steps"]
+    assert len(tables[8]) == 16 and set(tables[8]["run.status"]) == {"completed"}
+    pd.testing.assert_frame_equal(tables[8][columns], tables[1][columns])

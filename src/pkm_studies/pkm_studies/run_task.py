@@ -67,6 +67,12 @@ def execute_run(task: RunTask) -> dict:
         return {**metrics, **where, "run.task_s": time.monotonic() - start}
 
 
+def execute_runs(tasks: list[RunTask]) -> list[dict]:
+    """:func:`execute_run` of each task in turn, their metrics: a batch of short runs
+    in one Dask task (study_engine.runs_per_task), whose cost is paid once a batch."""
+    return [execute_run(task) for task in tasks]
+
+
 def _quiet_nodes() -> None:
     # the nodes run in the worker: a thousand runs' lines, trips included, would bury the
     # progress bar; each row has the run's status, cause and reason (run.*)
