@@ -24,6 +24,7 @@ from pkm_bringup.scenario import load_scenario
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 ONSET_S = 0.4                 # simulated time of every fault
+GRAPH_CHECKED = ("goal", "program")     # the controller sees no message of these: only the graph's publishers
 HOLD_BOUND_M = 1e-5           # the tool after the stop (brakes on)
 FOLLOW_BOUND_M = 1e-3         # the tool's distance to its reference at the stop
 
@@ -252,6 +253,13 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     row = {"fault": case, "detection_ms": round((stop_ns * 1e-9 - onset_s) * 1e3, 1),
            "error_at_stop_um": round(error * 1e6, 1), "motion_after_stop_um": round(held * 1e6, 3),
            "cause": run["cause"], "reason": run["trip_reason"]}
+    if action in GRAPH_CHECKED:
+        # found by the controller's queries of the graph, on the wall clock (a command
+        # topic every COMMAND_CHECK_S in turn, after DDS discovery): the lockstep run goes
+        # faster than real time, so its simulated figure grows with the loop's speed
+        # (515 ms once: ~100 ms of wall time); its bound is on the wall time
+        sim_per_wall_s = run["summaries"]["sim_hw"]["steps_per_s"] * s.dt_s
+        row["detection_wall_ms"] = round(row["detection_ms"] / sim_per_wall_s, 1)
     _row(row)
     # deterministic to the stop and past it: every recorded command recomputed offline
     from pkm_runs.replay import replay_controller
@@ -259,7 +267,7 @@ def test_fault_campaign(tmp_path, case, scenario, faults, action, cause, named):
     assert replayed.ok and replayed.compared >= round(ONSET_S / 0.001), replayed
     assert held < HOLD_BOUND_M, row
     assert error < FOLLOW_BOUND_M, row
-    assert row["detection_ms"] < 500.0, row
+    assert (row["detection_wall_ms"] if action in GRAPH_CHECKED else row["detection_ms"]) < 500.0, row
 
 
 def _row(row: dict) -> None:
