@@ -284,8 +284,13 @@ def run_processes(s: Scenario, run_dir: Path, params: dict, progress: Progress, 
             progress.update(monitor.sim_time_s)
             if finished_wall == math.inf and (monitor.sim_finished or summary_written(sim_summary)):
                 finished_wall = time.monotonic()
+                # the loop is over: the recorder's idle priority would starve the last
+                # batches, which the nodes now wait for it to take (node_tap.close: 2 s);
+                # on a loaded machine an idle recorder took none of the plant's last batch
+                if "recorder" in nodes:
+                    normal_cpu_priority(nodes["recorder"].popen.pid)
         progress.update(s.duration_s)
-        if "recorder" in nodes:       # the loop is over: its idle priority would starve the last batches
+        if "recorder" in nodes:       # (if the plant ended without saying so)
             normal_cpu_priority(nodes["recorder"].popen.pid)
         # stop the loop's nodes at once (their watchdogs would report the silent
         # plant), then give the recorder time for the last messages
