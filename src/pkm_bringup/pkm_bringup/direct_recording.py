@@ -104,8 +104,8 @@ class Recorder:
         try:
             self.flush()
         finally:
-            self.bag.writer.close()
-        return _summary(self.bag.writer, self.bag.stamps, self.bag.channels)
+            summary = self.bag.close()
+        return summary
 
     def start(self, work: None = None) -> None:
         """Nothing to start: the bag is written here (no work beside the loop)."""

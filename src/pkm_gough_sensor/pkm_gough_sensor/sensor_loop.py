@@ -98,8 +98,8 @@ class GoughSensorLoop:
         self._pose_decoder = PoseStampedDecoder("world", "platform/true_pose")
         # the compiled reading's arrays (GoughSensorModel.measure_fields, estimate_into)
         self._fields, self._lengths, self._pose = np.empty(7), np.empty(6), np.empty(7)
-        # a world-frame true pose's bytes straight to the struts' (GoughSensorModel.measure_message)
-        self._pose_layout = PoseStampedEncoder("world")
+        # a world-frame true pose's bytes (the layout of _pose_encoder's messages) straight to the
+        # struts' (GoughSensorModel.measure_message)
         self._struts_msg = np.frombuffer(self._struts_encoder.template(), np.uint8).copy()
         self._struts_at = self._struts_encoder.offsets["position"]
         # False: a shell whose metrology/pose nobody reads (a direct run without a
@@ -109,8 +109,8 @@ class GoughSensorLoop:
 
     def on_true_pose(self, buf: bytes) -> None:
         self.counts["received"] += 1
-        if self._pose_layout.matches(buf):         # the usual message: read and written by one kernel
-            ns = self.model.measure_message(np.frombuffer(buf, np.uint8), self._pose_layout.values_offset,
+        if self._pose_encoder.matches(buf):        # the usual message: read and written by one kernel
+            ns = self.model.measure_message(np.frombuffer(buf, np.uint8), self._pose_encoder.values_offset,
                                             self._fields, self._lengths, self._struts_msg, self._struts_at)
             if ns is not None:
                 self._measured(ns, self._lengths, self._struts_msg.tobytes())
